@@ -1,0 +1,31 @@
+"""Forward models: the GPI hysteresis model of the seed paper, its input, and physical effects.
+
+Pure and vectorised: no I/O, no plotting.
+"""
+
+from .gpi import GPI_PARAMETERS, READINGS, TABLE1, THETA_NAMES, classical_pi, envelope, gpi, gpi_masked
+from .parameters import Parameter, ParameterSet
+from .composite import EFFECTS, Effect, Model, get_effect, register_effect
+from . import effects as _effects  # noqa: F401  (fills EFFECTS)
+from .signals import INPUT_READINGS, QUIET_SECONDS, paper_current
+
+__all__ = [
+    "gpi",
+    "gpi_masked",
+    "classical_pi",
+    "envelope",
+    "paper_current",
+    "THETA_NAMES",
+    "TABLE1",
+    "GPI_PARAMETERS",
+    "READINGS",
+    "INPUT_READINGS",
+    "QUIET_SECONDS",
+    "Model",
+    "Effect",
+    "EFFECTS",
+    "get_effect",
+    "register_effect",
+    "Parameter",
+    "ParameterSet",
+]

@@ -1,0 +1,314 @@
+"""The GPI model plus any subset of physical effects, as one vectorised forward model.
+
+An :class:`Effect` is a small piece of the signal chain with named parameters. It acts
+at one of three stages:
+
+``"input"``
+    transforms the drive current before the hysteresis (e.g. ``lag``):
+    :meth:`Effect.drive` returns the per-parameter-set drive, shape ``(W, T)``.
+``"state"``
+    sets the operators' initial memory (e.g. ``initial_state``):
+    :meth:`Effect.initial_memory` returns shape ``(W,)``.
+``"output"``
+    transforms the displacement after the hysteresis (e.g. ``creep``, ``thermal``,
+    ``sensor_drift``): :meth:`Effect.output` returns shape ``(W, T)``.
+
+Effects register themselves by name in :data:`EFFECTS` (see :mod:`model.effects`).
+A :class:`Model` applies its effects in the library's canonical order (input stage,
+then state, then output, each in registration order), so ``thermal,creep`` and
+``creep,thermal`` are the same model. Models compose with ``+``::
+
+    Model() + "lag" + "thermal"      # == Model(["lag", "thermal"])
+
+Every effect has parameter values (:attr:`Effect.off`) at which the model equals the
+plain GPI exactly, and :meth:`Effect.get_test_parameters` giving a typical "on"
+setting, so the test suite can iterate over the whole library.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from .gpi import GPI_PARAMETERS, READINGS, THETA_NAMES, gpi_masked
+from .parameters import ParameterSet
+
+__all__ = ["Effect", "Model", "EFFECTS", "register_effect", "get_effect", "STAGES"]
+
+STAGES = ("input", "state", "output")
+
+#: name -> Effect subclass, in registration (canonical) order.
+EFFECTS: dict[str, type["Effect"]] = {}
+
+
+def register_effect(cls):
+    """Class decorator: add an :class:`Effect` subclass to :data:`EFFECTS` under ``cls.name``."""
+    if not (isinstance(cls, type) and issubclass(cls, Effect)):
+        raise TypeError("register_effect expects an Effect subclass")
+    if cls.name in EFFECTS and EFFECTS[cls.name] is not cls:
+        raise ValueError(f"an effect named {cls.name!r} is already registered")
+    if cls.stage not in STAGES:
+        raise ValueError(f"effect {cls.name!r}: stage must be one of {STAGES}, got {cls.stage!r}")
+    prefix = cls.name + "_"
+    for p in cls.parameters:
+        if not p.name.startswith(prefix):
+            raise ValueError(f"effect {cls.name!r}: parameter {p.name!r} must start with {prefix!r}")
+    missing = set(cls.parameters.names) ^ set(cls.off)
+    if missing:
+        raise ValueError(f"effect {cls.name!r}: 'off' must give exactly one value per parameter (mismatch: {sorted(missing)})")
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+def get_effect(name: str) -> "Effect":
+    """An instance of the registered effect ``name`` (clear error listing the known names)."""
+    if isinstance(name, Effect):
+        return name
+    try:
+        return EFFECTS[name]()
+    except KeyError:
+        raise ValueError(f"unknown effect {name!r}; the library has: {', '.join(EFFECTS) or '(none loaded)'}") from None
+
+
+class Effect:
+    """Base class of a physical effect; see the module docstring for the protocol.
+
+    Subclasses set the class attributes and implement the method of their stage.
+    ``params`` arguments are arrays of shape ``(W, k)`` with the effect's ``k``
+    parameters as columns, in :attr:`parameters` order.
+    """
+
+    name: ClassVar[str] = ""
+    stage: ClassVar[str] = ""
+    #: the effect's parameters; names start with ``name + "_"``
+    parameters: ClassVar[ParameterSet] = ParameterSet(())
+    #: parameter values at which the model is exactly the plain GPI
+    off: ClassVar[dict[str, float]] = {}
+    #: one line: what physics this represents, with its equation
+    summary: ClassVar[str] = ""
+
+    def drive(self, params, time, current):  # pragma: no cover - protocol
+        """Stage ``"input"``: drive seen by the hysteresis, shape ``(W, T)`` [A]."""
+        raise NotImplementedError
+
+    def initial_memory(self, params):  # pragma: no cover - protocol
+        """Stage ``"state"``: the operators' initial memory level, shape ``(W,)``."""
+        raise NotImplementedError
+
+    def output(self, params, time, current, displacement):  # pragma: no cover - protocol
+        """Stage ``"output"``: displacement after the effect, shape ``(W, T)`` [um]."""
+        raise NotImplementedError
+
+    @classmethod
+    def get_test_parameters(cls) -> dict[str, float]:
+        """A typical "on" setting, within bounds, that visibly changes the output."""
+        raise NotImplementedError(f"effect {cls.name!r} must define get_test_parameters()")
+
+    def __repr__(self):
+        return f"{type(self).__name__}()"
+
+
+class Model:
+    """The GPI of :mod:`model.gpi` plus physical effects.
+
+    Parameters
+    ----------
+    effects : sequence of str or Effect, default ()
+        Effects to add, by name (see :data:`EFFECTS`). Order does not matter.
+    n_operators : int, default 12
+        Number of play operators.
+    reading : {"swapped", "literal"}, default "swapped"
+        Reading of the paper's eqs. (5)-(7); see :mod:`model.gpi`.
+    gpi_parameters : ParameterSet, optional
+        Override the GPI parameters' defaults/bounds (e.g. pinned by a normalisation).
+
+    The full parameter vector is the 19 GPI parameters (Table 1 order) followed by
+    each effect's parameters in canonical order: :attr:`names`.
+    """
+
+    def __init__(self, effects=(), n_operators=12, reading="swapped", gpi_parameters=None):
+        if reading not in READINGS:
+            raise ValueError(f"reading must be one of {sorted(READINGS)}, got {reading!r}")
+        if isinstance(effects, (str, Effect)):
+            effects = [effects]
+        instances = {}
+        for e in effects:
+            inst = get_effect(e)
+            if inst.name in instances:
+                raise ValueError(f"effect {inst.name!r} is given twice")
+            instances[inst.name] = inst
+        order = list(EFFECTS)
+        stage_rank = {s: i for i, s in enumerate(STAGES)}
+        self.effects = tuple(
+            sorted(instances.values(), key=lambda e: (stage_rank[e.stage], order.index(e.name) if e.name in order else 0))
+        )
+        self.n_operators = int(n_operators)
+        self.reading = reading
+        gpi_params = GPI_PARAMETERS if gpi_parameters is None else ParameterSet(gpi_parameters)
+        if gpi_params.names != THETA_NAMES:
+            raise ValueError("gpi_parameters must hold the 19 GPI parameters in Table 1 order")
+        # ParameterSet refuses clashing names between effects.
+        self.parameters = ParameterSet(list(gpi_params) + [p for e in self.effects for p in e.parameters])
+        self._slices = {}
+        start = len(THETA_NAMES)
+        for e in self.effects:
+            self._slices[e.name] = slice(start, start + len(e.parameters))
+            start += len(e.parameters)
+
+    # -- description -------------------------------------------------------------
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.parameters.names
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.effects)
+
+    @property
+    def n_parameters(self) -> int:
+        return len(self.parameters)
+
+    def __repr__(self):
+        return f"Model(effects={list(self.effect_names)}, n_operators={self.n_operators}, reading={self.reading!r})"
+
+    def __eq__(self, other):
+        return (
+            isinstance(other, Model)
+            and self.effect_names == other.effect_names
+            and self.n_operators == other.n_operators
+            and self.reading == other.reading
+            and self.parameters == other.parameters
+        )
+
+    def __add__(self, effect):
+        if isinstance(effect, (list, tuple)):
+            extra = list(effect)
+        else:
+            extra = [effect]
+        return Model(list(self.effects) + extra, self.n_operators, self.reading, self.parameters[: len(THETA_NAMES)])
+
+    def to_dict(self) -> dict:
+        """JSON-ready description (effects, operators, reading)."""
+        return {"effects": list(self.effect_names), "n_operators": self.n_operators, "reading": self.reading}
+
+    @classmethod
+    def from_dict(cls, d) -> "Model":
+        return cls(d.get("effects", ()), d.get("n_operators", 12), d.get("reading", "swapped"))
+
+    # -- parameter vectors ----------------------------------------------------------
+    def default_theta(self, gpi_theta=None) -> np.ndarray:
+        """Full vector: ``gpi_theta`` (Table 1 by default) with every effect off."""
+        theta = self.parameters.values.copy()
+        if gpi_theta is not None:
+            theta[: len(THETA_NAMES)] = np.asarray(gpi_theta, dtype=float)
+        for e in self.effects:
+            theta[self._slices[e.name]] = [e.off[n] for n in e.parameters.names]
+        return theta
+
+    def effect_slice(self, name: str) -> slice:
+        """Columns of the full vector that hold effect ``name``'s parameters."""
+        try:
+            return self._slices[name]
+        except KeyError:
+            raise KeyError(f"effect {name!r} is not in this model ({list(self.effect_names)})") from None
+
+    def theta_dict(self, theta) -> dict[str, float]:
+        """``{name: value}`` for a 1-D full vector."""
+        theta = np.asarray(theta, dtype=float)
+        if theta.shape != (self.n_parameters,):
+            raise ValueError(f"theta must have shape ({self.n_parameters},), got {theta.shape}")
+        return dict(zip(self.names, map(float, theta)))
+
+    def theta_from_dict(self, values: dict) -> np.ndarray:
+        """Full vector from ``{name: value}``; missing GPI values from Table 1, missing effect values off."""
+        theta = self.default_theta()
+        unknown = set(values) - set(self.names)
+        if unknown:
+            raise ValueError(f"unknown parameter names {sorted(unknown)} for {self!r}")
+        for k, v in values.items():
+            theta[self.parameters.index(k)] = float(v)
+        return theta
+
+    def in_bounds(self, theta) -> np.ndarray:
+        """Boolean ``(W,)``: every parameter finite and within its bounds."""
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        return (
+            np.isfinite(theta).all(axis=1)
+            & (theta >= self.parameters.lower).all(axis=1)
+            & (theta <= self.parameters.upper).all(axis=1)
+        )
+
+    # -- evaluation -----------------------------------------------------------------
+    def _check(self, theta, time, current):
+        theta = np.asarray(theta, dtype=float)
+        if theta.ndim not in (1, 2) or theta.shape[-1] != self.n_parameters:
+            raise ValueError(
+                f"theta must have shape ({self.n_parameters},) or (W, {self.n_parameters}) for {self!r}, got {theta.shape}"
+            )
+        time = np.asarray(time, dtype=float)
+        current = np.asarray(current, dtype=float)
+        if time.ndim != 1 or current.shape != time.shape:
+            raise ValueError(f"time and current must both have shape (T,), got {time.shape} and {current.shape}")
+        if time.size >= 2 and not (np.diff(time) > 0).all():
+            raise ValueError("time must be strictly increasing")
+        if not np.isfinite(time).all():
+            raise ValueError("time has a non-finite value")
+        return theta, time, current
+
+    def evaluate(self, theta, time, current):
+        """Batch evaluation with a validity mask (for log-posteriors).
+
+        Parameters
+        ----------
+        theta : array_like, shape (P,) or (W, P)
+            Full parameter vectors (:attr:`names` order).
+        time : array_like, shape (T,)
+            Sample times [s], strictly increasing.
+        current : array_like, shape (T,)
+            Drive current [A].
+
+        Returns
+        -------
+        y : ndarray, shape (W, T)
+            Displacement [um]. Rows with ``valid = False`` are meaningless.
+        valid : ndarray of bool, shape (W,)
+            False where a parameter set is outside the model's domain (operator bounds
+            cross) or produced a non-finite output.
+        """
+        theta, time, current = self._check(theta, time, current)
+        theta2 = np.atleast_2d(theta)
+        n_sets = theta2.shape[0]
+        drive = current
+        z0 = 0.0
+        for e in self.effects:
+            params = theta2[:, self._slices[e.name]]
+            if e.stage == "input":
+                drive = np.asarray(e.drive(params, time, drive), dtype=float)
+            elif e.stage == "state":
+                z0 = np.asarray(e.initial_memory(params), dtype=float)
+        if drive.ndim == 2 and drive.shape[0] != n_sets:
+            raise ValueError(f"an input-stage effect returned {drive.shape[0]} rows for {n_sets} parameter sets")
+        if not np.isfinite(drive).all():
+            raise ValueError("an input-stage effect produced a non-finite drive")
+        y, valid = gpi_masked(theta2[:, : len(THETA_NAMES)], drive, self.n_operators, self.reading, z0)
+        for e in self.effects:
+            if e.stage == "output":
+                y = e.output(theta2[:, self._slices[e.name]], time, current, y)
+        valid = valid & np.isfinite(y).all(axis=1)
+        return y, valid
+
+    def __call__(self, theta, time, current):
+        """Displacement [um], shape ``(T,)`` for a 1-D ``theta`` else ``(W, T)``.
+
+        Raises :class:`ValueError` for a parameter set outside the model's domain.
+        """
+        theta = np.asarray(theta, dtype=float)
+        y, valid = self.evaluate(theta, time, current)
+        if not valid.all():
+            rows = np.flatnonzero(~valid)[:10].tolist()
+            raise ValueError(
+                f"parameter set(s) {rows} outside the model's domain: the GPI operator bounds cross on "
+                "this input, or an effect produced a non-finite output"
+            )
+        return y[0] if theta.ndim == 1 else y

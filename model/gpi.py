@@ -1,0 +1,415 @@
+r"""The generalized Prandtl-Ishlinskii (GPI) model of the seed paper, and the classical PI.
+
+Equations (numbers as in the paper)
+-----------------------------------
+Input current :math:`v(t)` [A] sampled at :math:`t_0 < t_1 < \dots`.
+Two tanh envelopes, eqs. (6) and (7):
+
+.. math::  \gamma_a(v) = a_0 \tanh(a_1 v + a_2) + a_3, \qquad
+           \gamma_b(v) = b_0 \tanh(b_1 v + b_2) + b_3 .
+
+``N`` generalized play operators with thresholds and weights, eqs. (8)-(10):
+
+.. math::  r_j = \alpha j, \qquad p_j = \rho\, e^{-\tau r_j}, \qquad j = 1 \dots N
+
+(the weights carry no ``dr`` factor: eq. (12) is a plain sum).
+Each operator follows eq. (5), with a *rising* envelope :math:`\gamma_\uparrow` and
+a *falling* envelope :math:`\gamma_\downarrow`:
+
+.. math::
+
+    z_j(t_k) = \begin{cases}
+        \max(\gamma_\uparrow(v_k) - r_j,\ z_j(t_{k-1})) & v_k > v_{k-1} \\
+        \min(\gamma_\downarrow(v_k) + r_j,\ z_j(t_{k-1})) & v_k < v_{k-1} \\
+        z_j(t_{k-1}) & v_k = v_{k-1}
+    \end{cases}
+
+Initial memory (the paper does not print one; see the reading below):
+
+.. math::  z_j(t_0) = \max\big(\gamma_\uparrow(v_0) - r_j,\ \min(\gamma_\downarrow(v_0) + r_j,\ z^{0})\big),
+           \quad z^0 = 0 .
+
+The direction-dependent term, eq. (13), with the backward difference
+:math:`\Delta v_k = v_k - v_{k-1}` (the first sample counts as rising):
+
+.. math::  \Omega_k = \begin{cases} c_0 \tanh(c_1 v_k + c_2) + c_3 & \Delta v_k \ge 0 \\
+                                    d_0 \tanh(d_1 v_k + d_2) + d_3 & \Delta v_k < 0 \end{cases}
+
+Output, eq. (12): :math:`y_k = \Omega_k + \sum_j p_j z_j(t_k)` [um].
+
+Readings of the paper
+---------------------
+``"swapped"`` (default)
+    Rising branch along eq. (6) (:math:`\gamma_\uparrow = \gamma_a`), falling along
+    eq. (7) (:math:`\gamma_\downarrow = \gamma_b`): the labels of (6) and (7) are swapped
+    relative to eq. (5). Thresholds :math:`r_j = \alpha j` with :math:`\alpha < 0` exactly as
+    printed in Table 1. For Table 1 the lower bound :math:`\gamma_a(v) - r_j` stays below
+    the upper bound :math:`\gamma_b(v) + r_j` on the whole 0-5 A range (smallest margin
+    0.0157 at 5 A for ``j = 12``), so each operator is a well-defined clamp, and the
+    response rests at -0.56 um with the coils off and peaks at 295.7 um, which matches
+    the paper's "model output is 0 when not energised". A theta whose bounds cross on
+    the given input is rejected (:class:`ValueError`, or ``valid = False`` from
+    :func:`gpi_masked`).
+``"literal"``
+    Rising branch along eq. (7), falling along eq. (6), as eq. (5) labels them. With
+    Table 1 the bounds cross everywhere, and the response rests at 217 um, swings from
+    about -569 to +650 um on the paper's input: not a transducer. Kept for comparison;
+    crossing bounds are allowed in this reading.
+
+With increasing envelopes and non-crossing bounds the piecewise law (5) equals the
+clamp form ``z = max(L, min(U, z_prev))`` used by most GPI codes (tested).
+
+The kernel is compiled with numba, parallel over the batch axis, and never
+materialises a ``(W, T, N)`` array: it keeps ``N`` memory values per parameter set.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .parameters import Parameter, ParameterSet
+
+__all__ = [
+    "THETA_NAMES",
+    "TABLE1",
+    "GPI_PARAMETERS",
+    "READINGS",
+    "gpi",
+    "gpi_masked",
+    "classical_pi",
+    "envelope",
+]
+
+#: Table 1's order of the 19 GPI parameters.
+THETA_NAMES = (
+    "alpha", "rho", "tau",
+    "a0", "a1", "a2", "a3",
+    "b0", "b1", "b2", "b3",
+    "c0", "c1", "c2", "c3",
+    "d0", "d1", "d2", "d3",
+)  # fmt: skip
+
+#: Table 1 of the paper, in :data:`THETA_NAMES` order.
+TABLE1 = np.array(
+    [
+        -0.1993, 5.6438, 0.0714,
+        8.5043, 0.5140, -0.0612, -6.1533,
+        3.3505, 1.3916, -0.9146, 3.6876,
+        1.5687, 6.6176, -11.5359, 25.7303,
+        2.1349, 7.1117, -9.2777, 28.1546,
+    ]
+)  # fmt: skip
+
+_DESCRIPTIONS = {
+    "alpha": ("A", "threshold step: r_j = alpha * j (eq. 9)"),
+    "rho": ("um/A", "weight scale: p_j = rho * exp(-tau r_j) (eq. 8)"),
+    "tau": ("1/A", "weight decay rate (eq. 8)"),
+    "a0": ("A", "rising envelope amplitude (eq. 6)"),
+    "a1": ("1/A", "rising envelope slope (eq. 6)"),
+    "a2": ("", "rising envelope shift (eq. 6)"),
+    "a3": ("A", "rising envelope offset (eq. 6)"),
+    "b0": ("A", "falling envelope amplitude (eq. 7)"),
+    "b1": ("1/A", "falling envelope slope (eq. 7)"),
+    "b2": ("", "falling envelope shift (eq. 7)"),
+    "b3": ("A", "falling envelope offset (eq. 7)"),
+    "c0": ("um", "Omega rising-branch amplitude (eq. 13)"),
+    "c1": ("1/A", "Omega rising-branch slope (eq. 13)"),
+    "c2": ("", "Omega rising-branch shift (eq. 13)"),
+    "c3": ("um", "Omega rising-branch offset (eq. 13)"),
+    "d0": ("um", "Omega falling-branch amplitude (eq. 13)"),
+    "d1": ("1/A", "Omega falling-branch slope (eq. 13)"),
+    "d2": ("", "Omega falling-branch shift (eq. 13)"),
+    "d3": ("um", "Omega falling-branch offset (eq. 13)"),
+}
+
+# Broad default bounds: the support of the identification prior. Envelope amplitudes
+# and slopes are positive (a0 tanh(a1 v + a2) = (-a0) tanh(-a1 v - a2) is an exact
+# sign symmetry, removed by this choice, and increasing envelopes make the operator
+# rate independent). The envelope units assume the input is in A; other records
+# rescale them (see identify.records).
+_BOUNDS = {
+    "alpha": (-2.0, -1e-4),
+    "rho": (1e-3, 1e3),
+    "tau": (-5.0, 5.0),
+    "a0": (1e-3, 100.0), "a1": (1e-3, 20.0), "a2": (-20.0, 20.0), "a3": (-100.0, 100.0),
+    "b0": (1e-3, 100.0), "b1": (1e-3, 20.0), "b2": (-20.0, 20.0), "b3": (-100.0, 100.0),
+    "c0": (-1e3, 1e3), "c1": (-50.0, 50.0), "c2": (-100.0, 100.0), "c3": (-1e4, 1e4),
+    "d0": (-1e3, 1e3), "d1": (-50.0, 50.0), "d2": (-100.0, 100.0), "d3": (-1e4, 1e4),
+}  # fmt: skip
+
+#: The 19 GPI parameters with Table 1 values, default bounds and units.
+GPI_PARAMETERS = ParameterSet(
+    Parameter(name, float(value), *_BOUNDS[name], unit=_DESCRIPTIONS[name][0], description=_DESCRIPTIONS[name][1])
+    for name, value in zip(THETA_NAMES, TABLE1)
+)
+
+#: reading name -> True when the rising branch follows eq. (6) (the ``a`` envelope).
+READINGS = {"swapped": True, "literal": False}
+
+
+def envelope(coefficients, v):
+    """``k0 * tanh(k1 * v + k2) + k3``: the form of eqs. (6), (7) and (13).
+
+    Parameters
+    ----------
+    coefficients : array_like, shape (..., 4)
+    v : array_like, broadcastable against ``coefficients[..., 0]``
+    """
+    k = np.asarray(coefficients, dtype=float)
+    return k[..., 0] * np.tanh(k[..., 1] * v + k[..., 2]) + k[..., 3]
+
+
+@njit(cache=True, inline="always")
+def _tanh_env(k0, k1, k2, k3, v):
+    return k0 * np.tanh(k1 * v + k2) + k3
+
+
+@njit(parallel=True, cache=True)
+def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, check_bounds, out, valid):
+    """Fill ``out[w, :]`` with the GPI response of ``theta[w]``; ``valid[w] = False`` when bounds cross."""
+    n_sets = theta.shape[0]
+    n_samples = current.shape[1]
+    row_step = 0 if current.shape[0] == 1 else 1  # a 1-row input is shared by all sets
+    for w in prange(n_sets):
+        row = w * row_step
+        th = theta[w]
+        alpha = th[0]
+        rho = th[1]
+        tau = th[2]
+        if rising_is_a:
+            ru0, ru1, ru2, ru3 = th[3], th[4], th[5], th[6]
+            rd0, rd1, rd2, rd3 = th[7], th[8], th[9], th[10]
+        else:
+            ru0, ru1, ru2, ru3 = th[7], th[8], th[9], th[10]
+            rd0, rd1, rd2, rd3 = th[3], th[4], th[5], th[6]
+        c0, c1, c2, c3 = th[11], th[12], th[13], th[14]
+        d0, d1, d2, d3 = th[15], th[16], th[17], th[18]
+
+        thresholds = np.empty(n_operators)
+        weights = np.empty(n_operators)
+        memory = np.empty(n_operators)
+        # Binding threshold for the crossing check: rising - r_j <= falling + r_j for
+        # all j  <=>  rising - falling <= 2 * min_j r_j.
+        min_threshold = np.inf
+        for j in range(n_operators):
+            thresholds[j] = alpha * (j + 1)
+            weights[j] = rho * np.exp(-tau * thresholds[j])
+            if thresholds[j] < min_threshold:
+                min_threshold = thresholds[j]
+        ok = True
+
+        v = current[row, 0]
+        rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
+        falling_env = _tanh_env(rd0, rd1, rd2, rd3, v)
+        if check_bounds and rising_env - falling_env > 2.0 * min_threshold:
+            ok = False
+        z0 = initial_memory[w]
+        total = 0.0
+        for j in range(n_operators):
+            upper = falling_env + thresholds[j]
+            lower = rising_env - thresholds[j]
+            memory[j] = max(lower, min(upper, z0))
+            total += weights[j] * memory[j]
+        out[w, 0] = _tanh_env(c0, c1, c2, c3, v) + total
+
+        v_prev = v
+        for k in range(1, n_samples):
+            v = current[row, k]
+            dv = v - v_prev
+            if check_bounds:
+                rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
+                falling_env = _tanh_env(rd0, rd1, rd2, rd3, v)
+                if rising_env - falling_env > 2.0 * min_threshold:
+                    ok = False
+            if dv > 0.0:
+                if not check_bounds:
+                    rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
+                for j in range(n_operators):
+                    candidate = rising_env - thresholds[j]
+                    if candidate > memory[j]:
+                        memory[j] = candidate
+            elif dv < 0.0:
+                if not check_bounds:
+                    falling_env = _tanh_env(rd0, rd1, rd2, rd3, v)
+                for j in range(n_operators):
+                    candidate = falling_env + thresholds[j]
+                    if candidate < memory[j]:
+                        memory[j] = candidate
+            total = 0.0
+            for j in range(n_operators):
+                total += weights[j] * memory[j]
+            if dv >= 0.0:
+                omega = _tanh_env(c0, c1, c2, c3, v)
+            else:
+                omega = _tanh_env(d0, d1, d2, d3, v)
+            out[w, k] = omega + total
+            v_prev = v
+        valid[w] = ok
+
+
+def _prepare(theta, current, n_operators, reading, initial_memory):
+    """Validate and normalise inputs; return 2-D contiguous arrays and flags."""
+    if reading not in READINGS:
+        raise ValueError(f"reading must be one of {sorted(READINGS)}, got {reading!r}")
+    if isinstance(n_operators, bool) or not isinstance(n_operators, (int, np.integer)):
+        raise ValueError(f"n_operators must be an integer >= 1, got {n_operators!r}")
+    if n_operators < 1:
+        raise ValueError(f"n_operators must be >= 1, got {n_operators}")
+    theta = np.asarray(theta, dtype=float)
+    single = theta.ndim == 1
+    if theta.ndim not in (1, 2) or theta.shape[-1] != len(THETA_NAMES):
+        raise ValueError(f"theta must have shape (19,) or (W, 19) in Table 1 order, got shape {theta.shape}")
+    theta2 = np.ascontiguousarray(np.atleast_2d(theta))
+    if theta2.shape[0] < 1:
+        raise ValueError("theta has an empty batch axis (W = 0)")
+    bad = ~np.isfinite(theta2)
+    if bad.any():
+        w, i = np.argwhere(bad)[0]
+        where = f"theta[{w}, {i}]" if not single else f"theta[{i}]"
+        raise ValueError(f"theta has a non-finite value at {where} ({THETA_NAMES[i]} = {theta2[w, i]})")
+
+    current = np.asarray(current, dtype=float)
+    if current.ndim not in (1, 2):
+        raise ValueError(f"current must have shape (T,) or (W, T), got shape {current.shape}")
+    current2 = np.ascontiguousarray(np.atleast_2d(current))
+    if current2.shape[1] < 2:
+        raise ValueError(f"current needs at least 2 samples, got {current2.shape[1]}")
+    if current2.shape[0] not in (1, theta2.shape[0]):
+        raise ValueError(
+            f"current has {current2.shape[0]} rows but theta has {theta2.shape[0]}: a 2-D current needs one row per parameter set"
+        )
+    if current.ndim == 2:
+        single = False
+    if not np.isfinite(current2).all():
+        r, k = np.argwhere(~np.isfinite(current2))[0]
+        where = f"current[{k}]" if current.ndim == 1 else f"current[{r}, {k}]"
+        raise ValueError(f"current has a non-finite value at {where} ({current2[r, k]})")
+
+    z0 = np.broadcast_to(np.asarray(initial_memory, dtype=float), (theta2.shape[0],))
+    if not np.isfinite(z0).all():
+        raise ValueError("initial_memory must be finite")
+    z0 = np.ascontiguousarray(z0)
+    return theta2, current2, int(n_operators), READINGS[reading], z0, single
+
+
+def gpi_masked(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
+    """Evaluate the GPI for a batch; flag parameter sets whose operator bounds cross.
+
+    Like :func:`gpi`, but instead of raising for crossing bounds it returns a mask, so a
+    log-posterior can give those walkers ``-inf``. Rows with ``valid = False`` hold the
+    (meaningless) clamp result, never NaN; use them only through the mask.
+
+    Returns
+    -------
+    y : ndarray, shape (W, T)
+    valid : ndarray of bool, shape (W,)
+    """
+    theta2, current2, n_operators, rising_is_a, z0, _ = _prepare(theta, current, n_operators, reading, initial_memory)
+    out = np.empty((theta2.shape[0], current2.shape[1]))
+    valid = np.empty(theta2.shape[0], dtype=np.bool_)
+    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, rising_is_a, out, valid)
+    return out, valid
+
+
+def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
+    """Generalized Prandtl-Ishlinskii response, eqs. (5)-(13), for one or many parameter sets.
+
+    Parameters
+    ----------
+    theta : array_like, shape (19,) or (W, 19)
+        GPI parameters in Table 1's order (:data:`THETA_NAMES`). A 2-D ``theta`` is a
+        batch, e.g. all emcee walkers (``vectorize=True``).
+    current : array_like, shape (T,) or (W, T)
+        Drive current [A], ``T >= 2`` samples. A 1-D input is shared by the whole batch;
+        a 2-D input gives each parameter set its own (e.g. after a lag filter).
+    n_operators : int, default 12
+        Number of play operators ``N`` (the paper uses 12).
+    reading : {"swapped", "literal"}, default "swapped"
+        Which envelope the rising branch follows; see the module docstring.
+    initial_memory : float or array_like of shape (W,), default 0.0
+        The level :math:`z^0` each operator's memory is clamped from at ``t_0``;
+        0 is the paper's state. Used by the ``initial_state`` effect.
+
+    Returns
+    -------
+    y : ndarray, shape (T,) or (W, T)
+        Displacement [um]; 1-D when ``theta`` and ``current`` are both 1-D.
+
+    Raises
+    ------
+    ValueError
+        Non-finite or wrongly shaped ``theta``/``current``, fewer than 2 samples,
+        ``n_operators < 1``, an unknown reading, or (``"swapped"`` reading) a parameter
+        set whose lower operator bound exceeds the upper one somewhere on ``current``.
+    """
+    theta2, current2, n_operators, rising_is_a, z0, single = _prepare(
+        theta, current, n_operators, reading, initial_memory
+    )
+    out = np.empty((theta2.shape[0], current2.shape[1]))
+    valid = np.empty(theta2.shape[0], dtype=np.bool_)
+    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, rising_is_a, out, valid)
+    if not valid.all():
+        rows = np.flatnonzero(~valid)
+        which = "theta" if single else f"theta rows {rows[:10].tolist()}{' ...' if rows.size > 10 else ''}"
+        raise ValueError(
+            f"{which}: the operator bounds cross on this input (rising envelope - r_j exceeds "
+            f"falling envelope + r_j for some sample and j <= {n_operators}); the play operator is "
+            "undefined there. Use gpi_masked() to flag such sets instead of raising."
+        )
+    return out[0] if single else out
+
+
+@njit(cache=True)
+def _play_kernel(current, thresholds, initial, out):
+    n_ops = thresholds.shape[0]
+    memory = np.empty(n_ops)
+    for j in range(n_ops):
+        memory[j] = max(current[0] - thresholds[j], min(current[0] + thresholds[j], initial[j]))
+        out[0, j] = memory[j]
+    for k in range(1, current.shape[0]):
+        v = current[k]
+        for j in range(n_ops):
+            memory[j] = max(v - thresholds[j], min(v + thresholds[j], memory[j]))
+            out[k, j] = memory[j]
+
+
+def classical_pi(current, thresholds, weights, linear_gain=0.0, initial=0.0):
+    """Classical Prandtl-Ishlinskii model, eqs. (1)-(4), discretised as a sum of plays.
+
+    .. math::  F_{r}[v](t_k) = \\max(v_k - r, \\min(v_k + r, F_r(t_{k-1}))), \\qquad
+               y_k = q\\, v_k + \\sum_j p_j F_{r_j}[v](t_k)
+
+    Parameters
+    ----------
+    current : array_like, shape (T,)
+        Input, ``T >= 2`` samples.
+    thresholds : array_like, shape (N,)
+        Play thresholds ``r_j >= 0``.
+    weights : array_like, shape (N,)
+        Density weights ``p_j``.
+    linear_gain : float, default 0
+        ``q``: the linear term :math:`\\omega(v) = q v` of eq. (4).
+    initial : float or array_like of shape (N,), default 0
+        Initial play outputs (clamped into ``[v_0 - r, v_0 + r]``).
+
+    Returns
+    -------
+    y : ndarray, shape (T,)
+    """
+    v = np.asarray(current, dtype=float)
+    r = np.asarray(thresholds, dtype=float)
+    p = np.asarray(weights, dtype=float)
+    if v.ndim != 1 or v.size < 2:
+        raise ValueError(f"current must have shape (T,) with T >= 2, got shape {v.shape}")
+    if r.ndim != 1 or r.shape != p.shape or r.size < 1:
+        raise ValueError(f"thresholds and weights must both have shape (N,), N >= 1; got {r.shape} and {p.shape}")
+    if (r < 0).any():
+        raise ValueError("classical PI thresholds must be >= 0")
+    for name, arr in (("current", v), ("thresholds", r), ("weights", p)):
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{name} has a non-finite value at index {int(np.flatnonzero(~np.isfinite(arr))[0])}")
+    z0 = np.ascontiguousarray(np.broadcast_to(np.asarray(initial, dtype=float), r.shape))
+    plays = np.empty((v.size, r.size))
+    _play_kernel(np.ascontiguousarray(v), np.ascontiguousarray(r), z0, plays)
+    return float(linear_gain) * v + plays @ p
