@@ -286,7 +286,13 @@ def _prepare(theta, current, n_operators, reading, initial_memory):
         where = f"current[{k}]" if current.ndim == 1 else f"current[{r}, {k}]"
         raise ValueError(f"current has a non-finite value at {where} ({current2[r, k]})")
 
-    z0 = np.broadcast_to(np.asarray(initial_memory, dtype=float), (theta2.shape[0],))
+    z0 = np.asarray(initial_memory, dtype=float)
+    if z0.shape not in ((), (1,), (theta2.shape[0],)):
+        raise ValueError(
+            f"initial_memory must be a scalar or have shape ({theta2.shape[0]},) (one level per parameter set), "
+            f"got shape {z0.shape}"
+        )
+    z0 = np.broadcast_to(z0, (theta2.shape[0],))
     if not np.isfinite(z0).all():
         raise ValueError("initial_memory must be finite")
     z0 = np.ascontiguousarray(z0)
