@@ -1,0 +1,315 @@
+"""Tests of the effects library (model/effects.py) and of composing effects with the GPI.
+
+``test_every_registered_effect`` iterates over the whole registry, and
+``test_every_effect_has_a_signature_test`` fails when an effect has no signature test
+below, so no effect can be added untested. Analytic references are derived in the
+comments next to them; tolerances are a few hundred ulps of the values compared.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import model
+from model import EFFECTS, TABLE1, Effect, Model, gpi, paper_current
+from model.effects import (
+    CREEP_MODES,
+    REFERENCE_CURRENT,
+    SensorDrift,
+    creep_time_constants,
+    first_order_lowpass,
+    thermal_rise,
+)
+from model.parameters import Parameter, ParameterSet
+
+RTOL = 1e-12  # exact discretisations: only rounding separates them from the analytic solution
+
+
+@pytest.fixture(scope="module")
+def paper_input():
+    return paper_current(fs=100.0)
+
+
+@pytest.fixture(scope="module")
+def plain_gpi(paper_input):
+    time, current = paper_input
+    return gpi(TABLE1, current)
+
+
+def _theta(m: Model, values: dict) -> np.ndarray:
+    return m.theta_from_dict(values)
+
+
+# -- the whole registry -----------------------------------------------------------------
+
+
+def test_registry_holds_the_required_effects():
+    assert {"lag", "creep", "thermal", "sensor_drift", "initial_state"} <= set(EFFECTS)
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
+def test_every_registered_effect(name, paper_input, plain_gpi):
+    """Protocol, off == plain GPI bit for bit, test parameters in bounds and visible, batch == single."""
+    time, current = paper_input
+    cls = EFFECTS[name]
+    effect = cls()
+    # Protocol and documentation.
+    assert cls.name == name and cls.stage in model.composite.STAGES
+    assert cls.summary.strip(), f"{name}: empty summary"
+    assert cls.__doc__ and "math::" in cls.__doc__, f"{name}: the docstring must state the equation"
+    assert len(cls.parameters) >= 1
+    for p in cls.parameters:
+        assert p.name.startswith(name + "_") and p.description and p.lower <= cls.off[p.name] <= p.upper
+    m = Model([name])
+    assert m.names[-len(cls.parameters) :] == cls.parameters.names
+
+    # Off: exactly the plain GPI.
+    y_off = m(m.default_theta(), time, current)
+    assert np.array_equal(y_off, plain_gpi), f"{name}: off differs from the plain GPI"
+
+    # Test parameters: within bounds, and they change the output clearly (RMS above 1 um,
+    # twice the bench's default sensor noise of 0.5 um).
+    test = cls.get_test_parameters()
+    assert set(test) <= set(cls.parameters.names)
+    theta_on = _theta(m, test)
+    assert m.in_bounds(theta_on).all(), f"{name}: test parameters out of bounds"
+    y_on = m(theta_on, time, current)
+    rms_change = float(np.sqrt(np.mean((y_on - plain_gpi) ** 2)))
+    assert rms_change > 1.0, f"{name}: test parameters change the output by only {rms_change:.3g} um RMS"
+
+    # Batch: W rows with different parameters == W single evaluations, bit for bit.
+    rng = np.random.default_rng(20240607)
+    n_sets = 6
+    sl = m.effect_slice(name)
+    off = np.array([cls.off[n] for n in cls.parameters.names])
+    on = np.array([test.get(n, cls.off[n]) for n in cls.parameters.names])
+    batch = np.tile(m.default_theta(), (n_sets, 1))
+    mix = rng.uniform(0.0, 1.5, size=(n_sets, 1))
+    batch[:, sl] = np.clip(off + mix * (on - off), cls.parameters.lower, cls.parameters.upper)
+    batch[0, sl] = off
+    y_batch = m(batch, time, current)
+    assert y_batch.shape == (n_sets, time.size)
+    for w in range(n_sets):
+        assert np.array_equal(y_batch[w], m(batch[w], time, current)), f"{name}: batch row {w} differs"
+    assert np.array_equal(y_batch[0], plain_gpi)
+    assert isinstance(effect, Effect)
+
+
+def test_all_effects_off_together_is_the_plain_gpi(paper_input, plain_gpi):
+    time, current = paper_input
+    m = Model(list(EFFECTS))
+    assert np.array_equal(m(m.default_theta(), time, current), plain_gpi)
+
+
+# -- signatures -----------------------------------------------------------------------
+
+
+def _irregular_time(n=400, seed=5):
+    """Strictly increasing times with steps of 5-15 ms: the filters must use the real steps."""
+    steps = np.random.default_rng(seed).uniform(0.005, 0.015, size=n - 1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def signature_lag(paper_input, plain_gpi):
+    """Drive = analytic first-order response to a ramp-and-hold current; GPI sees that drive."""
+    time = _irregular_time()
+    t_hold = time[200]
+    slope = 2.0  # A/s
+    current = slope * np.minimum(time, t_hold)
+    tau = 0.3
+    m = Model(["lag"])
+    drive = m.effects[0].drive(np.array([[tau]]), time, current)[0]
+    # tau u' = i - u, u(0) = 0, i = s t: u = s (t - tau (1 - exp(-t/tau))).
+    # After t_h the current holds at i_h: u = i_h - s tau (1 - exp(-t_h/tau)) exp(-(t - t_h)/tau).
+    ramp = time <= t_hold
+    expected = np.where(
+        ramp,
+        slope * (time - tau * -np.expm1(-time / tau)),
+        slope * t_hold - slope * tau * -np.expm1(-t_hold / tau) * np.exp(-(time - t_hold) / tau),
+    )
+    np.testing.assert_allclose(drive, expected, rtol=RTOL, atol=1e-13)
+    # Through the model: the GPI of that drive, exactly.
+    time_p, current_p = paper_input
+    theta = _theta(m, {"lag_tau": 0.05})
+    drive_p = first_order_lowpass(time_p, current_p, 0.05)[0]
+    assert np.array_equal(m(theta, time_p, current_p), gpi(TABLE1, drive_p))
+
+
+def signature_creep(paper_input, plain_gpi):
+    """After the GPI output stops moving, the output keeps creeping by A * step with the stated modes."""
+    time = _irregular_time(n=3000)  # about 30 s
+    i_start, i_stop = 100, 110
+    t_a, t_b = time[i_start], time[i_stop]
+    step = 50.0  # um
+    # y_g: 0, then linear from 0 to step over [t_a, t_b], then constant.
+    y_g = step * np.clip((time - t_a) / (t_b - t_a), 0.0, 1.0)
+    amplitude, tau, decades = 0.1, 1.5, 2.0
+    creep = EFFECTS["creep"]()
+    y = creep.output(np.array([[amplitude, tau, decades]]), time, np.zeros_like(time), y_g[None, :])[0]
+    taus = creep_time_constants(tau, decades)[0]
+    # Each mode s_m (tau_m s' = y_g - s): 0 before t_a; on the ramp (slope k = step/(t_b - t_a))
+    # s = k (t' - tau_m (1 - exp(-t'/tau_m))), t' = t - t_a; after t_b it relaxes to step:
+    # s = step - (step - s(t_b)) exp(-(t - t_b)/tau_m).
+    k = step / (t_b - t_a)
+    modes = []
+    for tau_m in taus:
+        dt = np.clip(time - t_a, 0.0, None)
+        on_ramp = k * (dt - tau_m * -np.expm1(-dt / tau_m))
+        at_stop = k * ((t_b - t_a) - tau_m * -math.expm1(-(t_b - t_a) / tau_m))
+        after = step - (step - at_stop) * np.exp(-(time - t_b) / tau_m)
+        modes.append(np.where(time <= t_b, on_ramp, after))
+    expected = y_g - amplitude * (y_g - np.mean(modes, axis=0))
+    np.testing.assert_allclose(y, expected, rtol=1e-11, atol=1e-11)
+    # The stated amount: after the input stops the output still moves by A * mean_m(step - s_m(t_b)),
+    # close to A * step for a ramp much shorter than the modes.
+    still_to_creep = step - y[i_stop]
+    assert 0.8 * amplitude * step < still_to_creep <= amplitude * step
+    assert abs(y[-1] - y[i_stop]) > 0.5 * still_to_creep  # most of it happens within the record
+    assert np.all(np.diff(y[i_stop:]) > 0)  # monotone approach
+    # The time constants: log-spaced, geometric mean tau, span 10**decades; decades=0 -> single.
+    assert taus.size == CREEP_MODES
+    np.testing.assert_allclose(np.exp(np.mean(np.log(taus))), tau, rtol=1e-12)
+    np.testing.assert_allclose(taus[-1] / taus[0], 10.0**decades, rtol=1e-12)
+    np.testing.assert_allclose(creep_time_constants(3.0, 0.0)[0], 3.0, rtol=0)
+    # Static gain 1 on the paper input too: the creep output stays close to the GPI's.
+    time_p, current_p = paper_input
+    m = Model(["creep"])
+    y_p = m(_theta(m, {"creep_amplitude": 0.05, "creep_tau": 0.5, "creep_decades": 0.0}), time_p, current_p)
+    quiet = time_p < 10.0
+    assert np.array_equal(y_p[quiet], plain_gpi[quiet])
+    assert np.max(np.abs(y_p - plain_gpi)) < 0.05 * np.ptp(plain_gpi)
+
+
+def signature_thermal(paper_input, plain_gpi):
+    """Zero change while not energised; the change follows the first-order heating law exactly."""
+    time = _irregular_time(n=2000)
+    t_on = time[300]
+    rate = 0.05  # 1/s: heating (i/i_ref)^2 = rate * (t - t_on), exact for i = i_ref sqrt(rate (t - t_on))
+    current = REFERENCE_CURRENT * np.sqrt(rate * np.clip(time - t_on, 0.0, None))
+    tau, sensitivity, expansion = 8.0, 0.1, 4.0
+    y_g = 100.0 + 30.0 * np.sin(time)
+    thermal = EFFECTS["thermal"]()
+    y = thermal.output(np.array([[tau, sensitivity, expansion]]), time, current, y_g[None, :])[0]
+    # tau th' = rate (t - t_on) - th, th(t_on) = 0: th = rate ((t - t_on) - tau (1 - exp(-(t - t_on)/tau))).
+    dt = np.clip(time - t_on, 0.0, None)
+    rise = rate * (dt - tau * -np.expm1(-dt / tau))
+    np.testing.assert_allclose(thermal_rise(time, current, tau)[0], rise, rtol=1e-11, atol=1e-14)
+    np.testing.assert_allclose(y - y_g, -sensitivity * rise * y_g + expansion * rise, rtol=1e-10, atol=1e-12)
+    assert np.array_equal(y[time <= t_on], y_g[time <= t_on])  # zero before energising
+    # On the paper input: nothing in the quiet 10 s, then a change that grows with heating.
+    time_p, current_p = paper_input
+    m = Model(["thermal"])
+    test = EFFECTS["thermal"].get_test_parameters()
+    change = m(_theta(m, test), time_p, current_p) - plain_gpi
+    quiet = time_p < 10.0
+    assert np.array_equal(change[quiet], np.zeros(quiet.sum()))
+    rise_p = thermal_rise(time_p, current_p, test["thermal_tau"])[0]
+    np.testing.assert_allclose(
+        change,
+        -test["thermal_sensitivity"] * rise_p * plain_gpi + test["thermal_expansion"] * rise_p,
+        rtol=1e-12,
+        atol=1e-12,
+    )
+    # Heating grows: the mean rise over the second energised period exceeds the first.
+    assert rise_p[(time_p >= 20) & (time_p < 30)].mean() > rise_p[(time_p >= 10) & (time_p < 20)].mean()
+
+
+def signature_sensor_drift(paper_input, plain_gpi):
+    """The quiet segment moves by D1 s + D2 s^2; the record's end by D1 + D2."""
+    time, current = paper_input
+    linear, quadratic = 2.0, -1.5
+    m = Model(["sensor_drift"])
+    change = m(_theta(m, {"sensor_drift_linear": linear, "sensor_drift_quadratic": quadratic}), time, current) - plain_gpi
+    s = time / 70.0
+    np.testing.assert_allclose(change, linear * s + quadratic * s**2, rtol=1e-9, atol=1e-12)
+    assert change[0] == 0.0
+    quiet_end = np.flatnonzero(time < 10.0)[-1]
+    np.testing.assert_allclose(change[quiet_end], linear * s[quiet_end] + quadratic * s[quiet_end] ** 2, rtol=1e-9)
+    np.testing.assert_allclose(change[-1], linear + quadratic, rtol=1e-9)
+
+
+def signature_initial_state(paper_input, plain_gpi):
+    """Differs before the first peak only; exactly zero after the first full excursion."""
+    time, current = paper_input
+    first_peak = int(np.argmax(current >= current.max() - 1e-12))  # t = 15 s, 5 A
+    assert abs(time[first_peak] - 15.0) < 1e-9
+    m = Model(["initial_state"])
+    for z0 in (-20.0, -0.5, 5.0):
+        y = m(_theta(m, {"initial_state_memory": z0}), time, current)
+        assert np.array_equal(y[first_peak:], plain_gpi[first_peak:]), f"z0={z0}: differs after the first peak"
+        assert np.max(np.abs(y[:first_peak] - plain_gpi[:first_peak])) > 1.0, f"z0={z0}: no first-cycle change"
+    # Fully virgin (z0 far below every lower bound) = every operator on its lower bound at t_0.
+    y_virgin = m(_theta(m, {"initial_state_memory": -20.0}), time, current)
+    assert np.array_equal(y_virgin, gpi(TABLE1, current, initial_memory=-1e9))
+
+
+SIGNATURES = {
+    "lag": signature_lag,
+    "creep": signature_creep,
+    "thermal": signature_thermal,
+    "sensor_drift": signature_sensor_drift,
+    "initial_state": signature_initial_state,
+}
+
+
+def test_every_effect_has_a_signature_test():
+    assert set(SIGNATURES) == set(EFFECTS), "every registered effect needs a signature test in SIGNATURES"
+
+
+@pytest.mark.parametrize("name", list(SIGNATURES))
+def test_signature(name, paper_input, plain_gpi):
+    SIGNATURES[name](paper_input, plain_gpi)
+
+
+# -- filters --------------------------------------------------------------------------
+
+
+def test_first_order_lowpass_shapes_and_pass_through():
+    time = _irregular_time(50)
+    signal = np.sin(time * 7.0)
+    assert np.array_equal(first_order_lowpass(time, signal, 0.0)[0], signal)
+    batch = first_order_lowpass(time, signal, [0.0, 0.1, 1.0])
+    assert batch.shape == (3, 50)
+    for w, tau in enumerate([0.0, 0.1, 1.0]):
+        assert np.array_equal(batch[w], first_order_lowpass(time, signal, tau)[0])
+    with pytest.raises(ValueError, match="rows"):
+        first_order_lowpass(time, np.tile(signal, (2, 1)), [0.1, 0.2, 0.3])
+
+
+# -- composition ------------------------------------------------------------------------
+
+
+def test_composition_order_does_not_matter(paper_input):
+    time, current = paper_input
+    a, b = Model(["thermal", "creep"]), Model(["creep", "thermal"])
+    assert a == b and a.names == b.names
+    values = {**EFFECTS["thermal"].get_test_parameters(), **EFFECTS["creep"].get_test_parameters()}
+    assert np.array_equal(a(_theta(a, values), time, current), b(_theta(b, values), time, current))
+
+
+def test_add_and_refusals():
+    assert Model() + "lag" == Model(["lag"])
+    assert Model() + "lag" + "thermal" == Model(["thermal", "lag"])
+    with pytest.raises(ValueError, match="given twice"):
+        Model(["lag", "lag"])
+    with pytest.raises(ValueError, match="given twice"):
+        Model(["creep"]) + "creep"
+    with pytest.raises(ValueError, match="unknown effect 'heat'.*thermal"):
+        Model(["heat"])
+
+    class Sensor(Effect):  # a parameter name clashing with sensor_drift's
+        name = "sensor"
+        stage = "output"
+        parameters = ParameterSet([Parameter("sensor_drift_linear", 0.0, -1.0, 1.0)])
+        off = {"sensor_drift_linear": 0.0}
+
+    with pytest.raises(ValueError, match="appears twice"):
+        Model([SensorDrift(), Sensor()])
+    # A second class under a registered name is refused (and the registry is unchanged).
+    before = dict(EFFECTS)
+    with pytest.raises(ValueError, match="already registered"):
+        model.register_effect(type("OtherLag", (EFFECTS["lag"],), {}))
+    assert EFFECTS == before
