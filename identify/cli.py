@@ -14,6 +14,7 @@ import sys
 #: command name -> module, in the order ``--help`` lists them.
 COMMANDS = {
     "paper": "identify.cmd_paper",
+    "simulate": "identify.cmd_simulate",
 }
 
 def build_parser() -> argparse.ArgumentParser:
