@@ -65,6 +65,8 @@ materialises a ``(W, T, N)`` array: it keeps ``N`` memory values per parameter s
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
@@ -161,13 +163,93 @@ def envelope(coefficients, v):
 
 
 @njit(cache=True, inline="always")
+def _tanh(x):
+    """``tanh(x)`` within 3 ulp of libm's, about twice as fast (scalar ``exp`` is cheaper than ``tanh``).
+
+    ``|x| >= 0.5``: ``1 - 2 / (exp(2|x|) + 1)`` (no cancellation: the fraction is <= 0.28);
+    ``|x| < 0.5``: ``expm1(2|x|) / (expm1(2|x|) + 2)`` (relative accuracy near 0). The sign
+    is restored last, so the result is odd; ``exp`` overflowing to ``inf`` gives exactly 1.
+    """
+    magnitude = abs(x)
+    if magnitude < 0.5:
+        growth = math.expm1(2.0 * magnitude)
+        result = growth / (growth + 2.0)
+    else:
+        result = 1.0 - 2.0 / (math.exp(2.0 * magnitude) + 1.0)
+    return result if x >= 0.0 else -result
+
+
+@njit(cache=True, inline="always")
 def _tanh_env(k0, k1, k2, k3, v):
-    return k0 * np.tanh(k1 * v + k2) + k3
+    return k0 * _tanh(k1 * v + k2) + k3
+
+
+@njit(cache=True, inline="always")
+def _weighted_sum(weights, memory):
+    """``sum_j weights[j] * memory[j]`` in four interleaved partial sums (fixed order, so
+    deterministic; four independent add chains instead of one long one)."""
+    n = weights.shape[0]
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    j = 0
+    while j + 4 <= n:
+        s0 += weights[j] * memory[j]
+        s1 += weights[j + 1] * memory[j + 1]
+        s2 += weights[j + 2] * memory[j + 2]
+        s3 += weights[j + 3] * memory[j + 3]
+        j += 4
+    while j < n:
+        s0 += weights[j] * memory[j]
+        j += 1
+    return (s0 + s1) + (s2 + s3)
+
+
+#: Samples per block of the bound check (see :func:`_bounds_apart`).
+_CHECK_BLOCK = 64
+
+
+@njit(cache=True)
+def _bounds_apart(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, limit):
+    """True when ``rising(v_k) - falling(v_k) <= limit`` for every sample of ``current[row]``.
+
+    Exact per-sample semantics at a fraction of the cost: each tanh term is monotone in
+    ``v``, so on a block of samples with values in ``[lo, hi]`` the difference is at most
+    ``rising(one end) - falling(other end)``. A block whose bound clears ``limit`` by more
+    than rounding (``slack``) passes; any other block is checked sample by sample.
+    """
+    n_samples = current.shape[1]
+    slack = 1e-12 * (abs(ru0) + abs(ru3) + abs(rd0) + abs(rd3) + abs(limit))
+    rising_max_at_hi = ru0 * ru1 >= 0.0
+    falling_min_at_lo = rd0 * rd1 >= 0.0
+    for start in range(0, n_samples, _CHECK_BLOCK):
+        stop = min(start + _CHECK_BLOCK, n_samples)
+        lo = current[row, start]
+        hi = lo
+        for k in range(start + 1, stop):
+            v = current[row, k]
+            lo = min(lo, v)
+            hi = max(hi, v)
+        rising_max = _tanh_env(ru0, ru1, ru2, ru3, hi if rising_max_at_hi else lo)
+        falling_min = _tanh_env(rd0, rd1, rd2, rd3, lo if falling_min_at_lo else hi)
+        if rising_max - falling_min <= limit - slack:
+            continue
+        for k in range(start, stop):
+            v = current[row, k]
+            if _tanh_env(ru0, ru1, ru2, ru3, v) - _tanh_env(rd0, rd1, rd2, rd3, v) > limit:
+                return False
+    return True
 
 
 @njit(parallel=True, cache=True)
 def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, check_bounds, out, valid):
-    """Fill ``out[w, :]`` with the GPI response of ``theta[w]``; ``valid[w] = False`` when bounds cross."""
+    """Fill ``out[w, :]`` with the GPI response of ``theta[w]``; ``valid[w] = False`` when bounds cross.
+
+    Per sample, only the envelope the input moves along and one Omega branch are
+    evaluated; a sample equal to its predecessor after a rising-branch sample repeats
+    the previous output (memory and Omega are unchanged), exactly.
+    """
     n_sets = theta.shape[0]
     n_samples = current.shape[1]
     row_step = 0 if current.shape[0] == 1 else 1  # a 1-row input is shared by all sets
@@ -197,55 +279,46 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, check_
             weights[j] = rho * np.exp(-tau * thresholds[j])
             if thresholds[j] < min_threshold:
                 min_threshold = thresholds[j]
-        ok = True
+        if check_bounds:
+            valid[w] = _bounds_apart(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, 2.0 * min_threshold)
+        else:
+            valid[w] = True
 
         v = current[row, 0]
         rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
         falling_env = _tanh_env(rd0, rd1, rd2, rd3, v)
-        if check_bounds and rising_env - falling_env > 2.0 * min_threshold:
-            ok = False
         z0 = initial_memory[w]
-        total = 0.0
         for j in range(n_operators):
             upper = falling_env + thresholds[j]
             lower = rising_env - thresholds[j]
             memory[j] = max(lower, min(upper, z0))
-            total += weights[j] * memory[j]
-        out[w, 0] = _tanh_env(c0, c1, c2, c3, v) + total
+        out[w, 0] = _tanh_env(c0, c1, c2, c3, v) + _weighted_sum(weights, memory)
+        last_was_rising_branch = True  # Omega branch used at the previous sample
 
         v_prev = v
         for k in range(1, n_samples):
             v = current[row, k]
             dv = v - v_prev
-            if check_bounds:
-                rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
-                falling_env = _tanh_env(rd0, rd1, rd2, rd3, v)
-                if rising_env - falling_env > 2.0 * min_threshold:
-                    ok = False
+            v_prev = v
             if dv > 0.0:
-                if not check_bounds:
-                    rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
+                rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
                 for j in range(n_operators):
-                    candidate = rising_env - thresholds[j]
-                    if candidate > memory[j]:
-                        memory[j] = candidate
+                    memory[j] = max(memory[j], rising_env - thresholds[j])
             elif dv < 0.0:
-                if not check_bounds:
-                    falling_env = _tanh_env(rd0, rd1, rd2, rd3, v)
+                falling_env = _tanh_env(rd0, rd1, rd2, rd3, v)
                 for j in range(n_operators):
-                    candidate = falling_env + thresholds[j]
-                    if candidate < memory[j]:
-                        memory[j] = candidate
-            total = 0.0
-            for j in range(n_operators):
-                total += weights[j] * memory[j]
+                    memory[j] = min(memory[j], falling_env + thresholds[j])
+            elif last_was_rising_branch:
+                out[w, k] = out[w, k - 1]
+                continue
+            total = _weighted_sum(weights, memory)
             if dv >= 0.0:
                 omega = _tanh_env(c0, c1, c2, c3, v)
+                last_was_rising_branch = True
             else:
                 omega = _tanh_env(d0, d1, d2, d3, v)
+                last_was_rising_branch = False
             out[w, k] = omega + total
-            v_prev = v
-        valid[w] = ok
 
 
 def _prepare(theta, current, n_operators, reading, initial_memory):

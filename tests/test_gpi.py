@@ -454,6 +454,41 @@ def test_bounds_crossing_only_beyond_5_amperes_is_detected():
         gpi(TABLE1, np.linspace(0.0, 6.0, 20))
 
 
+@FAST_SETTINGS
+@given(
+    current=st.lists(st.floats(-5.0, 5.0), min_size=2, max_size=300),
+    coefficients=st.lists(st.floats(-3.0, 3.0), min_size=8, max_size=8),
+    alpha=st.floats(-0.3, 0.3).filter(lambda a: abs(a) > 1e-3),
+    offset=st.floats(1e-6, 1e-2),
+    crossing=st.booleans(),
+    n_operators=st.integers(1, 15),
+)
+def test_crossing_check_matches_oracle_sample_by_sample(current, coefficients, alpha, offset, crossing, n_operators):
+    """Envelopes of any monotonicity, with the falling offset tuned so that the largest
+    ``rising - falling`` sits just above (or just below) ``2 min_j r_j``: the crossing, if
+    any, happens at a single sample, which the block-wise check must still find."""
+    current = np.asarray(current)
+    theta = TABLE1.copy()
+    theta[0] = alpha
+    theta[3:11] = coefficients
+    excess = max_bound_excess(theta, current, n_operators)
+    theta[THETA_NAMES.index("b3")] += excess + (-offset if crossing else offset)
+    expected_cross = gpi_reference(theta, current, n_operators=n_operators).bounds_cross
+    assert expected_cross == crossing
+    _, valid = gpi_masked(theta, current, n_operators)
+    assert valid.tolist() == [not crossing]
+
+
+def test_crossing_at_one_sample_of_a_long_record_is_found():
+    rng = np.random.default_rng(17)
+    current = noisy_current(rng, 5000, 0.0, 4.5)
+    gpi(TABLE1, current)
+    current[3333] = 5.6  # bounds cross just above 5 A
+    with pytest.raises(ValueError, match="bounds cross"):
+        gpi(TABLE1, current)
+    assert gpi_reference(TABLE1, current).bounds_cross
+
+
 def test_literal_reading_allows_crossing_bounds():
     out = gpi(TABLE1, CURRENT, reading="literal")
     assert gpi_reference(TABLE1, CURRENT, reading="literal").bounds_cross
