@@ -142,38 +142,51 @@ def benchmark_theta(n_walkers, rng):
     return theta
 
 
+@dataclass(frozen=True)
+class Timing:
+    """Best-of-repeats wall-clock and CPU time of one call [s] (CPU time sums all threads)."""
+
+    wall: float
+    cpu: float
+
+
 def best_time(function, repeats):
-    """Best wall-clock time [s] of ``repeats`` calls of ``function()``."""
-    best = np.inf
+    """Best wall-clock and best CPU time of ``repeats`` calls of ``function()``, as :class:`Timing`."""
+    wall = cpu = np.inf
     for _ in range(repeats):
-        start = time.perf_counter()
+        wall_start, cpu_start = time.perf_counter(), time.process_time()
         function()
-        best = min(best, time.perf_counter() - start)
-    return best
+        wall = min(wall, time.perf_counter() - wall_start)
+        cpu = min(cpu, time.process_time() - cpu_start)
+    return Timing(wall, cpu)
 
 
 @dataclass(frozen=True)
 class SpeedFigures:
-    """One side-by-side timing."""
+    """One side-by-side timing of gpi (all threads and one thread) and the numpy baselines."""
 
     n_walkers: int
     n_samples: int
     n_operators: int
-    gpi_seconds: float
-    baseline_seconds: float
-    precomputed_seconds: float
+    gpi: Timing
+    gpi_one_thread: Timing
+    baseline: Timing
+    precomputed: Timing
 
     @property
     def ratio(self):
-        return self.baseline_seconds / self.gpi_seconds
+        """Wall-clock speed-up over the numpy time loop (the issue's target: >= 8)."""
+        return self.baseline.wall / self.gpi.wall
 
     @property
     def updates_per_second(self):
-        return self.n_walkers * self.n_samples * self.n_operators / self.gpi_seconds
+        return self.n_walkers * self.n_samples * self.n_operators / self.gpi.wall
 
 
 def compare_speed(theta, current, n_operators, repeats, baseline_repeats):
-    """Check the baselines agree with gpi to 1e-9, then time all three."""
+    """Check the baselines agree with gpi to 1e-9, then time all of them."""
+    import numba
+
     fast = gpi(theta, current, n_operators=n_operators)
     for baseline in (numpy_time_loop, numpy_precomputed_envelopes):
         slow = baseline(theta, current, n_operators)
@@ -181,14 +194,34 @@ def compare_speed(theta, current, n_operators, repeats, baseline_repeats):
         scale = 1.0 + float(np.max(np.abs(fast)))
         if not error <= 1e-9 * scale:
             raise SystemExit(f"{baseline.__name__} disagrees with model.gpi: max |difference| {error:.3g}")
+    threads = numba.get_num_threads()
+    gpi_all = best_time(lambda: gpi(theta, current, n_operators=n_operators), repeats)
+    numba.set_num_threads(1)
+    try:
+        gpi_one = best_time(lambda: gpi(theta, current, n_operators=n_operators), repeats)
+    finally:
+        numba.set_num_threads(threads)
     return SpeedFigures(
         n_walkers=theta.shape[0],
         n_samples=current.size,
         n_operators=n_operators,
-        gpi_seconds=best_time(lambda: gpi(theta, current, n_operators=n_operators), repeats),
-        baseline_seconds=best_time(lambda: numpy_time_loop(theta, current, n_operators), baseline_repeats),
-        precomputed_seconds=best_time(lambda: numpy_precomputed_envelopes(theta, current, n_operators), baseline_repeats),
+        gpi=gpi_all,
+        gpi_one_thread=gpi_one,
+        baseline=best_time(lambda: numpy_time_loop(theta, current, n_operators), baseline_repeats),
+        precomputed=best_time(lambda: numpy_precomputed_envelopes(theta, current, n_operators), baseline_repeats),
     )
+
+
+def single_thread_cpu(function, repeats):
+    """Best CPU time [s] of ``function()`` with numba on one thread (least sensitive to other load)."""
+    import numba
+
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        return best_time(function, repeats).cpu
+    finally:
+        numba.set_num_threads(threads)
 
 
 def _rss_growth_in_fresh_process(theta_file, fs):
@@ -224,7 +257,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--walkers", type=int, default=64, help="batch size W (default 64)")
     parser.add_argument("--operators", type=int, default=12, help="number of operators N (default 12)")
-    parser.add_argument("--repeats", type=int, default=7, help="repeats per gpi timing (best of; default 7)")
+    parser.add_argument("--repeats", type=int, default=15, help="repeats per gpi timing (best of; default 15)")
     parser.add_argument("--quick", action="store_true", help="fewer repeats and sizes")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
@@ -240,29 +273,33 @@ def main(argv=None):
     gpi(theta[:2], paper_current(100.0)[1][:100])  # compile or load the cached kernel
 
     print("\n== speed against numpy (best of repeats; baselines checked to agree with gpi to 1e-9) ==")
-    print(f"{'W':>4} {'T':>7} {'N':>3} {'gpi [ms]':>10} {'numpy loop [ms]':>16} {'ratio':>7} "
-          f"{'numpy precomp. [ms]':>20} {'ratio':>7} {'updates/s':>10}")
+    print("   times in ms, wall-clock (CPU time summed over threads in brackets)")
     for fs in (100.0, 1000.0):
         current = paper_current(fs)[1]
-        figures = compare_speed(theta, current, n_operators, repeats, 2 if fs > 100 or args.quick else 3)
-        print(f"{figures.n_walkers:>4} {figures.n_samples:>7} {n_operators:>3} {figures.gpi_seconds * 1e3:>10.2f} "
-              f"{figures.baseline_seconds * 1e3:>16.1f} {figures.ratio:>6.1f}x "
-              f"{figures.precomputed_seconds * 1e3:>20.1f} {figures.precomputed_seconds / figures.gpi_seconds:>6.1f}x "
-              f"{figures.updates_per_second:>10.3g}")
+        f = compare_speed(theta, current, n_operators, repeats, 2 if fs > 100 or args.quick else 3)
+        print(f"W = {f.n_walkers}, T = {f.n_samples}, N = {n_operators}:")
+        print(f"  gpi, {numba.get_num_threads()} threads:        {f.gpi.wall * 1e3:9.2f}  ({f.gpi.cpu * 1e3:9.2f})   "
+              f"{f.updates_per_second:.3g} operator updates/s")
+        print(f"  gpi, 1 thread:          {f.gpi_one_thread.wall * 1e3:9.2f}  ({f.gpi_one_thread.cpu * 1e3:9.2f})")
+        print(f"  numpy time loop:        {f.baseline.wall * 1e3:9.2f}  ({f.baseline.cpu * 1e3:9.2f})   "
+              f"ratio {f.ratio:.1f}x wall; against gpi on 1 thread {f.baseline.wall / f.gpi_one_thread.wall:.1f}x wall, "
+              f"{f.baseline.cpu / f.gpi_one_thread.cpu:.1f}x CPU time")
+        print(f"  numpy, envelopes first: {f.precomputed.wall * 1e3:9.2f}  ({f.precomputed.cpu * 1e3:9.2f})   "
+              f"ratio {f.precomputed.wall / f.gpi.wall:.1f}x wall")
 
-    print("\n== linearity (gpi_masked, same kernel; constant time per unit = linear cost) ==")
+    print("\n== linearity (gpi_masked, same kernel; numba on 1 thread, best CPU time: constant time per unit = linear cost) ==")
     base_current = paper_current(100.0)[1]
     sizes_t = (100.0, 200.0, 400.0) if args.quick else (100.0, 200.0, 400.0, 800.0)
     print("T sweep (W = %d, N = %d):" % (args.walkers, n_operators))
     for fs in sizes_t:
         current = paper_current(fs)[1]
-        seconds = best_time(lambda: gpi_masked(theta, current, n_operators), repeats)
-        print(f"  T = {current.size:>6}: {seconds * 1e3:8.2f} ms  {seconds / current.size * 1e9:8.1f} ns per sample")
+        seconds = single_thread_cpu(lambda: gpi_masked(theta, current, n_operators), repeats)
+        print(f"  T = {current.size:>6}: {seconds * 1e3:8.2f} ms  {seconds / (args.walkers * current.size) * 1e9:6.2f} ns per walker-sample")
     print("N sweep (W = %d, T = %d); cost = per-sample part + per-operator part:" % (args.walkers, base_current.size))
     n_values = (1, 6, 12, 24) if args.quick else (1, 6, 12, 24, 48)
     per_walker_sample = []
     for n in n_values:
-        seconds = best_time(lambda: gpi_masked(theta, base_current, n), repeats)
+        seconds = single_thread_cpu(lambda: gpi_masked(theta, base_current, n), repeats)
         per_walker_sample.append(seconds / (args.walkers * base_current.size))
         print(f"  N = {n:>3}: {seconds * 1e3:8.2f} ms  {per_walker_sample[-1] * 1e9:6.2f} ns per walker-sample")
     slope, intercept = np.polyfit(n_values, per_walker_sample, 1)
@@ -270,7 +307,7 @@ def main(argv=None):
     print("W sweep (T = %d, N = %d):" % (base_current.size, n_operators))
     for n_walkers in (16, 32, 64, 128):
         batch = benchmark_theta(n_walkers, np.random.default_rng(args.seed + 1))
-        seconds = best_time(lambda: gpi_masked(batch, base_current, n_operators), repeats)
+        seconds = single_thread_cpu(lambda: gpi_masked(batch, base_current, n_operators), repeats)
         print(f"  W = {n_walkers:>4}: {seconds * 1e3:8.2f} ms  {seconds / n_walkers * 1e6:8.1f} us per walker")
 
     print("\n== memory of one gpi call (W = %d, T = 70001, after warm-up) ==" % args.walkers)
