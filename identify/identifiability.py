@@ -1,0 +1,342 @@
+r"""Identifiability of the GPI: the exact scaling degeneracy, its normalisation, weak directions.
+
+The exact degeneracy
+--------------------
+For any ``k > 0`` the GPI output is unchanged by
+
+.. math::  (\rho, \alpha, \tau, a_0, a_3, b_0, b_3) \to
+           (\rho/k,\ k\alpha,\ \tau/k,\ k a_0,\ k a_3,\ k b_0,\ k b_3) :
+
+the envelopes (6), (7) and the thresholds :math:`r_j = \alpha j` all scale by ``k``, so
+every operator's memory scales by ``k`` (the initial memory :math:`z^0 = 0` is
+scale-free), while the weights :math:`p_j = \rho e^{-\tau r_j}` scale by ``1/k``
+(:math:`\tau r_j` is unchanged). So the likelihood is flat along a curve and a
+posterior with flat priors is improper. :func:`gpi_scaling` applies the map;
+``tests/test_identifiability.py`` checks the invariance numerically.
+
+Normalisation
+-------------
+:data:`NORMALISATION` pins ``alpha`` at its start value, Table 1's -0.1993 (the curve
+crosses every ``alpha < 0`` exactly once, so this picks one representative per
+equivalence class). :func:`normalised_model` returns the model with
+``Parameter.vary = False`` for alpha; :func:`to_normalisation` maps any parameter
+vector to the equivalent one with that alpha, e.g. to compare an identified vector
+with a true one. An effect that acts on the drive (``input`` stage) or on the output
+does not break the symmetry, which lives entirely inside the GPI.
+
+Weak directions
+---------------
+At the least-squares optimum, with ``J`` the Jacobian of the whitened residuals with
+respect to the *relative* parameter changes ``d theta_j / s_j``,
+``s_j = max(|theta_j|, 0.01)`` (:func:`parameter_scales`), the Fisher information is
+``F = J^T J``. Its eigenvalues ``lambda`` give the posterior standard deviation
+``1 / sqrt(lambda)`` of the relative change along each eigenvector (Laplace
+approximation). Directions are classified as
+
+* **exact**: ``lambda / lambda_max < EXACT_RATIO`` (1e-10: zero up to the round-off of
+  a finite-difference Jacobian);
+* **near**: otherwise, when the relative standard deviation ``1/sqrt(lambda)`` exceeds
+  :data:`NEAR_RELATIVE_STD` (0.05: the combination is known to worse than 5 %) or
+  ``lambda / lambda_max < NEAR_RATIO`` (1e-8);
+
+and each is written as a named combination of its largest loadings
+(:class:`Direction`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from model import GPI_PARAMETERS, THETA_NAMES, Model
+
+__all__ = [
+    "SCALING_PARAMETERS",
+    "SCALING_POWERS",
+    "NORMALISATION",
+    "EXACT_RATIO",
+    "NEAR_RATIO",
+    "NEAR_RELATIVE_STD",
+    "Direction",
+    "IdentifiabilityResult",
+    "gpi_scaling",
+    "scaling_direction",
+    "to_normalisation",
+    "normalised_model",
+    "pin_gpi_parameters",
+    "parameter_scales",
+    "analyse_identifiability",
+]
+
+#: The parameters moved by the exact degeneracy, and the power of ``k`` each scales with.
+SCALING_PARAMETERS = ("rho", "alpha", "tau", "a0", "a3", "b0", "b3")
+SCALING_POWERS = (-1, 1, -1, 1, 1, 1, 1)
+#: The normalisation: parameter name -> the value it is pinned at (Table 1's alpha).
+NORMALISATION = {"alpha": float(GPI_PARAMETERS["alpha"].value)}
+EXACT_RATIO = 1e-10
+NEAR_RATIO = 1e-8
+NEAR_RELATIVE_STD = 0.05
+
+
+def gpi_scaling(theta, k) -> np.ndarray:
+    """Apply the exact degeneracy: ``theta`` with the 7 scaling parameters times ``k**power``.
+
+    Parameters
+    ----------
+    theta : array_like, shape (..., P)
+        Vectors whose first 19 entries are the GPI parameters (Table 1 order).
+    k : float or array_like broadcastable to ``theta.shape[:-1]``
+        Scale, > 0.
+    """
+    theta = np.array(theta, dtype=float)
+    k = np.asarray(k, dtype=float)
+    if not (np.isfinite(k).all() and (k > 0).all()):
+        raise ValueError(f"the scaling k must be finite and > 0, got {k!r}")
+    for name, power in zip(SCALING_PARAMETERS, SCALING_POWERS):
+        i = THETA_NAMES.index(name)
+        theta[..., i] = theta[..., i] * k**power
+    return theta
+
+
+def scaling_direction(theta, names) -> np.ndarray:
+    """Unit tangent of the degeneracy curve at ``theta``, in relative coordinates.
+
+    ``d(theta_j) / dk`` at ``k = 1`` is ``power_j * theta_j``; divided by the scales of
+    :func:`parameter_scales` and normalised to unit length. Entries for parameters not
+    in ``names`` are dropped.
+
+    Parameters
+    ----------
+    theta : array_like, shape (P,)
+        Full vector (``names`` are its free subset's names, or all of them).
+    names : sequence of str
+        Names of the coordinates to return, each a name in the GPI or an effect.
+    """
+    theta = np.asarray(theta, dtype=float)
+    values = dict(zip(THETA_NAMES, theta[: len(THETA_NAMES)]))
+    vec = np.zeros(len(names))
+    for idx, name in enumerate(names):
+        if name in SCALING_PARAMETERS:
+            power = SCALING_POWERS[SCALING_PARAMETERS.index(name)]
+            vec[idx] = power * values[name] / max(abs(values[name]), 0.01)
+    norm = np.linalg.norm(vec)
+    return vec / norm if norm > 0 else vec
+
+
+def to_normalisation(theta, alpha=None) -> np.ndarray:
+    """The equivalent vector(s) with ``alpha`` at the normalisation value.
+
+    Parameters
+    ----------
+    theta : array_like, shape (..., P)
+    alpha : float, optional
+        Target alpha (< 0); default :data:`NORMALISATION` ``["alpha"]``.
+    """
+    theta = np.asarray(theta, dtype=float)
+    target = NORMALISATION["alpha"] if alpha is None else float(alpha)
+    current = theta[..., THETA_NAMES.index("alpha")]
+    if not (target < 0 and (current < 0).all()):
+        raise ValueError("alpha must be negative (the 'swapped' reading's thresholds) to normalise")
+    return gpi_scaling(theta, target / current)
+
+
+def pin_gpi_parameters(model: Model, values: dict) -> Model:
+    """A copy of ``model`` with GPI parameters pinned (``vary=False``) at the given values.
+
+    Parameters
+    ----------
+    model : model.Model
+    values : dict
+        ``{name: value}`` for GPI parameters (Table 1 names). An empty dict gives an
+        equal model with every GPI parameter free.
+
+    Raises
+    ------
+    ValueError
+        A name that is not a GPI parameter (effects' parameters cannot be pinned here).
+    """
+    gpi_params = GPI_PARAMETERS
+    unknown = set(values) - set(THETA_NAMES)
+    if unknown:
+        raise ValueError(f"only GPI parameters can be pinned; not GPI parameters: {sorted(unknown)}")
+    for name, value in values.items():
+        gpi_params = gpi_params.replace(name, value=float(value), vary=False)
+    return Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=gpi_params)
+
+
+def normalised_model(model: Model, alpha=None) -> Model:
+    """``model`` with the normalisation applied: alpha pinned (default Table 1's -0.1993)."""
+    target = NORMALISATION["alpha"] if alpha is None else float(alpha)
+    pins = {n: p.value for n, p in zip(THETA_NAMES, model.parameters) if not p.vary}
+    pins["alpha"] = target
+    return pin_gpi_parameters(model, pins)
+
+
+def parameter_scales(theta) -> np.ndarray:
+    """``max(|theta_j|, 0.01)``: the scale of relative parameter changes, shape (P,)."""
+    return np.maximum(np.abs(np.asarray(theta, dtype=float)), 0.01)
+
+
+@dataclass(frozen=True)
+class Direction:
+    """One eigen-direction of the scaled Fisher information.
+
+    Parameters
+    ----------
+    eigenvalue : float
+        ``lambda`` (scaled Fisher information along the direction).
+    ratio : float
+        ``lambda / lambda_max``.
+    relative_std : float
+        ``1 / sqrt(lambda)``: posterior std of the relative change along the direction
+        (``inf`` for ``lambda <= 0``).
+    combination : dict
+        ``{name: loading}`` for the largest loadings (``|loading| >= 0.1``, at most
+        :attr:`IdentifiabilityResult.max_terms`), sign-fixed so the largest is positive.
+    vector : ndarray, shape (P_free,)
+        The whole unit eigenvector.
+    """
+
+    eigenvalue: float
+    ratio: float
+    relative_std: float
+    combination: dict
+    vector: np.ndarray = field(repr=False)
+
+    def describe(self) -> str:
+        """E.g. ``"+0.41 rho -0.41 alpha ... (lambda = 3.2e-12, rel. std inf)"``."""
+        terms = " ".join(f"{w:+.2f} {n}" for n, w in self.combination.items())
+        return f"{terms}  (lambda = {self.eigenvalue:.3g}, lambda/lambda_max = {self.ratio:.2g}, rel. std {self.relative_std:.3g})"
+
+    def to_dict(self) -> dict:
+        return {
+            "eigenvalue": float(self.eigenvalue),
+            "ratio": float(self.ratio),
+            "relative_std": float(self.relative_std) if math.isfinite(self.relative_std) else None,
+            "combination": {k: float(v) for k, v in self.combination.items()},
+        }
+
+
+@dataclass(frozen=True)
+class IdentifiabilityResult:
+    """Eigen-analysis of the scaled Fisher information at an optimum.
+
+    Parameters
+    ----------
+    names : tuple of str
+        The free parameters, in the order of the Fisher matrix.
+    scales : ndarray, shape (P_free,)
+        Parameter scales (:func:`parameter_scales`).
+    eigenvalues : ndarray, shape (P_free,)
+        Ascending.
+    eigenvectors : ndarray, shape (P_free, P_free)
+        Columns match ``eigenvalues``.
+    condition_number : float
+        ``lambda_max / lambda_min`` (``inf`` when ``lambda_min <= 0``).
+    exact, near : list of Direction
+        Classified as in the module docstring, weakest first.
+    normalisation : dict
+        ``{name: value}`` of the pinned parameters.
+    """
+
+    names: tuple
+    scales: np.ndarray
+    eigenvalues: np.ndarray
+    eigenvectors: np.ndarray
+    condition_number: float
+    exact: list
+    near: list
+    normalisation: dict
+    max_terms: int = 8
+
+    def to_dict(self) -> dict:
+        """The ``identifiability`` block of ``summary.json`` (plus eigenvalues and condition number)."""
+        return {
+            "normalisation": {k: float(v) for k, v in self.normalisation.items()},
+            "exact": [d.to_dict() for d in self.exact],
+            "near": [d.to_dict() for d in self.near],
+            "eigenvalues": [float(v) for v in self.eigenvalues],
+            "condition_number": float(self.condition_number) if math.isfinite(self.condition_number) else None,
+            "names": list(self.names),
+        }
+
+    def describe(self) -> str:
+        """Plain-text lines for the screen."""
+        lines = [f"condition number of the scaled Fisher information: {self.condition_number:.3g}"]
+        if self.normalisation:
+            lines.append("normalisation (pinned): " + ", ".join(f"{k} = {v:g}" for k, v in self.normalisation.items()))
+        for d in self.exact:
+            lines.append("EXACT degeneracy: " + d.describe())
+        for d in self.near:
+            lines.append("near-degenerate: " + d.describe())
+        if not self.exact and not self.near:
+            lines.append("no exact or near-degenerate directions")
+        return "\n".join(lines)
+
+
+def _direction(value, lam_max, vector, names, max_terms) -> Direction:
+    order = np.argsort(-np.abs(vector))
+    if vector[order[0]] < 0:
+        vector = -vector
+    combination = {}
+    for i in order[:max_terms]:
+        if abs(vector[i]) >= 0.1:
+            combination[names[i]] = float(vector[i])
+    ratio = value / lam_max if lam_max > 0 else 0.0
+    rel_std = 1.0 / math.sqrt(value) if value > 0 else math.inf
+    return Direction(float(value), float(ratio), float(rel_std), combination, vector.copy())
+
+
+def analyse_identifiability(
+    jacobian, theta, names, *, normalisation=None, max_terms=8, max_near=6
+) -> IdentifiabilityResult:
+    """Eigen-analysis of the Fisher information of whitened residuals.
+
+    Parameters
+    ----------
+    jacobian : ndarray, shape (T, P_free)
+        d(whitened residual) / d(free parameter) at the optimum (e.g.
+        :meth:`identify.lsq.WhitenedResiduals.central_jacobian`).
+    theta : array_like, shape (P_free,)
+        The free parameters' values (for the scales).
+    names : sequence of str, length P_free
+    normalisation : dict, optional
+        Pinned ``{name: value}``, recorded in the result.
+    max_terms : int, default 8
+        Loadings shown per direction.
+    max_near : int, default 6
+        Most near-degenerate directions reported.
+    """
+    jac = np.asarray(jacobian, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    names = tuple(names)
+    if jac.ndim != 2 or jac.shape[1] != len(names) or theta.shape != (len(names),):
+        raise ValueError(f"jacobian (T, P) and theta (P,) must match {len(names)} names; got {jac.shape}, {theta.shape}")
+    scales = parameter_scales(theta)
+    scaled = jac * scales[None, :]
+    fisher = scaled.T @ scaled
+    eigenvalues, eigenvectors = np.linalg.eigh(fisher)
+    lam_max = float(eigenvalues[-1])
+    lam_min = float(eigenvalues[0])
+    condition = lam_max / lam_min if lam_min > 0 else math.inf
+    exact, near = [], []
+    for idx, value in enumerate(eigenvalues):
+        ratio = value / lam_max if lam_max > 0 else 0.0
+        direction = _direction(float(value), lam_max, eigenvectors[:, idx], names, max_terms)
+        if ratio < EXACT_RATIO:
+            exact.append(direction)
+        elif (ratio < NEAR_RATIO or direction.relative_std > NEAR_RELATIVE_STD) and len(near) < max_near:
+            near.append(direction)
+    return IdentifiabilityResult(
+        names=names,
+        scales=scales,
+        eigenvalues=eigenvalues,
+        eigenvectors=eigenvectors,
+        condition_number=float(condition),
+        exact=exact,
+        near=near,
+        normalisation=dict(normalisation or {}),
+        max_terms=max_terms,
+    )

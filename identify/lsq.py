@@ -1,0 +1,669 @@
+r"""Weighted nonlinear least squares of the GPI (+ effects) on one record, with multi-start.
+
+Objective
+---------
+The residuals ``e = displacement - model(theta)`` over the whole record (the quiet start
+included: the model predicts the rest level there) are whitened by the noise model
+(:func:`identify.noise.whiten`: divided by sigma, AR(1) filtered when the noise is
+correlated), and :func:`scipy.optimize.least_squares` (trust-region reflective) minimises
+half their sum of squares within each parameter's bounds. Pinned parameters
+(``Parameter.vary = False``, e.g. the normalisation of :mod:`identify.identifiability`)
+stay at their values. A parameter set outside the model's domain (the GPI operator
+bounds cross, or an effect gives a non-finite output) gets a constant residual of
+:data:`DOMAIN_PENALTY` per sample, far above any fit, so the solver backs off.
+
+Jacobian
+--------
+Forward differences, computed in ONE batched model call: ``theta`` and its ``P``
+perturbed copies are evaluated as a ``(P + 1, P_full)`` batch (the forward model is
+vectorised over parameter sets). Step ``h_j = sqrt(eps) * max(|theta_j|, 0.01)``,
+taken downwards when it would leave the bounds or the domain. The covariance at the
+optimum uses central differences (one ``(2P + 1)``-row batch) for accuracy.
+
+Starts
+------
+``start`` (if given), then
+
+``table1``
+    Table 1 of the paper with every effect off, when the record is in A and um;
+``data_scaled``
+    Table 1 rescaled to the record: the slopes ``a1, b1, c1, d1`` divided by the input
+    scale ``max|input| / 5`` (the paper's drive peaks at 5 A), then the output gain and
+    offset fitted by linear least squares of the data on the rescaled prediction (gain
+    on ``rho, c0, c3, d0, d3``, offset on ``c3, d3``); this is exact for a record that
+    is a scaled copy of the paper's transducer;
+``perturbed-k``
+    the best of the above with each free GPI parameter multiplied by
+    ``exp(0.15 z)``, ``z ~ N(0, 1)`` from ``rng``; effect parameters measured in seconds
+    (time constants) spread log-uniformly over their bounds, other effect parameters
+    at their off value plus 1 % of their range times ``z``.
+
+Every start first gets :data:`SCREEN_EVALUATIONS` solver evaluations; the
+``n_polish`` best then run to convergence and the best of those wins. Starts "agree"
+when their final chi-square is within 1 of the best (statistically indistinguishable
+fits); a start screened out counts as not agreeing, so ``n_agree`` is a lower bound.
+BLAS runs single-threaded during the fit (see :func:`_single_threaded_blas`).
+
+Covariance
+----------
+``sigma^2 (J^T J)^+`` on the whitened residuals (equivalently ``(J^T J)^+`` with the
+residuals already divided by sigma), over the free parameters only (pinned rows and
+columns are zero, their standard errors NaN). With a free sigma, sigma is estimated as
+``sqrt(sum w^2 / (T - P_free))`` (residual RMS with degrees-of-freedom correction).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import sys
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from model import TABLE1, THETA_NAMES, Model
+
+from .noise import NoiseModel, energised_mask, estimate_noise, whiten
+
+__all__ = [
+    "FitResult",
+    "StartOutcome",
+    "fit_least_squares",
+    "candidate_starts",
+    "WhitenedResiduals",
+    "DOMAIN_PENALTY",
+    "PAPER_PEAK_INPUT",
+    "parameter_units",
+]
+
+#: Whitened residual per sample returned for a parameter set outside the model's domain.
+DOMAIN_PENALTY = 1e5
+#: Peak drive of the paper's record [A]; the input scale of the data-driven start.
+PAPER_PEAK_INPUT = 5.0
+#: Solver evaluations each start gets in the screening phase.
+SCREEN_EVALUATIONS = 20
+#: Starts whose chi-square is within this of the best count as agreeing.
+AGREE_CHI2 = 1.0
+_SLOPES = ("a1", "b1", "c1", "d1")
+
+
+@dataclass(frozen=True)
+class StartOutcome:
+    """How one least-squares start ended.
+
+    Parameters
+    ----------
+    label : str
+        ``"user"``, ``"table1"``, ``"data_scaled"`` or ``"perturbed-k"``.
+    chi2 : float
+        Sum of squared whitened residuals at the end (``2 * cost``); ``inf`` when the
+        start was outside the model's domain and could not be repaired.
+    n_evaluations : int
+        Residual evaluations used.
+    success : bool
+    message : str
+    """
+
+    label: str
+    chi2: float
+    n_evaluations: int
+    success: bool
+    message: str
+
+
+@dataclass
+class FitResult:
+    """A least-squares fit (fields as in docs/CONTRACTS.md, plus start bookkeeping).
+
+    Parameters
+    ----------
+    model : model.Model
+        The model fitted, with any pinned parameters.
+    theta : ndarray, shape (P,)
+        Best parameter vector, full, in ``model.names`` order.
+    stderr : ndarray, shape (P,)
+        Jacobian-based standard errors; NaN for pinned parameters.
+    covariance : ndarray, shape (P, P)
+        Jacobian-based covariance; zero rows/columns for pinned parameters.
+    vary : ndarray of bool, shape (P,)
+        False = pinned.
+    residual : ndarray, shape (T,)
+        Data minus model [output unit].
+    rms : float
+        Residual RMS over the energised part [output unit].
+    max_error_pct : float
+        Largest ``|residual|`` over the energised part, in % of the measured
+        displacement range (max - min).
+    reduced_chi2 : float
+        ``sum w^2 / (T - P_free)`` with ``w`` the whitened residuals (1 for a perfect
+        noise model).
+    noise : NoiseModel
+        The noise model used (a free sigma replaced by its estimate).
+    n_starts : int
+        Starts run.
+    success : bool
+        The best start's solver reported convergence.
+    message : str
+        The best start's solver message.
+    seconds : float
+        Wall time of the whole fit [s].
+    n_agree : int
+        Starts within chi-square 1 of the best.
+    starts : list of StartOutcome
+    """
+
+    model: Model
+    theta: np.ndarray
+    stderr: np.ndarray
+    covariance: np.ndarray
+    vary: np.ndarray
+    residual: np.ndarray
+    rms: float
+    max_error_pct: float
+    reduced_chi2: float
+    noise: NoiseModel
+    n_starts: int
+    success: bool
+    message: str
+    seconds: float
+    n_agree: int = 1
+    starts: list = field(default_factory=list)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.model.names
+
+    @property
+    def chi2(self) -> float:
+        """Sum of squared whitened residuals at the optimum."""
+        return float(self.reduced_chi2 * (self.residual.size - int(self.vary.sum())))
+
+    def theta_dict(self) -> dict[str, float]:
+        return self.model.theta_dict(self.theta)
+
+    def to_dict(self) -> dict:
+        """JSON-ready (NaN written as None): everything needed to rebuild the fit."""
+        return {
+            "names": list(self.names),
+            "units": [p.unit for p in self.model.parameters],
+            "model": self.model.to_dict(),
+            "theta": _floats(self.theta),
+            "stderr": _floats(self.stderr),
+            "covariance": [_floats(row) for row in self.covariance],
+            "vary": [bool(v) for v in self.vary],
+            "residual": _floats(self.residual),
+            "rms": float(self.rms),
+            "max_error_pct": float(self.max_error_pct),
+            "reduced_chi2": float(self.reduced_chi2),
+            "noise": self.noise.to_dict(),
+            "n_starts": int(self.n_starts),
+            "n_agree": int(self.n_agree),
+            "success": bool(self.success),
+            "message": str(self.message),
+            "seconds": float(self.seconds),
+            "starts": [
+                {"label": s.label, "chi2": _float(s.chi2), "n_evaluations": s.n_evaluations,
+                 "success": s.success, "message": s.message}
+                for s in self.starts
+            ],
+        }  # fmt: skip
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FitResult":
+        """Inverse of :meth:`to_dict` (the model is rebuilt with the same pins)."""
+        from .identifiability import pin_gpi_parameters
+
+        theta = _array(d["theta"])
+        vary = np.asarray(d["vary"], dtype=bool)
+        base = Model.from_dict(d["model"])
+        if tuple(d["names"]) != base.names:
+            raise ValueError(f"fit names {d['names']} do not match the model {base!r}")
+        pins = {n: float(v) for n, v, free in zip(base.names, theta, vary) if not free}
+        model = pin_gpi_parameters(base, pins)
+        starts = [
+            StartOutcome(s["label"], _unfloat(s["chi2"], math.inf), int(s["n_evaluations"]), bool(s["success"]), s["message"])
+            for s in d.get("starts", [])
+        ]
+        return cls(
+            model=model,
+            theta=theta,
+            stderr=_array(d["stderr"]),
+            covariance=np.array([_array(r) for r in d["covariance"]]).reshape(theta.size, theta.size),
+            vary=vary,
+            residual=_array(d["residual"]),
+            rms=float(d["rms"]),
+            max_error_pct=float(d["max_error_pct"]),
+            reduced_chi2=float(d["reduced_chi2"]),
+            noise=NoiseModel.from_dict(d["noise"]),
+            n_starts=int(d["n_starts"]),
+            success=bool(d["success"]),
+            message=str(d["message"]),
+            seconds=float(d["seconds"]),
+            n_agree=int(d.get("n_agree", 1)),
+            starts=starts,
+        )
+
+
+def _float(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _floats(a):
+    return [_float(x) for x in np.asarray(a, dtype=float).ravel()]
+
+
+def _unfloat(x, missing=math.nan):
+    return missing if x is None else float(x)
+
+
+def _array(values):
+    return np.array([_unfloat(v) for v in values], dtype=float)
+
+
+def parameter_units(model: Model, record=None) -> list[str]:
+    """Units of ``model.names``, with the record's input/output units substituted.
+
+    The GPI's declared units assume a drive in A and an output in um; for a record in
+    other units (e.g. V and um for a piezo) ``A`` and ``um`` are replaced where they
+    refer to the input (slopes ``a1, b1, c1, d1``) or the output (``rho``, ``c0, c3,
+    d0, d3``). The envelope amplitudes stay in the model's internal unit.
+    """
+    in_unit = getattr(record, "input_unit", "A") if record is not None else "A"
+    out_unit = getattr(record, "output_unit", "um") if record is not None else "um"
+    units = []
+    for p in model.parameters:
+        unit = p.unit
+        if p.name in _SLOPES:
+            unit = f"1/{in_unit}"
+        elif p.name in ("c0", "c3", "d0", "d3"):
+            unit = out_unit
+        elif p.name == "rho":
+            unit = f"{out_unit}/A"
+        units.append(unit)
+    return units
+
+
+class WhitenedResiduals:
+    """Whitened residuals of a record as a function of the free parameters.
+
+    Parameters
+    ----------
+    record : Record
+        Supplies ``time``, ``current``, ``displacement`` (shape (T,)).
+    model : model.Model
+    noise : NoiseModel
+        A free sigma is treated as 1 here (the scale does not move the optimum).
+
+    Attributes
+    ----------
+    free : ndarray of int, shape (P_free,)
+        Columns of the full vector that vary.
+    template : ndarray, shape (P,)
+        The full vector's pinned values.
+    n_evaluations : int
+        Model rows evaluated so far.
+    """
+
+    def __init__(self, record, model: Model, noise: NoiseModel):
+        self.time = np.asarray(record.time, dtype=float)
+        self.current = np.asarray(record.current, dtype=float)
+        self.data = np.asarray(record.displacement, dtype=float)
+        self.model = model
+        self.noise = noise
+        self.sigma = 1.0 if noise.is_free else noise.sigma
+        self.free = np.flatnonzero(model.parameters.vary)
+        self.template = model.parameters.values.copy()
+        self.lower = model.parameters.lower[self.free]
+        self.upper = model.parameters.upper[self.free]
+        self.n_evaluations = 0
+        self._cache_x = None
+        self._cache_r = None
+
+    def full(self, x) -> np.ndarray:
+        """Full vector(s) ``(…, P)`` from free values ``(…, P_free)``."""
+        x = np.asarray(x, dtype=float)
+        out = np.broadcast_to(self.template, x.shape[:-1] + self.template.shape).copy()
+        out[..., self.free] = x
+        return out
+
+    def batch(self, x_rows) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened residuals ``(B, T)`` and validity ``(B,)`` for free vectors ``(B, P_free)``."""
+        thetas = self.full(np.atleast_2d(x_rows))
+        y, valid = self.model.evaluate(thetas, self.time, self.current)
+        self.n_evaluations += thetas.shape[0]
+        w = whiten(self.data[None, :] - y, self.noise, self.sigma)
+        valid = valid & np.isfinite(w).all(axis=1)
+        return w, valid
+
+    def __call__(self, x) -> np.ndarray:
+        """Residual vector ``(T,)``; :data:`DOMAIN_PENALTY` everywhere outside the domain."""
+        x = np.asarray(x, dtype=float)
+        if self._cache_x is not None and np.array_equal(x, self._cache_x):
+            return self._cache_r
+        w, valid = self.batch(x[None, :])
+        r = w[0] if valid[0] else np.full(self.data.size, DOMAIN_PENALTY)
+        self._cache_x, self._cache_r = x.copy(), r
+        return r
+
+    def _steps(self, x, power):
+        return np.finfo(float).eps ** power * np.maximum(np.abs(x), 0.01)
+
+    def jacobian(self, x) -> np.ndarray:
+        """Forward-difference Jacobian ``(T, P_free)`` from one ``(P_free + 1)``-row batch."""
+        x = np.asarray(x, dtype=float)
+        n_free = x.size
+        steps = self._steps(x, 0.5)
+        steps = np.where(x + steps > self.upper, -steps, steps)
+        rows = np.repeat(x[None, :], n_free + 1, axis=0)
+        rows[1:][np.arange(n_free), np.arange(n_free)] += steps
+        w, valid = self.batch(rows)
+        base = w[0] if valid[0] else self(x)
+        jac = np.zeros((self.data.size, n_free))
+        bad = []
+        for j in range(n_free):
+            if valid[j + 1]:
+                jac[:, j] = (w[j + 1] - base) / steps[j]
+            else:
+                bad.append(j)
+        if bad and valid[0]:
+            # Step into the domain from the other side (backward), in one more batch.
+            back = np.repeat(x[None, :], len(bad), axis=0)
+            back[np.arange(len(bad)), bad] -= steps[bad]
+            back = np.clip(back, self.lower, self.upper)
+            wb, vb = self.batch(back)
+            for k, j in enumerate(bad):
+                delta = back[k, j] - x[j]
+                if vb[k] and delta != 0:
+                    jac[:, j] = (wb[k] - base) / delta
+        return jac
+
+    def central_jacobian(self, x) -> np.ndarray:
+        """Central-difference Jacobian ``(T, P_free)`` from one ``(2 P_free + 1)``-row batch.
+
+        Falls back to one-sided differences for a column whose up or down step leaves
+        the bounds or the domain.
+        """
+        x = np.asarray(x, dtype=float)
+        n_free = x.size
+        steps = self._steps(x, 1.0 / 3.0)
+        up = np.repeat(x[None, :], n_free, axis=0)
+        down = up.copy()
+        idx = np.arange(n_free)
+        up[idx, idx] = np.minimum(x + steps, self.upper)
+        down[idx, idx] = np.maximum(x - steps, self.lower)
+        w, valid = self.batch(np.vstack([x[None, :], up, down]))
+        base, w_up, w_down = w[0], w[1 : n_free + 1], w[n_free + 1 :]
+        v_up, v_down = valid[1 : n_free + 1], valid[n_free + 1 :]
+        jac = np.zeros((self.data.size, n_free))
+        for j in range(n_free):
+            hu, hd = up[j, j] - x[j], x[j] - down[j, j]
+            if v_up[j] and v_down[j] and hu > 0 and hd > 0:
+                jac[:, j] = (w_up[j] - w_down[j]) / (hu + hd)
+            elif v_up[j] and hu > 0:
+                jac[:, j] = (w_up[j] - base) / hu
+            elif v_down[j] and hd > 0:
+                jac[:, j] = (base - w_down[j]) / hd
+        return jac
+
+
+def _data_scaled_theta(record, model: Model) -> np.ndarray | None:
+    """Table 1 rescaled to the record's input and output ranges (see module docstring)."""
+    theta = model.default_theta()
+    names = model.names
+    peak = float(np.max(np.abs(record.current)))
+    if not peak > 0:
+        return None
+    input_scale = peak / PAPER_PEAK_INPUT
+    for n in _SLOPES:
+        i = names.index(n)
+        if model.parameters[i].vary:
+            theta[i] = theta[i] / input_scale
+    theta = np.clip(theta, model.parameters.lower, model.parameters.upper)
+    y, valid = model.evaluate(theta, record.time, record.current)
+    if not valid[0]:
+        return None
+    design = np.column_stack([np.ones(y.shape[1]), y[0]])
+    (offset, gain), *_ = np.linalg.lstsq(design, record.displacement, rcond=None)
+    if not (np.isfinite(gain) and gain > 0):
+        return None
+    for n in ("rho", "c0", "c3", "d0", "d3"):
+        theta[names.index(n)] *= gain
+    for n in ("c3", "d3"):
+        theta[names.index(n)] += offset
+    theta = np.clip(theta, model.parameters.lower, model.parameters.upper)
+    return theta
+
+
+def _is_time_constant(parameter) -> bool:
+    return parameter.unit == "s" and parameter.upper > 0
+
+
+def _perturbed_theta(base: np.ndarray, model: Model, rng: np.random.Generator, spread: float) -> np.ndarray:
+    theta = base.copy()
+    n_gpi = len(THETA_NAMES)
+    lower, upper = model.parameters.lower, model.parameters.upper
+    for i, p in enumerate(model.parameters):
+        if not p.vary:
+            continue
+        z = rng.standard_normal()
+        if i < n_gpi:
+            theta[i] = base[i] * math.exp(spread * z)
+        elif _is_time_constant(p):
+            lo = max(p.lower, 1e-3 * p.upper)
+            theta[i] = math.exp(rng.uniform(math.log(lo), math.log(p.upper)))
+        else:
+            width = (p.upper - p.lower) if np.isfinite(p.upper - p.lower) else 1.0
+            theta[i] = base[i] + 0.01 * width * z
+    return np.clip(theta, lower, upper)
+
+
+def candidate_starts(record, model: Model, *, n_starts=8, rng=None, start=None) -> list[tuple[str, np.ndarray]]:
+    """The multi-start list ``[(label, theta), ...]`` (full vectors within the domain).
+
+    Parameters
+    ----------
+    record : Record
+    model : model.Model
+    n_starts : int, default 8
+        Total number of starts (deterministic ones first, then rng-perturbed).
+    rng : numpy.random.Generator, optional
+        Default ``numpy.random.default_rng(0)``.
+    start : array_like, shape (P,), optional
+        A user start, tried first.
+    """
+    if isinstance(n_starts, bool) or not isinstance(n_starts, (int, np.integer)) or n_starts < 1:
+        raise ValueError(f"n_starts must be an integer >= 1, got {n_starts!r}")
+    rng = np.random.default_rng(0) if rng is None else rng
+    pinned = ~model.parameters.vary
+    template = model.parameters.values
+
+    def valid(theta):
+        if not model.in_bounds(theta)[0]:
+            return False
+        return bool(model.evaluate(theta, record.time, record.current)[1][0])
+
+    starts: list[tuple[str, np.ndarray]] = []
+    if start is not None:
+        theta = np.asarray(start, dtype=float)
+        if theta.shape != (model.n_parameters,):
+            raise ValueError(f"start must have shape ({model.n_parameters},) for {model!r}, got {theta.shape}")
+        theta = np.where(pinned, template, theta)
+        if not valid(theta):
+            raise ValueError("the given start lies outside the parameter bounds or the model's domain")
+        starts.append(("user", theta))
+    if getattr(record, "input_unit", "A") == "A" and getattr(record, "output_unit", "um") == "um":
+        theta = model.default_theta()
+        if valid(theta):
+            starts.append(("table1", theta))
+    scaled = _data_scaled_theta(record, model)
+    if scaled is not None and valid(scaled):
+        starts.append(("data_scaled", scaled))
+    if not starts:
+        raise ValueError(
+            "no valid least-squares start: Table 1 (rescaled to the record) lies outside the model's "
+            "domain on this input; pass an explicit start"
+        )
+    base = starts[-1][1] if scaled is not None else starts[0][1]
+    starts = starts[:n_starts]
+    k = 0
+    while len(starts) < n_starts:
+        spread = 0.15
+        for _attempt in range(50):
+            theta = _perturbed_theta(base, model, rng, spread)
+            if valid(theta):
+                break
+            spread *= 0.8
+        else:
+            theta = None
+        k += 1
+        if theta is not None:
+            starts.append((f"perturbed-{k}", theta))
+        if k > 4 * n_starts:
+            break
+    return starts
+
+
+def _single_threaded_blas():
+    """Limit BLAS to one thread: the small SVDs of the solver are ~50x slower when
+    OpenBLAS threads compete with the (numba-parallel) model on a loaded 2-core machine."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return contextlib.nullcontext()
+    return threadpool_limits(1, user_api="blas")
+
+
+def _solve(residuals: "WhitenedResiduals", x0, max_nfev):
+    return least_squares(
+        residuals,
+        x0,
+        jac=residuals.jacobian,
+        bounds=(residuals.lower, residuals.upper),
+        method="trf",
+        x_scale="jac",
+        ftol=1e-10,
+        xtol=1e-10,
+        gtol=1e-10,
+        max_nfev=max_nfev,
+    )
+
+
+def fit_least_squares(record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=2) -> FitResult:
+    """Least-squares fit of ``model`` to ``record`` (method in the module docstring).
+
+    Parameters
+    ----------
+    record : identify.records.Record
+        ``time`` [s], ``current`` [input unit], ``displacement`` [output unit], shape (T,).
+    model : model.Model
+        The model; parameters with ``vary=False`` stay pinned.
+    noise : NoiseModel, optional
+        Default :func:`identify.noise.estimate_noise` ``(record)`` (raises when the
+        record has no quiet start: pass a user or free noise model then).
+    start : array_like, shape (P,), optional
+        Extra start, tried first.
+    n_starts : int, default 8
+        Number of starts (see :func:`candidate_starts`).
+    rng : numpy.random.Generator, optional
+        For the perturbed starts; default ``numpy.random.default_rng(0)``.
+    verbose : bool, default False
+        Print one line per start to stderr.
+    n_polish : int, default 2
+        How many of the best screened starts are run to convergence.
+
+    Returns
+    -------
+    FitResult
+    """
+    t0 = _time.perf_counter()
+    noise = estimate_noise(record) if noise is None else noise
+    if not isinstance(noise, NoiseModel):
+        raise ValueError(f"noise must be a NoiseModel, got {type(noise).__name__}")
+    residuals = WhitenedResiduals(record, model, noise)
+    free = residuals.free
+    if free.size == 0:
+        raise ValueError("every parameter is pinned: nothing to fit")
+    n_samples = residuals.data.size
+    if n_samples <= free.size:
+        raise ValueError(f"{n_samples} samples cannot determine {free.size} free parameters")
+    starts = candidate_starts(record, model, n_starts=n_starts, rng=rng, start=start)
+
+    with _single_threaded_blas():
+        # Phase 1: screen every start with a few solver steps.
+        screened = []
+        for label, theta0 in starts:
+            x0 = np.clip(theta0[free], residuals.lower, residuals.upper)
+            before = residuals.n_evaluations
+            sol = _solve(residuals, x0, SCREEN_EVALUATIONS)
+            screened.append((label, sol, residuals.n_evaluations - before))
+            if verbose:
+                print(f"  screen {label:<14} chi2 = {2 * sol.cost:.6g}", file=sys.stderr)
+        # Phase 2: run the most promising starts to convergence.
+        order = sorted(range(len(screened)), key=lambda k: screened[k][1].cost)
+        polish = set(order[:n_polish])
+        outcomes: list[StartOutcome] = []
+        best = None
+        for k, (label, sol, n_eval) in enumerate(screened):
+            if k in polish and sol.status == 0:
+                before = residuals.n_evaluations
+                sol = _solve(residuals, sol.x, 200 * free.size)
+                n_eval += residuals.n_evaluations - before
+                message = str(sol.message)
+            elif k in polish:
+                message = str(sol.message)
+            else:
+                message = f"screened out after {SCREEN_EVALUATIONS} evaluations (not run to convergence)"
+            outcomes.append(StartOutcome(label, 2.0 * float(sol.cost), n_eval, bool(sol.success), message))
+            if verbose and k in polish:
+                print(f"  polish {label:<14} chi2 = {2 * sol.cost:.6g}  ({sol.message})", file=sys.stderr)
+            if k in polish and (best is None or sol.cost < best.cost):
+                best = sol
+    x_best = best.x
+    w = residuals(x_best)
+    chi2 = float(w @ w)
+    dof = n_samples - free.size
+    if noise.is_free:
+        sigma_hat = math.sqrt(chi2 / dof)
+        noise = noise.with_sigma(sigma_hat)
+        scale2 = sigma_hat**2
+    else:
+        scale2 = 1.0
+    with _single_threaded_blas():
+        jac = residuals.central_jacobian(x_best)
+    cov_free = scale2 * np.linalg.pinv(jac.T @ jac, rcond=1e-15, hermitian=True)
+    n_par = model.n_parameters
+    covariance = np.zeros((n_par, n_par))
+    covariance[np.ix_(free, free)] = cov_free
+    stderr = np.full(n_par, np.nan)
+    stderr[free] = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
+
+    theta = residuals.full(x_best)
+    y = model(theta, record.time, record.current)
+    residual = np.asarray(record.displacement, dtype=float) - y
+    energised = energised_mask(record, noise)
+    span = float(np.ptp(record.displacement))
+    rms = float(np.sqrt(np.mean(residual[energised] ** 2)))
+    max_error_pct = float(100.0 * np.max(np.abs(residual[energised])) / span) if span > 0 else math.inf
+    reduced_chi2 = chi2 / scale2 / dof
+    n_agree = sum(1 for o in outcomes if (o.chi2 - 2.0 * best.cost) / scale2 <= AGREE_CHI2)
+    return FitResult(
+        model=model,
+        theta=theta,
+        stderr=stderr,
+        covariance=covariance,
+        vary=model.parameters.vary.copy(),
+        residual=residual,
+        rms=rms,
+        max_error_pct=max_error_pct,
+        reduced_chi2=float(reduced_chi2),
+        noise=noise,
+        n_starts=len(starts),
+        success=bool(best.success),
+        message=str(best.message),
+        seconds=_time.perf_counter() - t0,
+        n_agree=int(n_agree),
+        starts=outcomes,
+    )

@@ -1,0 +1,535 @@
+r"""Posterior sampling of the model parameters with emcee: priors, log-posterior, resumable runs.
+
+Priors (:data:`PRIORS`)
+-----------------------
+Independent for each free parameter, supported on its bounds
+(:class:`model.parameters.Parameter` ``lower``/``upper``), normalised:
+
+``"uniform"``
+    :math:`p(\theta) = 1 / (u - l)`: location-like parameters (offsets, shifts, alpha,
+    tau) and everything else by default.
+``"log_uniform"``
+    :math:`p(\theta) = 1 / (\theta \log(u / l))`, uniform in :math:`\log\theta`: used by
+    :func:`default_priors` for *scale* parameters, i.e. a strictly positive lower bound
+    and bounds spanning at least two decades (``rho``, the envelope amplitudes and
+    slopes ``a0, a1, b0, b1``, and any effect time constant bounded away from 0),
+    because for those no particular magnitude is preferred.
+
+With a free noise sigma the last coordinate is ``noise_log_sigma`` (natural log of
+sigma in the output unit), uniform on ``[log(1e-6 span), log(span)]`` with ``span``
+the measured displacement range, i.e. log-uniform in sigma.
+
+Log-posterior
+-------------
+:class:`LogPosterior` is evaluated for all walkers at once (emcee ``vectorize=True``:
+ONE model call per step). It returns ``-inf`` for a walker outside the bounds *before*
+evaluating the model, and for one the model flags invalid (operator bounds cross, or a
+non-finite output); it never raises and never returns NaN (a model error for the batch
+falls back to one row at a time; rows that still fail get ``-inf`` and are counted in
+:attr:`LogPosterior.n_errors`). The likelihood is :func:`identify.noise.log_likelihood`.
+
+Sampling
+--------
+:func:`sample_posterior` runs emcee's affine-invariant ensemble sampler with an
+:class:`emcee.backends.HDFBackend` (group ``"mcmc"``), which saves every step, so an
+interrupted run resumes where it stopped (the sampler's random state is stored with each
+step, so the resumed chain is the one an uninterrupted run gives, bit for bit). It runs
+in chunks of ``check_every`` steps (aligned to multiples of it, so stopping does not
+depend on interruptions) and stops when
+
+* the integrated autocorrelation time of every parameter changed by less than
+  ``tau_rtol`` (5 %) since the previous check, and
+* the chain is at least ``tau_factor`` (50) times the largest autocorrelation time,
+
+or at ``max_steps``; then the result says plainly that it is **not converged**.
+Burn-in ``discard = 2 tau_max`` and ``thin = max(1, tau_min / 2)`` are applied to the
+reported samples; the effective sample size of parameter ``j`` is
+``n_walkers (n_steps - discard) / tau_j``.
+
+Randomness: the walkers' start uses the ``numpy.random.Generator`` passed in; emcee's
+internal ``RandomState`` is seeded from the same generator; nothing touches global state.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time as _time
+from dataclasses import dataclass, field
+
+import emcee
+import numpy as np
+
+from model import Model
+
+from .noise import NoiseModel, log_likelihood
+
+__all__ = [
+    "PRIORS",
+    "MOVES",
+    "default_priors",
+    "LogPosterior",
+    "PosteriorResult",
+    "default_n_walkers",
+    "initial_walkers",
+    "sample_posterior",
+    "posterior_from_backend",
+    "BACKEND_GROUP",
+]
+
+#: HDF5 group of the emcee backend in ``chain.h5``.
+BACKEND_GROUP = "mcmc"
+
+
+def _uniform_logpdf(x, lower, upper):
+    return np.full(x.shape, -math.log(upper - lower))
+
+
+def _log_uniform_logpdf(x, lower, upper):
+    return -np.log(x) - math.log(math.log(upper / lower))
+
+
+#: prior name -> log-density ``f(x, lower, upper)`` on ``[lower, upper]`` (vectorised in x).
+PRIORS = {"uniform": _uniform_logpdf, "log_uniform": _log_uniform_logpdf}
+
+#: move name -> factory of an emcee move schedule.
+MOVES = {
+    "stretch": lambda: emcee.moves.StretchMove(),
+    "de": lambda: [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)],
+}
+
+
+def default_priors(model: Model) -> dict[str, str]:
+    """``{name: prior}`` for every parameter of ``model`` (rule in the module docstring)."""
+    kinds = {}
+    for p in model.parameters:
+        scale_like = p.lower > 0 and np.isfinite(p.upper) and p.upper / p.lower >= 100.0
+        kinds[p.name] = "log_uniform" if scale_like else "uniform"
+    return kinds
+
+
+class LogPosterior:
+    """Vectorised log-posterior of the free parameters (and ``noise_log_sigma`` if free).
+
+    Parameters
+    ----------
+    record : Record
+        ``time``, ``current``, ``displacement``, shape (T,).
+    model : model.Model
+        Pinned parameters (``vary=False``) stay at their values.
+    noise : NoiseModel
+        A free sigma (``source="free"``) adds the coordinate ``noise_log_sigma``.
+    priors : dict, optional
+        ``{name: prior name or callable f(x, lower, upper)}``; missing names use
+        :func:`default_priors`.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Coordinates sampled, shape (D,).
+    lower, upper : ndarray, shape (D,)
+        The prior's support.
+    n_errors : int
+        Rows whose evaluation raised (and were given ``-inf``).
+    """
+
+    def __init__(self, record, model: Model, noise: NoiseModel, *, priors=None):
+        self.time = np.asarray(record.time, dtype=float)
+        self.current = np.asarray(record.current, dtype=float)
+        self.data = np.asarray(record.displacement, dtype=float)
+        self.model = model
+        self.noise = noise
+        self.free = np.flatnonzero(model.parameters.vary)
+        self.template = model.parameters.values.copy()
+        names = [model.names[i] for i in self.free]
+        lower = list(model.parameters.lower[self.free])
+        upper = list(model.parameters.upper[self.free])
+        kinds = default_priors(model)
+        kinds.update(priors or {})
+        unknown = set(priors or {}) - set(model.names) - {"noise_log_sigma"}
+        if unknown:
+            raise ValueError(f"priors given for unknown parameters {sorted(unknown)}")
+        self.free_sigma = noise.is_free
+        if self.free_sigma:
+            span = float(np.ptp(self.data))
+            if not span > 0:
+                raise ValueError("a free noise sigma needs a displacement that is not constant")
+            names.append("noise_log_sigma")
+            lower.append(math.log(1e-6 * span))
+            upper.append(math.log(span))
+            kinds.setdefault("noise_log_sigma", "uniform")
+        self.names = tuple(names)
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        self.prior_names = {}
+        self._prior_fns = []
+        for n, lo, hi in zip(self.names, self.lower, self.upper):
+            kind = kinds.get(n, "uniform")
+            fn = PRIORS.get(kind) if isinstance(kind, str) else kind
+            if fn is None:
+                raise ValueError(f"unknown prior {kind!r} for {n}; known: {', '.join(PRIORS)}")
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                raise ValueError(f"parameter {n} needs finite bounds for a proper prior, got [{lo}, {hi}]")
+            if kind == "log_uniform" and not lo > 0:
+                raise ValueError(f"a log-uniform prior needs a positive lower bound; {n} has {lo}")
+            self.prior_names[n] = kind if isinstance(kind, str) else getattr(kind, "__name__", "custom")
+            self._prior_fns.append(fn)
+        self.n_errors = 0
+
+    @property
+    def ndim(self) -> int:
+        return len(self.names)
+
+    def full_theta(self, x) -> np.ndarray:
+        """Full model vectors ``(W, P)`` from sampled coordinates ``(W, D)``."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        theta = np.repeat(self.template[None, :], x.shape[0], axis=0)
+        theta[:, self.free] = x[:, : self.free.size]
+        return theta
+
+    def in_support(self, x) -> np.ndarray:
+        """Boolean ``(W,)``: finite and within the bounds."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        return np.isfinite(x).all(axis=1) & (x >= self.lower).all(axis=1) & (x <= self.upper).all(axis=1)
+
+    def log_prior(self, x) -> np.ndarray:
+        """Log prior density ``(W,)``; ``-inf`` outside the support."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        out = np.full(x.shape[0], -np.inf)
+        ok = self.in_support(x)
+        if ok.any():
+            xs = x[ok]
+            total = np.zeros(xs.shape[0])
+            for j, fn in enumerate(self._prior_fns):
+                total += fn(xs[:, j], self.lower[j], self.upper[j])
+            out[ok] = total
+        return out
+
+    def _evaluate_rows(self, theta):
+        try:
+            return self.model.evaluate(theta, self.time, self.current)
+        except Exception:  # never raise for a walker: fall back to one row at a time
+            y = np.zeros((theta.shape[0], self.time.size))
+            valid = np.zeros(theta.shape[0], dtype=bool)
+            for k in range(theta.shape[0]):
+                try:
+                    yk, vk = self.model.evaluate(theta[k], self.time, self.current)
+                    y[k], valid[k] = yk[0], vk[0]
+                except Exception:
+                    self.n_errors += 1
+            return y, valid
+
+    def __call__(self, x) -> np.ndarray:
+        """Log-posterior (up to the evidence) of ``(W, D)`` coordinates -> ``(W,)``; 1-D in -> float."""
+        x_in = np.asarray(x, dtype=float)
+        x2 = np.atleast_2d(x_in)
+        out = self.log_prior(x2)
+        ok = np.flatnonzero(np.isfinite(out))
+        if ok.size:
+            y, valid = self._evaluate_rows(self.full_theta(x2[ok]))
+            if valid.any():
+                rows = ok[valid]
+                residual = self.data[None, :] - y[valid]
+                sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
+                loglik = log_likelihood(residual, self.noise, sigma)
+                out[rows] += loglik
+            out[ok[~valid]] = -np.inf
+        out[~np.isfinite(out)] = -np.inf
+        return float(out[0]) if x_in.ndim == 1 else out
+
+
+def default_n_walkers(ndim: int) -> int:
+    """About twice the dimension, even, at least 32."""
+    n = max(32, 2 * int(ndim))
+    return n + (n % 2)
+
+
+def initial_walkers(log_post: LogPosterior, mean, covariance, n_walkers, rng, *, max_rounds=200) -> np.ndarray:
+    """Walkers drawn from ``N(mean, covariance)``, each redrawn until its log-posterior is finite.
+
+    Parameters
+    ----------
+    log_post : LogPosterior
+    mean : array_like, shape (D,)
+        The least-squares solution in sampled coordinates.
+    covariance : array_like, shape (D, D)
+        Its covariance (e.g. the Jacobian-based one).
+    n_walkers : int
+    rng : numpy.random.Generator
+    max_rounds : int, default 200
+        Redraw rounds; every 20 rounds without success the covariance is halved.
+
+    Returns
+    -------
+    ndarray, shape (n_walkers, D)
+
+    Raises
+    ------
+    ValueError
+        When ``mean`` itself is outside the support or no draws land in it.
+    """
+    mean = np.asarray(mean, dtype=float)
+    cov = np.asarray(covariance, dtype=float)
+    cov = 0.5 * (cov + cov.T)
+    if not np.isfinite(log_post(mean[None, :])[0]):
+        raise ValueError("the least-squares solution has a log-posterior of -inf (outside the support or domain)")
+    walkers = np.empty((n_walkers, mean.size))
+    missing = np.arange(n_walkers)
+    shrink = 1.0
+    for round_ in range(max_rounds):
+        draws = rng.multivariate_normal(mean, shrink * cov, size=missing.size, method="eigh")
+        good = np.isfinite(log_post(draws))
+        walkers[missing[good]] = draws[good]
+        missing = missing[~good]
+        if missing.size == 0:
+            return walkers
+        if (round_ + 1) % 20 == 0:
+            shrink *= 0.5
+    raise ValueError(f"could not place {missing.size} of {n_walkers} walkers inside the posterior's support")
+
+
+@dataclass
+class PosteriorResult:
+    """Summary of an emcee run (see the module docstring for the definitions).
+
+    Parameters
+    ----------
+    names : tuple of str
+        Sampled coordinates, shape (D,).
+    converged : bool
+    message : str
+        Plain words, e.g. "converged: ..." or "NOT CONVERGED: ...".
+    n_walkers, n_steps, discard, thin : int
+    acceptance_fraction : float
+        Mean over walkers.
+    tau : ndarray, shape (D,)
+        Integrated autocorrelation times [steps].
+    ess : ndarray, shape (D,)
+        Effective sample sizes.
+    samples : ndarray, shape (N, D)
+        Flat samples after burn-in and thinning.
+    log_prob : ndarray, shape (N,)
+    seconds : float
+        Sampling wall time in this call [s].
+    n_errors : int
+        Walker evaluations that raised and got ``-inf``.
+    """
+
+    names: tuple
+    converged: bool
+    message: str
+    n_walkers: int
+    n_steps: int
+    discard: int
+    thin: int
+    acceptance_fraction: float
+    tau: np.ndarray
+    ess: np.ndarray
+    samples: np.ndarray = field(repr=False)
+    log_prob: np.ndarray = field(repr=False)
+    seconds: float = 0.0
+    n_errors: int = 0
+
+    @property
+    def tau_max(self) -> float:
+        return float(np.max(self.tau))
+
+    def quantiles(self, q=(0.025, 0.5, 0.975)) -> np.ndarray:
+        """Quantiles ``(len(q), D)`` of the flat samples."""
+        return np.quantile(self.samples, q, axis=0)
+
+    def to_dict(self) -> dict:
+        """The ``posterior`` block of ``summary.json``."""
+        return {
+            "converged": bool(self.converged),
+            "message": self.message,
+            "n_walkers": int(self.n_walkers),
+            "n_steps": int(self.n_steps),
+            "discard": int(self.discard),
+            "thin": int(self.thin),
+            "acceptance_fraction": float(self.acceptance_fraction),
+            "tau_max": _finite_or_none(self.tau_max),
+            "n_samples": int(self.samples.shape[0]),
+            "n_errors": int(self.n_errors),
+            "seconds": float(self.seconds),
+        }
+
+
+def _finite_or_none(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _tau(chain) -> np.ndarray:
+    """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain."""
+    if chain.shape[0] < 2:
+        return np.full(chain.shape[2], np.inf)
+    return np.asarray(emcee.autocorr.integrated_time(chain, tol=0, quiet=True), dtype=float)
+
+
+def _convergence(chain, check_every, tau_factor, tau_rtol):
+    """(converged, tau, relative change, message) at the end of ``chain``."""
+    n = chain.shape[0]
+    tau = _tau(chain)
+    prev_n = n - check_every
+    if prev_n >= check_every:
+        tau_prev = _tau(chain[:prev_n])
+        change = float(np.max(np.abs(tau - tau_prev) / tau))
+    else:
+        change = math.inf
+    long_enough = bool(np.isfinite(tau).all() and n >= tau_factor * np.max(tau))
+    stable = change < tau_rtol
+    msg = (
+        f"{n} steps = {n / np.max(tau):.1f} x tau_max ({np.max(tau):.1f} steps; need >= {tau_factor:g}), "
+        f"tau change since the previous check {change:.1%} (need < {tau_rtol:.0%})"
+    )
+    return long_enough and stable, tau, change, msg
+
+
+def posterior_from_backend(path, names, *, converged=None, message="", tau_factor=50.0, tau_rtol=0.05,
+                           check_every=None, seconds=0.0, n_errors=0) -> PosteriorResult:
+    """Summarise the chain stored in ``path`` (HDF5 backend, group :data:`BACKEND_GROUP`)."""
+    backend = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP, read_only=True)
+    chain = backend.get_chain()
+    log_prob_chain = backend.get_log_prob()
+    n_steps, n_walkers, ndim = chain.shape
+    if n_steps == 0:
+        raise ValueError(f"{path}: the chain is empty")
+    check_every = check_every or max(1, n_steps // 2)
+    ok, tau, _change, msg = _convergence(chain, check_every, tau_factor, tau_rtol)
+    if converged is None:
+        converged = ok
+    if not message:
+        message = ("converged: " if converged else "NOT CONVERGED: ") + msg
+    tau_max = float(np.max(tau)) if np.isfinite(tau).all() else float(n_steps)
+    discard = min(int(math.ceil(2 * tau_max)), n_steps - 1)
+    tau_min = float(np.min(tau)) if np.isfinite(tau).all() else 1.0
+    thin = max(1, int(0.5 * tau_min))
+    samples = chain[discard::thin].reshape(-1, ndim)
+    log_prob = log_prob_chain[discard::thin].reshape(-1)
+    ess = n_walkers * (n_steps - discard) / tau
+    acceptance = float(np.mean(backend.accepted / n_steps))
+    return PosteriorResult(
+        names=tuple(names), converged=bool(converged), message=message, n_walkers=n_walkers,
+        n_steps=n_steps, discard=discard, thin=thin, acceptance_fraction=acceptance, tau=tau,
+        ess=ess, samples=samples, log_prob=log_prob, seconds=seconds, n_errors=n_errors,
+    )  # fmt: skip
+
+
+def sample_posterior(
+    log_post: LogPosterior,
+    initial,
+    backend_path,
+    rng: np.random.Generator,
+    *,
+    n_walkers=None,
+    max_steps=20000,
+    check_every=500,
+    tau_factor=50.0,
+    tau_rtol=0.05,
+    moves="stretch",
+    progress=None,
+    log=None,
+) -> PosteriorResult:
+    """Run (or resume) emcee until converged or ``max_steps`` (rules in the module docstring).
+
+    Parameters
+    ----------
+    log_post : LogPosterior
+    initial : callable or array_like
+        Walker start ``(n_walkers, D)``, or a callable ``f(n_walkers, rng)`` returning
+        one; used only when the backend holds no steps yet.
+    backend_path : path-like
+        The HDF5 file (``DIR/chain.h5``); an existing chain of the same shape is resumed.
+    rng : numpy.random.Generator
+        Seeds emcee's internal RandomState (and the walker start).
+    n_walkers : int, optional
+        Default :func:`default_n_walkers` ``(D)``, or the backend's when resuming.
+    max_steps : int, default 20000
+        Cap on the chain length [steps], counting resumed steps.
+    check_every : int, default 500
+        Convergence check interval [steps].
+    tau_factor, tau_rtol : float, default 50, 0.05
+    moves : str, default "stretch"
+        A key of :data:`MOVES`.
+    progress : bool, optional
+        tqdm bar on stderr; default: when stderr is a terminal.
+    log : callable, optional
+        ``log(str)`` for one line per check.
+
+    Returns
+    -------
+    PosteriorResult
+    """
+    if moves not in MOVES:
+        raise ValueError(f"unknown move {moves!r}; known: {', '.join(MOVES)}")
+    if isinstance(max_steps, bool) or int(max_steps) < 1 or int(check_every) < 1:
+        raise ValueError(f"max_steps and check_every must be >= 1, got {max_steps!r}, {check_every!r}")
+    max_steps, check_every = int(max_steps), int(check_every)
+    log = log or (lambda _msg: None)
+    ndim = log_post.ndim
+    path = os.fspath(backend_path)
+    backend = emcee.backends.HDFBackend(path, name=BACKEND_GROUP)
+    # The emcee seed and the walker-start generator are drawn first, so they do not
+    # depend on whether this call starts or resumes.
+    emcee_seed = int(rng.integers(2**32))
+    start_rng = rng.spawn(1)[0]
+    resuming = backend.initialized and backend.iteration > 0
+    if resuming:
+        stored_walkers, stored_dim = backend.shape
+        if stored_dim != ndim or (n_walkers is not None and n_walkers != stored_walkers):
+            raise ValueError(
+                f"{path} holds a chain of {stored_walkers} walkers x {stored_dim} parameters, "
+                f"not {n_walkers or 'any'} x {ndim}: a different run (use a new folder or --force)"
+            )
+        n_walkers = stored_walkers
+    n_walkers = default_n_walkers(ndim) if n_walkers is None else int(n_walkers)
+    if n_walkers < 2 * ndim or n_walkers % 2:
+        raise ValueError(f"n_walkers must be even and >= 2 x {ndim} (the dimension), got {n_walkers}")
+    if backend.initialized and backend.iteration == 0:
+        backend.reset(n_walkers, ndim)
+    sampler = emcee.EnsembleSampler(n_walkers, ndim, log_post, vectorize=True, backend=backend, moves=MOVES[moves]())
+    if resuming:
+        state = sampler.get_last_sample()  # carries the stored random state
+        log(f"resuming the chain in {path} at step {backend.iteration}")
+    else:
+        coords = initial(n_walkers, start_rng) if callable(initial) else np.asarray(initial, dtype=float)
+        if coords.shape != (n_walkers, ndim):
+            raise ValueError(f"initial walkers must have shape ({n_walkers}, {ndim}), got {coords.shape}")
+        state = emcee.State(coords, random_state=np.random.RandomState(emcee_seed).get_state())
+
+    if progress is None:
+        progress = sys.stderr.isatty()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=max_steps, initial=backend.iteration, desc="emcee", unit="step", file=sys.stderr)
+    t0 = _time.perf_counter()
+    converged, message = False, ""
+    try:
+        while True:
+            done = backend.iteration
+            if done > 0 and done % check_every == 0 or done >= max_steps:
+                chain = backend.get_chain()
+                ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol)
+                log(f"step {done}: {msg}")
+                if ok:
+                    converged, message = True, "converged: " + msg
+                    break
+                if done >= max_steps:
+                    message = f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg
+                    break
+            steps = min(check_every - done % check_every, max_steps - done)
+            for state in sampler.sample(state, iterations=steps, store=True, progress=False):
+                if bar is not None:
+                    bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    return posterior_from_backend(
+        path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
+        tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
+        n_errors=log_post.n_errors,
+    )  # fmt: skip

@@ -1,0 +1,434 @@
+"""The results folder of a study: write it (atomically), read it back, check a rerun matches.
+
+Layout (docs/CONTRACTS.md)::
+
+    DIR/
+      data.npz         time, current, displacement (the record exactly as fitted), units and
+                       column names as 0-d string arrays, source, sha256
+      chain.h5         emcee HDFBackend, group "mcmc" (resumable)
+      fit.json         FitResult.to_dict()
+      summary.json     model, units, noise, fit, identifiability, posterior, parameters
+      manifest.json    seed, data file + sha256, settings, package versions, git commit, times
+      report.html + *.png   written by identify.report
+
+Every file is written to a temporary name in ``DIR`` and renamed into place, so a crash
+never leaves a half-written file. JSON is strict (NaN and infinity written as ``null``).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "FILES",
+    "RunMismatchError",
+    "StudyResults",
+    "atomic_write_bytes",
+    "write_json",
+    "read_json",
+    "jsonable",
+    "write_data",
+    "load_data",
+    "write_fit",
+    "load_fit",
+    "write_summary",
+    "build_summary",
+    "build_manifest",
+    "finish_manifest",
+    "check_resumable",
+    "package_versions",
+    "git_commit",
+    "load_results",
+    "now_iso",
+]
+
+#: role -> file name inside a results folder.
+FILES = {
+    "data": "data.npz",
+    "chain": "chain.h5",
+    "fit": "fit.json",
+    "summary": "summary.json",
+    "manifest": "manifest.json",
+    "report": "report.html",
+}
+
+
+class RunMismatchError(ValueError):
+    """The results folder holds a run with different data or settings."""
+
+
+def now_iso() -> str:
+    """Current UTC time, ISO 8601 with seconds."""
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same folder and a rename."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def jsonable(obj):
+    """``obj`` with numpy types converted and non-finite floats replaced by None."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        x = float(obj)
+        return x if math.isfinite(x) else None
+    if obj is None or isinstance(obj, str):
+        return obj
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"cannot write {type(obj).__name__} to JSON: {obj!r}")
+
+
+def write_json(path, obj) -> None:
+    """Strict JSON (sorted keys kept in insertion order, 2-space indent), atomically."""
+    text = json.dumps(jsonable(obj), indent=2, allow_nan=False) + "\n"
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def read_json(path) -> dict:
+    """Read a JSON file, with a clear error naming it."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: missing (not a complete results folder?)") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+
+
+def write_data(out_dir, record) -> None:
+    """``data.npz``: the record's arrays, units, column names, source and sha256."""
+    import io
+
+    buf = io.BytesIO()
+    np.savez(
+        buf,
+        time=np.asarray(record.time, dtype=float),
+        current=np.asarray(record.current, dtype=float),
+        displacement=np.asarray(record.displacement, dtype=float),
+        input_unit=np.array(record.input_unit),
+        output_unit=np.array(record.output_unit),
+        input_name=np.array(record.input_name),
+        output_name=np.array(record.output_name),
+        source=np.array(str(record.source)),
+        sha256=np.array(record.sha256),
+    )
+    atomic_write_bytes(Path(out_dir) / FILES["data"], buf.getvalue())
+
+
+def load_data(out_dir):
+    """The record stored in ``DIR/data.npz`` as an :class:`identify.records.Record`."""
+    from .records import Record
+
+    path = Path(out_dir) / FILES["data"]
+    with np.load(path, allow_pickle=False) as z:
+        return Record(
+            time=z["time"],
+            current=z["current"],
+            displacement=z["displacement"],
+            source=str(z["source"]),
+            sha256=str(z["sha256"]),
+            input_name=str(z["input_name"]),
+            input_unit=str(z["input_unit"]),
+            output_name=str(z["output_name"]),
+            output_unit=str(z["output_unit"]),
+        )
+
+
+def write_fit(out_dir, fit) -> None:
+    """``fit.json`` from a :class:`identify.lsq.FitResult`."""
+    write_json(Path(out_dir) / FILES["fit"], fit.to_dict())
+
+
+def load_fit(out_dir):
+    """The :class:`identify.lsq.FitResult` stored in ``DIR/fit.json``."""
+    from .lsq import FitResult
+
+    return FitResult.from_dict(read_json(Path(out_dir) / FILES["fit"]))
+
+
+def write_summary(out_dir, summary: dict) -> None:
+    write_json(Path(out_dir) / FILES["summary"], summary)
+
+
+def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
+    """``summary.json`` contents (keys as in docs/CONTRACTS.md).
+
+    Parameters
+    ----------
+    record : Record
+    fit : identify.lsq.FitResult
+    identifiability : identify.identifiability.IdentifiabilityResult, optional
+    posterior : identify.posterior.PosteriorResult, optional
+        When None (sampling not done yet) the ``posterior`` block is null and the
+        parameters' posterior fields are null.
+    """
+    from model import TABLE1, THETA_NAMES
+
+    from .lsq import parameter_units
+
+    model = fit.model
+    units = parameter_units(model, record)
+    post_index = {}
+    quantiles = None
+    if posterior is not None:
+        post_index = {n: j for j, n in enumerate(posterior.names)}
+        quantiles = posterior.quantiles((0.025, 0.5, 0.975))
+    parameters = []
+    for i, name in enumerate(model.names):
+        entry = {
+            "name": name,
+            "unit": units[i],
+            "table1": float(TABLE1[THETA_NAMES.index(name)]) if name in THETA_NAMES else None,
+            "lsq": float(fit.theta[i]),
+            "lsq_stderr": float(fit.stderr[i]),
+            "median": None,
+            "lo95": None,
+            "hi95": None,
+            "tau": None,
+            "ess": None,
+            "vary": bool(fit.vary[i]),
+        }
+        if not fit.vary[i]:
+            entry.update(median=float(fit.theta[i]), lo95=float(fit.theta[i]), hi95=float(fit.theta[i]))
+        elif name in post_index:
+            j = post_index[name]
+            entry.update(
+                lo95=float(quantiles[0, j]), median=float(quantiles[1, j]), hi95=float(quantiles[2, j]),
+                tau=float(posterior.tau[j]), ess=float(posterior.ess[j]),
+            )  # fmt: skip
+        parameters.append(entry)
+    noise = {
+        "sigma": fit.noise.sigma,
+        "rho": fit.noise.rho,
+        "kind": fit.noise.kind,
+        "source": fit.noise.source,
+        "n_quiet": fit.noise.n_quiet,
+    }
+    if posterior is not None and "noise_log_sigma" in post_index:
+        j = post_index["noise_log_sigma"]
+        lo, med, hi = np.exp(quantiles[:, j])
+        noise["posterior"] = {"median": med, "lo95": lo, "hi95": hi, "tau": posterior.tau[j], "ess": posterior.ess[j]}
+    ident = None
+    if identifiability is not None:
+        ident = identifiability.to_dict()
+    return jsonable(
+        {
+            "model": model.to_dict(),
+            "units": {"input": record.input_unit, "output": record.output_unit},
+            "noise": noise,
+            "fit": {
+                "rms": fit.rms,
+                "max_error_pct": fit.max_error_pct,
+                "reduced_chi2": fit.reduced_chi2,
+                "seconds": fit.seconds,
+                "n_starts": fit.n_starts,
+                "n_agree": fit.n_agree,
+                "success": fit.success,
+            },
+            "identifiability": ident,
+            "posterior": None if posterior is None else posterior.to_dict(),
+            "parameters": parameters,
+        }
+    )
+
+
+def package_versions() -> dict:
+    """Versions of Python, the platform and the packages the results depend on."""
+    import importlib.metadata as md
+
+    versions = {"python": sys.version.split()[0], "platform": platform.platform()}
+    for dist in ("msma-gpi", "numpy", "scipy", "numba", "emcee", "h5py", "matplotlib", "threadpoolctl"):
+        try:
+            versions[dist] = md.version(dist)
+        except md.PackageNotFoundError:
+            versions[dist] = None
+    return versions
+
+
+def git_commit(path=None) -> dict:
+    """``{"commit": sha or None, "dirty": bool or None}`` of the project's git work tree."""
+    root = Path(path) if path is not None else Path(__file__).resolve().parent.parent
+    try:
+        sha = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        status = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True, text=True, timeout=10, check=True,
+        ).stdout  # fmt: skip
+        return {"commit": sha, "dirty": bool(status.strip())}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None}
+
+
+def build_manifest(*, seed, record, settings: dict, started=None, command=None) -> dict:
+    """``manifest.json`` contents at the start of a run.
+
+    Parameters
+    ----------
+    seed : int
+        The ``--seed`` every random draw derives from.
+    record : Record
+        Its ``source`` and ``sha256`` identify the data.
+    settings : dict
+        Every option of the command (JSON-ready values).
+    started : str, optional
+        ISO time; default now.
+    command : list of str, optional
+        The command line; default ``sys.argv``.
+    """
+    return jsonable(
+        {
+            "seed": seed,
+            "data": {"file": str(record.source), "sha256": record.sha256, "n_samples": len(record.time)},
+            "settings": settings,
+            "versions": package_versions(),
+            "git": git_commit(),
+            "command": list(sys.argv if command is None else command),
+            "started": started or now_iso(),
+            "finished": None,
+            "runs": [],
+        }
+    )
+
+
+def finish_manifest(manifest: dict, *, started, seconds: float, status: str) -> dict:
+    """Record one (possibly resumed) run's times and status in ``manifest["runs"]``."""
+    finished = now_iso()
+    manifest = dict(manifest)
+    manifest["runs"] = list(manifest.get("runs", [])) + [
+        {"started": started, "finished": finished, "seconds": float(seconds), "status": status}
+    ]
+    manifest["finished"] = finished
+    return manifest
+
+
+def check_resumable(out_dir, manifest: dict, *, ignore=()) -> dict | None:
+    """Compare a new run with the one stored in ``DIR/manifest.json``.
+
+    Returns the stored manifest (None when the folder holds no run yet).
+
+    Raises
+    ------
+    RunMismatchError
+        Different data (sha256), seed or settings (except the names in ``ignore``,
+        e.g. a raised step cap); the message lists every difference.
+    """
+    path = Path(out_dir) / FILES["manifest"]
+    if not path.exists():
+        return None
+    old = read_json(path)
+    diffs = []
+    if old.get("data", {}).get("sha256") != manifest["data"]["sha256"]:
+        diffs.append(f"data sha256 {old.get('data', {}).get('sha256')} -> {manifest['data']['sha256']}")
+    if old.get("seed") != manifest["seed"]:
+        diffs.append(f"seed {old.get('seed')} -> {manifest['seed']}")
+    old_settings, new_settings = old.get("settings", {}), manifest["settings"]
+    for key in sorted(set(old_settings) | set(new_settings)):
+        if key in ignore:
+            continue
+        if old_settings.get(key) != new_settings.get(key):
+            diffs.append(f"{key}: {old_settings.get(key)!r} -> {new_settings.get(key)!r}")
+    if diffs:
+        raise RunMismatchError(
+            f"{out_dir} holds a run with different data or settings ("
+            + "; ".join(diffs)
+            + "). Use another --out folder, or --force to discard that run."
+        )
+    return old
+
+
+@dataclass
+class StudyResults:
+    """A results folder read back (what ``report``, ``diagnose`` and ``reproduce`` need).
+
+    Parameters
+    ----------
+    path : Path
+    record : Record
+        From ``data.npz``.
+    fit : identify.lsq.FitResult
+    summary, manifest : dict
+    """
+
+    path: Path
+    record: object
+    fit: object
+    summary: dict
+    manifest: dict
+
+    @property
+    def chain_path(self) -> Path:
+        return self.path / FILES["chain"]
+
+    def posterior_samples(self):
+        """Flat posterior samples ``(N, D)`` (burn-in and thinning as in summary.json) and their names.
+
+        Returns
+        -------
+        samples : ndarray, shape (N, D)
+        names : tuple of str
+            The sampled coordinates (free parameters, then ``noise_log_sigma`` if free).
+        """
+        import emcee
+
+        from .posterior import BACKEND_GROUP
+
+        post = self.summary.get("posterior")
+        if post is None:
+            raise ValueError(f"{self.path}: no posterior yet (the study has not finished sampling)")
+        backend = emcee.backends.HDFBackend(str(self.chain_path), name=BACKEND_GROUP, read_only=True)
+        samples = backend.get_chain(discard=int(post["discard"]), thin=int(post["thin"]), flat=True)
+        names = [p["name"] for p in self.summary["parameters"] if p["vary"]]
+        if self.summary["noise"].get("source") == "free":
+            names.append("noise_log_sigma")
+        return samples, tuple(names)
+
+
+def load_results(out_dir) -> StudyResults:
+    """Read a results folder written by ``python -m identify study``."""
+    path = Path(out_dir)
+    if not path.is_dir():
+        raise FileNotFoundError(f"{path}: no such results folder")
+    return StudyResults(
+        path=path,
+        record=load_data(path),
+        fit=load_fit(path),
+        summary=read_json(path / FILES["summary"]),
+        manifest=read_json(path / FILES["manifest"]),
+    )
