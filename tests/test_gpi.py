@@ -183,6 +183,40 @@ def test_initial_memory_matches_oracle(reading, paper_input):
         assert np.ptp(out[:, 0]) == 0.0
 
 
+def test_kernel_tanh_is_within_a_few_ulp_odd_and_monotone():
+    """The kernel's exp-based tanh (model.gpi._tanh) against math.tanh."""
+    import math
+
+    from numba import njit
+
+    from model.gpi import _tanh
+
+    @njit
+    def kernel_tanh(x, out):
+        for i in range(x.size):
+            out[i] = _tanh(x[i])
+
+    rng = np.random.default_rng(2)
+    x = np.concatenate([
+        rng.uniform(-25.0, 25.0, 20000),
+        np.logspace(-300, 2.5, 5000),
+        0.5 + np.arange(-500, 500) * np.spacing(0.5),  # the switch between the two formulas
+        [0.0, 1e308, 710.0, 19.1, 0.5],
+    ])
+    x = np.concatenate([x, -x])
+    fast = np.empty_like(x)
+    kernel_tanh(x, fast)
+    exact = np.array([math.tanh(value) for value in x])
+    ulps = np.abs(fast - exact) / np.spacing(np.maximum(np.abs(exact), np.finfo(float).tiny))
+    assert ulps.max() <= 4
+    half = x.size // 2
+    np.testing.assert_array_equal(fast[half:], -fast[:half])
+    grid = np.sort(x)
+    on_grid = np.empty_like(grid)
+    kernel_tanh(grid, on_grid)
+    assert np.all(np.diff(on_grid) >= 0)
+
+
 # ----------------------------------------------------------------------------- regression pin of Table 1
 
 
