@@ -23,6 +23,9 @@ from reference import classical_pi_reference, gpi_reference
 
 N_OPERATORS = 12
 A_SLICE, B_SLICE, C_SLICE, D_SLICE = slice(3, 7), slice(7, 11), slice(11, 15), slice(15, 19)
+#: Every input of the property tests lies in [0, 5] A. Bounds kept apart by >= 0.01 on this
+#: grid stay apart in between: 2.5e-4 A spacing times envelope slopes below 40 /A.
+DENSE_0_TO_5_AMPERES = np.linspace(0.0, 5.0, 20001)
 FAST_SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
@@ -266,8 +269,7 @@ def test_wiping_out_by_a_larger_excursion(first, history_a, history_b, top, bott
     """Two histories, then a common excursion above both maxima and below both minima:
     identical outputs from the excursion's minimum on (increasing envelopes, non-crossing
     bounds; both histories start at the same sample and initial memory)."""
-    grid = np.linspace(0.0, 5.0, 101)
-    theta = perturbed_table1(np.random.default_rng(seed), 0.05, grid)
+    theta = perturbed_table1(np.random.default_rng(seed), 0.05, DENSE_0_TO_5_AMPERES)
     excursion_and_tail = [top, bottom, *tail]
     out_a = gpi(theta, [first, *history_a, *excursion_and_tail])
     out_b = gpi(theta, [first, *history_b, *excursion_and_tail])
@@ -297,8 +299,7 @@ def test_rate_independence(levels, inserts, reading, seed):
     """Sampling the same piecewise-monotone input faster (extra points strictly inside each
     monotone segment, or repeats along a flat one) gives identical outputs at the original points."""
     current = np.asarray(levels) * 0.05  # 0.05 A grid: repeats (flats) are common
-    grid = np.linspace(0.0, 5.0, 101)
-    theta = perturbed_table1(np.random.default_rng(seed), 0.05, grid)
+    theta = perturbed_table1(np.random.default_rng(seed), 0.05, DENSE_0_TO_5_AMPERES)
     refined, original_index = [current[0]], [0]
     for k in range(1, current.size):
         start, end = current[k - 1], current[k]
@@ -321,7 +322,7 @@ def test_output_bounded_by_envelopes(current, seed, initial_memory):
     """Every memory lies in [L_j, U_j] (oracle), so with positive weights
     Omega + sum p_j L_j <= y <= Omega + sum p_j U_j (fast model)."""
     current = np.asarray(current)
-    theta = perturbed_table1(np.random.default_rng(seed), 0.1, np.linspace(0.0, 5.0, 101))
+    theta = perturbed_table1(np.random.default_rng(seed), 0.1, DENSE_0_TO_5_AMPERES)
     reference = gpi_reference(theta, current, initial_memory=initial_memory)
     lower, upper, memory = (np.asarray(x) for x in (reference.lower, reference.upper, reference.memory))
     assert np.all(lower <= memory) and np.all(memory <= upper)
@@ -348,7 +349,7 @@ def test_output_bounded_by_envelopes(current, seed, initial_memory):
 )
 def test_piecewise_law_equals_clamp_form(current, seed, initial_memory):
     """Increasing envelopes and non-crossing bounds: eq. (5) == max(L, min(U, z)) exactly."""
-    theta = perturbed_table1(np.random.default_rng(seed), 0.2, np.linspace(0.0, 5.0, 101))
+    theta = perturbed_table1(np.random.default_rng(seed), 0.2, DENSE_0_TO_5_AMPERES)
     piecewise = gpi_reference(theta, current, initial_memory=initial_memory, law="piecewise")
     clamp = gpi_reference(theta, current, initial_memory=initial_memory, law="clamp")
     assert piecewise.memory == clamp.memory
