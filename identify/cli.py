@@ -15,6 +15,10 @@ import sys
 COMMANDS = {
     "paper": "identify.cmd_paper",
     "simulate": "identify.cmd_simulate",
+    "fit": "identify.cmd_fit",
+    "study": "identify.cmd_study",
+    "batch": "identify.cmd_batch",
+    "reproduce": "identify.cmd_reproduce",
 }
 
 def build_parser() -> argparse.ArgumentParser:
