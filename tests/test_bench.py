@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -144,3 +145,32 @@ def test_simulate_truth_matches_model():
     np.testing.assert_allclose(sim.record.displacement - sim.plain, 4.0 * s + drift * s**2, rtol=1e-9, atol=1e-12)
     assert sim.truth["noise"]["kind"] == "white" and sim.truth["effect_size"]["rms_over_noise_sigma"] is None
     assert sim.record.sidecar is sim.truth
+
+
+@pytest.mark.parametrize("stem", ["bench_default", "bench_clean"])
+def test_shipped_records_match_their_truth(stem):
+    """data/*.csv equal what their sidecar's settings simulate now (to 1e-9 um: kernel rounding may change)."""
+    path = Path(__file__).resolve().parent.parent / "data" / f"{stem}.csv"
+    record = load_record(path)
+    truth = record.sidecar
+    assert truth["generator"] == "identify.bench.simulate"
+    sim = simulate(
+        truth["effects"],
+        noise_sigma=truth["noise"]["sigma"],
+        noise_rho=truth["noise"]["rho"],
+        fs=truth["fs"],
+        input_reading=truth["input_reading"],
+        seed=truth["seed"],
+    )
+    np.testing.assert_array_equal(record.time, sim.record.time)
+    np.testing.assert_array_equal(record.current, sim.record.current)
+    np.testing.assert_allclose(record.displacement, sim.record.displacement, rtol=0, atol=1e-9)
+    assert len(record) == 7001 and truth["noise"]["sigma"] == 0.5
+    if stem == "bench_default":
+        # One hidden effect: a few percent of full scale at most, several times the noise (RMS).
+        assert len(truth["effects"]) == 1
+        assert not any(name in path.name for name in EFFECTS)
+        assert truth["effect_size"]["max_pct_of_full_scale"] <= 3.0
+        assert truth["effect_size"]["rms_over_noise_sigma"] >= 3.0
+    else:
+        assert truth["effects"] == {}
