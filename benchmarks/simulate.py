@@ -3,7 +3,9 @@
 Prints the best of several runs (after a warm-up that compiles the numba kernels) for
 the plain GPI (the baseline, measured in the same run), the full simulation with every
 effect at its test parameters, and writing the CSV + sidecar. Target: the simulation
-well under one second.
+well under one second. Then, for identification, the cost of one batch evaluation
+(W = 64 parameter sets, paper input at 100 Hz) with each single effect, as a ratio to the
+plain GPI measured in the same run.
 
 Usage: ``python benchmarks/simulate.py [--repeat N]``
 """
@@ -15,9 +17,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from identify.bench import simulate
 from identify.records import write_record
-from model import EFFECTS, TABLE1, gpi, paper_current
+from model import EFFECTS, TABLE1, Model, gpi, paper_current
 
 
 def best_of(function, repeat):
@@ -50,6 +54,19 @@ def main(argv=None):
     print(f"simulate, every effect on:     {full * 1e3:8.1f} ms  ({full / plain:.1f} x the plain GPI)")
     print(f"write CSV + sidecar:           {write * 1e3:8.1f} ms")
     print(f"target: simulation < 1000 ms -> {'met' if full < 1.0 else 'NOT met'}")
+
+    time_100, current_100 = paper_current(fs=100.0)
+    n_sets = 64
+    print(f"\nbatch evaluation, W = {n_sets}, T = {time_100.size}:")
+    baseline = None
+    for name in [None, *EFFECTS]:
+        m = Model([] if name is None else [name])
+        theta = m.default_theta() if name is None else m.theta_from_dict(EFFECTS[name].get_test_parameters())
+        batch = np.tile(theta, (n_sets, 1))
+        m.evaluate(batch, time_100, current_100)  # warm-up
+        seconds = best_of(lambda: m.evaluate(batch, time_100, current_100), args.repeat)
+        baseline = seconds if name is None else baseline
+        print(f"  {name or 'plain GPI (baseline)':24s} {seconds * 1e3:8.1f} ms  ({seconds / baseline:.2f} x)")
 
 
 if __name__ == "__main__":
