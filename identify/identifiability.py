@@ -68,6 +68,7 @@ __all__ = [
     "pin_gpi_parameters",
     "parameter_scales",
     "analyse_identifiability",
+    "analyse_fit",
 ]
 
 #: The parameters moved by the exact degeneracy, and the power of ``k`` each scales with.
@@ -339,4 +340,53 @@ def analyse_identifiability(
         near=near,
         normalisation=dict(normalisation or {}),
         max_terms=max_terms,
+    )
+
+
+def analyse_fit(fit, record, **kwargs) -> IdentifiabilityResult:
+    """Identifiability at a least-squares optimum, exact directions detected automatically.
+
+    Two Fisher analyses at ``fit.theta`` (central-difference Jacobians of the whitened
+    residuals): with the normalisation released (every GPI parameter free), whose
+    numerically-zero eigenvalues are the **exact** degeneracies (the scaling of
+    :func:`gpi_scaling` is expected); and with the fitted model's pins, whose weak
+    directions are the **near**-degenerate ones that remain. Eigenvalues and the
+    condition number are those of the normalised (fitted) problem.
+
+    Parameters
+    ----------
+    fit : identify.lsq.FitResult
+    record : Record
+    **kwargs
+        Passed to :func:`analyse_identifiability`.
+    """
+    from .lsq import WhitenedResiduals, _single_threaded_blas
+
+    model = fit.model
+    pins = {n: float(v) for n, v, free in zip(model.names, fit.theta, fit.vary) if not free}
+    normalisation = {n: v for n, v in pins.items() if n in NORMALISATION}
+    with _single_threaded_blas():
+        fitted = WhitenedResiduals(record, model, fit.noise)
+        jac = fitted.central_jacobian(fit.theta[fitted.free])
+        names = [model.names[i] for i in fitted.free]
+        result = analyse_identifiability(jac, fit.theta[fitted.free], names, normalisation=normalisation, **kwargs)
+        released = pin_gpi_parameters(model, {n: v for n, v in pins.items() if n not in NORMALISATION})
+        released_res = WhitenedResiduals(record, released, fit.noise)
+        theta_released = released_res.template.copy()
+        theta_released[:] = fit.theta
+        jac_released = released_res.central_jacobian(theta_released[released_res.free])
+        names_released = [released.names[i] for i in released_res.free]
+        exact = analyse_identifiability(
+            jac_released, theta_released[released_res.free], names_released, **kwargs
+        ).exact
+    return IdentifiabilityResult(
+        names=result.names,
+        scales=result.scales,
+        eigenvalues=result.eigenvalues,
+        eigenvectors=result.eigenvectors,
+        condition_number=result.condition_number,
+        exact=exact,
+        near=result.near,
+        normalisation=normalisation,
+        max_terms=result.max_terms,
     )
