@@ -174,3 +174,12 @@ def test_shipped_records_match_their_truth(stem):
         assert truth["effect_size"]["rms_over_noise_sigma"] >= 3.0
     else:
         assert truth["effects"] == {}
+
+
+def test_through_the_command_line(tmp_path, capsys):
+    out = tmp_path / "cli.csv"
+    assert cli.main(["simulate", "--out", str(out), "--effects", "sensor_drift", "--seed", "3"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    record = load_record(out)
+    assert record.sidecar["effects"] == {"sensor_drift": EFFECTS["sensor_drift"].get_test_parameters()}
+    assert record.sidecar["command"].startswith("python -m identify simulate --out")
