@@ -17,6 +17,7 @@ COMMANDS = {
     "simulate": "identify.cmd_simulate",
     "fit": "identify.cmd_fit",
     "study": "identify.cmd_study",
+    "report": "identify.cmd_report",
     "batch": "identify.cmd_batch",
     "reproduce": "identify.cmd_reproduce",
 }

@@ -198,7 +198,7 @@ def error_figure(
     energised_from : float, optional
         Time [s] where the quiet segment ends (shaded before it).
     """
-    fig = _figure(10, 4.2)
+    fig = _figure(10, 4.8)
     ax = fig.add_subplot()
     ax.axhspan(-2 * noise_sigma, 2 * noise_sigma, color=NOISE_COLOUR, alpha=0.15, lw=0,
                label=f"±2σ sensor noise (σ = {noise_sigma:.3g} {unit_label(output_unit)})")  # fmt: skip
@@ -209,20 +209,13 @@ def error_figure(
         ax.axvspan(time[0], energised_from, color="grey", alpha=0.12, lw=0, label="quiet segment (not energised)")
     k = int(max_error_index)
     ax.plot(time[k], error_median[k], "o", mfc="none", mec=MODEL_COLOUR, ms=12, mew=2, label="largest error")
-    ax.annotate(
-        f"max |error| = {abs(error_median[k]):.3g} {unit_label(output_unit)}\n"
-        f"= {max_error_pct:.3g} % of the displacement range\n(t = {time[k]:.4g} s)",
-        xy=(time[k], error_median[k]),
-        xytext=(0.02, 0.97),
-        textcoords="axes fraction",
-        va="top",
-        fontsize=10,
-        bbox=dict(boxstyle="round", fc="white", ec="grey", alpha=0.9),
-    )
     ax.set_xlabel(axis_label("time", "s"))
     ax.set_ylabel(axis_label("model error", output_unit))
-    ax.set_title("Model error vs time (paper Fig. 7)")
-    ax.legend(loc="lower right", fontsize=9)
+    ax.set_title(
+        f"Model error vs time (paper Fig. 7): max |error| = {abs(error_median[k]):.3g} {unit_label(output_unit)} "
+        f"= {max_error_pct:.3g} % of the displacement range, at t = {time[k]:.4g} s"
+    )
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=9, frameon=False)
     return fig
 
 
@@ -370,7 +363,8 @@ def trace_figure(chain, log_prob, labels, *, steps, discard):
     chain : ndarray, shape (S, W, D)
         Stored (possibly thinned) chain: ``S`` steps of ``W`` walkers.
     log_prob : ndarray, shape (S, W)
-        Log-posterior of the same samples.
+        Log-posterior of the same samples; its panel's y range follows the post-burn-in
+        values (lower burn-in values run off the bottom).
     labels : sequence of str, length D
     steps : ndarray of int, shape (S,)
         Sampler step number of each stored row (for the x axis).
@@ -380,8 +374,10 @@ def trace_figure(chain, log_prob, labels, *, steps, discard):
     n_steps, n_walkers, n_dim = chain.shape
     n_cols = 4
     n_rows = int(np.ceil((n_dim + 1) / n_cols))
-    fig = _figure(15, 1.9 * n_rows + 0.6)
-    axes = np.atleast_1d(fig.subplots(n_rows, n_cols, sharex=True)).ravel()
+    height = 1.9 * n_rows + 0.6
+    fig = Figure(figsize=(15, height))  # fixed margins: constrained layout triples the drawing time here
+    grid = dict(left=0.05, right=0.99, bottom=0.5 / height, top=1 - 0.8 / height, hspace=0.5, wspace=0.22)
+    axes = np.atleast_1d(fig.subplots(n_rows, n_cols, sharex=True, gridspec_kw=grid)).ravel()
     line_alpha = float(np.clip(8.0 / n_walkers, 0.08, 0.6))
     series = [(chain[:, :, i], labels[i]) for i in range(n_dim)] + [(log_prob, "log posterior")]
     for ax, (values, label) in zip(axes, series):
@@ -392,6 +388,11 @@ def trace_figure(chain, log_prob, labels, *, steps, discard):
         ax.axvspan(steps[0], discard, color="tab:orange", alpha=0.2, lw=0)
         ax.set_title(label, fontsize=10)
         ax.tick_params(labelsize=8)
+    settled = log_prob[steps > discard]
+    settled = settled[np.isfinite(settled)]
+    if settled.size:  # keep the post-burn-in spread readable; earlier, lower values leave the panel
+        low, high = settled.min(), settled.max()
+        axes[len(series) - 1].set_ylim(low - 0.5 * (high - low + 1.0), high + 0.1 * (high - low + 1.0))
     for ax in axes[len(series) :]:
         ax.set_visible(False)
     for ax in axes[max(0, len(series) - n_cols) : len(series)]:

@@ -1,40 +1,43 @@
 """The uncertainty report of a finished study: one self-contained HTML page plus PNGs.
 
 :func:`write_report` reads a results folder written by ``study`` (layout in
-docs/CONTRACTS.md: ``data.npz``, ``chain.h5``, ``fit.json``, ``summary.json``,
-``manifest.json``) and writes ``DIR/report.html`` (figures embedded as base64 PNG,
-tables as HTML, no external files, opens in any browser without a server) and every
-figure as ``DIR/<name>.png``. It never refits: model curves come from posterior draws
-pushed through the forward model in one vectorised :meth:`model.Model.evaluate` call.
+docs/CONTRACTS.md, read through :func:`identify.results.load_results`: ``data.npz``,
+``chain.h5``, ``fit.json``, ``summary.json``, ``manifest.json``) and writes
+``DIR/report.html`` (figures embedded as base64 PNG, tables as HTML, no external files:
+it opens in any browser without a server) and every figure as ``DIR/<name>.png``
+(names in :data:`FIGURES`). It never refits: model curves come from posterior draws
+pushed through the forward model in ONE vectorised :meth:`model.Model.evaluate` call.
 
 What the page shows
 -------------------
-* **At a glance**: whether the residual is at the noise level, the max error as % of
-  the displacement range and where it is worst, whether the chain converged, and the
-  least well determined parameters.
-* **Measurement vs model** (the paper's Figs. 5-8): input vs time; displacement vs
+* **At a glance**: convergence (a red box when not converged), whether the residual is
+  at the noise level (a red box when it is far above it), the max error as % of the
+  displacement range and where it is worst, the least well determined parameters.
+* **1. Measurement vs model** (the paper's Figs. 5-8): input vs time; displacement vs
   time with the 95 % credible band of the model and the 95 % predictive band (model
   plus noise; the AR(1) noise's marginal sd is sigma, so the predictive band is the
-  pointwise 2.5/97.5 % quantile of the mixture of N(model draw, sigma^2)), with a zoom
+  pointwise 2.5/97.5 % quantile of the mixture of N(model draw, sigma^2)), and a zoom
   on the worst region; model error vs time with the ±2 sigma noise band; hysteresis
   loops with the credible band drawn along each branch (the record is split at the
-  input reversals; each branch's band is a polygon over its own current samples).
-* **Fit quality**: residual RMS vs sigma, reduced chi-square, max error %, per-cycle
-  errors (cycles split at the input's minima) and a highlighted warning when the
-  residual is far above the noise (RMS > :data:`RMS_RATIO_LIMIT` sigma or reduced
-  chi-square > :data:`REDUCED_CHI2_LIMIT`).
-* **Parameters**: Table 1, least squares with standard error, posterior median and
+  input reversals, :func:`input_reversals`; each branch's band is a polygon over its
+  own current samples, never a sorted current grid).
+* **2. Fit quality**: residual RMS vs sigma, reduced chi-square, max error %, the share
+  of samples inside the predictive band, per-cycle errors (cycles split at the input's
+  minima) and a highlighted warning when the residual is far above the noise (RMS >
+  :data:`RMS_RATIO_LIMIT` sigma or reduced chi-square > :data:`REDUCED_CHI2_LIMIT`).
+* **3. Parameters**: Table 1, least squares with standard error, posterior median and
   95 % interval, tau, ESS, pinned marker; corner plot, walker traces, autocorrelation
   time vs chain length; identifiability findings.
-* **Diagnosis** (hook): when ``DIR/diagnosis.json`` exists (keys ``status``,
-  ``missing``, ``ranking`` = list of ``{effect, rms_after, ...}``) its verdict and
-  ranking table are shown, with every ``DIR/diagnosis/*.png`` embedded.
-* **Provenance**: ``manifest.json`` (data file and sha256, seed, settings, versions,
-  commit, times) and the convergence status stated plainly.
+* **4. Diagnosis** (a small hook for issue 6): when ``DIR/diagnosis.json`` exists
+  (keys ``status``, ``missing``, ``ranking`` = list of ``{effect, rms_after, ...}``)
+  its verdict and ranking table are shown, and every ``DIR/diagnosis/*.png`` is
+  embedded (sorted by name; the file stem becomes the alt text).
+* **5. Provenance**: ``manifest.json`` (data file and sha256, seed, settings, versions,
+  git commit, run times) and the convergence status stated plainly.
 
-Numbers shown in tables carry ``data-key`` attributes (e.g. ``fit.rms``,
-``parameters.alpha.median``) and are printed with 6 significant digits, so a test can
-parse them back and compare with ``summary.json``.
+Numbers in tables carry ``data-key`` attributes (``fit.rms``,
+``parameters.alpha.median``, ...) and are printed with :data:`DIGITS` significant
+digits, so a test can parse them back and compare them with ``summary.json``.
 """
 
 from __future__ import annotations
@@ -42,11 +45,10 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 import math
 import os
-import tempfile
 import time as _time
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,24 +56,24 @@ import emcee
 import numpy as np
 from scipy.special import ndtr, ndtri
 
-import model
-
-from . import plots
+from . import plots, results
+from .noise import energised_mask
 
 __all__ = [
     "write_report",
-    "load_results",
+    "load_report_data",
     "read_chain",
     "posterior_draws",
     "model_bands",
     "input_reversals",
     "branches",
     "cycle_errors",
-    "autocorrelation_curve",
     "zoom_samples",
     "loop_zoom_box",
-    "StudyResults",
+    "autocorrelation_curve",
+    "ReportData",
     "ChainSample",
+    "PosteriorDraws",
     "ModelBands",
     "Branch",
     "CycleError",
@@ -81,6 +83,7 @@ __all__ = [
     "REDUCED_CHI2_LIMIT",
     "DIAGNOSIS_FILE",
     "DIAGNOSIS_FIGURES",
+    "NOISE_COORDINATE",
 ]
 
 #: Residual RMS above this multiple of the noise sigma is "far above the noise".
@@ -91,9 +94,11 @@ REDUCED_CHI2_LIMIT = 1.5
 DIAGNOSIS_FILE = "diagnosis.json"
 #: Folder (inside the results folder) whose ``*.png`` the diagnosis section embeds.
 DIAGNOSIS_FIGURES = "diagnosis"
+#: Name of the sampled log noise sigma (last chain column when the noise is free).
+NOISE_COORDINATE = "noise_log_sigma"
 #: At most this many stored chain rows are read (the chain is thinned to fit).
 MAX_CHAIN_ROWS = 4000
-#: At most this many steps per walker are drawn in the trace plots.
+#: At most this many rows per walker are drawn in the trace plots.
 MAX_TRACE_ROWS = 800
 #: At most this many samples go into the corner plot.
 MAX_CORNER_SAMPLES = 6000
@@ -103,8 +108,10 @@ REVERSAL_TOLERANCE = 0.01
 ZOOM_BAND_MULTIPLE = 15.0
 #: Significant digits of the numbers in the tables.
 DIGITS = 6
+#: PNG resolution [dots per inch]; the corner plot is larger in inches, so lower.
+DPI = {"default": 100, "corner": 80}
 
-#: figure file stem -> alt text (also the figure's caption heading), in page order.
+#: figure file stem -> alt text (also the caption's heading), in page order.
 FIGURES = {
     "fig5_input": "Input vs time (paper Fig. 5)",
     "fig6_displacement": "Displacement vs time: measurement, posterior median model, 95% credible and predictive bands (paper Fig. 6)",
@@ -125,144 +132,87 @@ class ResultsError(ValueError):
 # reading
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
-class StudyResults:
-    """The contents of a results folder, as the report needs them.
+class ReportData:
+    """A results folder as the report needs it (read by :func:`load_report_data`).
 
     Attributes
     ----------
     directory : Path
-    time, current, displacement : ndarray, shape (T,)
-        The record exactly as fitted: s, ``input_unit``, ``output_unit``.
-    input_name, input_unit, output_name, output_unit : str
-    fit, summary, manifest : dict
-        ``fit.json``, ``summary.json``, ``manifest.json``.
+    study : identify.results.StudyResults
+        ``record`` (``data.npz``), ``fit`` (:class:`identify.lsq.FitResult`),
+        ``summary``, ``manifest``.
     diagnosis : dict or None
         ``diagnosis.json`` when present.
-    model : model.Model
-        Rebuilt from ``summary["model"]``.
-    theta_lsq : ndarray, shape (P,)
-        Least-squares vector (``fit.json``), :attr:`model.Model.names` order; pinned
-        parameters hold their normalisation value.
-    vary : ndarray of bool, shape (P,)
-        False for parameters pinned by the normalisation.
-    noise_sigma : float
-        Sensor noise sd, ``output_unit``.
     energised : ndarray of bool, shape (T,)
-        Samples after the quiet segment (the first ``summary["noise"]["n_quiet"]``).
+        Samples after the quiet segment (:func:`identify.noise.energised_mask`).
+    noise_sigma : float
+        Sensor noise sd [output unit] (``summary["noise"]["sigma"]``).
     """
 
     directory: Path
-    time: np.ndarray
-    current: np.ndarray
-    displacement: np.ndarray
-    input_name: str
-    input_unit: str
-    output_name: str
-    output_unit: str
-    fit: dict
-    summary: dict
-    manifest: dict
+    study: results.StudyResults
     diagnosis: dict | None
-    model: model.Model
-    theta_lsq: np.ndarray
-    vary: np.ndarray
-    noise_sigma: float
     energised: np.ndarray
+    noise_sigma: float
+
+    @property
+    def record(self):
+        return self.study.record
+
+    @property
+    def fit(self):
+        return self.study.fit
+
+    @property
+    def model(self):
+        return self.study.fit.model
+
+    @property
+    def summary(self) -> dict:
+        return self.study.summary
+
+    @property
+    def manifest(self) -> dict:
+        return self.study.manifest
+
+    @property
+    def noise_is_free(self) -> bool:
+        return self.summary["noise"].get("source") == "free"
 
 
-def _read_json(path: Path, required=True):
-    if not path.exists():
-        if required:
-            raise ResultsError(f"{path}: missing (a results folder is written by `python -m identify study`)")
-        return None
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ResultsError(f"{path}: not valid JSON ({exc})") from None
-
-
-def _require(mapping, keys, where):
-    missing = [k for k in keys if k not in mapping]
-    if missing:
-        raise ResultsError(f"{where}: missing key(s) {missing} required by docs/CONTRACTS.md")
-
-
-def load_results(result_dir) -> StudyResults:
+def load_report_data(result_dir) -> ReportData:
     """Read and check a results folder (everything except the chain).
-
-    Parameters
-    ----------
-    result_dir : str or Path
 
     Raises
     ------
     ResultsError
-        A missing file or key, arrays of different lengths, or parameter names that do
-        not match the model in ``summary.json``.
+        A missing or unreadable file, a summary without a posterior (sampling not
+        finished), or a record whose output is constant.
     """
     directory = Path(result_dir)
-    if not directory.is_dir():
-        raise ResultsError(f"{directory}: not a directory")
-    summary = _read_json(directory / "summary.json")
-    fit = _read_json(directory / "fit.json")
-    manifest = _read_json(directory / "manifest.json", required=False) or {}
-    diagnosis = _read_json(directory / DIAGNOSIS_FILE, required=False)
-    _require(summary, ["model", "units", "noise", "fit", "identifiability", "posterior", "parameters"], directory / "summary.json")
-    _require(fit, ["names", "theta", "vary"], directory / "fit.json")
-
-    data_path = directory / "data.npz"
-    if not data_path.exists():
-        raise ResultsError(f"{data_path}: missing (a results folder is written by `python -m identify study`)")
-    with np.load(data_path, allow_pickle=False) as data:
-        _require(data, ["time", "current", "displacement"], data_path)
-        arrays = {k: np.asarray(data[k], dtype=float) for k in ("time", "current", "displacement")}
-        text = {k: str(data[k][()]) for k in data.files if data[k].ndim == 0 and data[k].dtype.kind == "U"}
-    shapes = {k: v.shape for k, v in arrays.items()}
-    if len(set(shapes.values())) != 1 or arrays["time"].ndim != 1:
-        raise ResultsError(f"{data_path}: time, current and displacement must be 1-D of one length, got {shapes}")
-    for k, v in arrays.items():
-        if not np.isfinite(v).all():
-            raise ResultsError(f"{data_path}: {k} has a non-finite value at sample {int(np.argmin(np.isfinite(v)))}")
-
-    fitted_model = model.Model.from_dict(summary["model"])
-    names = tuple(fit["names"])
-    if names != fitted_model.names:
+    try:
+        study = results.load_results(directory)
+    except (OSError, KeyError, ValueError) as exc:
+        raise ResultsError(f"{directory}: cannot read the results folder ({exc})") from exc
+    summary = study.summary
+    for key in ("model", "units", "noise", "fit", "parameters"):
+        if key not in summary:
+            raise ResultsError(f"{directory / results.FILES['summary']}: missing key {key!r} (docs/CONTRACTS.md)")
+    if summary.get("posterior") is None:
         raise ResultsError(
-            f"{directory / 'fit.json'}: parameter names {list(names)} do not match the model "
-            f"{fitted_model!r} of summary.json ({list(fitted_model.names)})"
+            f"{directory / results.FILES['summary']}: no posterior yet (the study has not finished sampling; "
+            "rerun the same study command to resume it)"
         )
-    theta_lsq = np.asarray(fit["theta"], dtype=float)
-    vary = np.asarray(fit["vary"], dtype=bool)
-    if theta_lsq.shape != (len(names),) or vary.shape != (len(names),):
-        raise ResultsError(f"{directory / 'fit.json'}: theta and vary must have {len(names)} entries")
-
-    units = summary["units"]
-    n_quiet = int(summary["noise"].get("n_quiet") or 0)
-    energised = np.arange(arrays["time"].size) >= n_quiet
-    if not energised.any():
-        raise ResultsError(f"{directory / 'summary.json'}: n_quiet = {n_quiet} leaves no energised samples")
-    noise_sigma = float(summary["noise"]["sigma"])
-    if not (np.isfinite(noise_sigma) and noise_sigma >= 0):
-        raise ResultsError(f"{directory / 'summary.json'}: noise sigma must be finite and >= 0, got {noise_sigma}")
-    return StudyResults(
-        directory=directory,
-        time=arrays["time"],
-        current=arrays["current"],
-        displacement=arrays["displacement"],
-        input_name=text.get("input_name", "current"),
-        input_unit=str(units.get("input", text.get("input_unit", "A"))),
-        output_name=text.get("output_name", "displacement"),
-        output_unit=str(units.get("output", text.get("output_unit", "um"))),
-        fit=fit,
-        summary=summary,
-        manifest=manifest,
-        diagnosis=diagnosis,
-        model=fitted_model,
-        theta_lsq=theta_lsq,
-        vary=vary,
-        noise_sigma=noise_sigma,
-        energised=energised,
-    )
+    diagnosis_path = directory / DIAGNOSIS_FILE
+    diagnosis = results.read_json(diagnosis_path) if diagnosis_path.exists() else None
+    record = study.record
+    energised = energised_mask(record, study.fit.noise)
+    if not np.ptp(np.asarray(record.displacement)[energised]) > 0:
+        raise ResultsError(f"{directory / results.FILES['data']}: the output is constant over the energised part")
+    noise_sigma = summary["noise"].get("sigma")
+    if noise_sigma is None or not (math.isfinite(noise_sigma) and noise_sigma > 0):
+        raise ResultsError(f"{directory / results.FILES['summary']}: noise sigma must be finite and > 0, got {noise_sigma}")
+    return ReportData(directory, study, diagnosis, energised, float(noise_sigma))
 
 
 @dataclass(frozen=True, eq=False)
@@ -272,18 +222,21 @@ class ChainSample:
     Attributes
     ----------
     chain : ndarray, shape (S, W, D)
-        ``S`` stored rows of ``W`` walkers; ``D`` = number of sampled parameters.
+        ``S`` stored rows of ``W`` walkers; ``D`` sampled coordinates.
     log_prob : ndarray, shape (S, W)
     steps : ndarray of int, shape (S,)
         Sampler step number (1-based) of each row.
     thin : int
-        Rows kept: every ``thin``-th step.
+        Every ``thin``-th step was read.
     n_steps : int
         Steps in the file.
     discard : int
         Burn-in steps (``summary["posterior"]["discard"]``).
-    columns : ndarray of int, shape (D,)
-        Column of the full parameter vector each sampled parameter fills.
+    names : tuple of str, length D
+        The sampled coordinates: the free model parameters, then
+        :data:`NOISE_COORDINATE` when the noise sigma is free.
+    columns : ndarray of int, shape (D_model,)
+        Column of the full parameter vector each of the first ``D_model`` coordinates fills.
     """
 
     chain: np.ndarray
@@ -292,6 +245,7 @@ class ChainSample:
     thin: int
     n_steps: int
     discard: int
+    names: tuple
     columns: np.ndarray
 
     @property
@@ -299,19 +253,20 @@ class ChainSample:
         """Boolean ``(S,)``: rows after the burn-in."""
         return self.steps > self.discard
 
+    @property
+    def has_noise(self) -> bool:
+        return bool(self.names) and self.names[-1] == NOISE_COORDINATE
 
-def read_chain(results: StudyResults, max_rows: int = MAX_CHAIN_ROWS) -> ChainSample:
+
+def read_chain(data: ReportData, max_rows: int = MAX_CHAIN_ROWS) -> ChainSample:
     """Read ``chain.h5`` (emcee HDFBackend, group ``"mcmc"``), thinned to ``max_rows`` rows.
-
-    The chain holds either every parameter (``D = P``) or only the varying ones
-    (``D`` = number of ``vary``), in :attr:`model.Model.names` order.
 
     Raises
     ------
     ResultsError
-        Missing or empty chain, or a width matching neither convention.
+        Missing or empty chain, or a width that does not match the free parameters.
     """
-    path = results.directory / "chain.h5"
+    path = data.directory / results.FILES["chain"]
     if not path.exists():
         raise ResultsError(f"{path}: missing (the posterior chain written by `study`)")
     backend = emcee.backends.HDFBackend(str(path), name="mcmc", read_only=True)
@@ -321,53 +276,56 @@ def read_chain(results: StudyResults, max_rows: int = MAX_CHAIN_ROWS) -> ChainSa
         raise ResultsError(f"{path}: no emcee chain in group 'mcmc' ({exc})") from None
     if n_steps < 1:
         raise ResultsError(f"{path}: the chain has no steps yet")
+    columns = np.flatnonzero(data.fit.vary)
+    names = tuple(data.model.names[i] for i in columns) + ((NOISE_COORDINATE,) if data.noise_is_free else ())
     thin = max(1, math.ceil(n_steps / max_rows))
     chain = backend.get_chain(thin=thin)
+    if chain.shape[2] != len(names):
+        raise ResultsError(f"{path}: the chain has {chain.shape[2]} coordinates, expected {len(names)} ({', '.join(names)})")
     log_prob = backend.get_log_prob(thin=thin)
-    width = chain.shape[2]
-    if width == results.vary.size:
-        columns = np.arange(width)
-    elif width == int(results.vary.sum()):
-        columns = np.flatnonzero(results.vary)
-    else:
-        raise ResultsError(
-            f"{path}: chain has {width} parameters, but the model has {results.vary.size} "
-            f"({int(results.vary.sum())} varying)"
-        )
     steps = np.arange(1, chain.shape[0] + 1) * thin
-    discard = int(results.summary["posterior"].get("discard") or 0)
-    return ChainSample(chain, log_prob, steps, thin, n_steps, discard, columns)
+    discard = int(data.summary["posterior"].get("discard") or 0)
+    if discard >= n_steps:
+        raise ResultsError(f"{path}: the burn-in ({discard} steps) covers the whole chain ({n_steps} steps)")
+    return ChainSample(chain, log_prob, steps, thin, n_steps, discard, names, columns)
 
 
-def posterior_draws(results: StudyResults, chain: ChainSample, n_draws: int, rng: np.random.Generator) -> np.ndarray:
-    """Full parameter vectors drawn from the post-burn-in chain without replacement.
+@dataclass(frozen=True, eq=False)
+class PosteriorDraws:
+    """Posterior draws as full model vectors.
 
-    Returns
-    -------
-    ndarray, shape (min(n_draws, available), P)
-        Pinned parameters take their least-squares (normalisation) value.
+    Attributes
+    ----------
+    theta : ndarray, shape (N, P)
+        Pinned parameters hold their least-squares (normalisation) value.
+    noise_sigma : ndarray, shape (N,), or None
+        Each draw's sigma when the noise is free, else None (the fixed sigma applies).
     """
+
+    theta: np.ndarray
+    noise_sigma: np.ndarray | None
+
+
+def posterior_draws(data: ReportData, chain: ChainSample, n_draws: int, rng: np.random.Generator) -> PosteriorDraws:
+    """Draw ``min(n_draws, available)`` post-burn-in samples without replacement."""
     kept = chain.kept
     samples = chain.chain[kept].reshape(-1, chain.chain.shape[2])
-    finite = np.isfinite(chain.log_prob[kept].reshape(-1))
-    samples = samples[finite]
+    samples = samples[np.isfinite(chain.log_prob[kept].reshape(-1))]
     if samples.shape[0] == 0:
-        raise ResultsError(
-            f"{results.directory / 'chain.h5'}: no finite samples after the burn-in of {chain.discard} steps "
-            f"(the chain has {chain.n_steps})"
-        )
-    chosen = rng.choice(samples.shape[0], size=min(int(n_draws), samples.shape[0]), replace=False)
-    theta = np.repeat(results.theta_lsq[None, :], chosen.size, axis=0)
-    theta[:, chain.columns] = samples[chosen]
-    return theta
+        raise ResultsError(f"{data.directory / results.FILES['chain']}: no finite samples after the burn-in")
+    chosen = samples[rng.choice(samples.shape[0], size=min(int(n_draws), samples.shape[0]), replace=False)]
+    theta = np.repeat(data.fit.theta[None, :], chosen.shape[0], axis=0)
+    theta[:, chain.columns] = chosen[:, : chain.columns.size]
+    sigma = np.exp(chosen[:, -1]) if chain.has_noise else None
+    return PosteriorDraws(theta, sigma)
 
 
 # --------------------------------------------------------------------------------------
-# bands, reversals, cycles
+# bands, reversals, cycles, zooms, autocorrelation
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class ModelBands:
-    """Pointwise posterior summaries of the model curve, all shape ``(T,)``, output units.
+    """Pointwise posterior summaries of the model curve, all shape ``(T,)``, output unit.
 
     Attributes
     ----------
@@ -391,60 +349,70 @@ class ModelBands:
     n_outside: int
 
 
-def _mixture_quantile(centres, sigma, probability, tolerance=1e-3, block=4096):
-    """Quantile of the equal-weight mixture of N(centres[i, t], sigma^2), for every t.
+def _mixture_quantile(centres, sigmas, probability, tolerance=1e-3, block=4096):
+    """Quantile of the equal-weight mixture of N(centres[i, t], sigmas[i]^2), for every t.
 
     Bisection on the mixture CDF inside the exact bracket
-    ``[min_i c_i + sigma z_p, max_i c_i + sigma z_p]`` (every component's CDF is below
-    ``p`` at the left end and above it at the right end), to ``tolerance * sigma``;
-    in blocks of ``block`` samples to bound memory. ``centres`` has shape (D, T);
-    returns shape (T,).
+    ``[min_i (c_i + s_i z_p), max_i (c_i + s_i z_p)]`` (every component's CDF is below
+    ``p`` at the left end and above it at the right end), to ``tolerance * min(s)``; in
+    blocks of ``block`` samples to bound memory.
+
+    Parameters
+    ----------
+    centres : ndarray, shape (D, T)
+    sigmas : ndarray, shape (D,)
+        All > 0.
+    probability : float
+
+    Returns
+    -------
+    ndarray, shape (T,)
     """
+    sigmas = np.asarray(sigmas, dtype=float)[:, None]
     n_samples = centres.shape[1]
     result = np.empty(n_samples)
-    offset = sigma * ndtri(probability)
+    offsets = sigmas * ndtri(probability)
+    precision = tolerance * float(sigmas.min())
     for start in range(0, n_samples, block):
         c = centres[:, start : start + block]
-        low = c.min(axis=0) + offset
-        high = c.max(axis=0) + offset
-        while (high - low).max() > tolerance * sigma:
+        low = (c + offsets).min(axis=0)
+        high = (c + offsets).max(axis=0)
+        while (high - low).max() > precision:
             middle = 0.5 * (low + high)
-            below = ndtr((middle[None, :] - c) / sigma).mean(axis=0) < probability
+            below = ndtr((middle[None, :] - c) / sigmas).mean(axis=0) < probability
             low = np.where(below, middle, low)
             high = np.where(below, high, middle)
         result[start : start + block] = 0.5 * (low + high)
     return result
 
 
-def model_bands(results: StudyResults, draws: np.ndarray, *, level: float = 0.95) -> ModelBands:
-    """Push the draws (and the least-squares vector) through the model in one call.
+def model_bands(data: ReportData, draws: PosteriorDraws, *, level: float = 0.95) -> ModelBands:
+    """Push the draws and the least-squares vector through the model in one call.
 
     Parameters
     ----------
-    results : StudyResults
-    draws : ndarray, shape (D, P)
-        Full parameter vectors.
+    data : ReportData
+    draws : PosteriorDraws
+        ``theta`` of shape (D, P).
     level : float, default 0.95
         Central probability of the bands.
     """
     if not 0 < level < 1:
         raise ValueError(f"level must lie in (0, 1), got {level}")
-    batch = np.vstack([draws, results.theta_lsq[None, :]])
-    curves, valid = results.model.evaluate(batch, results.time, results.current)
+    record = data.record
+    batch = np.vstack([draws.theta, data.fit.theta[None, :]])
+    curves, valid = data.model.evaluate(batch, record.time, record.current)
     if not valid[-1]:
-        raise ResultsError(f"{results.directory / 'fit.json'}: the least-squares vector is outside the model's domain")
+        raise ResultsError(f"{data.directory / results.FILES['fit']}: the least-squares vector is outside the model's domain")
     inside = valid[:-1]
     if not inside.any():
-        raise ResultsError(f"{results.directory / 'chain.h5'}: every posterior draw is outside the model's domain")
+        raise ResultsError(f"{data.directory / results.FILES['chain']}: every posterior draw is outside the model's domain")
     model_curves = curves[:-1][inside]
     tail = 0.5 * (1.0 - level)
     lo, median, hi = np.quantile(model_curves, [tail, 0.5, 1.0 - tail], axis=0)
-    sigma = results.noise_sigma
-    if sigma > 0:
-        predictive_lo = _mixture_quantile(model_curves, sigma, tail)
-        predictive_hi = _mixture_quantile(model_curves, sigma, 1.0 - tail)
-    else:
-        predictive_lo, predictive_hi = lo, hi
+    sigmas = draws.noise_sigma[inside] if draws.noise_sigma is not None else np.full(model_curves.shape[0], data.noise_sigma)
+    predictive_lo = _mixture_quantile(model_curves, sigmas, tail)
+    predictive_hi = _mixture_quantile(model_curves, sigmas, 1.0 - tail)
     return ModelBands(median, lo, hi, predictive_lo, predictive_hi, curves[-1], int(inside.sum()), int((~inside).sum()))
 
 
@@ -474,7 +442,7 @@ def input_reversals(current, tolerance: float | None = None) -> np.ndarray:
     if span == 0.0:
         return np.zeros(0, dtype=int)
     reversals = []
-    direction = 0
+    direction = 0  # +1 rising, -1 falling, 0 not yet known
     high = low = 0  # indices of the running max / min since the last reversal
     for k in range(1, current.size):
         v = current[k]
@@ -483,18 +451,16 @@ def input_reversals(current, tolerance: float | None = None) -> np.ndarray:
         if v < current[low]:
             low = k
         if direction >= 0 and current[high] - v > tolerance:
-            if direction == 0 and low < high and low > 0:
+            if direction == 0 and 0 < low < high:
                 reversals.append(low)  # it fell first, then rose, and now falls
-            if direction == 1 or high > 0:
-                reversals.append(high)
+            reversals.append(high)
             direction, low = -1, k
         elif direction <= 0 and v - current[low] > tolerance:
-            if direction == 0 and high < low and high > 0:
+            if direction == 0 and 0 < high < low:
                 reversals.append(high)
-            if direction == -1 or low > 0:
-                reversals.append(low)
+            reversals.append(low)
             direction, high = 1, k
-    return np.array(sorted(set(r for r in reversals if 0 < r < current.size - 1)), dtype=int)
+    return np.array(sorted({r for r in reversals if 0 < r < current.size - 1}), dtype=int)
 
 
 @dataclass(frozen=True)
@@ -516,9 +482,7 @@ def branches(current, reversals) -> list[Branch]:
     """
     current = np.asarray(current, dtype=float)
     edges = [0] + [int(r) for r in reversals] + [current.size - 1]
-    return [
-        Branch(a, b, bool(current[b] >= current[a])) for a, b in zip(edges[:-1], edges[1:]) if b > a
-    ]
+    return [Branch(a, b, bool(current[b] >= current[a])) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
 @dataclass(frozen=True)
@@ -534,11 +498,11 @@ class CycleError:
     time_start, time_end : float
         Seconds.
     input_peak : float
-        Largest input in the cycle (input units).
+        Largest input in the cycle (input unit).
     rms : float
-        RMS of measurement minus posterior-median model (output units).
+        RMS of measurement minus posterior-median model (output unit).
     max_abs_error : float
-        Output units.
+        Output unit.
     max_error_pct : float
         ``max_abs_error`` as % of the measured displacement range (energised part).
     time_of_max : float
@@ -563,25 +527,25 @@ def cycle_errors(time, current, error, energised, branch_list, displacement_rang
     Parameters
     ----------
     time, current, error : ndarray, shape (T,)
-        Seconds, input units, output units (measurement minus model).
+        Seconds, input unit, output unit (measurement minus model).
     energised : ndarray of bool, shape (T,)
         Only energised samples count (the first cycle starts where they start).
     branch_list : list of Branch
         From :func:`branches`; a minimum is the start of a rising branch.
     displacement_range : float
-        Measured range the % refer to (> 0), output units.
+        Measured range the % refer to (> 0), output unit.
     """
     if not displacement_range > 0:
         raise ValueError(f"displacement_range must be > 0, got {displacement_range}")
     first = int(np.argmax(energised))
     minima = [b.start for b in branch_list if b.rising and b.start > first]
-    edges = [first] + minima + [current.size]
+    edges = [first] + minima + [len(time)]
     cycles = []
     for a, b in zip(edges[:-1], edges[1:]):
         if b - a < 2:
             continue
-        segment = np.abs(error[a:b])
-        worst = a + int(np.argmax(segment))
+        magnitude = np.abs(error[a:b])
+        worst = a + int(np.argmax(magnitude))
         cycles.append(
             CycleError(
                 index=len(cycles) + 1,
@@ -589,10 +553,10 @@ def cycle_errors(time, current, error, energised, branch_list, displacement_rang
                 stop=b,
                 time_start=float(time[a]),
                 time_end=float(time[b - 1]),
-                input_peak=float(current[a:b].max()),
+                input_peak=float(np.max(current[a:b])),
                 rms=float(np.sqrt(np.mean(error[a:b] ** 2))),
-                max_abs_error=float(segment.max()),
-                max_error_pct=float(100.0 * segment.max() / displacement_range),
+                max_abs_error=float(magnitude.max()),
+                max_error_pct=float(100.0 * magnitude.max() / displacement_range),
                 time_of_max=float(time[worst]),
             )
         )
@@ -600,24 +564,25 @@ def cycle_errors(time, current, error, energised, branch_list, displacement_rang
 
 
 def zoom_samples(curve, centre, band_half_width, *, min_half=15, max_fraction=0.05) -> slice:
-    """A window of samples around ``centre`` in which ``curve`` moves about 15 band half-widths.
+    """A window of samples around ``centre`` in which ``curve`` moves a few band widths.
 
     Starts at ``min_half`` samples either side and grows by 30 % until the curve's
-    range in the window exceeds :data:`ZOOM_BAND_MULTIPLE` times ``band_half_width``
-    or the window reaches ``max_fraction`` of the record on either side.
+    range in the window reaches :data:`ZOOM_BAND_MULTIPLE` times ``band_half_width``
+    or the half-window reaches ``max_fraction`` of the record.
 
     Parameters
     ----------
     curve : ndarray, shape (T,)
     centre : int
+        Sample index.
     band_half_width : float
-        Typical half-width of the predictive band (output units).
+        Typical half-width of the predictive band (output unit).
 
     Returns
     -------
     slice
     """
-    n_samples = curve.size
+    n_samples = len(curve)
     limit = max(min_half, int(max_fraction * n_samples))
     half = min_half
     target = ZOOM_BAND_MULTIPLE * band_half_width
@@ -629,12 +594,12 @@ def zoom_samples(curve, centre, band_half_width, *, min_half=15, max_fraction=0.
 
 
 def loop_zoom_box(current, measured, bands: ModelBands, window: slice, energised):
-    """The loops' zoom box: the window's samples, widened so x and y keep the full plot's aspect.
+    """The loops' zoom box: the window's samples, widened so that x and y keep the full plot's aspect.
 
     Returns
     -------
     ((float, float), (float, float))
-        Current limits and displacement limits, padded by 10 %.
+        Current limits and displacement limits (10 % margin).
     """
     x = current[window]
     y = np.concatenate([measured[window], bands.predictive_lo[window], bands.predictive_hi[window]])
@@ -650,19 +615,19 @@ def autocorrelation_curve(chain: ChainSample, n_points: int = 12) -> tuple[np.nd
     """Integrated autocorrelation time estimated from growing prefixes of the post-burn-in chain.
 
     Uses :func:`emcee.autocorr.integrated_time` (walker-averaged autocorrelation
-    function, window ``c = 5``); estimates on a chain thinned by ``t`` are multiplied by
-    ``t`` (close when tau is several times ``t``).
+    function, window ``c = 5``); estimates from a chain thinned by ``t`` are multiplied
+    by ``t`` (close when tau is several times ``t``).
 
     Returns
     -------
     chain_lengths : ndarray of int, shape (K,)
         Steps after burn-in used for each estimate.
     tau : ndarray, shape (K, D)
-        Steps; NaN for a parameter that never moved.
+        Steps; NaN for a coordinate that never moved.
     """
     rows = chain.chain[chain.kept]
     if rows.shape[0] < 8:
-        rows = chain.chain  # too little after burn-in: show the whole chain
+        rows = chain.chain  # too little after burn-in: use the whole chain
     n_rows = rows.shape[0]
     sizes = np.unique(np.geomspace(min(8, n_rows), n_rows, n_points).astype(int))
     tau = np.empty((sizes.size, rows.shape[2]))
@@ -673,12 +638,152 @@ def autocorrelation_curve(chain: ChainSample, n_points: int = 12) -> tuple[np.nd
 
 
 # --------------------------------------------------------------------------------------
-# HTML helpers
+# what the page states
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class _Analysis:
+    """Everything computed for one page (internal)."""
+
+    chain: ChainSample
+    bands: ModelBands
+    error: np.ndarray
+    worst: int
+    max_error_pct: float
+    displacement_range: float
+    inside_predictive_pct: float
+    reversals: np.ndarray
+    branch_list: list
+    cycles: list
+    band_half_width: float
+    credible_half_width: float
+    zoom: slice
+    zoom_box: tuple
+    autocorrelation: tuple
+
+
+def _analyse(data: ReportData, n_draws: int, rng: np.random.Generator) -> _Analysis:
+    record = data.record
+    time, current, measured = (np.asarray(a, dtype=float) for a in (record.time, record.current, record.displacement))
+    energised = data.energised
+    chain = read_chain(data)
+    bands = model_bands(data, posterior_draws(data, chain, n_draws, rng))
+    error = measured - bands.median
+    displacement_range = float(np.ptp(measured[energised]))
+    worst = int(np.flatnonzero(energised)[np.argmax(np.abs(error[energised]))])
+    inside = (measured >= bands.predictive_lo) & (measured <= bands.predictive_hi)
+    reversals = input_reversals(current)
+    branch_list = branches(current, reversals)
+    band_half_width = 0.5 * float(np.median((bands.predictive_hi - bands.predictive_lo)[energised]))
+    zoom = zoom_samples(bands.median, worst, band_half_width)
+    return _Analysis(
+        chain=chain,
+        bands=bands,
+        error=error,
+        worst=worst,
+        max_error_pct=100.0 * abs(error[worst]) / displacement_range,
+        displacement_range=displacement_range,
+        inside_predictive_pct=100.0 * float(inside[energised].mean()),
+        reversals=reversals,
+        branch_list=branch_list,
+        cycles=cycle_errors(time, current, error, energised, branch_list, displacement_range),
+        band_half_width=band_half_width,
+        credible_half_width=0.5 * float(np.median((bands.credible_hi - bands.credible_lo)[energised])),
+        zoom=zoom,
+        zoom_box=loop_zoom_box(current, measured, bands, zoom, energised),
+        autocorrelation=autocorrelation_curve(chain),
+    )
+
+
+def _figures(data: ReportData, analysis: _Analysis, rng: np.random.Generator):
+    """Yield ``(stem, figure, caption)`` in page order; each figure is made only when asked for."""
+    record = data.record
+    time, current, measured = (np.asarray(a, dtype=float) for a in (record.time, record.current, record.displacement))
+    bands, chain, worst = analysis.bands, analysis.chain, analysis.worst
+    unit = plots.unit_label(record.output_unit)
+    x_names = dict(input_name=record.input_name, input_unit=record.input_unit)
+    y_names = dict(output_name=record.output_name, output_unit=record.output_unit)
+    band_arrays = (bands.median, bands.credible_lo, bands.credible_hi, bands.predictive_lo, bands.predictive_hi)
+
+    yield "fig5_input", plots.input_figure(time, current, reversals=analysis.reversals, **x_names), (
+        f"The drive as recorded; dots mark the {analysis.reversals.size} input reversals at which the record is split "
+        "into branches."
+    )
+    yield "fig6_displacement", plots.displacement_figure(time, measured, *band_arrays, **y_names), (
+        f"Black: measurement. Red: pointwise median of {bands.n_draws} posterior draws pushed through the model, with "
+        f"its 95 % credible band (the uncertainty of the model curve; typical half-width "
+        f"{analysis.credible_half_width:.3g} {unit}). Orange: 95 % predictive band, model plus sensor noise "
+        f"(typical half-width {analysis.band_half_width:.3g} {unit}); {analysis.inside_predictive_pct:.1f} % of the "
+        "energised measured samples lie inside it (about 95 % when the model is adequate)."
+    )
+    window = (float(time[analysis.zoom.start]), float(time[analysis.zoom.stop - 1]))
+    yield "fig6_zoom", plots.displacement_figure(
+        time, measured, *band_arrays, window=window, title=f"Zoom on the worst region: {window[0]:.4g}–{window[1]:.4g} s",
+        **y_names,
+    ), (
+        f"The samples around the largest error (t = {time[worst]:.4g} s), in a window just wide enough for the model to "
+        f"move {ZOOM_BAND_MULTIPLE:g} × the predictive band's half-width, so that the bands are visible."
+    )  # fmt: skip
+    energised_from = None if data.energised[0] else float(time[np.argmax(data.energised)])
+    yield "fig7_error", plots.error_figure(
+        time, analysis.error, measured - bands.credible_hi, measured - bands.credible_lo, noise_sigma=data.noise_sigma,
+        max_error_pct=analysis.max_error_pct, max_error_index=worst, output_unit=record.output_unit,
+        energised_from=energised_from,
+    ), (
+        "Measurement minus the posterior-median model. Where the error leaves the blue ±2σ band systematically, the "
+        "model misses something; the paper quotes this maximum as “less than 3 %” of the maximal displacement."
+    )  # fmt: skip
+    yield "fig8_loops", plots.loops_figure(
+        current, measured, bands.median, bands.credible_lo, bands.credible_hi,
+        segments=[(b.start, b.stop) for b in analysis.branch_list], rising=[b.rising for b in analysis.branch_list],
+        zoom_box=analysis.zoom_box, **x_names, **y_names,
+    ), (
+        f"The record is split at the input reversals into {len(analysis.branch_list)} monotone branches (rising red, "
+        "falling blue); each branch's 95 % credible band is a polygon over that branch's own current samples, so rising, "
+        "falling and minor loops keep their own bands (never a sorted current grid, which would mix branches of a "
+        f"system with memory). The band is {2 * analysis.credible_half_width:.3g} {unit} wide typically, so it shows "
+        "only in the zoom (right: the green box around the largest error, at the full plot's aspect)."
+    )  # fmt: skip
+
+    units = {p.name: p.unit for p in data.model.parameters}
+    labels = [
+        f"ln σ [ln {unit}]" if n == NOISE_COORDINATE else f"{n} [{plots.unit_label(units[n])}]" for n in chain.names
+    ]
+    reference = list(data.fit.theta[chain.columns])
+    if chain.has_noise:
+        reference.append(math.log(data.noise_sigma))
+    kept = chain.chain[chain.kept].reshape(-1, chain.chain.shape[2])
+    if kept.shape[0] > MAX_CORNER_SAMPLES:
+        kept = kept[rng.choice(kept.shape[0], MAX_CORNER_SAMPLES, replace=False)]
+    yield "corner", plots.corner_figure(kept, labels, reference=reference), (
+        f"{kept.shape[0]} samples after the burn-in of {chain.discard} steps. Narrow diagonal ridges are the "
+        "near-degenerate combinations listed under identifiability."
+    )
+    step = max(1, math.ceil(chain.chain.shape[0] / MAX_TRACE_ROWS))
+    yield "traces", plots.trace_figure(
+        chain.chain[::step], chain.log_prob[::step], labels, steps=chain.steps[::step], discard=chain.discard
+    ), (
+        "Each line is one walker. A well-mixed chain looks like stationary noise after the shaded burn-in; trends or "
+        "stuck walkers mean the chain is too short."
+    )
+    lengths, tau = analysis.autocorrelation
+    yield "autocorrelation", plots.autocorrelation_figure(
+        lengths, tau, list(chain.names), tau_reported=data.summary["posterior"].get("tau_max")
+    ), (
+        "Estimated from growing prefixes of the chain after the burn-in (emcee's walker-averaged estimator"
+        + (f", chain read every {chain.thin} steps" if chain.thin > 1 else "")
+        + "). The chain is long enough when every curve has flattened and lies below the dashed N/50 line."
+    )
+
+
+# --------------------------------------------------------------------------------------
+# HTML
 # --------------------------------------------------------------------------------------
 def _number(value, digits=DIGITS) -> str:
     """Table text of a number: ``digits`` significant digits; "—" for None/NaN."""
-    if value is None or isinstance(value, str):
-        return "—" if value is None else html.escape(value)
+    if value is None:
+        return "—"
+    if isinstance(value, str):
+        return html.escape(value)
     if isinstance(value, (bool, np.bool_)):
         return "yes" if value else "no"
     if isinstance(value, (int, np.integer)):
@@ -689,68 +794,70 @@ def _number(value, digits=DIGITS) -> str:
     return f"{value:.{digits}g}"
 
 
-def _cell(value, key=None, digits=DIGITS, tag="td", css=None) -> str:
+def _cell(value, key=None, digits=DIGITS, css=None) -> str:
     attributes = ""
     if key is not None:
         attributes += f' data-key="{html.escape(key)}"'
     if css:
         attributes += f' class="{css}"'
-    return f"<{tag}{attributes}>{_number(value, digits)}</{tag}>"
+    return f"<td{attributes}>{_number(value, digits)}</td>"
 
 
-def _table(table_id, header, rows, caption=None) -> str:
-    """``rows`` are lists of ready cell HTML strings."""
+def _text(value, css=None) -> str:
+    attributes = f' class="{css}"' if css else ""
+    return f"<td{attributes}>{html.escape(str(value))}</td>"
+
+
+def _table(table_id, header, rows, caption=None, row_classes=None) -> str:
+    """An HTML table; ``rows`` are lists of ready cell strings, ``row_classes`` optional CSS classes."""
     parts = [f'<table id="{table_id}">']
     if caption:
         parts.append(f"<caption>{caption}</caption>")
     parts.append("<thead><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr></thead><tbody>")
-    parts.extend("<tr>" + "".join(r) + "</tr>" for r in rows)
+    for i, row in enumerate(rows):
+        css = (row_classes or {}).get(i)
+        parts.append((f'<tr class="{css}">' if css else "<tr>") + "".join(row) + "</tr>")
     parts.append("</tbody></table>")
     return "\n".join(parts)
-
-
-def _text(value) -> str:
-    return f"<td>{html.escape(str(value))}</td>"
 
 
 def _figure_html(stem, alt, png_bytes, caption) -> str:
     encoded = base64.b64encode(png_bytes).decode("ascii")
     return (
-        f'<figure id="figure-{html.escape(stem)}"><img alt="{html.escape(alt)}" '
-        f'src="data:image/png;base64,{encoded}"><figcaption><b>{html.escape(alt)}.</b> {caption}</figcaption></figure>'
+        f'<figure id="figure-{html.escape(stem)}"><img alt="{html.escape(alt)}" src="data:image/png;base64,{encoded}">'
+        f"<figcaption><b>{html.escape(alt)}.</b> {html.escape(caption)}</figcaption></figure>"
     )
 
 
 def _combination_text(combination) -> str:
     if isinstance(combination, dict):
-        terms = [f"{weight:+.3g}·{name}" for name, weight in combination.items()]
-        return " ".join(terms)
+        return " ".join(f"{weight:+.3g}·{name}" for name, weight in combination.items())
     return str(combination)
 
 
-def _flatten(mapping, prefix=""):
-    for key, value in mapping.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict) and value:
-            yield from _flatten(value, name + ".")
-        else:
-            if isinstance(value, (list, tuple)):
-                value = ", ".join(map(str, value)) if value else "(none)"
-            yield name, value
+def _flatten(value, prefix=""):
+    """``(dotted name, scalar)`` pairs of nested dicts and lists (lists of scalars joined)."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield from _flatten(item, f"{prefix}.{key}" if prefix else str(key))
+    elif isinstance(value, (list, tuple)) and any(isinstance(v, (dict, list, tuple)) for v in value):
+        for i, item in enumerate(value, start=1):
+            yield from _flatten(item, f"{prefix}[{i}]")
+    elif isinstance(value, (list, tuple)):
+        yield prefix, " ".join(map(str, value)) if value else "(none)"
+    else:
+        yield prefix, value
 
 
 def _atomic_write(path: Path, payload: bytes) -> None:
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    """Write to a unique temporary name beside ``path``, then rename (never half-written)."""
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:
-        with os.fdopen(handle, "wb") as stream:
+        with open(temporary, "xb") as stream:
             stream.write(payload)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(temporary, 0o666 & ~umask)  # mkstemp makes 0600; give the usual permissions
         os.replace(temporary, path)
     except BaseException:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
+        temporary.unlink(missing_ok=True)
         raise
 
 
@@ -768,13 +875,317 @@ th,td{border:1px solid #ccc;padding:.25em .55em;text-align:right}
 th{background:#f2f2f2} td:first-child,th:first-child{text-align:left}
 caption{text-align:left;font-weight:bold;padding:.3em 0}
 tr.worst td{background:#ffe3e0} tr.pinned td{color:#777;background:#f7f7f7}
+td.alert{background:#fdecea;font-weight:bold} td.ok{background:#e8f5e9}
 figure{margin:1.2em 0} img{max-width:100%;height:auto;border:1px solid #ddd}
 figcaption{font-size:.92em;color:#444;margin-top:.3em}
-.alert{background:#fdecea;border-left:6px solid #d93025;padding:.6em 1em;margin:1em 0}
-.ok{background:#e8f5e9;border-left:6px solid #2e7d32;padding:.6em 1em;margin:1em 0}
-.note{background:#fff8e1;border-left:6px solid #f9a825;padding:.6em 1em;margin:1em 0}
+div.alert{background:#fdecea;border-left:6px solid #d93025;padding:.6em 1em;margin:1em 0}
+div.ok{background:#e8f5e9;border-left:6px solid #2e7d32;padding:.6em 1em;margin:1em 0}
+div.note{background:#fff8e1;border-left:6px solid #f9a825;padding:.6em 1em;margin:1em 0}
 code{background:#f4f4f4;padding:0 .2em}
 """
+
+
+def _fit_verdict(summary, noise_sigma):
+    """(RMS / sigma, far above the noise?) from the least-squares numbers of ``summary``."""
+    fit = summary["fit"]
+    ratio = float(fit["rms"]) / noise_sigma
+    chi2 = fit.get("reduced_chi2")
+    misfit = ratio > RMS_RATIO_LIMIT or (chi2 is not None and chi2 > REDUCED_CHI2_LIMIT)
+    return ratio, misfit
+
+
+def _glance_html(data: ReportData, analysis: _Analysis) -> str:
+    summary, posterior, fit = data.summary, data.summary["posterior"], data.summary["fit"]
+    record = data.record
+    unit = plots.unit_label(record.output_unit)
+    ratio, misfit = _fit_verdict(summary, data.noise_sigma)
+    parts = ['<h2 id="glance">At a glance</h2>']
+    message = str(posterior.get("message") or "")
+    for prefix in ("NOT CONVERGED:", "converged:"):  # the box says it already
+        if message.startswith(prefix):
+            message = message[len(prefix) :].strip()
+    message = html.escape(message[:1].upper() + message[1:] + ("" if message.endswith(".") or not message else "."))
+    if posterior.get("converged"):
+        parts.append(f'<div class="ok" id="convergence-ok"><b>Converged.</b> {message}</div>')
+    else:
+        parts.append(
+            f'<div class="alert" id="convergence-alert"><b>NOT CONVERGED.</b> {message or "The chain is too short."} '
+            "The intervals and bands below are provisional; rerun the same study command to extend the chain.</div>"
+        )
+    sentence = (
+        f"Residual RMS {_number(fit['rms'], 4)} {unit} = {ratio:.3g} × the sensor noise σ = "
+        f"{_number(data.noise_sigma, 4)} {unit}; reduced χ² = {_number(fit.get('reduced_chi2'), 4)}."
+    )
+    if data.noise_is_free:
+        parts.append(
+            f'<div class="note" id="fit-free-noise"><b>σ was estimated from the residual itself</b> (no quiet segment), so '
+            f"RMS ≈ σ by construction and cannot reveal a misfit; judge the fit by the figures and the diagnosis. {sentence}</div>"
+        )
+    elif misfit:
+        parts.append(
+            f'<div class="alert" id="misfit-alert"><b>The residual is far above the noise.</b> {sentence} The bands on '
+            'this page are conditional on a model that misses something; see the <a href="#diagnosis">diagnosis '
+            "section</a>.</div>"
+        )
+    else:
+        parts.append(f'<div class="ok" id="fit-ok"><b>The residual is at the noise level.</b> {sentence}</div>')
+    worst = analysis.worst
+    where = f"t = {record.time[worst]:.4g} s"
+    cycle = next((c for c in analysis.cycles if c.start <= worst < c.stop), None)
+    if cycle is not None:
+        where += f" (cycle {cycle.index}"
+    where += f", input {record.current[worst]:.3g} {plots.unit_label(record.input_unit)}" + (")" if cycle else "")
+    widths = sorted(
+        (
+            ((p["hi95"] - p["lo95"]) / abs(p["median"]), p["name"])
+            for p in summary["parameters"]
+            if p.get("vary") and p.get("median") and p.get("lo95") is not None and p.get("hi95") is not None
+        ),
+        reverse=True,
+    )
+    items = [
+        f"Max error <b>{analysis.max_error_pct:.3g} %</b> of the measured displacement range "
+        f"({analysis.displacement_range:.4g} {unit}) for the posterior-median model, worst at {where}; least squares: "
+        f"{_number(fit.get('max_error_pct'), 4)} % (the paper reports less than 3 %).",
+        f"{analysis.inside_predictive_pct:.1f} % of the measured samples lie inside the 95 % predictive band.",
+    ]
+    if widths:
+        items.append(
+            "Least well determined (widest 95 % interval relative to the median): "
+            + ", ".join(f"{html.escape(name)} (±{50 * w:.3g} %)" for w, name in widths[:3])
+            + "."
+        )
+    items.append(
+        f"Bands from {analysis.bands.n_draws} posterior draws"
+        + (f" ({analysis.bands.n_outside} outside the model's domain dropped)" if analysis.bands.n_outside else "")
+        + "."
+    )
+    parts.append("<ul>" + "".join(f"<li>{item}</li>" for item in items) + "</ul>")
+    return "\n".join(parts)
+
+
+def _fit_quality_html(data: ReportData, analysis: _Analysis) -> str:
+    summary, fit, noise = data.summary, data.summary["fit"], data.summary["noise"]
+    record = data.record
+    unit = plots.unit_label(record.output_unit)
+    ratio, _ = _fit_verdict(summary, data.noise_sigma)
+    worst = analysis.worst
+    rows = [
+        [_text(f"residual RMS, least squares [{unit}]"), _cell(fit["rms"], "fit.rms")],
+        [_text(f"sensor noise σ [{unit}] (from: {noise.get('source')}, {noise.get('kind')})"), _cell(noise["sigma"], "noise.sigma")],
+        [_text("lag-1 autocorrelation of the noise ρ"), _cell(noise.get("rho"), "noise.rho")],
+        [_text("quiet samples used for the noise"), _cell(noise.get("n_quiet"), "noise.n_quiet")],
+        [_text("RMS / σ"), _cell(ratio, "derived.rms_ratio", css="alert" if ratio > RMS_RATIO_LIMIT else None)],
+        [_text("reduced χ²"), _cell(fit.get("reduced_chi2"), "fit.reduced_chi2",
+                                    css="alert" if (fit.get("reduced_chi2") or 0) > REDUCED_CHI2_LIMIT else None)],
+        [_text("max error, least squares [% of displacement range]"), _cell(fit.get("max_error_pct"), "fit.max_error_pct")],
+        [_text("max error, posterior median [% of displacement range]"), _cell(analysis.max_error_pct, "derived.max_error_pct")],
+        [_text(f"max |error|, posterior median [{unit}]"), _cell(abs(float(analysis.error[worst])), "derived.max_abs_error")],
+        [_text("time of the max error [s]"), _cell(float(record.time[worst]), "derived.time_of_max")],
+        [_text("measured samples inside the 95 % predictive band [%]"), _cell(analysis.inside_predictive_pct, "derived.inside_predictive_pct")],
+        [_text("least-squares time [s]"), _cell(fit.get("seconds"), "fit.seconds")],
+    ]  # fmt: skip
+    parts = ['<h2 id="fit-quality-section">2. Fit quality</h2>']
+    parts.append(_table("fit-quality", ["quantity", "value"], rows, caption="Fit quality (energised part of the record)"))
+    parts.append(
+        f"<p>“Far above the noise” means RMS &gt; {RMS_RATIO_LIMIT} σ or reduced χ² &gt; {REDUCED_CHI2_LIMIT}. "
+        "Least-squares numbers are those of <code>summary.json</code>; the posterior-median numbers are computed here "
+        "from the same draws as the bands.</p>"
+    )
+    in_unit = plots.unit_label(record.input_unit)
+    rows, classes = [], {}
+    worst_cycle = max(analysis.cycles, key=lambda c: c.max_abs_error) if analysis.cycles else None
+    for i, c in enumerate(analysis.cycles):
+        key = f"cycles.{c.index}"
+        rows.append([
+            _cell(c.index, f"{key}.index"), _cell(c.time_start, f"{key}.time_start", 4), _cell(c.time_end, f"{key}.time_end", 4),
+            _cell(c.input_peak, f"{key}.input_peak", 4), _cell(c.rms, f"{key}.rms", 4),
+            _cell(c.max_abs_error, f"{key}.max_abs_error", 4), _cell(c.max_error_pct, f"{key}.max_error_pct", 4),
+            _cell(c.time_of_max, f"{key}.time_of_max", 4),
+        ])  # fmt: skip
+        if c is worst_cycle:
+            classes[i] = "worst"
+    parts.append(
+        _table(
+            "cycle-errors",
+            ["cycle", "start [s]", "end [s]", f"input peak [{in_unit}]", f"RMS [{unit}]", f"max |error| [{unit}]",
+             "max error [%]", "at [s]"],
+            rows,
+            caption="Error per input cycle (split at the input's minima; posterior-median model; worst cycle highlighted)",
+            row_classes=classes,
+        )
+    )  # fmt: skip
+    return "\n".join(parts)
+
+
+def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -> str:
+    summary, posterior = data.summary, data.summary["posterior"]
+    rows, classes = [], {}
+    for i, p in enumerate(summary["parameters"]):
+        key = f"parameters.{p['name']}"
+        rows.append([
+            _text(p["name"]), _text(plots.unit_label(p.get("unit") or "")), _cell(p.get("table1"), f"{key}.table1"),
+            _cell(p.get("lsq"), f"{key}.lsq"), _cell(p.get("lsq_stderr"), f"{key}.lsq_stderr"),
+            _cell(p.get("median"), f"{key}.median"), _cell(p.get("lo95"), f"{key}.lo95"), _cell(p.get("hi95"), f"{key}.hi95"),
+            _cell(p.get("tau"), f"{key}.tau", 4), _cell(p.get("ess"), f"{key}.ess", 4),
+            _text("varies" if p.get("vary") else "pinned by normalisation"),
+        ])  # fmt: skip
+        if not p.get("vary"):
+            classes[i] = "pinned"
+    noise_posterior = summary["noise"].get("posterior")
+    if noise_posterior:
+        key = "noise.posterior"
+        rows.append([
+            _text("noise σ"), _text(plots.unit_label(data.record.output_unit)), _cell(None), _cell(summary["noise"]["sigma"], "noise.sigma"),
+            _cell(None), _cell(noise_posterior.get("median"), f"{key}.median"), _cell(noise_posterior.get("lo95"), f"{key}.lo95"),
+            _cell(noise_posterior.get("hi95"), f"{key}.hi95"), _cell(noise_posterior.get("tau"), f"{key}.tau", 4),
+            _cell(noise_posterior.get("ess"), f"{key}.ess", 4), _text("varies (free noise)"),
+        ])  # fmt: skip
+    parts = ['<h2 id="parameters-section">3. Parameters</h2>']
+    parts.append(
+        _table(
+            "parameters",
+            ["parameter", "unit", "Table 1", "least squares", "± std. error", "posterior median", "2.5 %", "97.5 %",
+             "τ [steps]", "ESS", "status"],
+            rows,
+            caption="Parameters: the paper's Table 1 (— for effects), least squares, posterior median and 95 % interval",
+            row_classes=classes,
+        )
+    )  # fmt: skip
+    converged = bool(posterior.get("converged"))
+    rows = [
+        [_text("walkers"), _cell(posterior.get("n_walkers"), "posterior.n_walkers")],
+        [_text("steps"), _cell(posterior.get("n_steps"), "posterior.n_steps")],
+        [_text("burn-in discarded [steps]"), _cell(posterior.get("discard"), "posterior.discard")],
+        [_text("thin (summaries)"), _cell(posterior.get("thin"), "posterior.thin")],
+        [_text("mean acceptance fraction"), _cell(posterior.get("acceptance_fraction"), "posterior.acceptance_fraction")],
+        [_text("largest autocorrelation time τ [steps]"), _cell(posterior.get("tau_max"), "posterior.tau_max")],
+        [_text("steps / τ_max (need ≥ 50)"), _cell(
+            posterior["n_steps"] / posterior["tau_max"] if posterior.get("tau_max") else None, "derived.steps_per_tau", 4)],
+        [_text("converged"), _cell(converged, "posterior.converged", css="ok" if converged else "alert")],
+        [_text("sampling time [s]"), _cell(posterior.get("seconds"), "posterior.seconds")],
+    ]  # fmt: skip
+    parts.append(_table("posterior-settings", ["quantity", "value"], rows, caption="Posterior sampling (emcee)"))
+    parts.append(figures_html)
+    parts.append(_identifiability_html(summary.get("identifiability")))
+    return "\n".join(parts)
+
+
+def _identifiability_html(identifiability) -> str:
+    parts = ['<h3 id="identifiability">Identifiability</h3>']
+    if not identifiability:
+        parts.append("<p>No identifiability analysis in <code>summary.json</code>.</p>")
+        return "\n".join(parts)
+    parts.append(
+        "<p>Directions of parameter space the data cannot pin down, from the eigen-analysis of the Fisher information "
+        "(relative parameter changes) at the least-squares optimum. Exact degeneracies leave the output unchanged and "
+        "are removed by the normalisation (the pinned parameters); near-degenerate combinations stay free and show up "
+        "as wide, correlated intervals. Relative std. = 1/√eigenvalue: how well the combination is known.</p>"
+    )
+    condition = identifiability.get("condition_number")
+    if condition is not None:
+        parts.append(f'<p>Condition number of the scaled Fisher information: <span data-key="identifiability.condition_number">'
+                     f"{_number(condition)}</span>.</p>")  # fmt: skip
+    normalisation = identifiability.get("normalisation") or {}
+    rows = [[_text(k), _cell(v, f"identifiability.normalisation.{k}")] for k, v in normalisation.items()]
+    parts.append(_table("identifiability-normalisation", ["pinned parameter", "value"], rows or [[_text("(none)"), _text("")]],
+                        caption="Normalisation used"))  # fmt: skip
+    for kind, caption in (("exact", "Exact degeneracies"), ("near", "Near-degenerate combinations")):
+        rows = []
+        for i, item in enumerate(identifiability.get(kind) or []):
+            item = item if isinstance(item, dict) else {"combination": item}
+            key = f"identifiability.{kind}.{i}"
+            rows.append([_cell(item.get("eigenvalue"), f"{key}.eigenvalue"), _cell(item.get("relative_std"), f"{key}.relative_std", 3),
+                         _text(_combination_text(item.get("combination")))])  # fmt: skip
+        parts.append(
+            _table(f"identifiability-{kind}", ["eigenvalue", "relative std.", "combination (weights)"],
+                   rows or [[_text("(none)"), _text(""), _text("")]], caption=caption)
+        )  # fmt: skip
+    return "\n".join(parts)
+
+
+def _diagnosis_html(data: ReportData) -> str:
+    """The diagnosis hook: ``diagnosis.json``'s verdict and ranking, and every ``diagnosis/*.png``."""
+    parts = ['<h2 id="diagnosis">4. Diagnosis</h2>']
+    diagnosis = data.diagnosis
+    figure_dir = data.directory / DIAGNOSIS_FIGURES
+    pngs = sorted(figure_dir.glob("*.png")) if figure_dir.is_dir() else []
+    if diagnosis is None and not pngs:
+        parts.append(
+            f"<p>No diagnosis in this folder (<code>{DIAGNOSIS_FILE}</code> absent). The diagnosis "
+            "(<code>python -m identify diagnose</code>) tells which physical effect the model misses when the residual "
+            "is above the noise.</p>"
+        )
+        return "\n".join(parts)
+    if diagnosis is not None:
+        status = str(diagnosis.get("status", "unknown"))
+        missing = diagnosis.get("missing")
+        verdict = {
+            "adequate": "the residual is consistent with the noise; nothing to add.",
+            "missing_effect": f"the model misses the effect <b>{html.escape(str(missing))}</b>; add it with "
+            f"<code>--effects {html.escape(str(missing))}</code>.",
+            "unexplained": "structure remains in the residual that no effect of the library explains.",
+        }.get(status, "")
+        css = "ok" if status == "adequate" else "alert"
+        parts.append(f'<div class="{css}" id="diagnosis-verdict">Verdict: <b>{html.escape(status)}</b>: {verdict}</div>')
+        ranking = diagnosis.get("ranking") or []
+        if ranking:
+            columns = ["effect", "rms_after"] + sorted({k for r in ranking for k in r} - {"effect", "rms_after"})
+            rows = []
+            for r in ranking:
+                row = []
+                for column in columns:
+                    value = r.get(column)
+                    if isinstance(value, (int, float)) and not isinstance(value, bool):
+                        row.append(_cell(value, f"diagnosis.{r.get('effect')}.{column}"))
+                    else:
+                        row.append(_text("—" if value is None else value))
+                rows.append(row)
+            parts.append(_table("diagnosis-ranking", [html.escape(c) for c in columns], rows,
+                                caption="Candidate effects, best first (rms_after: residual RMS with the effect added)"))  # fmt: skip
+    for path in pngs:
+        alt = f"Diagnosis: {path.stem.replace('_', ' ')}"
+        parts.append(_figure_html(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From {DIAGNOSIS_FIGURES}/{path.name}."))
+    return "\n".join(parts)
+
+
+def _provenance_html(data: ReportData, analysis: _Analysis, seconds: float) -> str:
+    converged = bool(data.summary["posterior"].get("converged"))
+    rows = [[_text("convergence"), _text("converged" if converged else "NOT CONVERGED", css="ok" if converged else "alert")]]
+    rows += [[_text(name), _text(value)] for name, value in _flatten(data.manifest)]
+    rows.append([_text("record stored in the results folder"), _text(f"{results.FILES['data']} (sha256 {data.record.sha256})")])
+    rows.append([_text("report: posterior draws for the bands"), _cell(analysis.bands.n_draws)])
+    rows.append([_text("report: generated in [s]"), _cell(seconds, digits=3)])
+    rows.append([_text("report: generated at (UTC)"), _text(results.now_iso())])
+    return '<h2 id="provenance-section">5. Provenance</h2>\n' + _table(
+        "provenance", ["item", "value"], rows, caption="Provenance (manifest.json)"
+    )
+
+
+def _page(data: ReportData, analysis: _Analysis, figure_html: dict, seconds: float) -> str:
+    record = data.record
+    source = data.manifest.get("data", {}).get("file") if isinstance(data.manifest.get("data"), dict) else None
+    title = f"Identification report — {Path(str(source or record.source)).name}"
+    effects = ", ".join(data.model.effect_names) or "none"
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        f"<p>Model: GPI with {data.model.n_operators} play operators, reading <code>{html.escape(data.model.reading)}</code>, "
+        f"effects: {html.escape(effects)}. Record: {len(record.time)} samples over "
+        f"{record.time[-1] - record.time[0]:.4g} s. Results folder: <code>{html.escape(str(data.directory))}</code>.</p>",
+        _glance_html(data, analysis),
+        '<h2 id="measurement">1. Measurement vs model</h2>',
+        *(figure_html[s] for s in ("fig5_input", "fig6_displacement", "fig6_zoom", "fig7_error", "fig8_loops")),
+        _fit_quality_html(data, analysis),
+        _parameters_html(data, analysis, "\n".join(figure_html[s] for s in ("corner", "traces", "autocorrelation"))),
+        _diagnosis_html(data),
+        _provenance_html(data, analysis, seconds),
+        "</body></html>",
+    ]
+    return "\n".join(parts)
 
 
 # --------------------------------------------------------------------------------------
@@ -789,11 +1200,11 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
         A results folder written by ``study`` (see docs/CONTRACTS.md).
     n_draws : int, default 200
         Posterior draws pushed through the model for the bands (fewer when the chain
-        holds fewer samples after burn-in). 200 puts the 2.5 % quantile between the 5th
-        and 6th draw: enough for a band, cheap to evaluate.
+        holds fewer samples after burn-in). With 200 the 2.5 % quantile lies between the
+        5th and 6th draw: enough for a band, and one model call of 200 rows is cheap.
     rng : numpy.random.Generator, optional
-        Chooses the draws; default ``numpy.random.default_rng(0)``, so the same folder
-        gives the same page.
+        Chooses the draws and the corner-plot samples; default
+        ``numpy.random.default_rng(0)``, so the same folder gives the same page.
 
     Returns
     -------
@@ -803,387 +1214,22 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
     Raises
     ------
     ResultsError
-        The folder is incomplete or inconsistent (message names the file).
+        The folder is incomplete or inconsistent (the message names the file).
     ValueError
-        ``n_draws < 2``.
+        ``n_draws`` is not an integer >= 2.
     """
     if isinstance(n_draws, bool) or not isinstance(n_draws, (int, np.integer)) or n_draws < 2:
         raise ValueError(f"n_draws must be an integer >= 2, got {n_draws!r}")
     started = _time.perf_counter()
     rng = np.random.default_rng(0) if rng is None else rng
-    results = load_results(result_dir)
-    chain = read_chain(results)
-    draws = posterior_draws(results, chain, n_draws, rng)
-    bands = model_bands(results, draws)
-
-    time, current, measured = results.time, results.current, results.displacement
-    energised = results.energised
-    error = measured - bands.median
-    displacement_range = float(np.ptp(measured[energised]))
-    if displacement_range <= 0:
-        raise ResultsError(f"{results.directory / 'data.npz'}: the measured output is constant over the energised part")
-    worst = int(np.flatnonzero(energised)[np.argmax(np.abs(error[energised]))])
-    max_error_pct = 100.0 * abs(error[worst]) / displacement_range
-    reversals = input_reversals(current)
-    branch_list = branches(current, reversals)
-    cycles = cycle_errors(time, current, error, energised, branch_list, displacement_range)
-    band_half_width = 0.5 * float(np.median((bands.predictive_hi - bands.predictive_lo)[energised]))
-    zoom = zoom_samples(bands.median, worst, band_half_width)
-    window = (float(time[zoom.start]), float(time[zoom.stop - 1]))
-    zoom_box = loop_zoom_box(current, measured, bands, zoom, energised)
-    lengths, tau_curve = autocorrelation_curve(chain)
-
-    names = results.model.names
-    units = {p.name: p.unit for p in results.model.parameters}
-    sampled_names = [names[i] for i in chain.columns]
-    labels = [f"{n} [{plots.unit_label(units[n])}]" for n in sampled_names]
-    figures = {}
-    captions = {}
-    out = dict(input_name=results.input_name, input_unit=results.input_unit)
-    y_units = dict(output_name=results.output_name, output_unit=results.output_unit)
-
-    figures["fig5_input"] = plots.input_figure(time, current, reversals=reversals, **out)
-    captions["fig5_input"] = f"The drive as recorded; dots mark the {reversals.size} input reversals used to split the branches."
-    figures["fig6_displacement"] = plots.displacement_figure(
-        time, measured, bands.median, bands.credible_lo, bands.credible_hi, bands.predictive_lo, bands.predictive_hi, **y_units
-    )
-    captions["fig6_displacement"] = (
-        f"Black: measurement. Red: pointwise median of {bands.n_draws} posterior draws pushed through the model, "
-        "with its 95 % credible band (uncertainty of the model curve). Orange: 95 % predictive band, model plus "
-        f"sensor noise (σ = {_number(results.noise_sigma, 4)} {plots.unit_label(results.output_unit)}); "
-        "about 95 % of the measured samples should lie inside it when the model is adequate."
-    )
-    figures["fig6_zoom"] = plots.displacement_figure(
-        time, measured, bands.median, bands.credible_lo, bands.credible_hi, bands.predictive_lo, bands.predictive_hi,
-        window=window, title=f"Zoom on the worst region: {window[0]:.4g}–{window[1]:.4g} s", **y_units,
-    )  # fmt: skip
-    captions["fig6_zoom"] = (
-        f"The samples around the largest error (t = {time[worst]:.4g} s), a window just wide enough for the output to "
-        f"move {ZOOM_BAND_MULTIPLE:g} × the predictive band's half-width ({band_half_width:.3g} "
-        f"{plots.unit_label(results.output_unit)}), so the bands are visible."
-    )
-    error_lo = measured - bands.credible_hi
-    error_hi = measured - bands.credible_lo
-    figures["fig7_error"] = plots.error_figure(
-        time, error, error_lo, error_hi, noise_sigma=results.noise_sigma, max_error_pct=max_error_pct,
-        max_error_index=worst, output_unit=results.output_unit,
-        energised_from=float(time[np.argmax(energised)]) if not energised[0] else None,
-    )  # fmt: skip
-    captions["fig7_error"] = (
-        "Measurement minus the posterior-median model. Where the error leaves the blue ±2σ band systematically, the "
-        "model misses something; the paper quotes its maximum as “less than 3 %” of the maximal displacement."
-    )
-    figures["fig8_loops"] = plots.loops_figure(
-        current, measured, bands.median, bands.credible_lo, bands.credible_hi,
-        segments=[(b.start, b.stop) for b in branch_list], rising=[b.rising for b in branch_list], zoom_box=zoom_box,
-        **out, **y_units,
-    )  # fmt: skip
-    captions["fig8_loops"] = (
-        f"The record is split at the input reversals into {len(branch_list)} monotone branches (rising red, falling "
-        "blue); each branch's 95 % credible band is drawn against that branch's own current samples, so rising, "
-        "falling and minor loops keep their own bands. Right: the green box around the largest error, at the same "
-        "aspect as the full plot, where the band and the measured samples are visible."
-    )
-    kept = chain.chain[chain.kept].reshape(-1, chain.chain.shape[2])
-    if kept.shape[0] > MAX_CORNER_SAMPLES:
-        kept = kept[rng.choice(kept.shape[0], MAX_CORNER_SAMPLES, replace=False)]
-    vary_columns = [i for i, c in enumerate(chain.columns) if results.vary[c]]
-    figures["corner"] = plots.corner_figure(
-        kept[:, vary_columns], [labels[i] for i in vary_columns], reference=results.theta_lsq[chain.columns[vary_columns]]
-    )
-    captions["corner"] = (
-        f"{kept.shape[0]} samples after the burn-in. Strong diagonal ridges are the near-degenerate combinations listed "
-        "under identifiability."
-    )
-    trace_step = max(1, math.ceil(chain.chain.shape[0] / MAX_TRACE_ROWS))
-    figures["traces"] = plots.trace_figure(
-        chain.chain[::trace_step], chain.log_prob[::trace_step], labels, steps=chain.steps[::trace_step], discard=chain.discard
-    )
-    captions["traces"] = (
-        "Each line is one walker. Well-mixed chains look like stationary noise after the shaded burn-in; trends or "
-        "stuck walkers mean the chain is too short."
-    )
-    tau_max = results.summary["posterior"].get("tau_max")
-    figures["autocorrelation"] = plots.autocorrelation_figure(lengths, tau_curve, sampled_names, tau_reported=tau_max)
-    captions["autocorrelation"] = (
-        "Estimated from growing prefixes of the chain after the burn-in (emcee's walker-averaged estimator"
-        + (f", chain thinned by {chain.thin}" if chain.thin > 1 else "")
-        + "). The chain is long enough when every curve has flattened and lies below the dashed N/50 line."
-    )
-
-    directory = results.directory
-    png = {}
-    for stem, figure in figures.items():
-        png[stem] = _png(figure, dpi=80 if stem == "corner" else 100)
-        _atomic_write(directory / f"{stem}.png", png[stem])
-    figures.clear()
-
-    page = _page(
-        results=results,
-        chain=chain,
-        bands=bands,
-        png=png,
-        captions=captions,
-        cycles=cycles,
-        worst=worst,
-        max_error_pct=max_error_pct,
-        displacement_range=displacement_range,
-        seconds=_time.perf_counter() - started,
-    )
-    report_path = directory / "report.html"
-    _atomic_write(report_path, page.encode("utf-8"))
-    return report_path
-
-
-def _fit_status(summary, noise_sigma):
-    fit = summary["fit"]
-    ratio = fit["rms"] / noise_sigma if noise_sigma > 0 else math.inf
-    chi2 = fit.get("reduced_chi2")
-    misfit = ratio > RMS_RATIO_LIMIT or (chi2 is not None and chi2 > REDUCED_CHI2_LIMIT)
-    return ratio, misfit
-
-
-def _page(*, results, chain, bands, png, captions, cycles, worst, max_error_pct, displacement_range, seconds) -> str:
-    summary, manifest = results.summary, results.manifest
-    unit = plots.unit_label(results.output_unit)
-    fit = summary["fit"]
-    noise = summary["noise"]
-    posterior = summary["posterior"]
-    ratio, misfit = _fit_status(summary, results.noise_sigma)
-    converged = bool(posterior.get("converged"))
-    worst_cycle = next((c for c in cycles if c.start <= worst < c.stop), None)
-    data_file = manifest.get("data_file") or manifest.get("data") or str(results.directory / "data.npz")
-    title = f"Identification report — {Path(str(data_file)).name}"
-    parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
-        f"<p>Model: GPI with {results.model.n_operators} operators, reading <code>{html.escape(results.model.reading)}</code>, "
-        f"effects: {html.escape(', '.join(results.model.effect_names) or 'none')}. "
-        f"{results.time.size} samples over {results.time[-1] - results.time[0]:.4g} s. "
-        f"Results folder: <code>{html.escape(str(results.directory))}</code>.</p>",
-    ]
-
-    # ---- at a glance
-    parts.append('<h2 id="glance">At a glance</h2>')
-    if not converged:
-        parts.append(
-            '<div class="alert" id="convergence-alert"><b>NOT CONVERGED.</b> The chain has '
-            f"{_number(posterior.get('n_steps'))} steps, fewer than 50 × the largest autocorrelation time "
-            f"(τ<sub>max</sub> = {_number(posterior.get('tau_max'), 4)} steps). The posterior intervals and bands below "
-            "are provisional; rerun the study to extend the chain.</div>"
-        )
-    else:
-        parts.append(
-            f'<div class="ok" id="convergence-ok">Converged: {_number(posterior.get("n_steps"))} steps, at least 50 × '
-            f"τ<sub>max</sub> = {_number(posterior.get('tau_max'), 4)} steps.</div>"
-        )
-    fit_sentence = (
-        f"Residual RMS {_number(fit['rms'], 4)} {unit} = {ratio:.3g} × the sensor noise σ = "
-        f"{_number(results.noise_sigma, 4)} {unit}; reduced χ² = {_number(fit.get('reduced_chi2'), 4)}."
-    )
-    if misfit:
-        parts.append(
-            '<div class="alert" id="misfit-alert"><b>The residual is far above the noise.</b> '
-            f"{fit_sentence} The bands on this page are conditional on a model that misses something; "
-            'see the <a href="#diagnosis">diagnosis section</a>.</div>'
-        )
-    else:
-        parts.append(f'<div class="ok" id="fit-ok"><b>The residual is at the noise level.</b> {fit_sentence}</div>')
-    where = f"t = {results.time[worst]:.4g} s"
-    if worst_cycle is not None:
-        where += f" (cycle {worst_cycle.index}, input {results.current[worst]:.3g} {html.escape(results.input_unit)})"
-    relative_width = []
-    for p in summary["parameters"]:
-        if p.get("vary", True) and p.get("median") not in (None, 0) and p.get("lo95") is not None:
-            relative_width.append(((p["hi95"] - p["lo95"]) / abs(p["median"]), p["name"]))
-    relative_width.sort(reverse=True)
-    parts.append(
-        "<ul>"
-        f"<li>Max error: <b>{max_error_pct:.3g} %</b> of the measured displacement range "
-        f"({displacement_range:.4g} {unit}) for the posterior-median model, worst at {where}; least squares: "
-        f"{_number(fit.get('max_error_pct'), 4)} % (the paper reports less than 3 %).</li>"
-        + (
-            "<li>Least well determined (widest 95 % interval relative to the median): "
-            + ", ".join(f"{html.escape(n)} (±{50 * w:.3g} %)" for w, n in relative_width[:3])
-            + ".</li>"
-            if relative_width
-            else ""
-        )
-        + f"<li>Bands from {bands.n_draws} posterior draws"
-        + (f" ({bands.n_outside} draws outside the model's domain dropped)" if bands.n_outside else "")
-        + ".</li></ul>"
-    )
-
-    # ---- measurement vs model
-    parts.append('<h2 id="measurement">1. Measurement vs model</h2>')
-    for stem in ("fig5_input", "fig6_displacement", "fig6_zoom", "fig7_error", "fig8_loops"):
-        parts.append(_figure_html(stem, FIGURES[stem], png[stem], captions[stem]))
-
-    # ---- fit quality
-    parts.append('<h2 id="fit-quality-section">2. Fit quality</h2>')
-    rows = [
-        [_text(f"residual RMS, least squares [{unit}]"), _cell(fit["rms"], "fit.rms")],
-        [_text(f"sensor noise σ [{unit}] ({noise.get('source', '?')}, {noise.get('kind', '?')})"), _cell(noise["sigma"], "noise.sigma")],
-        [_text("lag-1 autocorrelation of the noise ρ"), _cell(noise.get("rho"), "noise.rho")],
-        [_text("quiet samples used for the noise"), _cell(noise.get("n_quiet"), "noise.n_quiet")],
-        [_text("RMS / σ"), _cell(ratio, "derived.rms_ratio", css="alert" if ratio > RMS_RATIO_LIMIT else None)],
-        [_text("reduced χ²"), _cell(fit.get("reduced_chi2"), "fit.reduced_chi2")],
-        [_text("max error, least squares [% of displacement range]"), _cell(fit.get("max_error_pct"), "fit.max_error_pct")],
-        [_text("max error, posterior median [% of displacement range]"), _cell(max_error_pct, "derived.max_error_pct")],
-        [_text(f"max |error|, posterior median [{unit}]"), _cell(abs(float(results.displacement[worst] - bands.median[worst])), "derived.max_abs_error")],
-        [_text("time of the max error [s]"), _cell(float(results.time[worst]), "derived.time_of_max")],
-        [_text("least-squares time [s]"), _cell(fit.get("seconds"), "fit.seconds")],
-    ]  # fmt: skip
-    parts.append(_table("fit-quality", ["quantity", "value"], rows, caption="Fit quality (energised part of the record)"))
-    parts.append(
-        f"<p>“Far above the noise” means RMS &gt; {RMS_RATIO_LIMIT} σ or reduced χ² &gt; {REDUCED_CHI2_LIMIT}. "
-        "Least-squares numbers are from <code>summary.json</code>; the posterior-median numbers are computed here from "
-        "the same draws as the bands.</p>"
-    )
-    worst_index = max(cycles, key=lambda c: c.max_abs_error).index if cycles else None
-    rows = []
-    for c in cycles:
-        cells = [
-            _cell(c.index, f"cycles.{c.index}.index"), _cell(c.time_start, f"cycles.{c.index}.time_start", 4),
-            _cell(c.time_end, f"cycles.{c.index}.time_end", 4), _cell(c.input_peak, f"cycles.{c.index}.input_peak", 4),
-            _cell(c.rms, f"cycles.{c.index}.rms", 4), _cell(c.max_abs_error, f"cycles.{c.index}.max_abs_error", 4),
-            _cell(c.max_error_pct, f"cycles.{c.index}.max_error_pct", 4), _cell(c.time_of_max, f"cycles.{c.index}.time_of_max", 4),
-        ]  # fmt: skip
-        rows.append(cells)
-    cycle_table = _table(
-        "cycle-errors",
-        ["cycle", "start [s]", "end [s]", f"input peak [{html.escape(results.input_unit)}]", f"RMS [{unit}]",
-         f"max |error| [{unit}]", "max error [%]", "at [s]"],
-        rows,
-        caption="Error per input cycle (cycles split at the input's minima; posterior-median model; worst cycle highlighted)",
-    )  # fmt: skip
-    if worst_index is not None:
-        cycle_table = cycle_table.replace(f'<tr><td data-key="cycles.{worst_index}.index">', f'<tr class="worst"><td data-key="cycles.{worst_index}.index">', 1)
-    parts.append(cycle_table)
-
-    # ---- parameters
-    parts.append('<h2 id="parameters-section">3. Parameters</h2>')
-    rows = []
-    for p in summary["parameters"]:
-        name = p["name"]
-        pinned = not p.get("vary", True)
-        key = f"parameters.{name}"
-        row = [
-            _text(name), _text(plots.unit_label(p.get("unit", ""))), _cell(p.get("table1"), f"{key}.table1"),
-            _cell(p.get("lsq"), f"{key}.lsq"), _cell(p.get("lsq_stderr"), f"{key}.lsq_stderr"),
-            _cell(p.get("median"), f"{key}.median"), _cell(p.get("lo95"), f"{key}.lo95"), _cell(p.get("hi95"), f"{key}.hi95"),
-            _cell(p.get("tau"), f"{key}.tau", 4), _cell(p.get("ess"), f"{key}.ess", 4),
-            _text("pinned by normalisation" if pinned else "varies"),
-        ]  # fmt: skip
-        rows.append(row)
-    table = _table(
-        "parameters",
-        ["parameter", "unit", "Table 1", "least squares", "± std. error", "posterior median", "2.5 %", "97.5 %",
-         "τ [steps]", "ESS", "status"],
-        rows,
-        caption="Parameters: the paper's Table 1 (— for effects), least squares, posterior median and 95 % interval",
-    )  # fmt: skip
-    for p in summary["parameters"]:
-        if not p.get("vary", True):
-            table = table.replace(f"<tr><td>{html.escape(p['name'])}</td>", f'<tr class="pinned"><td>{html.escape(p["name"])}</td>', 1)
-    parts.append(table)
-    rows = [
-        [_text("walkers"), _cell(posterior.get("n_walkers"), "posterior.n_walkers")],
-        [_text("steps"), _cell(posterior.get("n_steps"), "posterior.n_steps")],
-        [_text("burn-in discarded [steps]"), _cell(posterior.get("discard"), "posterior.discard")],
-        [_text("thin"), _cell(posterior.get("thin"), "posterior.thin")],
-        [_text("mean acceptance fraction"), _cell(posterior.get("acceptance_fraction"), "posterior.acceptance_fraction")],
-        [_text("largest autocorrelation time τ [steps]"), _cell(posterior.get("tau_max"), "posterior.tau_max")],
-        [_text("converged (steps ≥ 50 τ)"), _cell(converged, "posterior.converged", css=None if converged else "alert")],
-        [_text("sampling time [s]"), _cell(posterior.get("seconds"), "posterior.seconds")],
-    ]
-    parts.append(_table("posterior-settings", ["quantity", "value"], rows, caption="Posterior sampling (emcee)"))
-    for stem in ("corner", "traces", "autocorrelation"):
-        parts.append(_figure_html(stem, FIGURES[stem], png[stem], captions[stem]))
-
-    identifiability = summary["identifiability"]
-    parts.append('<h3 id="identifiability">Identifiability</h3>')
-    parts.append(
-        "<p>Directions of parameter space the data cannot pin down, from the eigen-analysis of the Fisher "
-        "information at the least-squares optimum. Exact degeneracies leave the output unchanged and are fixed by "
-        "the normalisation (the pinned parameters above); near-degenerate combinations are kept free and show up as "
-        "wide, correlated intervals.</p>"
-    )
-    normalisation = identifiability.get("normalisation") or {}
-    rows = [[_text(k), _cell(v, f"identifiability.normalisation.{k}")] for k, v in normalisation.items()]
-    parts.append(_table("identifiability-normalisation", ["pinned parameter", "value"], rows, caption="Normalisation used"))
-    for kind in ("exact", "near"):
-        rows = []
-        for i, item in enumerate(identifiability.get(kind) or []):
-            if isinstance(item, dict):
-                rows.append([_cell(item.get("eigenvalue"), f"identifiability.{kind}.{i}.eigenvalue"),
-                             _text(_combination_text(item.get("combination", item)))])  # fmt: skip
-            else:
-                rows.append([_cell(None), _text(_combination_text(item))])
-        if not rows:
-            rows = [[_text("(none)"), _text("")]]
-        caption = "Exact degeneracies" if kind == "exact" else "Near-degenerate combinations"
-        parts.append(_table(f"identifiability-{kind}", ["eigenvalue", "combination (weights)"], rows, caption=caption))
-
-    # ---- diagnosis
-    parts.append('<h2 id="diagnosis">4. Diagnosis</h2>')
-    parts.append(_diagnosis_html(results))
-
-    # ---- provenance
-    parts.append('<h2 id="provenance-section">5. Provenance</h2>')
-    rows = [[_text("convergence"), f'<td class="{"ok" if converged else "alert"}" data-key="posterior.converged.text">'
-             f'{"converged" if converged else "NOT CONVERGED"}</td>']]  # fmt: skip
-    for name, value in _flatten(manifest):
-        rows.append([_text(name), _text(value)])
-    rows.append([_text("report: posterior draws for the bands"), _cell(bands.n_draws)])
-    rows.append([_text("report: generated in [s]"), _cell(seconds, digits=3)])
-    rows.append([_text("report: generated at"), _text(_time.strftime("%Y-%m-%d %H:%M:%S"))])
-    parts.append(_table("provenance", ["item", "value"], rows, caption="Provenance (manifest.json)"))
-    parts.append("</body></html>")
-    return "\n".join(parts)
-
-
-def _diagnosis_html(results: StudyResults) -> str:
-    """The diagnosis hook: render ``diagnosis.json`` and embed ``diagnosis/*.png`` when present."""
-    diagnosis = results.diagnosis
-    figure_dir = results.directory / DIAGNOSIS_FIGURES
-    pngs = sorted(figure_dir.glob("*.png")) if figure_dir.is_dir() else []
-    if diagnosis is None and not pngs:
-        return (
-            f"<p>No diagnosis in this folder (<code>{DIAGNOSIS_FILE}</code> absent). The diagnosis tells which "
-            "physical effect the model misses when the residual is above the noise.</p>"
-        )
-    parts = []
-    if diagnosis is not None:
-        status = str(diagnosis.get("status", "unknown"))
-        missing = diagnosis.get("missing")
-        css = "ok" if status == "adequate" else "alert"
-        verdict = {
-            "adequate": "the residual is consistent with the noise; nothing to add.",
-            "missing_effect": f"the model misses the effect <b>{html.escape(str(missing))}</b>; add it with "
-            f"<code>--effects {html.escape(str(missing))}</code>.",
-            "unexplained": "structure remains in the residual that no effect of the library explains.",
-        }.get(status, html.escape(str(missing or "")))
-        parts.append(f'<div class="{css}" id="diagnosis-verdict">Verdict: <b>{html.escape(status)}</b>: {verdict}</div>')
-        ranking = diagnosis.get("ranking") or []
-        if ranking:
-            columns = ["effect", "rms_after"] + sorted({k for r in ranking for k in r} - {"effect", "rms_after"})
-            rows = []
-            for r in ranking:
-                row = []
-                for col in columns:
-                    value = r.get(col)
-                    if isinstance(value, (int, float)) and not isinstance(value, bool):
-                        row.append(_cell(value, f"diagnosis.{r.get('effect')}.{col}"))
-                    else:
-                        row.append(_text("—" if value is None else value))
-                rows.append(row)
-            parts.append(_table("diagnosis-ranking", [html.escape(c) for c in columns], rows,
-                                caption="Candidate effects, best first (rms_after: residual RMS with the effect added)"))  # fmt: skip
-    for path in pngs:
-        alt = f"Diagnosis: {path.stem.replace('_', ' ')}"
-        parts.append(_figure_html(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From <code>{DIAGNOSIS_FIGURES}/{path.name}</code>."))
-    return "\n".join(parts)
+    data = load_report_data(result_dir)
+    analysis = _analyse(data, int(n_draws), rng)
+    figure_html = {}
+    for stem, figure, caption in _figures(data, analysis, rng):
+        png = _png(figure, DPI.get(stem, DPI["default"]))
+        _atomic_write(data.directory / f"{stem}.png", png)
+        figure_html[stem] = _figure_html(stem, FIGURES[stem], png, caption)
+    page = _page(data, analysis, figure_html, _time.perf_counter() - started)
+    path = data.directory / results.FILES["report"]
+    _atomic_write(path, page.encode("utf-8"))
+    return path

@@ -1,0 +1,46 @@
+"""``python -m identify report DIR``: the uncertainty report of a finished study.
+
+Reads the results folder ``DIR`` written by ``python -m identify study`` and writes
+``DIR/report.html`` (one self-contained page: figures embedded, opens in any browser
+without a server) and every figure as ``DIR/<name>.png``. Nothing is refitted; see
+:mod:`identify.report` for what the page shows. ``study`` runs this at its end; run it
+again after adding ``DIR/diagnosis.json`` or to redraw with other draws.
+
+Example::
+
+    python -m identify report reports/default
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time as _time
+
+__all__ = ["HELP", "add_arguments", "run"]
+
+HELP = "write DIR/report.html (self-contained page with credible bands) and the figures from a finished study"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dir", metavar="DIR", help="results folder written by `python -m identify study`")
+    parser.add_argument(
+        "--draws", type=int, default=200, help="posterior draws pushed through the model for the bands (default 200)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the generator choosing the draws (default 0)")
+
+
+def run(args) -> int:
+    """Write the report; exit code 2 with a one-line message for a folder that cannot be reported on."""
+    import numpy as np
+
+    from .report import ResultsError, write_report
+
+    started = _time.perf_counter()
+    try:
+        path = write_report(args.dir, n_draws=args.draws, rng=np.random.default_rng(args.seed))
+    except (ResultsError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"report: {path} ({_time.perf_counter() - started:.1f} s)")
+    return 0
