@@ -276,7 +276,9 @@ def estimate_noise(record, *, noise_sigma=None, current_tolerance=None, min_quie
     coef, *_ = np.linalg.lstsq(design, y, rcond=None)
     detrended = y - design @ coef
     sum_sq = float(detrended @ detrended)
-    if not sum_sq > 0:
+    # "Zero" up to round-off of the line fit, relative to the record's magnitude.
+    level = 1e-9 * max(float(np.max(np.abs(record.displacement))), 1e-300)
+    if not sum_sq > n * level**2:
         raise NoQuietSegmentError(
             f"{where}: the {n}-sample unenergised start has zero spread after removing a line "
             f"(a noise-free or heavily quantised record?), so it gives no noise estimate. {_FALLBACKS}"

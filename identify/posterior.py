@@ -30,9 +30,10 @@ falls back to one row at a time; rows that still fail get ``-inf`` and are count
 
 Sampling
 --------
-:func:`sample_posterior` runs emcee's affine-invariant ensemble sampler with an
-:class:`emcee.backends.HDFBackend` (group ``"mcmc"``), which saves every step, so an
-interrupted run resumes where it stopped (the sampler's random state is stored with each
+:func:`sample_posterior` runs emcee's ensemble sampler with an
+:class:`emcee.backends.HDFBackend` (group ``"mcmc"``; written in batches by
+:class:`BufferedHDFBackend`, flushed on Ctrl-C), so an interrupted run resumes where it
+stopped (the sampler's random state is stored with each
 step, so the resumed chain is the one an uninterrupted run gives, bit for bit). It runs
 in chunks of ``check_every`` steps (aligned to multiples of it, so stopping does not
 depend on interruptions) and stops when
@@ -76,10 +77,64 @@ __all__ = [
     "sample_posterior",
     "posterior_from_backend",
     "BACKEND_GROUP",
+    "BufferedHDFBackend",
 ]
 
 #: HDF5 group of the emcee backend in ``chain.h5``.
 BACKEND_GROUP = "mcmc"
+
+
+class BufferedHDFBackend(emcee.backends.HDFBackend):
+    """emcee's HDF5 backend, writing steps in batches instead of opening the file per step.
+
+    The stock :class:`emcee.backends.HDFBackend` opens, writes and closes the file for
+    every step (about 3-10 ms, as much as a 36-walker model evaluation). This subclass
+    keeps completed steps in memory and writes them in one go every ``flush_every``
+    steps or ``flush_seconds`` seconds, before the chain grows, and whenever
+    :meth:`flush` is called: :func:`sample_posterior` flushes after every chunk and on
+    any exception, including ``KeyboardInterrupt`` (Ctrl-C) and the ``SIGTERM`` that
+    ``study`` turns into one. Only a hard kill (``SIGKILL``, power loss) can lose the
+    unflushed steps, at most ``flush_seconds`` of work. The file format is emcee's,
+    readable by the stock backend.
+    """
+
+    def __init__(self, filename, name=BACKEND_GROUP, *, flush_every=200, flush_seconds=5.0, **kwargs):
+        super().__init__(str(filename), name=name, **kwargs)
+        self.flush_every = int(flush_every)
+        self.flush_seconds = float(flush_seconds)
+        self._pending = []
+        self._last_flush = _time.monotonic()
+
+    def save_step(self, state, accepted):
+        if state.blobs is not None:
+            raise ValueError("BufferedHDFBackend does not store blobs")
+        self._pending.append((np.array(state.coords), np.array(state.log_prob), np.array(accepted), state.random_state))
+        if len(self._pending) >= self.flush_every or _time.monotonic() - self._last_flush > self.flush_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered steps (one file open); a no-op when nothing is pending."""
+        self._last_flush = _time.monotonic()
+        if not self._pending:
+            return
+        pending, self._pending = self._pending, []
+        n = len(pending)
+        with self.open("a") as f:
+            g = f[self.name]
+            start = int(g.attrs["iteration"])
+            if g["chain"].shape[0] < start + n:
+                g["chain"].resize(start + n, axis=0)
+                g["log_prob"].resize(start + n, axis=0)
+            g["chain"][start : start + n] = np.stack([p[0] for p in pending])
+            g["log_prob"][start : start + n] = np.stack([p[1] for p in pending])
+            g["accepted"][:] += np.sum([p[2] for p in pending], axis=0)
+            for i, value in enumerate(pending[-1][3]):
+                g.attrs[f"random_state_{i}"] = value
+            g.attrs["iteration"] = start + n
+
+    def grow(self, ngrow, blobs):
+        self.flush()
+        super().grow(ngrow, blobs)
 
 
 def _uniform_logpdf(x, lower, upper):
@@ -365,7 +420,9 @@ def _tau(chain) -> np.ndarray:
     """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain."""
     if chain.shape[0] < 2:
         return np.full(chain.shape[2], np.inf)
-    return np.asarray(emcee.autocorr.integrated_time(chain, tol=0, quiet=True), dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0, quiet=True), dtype=float)
+    return np.where(np.isfinite(tau), tau, np.inf)  # a chain that never moved: no estimate
 
 
 def _convergence(chain, check_every, tau_factor, tau_rtol):
@@ -428,7 +485,7 @@ def sample_posterior(
     check_every=500,
     tau_factor=50.0,
     tau_rtol=0.05,
-    moves="stretch",
+    moves="de",
     progress=None,
     log=None,
 ) -> PosteriorResult:
@@ -451,8 +508,11 @@ def sample_posterior(
     check_every : int, default 500
         Convergence check interval [steps].
     tau_factor, tau_rtol : float, default 50, 0.05
-    moves : str, default "stretch"
-        A key of :data:`MOVES`.
+    moves : str, default "de"
+        A key of :data:`MOVES`: ``"de"`` (differential evolution 80 %, DE snooker
+        20 %) or ``"stretch"`` (emcee's default). On the 18-parameter GPI posterior of a
+        7001-sample record the DE moves' autocorrelation time was about a third of the
+        stretch move's (71 vs 200 steps after 3000 steps, 36 walkers).
     progress : bool, optional
         tqdm bar on stderr; default: when stderr is a terminal.
     log : callable, optional
@@ -470,7 +530,7 @@ def sample_posterior(
     log = log or (lambda _msg: None)
     ndim = log_post.ndim
     path = os.fspath(backend_path)
-    backend = emcee.backends.HDFBackend(path, name=BACKEND_GROUP)
+    backend = BufferedHDFBackend(path, name=BACKEND_GROUP)
     # The emcee seed and the walker-start generator are drawn first, so they do not
     # depend on whether this call starts or resumes.
     emcee_seed = int(rng.integers(2**32))
@@ -525,7 +585,9 @@ def sample_posterior(
             for state in sampler.sample(state, iterations=steps, store=True, progress=False):
                 if bar is not None:
                     bar.update(1)
+            backend.flush()
     finally:
+        backend.flush()  # also on Ctrl-C: no completed step is lost
         if bar is not None:
             bar.close()
     return posterior_from_backend(

@@ -1,0 +1,133 @@
+"""Identifiability: the GPI's exact scaling degeneracy, its normalisation, and its automatic
+detection from the Fisher information."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identify.identifiability import (
+    EXACT_RATIO,
+    NORMALISATION,
+    SCALING_PARAMETERS,
+    SCALING_POWERS,
+    analyse_fit,
+    analyse_identifiability,
+    gpi_scaling,
+    normalised_model,
+    parameter_scales,
+    pin_gpi_parameters,
+    scaling_direction,
+    to_normalisation,
+)
+from identify.lsq import WhitenedResiduals, fit_least_squares
+from identify.noise import NoiseModel
+from identify.records import Record
+from model import TABLE1, THETA_NAMES, Model, paper_current
+
+
+def record(fs=10.0, seed=0, effects=()):
+    time, current = paper_current(fs=fs)
+    model = Model(list(effects))
+    y = model(model.default_theta(), time, current)
+    y = y + 0.5 * np.random.default_rng(seed).standard_normal(time.size)
+    return Record(time, current, y, source="synthetic", sha256="")
+
+
+@pytest.mark.parametrize("k", [0.25, 0.9, 1.7, 4.0])
+def test_scaling_leaves_the_output_unchanged(k):
+    """(rho, alpha, tau, a0, a3, b0, b3) -> (rho/k, k alpha, tau/k, k a0, k a3, k b0, k b3):
+    same output up to round-off (1e-12 of the ~296 um range), on the full paper input."""
+    time, current = paper_current()
+    model = Model()
+    theta = model.default_theta()
+    scaled = gpi_scaling(theta, k)
+    assert not np.allclose(scaled, theta)
+    for name, power in zip(SCALING_PARAMETERS, SCALING_POWERS):
+        i = THETA_NAMES.index(name)
+        assert scaled[i] == pytest.approx(theta[i] * k**power, rel=1e-15)
+    y, y_scaled = model(theta, time, current), model(scaled, time, current)
+    assert np.max(np.abs(y_scaled - y)) < 1e-12 * np.ptp(y)
+
+
+def test_scaling_is_not_an_invariance_without_tau_or_rho():
+    """Control: scaling only the envelopes and alpha (not rho, tau) does change the output."""
+    time, current = paper_current(fs=10.0)
+    model = Model()
+    theta = model.default_theta()
+    wrong = gpi_scaling(theta, 2.0)
+    wrong[THETA_NAMES.index("rho")] = theta[THETA_NAMES.index("rho")]
+    assert np.max(np.abs(model(wrong, time, current) - model(theta, time, current))) > 10.0
+
+
+def test_normalisation_maps_every_equivalent_vector_to_one():
+    theta = Model().default_theta()
+    for k in (0.3, 2.5):
+        back = to_normalisation(gpi_scaling(theta, k))
+        assert back[THETA_NAMES.index("alpha")] == NORMALISATION["alpha"]
+        assert np.allclose(back, theta, rtol=1e-13)
+
+
+def test_normalised_model_pins_alpha_at_table1():
+    model = normalised_model(Model(["thermal"]))
+    alpha = model.parameters["alpha"]
+    assert not alpha.vary and alpha.value == TABLE1[0] == NORMALISATION["alpha"]
+    assert model.parameters.vary.sum() == model.n_parameters - 1
+    assert model.effect_names == ("thermal",)
+    with pytest.raises(ValueError, match="only GPI parameters"):
+        pin_gpi_parameters(model, {"thermal_tau": 3.0})
+
+
+def test_exact_direction_is_found_with_alpha_free():
+    """Fisher eigen-analysis at Table 1, every parameter free: the smallest eigenvalue is
+    ~0 (< 1e-12 of the largest, while the next is > 1e-9 of it) and its vector loads on
+    exactly the 7 scaling parameters in the ratio power_j * theta_j / scale_j."""
+    rec = record(fs=20.0)
+    model = Model()
+    theta = model.default_theta()
+    residuals = WhitenedResiduals(rec, model, NoiseModel(sigma=0.5))
+    result = analyse_identifiability(residuals.central_jacobian(theta), theta, model.names)
+    ratios = result.eigenvalues / result.eigenvalues[-1]
+    assert abs(ratios[0]) < 1e-12 and ratios[1] > 1e-9
+    assert len(result.exact) == 1
+    vector = result.exact[0].vector
+    expected = scaling_direction(theta, model.names)
+    assert abs(vector @ expected) > 1 - 1e-9
+    inside = np.isin(model.names, SCALING_PARAMETERS)
+    assert np.max(np.abs(vector[~inside])) < 1e-5
+    assert set(result.exact[0].combination) == set(SCALING_PARAMETERS)
+    # loadings in the scaling ratio: +-1 in relative units (every |theta_j| > 0.01 here)
+    scales = parameter_scales(theta)
+    loading = {n: w for n, w in zip(model.names, vector * np.sign(vector[model.names.index("alpha")]))}
+    for name, power in zip(SCALING_PARAMETERS, SCALING_POWERS):
+        i = model.names.index(name)
+        assert loading[name] == pytest.approx(power * theta[i] / scales[i] / np.sqrt(7) * np.sign(theta[0]), abs=1e-6)
+
+
+def test_normalised_problem_has_no_exact_direction():
+    rec = record(fs=20.0)
+    model = normalised_model(Model())
+    residuals = WhitenedResiduals(rec, model, NoiseModel(sigma=0.5))
+    theta = model.default_theta()
+    x = theta[residuals.free]
+    result = analyse_identifiability(residuals.central_jacobian(x), x, [model.names[i] for i in residuals.free])
+    assert result.exact == []
+    assert result.eigenvalues[0] / result.eigenvalues[-1] > EXACT_RATIO
+    assert np.isfinite(result.condition_number)
+
+
+def test_analyse_fit_reports_the_scaling_and_near_directions():
+    rec = record(fs=10.0, seed=3)
+    fit = fit_least_squares(rec, normalised_model(Model()), n_starts=2)
+    result = analyse_fit(fit, rec)
+    assert result.normalisation == {"alpha": NORMALISATION["alpha"]}
+    assert len(result.exact) == 1 and set(result.exact[0].combination) == set(SCALING_PARAMETERS)
+    assert "alpha" not in result.names  # the near analysis is of the normalised problem
+    for direction in result.near:
+        assert direction.relative_std > 0.05 or direction.ratio < 1e-8
+        assert abs(np.linalg.norm(direction.vector) - 1) < 1e-12
+        assert max(abs(w) for w in direction.combination.values()) == max(direction.combination.values())
+    d = result.to_dict()
+    assert set(d) >= {"normalisation", "exact", "near"}
+    assert all(set(item) >= {"eigenvalue", "combination"} for item in d["exact"] + d["near"])
+    assert "EXACT degeneracy" in result.describe()

@@ -1,0 +1,246 @@
+"""Posterior: -inf (never NaN or an exception) outside the domain, priors, walker start,
+resume after an interruption, bit-identical chains for one seed, convergence verdicts."""
+
+from __future__ import annotations
+
+import math
+
+import emcee
+import numpy as np
+import pytest
+
+from identify.identifiability import normalised_model
+from identify.lsq import fit_least_squares
+from identify.noise import NoiseModel, estimate_noise, log_likelihood
+from identify.posterior import (
+    BACKEND_GROUP,
+    LogPosterior,
+    default_n_walkers,
+    default_priors,
+    initial_walkers,
+    sample_posterior,
+)
+from identify.records import Record
+from model import Model, paper_current
+
+
+def short_record(seed=0, fs=5.0):
+    """Table 1 on the paper's input at 5 Hz (351 samples, 51 quiet), noise 0.5 um."""
+    time, current = paper_current(fs=fs)
+    model = Model()
+    y = model(model.default_theta(), time, current) + 0.5 * np.random.default_rng(seed).standard_normal(time.size)
+    return Record(time, current, y, source="synthetic", sha256="")
+
+
+@pytest.fixture(scope="module")
+def problem():
+    rec = short_record()
+    model = normalised_model(Model())
+    fit = fit_least_squares(rec, model, n_starts=2)
+    log_post = LogPosterior(rec, model, fit.noise)
+    free = log_post.free
+    mean = fit.theta[free]
+    cov = fit.covariance[np.ix_(free, free)]
+    return rec, model, fit, log_post, mean, cov
+
+
+def test_out_of_domain_walkers_get_minus_inf_without_model_calls(problem):
+    _rec, model, _fit, log_post, mean, _cov = problem
+    rows_evaluated = []
+    original = model.evaluate
+
+    def counting(theta, time, current):
+        rows_evaluated.append(np.atleast_2d(theta).shape[0])
+        return original(theta, time, current)
+
+    model.evaluate = counting
+    try:
+        x = np.repeat(mean[None, :], 6, axis=0)
+        x[1, 0] = -1.0  # rho below its bound
+        x[2, 3] = np.nan  # a NaN coordinate
+        x[3, 4] = np.inf
+        i_b0 = log_post.names.index("b0")
+        x[4, i_b0] = 60.0  # in bounds, but the operator bounds cross (model-invalid)
+        out = log_post(x)
+    finally:
+        model.evaluate = original
+    assert out.shape == (6,) and not np.isnan(out).any()
+    assert np.isfinite(out[0]) and np.isfinite(out[5]) and out[0] == out[5]
+    assert np.all(out[1:5] == -np.inf)
+    assert rows_evaluated == [3]  # rows 1-3 rejected before the model; one batched call
+    assert log_post(x[1]) == -np.inf and isinstance(log_post(x[0]), float)
+
+
+def test_a_model_error_gives_minus_inf_not_an_exception(problem):
+    _rec, model, _fit, log_post, mean, _cov = problem
+    original = model.evaluate
+
+    def broken(theta, time, current):
+        theta = np.atleast_2d(theta)
+        if theta.shape[0] > 1 or theta[0, 1] > 5.0:
+            raise ValueError("simulated failure")
+        return original(theta, time, current)
+
+    model.evaluate = broken
+    errors_before = log_post.n_errors
+    try:
+        x = np.repeat(mean[None, :], 2, axis=0)
+        x[0, 0] = 5.5  # rho > 5: this row fails even alone
+        x[1, 0] = 4.5
+        out = log_post(x)
+    finally:
+        model.evaluate = original
+    assert out[0] == -np.inf and np.isfinite(out[1])
+    assert log_post.n_errors == errors_before + 1
+
+
+def test_log_posterior_is_likelihood_plus_normalised_prior(problem):
+    rec, model, fit, log_post, mean, _cov = problem
+    residual = rec.displacement - model(fit.theta, rec.time, rec.current)
+    expected_prior = 0.0
+    priors = default_priors(model)
+    for j, name in enumerate(log_post.names):
+        lo, hi = log_post.lower[j], log_post.upper[j]
+        if priors[name] == "log_uniform":
+            expected_prior += -math.log(mean[j]) - math.log(math.log(hi / lo))
+        else:
+            expected_prior += -math.log(hi - lo)
+    total = log_post(mean)
+    assert total == pytest.approx(log_likelihood(residual, fit.noise) + expected_prior, rel=1e-12)
+
+
+def test_default_priors_are_log_uniform_for_scale_parameters_only():
+    priors = default_priors(Model(["thermal", "lag", "creep"]))
+    for name in ("rho", "a0", "a1", "b0", "b1", "thermal_tau", "creep_tau"):
+        assert priors[name] == "log_uniform", name
+    for name in ("alpha", "tau", "a2", "a3", "c0", "c3", "lag_tau", "thermal_sensitivity"):
+        assert priors[name] == "uniform", name
+
+
+def test_free_sigma_adds_noise_log_sigma():
+    rec = short_record(seed=1)
+    model = normalised_model(Model())
+    log_post = LogPosterior(rec, model, estimate_noise(rec, noise_sigma="free"))
+    assert log_post.names[-1] == "noise_log_sigma" and log_post.ndim == 19
+    x = np.append(model.default_theta()[log_post.free], np.log(0.5))
+    near, far = log_post(np.vstack([x, np.append(x[:-1], np.log(5.0))]))
+    assert near > far  # the true sigma is far more likely than 10x it
+
+
+def test_initial_walkers_follow_the_covariance_not_a_tiny_ball(problem):
+    _rec, _model, _fit, log_post, mean, cov = problem
+    walkers = initial_walkers(log_post, mean, cov, 200, np.random.default_rng(0))
+    assert walkers.shape == (200, mean.size)
+    assert np.all(np.isfinite(log_post(walkers)))
+    ratio = walkers.std(axis=0) / np.sqrt(np.diag(cov))
+    assert np.all((ratio > 0.7) & (ratio < 1.3)), ratio  # 200 draws: se of a std ~5 %
+    bad_mean = mean.copy()
+    bad_mean[0] = -1.0
+    with pytest.raises(ValueError, match="least-squares solution"):
+        initial_walkers(log_post, bad_mean, cov, 10, np.random.default_rng(0))
+
+
+def test_default_walkers_even_and_at_least_32():
+    assert default_n_walkers(5) == 32
+    assert default_n_walkers(18) == 36
+    assert default_n_walkers(21) == 42
+
+
+def _run(log_post, mean, cov, path, seed, max_steps, check_every=20, moves="de"):
+    return sample_posterior(
+        log_post,
+        lambda n, r: initial_walkers(log_post, mean, cov, n, r),
+        path,
+        np.random.default_rng(seed),
+        n_walkers=36,
+        max_steps=max_steps,
+        check_every=check_every,
+        moves=moves,
+        progress=False,
+    )
+
+
+def _chain(path):
+    backend = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP, read_only=True)
+    return backend.get_chain(), backend.get_log_prob()
+
+
+def test_same_seed_gives_a_bit_identical_chain(problem, tmp_path):
+    _rec, _model, _fit, log_post, mean, cov = problem
+    _run(log_post, mean, cov, tmp_path / "a.h5", seed=7, max_steps=30)
+    _run(log_post, mean, cov, tmp_path / "b.h5", seed=7, max_steps=30)
+    _run(log_post, mean, cov, tmp_path / "c.h5", seed=8, max_steps=30)
+    a, b, c = _chain(tmp_path / "a.h5"), _chain(tmp_path / "b.h5"), _chain(tmp_path / "c.h5")
+    assert a[0].shape == (30, 36, 18)
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    assert not np.array_equal(a[0], c[0])
+
+
+class Interrupting:
+    """A log-posterior that raises KeyboardInterrupt (Ctrl-C) on the ``stop_at``-th
+    half-ensemble call (each emcee step evaluates two halves of 18 walkers)."""
+
+    def __init__(self, log_post, stop_at):
+        self.log_post, self.stop_at, self.calls = log_post, stop_at, 0
+        self.names, self.ndim = log_post.names, log_post.ndim
+
+    @property
+    def n_errors(self):
+        return self.log_post.n_errors
+
+    def __call__(self, x):
+        if np.ndim(x) == 2 and np.shape(x)[0] == 18:
+            self.calls += 1
+            if self.calls == self.stop_at:
+                raise KeyboardInterrupt
+        return self.log_post(x)
+
+
+@pytest.mark.parametrize("moves", ["stretch", "de"])
+def test_interrupted_run_resumes_to_the_uninterrupted_chain(problem, tmp_path, moves):
+    _rec, _model, _fit, log_post, mean, cov = problem
+    _run(log_post, mean, cov, tmp_path / "whole.h5", seed=3, max_steps=50, moves=moves)
+    # Ctrl-C at half-call 61, i.e. within the second 20-step chunk (the stretch move makes
+    # exactly two half-ensemble calls per step, so step 31 is interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _run(Interrupting(log_post, stop_at=61), mean, cov, tmp_path / "cut.h5", seed=3, max_steps=50, moves=moves)
+    done = emcee.backends.HDFBackend(str(tmp_path / "cut.h5"), name=BACKEND_GROUP, read_only=True).iteration
+    if moves == "stretch":
+        assert done == 30  # every completed step is on disk, though the chunk was not finished
+    else:
+        assert 20 < done < 50
+    result = _run(log_post, mean, cov, tmp_path / "cut.h5", seed=3, max_steps=50, moves=moves)
+    whole, resumed = _chain(tmp_path / "whole.h5"), _chain(tmp_path / "cut.h5")
+    assert result.n_steps == 50
+    assert np.array_equal(whole[0], resumed[0]) and np.array_equal(whole[1], resumed[1])
+
+
+def test_resume_refuses_a_different_shape(problem, tmp_path):
+    _rec, _model, _fit, log_post, mean, cov = problem
+    _run(log_post, mean, cov, tmp_path / "x.h5", seed=1, max_steps=5, check_every=5)
+    with pytest.raises(ValueError, match="different run"):
+        sample_posterior(log_post, None, tmp_path / "x.h5", np.random.default_rng(1), n_walkers=40, max_steps=10)
+
+
+class Gaussian:
+    """A 3-D standard normal 'posterior' (for the convergence rule)."""
+
+    names = ("x", "y", "z")
+    ndim = 3
+    n_errors = 0
+
+    def __call__(self, x):
+        return -0.5 * np.sum(np.atleast_2d(x) ** 2, axis=1)
+
+
+def test_convergence_rule_and_not_converged_verdict(tmp_path):
+    start = lambda n, r: r.standard_normal((n, 3))  # noqa: E731
+    ok = sample_posterior(Gaussian(), start, tmp_path / "g.h5", np.random.default_rng(0), max_steps=5000, check_every=250)
+    assert ok.converged and ok.message.startswith("converged")
+    assert ok.n_steps >= 50 * ok.tau_max and ok.n_steps < 5000
+    assert np.allclose(ok.quantiles((0.5,))[0], 0.0, atol=0.1)
+    assert np.all(ok.ess > 1000) and 0.2 < ok.acceptance_fraction < 0.9
+    capped = sample_posterior(Gaussian(), start, tmp_path / "h.h5", np.random.default_rng(0), max_steps=60, check_every=30)
+    assert not capped.converged and capped.message.startswith("NOT CONVERGED")
+    assert capped.n_steps == 60
+    assert capped.to_dict()["converged"] is False
