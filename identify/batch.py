@@ -107,6 +107,8 @@ DONE_MARKER = "batch_done.json"
 #: Written into a job's folder when the job failed (the job is redone on the next run).
 FAILED_MARKER = "batch_failed.json"
 _JOB_FILE = "batch_job.json"
+# the file a task writes when it only has a --json option
+_JSON_NAMES = {"fit": "fit.json", "diagnose": "diagnosis.json", "study": "summary.json"}
 _LOG_FILE = "batch.log"
 
 _TOP_KEYS = {"task", "out", "workers", "executor", "timeout", "options", "records", "variants", "executor_options"}
@@ -576,7 +578,7 @@ def _output_words(parser, out_dir: Path, config) -> list[str]:
     if _option_action(parser, "--out") is not None:
         return ["--out", str(out_dir)]
     if _option_action(parser, "--json") is not None:
-        return ["--json", str(out_dir / "fit.json")]
+        return ["--json", str(out_dir / _JSON_NAMES[config.task])]
     raise BatchConfigError(
         f"{config.source}: 'python -m identify {config.task}' has neither --out nor --json: a batch cannot collect its results"
     )
@@ -711,11 +713,26 @@ def _notes_from(*documents) -> str:
     return "; ".join(notes)
 
 
+def _output_unit(folder: Path) -> str:
+    summary = _read_json(folder / "summary.json")
+    if isinstance(summary, dict) and isinstance(summary.get("units"), dict):
+        return str(summary["units"].get("output", ""))
+    data = folder / "data.npz"
+    if data.is_file():
+        try:
+            import numpy as np
+
+            with np.load(data, allow_pickle=False) as z:
+                return str(z["output_unit"]) if "output_unit" in z.files else ""
+        except (OSError, ValueError, KeyError):
+            return ""
+    return ""
+
+
 def _collect_fit(folder: Path) -> dict:
     fit = _read_json(folder / "fit.json")
     if not isinstance(fit, dict):
         raise RuntimeError("the command finished but wrote no readable fit.json")
-    manifest = _read_json(folder / "manifest.json")
     success = fit.get("success")
     return dict(
         rms=_number(fit.get("rms")),
@@ -723,8 +740,8 @@ def _collect_fit(folder: Path) -> dict:
         statistic_name="reduced_chi2",
         statistic=_number(fit.get("reduced_chi2")),
         verdict="" if success is None else ("converged" if success else "not converged"),
-        output_unit=str((fit.get("units_record") or {}).get("output", "")) if isinstance(fit.get("units_record"), dict) else "",
-        notes=_notes_from(fit, manifest),
+        output_unit=_output_unit(folder),
+        notes=_notes_from(fit, _read_json(folder / "manifest.json")),
     )
 
 
@@ -735,15 +752,14 @@ def _collect_study(folder: Path) -> dict:
     fit = summary.get("fit") or {}
     posterior = summary.get("posterior") or {}
     converged = posterior.get("converged")
-    manifest = _read_json(folder / "manifest.json")
     return dict(
         rms=_number(fit.get("rms")),
         max_error_pct=_number(fit.get("max_error_pct")),
         statistic_name="reduced_chi2",
         statistic=_number(fit.get("reduced_chi2")),
         verdict="" if converged is None else ("posterior converged" if converged else "posterior NOT converged"),
-        output_unit=str((summary.get("units") or {}).get("output", "")),
-        notes=_notes_from(summary, manifest),
+        output_unit=_output_unit(folder),
+        notes=_notes_from(summary, _read_json(folder / "manifest.json")),
     )
 
 
@@ -752,26 +768,28 @@ def _collect_diagnose(folder: Path) -> dict:
     diagnosis = next((d for d in map(_read_json, candidates) if isinstance(d, dict)), None)
     if diagnosis is None:
         raise RuntimeError("the command finished but wrote no readable diagnosis JSON")
-    ranking = diagnosis.get("ranking") or []
-    statistic_name, statistic, top = "", None, ""
-    if ranking and isinstance(ranking[0], dict):
-        first = ranking[0]
-        top = str(first.get("effect") or first.get("name") or "")
-        for name in ("delta_bic", "delta_aic", "statistic", "lr", "delta_chi2", "score"):
-            if _number(first.get(name)) is not None:
-                statistic_name, statistic = name, _number(first.get(name))
-                break
+    ranking = [c for c in diagnosis.get("ranking") or [] if isinstance(c, dict)]
+    statistic_name = str(diagnosis.get("statistic") or "delta_bic")
+    statistic, top = None, ""
+    if ranking:
+        top = str(ranking[0].get("effect") or "")
+        statistic = _number(ranking[0].get(statistic_name))
     status = str(diagnosis.get("status", ""))
-    verdict = f"{status}: {top}" if top and status else status or top
-    manifest = _read_json(folder / "manifest.json")
+    missing = diagnosis.get("missing")
+    if missing:
+        verdict = f"{status}: add {missing}"
+    elif top:
+        verdict = f"{status} (best candidate {top})"
+    else:
+        verdict = status
     return dict(
         rms=_number(diagnosis.get("rms")),
         max_error_pct=_number(diagnosis.get("max_error_pct")),
-        statistic_name=statistic_name,
+        statistic_name=f"{statistic_name}[{top}]" if top else statistic_name,
         statistic=statistic,
         verdict=verdict,
-        output_unit=str((diagnosis.get("units") or {}).get("output", "")) if isinstance(diagnosis.get("units"), dict) else "",
-        notes=_notes_from(diagnosis, manifest),
+        output_unit=_output_unit(folder),
+        notes=_notes_from(diagnosis, _read_json(folder / "manifest.json")),
     )
 
 

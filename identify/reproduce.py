@@ -44,6 +44,7 @@ __all__ = [
     "ReproductionReport",
     "read_manifest",
     "locate_data",
+    "DataLocation",
     "rerun_arguments",
     "compare_arrays",
     "compare_json",
@@ -90,6 +91,10 @@ class ArrayComparison:
         Largest ``|a - b|`` over numeric arrays of equal shape (None otherwise).
     n_different : int
         Elements that differ (equal shapes), else the larger size.
+    numeric : bool
+        False for text arrays (metadata such as the data file's name).
+    values : tuple or None
+        ``(original, rerun)`` of a differing 0-d text array.
     """
 
     file: str
@@ -99,9 +104,13 @@ class ArrayComparison:
     shape_rerun: tuple | None
     max_abs_difference: float | None = None
     n_different: int = 0
+    numeric: bool = True
+    values: tuple | None = None
 
     def describe(self) -> str:
         where = f"{self.file}:{self.name}"
+        if not self.numeric and not self.identical and self.values is not None:
+            return f"{where}: {self.values[0]!r} -> {self.values[1]!r}"
         if self.identical:
             return f"{where}: bit-identical {self.shape_original}"
         if self.shape_original is None or self.shape_rerun is None:
@@ -187,26 +196,34 @@ class ReproductionReport:
 
     @property
     def identical(self) -> bool:
-        """The rerun succeeded and every array and number is the same."""
-        return self.returncode == 0 and all(a.identical for a in self.arrays) and not self.numbers
+        """The rerun succeeded and every numeric array and every result value is the same.
+
+        Text metadata arrays (e.g. the data file's name in ``data.npz`` after ``--data``)
+        are listed when they differ but do not count.
+        """
+        return self.returncode == 0 and all(a.identical for a in self.arrays if a.numeric) and not self.numbers
 
     def describe(self) -> str:
         """Plain-words verdict: what matched, what differs and by how much, and likely causes."""
         lines = [f"reproduce {self.original} -> {self.rerun}", f"  data {self.data_file}: SHA-256 matches the manifest"]
         if self.returncode != 0:
             lines.append(f"  the rerun FAILED with exit code {self.returncode} (see {self.rerun}/reproduce.log)")
+        metadata = [a for a in self.arrays if not a.numeric and not a.identical]
         if self.identical:
             what = "chain.h5 bit-identical, " if self.chain_identical else ""
+            n_numeric = sum(a.numeric for a in self.arrays)
             lines.append(
-                f"  IDENTICAL: {what}{len(self.arrays)} array(s) and {self.n_numbers_compared} result number(s) all equal"
+                f"  IDENTICAL: {what}{n_numeric} numeric array(s) and {self.n_numbers_compared} result value(s) all equal"
             )
+            for a in metadata:
+                lines.append("    metadata differs (not a result): " + a.describe())
         else:
             n_same = sum(a.identical for a in self.arrays)
             lines.append(f"  arrays: {n_same} of {len(self.arrays)} bit-identical")
             for a in self.arrays:
                 if not a.identical:
                     lines.append("    " + a.describe())
-            lines.append(f"  result numbers: {len(self.numbers)} of {self.n_numbers_compared} differ")
+            lines.append(f"  result values: {len(self.numbers)} of {self.n_numbers_compared} differ")
             for d in self.numbers[:_MAX_LISTED]:
                 lines.append("    " + d.describe())
             if len(self.numbers) > _MAX_LISTED:
@@ -263,12 +280,33 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def locate_data(manifest: dict, directory, data=None) -> Path:
+@dataclass(frozen=True)
+class DataLocation:
+    """Where a run's data file was found.
+
+    Attributes
+    ----------
+    path : Path
+        The file (absolute), whose SHA-256 matches the manifest.
+    argument : str
+        What to pass to the rerun: the manifest's own (relative) path when the file was
+        found relative to ``cwd``, else the absolute path.
+    cwd : Path or None
+        The folder to rerun from so that ``argument`` names the file (None: any).
+    """
+
+    path: Path
+    argument: str
+    cwd: Path | None
+
+
+def locate_data(manifest: dict, directory, data=None) -> DataLocation:
     """The run's data file, checked against the manifest's SHA-256.
 
     A relative ``data.file`` is looked up relative to the current folder, the folder the
     run was started from (``manifest["cwd"]`` when recorded), the project root and the
-    results folder's parent.
+    results folder's parent; the rerun then starts from that folder with the same
+    relative path, so even the recorded file name is the same.
 
     Parameters
     ----------
@@ -278,6 +316,10 @@ def locate_data(manifest: dict, directory, data=None) -> Path:
     data : path-like, optional
         Use this file instead of ``data.file`` (e.g. the record moved); its hash must match.
 
+    Returns
+    -------
+    DataLocation
+
     Raises
     ------
     DataChangedError
@@ -286,27 +328,30 @@ def locate_data(manifest: dict, directory, data=None) -> Path:
     recorded = manifest["data"]["file"]
     expected = manifest["data"]["sha256"]
     if data is not None:
-        candidates = [Path(data)]
+        candidates = [(Path(data), None)]
     else:
         p = Path(recorded)
         bases = [Path.cwd()]
         if manifest.get("cwd"):
             bases.append(Path(manifest["cwd"]))
         bases += [Path(__file__).resolve().parents[1], Path(directory).resolve().parent]
-        candidates = [p] if p.is_absolute() else [b / p for b in bases]
-    found = next((c for c in candidates if c.is_file()), None)
+        candidates = [(p, None)] if p.is_absolute() else [(b / p, b) for b in bases]
+    found = next(((c, b) for c, b in candidates if c.is_file()), None)
     if found is None:
-        tried = ", ".join(str(c) for c in candidates)
+        tried = ", ".join(str(c) for c, _ in candidates)
         raise DataChangedError(
             f"the run's data file {recorded} is missing (looked for {tried}); pass --data PATH if it moved"
         )
-    actual = _sha256(found)
+    path, base = found
+    actual = _sha256(path)
     if actual != expected:
         raise DataChangedError(
-            f"{found}: the data changed since the run: SHA-256 is {actual}, the manifest records {expected}. "
+            f"{path}: the data changed since the run: SHA-256 is {actual}, the manifest records {expected}. "
             "A rerun would not reproduce the run; restore the original file (or pass --data PATH to it)."
         )
-    return found.resolve()
+    if base is not None:
+        return DataLocation(path.resolve(), recorded, base.resolve())
+    return DataLocation(path.resolve(), str(path.resolve()), None)
 
 
 def _command_name(manifest: dict) -> str:
@@ -315,9 +360,28 @@ def _command_name(manifest: dict) -> str:
     name = manifest.get("settings", {}).get("command") or manifest.get("task")
     if isinstance(name, str) and name in COMMANDS:
         return name
-    for word in manifest.get("command") or []:
+    for word in (manifest.get("command") or [])[1:]:
         if word in COMMANDS:
             return word
+    # no command line (e.g. run from Python): the one command whose options cover the settings
+    import argparse
+    import importlib
+
+    settings = set(manifest.get("settings", {}))
+    matches = []
+    for name, module_name in COMMANDS.items():
+        if name in ("batch", "reproduce"):
+            continue
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:
+            continue
+        parser = argparse.ArgumentParser(add_help=False)
+        module.add_arguments(parser)
+        if settings <= {a.dest for a in parser._actions}:
+            matches.append(name)
+    if len(matches) == 1:
+        return matches[0]
     raise ManifestError(
         "the manifest does not say which command produced the run (no 'command' list naming one of "
         f"{', '.join(COMMANDS)})"
@@ -414,7 +478,8 @@ def compare_arrays(file: str, name: str, a, b) -> ArrayComparison:
         diff = np.abs(a.astype(float) - b.astype(float))
         return ArrayComparison(file, name, identical, shape_a, shape_b, float(diff.max()) if diff.size else 0.0, int((a != b).sum()))
     identical = a.tobytes() == b.tobytes()
-    return ArrayComparison(file, name, identical, shape_a, shape_b, None, 0 if identical else int(a.size))
+    values = (str(a), str(b)) if (a.ndim == 0 and not identical) else None
+    return ArrayComparison(file, name, identical, shape_a, shape_b, None, 0 if identical else int(a.size), False, values)
 
 
 def _h5_datasets(path: Path) -> dict:
@@ -565,11 +630,11 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     """
     directory = Path(directory).resolve()
     manifest = read_manifest(directory)
-    data_file = locate_data(manifest, directory, data)
+    location = locate_data(manifest, directory, data)
     out = Path(out).resolve() if out is not None else directory.with_name(directory.name + "-reproduced")
     if out == directory:
         raise ValueError("--out must be a new folder, not the run being reproduced")
-    args = rerun_arguments(manifest, data_file, out)
+    args = rerun_arguments(manifest, location.argument, out)
     out.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     package_root = str(Path(__file__).resolve().parents[1])
@@ -578,7 +643,12 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
         log.write("$ python -m identify " + " ".join(args) + "\n")
         log.flush()
         completed = subprocess.run(
-            [sys.executable, "-m", "identify", *args], stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env
+            [sys.executable, "-m", "identify", *args],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            env=env,
+            cwd=location.cwd,
         )
     if stream is not None:
         stream.write((out / "reproduce.log").read_text(encoding="utf-8", errors="replace"))
@@ -587,7 +657,7 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
         original=str(directory),
         rerun=str(out),
         command=args,
-        data_file=str(data_file),
+        data_file=str(location.path),
         returncode=int(completed.returncode),
         arrays=arrays,
         numbers=numbers,
