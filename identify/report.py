@@ -65,6 +65,7 @@ __all__ = [
     "read_chain",
     "posterior_draws",
     "model_bands",
+    "mixture_quantile",
     "input_reversals",
     "branches",
     "cycle_errors",
@@ -104,6 +105,8 @@ MAX_TRACE_ROWS = 800
 MAX_CORNER_SAMPLES = 6000
 #: An input reversal counts once the input has moved back by this fraction of its range.
 REVERSAL_TOLERANCE = 0.01
+#: ... and by this many times the input's own noise sd (the range of 1000 noise samples stays below it).
+REVERSAL_NOISE_MULTIPLE = 10.0
 #: The zoom window is wide enough for the output to move this many predictive half-widths.
 ZOOM_BAND_MULTIPLE = 15.0
 #: Significant digits of the numbers in the tables.
@@ -349,7 +352,7 @@ class ModelBands:
     n_outside: int
 
 
-def _mixture_quantile(centres, sigmas, probability, tolerance=1e-3, block=4096):
+def mixture_quantile(centres, sigmas, probability, tolerance=1e-3, block=4096):
     """Quantile of the equal-weight mixture of N(centres[i, t], sigmas[i]^2), for every t.
 
     Bisection on the mixture CDF inside the exact bracket
@@ -411,8 +414,8 @@ def model_bands(data: ReportData, draws: PosteriorDraws, *, level: float = 0.95)
     tail = 0.5 * (1.0 - level)
     lo, median, hi = np.quantile(model_curves, [tail, 0.5, 1.0 - tail], axis=0)
     sigmas = draws.noise_sigma[inside] if draws.noise_sigma is not None else np.full(model_curves.shape[0], data.noise_sigma)
-    predictive_lo = _mixture_quantile(model_curves, sigmas, tail)
-    predictive_hi = _mixture_quantile(model_curves, sigmas, 1.0 - tail)
+    predictive_lo = mixture_quantile(model_curves, sigmas, tail)
+    predictive_hi = mixture_quantile(model_curves, sigmas, 1.0 - tail)
     return ModelBands(median, lo, hi, predictive_lo, predictive_hi, curves[-1], int(inside.sum()), int((~inside).sum()))
 
 
@@ -426,7 +429,10 @@ def input_reversals(current, tolerance: float | None = None) -> np.ndarray:
     ----------
     current : array_like, shape (T,)
     tolerance : float, optional
-        In input units; default :data:`REVERSAL_TOLERANCE` times the input's range.
+        In input units; default the larger of :data:`REVERSAL_TOLERANCE` times the input's
+        range and :data:`REVERSAL_NOISE_MULTIPLE` times the input's own noise sd,
+        estimated robustly from its second differences (``1.4826 MAD / sqrt(6)``; the
+        signal's curvature is negligible against noise at the sampling rates used).
 
     Returns
     -------
@@ -438,7 +444,9 @@ def input_reversals(current, tolerance: float | None = None) -> np.ndarray:
         raise ValueError(f"current must be 1-D, got shape {current.shape}")
     span = float(np.ptp(current)) if current.size else 0.0
     if tolerance is None:
-        tolerance = REVERSAL_TOLERANCE * span
+        second = np.diff(current, 2)
+        input_noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / math.sqrt(6.0) if second.size else 0.0
+        tolerance = max(REVERSAL_TOLERANCE * span, REVERSAL_NOISE_MULTIPLE * input_noise)
     if span == 0.0:
         return np.zeros(0, dtype=int)
     reversals = []
@@ -450,15 +458,15 @@ def input_reversals(current, tolerance: float | None = None) -> np.ndarray:
             high = k
         if v < current[low]:
             low = k
+        # The first confirmed move only sets the direction: what came before it moved
+        # by less than the tolerance, so its extremum is no reversal.
         if direction >= 0 and current[high] - v > tolerance:
-            if direction == 0 and 0 < low < high:
-                reversals.append(low)  # it fell first, then rose, and now falls
-            reversals.append(high)
+            if direction == 1:
+                reversals.append(high)
             direction, low = -1, k
         elif direction <= 0 and v - current[low] > tolerance:
-            if direction == 0 and 0 < high < low:
-                reversals.append(high)
-            reversals.append(low)
+            if direction == -1:
+                reversals.append(low)
             direction, high = 1, k
     return np.array(sorted({r for r in reversals if 0 < r < current.size - 1}), dtype=int)
 
@@ -1027,7 +1035,7 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
             _text(p["name"]), _text(plots.unit_label(p.get("unit") or "")), _cell(p.get("table1"), f"{key}.table1"),
             _cell(p.get("lsq"), f"{key}.lsq"), _cell(p.get("lsq_stderr"), f"{key}.lsq_stderr"),
             _cell(p.get("median"), f"{key}.median"), _cell(p.get("lo95"), f"{key}.lo95"), _cell(p.get("hi95"), f"{key}.hi95"),
-            _cell(p.get("tau"), f"{key}.tau", 4), _cell(p.get("ess"), f"{key}.ess", 4),
+            _cell(p.get("tau"), f"{key}.tau"), _cell(p.get("ess"), f"{key}.ess"),
             _text("varies" if p.get("vary") else "pinned by normalisation"),
         ])  # fmt: skip
         if not p.get("vary"):
@@ -1038,8 +1046,8 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
         rows.append([
             _text("noise σ"), _text(plots.unit_label(data.record.output_unit)), _cell(None), _cell(summary["noise"]["sigma"], "noise.sigma"),
             _cell(None), _cell(noise_posterior.get("median"), f"{key}.median"), _cell(noise_posterior.get("lo95"), f"{key}.lo95"),
-            _cell(noise_posterior.get("hi95"), f"{key}.hi95"), _cell(noise_posterior.get("tau"), f"{key}.tau", 4),
-            _cell(noise_posterior.get("ess"), f"{key}.ess", 4), _text("varies (free noise)"),
+            _cell(noise_posterior.get("hi95"), f"{key}.hi95"), _cell(noise_posterior.get("tau"), f"{key}.tau"),
+            _cell(noise_posterior.get("ess"), f"{key}.ess"), _text("varies (free noise)"),
         ])  # fmt: skip
     parts = ['<h2 id="parameters-section">3. Parameters</h2>']
     parts.append(
@@ -1095,7 +1103,7 @@ def _identifiability_html(identifiability) -> str:
         for i, item in enumerate(identifiability.get(kind) or []):
             item = item if isinstance(item, dict) else {"combination": item}
             key = f"identifiability.{kind}.{i}"
-            rows.append([_cell(item.get("eigenvalue"), f"{key}.eigenvalue"), _cell(item.get("relative_std"), f"{key}.relative_std", 3),
+            rows.append([_cell(item.get("eigenvalue"), f"{key}.eigenvalue"), _cell(item.get("relative_std"), f"{key}.relative_std"),
                          _text(_combination_text(item.get("combination")))])  # fmt: skip
         parts.append(
             _table(f"identifiability-{kind}", ["eigenvalue", "relative std.", "combination (weights)"],

@@ -1,50 +1,39 @@
-"""Build a small but real results folder, exactly as ``study`` writes it, for the report tests.
+"""Build a small but real results folder with the real ``study`` command, for the report tests.
 
-The report (:mod:`identify.report`) only reads a folder written by ``study``. Until that
-command exists, :func:`build_results_folder` runs a miniature study from the project's
-own building blocks and writers, in a few seconds:
+:func:`build_results_folder` simulates a short record and runs
+``python -m identify study`` on it in-process (:func:`identify.cli.main`) with a tiny
+step cap, so the folder is exactly what users get (docs/CONTRACTS.md) and the report at
+its end is written by the same code path as theirs:
 
-1. simulate the paper's input (eqs. 14-17) at a low sampling rate, push Table 1 through
-   the GPI (:class:`model.Model`), add Gaussian sensor noise of known ``noise_sigma``
-   and, optionally, a hidden ripple the model cannot represent (a misfit); write it as a
-   CSV with :func:`identify.records.write_record` and load it back (so the data file
-   and its sha256 are real);
-2. noise from the quiet start (:func:`identify.noise.estimate_noise`), or a free sigma;
-3. least squares from Table 1 with the normalisation of
-   :func:`identify.identifiability.normalised_model` (one start);
-4. identifiability: :func:`identify.identifiability.analyse_identifiability` of the
-   central-difference Jacobian at the optimum;
-5. a short real emcee run (:func:`identify.posterior.sample_posterior` with a tiny step
-   cap) into ``chain.h5``;
-6. ``data.npz``, ``fit.json``, ``summary.json`` and ``manifest.json`` through
-   :mod:`identify.results`.
+1. the paper's input (eqs. 14-17) at a low sampling rate; Table 1 through the GPI
+   (:class:`model.Model`); Gaussian sensor noise of known sigma; optionally a hidden
+   ripple the model cannot represent (a misfit); written with
+   :func:`identify.records.write_record` as ``record.csv`` beside the results folder;
+2. ``study record.csv --out DIR`` with one least-squares start and a step cap far below
+   convergence, so ``summary["posterior"]["converged"]`` is False.
 
-The chain is far too short to converge, so ``summary["posterior"]["converged"]`` is
-False: that is what the report must then say.
+The CSV and the folder's ``data.npz`` hold the same record; ``manifest.json`` names the CSV.
 """
 
 from __future__ import annotations
 
-import time as _time
-from dataclasses import asdict, dataclass
+import contextlib
+import io
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 import model
-from identify import results
-from identify.identifiability import NORMALISATION, analyse_identifiability, normalised_model
-from identify.lsq import WhitenedResiduals, fit_least_squares
-from identify.noise import NoiseModel, estimate_noise
-from identify.posterior import LogPosterior, initial_walkers, sample_posterior
-from identify.records import load_record, write_record
+from identify.cli import main as identify_main
+from identify.records import write_record
 
-__all__ = ["FixtureSettings", "build_results_folder"]
+__all__ = ["FixtureSettings", "simulate_record", "build_results_folder"]
 
 
 @dataclass(frozen=True)
 class FixtureSettings:
-    """What the fixture simulates and how long it samples.
+    """What the fixture simulates and how long the study samples.
 
     Parameters
     ----------
@@ -57,12 +46,12 @@ class FixtureSettings:
         but not to the model; > 0 makes a misfit (residual RMS above the noise) that the
         GPI cannot absorb.
     free_noise : bool, default False
-        Sample the noise sigma as a free parameter (``noise_log_sigma``) instead of
-        taking it from the quiet segment.
+        ``--noise-sigma free``: sample sigma instead of taking it from the quiet segment.
     n_walkers : int, default 40
     max_steps : int, default 160
-        The sampler's step cap (far below convergence).
+        The study's step cap (far below convergence).
     seed : int, default 1
+        Seeds the simulated noise and the study.
     """
 
     sampling_rate: float = 10.0
@@ -74,73 +63,43 @@ class FixtureSettings:
     seed: int = 1
 
 
-def build_results_folder(directory, settings: FixtureSettings = FixtureSettings()) -> Path:
-    """Write a complete results folder (data.npz, chain.h5, fit.json, summary.json, manifest.json).
-
-    Parameters
-    ----------
-    directory : str or Path
-        Created if missing; must not hold a chain already.
-    settings : FixtureSettings
-
-    Returns
-    -------
-    Path
-        The folder; the simulated CSV is ``directory / "record.csv"``.
-    """
-    started = results.now_iso()
-    t0 = _time.perf_counter()
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
+def simulate_record(path, settings: FixtureSettings = FixtureSettings()) -> Path:
+    """Write the simulated record (CSV ``time,current,displacement``) to ``path``."""
     rng = np.random.default_rng(settings.seed)
-
     time, current = model.paper_current(fs=settings.sampling_rate)
     clean = model.Model()(model.TABLE1, time, current)
     ripple = np.where(current != 0.0, settings.hidden_ripple * np.sin(2 * np.pi * 0.37 * time), 0.0)
     displacement = clean + ripple + settings.noise_sigma * rng.standard_normal(time.size)
-    csv_path = out / "record.csv"
-    write_record(csv_path, (time, current, displacement))
-    record = load_record(csv_path)
+    path = Path(path)
+    write_record(path, (time, current, displacement))
+    return path
 
-    noise = NoiseModel(sigma=float("nan"), source="free") if settings.free_noise else estimate_noise(record)
-    gpi_model = normalised_model(model.Model())
-    fit = fit_least_squares(record, gpi_model, noise=noise, start=model.TABLE1, n_starts=1, rng=rng)
 
-    free = np.flatnonzero(fit.vary)
-    residuals = WhitenedResiduals(record, fit.model, fit.noise)
-    jacobian = residuals.central_jacobian(fit.theta[free])
-    identifiability = analyse_identifiability(
-        jacobian, fit.theta[free], [fit.model.names[i] for i in free], normalisation=dict(NORMALISATION)
-    )
+def build_results_folder(directory, settings: FixtureSettings = FixtureSettings()) -> Path:
+    """Simulate ``directory.parent / (directory.name + ".csv")`` and run ``study`` into ``directory``.
 
-    log_posterior = LogPosterior(record, fit.model, noise if settings.free_noise else fit.noise)
-    mean = fit.theta[free]
-    covariance = fit.covariance[np.ix_(free, free)]
+    Returns
+    -------
+    Path
+        The results folder (with ``report.html``, written by the study).
+
+    Raises
+    ------
+    RuntimeError
+        The study returned a non-zero exit code (its output is in the message).
+    """
+    out = Path(directory)
+    csv = simulate_record(out.parent / f"{out.name}.csv", settings)
+    argv = [
+        "study", str(csv), "--out", str(out), "--seed", str(settings.seed), "--n-starts", "1",
+        "--walkers", str(settings.n_walkers), "--max-steps", str(settings.max_steps),
+        "--check-every", str(max(1, settings.max_steps // 2)), "--progress", "off",
+    ]  # fmt: skip
     if settings.free_noise:
-        mean = np.append(mean, np.log(fit.noise.sigma))
-        covariance = np.pad(covariance, ((0, 1), (0, 1)))
-        covariance[-1, -1] = 0.05**2
-    posterior = sample_posterior(
-        log_posterior,
-        lambda n_walkers, start_rng: initial_walkers(log_posterior, mean, covariance, n_walkers, start_rng),
-        out / results.FILES["chain"],
-        rng,
-        n_walkers=settings.n_walkers,
-        max_steps=settings.max_steps,
-        check_every=settings.max_steps // 2,
-        progress=False,
-    )
-
-    results.write_data(out, record)
-    results.write_fit(out, fit)
-    results.write_summary(out, results.build_summary(record, fit, identifiability, posterior))
-    manifest = results.build_manifest(
-        seed=settings.seed,
-        record=record,
-        settings={"fixture": asdict(settings), "effects": [], "n_operators": 12, "reading": "swapped"},
-        started=started,
-        command=["tests/report_fixture.py"],
-    )
-    manifest = results.finish_manifest(manifest, started=started, seconds=_time.perf_counter() - t0, status="fixture")
-    results.write_json(out / results.FILES["manifest"], manifest)
+        argv += ["--noise-sigma", "free"]
+    captured = io.StringIO()
+    with contextlib.redirect_stdout(captured), contextlib.redirect_stderr(captured):
+        code = identify_main(argv)
+    if code != 0:
+        raise RuntimeError(f"study exited with {code}:\n{captured.getvalue()}")
     return out

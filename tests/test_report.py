@@ -1,0 +1,436 @@
+"""Tests of the uncertainty report (identify.report, identify.plots, identify.cmd_report).
+
+End-to-end tests run the real ``study`` on a small simulated record (tests/report_fixture.py,
+~15 s of CPU once per session) and parse the page it writes back: every figure and table
+is there, the page is self-contained, and every number shown equals summary.json to the
+6 significant digits printed (relative tolerance 5e-6 plus rounding of the last digit).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import shutil
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.collections import PolyCollection
+from scipy.stats import norm
+
+import model
+from identify import plots, report
+from identify.cli import main as identify_main
+from report_fixture import FixtureSettings, build_results_folder
+
+#: Relative tolerance of a number printed with report.DIGITS = 6 significant digits.
+PRINT_RTOL = 1e-5
+
+
+# --------------------------------------------------------------------------------------
+# parsing the page
+# --------------------------------------------------------------------------------------
+class PageParser(HTMLParser):
+    """Collects images, table ids, ``data-key`` cells and every ``src``/``href``."""
+
+    def __init__(self):
+        super().__init__()
+        self.images = []
+        self.table_ids = []
+        self.values = {}
+        self.links = []
+        self.element_ids = []
+        self._key = None
+        self._text = []
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if "id" in attrs:
+            self.element_ids.append(attrs["id"])
+        if tag == "img":
+            self.images.append(attrs)
+        if tag == "table":
+            self.table_ids.append(attrs.get("id"))
+        for name in ("src", "href"):
+            if name in attrs:
+                self.links.append(attrs[name])
+        if "data-key" in attrs:
+            self._key, self._text = attrs["data-key"], []
+
+    def handle_data(self, data):
+        if self._key is not None:
+            self._text.append(data)
+
+    def handle_endtag(self, tag):
+        if self._key is not None and tag in ("td", "span"):
+            self.values[self._key] = "".join(self._text).strip()
+            self._key = None
+
+
+def parse_page(path) -> PageParser:
+    parser = PageParser()
+    parser.feed(Path(path).read_text(encoding="utf-8"))
+    return parser
+
+
+def assert_shown(text, expected, key):
+    """``text`` (as printed on the page) represents ``expected`` (from summary.json)."""
+    if expected is None:
+        assert text == "—", f"{key}: expected '—' for null, page shows {text!r}"
+    elif isinstance(expected, bool):
+        assert text == ("yes" if expected else "no"), f"{key}: {text!r} vs {expected}"
+    else:
+        assert float(text) == pytest.approx(float(expected), rel=PRINT_RTOL, abs=1e-12), f"{key}: {text!r} vs {expected}"
+
+
+def summary_value(summary, key):
+    """The summary.json value a page ``data-key`` refers to, or KeyError when it is page-derived."""
+    parts = key.split(".")
+    if parts[0] == "parameters":
+        entry = next(p for p in summary["parameters"] if p["name"] == parts[1])
+        return entry[parts[2]]
+    if parts[0] == "identifiability" and parts[1] in ("exact", "near"):
+        return summary["identifiability"][parts[1]][int(parts[2])][parts[3]]
+    value = summary
+    for part in parts:
+        value = value[part]
+    return value
+
+
+# --------------------------------------------------------------------------------------
+# fixtures
+# --------------------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def misfit_folder(tmp_path_factory):
+    """A study of a record with a hidden 2 um ripple (misfit), not converged; report written by study."""
+    return build_results_folder(tmp_path_factory.mktemp("report") / "misfit", FixtureSettings(hidden_ripple=2.0))
+
+
+@pytest.fixture(scope="session")
+def misfit_page(misfit_folder):
+    return parse_page(misfit_folder / "report.html")
+
+
+@pytest.fixture
+def folder_copy(misfit_folder, tmp_path):
+    """A private copy of the misfit folder (to break it)."""
+    return Path(shutil.copytree(misfit_folder, tmp_path / "copy"))
+
+
+# --------------------------------------------------------------------------------------
+# pure pieces
+# --------------------------------------------------------------------------------------
+def test_reversals_of_the_paper_input_are_its_peaks_and_troughs():
+    # Eq. (15)-(16), literal reading: troughs exactly 0 A at t = 20, 30, ..., 60 s; peaks of the
+    # decaying sine near t = 15, 25, ..., 65 s (the decay shifts them by < 0.1 s).
+    time, current = model.paper_current(fs=10.0)
+    reversals = report.input_reversals(current)
+    troughs = reversals[current[reversals] < 1.0]
+    peaks = reversals[current[reversals] > 1.0]
+    np.testing.assert_allclose(time[troughs], [20, 30, 40, 50, 60], atol=1e-9)
+    np.testing.assert_allclose(time[peaks], [15, 25, 35, 45, 55, 65], atol=0.15)
+    # noise on the input (0.5 % of its range) must not add reversals
+    noisy = current + 0.025 * np.random.default_rng(3).standard_normal(current.size)
+    noisy_reversals = report.input_reversals(noisy)
+    assert noisy_reversals.size == reversals.size
+    assert np.max(np.abs(time[noisy_reversals] - time[reversals])) < 1.0
+
+
+def test_reversals_of_monotone_and_constant_inputs():
+    assert report.input_reversals(np.linspace(0, 1, 50)).size == 0
+    assert report.input_reversals(np.zeros(50)).size == 0
+    # fall first, then rise: the trough is the only reversal
+    assert report.input_reversals(np.r_[np.linspace(1, 0, 20), np.linspace(0, 1, 20)[1:]]).tolist() == [19]
+    with pytest.raises(ValueError, match="1-D"):
+        report.input_reversals(np.zeros((3, 3)))
+
+
+def test_branches_cover_the_record_and_are_monotone():
+    _, current = model.paper_current(fs=10.0)
+    branch_list = report.branches(current, report.input_reversals(current))
+    assert branch_list[0].start == 0 and branch_list[-1].stop == current.size - 1
+    for before, after in zip(branch_list[:-1], branch_list[1:]):
+        assert before.stop == after.start  # consecutive branches share the reversal sample
+        assert before.rising != after.rising
+    for b in branch_list:
+        steps = np.diff(current[b.start : b.stop + 1])
+        assert (steps >= -1e-12).all() if b.rising else (steps <= 1e-12).all()
+
+
+def test_cycle_errors_split_at_the_input_minima():
+    time, current = model.paper_current(fs=10.0)
+    energised = time >= 10.0
+    branch_list = report.branches(current, report.input_reversals(current))
+    # an error that is constant within each 10 s cycle: level k in cycle k
+    error = np.floor((time - 10.0) / 10.0) + 1.0
+    error[~energised] = 0.0
+    cycles = report.cycle_errors(time, current, error, energised, branch_list, displacement_range=200.0)
+    assert [c.index for c in cycles] == [1, 2, 3, 4, 5, 6]
+    np.testing.assert_allclose([c.time_start for c in cycles], [10, 20, 30, 40, 50, 60])
+    np.testing.assert_allclose([c.rms for c in cycles[:5]], [1, 2, 3, 4, 5])
+    np.testing.assert_allclose([c.max_error_pct for c in cycles[:5]], [0.5, 1.0, 1.5, 2.0, 2.5])
+    with pytest.raises(ValueError, match="displacement_range"):
+        report.cycle_errors(time, current, error, energised, branch_list, displacement_range=0.0)
+
+
+def test_mixture_quantile_against_closed_forms():
+    sigma = np.array([0.5])
+    centres = np.array([[0.0, 3.0, -2.0]])
+    # one component: the normal quantile c + sigma z_p
+    np.testing.assert_allclose(report.mixture_quantile(centres, sigma, 0.025), centres[0] + 0.5 * norm.ppf(0.025), atol=1e-3 * 0.5)
+    # two far-apart unit components: 0.5 Phi(x) + 0.5 Phi(x - 20) = 0.025  =>  Phi(x) = 0.05
+    two = np.array([[0.0], [20.0]])
+    np.testing.assert_allclose(report.mixture_quantile(two, np.array([1.0, 1.0]), 0.025), norm.ppf(0.05), atol=1e-3)
+    # unequal sigmas, equal centres: solve 0.5 Phi(x/1) + 0.5 Phi(x/3) = 0.975 by bisection with scipy
+    from scipy.optimize import brentq
+
+    expected = brentq(lambda x: 0.5 * norm.cdf(x) + 0.5 * norm.cdf(x / 3.0) - 0.975, 0, 20)
+    np.testing.assert_allclose(report.mixture_quantile(np.zeros((2, 1)), np.array([1.0, 3.0]), 0.975), expected, atol=1e-3)
+
+
+def test_zoom_window_grows_until_the_curve_moves_enough():
+    curve = np.arange(1000.0)  # 1 unit per sample
+    window = report.zoom_samples(curve, 500, band_half_width=4.0)  # target: 15 x 4 = 60 units
+    assert 60 <= np.ptp(curve[window]) <= 60 * 1.3 + 2
+    flat = report.zoom_samples(np.zeros(1000), 500, band_half_width=1.0)
+    assert flat.stop - flat.start - 1 <= 2 * 50  # capped at 5 % of the record either side
+
+
+def test_loop_bands_are_polygons_over_each_branch_own_samples():
+    time, current = model.paper_current(fs=10.0)
+    median = model.Model()(model.TABLE1, time, current)
+    lo, hi = median - 1.0, median + 1.0
+    branch_list = report.branches(current, report.input_reversals(current))
+    segments = [(b.start, b.stop) for b in branch_list]
+    fig = plots.loops_figure(
+        current, median, median, lo, hi, segments=segments, rising=[b.rising for b in branch_list],
+        zoom_box=((2.0, 3.0), (100.0, 150.0)),
+    )  # fmt: skip
+    polygons = [p.vertices for ax in fig.axes[:1] for c in ax.collections if isinstance(c, PolyCollection) for p in c.get_paths()]
+    assert len(polygons) == len(segments)
+    expected = {(a, b) for a, b in segments}
+    for vertices in polygons:
+        if len(vertices) % 2:  # the closing vertex
+            vertices = vertices[:-1]
+        n = len(vertices) // 2
+        forward = vertices[:n]
+        match = [(a, b) for a, b in expected if b - a + 1 == n and np.allclose(forward[:, 0], current[a : b + 1])]
+        assert match, "a band polygon does not follow one branch's own current samples"
+        a, b = match[0]
+        np.testing.assert_allclose(forward[:, 1], hi[a : b + 1])
+        np.testing.assert_allclose(vertices[n : 2 * n, 1], lo[a : b + 1][::-1])
+        expected.discard((a, b))
+    assert not expected
+
+
+def test_figures_label_their_axes_with_units():
+    time = np.linspace(0, 10, 200)
+    current = np.abs(np.sin(time))
+    y = 100 * current
+    figures = [
+        plots.input_figure(time, current),
+        plots.displacement_figure(time, y, y, y - 1, y + 1, y - 2, y + 2),
+        plots.error_figure(time, y - y, y - y - 1, y - y + 1, noise_sigma=0.5, max_error_pct=1.0, max_error_index=3),
+    ]
+    for fig in figures:
+        ax = fig.axes[0]
+        assert ax.get_xlabel() == "time [s]"
+        assert ax.get_ylabel().endswith(("[A]", "[µm]"))
+        assert ax.get_legend() is not None
+    assert plots.unit_label("um") == "µm" and plots.unit_label("") == "-" and plots.unit_label("um/A") == "µm/A"
+
+
+# --------------------------------------------------------------------------------------
+# the page written by study
+# --------------------------------------------------------------------------------------
+def test_every_figure_is_embedded_and_written_as_png(misfit_folder, misfit_page):
+    alts = [img["alt"] for img in misfit_page.images]
+    assert alts == list(report.FIGURES.values())
+    for stem, img in zip(report.FIGURES, misfit_page.images):
+        prefix = "data:image/png;base64,"
+        assert img["src"].startswith(prefix)
+        embedded = base64.b64decode(img["src"][len(prefix) :])
+        on_disk = (misfit_folder / f"{stem}.png").read_bytes()
+        assert embedded == on_disk and on_disk.startswith(b"\x89PNG\r\n\x1a\n")
+
+
+def test_every_table_is_present(misfit_page):
+    expected = {
+        "fit-quality", "cycle-errors", "parameters", "posterior-settings", "identifiability-normalisation",
+        "identifiability-exact", "identifiability-near", "provenance",
+    }  # fmt: skip
+    assert expected <= set(misfit_page.table_ids)
+    for section in ("glance", "measurement", "fit-quality-section", "parameters-section", "diagnosis", "provenance-section"):
+        assert section in misfit_page.element_ids
+
+
+def test_page_is_self_contained(misfit_folder, misfit_page):
+    for link in misfit_page.links:
+        assert link.startswith(("data:", "#")), f"external reference {link[:80]!r}"
+    assert not list(misfit_folder.glob("*.tmp")) and not list(misfit_folder.glob(".*.tmp"))
+
+
+def test_numbers_on_the_page_equal_summary_json(misfit_folder, misfit_page):
+    summary = json.loads((misfit_folder / "summary.json").read_text())
+    checked = 0
+    for key, text in misfit_page.values.items():
+        if key.startswith(("derived.", "cycles.", "diagnosis.")):
+            continue
+        assert_shown(text, summary_value(summary, key), key)
+        checked += 1
+    # every parameter's seven numbers, the fit, noise and posterior blocks
+    assert checked >= 7 * len(summary["parameters"]) + 10
+    for p in summary["parameters"]:
+        for field in ("table1", "lsq", "lsq_stderr", "median", "lo95", "hi95", "tau", "ess"):
+            assert f"parameters.{p['name']}.{field}" in misfit_page.values
+    for key in ("fit.rms", "fit.reduced_chi2", "fit.max_error_pct", "noise.sigma", "posterior.converged", "posterior.tau_max"):
+        assert key in misfit_page.values
+
+
+def test_page_derived_numbers_are_consistent(misfit_folder, misfit_page):
+    summary = json.loads((misfit_folder / "summary.json").read_text())
+    values = misfit_page.values
+    assert float(values["derived.rms_ratio"]) == pytest.approx(summary["fit"]["rms"] / summary["noise"]["sigma"], rel=PRINT_RTOL)
+    # the posterior-median curve and the least-squares curve are close: their max errors agree within 25 %
+    assert float(values["derived.max_error_pct"]) == pytest.approx(summary["fit"]["max_error_pct"], rel=0.25)
+    # the worst cycle's max error is the page's max error
+    cycle_max = max(float(v) for k, v in values.items() if k.startswith("cycles.") and k.endswith(".max_error_pct"))
+    assert cycle_max == pytest.approx(float(values["derived.max_error_pct"]), rel=1e-3)
+    assert 0.0 <= float(values["derived.inside_predictive_pct"]) <= 100.0
+
+
+def test_misfit_and_non_convergence_are_stated_prominently(misfit_folder, misfit_page):
+    text = (misfit_folder / "report.html").read_text(encoding="utf-8")
+    summary = json.loads((misfit_folder / "summary.json").read_text())
+    assert summary["fit"]["rms"] > 1.2 * summary["noise"]["sigma"]  # the hidden ripple is a misfit
+    assert "misfit-alert" in misfit_page.element_ids and "fit-ok" not in misfit_page.element_ids
+    assert "conditional on a model that misses something" in text
+    assert summary["posterior"]["converged"] is False
+    assert "convergence-alert" in misfit_page.element_ids and "NOT CONVERGED" in text
+    assert misfit_page.values["posterior.converged"] == "no"
+
+
+def test_pinned_parameter_is_marked(misfit_folder):
+    summary = json.loads((misfit_folder / "summary.json").read_text())
+    text = (misfit_folder / "report.html").read_text(encoding="utf-8")
+    pinned = [p["name"] for p in summary["parameters"] if not p["vary"]]
+    assert pinned == list(summary["identifiability"]["normalisation"])
+    for name in pinned:
+        assert f'<tr class="pinned"><td>{name}</td>' in text
+    assert text.count("pinned by normalisation") == len(pinned)
+
+
+def test_provenance_shows_the_manifest(misfit_folder):
+    manifest = json.loads((misfit_folder / "manifest.json").read_text())
+    text = (misfit_folder / "report.html").read_text(encoding="utf-8")
+    for shown in (manifest["data"]["file"], manifest["data"]["sha256"], manifest["git"]["commit"], str(manifest["seed"])):
+        assert str(shown) in text
+
+
+def test_bands_come_from_one_vectorised_model_call(misfit_folder, monkeypatch):
+    data = report.load_report_data(misfit_folder)
+    chain = report.read_chain(data)
+    draws = report.posterior_draws(data, chain, 50, np.random.default_rng(0))
+    calls = []
+    original = model.Model.evaluate
+
+    def counting(self, theta, time, current):
+        calls.append(np.shape(theta))
+        return original(self, theta, time, current)
+
+    monkeypatch.setattr(model.Model, "evaluate", counting)
+    bands = report.model_bands(data, draws)
+    assert calls == [(51, data.model.n_parameters)]  # 50 draws + the least-squares vector
+    assert (bands.credible_lo <= bands.median).all() and (bands.median <= bands.credible_hi).all()
+    assert (bands.predictive_lo < bands.credible_lo).all() and (bands.predictive_hi > bands.credible_hi).all()
+    # pinned parameters keep their normalisation value in every draw
+    pinned = ~data.fit.vary
+    assert (draws.theta[:, pinned] == data.fit.theta[pinned]).all()
+
+
+def test_diagnosis_hook_renders_verdict_ranking_and_figures(folder_copy):
+    diagnosis = {
+        "status": "missing_effect",
+        "missing": "thermal",
+        "ranking": [{"effect": "thermal", "rms_after": 0.51, "delta_bic": -120.0}, {"effect": "creep", "rms_after": 1.2}],
+    }
+    (folder_copy / "diagnosis.json").write_text(json.dumps(diagnosis))
+    (folder_copy / "diagnosis").mkdir()
+    shutil.copy(folder_copy / "fig7_error.png", folder_copy / "diagnosis" / "residual_vs_time.png")
+    section = report._diagnosis_html(report.load_report_data(folder_copy))
+    parser = PageParser()
+    parser.feed(section)
+    assert "diagnosis-ranking" in parser.table_ids and "diagnosis-verdict" in parser.element_ids
+    assert "--effects thermal" in section
+    assert parser.values["diagnosis.thermal.rms_after"] == "0.51"
+    assert parser.values["diagnosis.thermal.delta_bic"] == "-120"
+    assert [img["alt"] for img in parser.images] == ["Diagnosis: residual vs time"]
+
+
+def test_unreadable_folders_raise_clear_errors(tmp_path, folder_copy):
+    with pytest.raises(report.ResultsError, match="cannot read the results folder"):
+        report.write_report(tmp_path / "missing")
+    with pytest.raises(ValueError, match="n_draws"):
+        report.write_report(folder_copy, n_draws=1)
+    summary_path = folder_copy / "summary.json"
+    summary = json.loads(summary_path.read_text())
+    summary["posterior"] = None
+    summary_path.write_text(json.dumps(summary))
+    with pytest.raises(report.ResultsError, match="no posterior yet"):
+        report.write_report(folder_copy)
+    assert not list(folder_copy.glob(".*.tmp"))
+
+
+def test_chain_that_does_not_match_the_model_is_refused(folder_copy):
+    fit_path = folder_copy / "fit.json"
+    fit = json.loads(fit_path.read_text())
+    fit["vary"][fit["names"].index("rho")] = False  # one fewer free parameter than the chain holds
+    fit_path.write_text(json.dumps(fit))
+    data = report.load_report_data(folder_copy)
+    with pytest.raises(report.ResultsError, match="coordinates"):
+        report.read_chain(data)
+
+
+# --------------------------------------------------------------------------------------
+# slow: other folders, the command line
+# --------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_clean_record_is_reported_at_the_noise_level(tmp_path):
+    folder = build_results_folder(tmp_path / "clean", FixtureSettings())
+    page = parse_page(folder / "report.html")
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["fit"]["rms"] < 1.2 * summary["noise"]["sigma"]
+    assert "fit-ok" in page.element_ids and "misfit-alert" not in page.element_ids
+    # model + noise cover about 95 % of the samples (short chain, 701 samples: allow 90-99 %)
+    assert 90.0 <= float(page.values["derived.inside_predictive_pct"]) <= 99.5
+
+
+@pytest.mark.slow
+def test_free_noise_sigma_is_reported_with_its_posterior(tmp_path):
+    folder = build_results_folder(tmp_path / "free", FixtureSettings(free_noise=True))
+    page = parse_page(folder / "report.html")
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["noise"]["source"] == "free"
+    assert "fit-free-noise" in page.element_ids and "misfit-alert" not in page.element_ids
+    for field in ("median", "lo95", "hi95", "tau", "ess"):
+        assert_shown(page.values[f"noise.posterior.{field}"], summary["noise"]["posterior"][field], field)
+    data = report.load_report_data(folder)
+    chain = report.read_chain(data)
+    assert chain.names[-1] == report.NOISE_COORDINATE
+    draws = report.posterior_draws(data, chain, 40, np.random.default_rng(1))
+    lo95, hi95 = summary["noise"]["posterior"]["lo95"], summary["noise"]["posterior"]["hi95"]
+    assert np.median(draws.noise_sigma) == pytest.approx(summary["noise"]["posterior"]["median"], rel=0.05)
+    assert ((draws.noise_sigma > 0.8 * lo95) & (draws.noise_sigma < 1.2 * hi95)).all()
+
+
+@pytest.mark.slow
+def test_report_command_rewrites_the_page(misfit_folder, capsys):
+    page = misfit_folder / "report.html"
+    before = page.stat().st_mtime_ns
+    assert identify_main(["report", str(misfit_folder), "--draws", "40", "--seed", "3"]) == 0
+    assert str(page) in capsys.readouterr().out
+    assert page.stat().st_mtime_ns > before
+    assert parse_page(page).values["posterior.n_walkers"] == "40"
+    assert identify_main(["report", str(misfit_folder / "nowhere")]) == 2
+    assert "error:" in capsys.readouterr().err
