@@ -68,6 +68,7 @@ __all__ = [
     "convert_micromanipulator",
     "load_sma_sequence",
     "held_input_noise_sigma",
+    "drop_window",
     "BASAERI_PARAMETERS",
     "BASAERI_OFFSET",
     "BASAERI_N_OPERATORS",
@@ -369,6 +370,65 @@ def held_input_noise_sigma(displacement, rows) -> float:
     if y.ndim != 1 or not (0 <= start < stop <= y.size) or stop - start < 20:
         raise ValueError(f"rows {rows!r} must be a stretch of >= 20 samples inside the {y.size}-sample record")
     return float(np.std(np.diff(y[start:stop]), ddof=1) / math.sqrt(2.0))
+
+
+def drop_window(record, start, stop):
+    """The record without the samples with ``start <= time < stop``, and a note saying so.
+
+    For a rate-independent model (the GPI without time-dependent effects) dropping
+    samples inside one monotone stretch of the input leaves the output at every kept
+    sample unchanged (the operators only see the sequence of input values), so this is
+    the same as leaving those samples out of the fit. If the window holds an input
+    extremum, the memory it left differs until a larger excursion wipes it out.
+
+    Used for the switch-on ringing of the SmartHysteresis record: the drive steps to
+    -87.1 V at 3.2572 s (before the sensor has moved) and the displacement rings for
+    about 12 ms, real dynamics a rate-independent model cannot fit.
+    ``drop_window(record, 3.2572, 3.2772)`` leaves out 20 ms (100 samples); the
+    dropped step sample is an input minimum 3 V below the next kept one, so the memory
+    differs until the first +150 V peak, 0.35 s later (3.606 s), resets every operator
+    narrower than that swing (tested for plays up to 150 V wide).
+    With time-dependent effects (lag, creep) a gap changes their integration, so do
+    not drop windows then.
+
+    Parameters
+    ----------
+    record : identify.records.Record
+    start, stop : float
+        Window [s] (record time units), ``start < stop``.
+
+    Returns
+    -------
+    identify.records.Record
+        Same source, hash, units and notes, plus one note naming the window and the
+        number of samples dropped.
+
+    Raises
+    ------
+    ValueError
+        ``start >= stop``, or the window holds no sample or every sample.
+    """
+    from dataclasses import replace
+
+    if not (np.isfinite(start) and np.isfinite(stop) and start < stop):
+        raise ValueError(f"drop_window needs start < stop (finite), got {start!r}, {stop!r}")
+    time = np.asarray(record.time)
+    inside = (time >= start) & (time < stop)
+    n_dropped = int(inside.sum())
+    if n_dropped == 0 or n_dropped == time.size:
+        raise ValueError(f"the window [{start}, {stop}) s holds {n_dropped} of {time.size} samples; nothing sensible to drop")
+    keep = ~inside
+    note = (
+        f"samples with {start:g} <= time < {stop:g} s dropped ({n_dropped} samples): "
+        "left out of the fit (valid for a rate-independent model)"
+    )
+    return replace(
+        record,
+        time=record.time[keep],
+        current=record.current[keep],
+        displacement=record.displacement[keep],
+        notes=tuple(record.notes) + (note,),
+    )
 
 
 def _check_basaeri(parameters) -> np.ndarray:

@@ -31,6 +31,7 @@ from identify.realdata import (
     basaeri_theta,
     convert_micromanipulator,
     convert_smarthysteresis,
+    drop_window,
     held_input_noise_sigma,
     load_sma_sequence,
     shared_realdata_dir,
@@ -213,3 +214,49 @@ def test_peer_mapping_holds_for_other_parameters():
             rtol=0,
             atol=1e-9,
         )
+
+
+# -- the switch-on window of the SmartHysteresis record -------------------------------------
+
+
+def classical_like_theta(v_peak, n_operators=12, alpha=-0.1993):
+    """A valid GPI theta for a +-v_peak drive: near-linear envelopes, plays up to v_peak wide."""
+    from model import THETA_NAMES
+
+    half_band = abs(alpha) * (n_operators + 0.5)
+    slope = abs(alpha) * (n_operators - 1) / v_peak
+    a1 = 0.004
+    values = dict(
+        alpha=alpha, rho=1.0, tau=0.0, a0=slope / a1, a1=a1, a2=0.0, a3=-half_band,
+        b0=slope / a1, b1=a1, b2=0.0, b3=half_band, c0=0.5, c1=0.01, c2=0.0, c3=0.0,
+        d0=0.6, d1=0.01, d2=0.0, d3=-1.0,
+    )  # fmt: skip
+    return np.array([values[n] for n in THETA_NAMES])
+
+
+def test_drop_window_leaves_gpi_output_unchanged_after_the_first_peak():
+    record = load_shipped("piezo_smarthysteresis")
+    dropped = drop_window(record, SMARTHYSTERESIS_SWITCH_ON_S, SMARTHYSTERESIS_SWITCH_ON_S + 0.02)
+    assert len(record) - len(dropped) == 100
+    assert "dropped (100 samples)" in dropped.notes[-1]
+    theta = classical_like_theta(150.0)
+    full = gpi(theta, record.current)
+    short = gpi(theta, dropped.current)
+    kept = np.isin(record.time, dropped.time)
+    first_peak = record.time[np.argmax(record.current)]  # the first +150 V peak
+    assert 3.55 < first_peak < 3.65
+    after = record.time[kept] > first_peak
+    np.testing.assert_array_equal(short[after], full[kept][after])
+    # before that peak the dropped -87.1 V minimum leaves a different memory, as documented
+    before = (record.time[kept] > SMARTHYSTERESIS_SWITCH_ON_S) & ~after
+    assert np.abs(short[before] - full[kept][before]).max() > 1e-6
+
+
+def test_drop_window_rejects_empty_or_total_windows():
+    record = load_shipped("piezo_smarthysteresis")
+    with pytest.raises(ValueError, match="start < stop"):
+        drop_window(record, 5.0, 4.0)
+    with pytest.raises(ValueError, match="holds 0 of 50001 samples"):
+        drop_window(record, 20.0, 30.0)
+    with pytest.raises(ValueError, match="holds 50001 of 50001"):
+        drop_window(record, -1.0, 11.0)
