@@ -801,6 +801,25 @@ COLLECTORS: dict[str, Callable[[Path], dict]] = {
 }
 
 
+def _assumptions(argv) -> list[str]:
+    """What a job's options make the run assume, in plain words (for the summary's notes)."""
+    argv = list(argv)
+
+    def value(flag):
+        return argv[argv.index(flag) + 1] if flag in argv[:-1] else None
+
+    notes = []
+    time_column = value("--time-column")
+    if time_column is not None and time_column.lower() == "none":
+        notes.append("no time column: time is the sample index (time constants in samples)")
+    sigma = value("--noise-sigma")
+    if sigma is not None and sigma.lower() == "free":
+        notes.append("no quiet segment used: noise sigma is a free parameter, estimated from the residual")
+    elif sigma is not None:
+        notes.append(f"no quiet segment used: noise sigma = {sigma} given in the config")
+    return notes
+
+
 def _error_from_log(log_text: str, returncode: int) -> str:
     """The most telling line of a failed command's output (its last error line)."""
     lines = [ln.strip() for ln in log_text.splitlines() if ln.strip()]
@@ -879,6 +898,8 @@ def run_job(job: Job) -> JobResult:
     if not error:
         try:
             figures = COLLECTORS[job.task](folder)
+            stated = [n for n in _assumptions(job.argv) if n not in figures.get("notes", "")]
+            figures["notes"] = "; ".join([n for n in [figures.get("notes", "")] if n] + stated)
             result = JobResult(**base, status="ok", seconds=seconds, **figures)
         except Exception as exc:  # a run that wrote unreadable results counts as failed
             error = str(exc)

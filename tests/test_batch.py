@@ -309,3 +309,28 @@ def test_dask_executor(tmp_path):
     assert by_key["good__default"].rms == pytest.approx(NOISE_SIGMA, rel=0.15)
     assert by_key["bad__default"].status == "failed" and "line 7" in by_key["bad__default"].error
     assert time.perf_counter() - started < 120
+
+
+def test_assumptions_are_stated_from_the_options():
+    notes = B._assumptions(["fit", "x.csv", "--time-column", "none", "--noise-sigma", "free"])
+    assert any("time is the sample index" in n for n in notes)
+    assert any("noise sigma is a free parameter" in n for n in notes)
+    assert B._assumptions(["fit", "x.csv", "--noise-sigma", "0.07"]) == [
+        "no quiet segment used: noise sigma = 0.07 given in the config"
+    ]
+    assert B._assumptions(["fit", "x.csv", "--time-column", "t"]) == []
+
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.toml")), ids=lambda p: p.name)
+def test_example_configs_are_valid(path):
+    """Every shipped example config validates against the commands' real option parsers."""
+    data = B._toml_module().loads(path.read_text())
+    if data.get("task") not in cli.COMMANDS:
+        pytest.skip(f"{path.name}: task {data.get('task')!r} is not registered yet")
+    config = B.load_config(path)
+    jobs = B.expand_jobs(config)
+    assert len(jobs) == len(config.records) * len(config.variants) >= 2
+    assert all(Path(j.record_path).is_file() for j in jobs), "example records must exist in the repository"
