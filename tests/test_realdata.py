@@ -16,6 +16,7 @@ Tests reading ``../shared/realdata`` skip with the path when it is absent.
 from __future__ import annotations
 
 import hashlib
+import math
 import re
 from pathlib import Path
 
@@ -260,3 +261,70 @@ def test_drop_window_rejects_empty_or_total_windows():
         drop_window(record, 20.0, 30.0)
     with pytest.raises(ValueError, match="holds 50001 of 50001"):
         drop_window(record, -1.0, 11.0)
+
+
+# -- the project's identification against the published SMA fit ---------------------------
+
+PEER_RMSE = 2.2587  # PEERS.md item 1, over all 773 samples
+
+
+def sma_model(n_operators):
+    from identify.identifiability import normalised_model
+    from model import Model
+
+    return normalised_model(Model(["initial_state"], n_operators=n_operators))
+
+
+def full_rms(fit) -> float:
+    """RMS over all samples, as PEERS.md computes it (FitResult.rms leaves out the 1-sample 'quiet' start)."""
+    return float(np.sqrt(np.mean(fit.residual**2)))
+
+
+@pytest.mark.slow
+def test_least_squares_from_the_peer_solution_improves_on_it():
+    """The peer fit lies inside this project's model (21 operators + initial_state), so its
+    least squares started there must end clearly lower (measured 1.99-2.19 with the
+    least-squares versions of this week, vs 2.2587)."""
+    from identify.identifiability import to_normalisation
+    from identify.lsq import fit_least_squares
+    from identify.noise import estimate_noise
+
+    record = sma_record()
+    model_ = sma_model(BASAERI_N_OPERATORS)
+    theta, _ = basaeri_theta()
+    start = model_.default_theta()
+    start[:19] = to_normalisation(theta)
+    # the peer starts every operator at its upper bound: any level above them does that
+    start[model_.names.index("initial_state_memory")] = model_.parameters["initial_state_memory"].upper
+    start_error = record.displacement - model_(start, record.time, record.current)
+    assert np.sqrt(np.mean(start_error**2)) == pytest.approx(PEER_RMSE, abs=1e-3)
+    noise = estimate_noise(record, noise_sigma="free")
+    fit = fit_least_squares(record, model_, noise=noise, start=start, n_starts=1, rng=np.random.default_rng(0))
+    print(f"RMS from the peer's start: {full_rms(fit):.4f} (peer {PEER_RMSE})")
+    assert full_rms(fit) < PEER_RMSE - 0.05
+    assert np.abs(fit.residual).max() < 16.849  # the peer's max |error|
+
+
+@pytest.mark.slow
+def test_independent_identification_against_the_peer_fit():
+    """The project's own multi-start least squares (no peer information) on the SMA record.
+
+    Known shortfall (measured): 12 operators 2.57, 21 operators 2.41-2.81 depending on the
+    start strategy, against the GA's 2.2587: the local multi-start does not find the GA's
+    basin. Kept strict so that it flips when the start strategy improves.
+    """
+    from identify.lsq import fit_least_squares
+    from identify.noise import estimate_noise
+
+    record = sma_record()
+    noise = estimate_noise(record, noise_sigma="free")
+    best = math.inf
+    for n_operators in (12, 21):
+        try:
+            fit = fit_least_squares(record, sma_model(n_operators), noise=noise, n_starts=16, rng=np.random.default_rng(1))
+        except ValueError as exc:  # no valid start for this operator count
+            print(f"{n_operators} operators: {exc}")
+            continue
+        print(f"{n_operators} operators: RMS {full_rms(fit):.4f} (all 773 samples)")
+        best = min(best, full_rms(fit))
+    assert best < PEER_RMSE
