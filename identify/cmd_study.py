@@ -16,7 +16,10 @@ Only ``--max-steps`` may change between runs (to extend a chain that did not con
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 import time as _time
 from pathlib import Path
 
@@ -28,7 +31,7 @@ HELP = "whole study (noise, least squares, identifiability, emcee posterior, rep
 
 #: Default cap on the chain length [steps]; keeps the study on the bundled record under
 #: 5 minutes on a 2-core machine (see README "## Identification").
-DEFAULT_MAX_STEPS = 8000
+DEFAULT_MAX_STEPS = 20000
 #: Settings that may differ when a run is resumed.
 RESUMABLE_SETTINGS = ("max_steps",)
 #: Options that are not settings of the computation (not compared, not all recorded).
@@ -82,11 +85,30 @@ def run(args) -> int:
     from .records import RecordError
     from .results import RunMismatchError
 
+    with _sigterm_as_interrupt():
+        try:
+            return run_study(args)
+        except (RecordError, NoQuietSegmentError, RunMismatchError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Turn SIGTERM (``kill PID``) into KeyboardInterrupt, so the chain is flushed and the
+    manifest records the interruption, exactly as for Ctrl-C (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
     try:
-        return run_study(args)
-    except (RecordError, NoQuietSegmentError, RunMismatchError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def run_study(args) -> int:

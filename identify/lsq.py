@@ -5,8 +5,8 @@ Objective
 The residuals ``e = displacement - model(theta)`` over the whole record (the quiet start
 included: the model predicts the rest level there) are whitened by the noise model
 (:func:`identify.noise.whiten`: divided by sigma, AR(1) filtered when the noise is
-correlated), and :func:`scipy.optimize.least_squares` (trust-region reflective) minimises
-half their sum of squares within each parameter's bounds. Pinned parameters
+correlated), and :func:`scipy.optimize.least_squares` (dogleg with box bounds,
+:data:`SOLVER_METHOD`) minimises half their sum of squares within each parameter's bounds. Pinned parameters
 (``Parameter.vary = False``, e.g. the normalisation of :mod:`identify.identifiability`)
 stay at their values. A parameter set outside the model's domain (the GPI operator
 bounds cross, or an effect gives a non-finite output) gets a constant residual of
@@ -92,6 +92,11 @@ PAPER_PEAK_INPUT = 5.0
 CENTRAL_STEP_POWER = 0.45
 #: Solver evaluations each start gets in the screening phase.
 SCREEN_EVALUATIONS = 20
+#: :func:`scipy.optimize.least_squares` method. "dogbox" rather than "trf": on the bundled
+#: record (plain GPI fitted to data with a hidden thermal effect, a curved valley) dogbox
+#: reached the optimum in 44 evaluations (0.7 s) where trf crawled for 750 evaluations
+#: (16 s) and stopped 25 higher in chi-square; on clean records both agree.
+SOLVER_METHOD = "dogbox"
 #: Cap on the solver evaluations of each polished start (a misspecified model can crawl
 #: along a flat valley for thousands of steps; the result then says "not converged").
 POLISH_EVALUATIONS = 400
@@ -556,7 +561,7 @@ def _solve(residuals: "WhitenedResiduals", x0, max_nfev):
         x0,
         jac=residuals.jacobian,
         bounds=(residuals.lower, residuals.upper),
-        method="trf",
+        method=SOLVER_METHOD,
         x_scale="jac",
         ftol=TOLERANCE,
         xtol=TOLERANCE,

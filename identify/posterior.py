@@ -432,7 +432,9 @@ def _convergence(chain, check_every, tau_factor, tau_rtol):
     prev_n = n - check_every
     if prev_n >= check_every:
         tau_prev = _tau(chain[:prev_n])
-        change = float(np.max(np.abs(tau - tau_prev) / tau))
+        with np.errstate(invalid="ignore"):
+            relative = np.abs(tau - tau_prev) / tau
+        change = float(np.max(relative)) if np.isfinite(relative).all() else math.inf
     else:
         change = math.inf
     long_enough = bool(np.isfinite(tau).all() and n >= tau_factor * np.max(tau))
