@@ -1,0 +1,1061 @@
+r"""Which physical effect is missing: adequacy test, candidate ranking and verdict.
+
+The question has three answers (:data:`STATUSES`): ``adequate`` (the residual is the
+sensor's noise, nothing to add), ``missing_effect`` (one effect of the library explains
+the structure left in the residual) and ``unexplained`` (structure remains that no
+candidate explains convincingly; the closest candidate is *not* blamed).
+
+Method
+------
+1. **Baseline.** Least squares of the given model (:func:`identify.lsq.fit_least_squares`)
+   and the residual's profile (:func:`identify.residuals.residual_profile`): noise
+   reference from the quiet segment, and three tests (``variance``, ``ljung_box``,
+   ``low_frequency``), each with a standardised excess ``z``.
+
+2. **Adequacy.** The residual is *adequate* unless some test's ``z`` exceeds
+   :attr:`Thresholds.z_critical` **and** the non-noise part is large enough to matter:
+   its estimated RMS (``sqrt`` of the low-frequency structure variance, or of the excess
+   variance) is at least :attr:`Thresholds.structure_floor` times the noise sigma.
+   The size floor keeps a statistically detectable but physically negligible misfit of
+   a long record (70 000 samples resolve structure of a few % of sigma) from raising
+   alarms; the z threshold keeps the tests' false-alarm rate negligible, including the
+   error of the noise model estimated from a short quiet segment (already in the
+   tests' null sd). Both were calibrated on clean virtual-bench records over many
+   seeds (README "Diagnosis").
+
+3. **Screening** (:func:`screen_candidates`): for every library effect not in the
+   model, a linearised score. The effect's parameters are put on a small grid
+   (:func:`screening_grid`): parameters that do nothing while the effect is off (time
+   constants, spectrum widths) and parameters the output depends on nonlinearly (a lag's
+   time constant, an initial memory level) get grid values; parameters the output
+   depends on linearly (amplitudes) stay off and enter through their Jacobian columns.
+   At each grid point the whitened residual is projected out of the span of the GPI's
+   Jacobian columns, and the effect's columns are fitted to what remains by bounded
+   linear least squares (an amplitude bounded at 0 cannot explain a residual of the
+   wrong sign). The score is the predicted drop of the chi-square, best over the grid;
+   the best grid point and its step seed the refit. This is a score test with a grid
+   over the nonlinear parameters, and costs a few dozen batched model evaluations.
+
+4. **Refits** of the :attr:`Thresholds.max_refits` best-screened candidates: the full
+   least squares with the effect added, from the screening's best point.
+   Each candidate is compared with the baseline by
+
+   * :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / \chi^2_1) - k \ln n_\mathrm{eff}`
+     with :math:`k` the effect's parameters and :math:`n_\mathrm{eff} = n (1-\rho)/(1+\rho)`,
+     :math:`\rho` the lag-1 autocorrelation of the candidate model's whitened residual
+     (a residual that is still correlated carries less information than its sample
+     count says);
+   * the *explained fraction* of the baseline's excess: ``1 - excess_after / excess_before``
+     with the excess measured as the low-frequency structure variance (or, when the
+     structure is not slow, the excess variance or Ljung-Box excess), and whether the
+     candidate's residual passes the adequacy test.
+
+5. **Verdict.** With the best candidate by :math:`\Delta\mathrm{BIC}`:
+
+   * ``missing_effect`` if its :math:`\Delta\mathrm{BIC}` exceeds
+     :attr:`Thresholds.bic_significant` and its residual is adequate or it explains at
+     least :attr:`Thresholds.explained_major` of the excess (an effect of the library in
+     its general form absorbs most of a differently shaped version of the same physics);
+   * otherwise, when two effects may be hidden, the best two are refitted together: if
+     the pair is adequate (or explains ``explained_major``) and the best single one
+     explains at least :attr:`Thresholds.explained_minor`, the best single one is named
+     (add it, diagnose again, the second follows);
+   * otherwise ``unexplained``: significant structure remains that no candidate (or
+     pair) explains; the ranking still lists what each candidate would do.
+
+Everything runs on least squares only (no posterior), from one explicit
+:class:`numpy.random.Generator`.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time as _time
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import least_squares, lsq_linear
+
+from model import EFFECTS, THETA_NAMES, Model, get_effect
+
+from .lsq import FitResult, WhitenedResiduals, _single_threaded_blas, candidate_starts, fit_least_squares
+from .noise import NoiseModel, estimate_noise
+from .residuals import ARNoise, ResidualProfile, autocorrelation, fit_ar_noise, residual_profile
+
+__all__ = [
+    "STATUSES",
+    "Thresholds",
+    "Adequacy",
+    "assess_adequacy",
+    "ScreeningResult",
+    "screening_grid",
+    "screen_candidates",
+    "CandidateResult",
+    "PairResult",
+    "Diagnosis",
+    "diagnose",
+    "SCREENING_GRIDS",
+]
+
+#: The three verdicts.
+STATUSES = ("adequate", "missing_effect", "unexplained")
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """The diagnosis' decision thresholds (calibrated on the virtual bench; README "Diagnosis").
+
+    Parameters
+    ----------
+    z_critical : float, default 5.0
+        Standardised excess above which a test counts as failed (one-sided normal tail
+        ``3e-7``; three tests over many records stay far from a false alarm even with
+        the slightly heavier-than-normal tails of the Ljung-Box statistic).
+    structure_floor : float, default 0.1
+        Smallest RMS of the non-noise part, in units of the noise sigma, that counts
+        as a misfit (0.1 sigma adds 0.5 % to the residual RMS).
+    bic_significant : float, default 10.0
+        :math:`\\Delta\\mathrm{BIC}` above which adding an effect is "very strong"
+        evidence (Kass and Raftery, 1995).
+    explained_major : float, default 0.75
+        Fraction of the excess a candidate (or pair) must explain to be named without
+        leaving an adequate residual.
+    explained_minor : float, default 0.25
+        Fraction the best single candidate must explain for a pair verdict to name it.
+    max_refits : int, default 2
+        Candidates refitted in full (the best screened ones).
+    try_pairs : bool, default True
+        Refit the best two candidates together when no single one suffices.
+    """
+
+    z_critical: float = 5.0
+    structure_floor: float = 0.1
+    bic_significant: float = 10.0
+    explained_major: float = 0.75
+    explained_minor: float = 0.25
+    max_refits: int = 2
+    try_pairs: bool = True
+
+    def __post_init__(self):
+        for name in ("z_critical", "structure_floor", "bic_significant"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"Thresholds.{name} must be a finite number >= 0, got {value!r}")
+        for name in ("explained_major", "explained_minor"):
+            value = getattr(self, name)
+            if not (0.0 <= value <= 1.0):
+                raise ValueError(f"Thresholds.{name} must lie in [0, 1], got {value!r}")
+        if isinstance(self.max_refits, bool) or not isinstance(self.max_refits, (int, np.integer)) or self.max_refits < 0:
+            raise ValueError(f"Thresholds.max_refits must be an integer >= 0, got {self.max_refits!r}")
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+# -- adequacy -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Adequacy:
+    """Is a residual consistent with the quiet segment's noise?
+
+    Attributes
+    ----------
+    adequate : bool
+    failed : tuple of str
+        Tests whose ``z`` exceeds the threshold (whatever the size floor says).
+    z : dict of str -> float
+        Each test's standardised excess.
+    structure_rms : float
+        RMS of the slowly varying non-noise part [output units].
+    excess_rms : float
+        ``sqrt`` of the residual's mean square in excess of the noise variance [output units].
+    size_ratio : float
+        ``max(structure_rms, excess_rms) / noise sigma``.
+    excess_kind : str
+        Which measure quantifies the misfit: ``"low_frequency"`` (slow structure),
+        ``"variance"`` (extra variance that is not slow), ``"ljung_box"`` (correlation
+        only) or ``"none"``.
+    excess : float
+        The misfit in that measure: structure variance or excess variance [units^2],
+        or the Ljung-Box excess ``Q - E[Q]``.
+    """
+
+    adequate: bool
+    failed: tuple
+    z: dict
+    structure_rms: float
+    excess_rms: float
+    size_ratio: float
+    excess_kind: str
+    excess: float
+
+    def to_dict(self) -> dict:
+        return {
+            "adequate": bool(self.adequate),
+            "failed": list(self.failed),
+            "z": {k: float(v) for k, v in self.z.items()},
+            "structure_rms": float(self.structure_rms),
+            "excess_rms": float(self.excess_rms),
+            "size_ratio": float(self.size_ratio),
+            "excess_kind": self.excess_kind,
+            "excess": float(self.excess),
+        }
+
+
+def _excess_measure(profile: ResidualProfile, kind: str) -> float:
+    tests = profile.tests
+    if kind == "low_frequency":
+        return float(tests["low_frequency"].structure_variance)
+    if kind == "variance":
+        return float(tests["variance"].structure_variance)
+    if kind == "ljung_box":
+        lb = tests["ljung_box"]
+        return float(max(lb.statistic - lb.null_mean, 0.0))
+    return 0.0
+
+
+def assess_adequacy(profile: ResidualProfile, thresholds: Thresholds = Thresholds(), excess_kind=None) -> Adequacy:
+    """Apply the adequacy rule of the module docstring to a residual profile.
+
+    Parameters
+    ----------
+    profile : ResidualProfile
+    thresholds : Thresholds
+    excess_kind : str, optional
+        Force the excess measure (to compare a refit with its baseline in the same
+        measure); default: the first failed of low_frequency, variance, ljung_box.
+    """
+    tests = profile.tests
+    sigma = profile.noise.sigma
+    z = {name: float(t.z) for name, t in tests.items()}
+    failed = tuple(name for name in ("low_frequency", "variance", "ljung_box") if z[name] > thresholds.z_critical)
+    structure_rms = math.sqrt(tests["low_frequency"].structure_variance)
+    excess_rms = math.sqrt(tests["variance"].structure_variance)
+    size_ratio = max(structure_rms, excess_rms) / sigma
+    if excess_kind is None:
+        excess_kind = failed[0] if failed else "none"
+    adequate = not (failed and size_ratio >= thresholds.structure_floor)
+    return Adequacy(
+        adequate, failed, z, structure_rms, excess_rms, size_ratio, excess_kind, _excess_measure(profile, excess_kind)
+    )
+
+
+# -- screening --------------------------------------------------------------------------
+
+#: effect name -> callable(model_with_effect, record) returning a list of {parameter: value}
+#: grid points; effects not listed use :func:`screening_grid`'s generic rule.
+SCREENING_GRIDS: dict[str, Callable] = {}
+
+_MAX_GRID = 24
+
+
+def _is_log_scale(parameter) -> bool:
+    return parameter.unit == "s"
+
+
+def _axis_values(parameter, off_value, record_time, n_values, include_off):
+    """Grid values of one parameter: log-spaced for time constants, else spread around ``off``."""
+    lo, hi = float(parameter.lower), float(parameter.upper)
+    if _is_log_scale(parameter):
+        dt = float(np.median(np.diff(record_time)))
+        duration = float(record_time[-1] - record_time[0])
+        start = max(lo, 2.0 * dt) if lo <= 0 else lo
+        stop = min(hi, 10.0 * duration)
+        if stop <= start:
+            stop = hi
+        values = list(np.geomspace(start, stop, n_values)) if stop > start > 0 else [start]
+    elif not include_off:  # a shape parameter: spread over its range
+        values = list(np.linspace(lo, hi, n_values)) if np.isfinite(hi - lo) else [off_value]
+    else:
+        half = 0.5 * (hi - lo)
+        values = []
+        for fraction in np.linspace(0.0, 1.0, n_values + 1)[1:] ** 2:
+            for sign in (-1.0, 1.0):
+                v = off_value + sign * fraction * half
+                if lo <= v <= hi:
+                    values.append(v)
+    if include_off:
+        values = [off_value] + [v for v in values if v != off_value]
+    return values
+
+
+def _response_change(model_e: Model, base_theta, column, value, record):
+    theta = base_theta.copy()
+    theta[column] = value
+    y, valid = model_e.evaluate(np.vstack([base_theta, theta]), record.time, record.current)
+    if not valid.all():
+        return None
+    return y[1] - y[0]
+
+
+def screening_grid(model_e: Model, effect_name: str, base_theta, record, n_values=5) -> list[dict]:
+    """Generic screening grid of one effect's parameters (see the module docstring).
+
+    Parameters
+    ----------
+    model_e : Model
+        The model with the effect added.
+    effect_name : str
+    base_theta : ndarray, shape (P,)
+        Full vector of ``model_e`` with the effect off.
+    record : Record
+    n_values : int, default 5
+        Values per gridded parameter (the product is capped at 24 points).
+
+    Returns
+    -------
+    list of dict
+        ``{parameter: value}`` grid points (the effect's parameters only); the first
+        is the "off" point.
+    """
+    if effect_name in SCREENING_GRIDS:
+        return list(SCREENING_GRIDS[effect_name](model_e, record))
+    effect = get_effect(effect_name)
+    cols = model_e.effect_slice(effect_name)
+    names = model_e.names[cols]
+    axes = []
+    for offset, name in enumerate(names):
+        column = cols.start + offset
+        parameter = model_e.parameters[column]
+        off_value = float(base_theta[column])
+        if not parameter.vary:
+            axes.append([off_value])
+            continue
+        span = parameter.upper - parameter.lower
+        step = 0.05 * span if np.isfinite(span) else 0.05 * max(abs(off_value), 1.0)
+        probe = off_value + step if off_value + step <= parameter.upper else off_value - step
+        change = _response_change(model_e, base_theta, column, probe, record)
+        active = change is not None and float(np.max(np.abs(change))) > 1e-9
+        if not active:  # a shape parameter (does nothing while the effect is off)
+            axes.append(_axis_values(parameter, off_value, record.time, n_values, include_off=False))
+            continue
+        probe2 = off_value + 2.0 * (probe - off_value)
+        linear = False
+        if parameter.lower <= probe2 <= parameter.upper:
+            change2 = _response_change(model_e, base_theta, column, probe2, record)
+            if change2 is not None:
+                scale = float(np.linalg.norm(change2))
+                linear = scale > 0 and float(np.linalg.norm(change2 - 2.0 * change)) < 1e-3 * scale
+        axes.append([off_value] if linear else _axis_values(parameter, off_value, record.time, n_values, include_off=True))
+    # cap the product by thinning the longest axes
+    while np.prod([len(a) for a in axes]) > _MAX_GRID:
+        longest = int(np.argmax([len(a) for a in axes]))
+        a = axes[longest]
+        axes[longest] = a[:: 2] if len(a) > 2 else a[:1]
+    points = [dict(zip(names, map(float, combo))) for combo in itertools.product(*axes)]
+    off_point = {n: float(effect.off[n]) for n in names}
+    return [off_point] + [p for p in points if p != off_point]
+
+
+@dataclass(frozen=True)
+class ScreeningResult:
+    """Linearised score of one candidate effect.
+
+    Attributes
+    ----------
+    effect : str
+    chi2_drop : float
+        Predicted drop of the whitened chi-square after one bounded Gauss-Newton step
+        from the best grid point (0 when nothing helps).
+    chi2_after : float
+        Predicted chi-square after that step.
+    start : ndarray, shape (P_e,)
+        Full vector of the model with the effect, after the step (the refit's first start).
+    grid_point : dict
+        The effect parameters of the best grid point.
+    n_grid : int
+        Grid points tried.
+    starts : list of ndarray, shape (P_e,) each
+        Starts for the refit, most promising first: the best point after the step, then
+        the baseline GPI with the effect's parameters moved by their part of the step
+        from the best few grid points (the GPI's own step can be large along its
+        near-degenerate directions, and the GPI's domain wall stalls a solver started
+        on the wrong side of it, so several nearby starts are tried).
+    """
+
+    effect: str
+    chi2_drop: float
+    chi2_after: float
+    start: np.ndarray
+    grid_point: dict
+    n_grid: int
+    starts: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "effect": self.effect,
+            "chi2_drop": float(self.chi2_drop),
+            "chi2_after": float(self.chi2_after),
+            "grid_point": {k: float(v) for k, v in self.grid_point.items()},
+            "n_grid": int(self.n_grid),
+        }
+
+
+def _embed(model_from: Model, theta_from, model_to: Model) -> np.ndarray:
+    """``theta_from`` copied by name into ``model_to``'s vector (new effects off)."""
+    theta = model_to.default_theta()
+    for name, value in zip(model_from.names, theta_from):
+        theta[model_to.names.index(name)] = value
+    return theta
+
+
+def _orthonormal_basis(matrix, rtol=1e-9):
+    """Orthonormal basis of the column span of ``matrix`` (T, m) by SVD, rank-revealing."""
+    if matrix.shape[1] == 0:
+        return np.zeros((matrix.shape[0], 0))
+    u, s, _ = np.linalg.svd(matrix, full_matrices=False)
+    keep = s > rtol * (s[0] if s.size else 0.0)
+    return u[:, keep]
+
+
+def _partial_jacobian(residuals: WhitenedResiduals, x, columns) -> np.ndarray:
+    """Forward-difference columns ``(T, len(columns))`` of the whitened residual, one batched call."""
+    columns = np.asarray(columns, dtype=int)
+    steps = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(x[columns]), 0.01)
+    steps = np.where(x[columns] + steps > residuals.upper[columns], -steps, steps)
+    rows = np.repeat(x[None, :], columns.size + 1, axis=0)
+    rows[1 + np.arange(columns.size), columns] += steps
+    w, valid = residuals.batch(rows)
+    jac = np.zeros((w.shape[1], columns.size))
+    for i in range(columns.size):
+        if valid[0] and valid[i + 1]:
+            jac[:, i] = (w[i + 1] - w[0]) / steps[i]
+    return jac
+
+
+def _screen_one(record, model: Model, theta0, noise: NoiseModel, effect_name: str) -> ScreeningResult:
+    model_e = model + effect_name
+    base = _embed(model, theta0, model_e)
+    cols = model_e.effect_slice(effect_name)
+    residuals = WhitenedResiduals(record, model_e, noise)
+    free = residuals.free
+    effect_free = np.array([i for i, c in enumerate(free) if cols.start <= c < cols.stop], dtype=int)
+    other_free = np.array([i for i, c in enumerate(free) if not cols.start <= c < cols.stop], dtype=int)
+    grid = screening_grid(model_e, effect_name, base, record)
+    x0 = base[free]
+    w0 = residuals(x0)
+    jac0 = residuals.jacobian(x0)
+    basis0 = _orthonormal_basis(jac0[:, other_free])
+    w0_perp = w0 - basis0 @ (basis0.T @ w0)
+    chi2_reference = float(w0_perp @ w0_perp)  # the GPI alone, linearised: what the effect must beat
+    outcomes = []  # (chi2_after, x, step, point)
+    for point in grid:
+        theta = base.copy()
+        for name, value in point.items():
+            theta[model_e.names.index(name)] = value
+        if not model_e.in_bounds(theta)[0]:
+            continue
+        x = theta[free]
+        w, valid = residuals.batch(x[None, :])
+        if not valid[0]:
+            continue
+        w = w[0]
+        if np.array_equal(w, w0):
+            # the effect is still off here (only its shape parameters moved): the GPI's
+            # columns are the baseline's, only the effect's own columns are new
+            jac = jac0.copy()
+            jac[:, effect_free] = _partial_jacobian(residuals, x, effect_free)
+            basis = basis0
+        else:
+            jac = residuals.jacobian(x)
+            basis = _orthonormal_basis(jac[:, other_free])
+        w_perp = w - basis @ (basis.T @ w)
+        j_eff = jac[:, effect_free]
+        j_perp = j_eff - basis @ (basis.T @ j_eff)
+        lower = residuals.lower[effect_free] - x[effect_free]
+        upper = np.maximum(residuals.upper[effect_free] - x[effect_free], lower + 1e-12)
+        # Gauss-Newton: w(x + d) ~ w + J d (w = whitened data - model, so J = -dmodel/dx);
+        # minimise |w_perp + j_perp d| within the bounds, over the columns that act here
+        # (a time constant does nothing while its amplitude is 0)
+        norms = np.linalg.norm(j_perp, axis=0)
+        acting = norms > 1e-9 * max(float(norms.max(initial=0.0)), 1e-300)
+        step_eff = np.zeros(effect_free.size)
+        if acting.any():
+            sol = lsq_linear(
+                j_perp[:, acting] / norms[acting], -w_perp,
+                bounds=(lower[acting] * norms[acting], upper[acting] * norms[acting]), method="bvls",
+            )  # fmt: skip
+            step_eff[acting] = sol.x / norms[acting]
+        remaining = w_perp + j_perp @ step_eff
+        chi2_after = float(remaining @ remaining)
+        step = np.zeros(free.size)
+        step[effect_free] = step_eff
+        if other_free.size:
+            # the GPI's part of the step: the least-squares response to what remains
+            full_rest = w + jac[:, effect_free] @ step_eff
+            step[other_free] = np.linalg.lstsq(jac[:, other_free], -full_rest, rcond=None)[0]
+        outcomes.append((chi2_after, x, step, point))
+    if not outcomes:
+        return ScreeningResult(effect_name, 0.0, chi2_reference, base, {}, len(grid), [base])
+    outcomes.sort(key=lambda o: o[0])
+    chi2_after, x, step, point = outcomes[0]
+    trials = []
+    for k, (_, xk, stepk, _) in enumerate(outcomes[:3]):
+        effect_step = np.zeros_like(stepk)
+        effect_step[effect_free] = stepk[effect_free]
+        if k == 0:
+            trials.append(xk + stepk)
+        trials.append(xk + effect_step)
+    trials.append(x)
+    trials = np.clip(np.vstack(trials), residuals.lower, residuals.upper)
+    w_trials, valid = residuals.batch(trials)
+    chi2_trials = np.where(valid, np.sum(w_trials**2, axis=1), np.inf)
+    order = [int(i) for i in np.argsort(chi2_trials, kind="stable") if np.isfinite(chi2_trials[i])]
+    starts = []
+    for i in order:
+        if not any(np.array_equal(trials[i], trials[j]) for j in order[: order.index(i)]):
+            starts.append(residuals.full(trials[i]))
+    drop = max(chi2_reference - chi2_after, 0.0)
+    return ScreeningResult(effect_name, drop, float(w0 @ w0) - drop, starts[0], dict(point), len(grid), starts)
+
+
+def screen_candidates(record, fit: FitResult, candidates=None) -> list[ScreeningResult]:
+    """Linearised screening of candidate effects at a fit's optimum, best first.
+
+    Parameters
+    ----------
+    record : Record
+    fit : FitResult
+        The baseline fit (its model, optimum and noise model are used).
+    candidates : sequence of str, optional
+        Effects to screen; default every library effect not in the model.
+
+    Returns
+    -------
+    list of ScreeningResult
+        Sorted by ``chi2_drop``, largest first.
+    """
+    model = fit.model
+    if candidates is None:
+        candidates = [name for name in EFFECTS if name not in model.effect_names]
+    results = [_screen_one(record, model, fit.theta, fit.noise, name) for name in candidates]
+    return sorted(results, key=lambda r: -r.chi2_drop)
+
+
+# -- refits and the verdict ----------------------------------------------------------------
+
+
+@dataclass
+class CandidateResult:
+    """One candidate effect (or pair), screened and possibly refitted.
+
+    Attributes
+    ----------
+    effect : str
+        Effect name (``"a+b"`` for a pair).
+    screening : ScreeningResult or None
+    refitted : bool
+        False: the numbers after are the screening's linearised prediction.
+    rms_after : float
+        Residual RMS over the energised part with the effect added [output units].
+    max_error_pct_after : float or None
+        Max |residual| as % of the output range (None when not refitted).
+    delta_bic : float
+        :math:`\\Delta\\mathrm{BIC}` of adding the effect (positive favours it).
+    n_eff : float
+        The effective sample size used.
+    explained : float
+        Fraction of the baseline's excess (in its measure) that the effect removes,
+        clipped to [0, 1].
+    adequate_after : bool or None
+        Whether the residual with the effect passes the adequacy rule (None when not refitted).
+    z_after : dict
+        Tests' standardised excess after the refit (empty when not refitted).
+    parameters : dict
+        The effect's fitted parameters ``{name: value}`` (the screening's start when
+        not refitted), with ``stderr`` in :attr:`parameter_stderr`.
+    parameter_stderr : dict
+    fit : FitResult or None
+    profile : ResidualProfile or None
+    """
+
+    effect: str
+    screening: ScreeningResult | None
+    refitted: bool
+    rms_after: float
+    max_error_pct_after: float | None
+    delta_bic: float
+    n_eff: float
+    explained: float
+    adequate_after: bool | None
+    z_after: dict = field(default_factory=dict)
+    parameters: dict = field(default_factory=dict)
+    parameter_stderr: dict = field(default_factory=dict)
+    fit: FitResult | None = None
+    profile: ResidualProfile | None = None
+
+    def to_dict(self) -> dict:
+        return {
+            "effect": self.effect,
+            "rms_after": float(self.rms_after),
+            "max_error_pct_after": None if self.max_error_pct_after is None else float(self.max_error_pct_after),
+            "delta_bic": float(self.delta_bic),
+            "n_eff": float(self.n_eff),
+            "explained_fraction": float(self.explained),
+            "adequate_after": self.adequate_after,
+            "refitted": bool(self.refitted),
+            "z_after": {k: float(v) for k, v in self.z_after.items()},
+            "parameters": {k: float(v) for k, v in self.parameters.items()},
+            "parameter_stderr": {k: (None if not np.isfinite(v) else float(v)) for k, v in self.parameter_stderr.items()},
+            "screening": None if self.screening is None else self.screening.to_dict(),
+        }
+
+
+PairResult = CandidateResult  # a pair is reported with the same fields, effect "a+b"
+
+
+@dataclass
+class Diagnosis:
+    """The diagnosis of one fit (see the module docstring).
+
+    Attributes
+    ----------
+    effects : tuple of str
+        Effects in the fitted (baseline) model.
+    noise_sigma : float
+        Noise sigma of the noise model used by the fit [output units].
+    rms : float
+        Baseline residual RMS over the energised part.
+    max_error_pct : float
+        Baseline max |residual|, % of the measured output range.
+    status : str
+        One of :data:`STATUSES`.
+    missing : str or None
+        The effect named when ``status == "missing_effect"``.
+    reason : str
+        One paragraph saying why.
+    adequacy : Adequacy
+        The baseline's adequacy.
+    ranking : list of CandidateResult
+        Candidates best first (refitted ones by delta BIC, then the rest by screening).
+    pair : CandidateResult or None
+        The pair refit, when one was tried.
+    fit : FitResult
+        The baseline fit.
+    profile : ResidualProfile
+        The baseline residual's profile.
+    thresholds : Thresholds
+    seconds : float
+    """
+
+    effects: tuple
+    noise_sigma: float
+    rms: float
+    max_error_pct: float
+    status: str
+    missing: str | None
+    reason: str
+    adequacy: Adequacy
+    ranking: list
+    pair: CandidateResult | None
+    fit: FitResult
+    profile: ResidualProfile
+    thresholds: Thresholds
+    seconds: float
+
+    @property
+    def best(self) -> CandidateResult | None:
+        """The named (or else the top-ranked refitted) candidate, for before/after views."""
+        for c in self.ranking:
+            if c.effect == self.missing:
+                return c
+        return next((c for c in self.ranking if c.refitted), None)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the keys of the ``diagnose`` command's output (issue 6) and details."""
+        return {
+            "effects": list(self.effects),
+            "noise_sigma": float(self.noise_sigma),
+            "rms": float(self.rms),
+            "max_error_pct": float(self.max_error_pct),
+            "status": self.status,
+            "missing": self.missing,
+            "reason": self.reason,
+            "statistic": "delta_bic",
+            "ranking": [c.to_dict() for c in self.ranking],
+            "pair": None if self.pair is None else self.pair.to_dict(),
+            "adequacy": self.adequacy.to_dict(),
+            "where": self.profile.to_dict(),
+            "fit": {
+                "model": self.fit.model.to_dict(),
+                "theta": {n: float(v) for n, v in zip(self.fit.model.names, self.fit.theta)},
+                "rms": float(self.fit.rms),
+                "max_error_pct": float(self.fit.max_error_pct),
+                "reduced_chi2": float(self.fit.reduced_chi2),
+                "noise": self.fit.noise.to_dict(),
+                "seconds": float(self.fit.seconds),
+            },
+            "thresholds": self.thresholds.to_dict(),
+            "seconds": float(self.seconds),
+        }
+
+    def summary(self) -> str:
+        """A short human summary (a few lines)."""
+        unit = "um"
+        lines = [
+            f"model: GPI{''.join(' + ' + e for e in self.effects)}",
+            f"noise sigma {self.noise_sigma:.4g} {unit}; residual RMS {self.rms:.4g} {unit} "
+            f"({self.rms / self.noise_sigma:.3f} sigma), max error {self.max_error_pct:.3g} % of range",
+            f"verdict: {self.status}" + (f" -> add '{self.missing}'" if self.missing else ""),
+            self.reason,
+        ]
+        refitted = [c for c in self.ranking if c.refitted]
+        if refitted:
+            lines.append("candidates (refitted):")
+            for c in refitted:
+                lines.append(
+                    f"  {c.effect:<14} RMS after {c.rms_after:.4g} {unit}, dBIC {c.delta_bic:9.1f}, "
+                    f"explains {100 * c.explained:5.1f} % of the excess"
+                    + (", adequate after" if c.adequate_after else "")
+                )
+        others = [c for c in self.ranking if not c.refitted]
+        if others:
+            lines.append("other candidates (screening only): " + ", ".join(f"{c.effect} ({100 * c.explained:.0f} %)" for c in others))
+        return "\n".join(lines)
+
+
+def _profile(record, fit: FitResult, quiet: slice, noise_ref: ARNoise) -> ResidualProfile:
+    return residual_profile(
+        record.time,
+        record.current,
+        fit.residual,
+        quiet,
+        output_range=float(np.ptp(record.displacement)),
+        noise=noise_ref,
+        n_fitted=int(fit.vary.sum()),
+    )
+
+
+def _whitened(record, fit: FitResult) -> np.ndarray:
+    residuals = WhitenedResiduals(record, fit.model, fit.noise)
+    return residuals(fit.theta[residuals.free])
+
+
+def _n_eff(whitened) -> float:
+    rho = float(autocorrelation(whitened, 1)[1])
+    rho = min(max(rho, 0.0), 0.99)
+    return whitened.size * (1.0 - rho) / (1.0 + rho)
+
+
+#: Refit starts kept (lowest chi-square) for the short first run.
+REFIT_STARTS = 3
+#: Solver evaluations each kept refit start gets before the best one is polished.
+REFIT_SCREEN_EVALUATIONS = 20
+#: Caps on the polish of a fit: trust-region-reflective, then dogbox (see :func:`_polish`).
+POLISH_EVALUATIONS = (200, 100)
+
+
+def _solve(residuals: WhitenedResiduals, x0, method, max_nfev, tolerance=1e-10):
+    with _single_threaded_blas():
+        return least_squares(
+            residuals, x0, jac=residuals.jacobian, bounds=(residuals.lower, residuals.upper), method=method,
+            x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, max_nfev=max_nfev,
+        )  # fmt: skip
+
+
+def _polish(residuals: WhitenedResiduals, x0) -> np.ndarray:
+    """Continue a fit with scipy's ``trf`` and then ``dogbox`` methods; the best point found.
+
+    A model that misses an effect is a misspecified model: its optimum can sit against
+    the GPI's domain wall (operator bounds about to cross), where one trust-region
+    variant stalls (``xtol``) while the other still makes progress. The diagnosis
+    compares chi-squares between models, so every fit it compares is finished this way
+    (a baseline left short of its optimum would hand every candidate unearned credit).
+    """
+    x = np.asarray(x0, dtype=float)
+    w = residuals(x)
+    cost = float(w @ w)
+    for method, cap in zip(("trf", "dogbox"), POLISH_EVALUATIONS):
+        sol = _solve(residuals, x, method, cap)
+        if 2.0 * sol.cost < cost:
+            x, cost = sol.x, 2.0 * float(sol.cost)
+    return x
+
+
+def _finish(record, model_e: Model, noise: NoiseModel, x, rng, fit: FitResult | None = None) -> FitResult:
+    """Polish free vector ``x`` and return the :class:`FitResult` there (``fit`` itself when no better)."""
+    residuals = WhitenedResiduals(record, model_e, noise)
+    x = _polish(residuals, x)
+    if fit is not None:
+        w = residuals(x)
+        if float(w @ w) > fit.chi2 - 0.1:
+            return fit
+    return fit_least_squares(record, model_e, noise=noise, start=residuals.full(x), n_starts=1, rng=rng)
+
+
+def _refit(record, model_e: Model, noise: NoiseModel, starts, rng) -> FitResult:
+    """Least squares of ``model_e``: the :data:`REFIT_STARTS` best ``starts`` (full vectors) get a
+    short run each, the best is polished (:func:`_polish`) and returned as a :class:`FitResult`."""
+    residuals = WhitenedResiduals(record, model_e, noise)
+    xs = np.array([np.clip(np.asarray(s, dtype=float)[residuals.free], residuals.lower, residuals.upper) for s in starts])
+    w, valid = residuals.batch(xs)
+    chi2 = np.where(valid, np.sum(w**2, axis=1), np.inf)
+    order = [int(i) for i in np.argsort(chi2, kind="stable")[:REFIT_STARTS] if np.isfinite(chi2[i])]
+    if not order:
+        raise ValueError(f"no refit start of {model_e!r} lies in the model's domain")
+    best = None
+    for i in order:
+        sol = _solve(residuals, xs[i], "dogbox", REFIT_SCREEN_EVALUATIONS)
+        if best is None or sol.cost < best.cost:
+            best = sol
+    return _finish(record, model_e, noise, best.x, rng)
+
+
+def _refit_starts(record, base_fit: FitResult, model_e: Model, effect_values: dict, extra=()) -> list:
+    """Refit starts: ``extra`` first, then the baseline optimum with the new effects off and
+    with ``effect_values``, then the data-driven starts of :func:`identify.lsq.candidate_starts`
+    (Table 1, rescaled to the record) with ``effect_values``."""
+    starts = list(extra)
+    off = _embed(base_fit.model, base_fit.theta, model_e)
+    on = off.copy()
+    for name, value in effect_values.items():
+        on[model_e.names.index(name)] = value
+    starts += [on, off]
+    try:
+        data_driven = candidate_starts(record, model_e, n_starts=2)
+    except ValueError:
+        data_driven = []
+    for _, theta in data_driven:
+        theta = theta.copy()
+        for name, value in effect_values.items():
+            theta[model_e.names.index(name)] = value
+        starts.append(theta)
+    return [s for s in starts if model_e.in_bounds(s)[0]]
+
+
+def _evaluate_candidate(
+    record, base_fit, base_chi2, base_adequacy, name, model_e, starts, screening, quiet, noise_ref, thresholds, rng
+) -> CandidateResult:
+    fit_e = _refit(record, model_e, base_fit.noise, starts, rng)
+    w = _whitened(record, fit_e)
+    chi2_e = float(w @ w)
+    n_eff = _n_eff(w)
+    k = int(fit_e.vary.sum() - base_fit.vary.sum())
+    delta_bic = n_eff * math.log(base_chi2 / chi2_e) - k * math.log(n_eff) if chi2_e > 0 else math.inf
+    profile_e = _profile(record, fit_e, quiet, noise_ref)
+    adequacy_e = assess_adequacy(profile_e, thresholds, excess_kind=base_adequacy.excess_kind)
+    explained = _explained(base_adequacy.excess, adequacy_e.excess)
+    new_names = [n for n in model_e.names if n not in base_fit.model.names]
+    params = {n: float(fit_e.theta[model_e.names.index(n)]) for n in new_names}
+    stderr = {n: float(fit_e.stderr[model_e.names.index(n)]) for n in new_names}
+    return CandidateResult(
+        name, screening, True, fit_e.rms, fit_e.max_error_pct, float(delta_bic), float(n_eff), explained,
+        adequacy_e.adequate, adequacy_e.z, params, stderr, fit_e, profile_e,
+    )  # fmt: skip
+
+
+def _explained(before: float, after: float) -> float:
+    if not before > 0:
+        return 0.0
+    return float(min(max(1.0 - after / before, 0.0), 1.0))
+
+
+def diagnose(
+    record,
+    model=None,
+    *,
+    noise: NoiseModel | None = None,
+    fit: FitResult | None = None,
+    thresholds: Thresholds = Thresholds(),
+    n_starts: int = 3,
+    rng: np.random.Generator | None = None,
+    candidates=None,
+    progress: Callable[[str], None] | None = None,
+) -> Diagnosis:
+    """Least squares plus the diagnosis (method in the module docstring).
+
+    Parameters
+    ----------
+    record : identify.records.Record
+        ``time`` [s], ``current`` [A], ``displacement`` [um], shape (T,). It needs an
+        unenergised start (the noise reference), at least 20 samples.
+    model : Model or sequence of str, optional
+        The model to diagnose (effect names give ``Model(names)``); default plain GPI.
+    noise : NoiseModel, optional
+        Default :func:`identify.noise.estimate_noise` of the record.
+    fit : FitResult, optional
+        A baseline fit of ``model`` to ``record`` to reuse (skips the baseline least squares).
+    thresholds : Thresholds
+    n_starts : int, default 3
+        Starts of the baseline least squares (refits start from the baseline).
+    rng : numpy.random.Generator, optional
+        Default ``numpy.random.default_rng(0)``.
+    candidates : sequence of str, optional
+        Effects to consider; default every library effect not in the model.
+    progress : callable(str), optional
+        Called with a short message at each stage (the CLI prints them).
+
+    Returns
+    -------
+    Diagnosis
+
+    Raises
+    ------
+    ValueError
+        A record without a quiet segment of >= 20 samples, an unknown effect, or a
+        ``fit`` of another model.
+    """
+    t_start = _time.perf_counter()
+    say = progress or (lambda message: None)
+    rng = np.random.default_rng(0) if rng is None else rng
+    if model is None:
+        model = Model()
+    elif not isinstance(model, Model):
+        model = Model(list(model))
+    if fit is not None and fit.model.names != model.names:
+        raise ValueError(f"the given fit is of {fit.model!r}, not of {model!r}")
+    if candidates is None:
+        candidates = [name for name in EFFECTS if name not in model.effect_names]
+    else:
+        candidates = list(candidates)
+        for name in candidates:
+            get_effect(name)
+            if name in model.effect_names:
+                raise ValueError(f"candidate {name!r} is already in the model {model!r}")
+    noise = fit.noise if fit is not None else (estimate_noise(record) if noise is None else noise)
+    quiet = noise.quiet
+    if quiet is None:
+        from .noise import quiet_segment
+
+        quiet = quiet_segment(record.current)
+    q_stop = quiet.indices(len(record))[1]
+    if q_stop < 20:
+        raise ValueError(
+            f"{record.source}: the diagnosis needs an unenergised start (>= 20 samples) as its noise reference; "
+            f"this record has {q_stop}"
+        )
+    if fit is None:
+        say(f"least squares of {model!r} ({n_starts} starts)")
+        fit = fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng)
+        fit = _finish(record, model, noise, fit.theta[fit.vary], rng, fit=fit)
+    noise_ref = fit_ar_noise(fit.residual[:q_stop])
+    profile = _profile(record, fit, quiet, noise_ref)
+    adequacy = assess_adequacy(profile, thresholds)
+    chi2_0 = float(np.sum(_whitened(record, fit) ** 2))
+
+    say(f"screening {len(candidates)} candidate effects")
+    screened = screen_candidates(record, fit, candidates) if candidates else []
+    ranking: list[CandidateResult] = []
+    refitted: list[CandidateResult] = []
+    pair = None
+    n_refits = 0 if adequacy.adequate else thresholds.max_refits
+    for s in screened[:n_refits]:
+        if s.chi2_drop <= 0:
+            continue
+        say(f"refitting with '{s.effect}'")
+        model_e = fit.model + s.effect
+        values = {n: float(s.start[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names}
+        starts = _refit_starts(record, fit, model_e, values, extra=s.starts)
+        refitted.append(
+            _evaluate_candidate(
+                record, fit, chi2_0, adequacy, s.effect, model_e, starts, s, quiet, noise_ref, thresholds, rng
+            )
+        )
+    refitted.sort(key=lambda c: -c.delta_bic)
+    refitted_names = {c.effect for c in refitted}
+    for s in screened:
+        if s.effect in refitted_names:
+            continue
+        chi2_after = max(s.chi2_after, 1e-300)
+        n_eff = _n_eff(_whitened(record, fit))
+        k = len(get_effect(s.effect).parameters)
+        ratio = math.sqrt(chi2_after / chi2_0) if chi2_0 > 0 else 1.0
+        ranking.append(
+            CandidateResult(
+                s.effect, s, False, fit.rms * ratio, None,
+                float(n_eff * math.log(chi2_0 / chi2_after) - k * math.log(n_eff)), float(n_eff),
+                _explained(chi2_0 - fit.residual.size, chi2_after - fit.residual.size) if chi2_0 > fit.residual.size else 0.0,
+                None, {}, {n: float(s.start[(fit.model + s.effect).names.index(n)]) for n in get_effect(s.effect).parameters.names},
+            )
+        )  # fmt: skip
+    ranking = refitted + ranking
+
+    if adequacy.adequate:
+        status, missing = "adequate", None
+        reason = (
+            f"The residual is consistent with the quiet segment's noise: every test's excess is below "
+            f"z = {thresholds.z_critical:g} or the non-noise part is negligible "
+            f"({adequacy.size_ratio:.3f} sigma < {thresholds.structure_floor:g} sigma)."
+        )
+    else:
+        status, missing, reason = "unexplained", None, ""
+        best = refitted[0] if refitted else None
+        significant = best is not None and best.delta_bic > thresholds.bic_significant
+        if significant and (best.adequate_after or best.explained >= thresholds.explained_major):
+            status, missing = "missing_effect", best.effect
+            reason = (
+                f"Adding '{best.effect}' explains {100 * best.explained:.0f} % of the misfit "
+                f"(delta BIC {best.delta_bic:.0f})"
+                + (" and leaves a residual consistent with the noise." if best.adequate_after else
+                   "; some structure remains (a differently shaped version of the same physics?).")
+            )  # fmt: skip
+        elif significant and thresholds.try_pairs and len(refitted) >= 2 and best.explained >= thresholds.explained_minor:
+            second = refitted[1]
+            if second.delta_bic > thresholds.bic_significant:
+                say(f"refitting with '{best.effect}' and '{second.effect}' together")
+                model_pair = fit.model + [best.effect, second.effect]
+                starts = []
+                for one, other in ((best, second), (second, best)):
+                    start = _embed(one.fit.model, one.fit.theta, model_pair)
+                    starts.append(start.copy())
+                    for n in get_effect(other.effect).parameters.names:
+                        start[model_pair.names.index(n)] = other.parameters[n]
+                    starts.insert(0, start)
+                starts = _refit_starts(record, fit, model_pair, best.parameters | second.parameters, extra=starts)
+                pair = _evaluate_candidate(
+                    record, fit, chi2_0, adequacy, f"{best.effect}+{second.effect}", model_pair, starts, None,
+                    quiet, noise_ref, thresholds, rng,
+                )  # fmt: skip
+                if pair.adequate_after or pair.explained >= thresholds.explained_major:
+                    status, missing = "missing_effect", best.effect
+                    reason = (
+                        f"Two effects seem to be missing: '{best.effect}' alone explains {100 * best.explained:.0f} % "
+                        f"of the misfit (delta BIC {best.delta_bic:.0f}) and together with '{second.effect}' "
+                        f"{100 * pair.explained:.0f} %. Add '{best.effect}' and diagnose again."
+                    )
+        if status == "unexplained":
+            where = _where_summary(profile)
+            if best is None:
+                reason = f"The residual is not noise ({', '.join(adequacy.failed)} test), and no candidate effect helps. {where}"
+            else:
+                reason = (
+                    f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
+                    f"{adequacy.size_ratio:.2f} sigma) and no library effect explains it: the best, "
+                    f"'{best.effect}', explains {100 * best.explained:.0f} % (delta BIC {best.delta_bic:.0f}). {where}"
+                )
+    return Diagnosis(
+        effects=tuple(fit.model.effect_names),
+        noise_sigma=float(fit.noise.sigma),
+        rms=float(fit.rms),
+        max_error_pct=float(fit.max_error_pct),
+        status=status,
+        missing=missing,
+        reason=reason,
+        adequacy=adequacy,
+        ranking=ranking,
+        pair=pair,
+        fit=fit,
+        profile=profile,
+        thresholds=thresholds,
+        seconds=_time.perf_counter() - t_start,
+    )
+
+
+def _where_summary(profile: ResidualProfile) -> str:
+    """One sentence on where the error concentrates (largest per-cycle RMS, branch, reversals)."""
+    parts = []
+    if len(profile.cycles):
+        worst = int(np.argmax(profile.cycles.rms))
+        parts.append(
+            f"the largest cycle RMS ({profile.cycles.rms[worst]:.3g}) is in {profile.cycles.t_start[worst]:.1f}-"
+            f"{profile.cycles.t_stop[worst]:.1f} s"
+        )
+    rising = profile.rising.rms[np.isfinite(profile.rising.rms)]
+    falling = profile.falling.rms[np.isfinite(profile.falling.rms)]
+    if rising.size and falling.size:
+        r, f = float(np.sqrt(np.mean(rising**2))), float(np.sqrt(np.mean(falling**2)))
+        parts.append(f"rising-branch RMS {r:.3g} vs falling {f:.3g}")
+    return ("Where: " + "; ".join(parts) + ".") if parts else ""
