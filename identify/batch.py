@@ -1063,6 +1063,14 @@ def _fmt(value, digits=4) -> str:
     return str(value)
 
 
+def _status_counts(results) -> str:
+    """``"6 runs: 3 ok, 1 finished earlier (skipped), 1 failed, 1 pending."``"""
+    labels = (("ok", "ok"), ("skipped", "finished earlier (skipped)"), ("failed", "failed"), ("pending", "pending"))
+    parts = [f"{sum(r.status == key for r in results)} {label}" for key, label in labels]
+    parts = [p for p in parts if not p.startswith("0 ")] or ["none"]
+    return f"{len(results)} runs: {', '.join(parts)}."
+
+
 def write_summary(out, results: list[JobResult], config: BatchConfig | None = None) -> None:
     """Write ``summary.csv``, ``summary.md`` and ``index.html`` into ``out`` (each atomically).
 
@@ -1087,8 +1095,8 @@ def write_summary(out, results: list[JobResult], config: BatchConfig | None = No
     _atomic_write(out / "summary.csv", buffer.getvalue())
 
     title = f"Batch {config.task} runs from {config.source.name}" if config else "Batch runs"
-    n_failed = sum(r.status == "failed" for r in results)
-    md = [f"# {title}", "", f"{len(results)} runs, {n_failed} failed.", ""]
+    counts = _status_counts(results)
+    md = [f"# {title}", "", counts, ""]
     md.append("| run | status | RMS | max error % | statistic | verdict | time [s] | error / notes |")
     md.append("|---|---|---|---|---|---|---|---|")
     for r in results:
@@ -1124,7 +1132,7 @@ th {{ background: #eee; }}
 tr.failed td {{ background: #fde8e8; }}
 </style></head><body>
 <h1>{esc(title)}</h1>
-<p>{len(results)} runs, {n_failed} failed. RMS and max error over the energised part of each record;
+<p>{esc(counts)} RMS and max error over the energised part of each record;
 max error in % of the measured output range. Each run name links to its report (when it has one).</p>
 <table>
 <tr><th>run</th><th>record</th><th>variant</th><th>status</th><th>residual RMS</th><th>max error %</th>

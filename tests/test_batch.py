@@ -196,7 +196,7 @@ def test_summary_files(tmp_path):
     assert rows["a__v"]["status"] == "ok" and float(rows["a__v"]["rms"]) == 0.301
     assert rows["b__v"]["status"] == "failed" and "line 7" in rows["b__v"]["error"] and rows["b__v"]["rms"] == ""
     md = (tmp_path / "summary.md").read_text()
-    assert "[a__v](a__v/report.html)" in md and "0.301 um" in md and "2 runs, 1 failed" in md
+    assert "[a__v](a__v/report.html)" in md and "0.301 um" in md and "2 runs: 1 ok, 1 failed." in md
     page = (tmp_path / "index.html").read_text()
     assert '<a href="a__v/report.html">a__v</a>' in page and 'class="failed"' in page
     assert "&#x27;x&#x27; is not a number" in page  # escaped
