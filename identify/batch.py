@@ -88,6 +88,7 @@ __all__ = [
     "parse_config",
     "expand_jobs",
     "run_job",
+    "finished_result",
     "run_batch",
     "write_summary",
     "EXECUTORS",
