@@ -158,6 +158,15 @@ def run_study(args) -> int:
     write_data(out, record)
 
     status = "interrupted"
+    phases: dict[str, float] = {}
+    clock = _time.perf_counter()
+
+    def lap(name):
+        nonlocal clock
+        now = _time.perf_counter()
+        phases[name] = now - clock
+        clock = now
+
     try:
         rng = np.random.default_rng(args.seed)
         lsq_rng, posterior_rng = rng.spawn(2)
@@ -165,6 +174,7 @@ def run_study(args) -> int:
         # 1. noise (raises NoQuietSegmentError naming the fallbacks)
         noise = noise_from_args(args, record)
         _say(f"noise: sigma = {noise.sigma:.4g} {record.output_unit}, {noise.kind}, source {noise.source}")
+        lap("load_and_noise")
 
         # 2. least squares (reused when the folder already holds it)
         fit_path = out / FILES["fit"]
@@ -176,11 +186,13 @@ def run_study(args) -> int:
             fit = fit_least_squares(record, model, noise=noise, n_starts=args.n_starts, rng=lsq_rng)
             write_fit(out, fit)
         print(format_fit_table(fit, record))
+        lap("least_squares")
 
         # 3. identifiability
         ident = analyse_fit(fit, record)
         print(ident.describe())
         write_summary(out, build_summary(record, fit, ident, None))
+        lap("identifiability")
 
         # 4. posterior
         log_post = LogPosterior(record, fit.model, fit.noise)
@@ -215,17 +227,22 @@ def run_study(args) -> int:
             f"{posterior.samples.shape[0]} samples after discarding {posterior.discard} and thinning by {posterior.thin}"
         )
         status = "converged" if posterior.converged else "not converged"
-    finally:
-        manifest = finish_manifest(manifest, started=started, seconds=_time.perf_counter() - t_start, status=status)
-        write_json(out / FILES["manifest"], manifest)
+        lap("posterior")
 
-    # 5. report
-    try:
-        from .report import write_report
-    except ImportError as exc:
-        _say(f"report skipped: identify.report is not available ({exc})")
-    else:
-        path = write_report(out)
-        _say(f"report: {path}")
+        # 5. report
+        try:
+            from .report import write_report
+        except ImportError as exc:
+            _say(f"report skipped: identify.report is not available ({exc})")
+        else:
+            path = write_report(out)
+            _say(f"report: {path}")
+        lap("report")
+    finally:
+        manifest = finish_manifest(
+            manifest, started=started, seconds=_time.perf_counter() - t_start, status=status, phases=phases
+        )
+        write_json(out / FILES["manifest"], manifest)
+    _say("times: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in phases.items()))
     _say(f"study finished in {_time.perf_counter() - t_start:.1f} s: {out}")
     return 0

@@ -14,11 +14,18 @@ scale-free), while the weights :math:`p_j = \rho e^{-\tau r_j}` scale by ``1/k``
 posterior with flat priors is improper. :func:`gpi_scaling` applies the map;
 ``tests/test_identifiability.py`` checks the invariance numerically.
 
+The Omega terms (13) have a discrete exact symmetry as well:
+:math:`c_0 \tanh(c_1 v + c_2) = (-c_0) \tanh(-c_1 v - c_2)`, and the same for ``d``;
+the model's default bounds let ``c1`` and ``d1`` take either sign, so the posterior
+has mirror modes (a least-squares start can land in either). (The envelopes' ``a`` and
+``b`` flips are already removed by the model's positive bounds on ``a0, a1, b0, b1``.)
+
 Normalisation
 -------------
 :data:`NORMALISATION` pins ``alpha`` at its start value, Table 1's -0.1993 (the curve
 crosses every ``alpha < 0`` exactly once, so this picks one representative per
-equivalence class). :func:`normalised_model` returns the model with
+equivalence class), and :data:`SIGN_CONSTRAINTS` bounds ``c1, d1 >= 1e-3`` (positive
+Omega slopes, as in Table 1), which picks one of the mirror modes. :func:`normalised_model` returns the model with
 ``Parameter.vary = False`` for alpha; :func:`to_normalisation` maps any parameter
 vector to the equivalent one with that alpha, e.g. to compare an identified vector
 with a true one. An effect that acts on the drive (``input`` stage) or on the output
@@ -50,12 +57,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from model import GPI_PARAMETERS, THETA_NAMES, Model
+from model import GPI_PARAMETERS, THETA_NAMES, Model, ParameterSet
 
 __all__ = [
     "SCALING_PARAMETERS",
     "SCALING_POWERS",
     "NORMALISATION",
+    "SIGN_CONSTRAINTS",
     "EXACT_RATIO",
     "NEAR_RATIO",
     "NEAR_RELATIVE_STD",
@@ -76,6 +84,8 @@ SCALING_PARAMETERS = ("rho", "alpha", "tau", "a0", "a3", "b0", "b3")
 SCALING_POWERS = (-1, 1, -1, 1, 1, 1, 1)
 #: The normalisation: parameter name -> the value it is pinned at (Table 1's alpha).
 NORMALISATION = {"alpha": float(GPI_PARAMETERS["alpha"].value)}
+#: Lower bounds that remove the Omega envelopes' sign symmetry: parameter -> lower bound.
+SIGN_CONSTRAINTS = {"c1": 1e-3, "d1": 1e-3}
 EXACT_RATIO = 1e-10
 NEAR_RATIO = 1e-8
 NEAR_RELATIVE_STD = 0.05
@@ -168,11 +178,15 @@ def pin_gpi_parameters(model: Model, values: dict) -> Model:
 
 
 def normalised_model(model: Model, alpha=None) -> Model:
-    """``model`` with the normalisation applied: alpha pinned (default Table 1's -0.1993)."""
+    """``model`` with the normalisation applied: alpha pinned (default Table 1's -0.1993)
+    and the sign constraints ``c1, d1 >= 1e-3`` (:data:`SIGN_CONSTRAINTS`)."""
     target = NORMALISATION["alpha"] if alpha is None else float(alpha)
-    pins = {n: p.value for n, p in zip(THETA_NAMES, model.parameters) if not p.vary}
-    pins["alpha"] = target
-    return pin_gpi_parameters(model, pins)
+    gpi_params = ParameterSet(model.parameters[: len(THETA_NAMES)])
+    gpi_params = gpi_params.replace("alpha", value=target, vary=False)
+    for name, lower in SIGN_CONSTRAINTS.items():
+        p = gpi_params[name]
+        gpi_params = gpi_params.replace(name, lower=max(p.lower, lower), value=max(p.value, lower))
+    return Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=gpi_params)
 
 
 def parameter_scales(theta) -> np.ndarray:
@@ -256,6 +270,7 @@ class IdentifiabilityResult:
         """The ``identifiability`` block of ``summary.json`` (plus eigenvalues and condition number)."""
         return {
             "normalisation": {k: float(v) for k, v in self.normalisation.items()},
+            "sign_constraints": {k: f">= {v:g}" for k, v in SIGN_CONSTRAINTS.items()},
             "exact": [d.to_dict() for d in self.exact],
             "near": [d.to_dict() for d in self.near],
             "eigenvalues": [float(v) for v in self.eigenvalues],
@@ -370,7 +385,10 @@ def analyse_fit(fit, record, **kwargs) -> IdentifiabilityResult:
         jac = fitted.central_jacobian(fit.theta[fitted.free])
         names = [model.names[i] for i in fitted.free]
         result = analyse_identifiability(jac, fit.theta[fitted.free], names, normalisation=normalisation, **kwargs)
-        released = pin_gpi_parameters(model, {n: v for n, v in pins.items() if n not in NORMALISATION})
+        released_params = ParameterSet(model.parameters[: len(THETA_NAMES)])
+        for name in NORMALISATION:
+            released_params = released_params.replace(name, vary=True)
+        released = Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=released_params)
         released_res = WhitenedResiduals(record, released, fit.noise)
         theta_released = released_res.template.copy()
         theta_released[:] = fit.theta

@@ -65,7 +65,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from model import TABLE1, THETA_NAMES, Model
+from model import THETA_NAMES, Model, ParameterSet
 
 from .noise import NoiseModel, energised_mask, estimate_noise, whiten
 
@@ -212,6 +212,8 @@ class FitResult:
             "stderr": _floats(self.stderr),
             "covariance": [_floats(row) for row in self.covariance],
             "vary": [bool(v) for v in self.vary],
+            "lower": _floats(self.model.parameters.lower),
+            "upper": _floats(self.model.parameters.upper),
             "residual": _floats(self.residual),
             "rms": float(self.rms),
             "max_error_pct": float(self.max_error_pct),
@@ -232,15 +234,19 @@ class FitResult:
     @classmethod
     def from_dict(cls, d: dict) -> "FitResult":
         """Inverse of :meth:`to_dict` (the model is rebuilt with the same pins)."""
-        from .identifiability import pin_gpi_parameters
-
         theta = _array(d["theta"])
         vary = np.asarray(d["vary"], dtype=bool)
         base = Model.from_dict(d["model"])
         if tuple(d["names"]) != base.names:
             raise ValueError(f"fit names {d['names']} do not match the model {base!r}")
-        pins = {n: float(v) for n, v, free in zip(base.names, theta, vary) if not free}
-        model = pin_gpi_parameters(base, pins)
+        lower = _array(d["lower"]) if "lower" in d else base.parameters.lower
+        upper = _array(d["upper"]) if "upper" in d else base.parameters.upper
+        gpi_params = ParameterSet(base.parameters[: len(THETA_NAMES)])
+        for i, name in enumerate(THETA_NAMES):
+            p = gpi_params[i]
+            value = float(theta[i]) if not vary[i] else min(max(p.value, lower[i]), upper[i])
+            gpi_params = gpi_params.replace(name, value=value, vary=bool(vary[i]), lower=float(lower[i]), upper=float(upper[i]))
+        model = Model(list(base.effect_names), base.n_operators, base.reading, gpi_parameters=gpi_params)
         starts = [
             StartOutcome(s["label"], _unfloat(s["chi2"], math.inf), int(s["n_evaluations"]), bool(s["success"]), s["message"])
             for s in d.get("starts", [])

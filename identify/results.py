@@ -327,13 +327,17 @@ def build_manifest(*, seed, record, settings: dict, started=None, command=None) 
     )
 
 
-def finish_manifest(manifest: dict, *, started, seconds: float, status: str) -> dict:
-    """Record one (possibly resumed) run's times and status in ``manifest["runs"]``."""
+def finish_manifest(manifest: dict, *, started, seconds: float, status: str, phases=None) -> dict:
+    """Record one (possibly resumed) run's times and status in ``manifest["runs"]``.
+
+    ``phases`` is ``{phase: seconds}`` (e.g. least_squares, posterior, report).
+    """
     finished = now_iso()
     manifest = dict(manifest)
-    manifest["runs"] = list(manifest.get("runs", [])) + [
-        {"started": started, "finished": finished, "seconds": float(seconds), "status": status}
-    ]
+    run = {"started": started, "finished": finished, "seconds": float(seconds), "status": status}
+    if phases:
+        run["phases"] = {k: float(v) for k, v in phases.items()}
+    manifest["runs"] = list(manifest.get("runs", [])) + [run]
     manifest["finished"] = finished
     return manifest
 

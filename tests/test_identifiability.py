@@ -131,3 +131,19 @@ def test_analyse_fit_reports_the_scaling_and_near_directions():
     assert set(d) >= {"normalisation", "exact", "near"}
     assert all(set(item) >= {"eigenvalue", "combination"} for item in d["exact"] + d["near"])
     assert "EXACT degeneracy" in result.describe()
+
+
+def test_omega_sign_flip_is_exact_and_removed_by_the_normalisation():
+    """(c0, c1, c2) -> -(c0, c1, c2) (and the same for d) leaves the output unchanged
+    (tanh is odd), so the normalisation bounds c1, d1 > 0."""
+    time, current = paper_current(fs=10.0)
+    model = Model()
+    theta = model.default_theta()
+    flipped = theta.copy()
+    for name in ("c0", "c1", "c2", "d0", "d1", "d2"):
+        flipped[THETA_NAMES.index(name)] *= -1
+    assert model.in_bounds(flipped)[0]  # allowed by the model's own bounds
+    assert np.max(np.abs(model(flipped, time, current) - model(theta, time, current))) < 1e-12 * 300
+    normalised = normalised_model(model)
+    assert not normalised.in_bounds(flipped)[0] and normalised.in_bounds(theta)[0]
+    assert normalised.parameters["c1"].lower > 0 and normalised.parameters["d1"].lower > 0
