@@ -10,7 +10,8 @@ as described in :mod:`identify.results`.
 Rerunning the same command resumes: the stored least-squares fit is reused and the
 chain continues from its last saved step. A folder holding a run with other data, seed
 or settings is refused unless ``--force`` (which deletes that run's files first).
-Only ``--max-steps`` may change between runs (to extend a chain that did not converge).
+Only ``--max-steps`` (to extend a chain that did not converge) and the path of the data
+file (the data are compared by SHA-256) may change between runs.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ HELP = "whole study (noise, least squares, identifiability, emcee posterior, rep
 #: 5 minutes on a 2-core machine (see README "## Identification").
 DEFAULT_MAX_STEPS = 20000
 #: Settings that may differ when a run is resumed.
-RESUMABLE_SETTINGS = ("max_steps",)
+RESUMABLE_SETTINGS = ("max_steps", "data")  # the data themselves are compared by sha256
 #: Options that are not settings of the computation (not compared, not all recorded).
 _NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet")
 
