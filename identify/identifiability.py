@@ -40,8 +40,9 @@ respect to the *relative* parameter changes ``d theta_j / s_j``,
 ``1 / sqrt(lambda)`` of the relative change along each eigenvector (Laplace
 approximation). Directions are classified as
 
-* **exact**: ``lambda / lambda_max < EXACT_RATIO`` (1e-10: zero up to the round-off of
-  a finite-difference Jacobian);
+* **exact**: ``lambda / lambda_max < EXACT_RATIO`` (1e-13: zero up to the round-off of
+  the central-difference Jacobian, which puts the GPI scaling at ~1e-16; an effect that
+  is practically switched off can reach 1e-10 without being an exact symmetry);
 * **near**: otherwise, when the relative standard deviation ``1/sqrt(lambda)`` exceeds
   :data:`NEAR_RELATIVE_STD` (0.05: the combination is known to worse than 5 %) or
   ``lambda / lambda_max < NEAR_RATIO`` (1e-8);
@@ -86,7 +87,7 @@ SCALING_POWERS = (-1, 1, -1, 1, 1, 1, 1)
 NORMALISATION = {"alpha": float(GPI_PARAMETERS["alpha"].value)}
 #: Lower bounds that remove the Omega envelopes' sign symmetry: parameter -> lower bound.
 SIGN_CONSTRAINTS = {"c1": 1e-3, "d1": 1e-3}
-EXACT_RATIO = 1e-10
+EXACT_RATIO = 1e-13
 NEAR_RATIO = 1e-8
 NEAR_RELATIVE_STD = 0.05
 

@@ -309,7 +309,8 @@ def initial_walkers(log_post: LogPosterior, mean, covariance, n_walkers, rng, *,
     mean : array_like, shape (D,)
         The least-squares solution in sampled coordinates.
     covariance : array_like, shape (D, D)
-        Its covariance (e.g. the Jacobian-based one).
+        Its covariance (e.g. the Jacobian-based one). A variance below
+        ``(1e-3 max(|mean|, 1e-3 (upper - lower)))^2`` is raised by that floor.
     n_walkers : int
     rng : numpy.random.Generator
     max_rounds : int, default 200
@@ -327,6 +328,12 @@ def initial_walkers(log_post: LogPosterior, mean, covariance, n_walkers, rng, *,
     mean = np.asarray(mean, dtype=float)
     cov = np.asarray(covariance, dtype=float)
     cov = 0.5 * (cov + cov.T)
+    # A parameter the data do not constrain at the optimum (e.g. an effect's time
+    # constant while its amplitude is 0) has (near-)zero variance in a pseudo-inverse
+    # covariance; give it a small spread so the walkers are linearly independent.
+    floor = (1e-3 * np.maximum(np.abs(mean), 1e-3 * (log_post.upper - log_post.lower))) ** 2
+    idx = np.arange(mean.size)
+    cov[idx, idx] = np.where(np.diag(cov) < floor, np.diag(cov) + floor, np.diag(cov))
     if not np.isfinite(log_post(mean[None, :])[0]):
         raise ValueError("the least-squares solution has a log-posterior of -inf (outside the support or domain)")
     walkers = np.empty((n_walkers, mean.size))

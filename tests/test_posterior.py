@@ -140,6 +140,17 @@ def test_initial_walkers_follow_the_covariance_not_a_tiny_ball(problem):
         initial_walkers(log_post, bad_mean, cov, 10, np.random.default_rng(0))
 
 
+def test_unconstrained_parameter_still_gets_a_spread(problem):
+    """A zero variance in the least-squares covariance (a parameter the data do not
+    constrain) must not put every walker on the same value (emcee would refuse)."""
+    _rec, _model, _fit, log_post, mean, cov = problem
+    cov = cov.copy()
+    cov[0, :] = cov[:, 0] = 0.0
+    walkers = initial_walkers(log_post, mean, cov, 40, np.random.default_rng(1))
+    spread = walkers[:, 0].std()
+    assert 0 < spread < 0.01 * abs(mean[0])
+
+
 def test_default_walkers_even_and_at_least_32():
     assert default_n_walkers(5) == 32
     assert default_n_walkers(18) == 36
