@@ -78,10 +78,10 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
-from model import EFFECTS, THETA_NAMES, Model, get_effect
+from model import EFFECTS, READINGS, THETA_NAMES, Model, envelope, get_effect
 
-from .lsq import FitResult, WhitenedResiduals, _single_threaded_blas, candidate_starts, fit_least_squares
-from .noise import NoiseModel, estimate_noise
+from .lsq import DOMAIN_PENALTY, FitResult, WhitenedResiduals, _single_threaded_blas, candidate_starts, fit_least_squares
+from .noise import NoiseModel, estimate_noise, whiten
 from .residuals import ARNoise, ResidualProfile, autocorrelation, fit_ar_noise, residual_profile
 
 __all__ = [
@@ -272,7 +272,7 @@ def _axis_values(parameter, off_value, record_time, n_values, include_off):
     else:
         half = 0.5 * (hi - lo)
         values = []
-        for fraction in np.linspace(0.0, 1.0, n_values + 1)[1:] ** 2:
+        for fraction in np.geomspace(0.02, 1.0, n_values + 1):
             for sign in (-1.0, 1.0):
                 v = off_value + sign * fraction * half
                 if lo <= v <= hi:
@@ -374,6 +374,8 @@ class ScreeningResult:
         from the best few grid points (the GPI's own step can be large along its
         near-degenerate directions, and the GPI's domain wall stalls a solver started
         on the wrong side of it, so several nearby starts are tried).
+    grid : list of dict
+        The grid points tried (effect parameters only).
     """
 
     effect: str
@@ -383,6 +385,7 @@ class ScreeningResult:
     grid_point: dict
     n_grid: int
     starts: list = field(default_factory=list)
+    grid: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {
@@ -394,11 +397,15 @@ class ScreeningResult:
         }
 
 
-def _embed(model_from: Model, theta_from, model_to: Model) -> np.ndarray:
-    """``theta_from`` copied by name into ``model_to``'s vector (new effects off)."""
+def _embed(model_from: Model, theta_from, model_to: Model, drop_extra=False) -> np.ndarray:
+    """``theta_from`` copied by name into ``model_to``'s vector (new effects off; with
+    ``drop_extra`` parameters ``model_to`` lacks are dropped, else they are an error)."""
     theta = model_to.default_theta()
     for name, value in zip(model_from.names, theta_from):
-        theta[model_to.names.index(name)] = value
+        if name in model_to.names:
+            theta[model_to.names.index(name)] = value
+        elif not drop_extra:
+            raise ValueError(f"parameter {name!r} of {model_from!r} is not in {model_to!r}")
     return theta
 
 
@@ -489,7 +496,7 @@ def _screen_one(record, model: Model, theta0, noise: NoiseModel, effect_name: st
             step[other_free] = np.linalg.lstsq(jac[:, other_free], -full_rest, rcond=None)[0]
         outcomes.append((chi2_after, x, step, point))
     if not outcomes:
-        return ScreeningResult(effect_name, 0.0, chi2_reference, base, {}, len(grid), [base])
+        return ScreeningResult(effect_name, 0.0, chi2_reference, base, {}, len(grid), [base], grid)
     outcomes.sort(key=lambda o: o[0])
     chi2_after, x, step, point = outcomes[0]
     trials = []
@@ -509,7 +516,7 @@ def _screen_one(record, model: Model, theta0, noise: NoiseModel, effect_name: st
         if not any(np.array_equal(trials[i], trials[j]) for j in order[: order.index(i)]):
             starts.append(residuals.full(trials[i]))
     drop = max(chi2_reference - chi2_after, 0.0)
-    return ScreeningResult(effect_name, drop, float(w0 @ w0) - drop, starts[0], dict(point), len(grid), starts)
+    return ScreeningResult(effect_name, drop, float(w0 @ w0) - drop, starts[0], dict(point), len(grid), starts, grid)
 
 
 def screen_candidates(record, fit: FitResult, candidates=None) -> list[ScreeningResult]:
@@ -548,7 +555,10 @@ class CandidateResult:
         Effect name (``"a+b"`` for a pair).
     screening : ScreeningResult or None
     refitted : bool
-        False: the numbers after are the screening's linearised prediction.
+        True: least squares run to convergence with the effect. False: the numbers are
+        from the short refit (a few solver steps; an upper bound on the chi-square, so
+        ``delta_bic`` and ``explained`` are lower bounds), or from the linearised
+        screening when the baseline was adequate (no refits then).
     rms_after : float
         Residual RMS over the energised part with the effect added [output units].
     max_error_pct_after : float or None
@@ -744,11 +754,93 @@ def _n_eff(whitened) -> float:
 REFIT_STARTS = 3
 #: Solver evaluations each kept refit start gets before the best one is polished.
 REFIT_SCREEN_EVALUATIONS = 20
-#: Caps on the polish of a fit: trust-region-reflective, then dogbox (see :func:`_polish`).
-POLISH_EVALUATIONS = (200, 100)
+#: Cap on the solver evaluations of the polish (see :func:`_polish`).
+POLISH_EVALUATIONS = 200
+#: How often a candidate's GPI may replace the baseline before the verdict (see :func:`diagnose`).
+MAX_BASELINE_CHALLENGES = 1
+#: Weight of the GPI domain-wall penalty [whitened residual per A of bound crossing].
+WALL_WEIGHT = 1e4
 
 
-def _solve(residuals: WhitenedResiduals, x0, method, max_nfev, tolerance=1e-10):
+class _SoftWallResiduals:
+    """Whitened residuals continued across the GPI's domain wall, plus one penalty entry.
+
+    :class:`identify.lsq.WhitenedResiduals` answers a parameter set whose operator
+    bounds cross (``"swapped"`` reading) with a constant penalty per sample. That wall
+    stalls trust-region solvers: a misspecified fit (a model missing an effect) pushes
+    its envelopes against it, and the solver stops (``xtol``) at the wall, often far
+    from the optimum, which in the cases examined lies *inside* the domain but must be
+    reached *through* the crossing region (e.g. plain GPI on a record with a hidden
+    ``initial_state``: the wall stops the fit at RMS 15 um; through the crossing
+    region trust-region-reflective reaches the noise level in 26 evaluations).
+    Here the model output is continued across the wall (the clamp
+    ``max(L, min(U, z))`` stays finite and continuous) and one extra residual
+    ``WALL_WEIGHT * violation`` pushes the solution back; :meth:`project` moves a
+    final point that still crosses back inside by shrinking ``|alpha|``.
+    """
+
+    def __init__(self, record, model_e: Model, noise: NoiseModel):
+        self.inner = WhitenedResiduals(record, model_e, noise)
+        self.model = model_e
+        self.time = self.inner.time
+        self.current = self.inner.current
+        self.free, self.lower, self.upper = self.inner.free, self.inner.lower, self.inner.upper
+        self.checks_wall = bool(READINGS[model_e.reading])
+        self.drive_grid = np.linspace(float(self.current.min()), float(self.current.max()), 101)
+
+    def _gpi_gap(self, thetas):
+        """``max_v (rising - falling) - 2 min_j r_j`` per row (> 0: the bounds cross)."""
+        rising = envelope(thetas[:, None, 3:7], self.drive_grid)
+        falling = envelope(thetas[:, None, 7:11], self.drive_grid)
+        alpha = thetas[:, 0]
+        min_threshold = np.where(alpha < 0, alpha * self.model.n_operators, alpha)
+        return np.max(rising - falling, axis=1) - 2.0 * min_threshold
+
+    def batch(self, xs) -> np.ndarray:
+        """Residuals ``(B, T + 1)`` for free vectors ``(B, P_free)`` (last column: the wall penalty)."""
+        thetas = self.inner.full(np.atleast_2d(xs))
+        y, _ = self.model.evaluate(thetas, self.time, self.current)
+        w = whiten(self.inner.data[None, :] - y, self.inner.noise, self.inner.sigma)
+        bad = ~np.isfinite(w).all(axis=1)
+        w[bad] = DOMAIN_PENALTY
+        gap = self._gpi_gap(thetas) if self.checks_wall else np.zeros(thetas.shape[0])
+        return np.hstack([w, WALL_WEIGHT * np.maximum(gap, 0.0)[:, None]])
+
+    def __call__(self, x) -> np.ndarray:
+        return self.batch(np.asarray(x, dtype=float)[None, :])[0]
+
+    def jacobian(self, x) -> np.ndarray:
+        """Forward differences ``(T + 1, P_free)`` from one batched call."""
+        x = np.asarray(x, dtype=float)
+        steps = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(x), 0.01)
+        steps = np.where(x + steps > self.upper, -steps, steps)
+        rows = np.repeat(x[None, :], x.size + 1, axis=0)
+        rows[1 + np.arange(x.size), np.arange(x.size)] += steps
+        w = self.batch(rows)
+        return ((w[1:] - w[0]) / steps[:, None]).T
+
+    def project(self, x) -> np.ndarray:
+        """``x`` moved inside the domain (``alpha`` toward 0 until the bounds no longer cross)."""
+        x = np.asarray(x, dtype=float).copy()
+        if not self.checks_wall:
+            return x
+        theta = self.inner.full(x)
+        if self._gpi_gap(theta[None, :])[0] <= 0 and self.inner.batch(x[None, :])[1][0]:
+            return x
+        i = int(np.flatnonzero(self.free == 0)[0]) if (self.free == 0).any() else None
+        if i is None or theta[0] >= 0:
+            return x
+        for shrink in (1e-6, 1e-4, 1e-3, 1e-2, 3e-2, 1e-1):
+            gap_rf = float(np.max(envelope(theta[3:7], self.drive_grid) - envelope(theta[7:11], self.drive_grid)))
+            alpha = min(max(theta[0], gap_rf / (2.0 * self.model.n_operators) * (1.0 - shrink)), self.upper[i])
+            trial = x.copy()
+            trial[i] = alpha
+            if self.inner.batch(trial[None, :])[1][0]:
+                return trial
+        return x
+
+
+def _solve(residuals, x0, method, max_nfev, tolerance=1e-10):
     with _single_threaded_blas():
         return least_squares(
             residuals, x0, jac=residuals.jacobian, bounds=(residuals.lower, residuals.upper), method=method,
@@ -756,80 +848,105 @@ def _solve(residuals: WhitenedResiduals, x0, method, max_nfev, tolerance=1e-10):
         )  # fmt: skip
 
 
-def _polish(residuals: WhitenedResiduals, x0) -> np.ndarray:
-    """Continue a fit with scipy's ``trf`` and then ``dogbox`` methods; the best point found.
-
-    A model that misses an effect is a misspecified model: its optimum can sit against
-    the GPI's domain wall (operator bounds about to cross), where one trust-region
-    variant stalls (``xtol``) while the other still makes progress. The diagnosis
-    compares chi-squares between models, so every fit it compares is finished this way
-    (a baseline left short of its optimum would hand every candidate unearned credit).
-    """
-    x = np.asarray(x0, dtype=float)
-    w = residuals(x)
-    cost = float(w @ w)
-    for method, cap in zip(("trf", "dogbox"), POLISH_EVALUATIONS):
-        sol = _solve(residuals, x, method, cap)
-        if 2.0 * sol.cost < cost:
-            x, cost = sol.x, 2.0 * float(sol.cost)
-    return x
+def _polish(residuals: _SoftWallResiduals, x0) -> np.ndarray:
+    """Trust-region-reflective least squares through the soft wall from ``x0``; the result moved
+    inside the domain. Returns ``x0`` itself when that is better (hard-wall chi-square)."""
+    x0 = np.asarray(x0, dtype=float)
+    sol = _solve(residuals, x0, "trf", POLISH_EVALUATIONS)
+    x = residuals.project(sol.x)
+    w_new, valid = residuals.inner.batch(np.vstack([x, x0]))
+    chi2 = np.where(valid, np.sum(w_new**2, axis=1), np.inf)
+    return x if chi2[0] <= chi2[1] else x0
 
 
 def _finish(record, model_e: Model, noise: NoiseModel, x, rng, fit: FitResult | None = None) -> FitResult:
-    """Polish free vector ``x`` and return the :class:`FitResult` there (``fit`` itself when no better)."""
-    residuals = WhitenedResiduals(record, model_e, noise)
+    """Polish free vector ``x`` (:func:`_polish`) and return the :class:`FitResult` there
+    (``fit`` itself when that is no worse)."""
+    residuals = _SoftWallResiduals(record, model_e, noise)
     x = _polish(residuals, x)
     if fit is not None:
-        w = residuals(x)
+        w = residuals.inner(x)
         if float(w @ w) > fit.chi2 - 0.1:
             return fit
-    return fit_least_squares(record, model_e, noise=noise, start=residuals.full(x), n_starts=1, rng=rng)
+    return fit_least_squares(record, model_e, noise=noise, start=residuals.inner.full(x), n_starts=1, rng=rng)
 
 
-def _refit(record, model_e: Model, noise: NoiseModel, starts, rng) -> FitResult:
-    """Least squares of ``model_e``: the :data:`REFIT_STARTS` best ``starts`` (full vectors) get a
-    short run each, the best is polished (:func:`_polish`) and returned as a :class:`FitResult`."""
-    residuals = WhitenedResiduals(record, model_e, noise)
-    xs = np.array([np.clip(np.asarray(s, dtype=float)[residuals.free], residuals.lower, residuals.upper) for s in starts])
-    w, valid = residuals.batch(xs)
-    chi2 = np.where(valid, np.sum(w**2, axis=1), np.inf)
-    order = [int(i) for i in np.argsort(chi2, kind="stable")[:REFIT_STARTS] if np.isfinite(chi2[i])]
-    if not order:
+def _short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tuple[float, np.ndarray]:
+    """Short soft-wall runs from the most promising starts of each group.
+
+    Parameters
+    ----------
+    start_groups : sequence of sequences of ndarray
+        Full vectors of ``model_e``, in groups (e.g. starts near the baseline optimum,
+        starts from the data-driven GPI); from each group the :data:`REFIT_STARTS`
+        distinct starts of lowest chi-square get :data:`REFIT_SCREEN_EVALUATIONS`
+        solver evaluations (grouping keeps a distant basin in play even when its
+        starts look worse than the baseline's compromise at first).
+
+    Returns
+    -------
+    chi2 : float
+        Whitened chi-square at the best point reached (inside the domain).
+    theta : ndarray, shape (P_e,)
+        That point (full vector).
+    """
+    residuals = _SoftWallResiduals(record, model_e, noise)
+    inner = residuals.inner
+    best_chi2, best_x = np.inf, None
+    for group in start_groups:
+        if not len(group):
+            continue
+        xs = np.unique(
+            np.array([np.clip(np.asarray(s, dtype=float)[inner.free], inner.lower, inner.upper) for s in group]), axis=0
+        )
+        w, valid = inner.batch(xs)
+        chi2 = np.where(valid, np.sum(w**2, axis=1), np.inf)
+        for i in [int(i) for i in np.argsort(chi2, kind="stable")[:REFIT_STARTS] if np.isfinite(chi2[i])]:
+            if chi2[i] < best_chi2:
+                best_chi2, best_x = float(chi2[i]), xs[i]
+            sol = _solve(residuals, xs[i], "trf", REFIT_SCREEN_EVALUATIONS)
+            x = residuals.project(sol.x)
+            wx, ok = inner.batch(x[None, :])
+            if ok[0] and float(wx[0] @ wx[0]) < best_chi2:
+                best_chi2, best_x = float(wx[0] @ wx[0]), x
+    if best_x is None:
         raise ValueError(f"no refit start of {model_e!r} lies in the model's domain")
-    best = None
-    for i in order:
-        sol = _solve(residuals, xs[i], "dogbox", REFIT_SCREEN_EVALUATIONS)
-        if best is None or sol.cost < best.cost:
-            best = sol
-    return _finish(record, model_e, noise, best.x, rng)
+    return best_chi2, inner.full(best_x)
 
 
-def _refit_starts(record, base_fit: FitResult, model_e: Model, effect_values: dict, extra=()) -> list:
-    """Refit starts: ``extra`` first, then the baseline optimum with the new effects off and
-    with ``effect_values``, then the data-driven starts of :func:`identify.lsq.candidate_starts`
-    (Table 1, rescaled to the record) with ``effect_values``."""
-    starts = list(extra)
+def _refit_starts(record, base_fit: FitResult, model_e: Model, effect_values, extra=()) -> list:
+    """Refit starts in two groups (full vectors of ``model_e``), for :func:`_short_refit`.
+
+    Group 1: ``extra``, then the baseline optimum with each ``{parameter: value}`` of
+    ``effect_values`` (one dict or a list, e.g. the screening grid), and with the new
+    effects off. Group 2: the data-driven starts of :func:`identify.lsq.candidate_starts`
+    (Table 1, rescaled to the record) with each of ``effect_values`` (a large hidden
+    effect can move the GPI far from the baseline's compromise).
+    """
+    if isinstance(effect_values, dict):
+        effect_values = [effect_values]
     off = _embed(base_fit.model, base_fit.theta, model_e)
-    on = off.copy()
-    for name, value in effect_values.items():
-        on[model_e.names.index(name)] = value
-    starts += [on, off]
     try:
-        data_driven = candidate_starts(record, model_e, n_starts=2)
+        data_driven = [theta for _, theta in candidate_starts(record, model_e, n_starts=2)]
     except ValueError:
         data_driven = []
-    for _, theta in data_driven:
-        theta = theta.copy()
-        for name, value in effect_values.items():
-            theta[model_e.names.index(name)] = value
-        starts.append(theta)
-    return [s for s in starts if model_e.in_bounds(s)[0]]
+    near, far = list(extra), []
+    for values in effect_values:
+        for group, bases in ((near, [off]), (far, data_driven)):
+            for base in bases:
+                theta = base.copy()
+                for name, value in values.items():
+                    theta[model_e.names.index(name)] = value
+                group.append(theta)
+    near.append(off)
+    return [[s for s in group if model_e.in_bounds(s)[0]] for group in (near, far)]
 
 
 def _evaluate_candidate(
-    record, base_fit, base_chi2, base_adequacy, name, model_e, starts, screening, quiet, noise_ref, thresholds, rng
+    record, base_fit, base_chi2, base_adequacy, name, model_e, start, screening, quiet, noise_ref, thresholds, rng
 ) -> CandidateResult:
-    fit_e = _refit(record, model_e, base_fit.noise, starts, rng)
+    residuals = WhitenedResiduals(record, model_e, base_fit.noise)
+    fit_e = _finish(record, model_e, base_fit.noise, start[residuals.free], rng)
     w = _whitened(record, fit_e)
     chi2_e = float(w @ w)
     n_eff = _n_eff(w)
@@ -860,7 +977,7 @@ def diagnose(
     noise: NoiseModel | None = None,
     fit: FitResult | None = None,
     thresholds: Thresholds = Thresholds(),
-    n_starts: int = 3,
+    n_starts: int = 6,
     rng: np.random.Generator | None = None,
     candidates=None,
     progress: Callable[[str], None] | None = None,
@@ -879,8 +996,10 @@ def diagnose(
     fit : FitResult, optional
         A baseline fit of ``model`` to ``record`` to reuse (skips the baseline least squares).
     thresholds : Thresholds
-    n_starts : int, default 3
-        Starts of the baseline least squares (refits start from the baseline).
+    n_starts : int, default 6
+        Starts of the baseline least squares (each gets a short run, the best two are
+        run to convergence, see :func:`identify.lsq.fit_least_squares`; refits start
+        from the baseline).
     rng : numpy.random.Generator, optional
         Default ``numpy.random.default_rng(0)``.
     candidates : sequence of str, optional
@@ -932,46 +1051,73 @@ def diagnose(
         fit = fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng)
         fit = _finish(record, model, noise, fit.theta[fit.vary], rng, fit=fit)
     noise_ref = fit_ar_noise(fit.residual[:q_stop])
-    profile = _profile(record, fit, quiet, noise_ref)
-    adequacy = assess_adequacy(profile, thresholds)
-    chi2_0 = float(np.sum(_whitened(record, fit) ** 2))
-
-    say(f"screening {len(candidates)} candidate effects")
-    screened = screen_candidates(record, fit, candidates) if candidates else []
-    ranking: list[CandidateResult] = []
-    refitted: list[CandidateResult] = []
-    pair = None
-    n_refits = 0 if adequacy.adequate else thresholds.max_refits
-    for s in screened[:n_refits]:
-        if s.chi2_drop <= 0:
-            continue
-        say(f"refitting with '{s.effect}'")
-        model_e = fit.model + s.effect
-        values = {n: float(s.start[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names}
-        starts = _refit_starts(record, fit, model_e, values, extra=s.starts)
-        refitted.append(
-            _evaluate_candidate(
-                record, fit, chi2_0, adequacy, s.effect, model_e, starts, s, quiet, noise_ref, thresholds, rng
-            )
-        )
-    refitted.sort(key=lambda c: -c.delta_bic)
+    for attempt in range(MAX_BASELINE_CHALLENGES + 1):
+        profile = _profile(record, fit, quiet, noise_ref)
+        adequacy = assess_adequacy(profile, thresholds)
+        chi2_0 = float(np.sum(_whitened(record, fit) ** 2))
+        say(f"screening {len(candidates)} candidate effects")
+        screened = screen_candidates(record, fit, candidates) if candidates else []
+        short: dict[str, tuple[float, np.ndarray]] = {}
+        if not adequacy.adequate:
+            for s in screened:
+                say(f"short refit with '{s.effect}'")
+                model_e = fit.model + s.effect
+                values = {n: float(s.start[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names}
+                groups = _refit_starts(record, fit, model_e, [values] + list(s.grid), extra=s.starts)
+                short[s.effect] = _short_refit(record, model_e, fit.noise, groups)
+        order = sorted(short, key=lambda name: short[name][0])
+        refitted: list[CandidateResult] = []
+        for name in order[: thresholds.max_refits]:
+            if short[name][0] >= chi2_0:
+                continue
+            say(f"refitting with '{name}'")
+            screening = next(s for s in screened if s.effect == name)
+            refitted.append(
+                _evaluate_candidate(
+                    record, fit, chi2_0, adequacy, name, fit.model + name, short[name][1], screening, quiet,
+                    noise_ref, thresholds, rng,
+                )
+            )  # fmt: skip
+        refitted.sort(key=lambda c: -c.delta_bic)
+        if not refitted or attempt == MAX_BASELINE_CHALLENGES:
+            break
+        # Challenge the baseline: the model without the candidate, started from each
+        # candidate's GPI. A refit that won only because it found a better GPI basin
+        # must not be credited to the effect.
+        say("challenging the baseline from the candidates' GPI parameters")
+        challenger_starts = [_embed(c.fit.model, c.fit.theta, fit.model, drop_extra=True) for c in refitted]
+        challenger_chi2, challenger_theta = _short_refit(record, fit.model, fit.noise, [challenger_starts])
+        if challenger_chi2 >= chi2_0 - max(1.0, 1e-4 * chi2_0):
+            break
+        residuals = WhitenedResiduals(record, fit.model, fit.noise)
+        challenger = _finish(record, fit.model, fit.noise, challenger_theta[residuals.free], rng)
+        if challenger.chi2 >= chi2_0 - max(1.0, 1e-4 * chi2_0):
+            break
+        say(f"the baseline improved (chi-square {chi2_0:.6g} -> {challenger.chi2:.6g}); diagnosing again")
+        fit = challenger
+    n_eff_0 = _n_eff(_whitened(record, fit))
     refitted_names = {c.effect for c in refitted}
+    others = []
     for s in screened:
         if s.effect in refitted_names:
             continue
-        chi2_after = max(s.chi2_after, 1e-300)
-        n_eff = _n_eff(_whitened(record, fit))
+        model_e = fit.model + s.effect
+        chi2_after, theta_after = short.get(s.effect, (s.chi2_after, s.start))
+        chi2_after = max(min(chi2_after, chi2_0), 1e-300)
         k = len(get_effect(s.effect).parameters)
         ratio = math.sqrt(chi2_after / chi2_0) if chi2_0 > 0 else 1.0
-        ranking.append(
+        excess_chi2 = chi2_0 - fit.residual.size
+        others.append(
             CandidateResult(
                 s.effect, s, False, fit.rms * ratio, None,
-                float(n_eff * math.log(chi2_0 / chi2_after) - k * math.log(n_eff)), float(n_eff),
-                _explained(chi2_0 - fit.residual.size, chi2_after - fit.residual.size) if chi2_0 > fit.residual.size else 0.0,
-                None, {}, {n: float(s.start[(fit.model + s.effect).names.index(n)]) for n in get_effect(s.effect).parameters.names},
+                float(n_eff_0 * math.log(chi2_0 / chi2_after) - k * math.log(n_eff_0)), float(n_eff_0),
+                _explained(excess_chi2, excess_chi2 - (chi2_0 - chi2_after)) if excess_chi2 > 0 else 0.0,
+                None, {}, {n: float(theta_after[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names},
             )
         )  # fmt: skip
-    ranking = refitted + ranking
+    others.sort(key=lambda c: -c.delta_bic)
+    ranking = refitted + others
+    pair = None
 
     if adequacy.adequate:
         status, missing = "adequate", None
@@ -1004,9 +1150,10 @@ def diagnose(
                     for n in get_effect(other.effect).parameters.names:
                         start[model_pair.names.index(n)] = other.parameters[n]
                     starts.insert(0, start)
-                starts = _refit_starts(record, fit, model_pair, best.parameters | second.parameters, extra=starts)
+                groups = _refit_starts(record, fit, model_pair, best.parameters | second.parameters, extra=starts)
+                _, start = _short_refit(record, model_pair, fit.noise, groups)
                 pair = _evaluate_candidate(
-                    record, fit, chi2_0, adequacy, f"{best.effect}+{second.effect}", model_pair, starts, None,
+                    record, fit, chi2_0, adequacy, f"{best.effect}+{second.effect}", model_pair, start, None,
                     quiet, noise_ref, thresholds, rng,
                 )  # fmt: skip
                 if pair.adequate_after or pair.explained >= thresholds.explained_major:
