@@ -20,6 +20,7 @@ COMMANDS = {
     "report": "identify.cmd_report",
     "batch": "identify.cmd_batch",
     "reproduce": "identify.cmd_reproduce",
+    "diagnose": "identify.cmd_diagnose",
 }
 
 def build_parser() -> argparse.ArgumentParser:

@@ -80,8 +80,9 @@ from scipy.optimize import least_squares, lsq_linear
 
 from model import EFFECTS, READINGS, THETA_NAMES, Model, envelope, get_effect
 
+from .identifiability import normalised_model
 from .lsq import DOMAIN_PENALTY, FitResult, WhitenedResiduals, _single_threaded_blas, candidate_starts, fit_least_squares
-from .noise import NoiseModel, estimate_noise, whiten
+from .noise import NoiseModel, estimate_noise, quiet_segment, whiten
 from .residuals import ARNoise, ResidualProfile, autocorrelation, fit_ar_noise, residual_profile
 
 __all__ = [
@@ -598,17 +599,23 @@ class CandidateResult:
     profile: ResidualProfile | None = None
 
     def to_dict(self) -> dict:
+        """The ranking entry: flat numbers (a table row) plus the fitted ``parameters``."""
         return {
             "effect": self.effect,
             "rms_after": float(self.rms_after),
             "max_error_pct_after": None if self.max_error_pct_after is None else float(self.max_error_pct_after),
             "delta_bic": float(self.delta_bic),
-            "n_eff": float(self.n_eff),
             "explained_fraction": float(self.explained),
             "adequate_after": self.adequate_after,
             "refitted": bool(self.refitted),
-            "z_after": {k: float(v) for k, v in self.z_after.items()},
             "parameters": {k: float(v) for k, v in self.parameters.items()},
+        }
+
+    def details(self) -> dict:
+        """The rest: effective sample size, tests after, standard errors, screening."""
+        return {
+            "n_eff": float(self.n_eff),
+            "z_after": {k: float(v) for k, v in self.z_after.items()},
             "parameter_stderr": {k: (None if not np.isfinite(v) else float(v)) for k, v in self.parameter_stderr.items()},
             "screening": None if self.screening is None else self.screening.to_dict(),
         }
@@ -686,7 +693,8 @@ class Diagnosis:
             "reason": self.reason,
             "statistic": "delta_bic",
             "ranking": [c.to_dict() for c in self.ranking],
-            "pair": None if self.pair is None else self.pair.to_dict(),
+            "pair": None if self.pair is None else self.pair.to_dict() | self.pair.details(),
+            "details": {c.effect: c.details() for c in self.ranking},
             "adequacy": self.adequacy.to_dict(),
             "where": self.profile.to_dict(),
             "fit": {
@@ -827,14 +835,22 @@ class _SoftWallResiduals:
         theta = self.inner.full(x)
         if self._gpi_gap(theta[None, :])[0] <= 0 and self.inner.batch(x[None, :])[1][0]:
             return x
-        i = int(np.flatnonzero(self.free == 0)[0]) if (self.free == 0).any() else None
-        if i is None or theta[0] >= 0:
-            return x
-        for shrink in (1e-6, 1e-4, 1e-3, 1e-2, 3e-2, 1e-1):
-            gap_rf = float(np.max(envelope(theta[3:7], self.drive_grid) - envelope(theta[7:11], self.drive_grid)))
-            alpha = min(max(theta[0], gap_rf / (2.0 * self.model.n_operators) * (1.0 - shrink)), self.upper[i])
+        alpha_free = np.flatnonzero(self.free == 0)
+        b3_free = np.flatnonzero(self.free == THETA_NAMES.index("b3"))
+        gap_rf = float(np.max(envelope(theta[3:7], self.drive_grid) - envelope(theta[7:11], self.drive_grid)))
+        for margin in (1e-6, 1e-4, 1e-3, 1e-2, 3e-2, 1e-1):
             trial = x.copy()
-            trial[i] = alpha
+            if alpha_free.size and theta[0] < 0:
+                # alpha toward 0 until the widest operator fits between the envelopes
+                i = int(alpha_free[0])
+                trial[i] = min(max(theta[0], gap_rf / (2.0 * self.model.n_operators) * (1.0 - margin)), self.upper[i])
+            elif b3_free.size:
+                # alpha pinned (the normalisation): raise the falling envelope instead
+                i = int(b3_free[0])
+                gap = float(self._gpi_gap(theta[None, :])[0])
+                trial[i] = min(theta[THETA_NAMES.index("b3")] + max(gap, 0.0) * (1.0 + margin) + margin, self.upper[i])
+            else:
+                return x
             if self.inner.batch(trial[None, :])[1][0]:
                 return trial
         return x
@@ -990,7 +1006,10 @@ def diagnose(
         ``time`` [s], ``current`` [A], ``displacement`` [um], shape (T,). It needs an
         unenergised start (the noise reference), at least 20 samples.
     model : Model or sequence of str, optional
-        The model to diagnose (effect names give ``Model(names)``); default plain GPI.
+        The model to diagnose; effect names give the GPI plus those effects with the
+        project's normalisation (:func:`identify.identifiability.normalised_model`:
+        alpha pinned), as the ``fit`` and ``study`` commands use; default the
+        normalised plain GPI.
     noise : NoiseModel, optional
         Default :func:`identify.noise.estimate_noise` of the record.
     fit : FitResult, optional
@@ -1014,16 +1033,14 @@ def diagnose(
     Raises
     ------
     ValueError
-        A record without a quiet segment of >= 20 samples, an unknown effect, or a
-        ``fit`` of another model.
+        A record without a quiet segment of >= 20 samples (unless the noise sigma is
+        user-given), a free noise sigma, an unknown effect, or a ``fit`` of another model.
     """
     t_start = _time.perf_counter()
     say = progress or (lambda message: None)
     rng = np.random.default_rng(0) if rng is None else rng
-    if model is None:
-        model = Model()
-    elif not isinstance(model, Model):
-        model = Model(list(model))
+    if model is None or not isinstance(model, Model):
+        model = normalised_model(Model([] if model is None else list(model)))
     if fit is not None and fit.model.names != model.names:
         raise ValueError(f"the given fit is of {fit.model!r}, not of {model!r}")
     if candidates is None:
@@ -1035,22 +1052,28 @@ def diagnose(
             if name in model.effect_names:
                 raise ValueError(f"candidate {name!r} is already in the model {model!r}")
     noise = fit.noise if fit is not None else (estimate_noise(record) if noise is None else noise)
-    quiet = noise.quiet
-    if quiet is None:
-        from .noise import quiet_segment
-
-        quiet = quiet_segment(record.current)
-    q_stop = quiet.indices(len(record))[1]
-    if q_stop < 20:
+    if noise.is_free:
         raise ValueError(
-            f"{record.source}: the diagnosis needs an unenergised start (>= 20 samples) as its noise reference; "
-            f"this record has {q_stop}"
+            f"{record.source}: the diagnosis compares the residual with a known noise level; a free noise sigma "
+            "gives none (use the quiet segment, or a user-given --noise-sigma VALUE)"
         )
+    quiet = noise.quiet if noise.quiet is not None else quiet_segment(record.current)
+    q_stop = quiet.indices(len(record))[1]
     if fit is None:
         say(f"least squares of {model!r} ({n_starts} starts)")
         fit = fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng)
         fit = _finish(record, model, noise, fit.theta[fit.vary], rng, fit=fit)
-    noise_ref = fit_ar_noise(fit.residual[:q_stop])
+    if q_stop >= 20:
+        noise_ref = fit_ar_noise(fit.residual[:q_stop])
+    elif noise.source == "user":
+        # no quiet segment: white noise of the user's sigma, taken as exactly known
+        quiet = None
+        noise_ref = ARNoise(np.zeros(0), float(noise.sigma), float(noise.sigma), 10**9)
+    else:
+        raise ValueError(
+            f"{record.source}: the diagnosis needs an unenergised start (>= 20 samples) as its noise reference, "
+            f"or a user-given noise sigma; this record's quiet start has {q_stop} samples"
+        )
     for attempt in range(MAX_BASELINE_CHALLENGES + 1):
         profile = _profile(record, fit, quiet, noise_ref)
         adequacy = assess_adequacy(profile, thresholds)

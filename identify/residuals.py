@@ -883,8 +883,11 @@ def residual_profile(
     ----------
     time, current, residual : array_like, shape (T,)
         [s], [A], data - model [output units].
-    quiet : slice
-        The unenergised segment (noise reference); ``quiet.stop`` samples or more.
+    quiet : slice or None
+        The unenergised segment (noise reference), at least 20 samples. None: the
+        record has none; ``noise`` must then be given (e.g. white noise of a
+        user-given sigma), every sample counts as energised and the "quiet"
+        autocorrelation is the noise model's.
     output_range : float
         Measured output range [output units] for % figures.
     noise : ARNoise, optional
@@ -904,11 +907,16 @@ def residual_profile(
     t = _as_1d("time", time)
     v = _as_1d("current", current, t.size)
     r = _as_1d("residual", residual, t.size)
-    if not isinstance(quiet, slice):
-        raise ValueError(f"quiet must be a slice of the record, got {type(quiet).__name__}")
-    q_start, q_stop, _ = quiet.indices(t.size)
-    if q_stop - q_start < 20:
-        raise ValueError(f"the quiet segment {quiet} has {q_stop - q_start} samples; at least 20 are needed")
+    if quiet is None:
+        if noise is None:
+            raise ValueError("without a quiet segment the noise model must be given (noise=ARNoise(...))")
+        q_start = q_stop = 0
+    elif not isinstance(quiet, slice):
+        raise ValueError(f"quiet must be a slice of the record or None, got {type(quiet).__name__}")
+    else:
+        q_start, q_stop, _ = quiet.indices(t.size)
+        if q_stop - q_start < 20:
+            raise ValueError(f"the quiet segment {quiet} has {q_stop - q_start} samples; at least 20 are needed")
     if noise is None:
         noise = fit_ar_noise(r[q_start:q_stop])
     energised = np.zeros(t.size, dtype=bool)
@@ -927,13 +935,17 @@ def residual_profile(
     cycles = cycle_statistics(t, r, reversals, output_range)
     extrema = extremum_levels(t, v, r, reversals)
     r_en = r[energised]
-    n_acf = int(min(n_lags, r_en.size - 1, q_stop - q_start - 1))
+    n_quiet = q_stop - q_start
+    n_acf = int(min(n_lags, r_en.size - 1, n_quiet - 1 if n_quiet else n_lags))
     lags = np.arange(n_acf + 1)
     residual_acf = autocorrelation(r_en, n_acf)
-    qd = r[q_start:q_stop]
-    k = np.arange(qd.size, dtype=float)
-    qd = qd - np.polyval(np.polyfit(k, qd, 1), k)
-    quiet_acf = autocorrelation(qd, n_acf)
+    if n_quiet:
+        qd = r[q_start:q_stop]
+        k = np.arange(qd.size, dtype=float)
+        qd = qd - np.polyval(np.polyfit(k, qd, 1), k)
+        quiet_acf = autocorrelation(qd, n_acf)
+    else:
+        quiet_acf = noise.autocorrelation(n_acf)
     dt = float(np.median(np.diff(t)))
     block = max(int(round(block_seconds / dt)), 1)
     block = min(block, max(t.size // 8, 1))

@@ -1,0 +1,118 @@
+"""``python -m identify diagnose DATA.csv``: least squares plus the diagnosis (no posterior).
+
+Prints a short human summary (verdict, why, candidates) and writes, on request:
+
+``--json OUT.json``
+    :meth:`identify.diagnose.Diagnosis.to_dict`: ``effects``, ``noise_sigma``, ``rms``,
+    ``max_error_pct``, ``status``, ``missing``, ``ranking`` (best first: ``effect``,
+    ``rms_after``, ``delta_bic``, ``explained_fraction``, ``parameters``, ...), and the
+    details (``reason``, ``adequacy``, ``where``, ``pair``, ``details``, ``fit``).
+``--out DIR``
+    ``DIR/diagnosis.json`` (the same content) and the figures ``DIR/diagnosis/*.png``
+    (:data:`identify.diagnosis_plots.FIGURES`); the report (:mod:`identify.report`) of a
+    study written to the same ``DIR`` shows them.
+
+Every file is written to a temporary name and renamed, so an interrupted run leaves no
+half-written file. ``--effects`` adds effects to the diagnosed model, as for ``fit`` and
+``study``: diagnose, add the effect named, diagnose again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = ["HELP", "add_arguments", "run", "write_outputs"]
+
+HELP = "least squares + diagnosis: is the residual noise, and which physical effect is missing?"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from .cmd_fit import add_model_arguments, add_record_arguments
+
+    add_record_arguments(parser)
+    add_model_arguments(parser)
+    parser.set_defaults(n_starts=6)
+    parser.add_argument("--json", default=None, metavar="OUT.json", help="write the diagnosis as JSON here")
+    parser.add_argument(
+        "--out", default=None, metavar="DIR", help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png"
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+
+
+def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[str]:
+    """Write the JSON and (with ``out_dir``) the figures; returns the paths written.
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis
+    record : Record
+    json_path : path-like, optional
+    out_dir : path-like, optional
+        Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure.
+    """
+    import io
+    from pathlib import Path
+
+    from .diagnosis_plots import diagnosis_figures
+    from .report import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
+    from .results import atomic_write_bytes, write_json
+
+    content = diagnosis.to_dict()
+    written = []
+    if json_path is not None:
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+        write_json(json_path, content)
+        written.append(str(json_path))
+    if out_dir is not None:
+        out = Path(out_dir)
+        figure_dir = out / DIAGNOSIS_FIGURES
+        figure_dir.mkdir(parents=True, exist_ok=True)
+        for stale in figure_dir.glob("*.png"):  # figures of an earlier diagnosis must not mix in
+            stale.unlink()
+        for stem, figure in diagnosis_figures(diagnosis, record).items():
+            buffer = io.BytesIO()
+            figure.savefig(buffer, format="png", dpi=100)
+            path = figure_dir / f"{stem}.png"
+            atomic_write_bytes(path, buffer.getvalue())
+            written.append(str(path))
+        write_json(out / DIAGNOSIS_FILE, content)
+        written.append(str(out / DIAGNOSIS_FILE))
+    return written
+
+
+def run(args) -> int:
+    import time
+
+    import numpy as np
+
+    from .cmd_fit import model_from_args, noise_from_args, record_from_args
+    from .diagnose import diagnose
+    from .noise import NoQuietSegmentError
+    from .records import RecordError
+
+    try:
+        record = record_from_args(args)
+        model = model_from_args(args)
+        noise = noise_from_args(args, record)
+    except (RecordError, NoQuietSegmentError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    started = time.perf_counter()
+
+    def progress(message):
+        if not args.quiet:
+            print(f"[{time.perf_counter() - started:6.1f} s] {message}", file=sys.stderr)
+
+    progress(f"diagnosing {model!r} on {record.source} ({len(record.time)} samples)")
+    try:
+        result = diagnose(record, model, noise=noise, n_starts=args.n_starts, rng=np.random.default_rng(args.seed),
+                          progress=progress)  # fmt: skip
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(result.summary())
+    for path in write_outputs(result, record, json_path=args.json, out_dir=args.out):
+        progress(f"wrote {path}")
+    progress(f"done in {result.seconds:.1f} s")
+    return 0
