@@ -435,6 +435,11 @@ def _partial_jacobian(residuals: WhitenedResiduals, x, columns) -> np.ndarray:
 
 
 def _screen_one(record, model: Model, theta0, noise: NoiseModel, effect_name: str) -> ScreeningResult:
+    with _single_threaded_blas():  # small dense algebra: threads only compete with the model
+        return _screen_one_impl(record, model, theta0, noise, effect_name)
+
+
+def _screen_one_impl(record, model: Model, theta0, noise: NoiseModel, effect_name: str) -> ScreeningResult:
     model_e = model + effect_name
     base = _embed(model, theta0, model_e)
     cols = model_e.effect_slice(effect_name)
@@ -489,23 +494,21 @@ def _screen_one(record, model: Model, theta0, noise: NoiseModel, effect_name: st
             step_eff[acting] = sol.x / norms[acting]
         remaining = w_perp + j_perp @ step_eff
         chi2_after = float(remaining @ remaining)
-        step = np.zeros(free.size)
-        step[effect_free] = step_eff
-        if other_free.size:
-            # the GPI's part of the step: the least-squares response to what remains
-            full_rest = w + jac[:, effect_free] @ step_eff
-            step[other_free] = np.linalg.lstsq(jac[:, other_free], -full_rest, rcond=None)[0]
-        outcomes.append((chi2_after, x, step, point))
+        outcomes.append((chi2_after, x, step_eff, point, (w, jac)))
     if not outcomes:
         return ScreeningResult(effect_name, 0.0, chi2_reference, base, {}, len(grid), [base], grid)
     outcomes.sort(key=lambda o: o[0])
-    chi2_after, x, step, point = outcomes[0]
-    trials = []
-    for k, (_, xk, stepk, _) in enumerate(outcomes[:3]):
-        effect_step = np.zeros_like(stepk)
-        effect_step[effect_free] = stepk[effect_free]
-        if k == 0:
-            trials.append(xk + stepk)
+    chi2_after, x, step_eff, point, (w, jac) = outcomes[0]
+    step = np.zeros(free.size)
+    step[effect_free] = step_eff
+    if other_free.size:
+        # the GPI's part of the step (best point only): the least-squares response to what remains
+        full_rest = w + jac[:, effect_free] @ step_eff
+        step[other_free] = np.linalg.lstsq(jac[:, other_free], -full_rest, rcond=None)[0]
+    trials = [x + step]
+    for _, xk, step_k, _, _ in outcomes[:3]:
+        effect_step = np.zeros(free.size)
+        effect_step[effect_free] = step_k
         trials.append(xk + effect_step)
     trials.append(x)
     trials = np.clip(np.vstack(trials), residuals.lower, residuals.upper)
@@ -930,6 +933,48 @@ def _short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tup
     return best_chi2, inner.full(best_x)
 
 
+#: Samples the screening and the short refits work on: longer records are decimated to
+#: about this many (the GPI is rate independent and the effects are integrated with the
+#: actual time steps, so a decimated record keeps every signature that matters for
+#: ranking; every reversal sample is kept). Final fits and tests use the whole record.
+SCREENING_SAMPLES = 4000
+
+
+@dataclass(frozen=True)
+class _Working:
+    """The record (possibly decimated) and noise model the screening and short refits use."""
+
+    record: object
+    noise: NoiseModel
+    step: int
+
+
+def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
+    """``record`` decimated to about :data:`SCREENING_SAMPLES` samples, reversals kept;
+    the noise model's lag-1 correlation becomes ``rho ** step``."""
+    from dataclasses import replace as _replace
+
+    from .records import Record
+
+    n = len(record)
+    step = max(1, int(math.ceil(n / SCREENING_SAMPLES)))
+    if step == 1:
+        return _Working(record, noise, 1)
+    keep = np.union1d(np.union1d(np.arange(0, n, step), np.asarray(reversal_index, dtype=int)), [n - 1])
+    small = Record(
+        record.time[keep], record.current[keep], record.displacement[keep],
+        source=f"{record.source} (every {step}th sample, for screening)", sha256="",
+        input_unit=record.input_unit, output_unit=record.output_unit,
+    )  # fmt: skip
+    quiet = None
+    if noise.quiet is not None:
+        quiet = slice(0, int(np.searchsorted(keep, noise.quiet.indices(n)[1])))
+    rho = noise.rho**step if noise.kind == "ar1" else 0.0
+    small_noise = _replace(noise, rho=rho, kind="ar1" if rho else "white", quiet=quiet,
+                           n_quiet=0 if quiet is None else quiet.stop)  # fmt: skip
+    return _Working(small, small_noise, step)
+
+
 def _refit_starts(record, base_fit: FitResult, model_e: Model, effect_values, extra=()) -> list:
     """Refit starts in two groups (full vectors of ``model_e``), for :func:`_short_refit`.
 
@@ -1059,10 +1104,18 @@ def diagnose(
         )
     quiet = noise.quiet if noise.quiet is not None else quiet_segment(record.current)
     q_stop = quiet.indices(len(record))[1]
+    from .residuals import find_reversals
+
+    work = _working_copy(record, noise, find_reversals(record.current).index)
     if fit is None:
         say(f"least squares of {model!r} ({n_starts} starts)")
-        fit = fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng)
-        fit = _finish(record, model, noise, fit.theta[fit.vary], rng, fit=fit)
+        if work.step == 1:
+            fit = fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng)
+            fit = _finish(record, model, noise, fit.theta[fit.vary], rng, fit=fit)
+        else:
+            small_fit = fit_least_squares(work.record, model, noise=work.noise, n_starts=n_starts, rng=rng)
+            say(f"polishing on the whole record ({len(record)} samples)")
+            fit = _finish(record, model, noise, small_fit.theta[small_fit.vary], rng)
     if q_stop >= 20:
         noise_ref = fit_ar_noise(fit.residual[:q_stop])
     elif noise.source == "user":
@@ -1078,20 +1131,26 @@ def diagnose(
         profile = _profile(record, fit, quiet, noise_ref)
         adequacy = assess_adequacy(profile, thresholds)
         chi2_0 = float(np.sum(_whitened(record, fit) ** 2))
-        say(f"screening {len(candidates)} candidate effects")
-        screened = screen_candidates(record, fit, candidates) if candidates else []
+        residuals_small = WhitenedResiduals(work.record, fit.model, work.noise)
+        w_small = residuals_small(fit.theta[residuals_small.free])
+        chi2_0_small = float(w_small @ w_small)
+        say(f"screening {len(candidates)} candidate effects" + (f" (on every {work.step}th sample)" if work.step > 1 else ""))
+        screened = sorted(
+            (_screen_one(work.record, fit.model, fit.theta, work.noise, name) for name in candidates),
+            key=lambda r: -r.chi2_drop,
+        )
         short: dict[str, tuple[float, np.ndarray]] = {}
         if not adequacy.adequate:
             for s in screened:
                 say(f"short refit with '{s.effect}'")
                 model_e = fit.model + s.effect
                 values = {n: float(s.start[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names}
-                groups = _refit_starts(record, fit, model_e, [values] + list(s.grid), extra=s.starts)
-                short[s.effect] = _short_refit(record, model_e, fit.noise, groups)
+                groups = _refit_starts(work.record, fit, model_e, [values] + list(s.grid), extra=s.starts)
+                short[s.effect] = _short_refit(work.record, model_e, work.noise, groups)
         order = sorted(short, key=lambda name: short[name][0])
         refitted: list[CandidateResult] = []
         for name in order[: thresholds.max_refits]:
-            if short[name][0] >= chi2_0:
+            if short[name][0] >= chi2_0_small:
                 continue
             say(f"refitting with '{name}'")
             screening = next(s for s in screened if s.effect == name)
@@ -1109,8 +1168,8 @@ def diagnose(
         # must not be credited to the effect.
         say("challenging the baseline from the candidates' GPI parameters")
         challenger_starts = [_embed(c.fit.model, c.fit.theta, fit.model, drop_extra=True) for c in refitted]
-        challenger_chi2, challenger_theta = _short_refit(record, fit.model, fit.noise, [challenger_starts])
-        if challenger_chi2 >= chi2_0 - max(1.0, 1e-4 * chi2_0):
+        challenger_chi2, challenger_theta = _short_refit(work.record, fit.model, work.noise, [challenger_starts])
+        if challenger_chi2 >= chi2_0_small - max(1.0, 1e-4 * chi2_0_small):
             break
         residuals = WhitenedResiduals(record, fit.model, fit.noise)
         challenger = _finish(record, fit.model, fit.noise, challenger_theta[residuals.free], rng)
@@ -1125,14 +1184,16 @@ def diagnose(
         if s.effect in refitted_names:
             continue
         model_e = fit.model + s.effect
+        # the short refit's (or the screening's) chi-square on the working copy, as a
+        # fraction of the baseline's there, scaled to the whole record
         chi2_after, theta_after = short.get(s.effect, (s.chi2_after, s.start))
-        chi2_after = max(min(chi2_after, chi2_0), 1e-300)
+        fraction = min(max(chi2_after, 1e-300) / chi2_0_small, 1.0) if chi2_0_small > 0 else 1.0
+        chi2_after = chi2_0 * fraction
         k = len(get_effect(s.effect).parameters)
-        ratio = math.sqrt(chi2_after / chi2_0) if chi2_0 > 0 else 1.0
         excess_chi2 = chi2_0 - fit.residual.size
         others.append(
             CandidateResult(
-                s.effect, s, False, fit.rms * ratio, None,
+                s.effect, s, False, fit.rms * math.sqrt(fraction), None,
                 float(n_eff_0 * math.log(chi2_0 / chi2_after) - k * math.log(n_eff_0)), float(n_eff_0),
                 _explained(excess_chi2, excess_chi2 - (chi2_0 - chi2_after)) if excess_chi2 > 0 else 0.0,
                 None, {}, {n: float(theta_after[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names},
