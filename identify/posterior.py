@@ -64,6 +64,7 @@ import numpy as np
 
 from model import Model
 
+from .lsq import fastest_thread_count
 from .noise import NoiseModel, log_likelihood
 
 __all__ = [
@@ -575,6 +576,9 @@ def sample_posterior(
         from tqdm import tqdm
 
         bar = tqdm(total=max_steps, initial=backend.iteration, desc="emcee", unit="step", file=sys.stderr)
+    import numba
+
+    threads_before = numba.get_num_threads()
     t0 = _time.perf_counter()
     converged, message = False, ""
     try:
@@ -591,11 +595,13 @@ def sample_posterior(
                     message = f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg
                     break
             steps = min(check_every - done % check_every, max_steps - done)
+            fastest_thread_count(log_post, np.asarray(state.coords))
             for state in sampler.sample(state, iterations=steps, store=True, progress=False):
                 if bar is not None:
                     bar.update(1)
             backend.flush()
     finally:
+        numba.set_num_threads(threads_before)
         backend.flush()  # also on Ctrl-C: no completed step is lost
         if bar is not None:
             bar.close()

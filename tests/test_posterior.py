@@ -193,11 +193,9 @@ class Interrupting:
 
     def __init__(self, log_post, stop_at):
         self.log_post, self.stop_at, self.calls = log_post, stop_at, 0
-        self.names, self.ndim = log_post.names, log_post.ndim
 
-    @property
-    def n_errors(self):
-        return self.log_post.n_errors
+    def __getattr__(self, name):  # names, lower, upper, n_errors, ... of the real one
+        return getattr(self.log_post, name)
 
     def __call__(self, x):
         if np.ndim(x) == 2 and np.shape(x)[0] == 18:
