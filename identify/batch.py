@@ -255,7 +255,8 @@ class JobResult:
     output_unit : str
         Unit of ``rms`` when the run states it.
     report : str
-        Path of the run's HTML report relative to the batch folder (``""`` when none).
+        The run's report relative to the batch folder: ``report.html`` (study), else its
+        result JSON (``diagnosis.json``, ``fit.json``); ``""`` for a run that wrote none.
     notes : str
         Assumptions the run states (e.g. no time column, noise fallback), ``"; "``-joined.
     """
@@ -843,9 +844,11 @@ def _job_environment(threads: int) -> dict:
 
 
 def _report_link(folder: Path, batch_out: Path) -> str:
-    report = folder / "report.html"
-    if report.is_file():
-        return os.path.relpath(report, batch_out)
+    """The run's report relative to the batch folder: report.html (study), else its result JSON."""
+    for name in ("report.html", "diagnosis.json", "summary.json", "fit.json"):
+        report = folder / name
+        if report.is_file():
+            return os.path.relpath(report, batch_out)
     return ""
 
 
