@@ -663,7 +663,7 @@ class StatTest:
 
 
 def ljung_box(whitened, n_lags=40, filter_error=0.0) -> StatTest:
-    """Ljung-Box portmanteau test of whiteness.
+    r"""Ljung-Box portmanteau test of whiteness.
 
     Parameters
     ----------
