@@ -502,10 +502,11 @@ def _screen_one_impl(record, model: Model, theta0, noise: NoiseModel, effect_nam
     step = np.zeros(free.size)
     step[effect_free] = step_eff
     if other_free.size:
-        # the GPI's part of the step (best point only): the least-squares response to what remains
+        # the GPI's part of the step (best point only): the least-squares response to what
+        # remains, with the GPI's near-degenerate directions cut (truncated SVD)
         full_rest = w + jac[:, effect_free] @ step_eff
-        step[other_free] = np.linalg.lstsq(jac[:, other_free], -full_rest, rcond=None)[0]
-    trials = [x + step]
+        step[other_free] = np.linalg.lstsq(jac[:, other_free], -full_rest, rcond=1e-6)[0]
+    trials = [x + step, x + 0.5 * step, x + 0.25 * step]
     for _, xk, step_k, _, _ in outcomes[:3]:
         effect_step = np.zeros(free.size)
         effect_step[effect_free] = step_k
@@ -1205,11 +1206,17 @@ def diagnose(
 
     if adequacy.adequate:
         status, missing = "adequate", None
-        reason = (
-            f"The residual is consistent with the quiet segment's noise: every test's excess is below "
-            f"z = {thresholds.z_critical:g} or the non-noise part is negligible "
-            f"({adequacy.size_ratio:.3f} sigma < {thresholds.structure_floor:g} sigma)."
-        )
+        if adequacy.failed:
+            reason = (
+                f"The residual is consistent with the quiet segment's noise up to a negligible misfit: the "
+                f"{', '.join(adequacy.failed)} test detects structure, but its size ({adequacy.size_ratio:.3f} sigma) "
+                f"is below the {thresholds.structure_floor:g} sigma floor."
+            )
+        else:
+            reason = (
+                f"The residual is consistent with the quiet segment's noise: no test's excess reaches "
+                f"z = {thresholds.z_critical:g} (largest {max(adequacy.z.values()):.1f})."
+            )
     else:
         status, missing, reason = "unexplained", None, ""
         best = refitted[0] if refitted else None

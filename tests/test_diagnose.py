@@ -1,0 +1,183 @@
+"""Fast tests of the diagnosis: adequacy rule, screening, soft domain wall, command and JSON contract.
+
+The end-to-end statistics (every library effect named, no false alarm over seeds,
+out-of-library effects, two hidden effects, other functional forms) are in
+tests/test_diagnose_slow.py.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from identify.bench import simulate
+from identify.cli import main
+from identify.diagnose import (
+    STATUSES,
+    Thresholds,
+    _refit_starts,
+    _short_refit,
+    _SoftWallResiduals,
+    assess_adequacy,
+    diagnose,
+    screen_candidates,
+    screening_grid,
+)
+from identify.identifiability import normalised_model
+from identify.lsq import fit_least_squares
+from identify.noise import estimate_noise
+from identify.records import write_record
+from identify.residuals import ARNoise, residual_profile
+from model import Model, paper_current
+
+
+def _profile(residual, time, current, sigma=1.0, n_quiet=10**6):
+    noise = ARNoise(np.zeros(0), sigma, sigma, n_quiet)
+    return residual_profile(time, current, residual, slice(0, 1001), output_range=300.0, noise=noise)
+
+
+def test_adequacy_rule_white_structured_and_negligible():
+    time, current = paper_current(100.0)
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(time.size)
+    assert assess_adequacy(_profile(white, time, current)).adequate
+
+    slow = 0.3 * np.sin(2 * np.pi * time / 7.0)  # RMS 0.21 sigma: above the 0.1 sigma floor
+    verdict = assess_adequacy(_profile(white + slow, time, current))
+    assert not verdict.adequate and "low_frequency" in verdict.failed
+    assert verdict.excess_kind == "low_frequency"
+    assert verdict.structure_rms == pytest.approx(0.3 / np.sqrt(2), rel=0.25)
+
+    # 70001 samples resolve structure of 0.05 sigma (z >> 5), but it is below the floor
+    time_k, current_k = paper_current(1000.0)
+    tiny = rng.standard_normal(time_k.size) + 0.05 * np.sin(2 * np.pi * time_k / 7.0)
+    profile = residual_profile(time_k, current_k, tiny, slice(0, 10001), output_range=300.0,
+                               noise=ARNoise(np.zeros(0), 1.0, 1.0, 10**6))  # fmt: skip
+    verdict = assess_adequacy(profile)
+    assert verdict.failed and verdict.adequate
+    assert not assess_adequacy(profile, Thresholds(structure_floor=0.01)).adequate
+
+
+def test_thresholds_are_validated():
+    with pytest.raises(ValueError, match="explained_major"):
+        Thresholds(explained_major=1.5)
+    with pytest.raises(ValueError, match="z_critical"):
+        Thresholds(z_critical=float("nan"))
+    with pytest.raises(ValueError, match="max_refits"):
+        Thresholds(max_refits=-1)
+
+
+def test_screening_grid_classifies_parameters_by_what_they_do():
+    sim = simulate(None, seed=0)
+    base_model = normalised_model(Model())
+    for name, gridded, fixed in (
+        ("thermal", {"thermal_tau"}, {"thermal_sensitivity", "thermal_expansion"}),  # amplitudes: linear, off
+        ("creep", {"creep_tau", "creep_decades"}, {"creep_amplitude"}),
+        ("sensor_drift", set(), {"sensor_drift_linear", "sensor_drift_quadratic"}),
+        ("lag", {"lag_tau"}, set()),  # acts while "off" at 0 and nonlinearly: a value grid
+        ("initial_state", {"initial_state_memory"}, set()),
+    ):
+        model_e = base_model + name
+        grid = screening_grid(model_e, name, model_e.default_theta(), sim.record)
+        assert 1 <= len(grid) <= 25
+        for p in fixed:
+            assert {g[p] for g in grid} == {model_e.parameters[p].value}
+        for p in gridded:
+            assert len({g[p] for g in grid}) >= 3
+        for g in grid:
+            for p, v in g.items():
+                assert model_e.parameters[p].lower <= v <= model_e.parameters[p].upper
+
+
+def test_screening_ranks_the_hidden_effect_first():
+    # a large hidden thermal effect; the baseline is the plain GPI fitted from Table 1
+    sim = simulate("thermal", seed=1, fs=25.0)
+    model = normalised_model(Model())
+    fit = fit_least_squares(sim.record, model, n_starts=1)
+    ranking = screen_candidates(sim.record, fit)
+    assert ranking[0].effect == "thermal"
+    assert ranking[0].chi2_drop > 10 * max(r.chi2_drop for r in ranking[1:] if r.effect != "sensor_drift")
+    assert ranking[0].chi2_drop > 0.5 * (fit.chi2 - len(sim.record))  # explains most of the excess
+    # the short refit from the screening's starts realises most of the predicted drop
+    model_e = model + "thermal"
+    values = [ranking[0].grid_point] + list(ranking[0].grid)
+    groups = _refit_starts(sim.record, fit, model_e, values, extra=ranking[0].starts)
+    chi2_short, theta_short = _short_refit(sim.record, model_e, fit.noise, groups)
+    assert fit.chi2 - chi2_short > 0.5 * ranking[0].chi2_drop
+    assert model_e.theta_dict(theta_short)["thermal_tau"] > 1.0
+
+
+def test_soft_wall_projection_returns_into_the_domain():
+    sim = simulate(None, seed=2, fs=50.0)
+    for model in (Model(), normalised_model(Model())):
+        residuals = _SoftWallResiduals(sim.record, model, estimate_noise(sim.record))
+        theta = model.default_theta()
+        theta[model.names.index("a3")] += 0.5  # lifts the rising envelope: the bounds cross
+        x = theta[residuals.free]
+        assert not residuals.inner.batch(x[None, :])[1][0]
+        assert residuals(x)[-1] > 0  # the wall penalty is on
+        inside = residuals.project(x)
+        assert residuals.inner.batch(inside[None, :])[1][0]
+        assert residuals(inside)[-1] == 0.0
+
+
+@pytest.fixture(scope="module")
+def clean_csv(tmp_path_factory):
+    sim = simulate(None, seed=3, fs=50.0, duration=40.0)
+    path = tmp_path_factory.mktemp("diag") / "clean.csv"
+    write_record(path, sim.record)
+    return path
+
+
+def test_diagnose_command_writes_the_contract(clean_csv, tmp_path, capsys):
+    out_json = tmp_path / "d.json"
+    out_dir = tmp_path / "run"
+    assert main(["diagnose", str(clean_csv), "--json", str(out_json), "--out", str(out_dir), "--quiet", "--n-starts", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "verdict: adequate" in printed
+    content = json.loads(out_json.read_text())
+    assert {"effects", "noise_sigma", "rms", "max_error_pct", "status", "missing", "ranking"} <= set(content)
+    assert content["status"] in STATUSES and content["status"] == "adequate" and content["missing"] is None
+    assert content["effects"] == []
+    assert 0.8 < content["rms"] / content["noise_sigma"] < 1.2
+    assert {r["effect"] for r in content["ranking"]} == {"lag", "initial_state", "creep", "thermal", "sensor_drift"}
+    for entry in content["ranking"]:
+        assert {"effect", "rms_after", "delta_bic", "explained_fraction", "parameters"} <= set(entry)
+    assert json.loads((out_dir / "diagnosis.json").read_text()) == content
+    pngs = sorted(p.name for p in (out_dir / "diagnosis").glob("*.png"))
+    assert pngs == [f"{stem}.png" for stem in ("1_residual_vs_time", "2_residual_vs_current", "3_residual_vs_rate",
+                                               "4_cycles", "5_autocorrelation", "6_candidates")]  # fmt: skip
+    assert all((out_dir / "diagnosis" / p).stat().st_size > 10_000 for p in pngs)
+
+
+def test_diagnose_with_effects_fits_them(clean_csv, tmp_path):
+    out_json = tmp_path / "d.json"
+    assert main(["diagnose", str(clean_csv), "--effects", "sensor_drift", "--json", str(out_json), "--quiet", "--n-starts", "2"]) == 0
+    content = json.loads(out_json.read_text())
+    assert content["effects"] == ["sensor_drift"]
+    assert "sensor_drift" not in {r["effect"] for r in content["ranking"]}
+    assert "sensor_drift_linear" in content["fit"]["theta"]
+
+
+def test_diagnose_command_errors(tmp_path, capsys, clean_csv):
+    assert main(["diagnose", str(tmp_path / "missing.csv"), "--quiet"]) == 2
+    assert "missing.csv" in capsys.readouterr().err
+    assert main(["diagnose", str(clean_csv), "--effects", "warp_drive", "--quiet"]) == 2
+    assert "unknown effect" in capsys.readouterr().err
+    assert main(["diagnose", str(clean_csv), "--noise-sigma", "free", "--quiet"]) == 2
+    assert "free noise sigma" in capsys.readouterr().err
+
+
+def test_diagnose_rejects_bad_arguments(clean_csv):
+    from identify.records import load_record
+
+    record = load_record(clean_csv)
+    with pytest.raises(ValueError, match="already in the model"):
+        diagnose(record, ["thermal"], candidates=["thermal"])
+    with pytest.raises(ValueError, match="unknown effect"):
+        diagnose(record, candidates=["warp_drive"])
+    fit = fit_least_squares(record, normalised_model(Model()), n_starts=1)
+    with pytest.raises(ValueError, match="not of"):
+        diagnose(record, ["creep"], fit=fit)
