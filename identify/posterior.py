@@ -424,22 +424,45 @@ def _finite_or_none(x):
     return x if math.isfinite(x) else None
 
 
-def _tau(chain) -> np.ndarray:
-    """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain."""
-    if chain.shape[0] < 2:
-        return np.full(chain.shape[2], np.inf)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        tau = np.asarray(emcee.autocorr.integrated_time(chain, tol=0, quiet=True), dtype=float)
+def _tau(chain, c=5.0) -> np.ndarray:
+    """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain.
+
+    emcee's estimator (:func:`emcee.autocorr.integrated_time`: walker-averaged
+    autocorrelation, Sokal's automatic window with ``c = 5``; agrees with it to 1e-12
+    relative), with one real FFT per parameter over all walkers and no error for short
+    chains (``inf`` where there is no estimate).
+    """
+    n_steps, _n_walkers, n_dim = chain.shape
+    if n_steps < 2:
+        return np.full(n_dim, np.inf)
+    n_fft = 1 << int(math.ceil(math.log2(n_steps)))
+    tau = np.empty(n_dim)
+    for d in range(n_dim):
+        x = chain[:, :, d] - chain[:, :, d].mean(axis=0)
+        spectrum = np.fft.rfft(x, n=2 * n_fft, axis=0)
+        acf = np.fft.irfft(spectrum * np.conjugate(spectrum), n=2 * n_fft, axis=0)[:n_steps]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            acf = acf / acf[0]
+            f = np.mean(acf, axis=1)
+        taus = 2.0 * np.cumsum(f) - 1.0
+        inside = np.arange(n_steps) < c * taus
+        window = int(np.argmin(inside)) if inside.any() else n_steps - 1
+        tau[d] = taus[window]
     return np.where(np.isfinite(tau), tau, np.inf)  # a chain that never moved: no estimate
 
 
-def _convergence(chain, check_every, tau_factor, tau_rtol):
-    """(converged, tau, relative change, message) at the end of ``chain``."""
+def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):
+    """(converged, tau, relative change, message) at the end of ``chain``.
+
+    ``cache`` (dict: chain length -> tau) avoids recomputing the previous check's tau.
+    """
+    cache = {} if cache is None else cache
     n = chain.shape[0]
-    tau = _tau(chain)
+    tau = cache[n] if n in cache else _tau(chain)
+    cache[n] = tau
     prev_n = n - check_every
     if prev_n >= check_every:
-        tau_prev = _tau(chain[:prev_n])
+        tau_prev = cache[prev_n] if prev_n in cache else _tau(chain[:prev_n])
         with np.errstate(invalid="ignore"):
             relative = np.abs(tau - tau_prev) / tau
         change = float(np.max(relative)) if np.isfinite(relative).all() else math.inf
@@ -579,6 +602,7 @@ def sample_posterior(
     import numba
 
     threads_before = numba.get_num_threads()
+    tau_cache: dict[int, np.ndarray] = {}
     t0 = _time.perf_counter()
     converged, message = False, ""
     try:
@@ -586,7 +610,7 @@ def sample_posterior(
             done = backend.iteration
             if done > 0 and done % check_every == 0 or done >= max_steps:
                 chain = backend.get_chain()
-                ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol)
+                ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
                 log(f"step {done}: {msg}")
                 if ok:
                     converged, message = True, "converged: " + msg

@@ -300,3 +300,19 @@ def test_95_percent_intervals_cover_the_truth_at_about_the_nominal_rate(tmp_path
           f"{converged}/12 chains converged within 4000 steps")  # fmt: skip
     assert 0.88 <= post_rate <= 0.99
     assert 0.85 <= lsq_rate <= 0.99
+
+
+def test_autocorrelation_time_matches_emcee():
+    """The vectorised estimator equals emcee.autocorr.integrated_time (tolerance: FFT
+    round-off) on AR(1) chains with known tau = (1 + phi) / (1 - phi)."""
+    from identify.posterior import _tau
+
+    rng = np.random.default_rng(0)
+    phis = np.array([0.0, 0.5, 0.9])
+    chain = np.zeros((4000, 16, 3))
+    for k in range(1, 4000):
+        chain[k] = phis * chain[k - 1] + rng.standard_normal((16, 3))
+    ours = _tau(chain)
+    reference = emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
+    assert np.allclose(ours, reference, rtol=1e-10)
+    assert np.allclose(ours, (1 + phis) / (1 - phis), rtol=0.15)
