@@ -478,8 +478,13 @@ def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):
 
 
 def posterior_from_backend(path, names, *, converged=None, message="", tau_factor=50.0, tau_rtol=0.05,
-                           check_every=None, seconds=0.0, n_errors=0) -> PosteriorResult:
-    """Summarise the chain stored in ``path`` (HDF5 backend, group :data:`BACKEND_GROUP`)."""
+                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None) -> PosteriorResult:
+    """Summarise the chain stored in ``path`` (HDF5 backend, group :data:`BACKEND_GROUP`).
+
+    ``converged``/``message`` default to the convergence rule applied to the stored
+    chain; ``tau_cache`` (chain length -> tau) reuses autocorrelation times already
+    computed.
+    """
     backend = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP, read_only=True)
     chain = backend.get_chain()
     log_prob_chain = backend.get_log_prob()
@@ -487,7 +492,7 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
     if n_steps == 0:
         raise ValueError(f"{path}: the chain is empty")
     check_every = check_every or max(1, n_steps // 2)
-    ok, tau, _change, msg = _convergence(chain, check_every, tau_factor, tau_rtol)
+    ok, tau, _change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
     if converged is None:
         converged = ok
     if not message:
@@ -632,5 +637,5 @@ def sample_posterior(
     return posterior_from_backend(
         path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
         tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
-        n_errors=log_post.n_errors,
+        n_errors=log_post.n_errors, tau_cache=tau_cache,
     )  # fmt: skip
