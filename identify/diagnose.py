@@ -7,10 +7,15 @@ candidate explains convincingly; the closest candidate is *not* blamed).
 
 Method
 ------
-1. **Baseline.** Least squares of the given model (:func:`identify.lsq.fit_least_squares`)
-   and the residual's profile (:func:`identify.residuals.residual_profile`): noise
-   reference from the quiet segment, and three tests (``variance``, ``ljung_box``,
-   ``low_frequency``), each with a standardised excess ``z``.
+1. **Baseline.** Least squares of the given model (:func:`identify.lsq.fit_least_squares`,
+   several starts) finished by a polish through the GPI's domain wall
+   (:class:`_SoftWallResiduals`: a model that misses an effect is misspecified, its fit
+   presses the envelopes against the wall where operator bounds cross, and a hard wall
+   stalls trust-region solvers far from the optimum; every fit the diagnosis compares is
+   finished this way). Then the residual's profile
+   (:func:`identify.residuals.residual_profile`): noise reference from the quiet
+   segment, and three tests (``variance``, ``ljung_box``, ``low_frequency``), each with a
+   standardised excess ``z``.
 
 2. **Adequacy.** The residual is *adequate* unless some test's ``z`` exceeds
    :attr:`Thresholds.z_critical` **and** the non-noise part is large enough to matter:
@@ -32,19 +37,33 @@ Method
    At each grid point the whitened residual is projected out of the span of the GPI's
    Jacobian columns, and the effect's columns are fitted to what remains by bounded
    linear least squares (an amplitude bounded at 0 cannot explain a residual of the
-   wrong sign). The score is the predicted drop of the chi-square, best over the grid;
-   the best grid point and its step seed the refit. This is a score test with a grid
-   over the nonlinear parameters, and costs a few dozen batched model evaluations.
+   wrong sign). The score is the predicted drop of the chi-square, best over the grid.
+   This is a score test with a grid over the nonlinear parameters; the grid is generic
+   (from the parameters' units, bounds and a numerical probe), so an effect added to the
+   library later is screened without code here (:data:`SCREENING_GRIDS` can override).
+   Screening and the short refits below run on a copy decimated to about
+   :data:`SCREENING_SAMPLES` samples (reversals kept), so their cost does not grow with
+   the sampling rate; everything compared in the verdict runs on the whole record.
 
-4. **Refits** of the :attr:`Thresholds.max_refits` best-screened candidates: the full
-   least squares with the effect added, from the screening's best point.
-   Each candidate is compared with the baseline by
+4. **Short refits** of every candidate when the baseline is not adequate: a few
+   soft-wall solver steps from the most promising of two groups of starts (near the
+   baseline: the screening's steps and grid points; far: the data-driven GPI start of
+   :mod:`identify.lsq` with the effect on the grid), because a large hidden effect can
+   move the GPI far from the baseline's compromise, beyond what a linearisation sees.
+   The :attr:`Thresholds.max_refits` best are **refitted** to convergence on the whole
+   record. Then the baseline is *challenged*: the model without the effect is refitted
+   from each refitted candidate's GPI parameters, and when that beats the baseline the
+   whole candidate stage is repeated from the better baseline (a candidate must not be
+   credited with the baseline's own unfinished optimisation; e.g. a virgin initial
+   state on the paper's input is exactly absorbed by a re-parametrised plain GPI).
+   Each refitted candidate is compared with the baseline by
 
    * :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / \chi^2_1) - k \ln n_\mathrm{eff}`
-     with :math:`k` the effect's parameters and :math:`n_\mathrm{eff} = n (1-\rho)/(1+\rho)`,
-     :math:`\rho` the lag-1 autocorrelation of the candidate model's whitened residual
-     (a residual that is still correlated carries less information than its sample
-     count says);
+     with :math:`k` the effect's free parameters and
+     :math:`n_\mathrm{eff} = n (1-\rho)/(1+\rho)`, :math:`\rho` the lag-1
+     autocorrelation of the candidate model's whitened residual (a residual that is
+     still correlated carries less information than its sample count says; with the
+     effect that explains it, :math:`\rho \approx 0` and :math:`n_\mathrm{eff} = n`);
    * the *explained fraction* of the baseline's excess: ``1 - excess_after / excess_before``
      with the excess measured as the low-frequency structure variance (or, when the
      structure is not slow, the excess variance or Ljung-Box excess), and whether the
@@ -62,6 +81,15 @@ Method
      (add it, diagnose again, the second follows);
    * otherwise ``unexplained``: significant structure remains that no candidate (or
      pair) explains; the ranking still lists what each candidate would do.
+
+Why these choices: the verdict rests on refits (what adding the effect really does),
+not on the linearisation, because the GPI re-adjusts nonlinearly to a new effect; on
+physics' signatures rather than formulas, because every effect is fitted in its general
+form (creep as a spectrum of relaxation times, drift as a quadratic, heating through a
+time constant), so a differently shaped law of the same physics is absorbed (tested in
+``tests/test_diagnose_slow.py`` with logarithmic creep, two thermal time constants, a
+second-order lag and an exponential drift); and on an information criterion with an
+effective sample size, because residual structure is strongly correlated in time.
 
 Everything runs on least squares only (no posterior), from one explicit
 :class:`numpy.random.Generator`.

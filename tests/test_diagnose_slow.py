@@ -1,0 +1,212 @@
+"""Slow statistical tests of the diagnosis on the virtual bench (``python -m pytest -m slow``).
+
+* Confusion matrix (true effect x verdict) over seeds: every library effect hidden alone
+  at about twice the noise in RMS, clean records, and three effects outside the library.
+  Printed, and the README section "Diagnosis" quotes it.
+* No false alarm on clean records over many seeds.
+* Other functional forms of the same physics (logarithmic creep, a thermal law with two
+  time constants, a second-order lag, an exponentially settling drift) are named as
+  their library counterpart.
+* Two hidden effects found one after the other, converging to ``adequate``.
+
+Sizes: the hidden effect's noise-free contribution has an RMS of about 2 noise sigmas
+(sigma = 0.5 um) relative to the plain GPI at the same parameters (the bench's
+``effect_size.rms_over_noise_sigma``); the GPI's refit absorbs part of it, so what the
+diagnosis sees is smaller (its ``size_ratio``, 0.4-0.7 sigma here).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identify.bench import simulate
+from identify.diagnose import diagnose
+from identify.records import Record
+from model import TABLE1, gpi
+from model.effects import first_order_lowpass
+
+pytestmark = pytest.mark.slow
+
+SIGMA = 0.5
+#: Library effects at ~2 sigma RMS (scaled from the effects' test parameters by the bench's
+#: measured effect RMS at seed 0: thermal 5.32, creep 6.53, lag 7.87, drift 3.62 sigma).
+HIDDEN = {
+    "thermal": "thermal_sensitivity=0.030,thermal_expansion=1.13",
+    "creep": "creep_amplitude=0.0153",
+    "lag": "lag_tau=0.0127",
+    "sensor_drift": "sensor_drift_linear=1.10,sensor_drift_quadratic=0.83",
+}
+OUTSIDE = ("interference", "deadzone", "signflip")
+SEEDS = (11, 12, 13)
+
+
+def outside_record(kind: str, seed: int) -> Record:
+    """A bench record with an effect no library candidate can represent.
+
+    ``interference``: pickup from the energised coil driver, 1 um at 3.7 Hz (unrelated to
+    the 0.1 Hz drive), only while current flows. ``deadzone``: a 2 um backlash between
+    the transducer and the sensor (the sensor follows only after the gap is taken up).
+    ``signflip``: an offset of 1.5 um while the current exceeds 4 A whose sign flips from
+    one cycle to the next.
+    """
+    sim = simulate(None, seed=seed, noise_sigma=SIGMA)
+    t, i = sim.record.time, sim.record.current
+    y = sim.record.displacement.copy()
+    if kind == "interference":
+        y += np.where(i > 0, np.sin(2 * np.pi * 3.7 * t + 0.3), 0.0)
+    elif kind == "deadzone":
+        out = np.empty_like(sim.clean)
+        z = sim.clean[0]
+        for k, c in enumerate(sim.clean):
+            z = c - 1.0 if c > z + 1.0 else (c + 1.0 if c < z - 1.0 else z)
+            out[k] = z
+        y += out - sim.clean
+    elif kind == "signflip":
+        y += np.where(i > 4.0, 1.5 * (-1.0) ** np.floor((t - 10.0) / 10.0), 0.0)
+    else:  # pragma: no cover - test bug
+        raise ValueError(kind)
+    return Record(t, i, y, source=f"outside-library effect {kind!r} (seed {seed})", sha256="")
+
+
+def alternative_record(kind: str, seed: int, size: float = 3.0) -> Record:
+    """A record whose hidden effect follows another functional form of a library effect's physics.
+
+    ``log_creep``: ``y = y_g + g sum_k dy_g(t_k) log10(1 + (t - t_k)/0.05 s)`` (logarithmic
+    creep, no saturation; library: saturating mode spectrum). ``thermal2``: heating through
+    two time constants, 8 s (60 %) and 120 s (40 %) (library: one). ``lag2``: the field
+    through two cascaded first-order lags of 6 ms, a critically damped second-order lag
+    (library: first order). ``exp_drift``: ``D (1 - exp(-t / 25 s))`` (library: quadratic).
+    The effect is scaled to ``size`` noise sigmas RMS.
+    """
+    sim = simulate(None, seed=seed, noise_sigma=SIGMA)
+    t, i, plain = sim.record.time, sim.record.current, sim.plain
+    noise = sim.record.displacement - sim.clean
+    if kind == "log_creep":
+        shape = np.convolve(np.diff(plain, prepend=plain[0]), np.log10(1.0 + (t - t[0]) / 0.05))[: t.size]
+    elif kind == "thermal2":
+        heat = (i / 5.0) ** 2
+        rise = 0.6 * first_order_lowpass(t, heat, 8.0, 0.0)[0] + 0.4 * first_order_lowpass(t, heat, 120.0, 0.0)[0]
+        shape = 40.0 * rise - plain * rise
+    elif kind == "lag2":
+        shape = gpi(TABLE1, first_order_lowpass(t, first_order_lowpass(t, i, 0.006)[0], 0.006)[0]) - plain
+    elif kind == "exp_drift":
+        shape = 1.0 - np.exp(-(t - t[0]) / 25.0)
+    else:  # pragma: no cover - test bug
+        raise ValueError(kind)
+    scale = size * SIGMA / np.sqrt(np.mean(shape**2))
+    return Record(t, i, plain + scale * shape + noise, source=f"alternative form {kind!r} (seed {seed})", sha256="")
+
+
+def _case_record(case: str, seed: int) -> Record:
+    if case in HIDDEN:
+        return simulate(HIDDEN[case], seed=seed, noise_sigma=SIGMA).record
+    if case == "initial_state":
+        return simulate("initial_state_memory=-20", seed=seed, noise_sigma=SIGMA).record
+    if case == "none":
+        return simulate(None, seed=seed, noise_sigma=SIGMA).record
+    return outside_record(case, seed)
+
+
+CASES = tuple(HIDDEN) + ("initial_state", "none") + OUTSIDE
+VERDICTS = tuple(HIDDEN) + ("initial_state", "adequate", "unexplained")
+
+
+@pytest.fixture(scope="module")
+def confusion():
+    """Diagnose every case x seed once: ``{(case, seed): Diagnosis}``."""
+    results = {}
+    for seed in SEEDS:
+        for case in CASES:
+            results[case, seed] = diagnose(_case_record(case, seed), rng=np.random.default_rng(seed))
+    return results
+
+
+def _verdict(d) -> str:
+    return d.missing if d.status == "missing_effect" else d.status
+
+
+def format_confusion(results) -> str:
+    """The confusion matrix as a Markdown table (rows: truth, columns: verdict)."""
+    header = "| true effect \\ verdict | " + " | ".join(VERDICTS) + " | other |"
+    lines = [header, "|" + "---|" * (len(VERDICTS) + 2)]
+    for case in CASES:
+        counts = {v: 0 for v in VERDICTS}
+        other = 0
+        for (c, _), d in results.items():
+            if c == case:
+                v = _verdict(d)
+                if v in counts:
+                    counts[v] += 1
+                else:
+                    other += 1
+        label = case if case in HIDDEN or case in ("initial_state", "none") else f"{case} (outside library)"
+        lines.append(f"| {label} | " + " | ".join(str(counts[v]) for v in VERDICTS) + f" | {other} |")
+    return "\n".join(lines)
+
+
+def test_confusion_matrix(confusion, capsys):
+    with capsys.disabled():
+        print(f"\nDiagnosis confusion matrix over seeds {SEEDS} (sigma = {SIGMA} um, effects ~2 sigma RMS):")
+        print(format_confusion(confusion))
+        for (case, seed), d in sorted(confusion.items()):
+            print(f"  {case:<14} seed {seed}: {_verdict(d):<14} RMS {d.rms / d.noise_sigma:.3f} sigma, "
+                  f"misfit {d.adequacy.size_ratio:.2f} sigma, {d.seconds:.0f} s")  # fmt: skip
+    for (case, seed), d in confusion.items():
+        verdict = _verdict(d)
+        if case in HIDDEN:
+            assert verdict == case, f"{case} seed {seed}: diagnosed {verdict} ({d.reason})"
+            # adding it brings the residual RMS to the noise level within 15 %
+            assert abs(d.best.rms_after / d.noise_sigma - 1.0) < 0.15
+            assert d.best.adequate_after
+        elif case == "none":
+            assert verdict == "adequate", f"clean seed {seed}: {verdict} ({d.reason})"
+        elif case == "initial_state":
+            # the virgin first loading is absorbed by a re-parametrised plain GPI on the
+            # paper's input (the first excursion is the largest and wipes the memory): the
+            # data cannot tell, and the honest verdict is "adequate" with a residual at the
+            # noise level, or the effect itself; never another effect
+            assert verdict in ("adequate", "initial_state"), f"initial_state seed {seed}: {verdict}"
+            assert abs(d.rms / d.noise_sigma - 1.0) < 0.15 or verdict == "initial_state"
+        else:
+            assert verdict == "unexplained", f"{case} seed {seed}: blamed {verdict} ({d.reason})"
+
+
+def test_no_false_alarm_on_clean_records(capsys):
+    seeds = range(100, 112)
+    verdicts = []
+    for seed in seeds:
+        reading = "centred" if seed % 2 else "literal"
+        rho = 0.3 if seed % 3 == 0 else 0.0
+        record = simulate(None, seed=seed, noise_sigma=SIGMA, noise_rho=rho, input_reading=reading).record
+        d = diagnose(record, rng=np.random.default_rng(seed))
+        verdicts.append((seed, d.status, max(d.adequacy.z.values()), d.adequacy.size_ratio))
+    with capsys.disabled():
+        print("\nclean records (seed, verdict, largest z, misfit/sigma):", verdicts)
+    assert all(status == "adequate" for _, status, _, _ in verdicts)
+
+
+@pytest.mark.parametrize(
+    "kind, expected",
+    [("log_creep", "creep"), ("thermal2", "thermal"), ("lag2", "lag"), ("exp_drift", "sensor_drift")],
+)
+def test_other_functional_forms_are_named_by_their_physics(kind, expected):
+    d = diagnose(alternative_record(kind, seed=21), rng=np.random.default_rng(21))
+    assert d.status == "missing_effect" and d.missing == expected, d.reason
+    # the library's general form absorbs the differently shaped physics (within 15 % of the noise)
+    assert d.best.rms_after / d.noise_sigma < 1.15
+
+
+def test_two_hidden_effects_are_found_one_after_the_other():
+    record = simulate(
+        "creep_amplitude=0.0153,sensor_drift_linear=1.10,sensor_drift_quadratic=0.83", seed=31, noise_sigma=SIGMA
+    ).record
+    hidden = {"creep", "sensor_drift"}
+    first = diagnose(record, rng=np.random.default_rng(31))
+    assert first.status == "missing_effect" and first.missing in hidden, first.reason
+    second = diagnose(record, [first.missing], rng=np.random.default_rng(31))
+    assert second.status == "missing_effect" and second.missing == (hidden - {first.missing}).pop(), second.reason
+    final = diagnose(record, sorted(hidden), rng=np.random.default_rng(31))
+    assert final.status == "adequate", final.reason
+    assert first.rms > second.rms > final.rms
+    assert abs(final.rms / final.noise_sigma - 1.0) < 0.15
