@@ -255,6 +255,9 @@ def test_convergence_rule_and_not_converged_verdict(tmp_path):
     assert capped.to_dict()["converged"] is False
 
 
+MAX_STEPS_COVERAGE = 8000
+
+
 @pytest.mark.slow
 def test_95_percent_intervals_cover_the_truth_at_about_the_nominal_rate(tmp_path):
     """Calibration over 12 seeded clean records (paper input at 10 Hz: 701 samples, 101
@@ -285,7 +288,7 @@ def test_95_percent_intervals_cover_the_truth_at_about_the_nominal_rate(tmp_path
             lambda n, r: initial_walkers(log_post, mean, cov, n, r),
             tmp_path / f"chain{seed}.h5",
             np.random.default_rng(seed),
-            max_steps=4000,
+            max_steps=MAX_STEPS_COVERAGE,
             check_every=500,
             progress=False,
         )
@@ -297,7 +300,7 @@ def test_95_percent_intervals_cover_the_truth_at_about_the_nominal_rate(tmp_path
         n_intervals += free.size
     post_rate, lsq_rate = covered_post / n_intervals, covered_lsq / n_intervals
     print(f"\n95% coverage over {n_intervals} intervals: posterior {post_rate:.3f}, least squares {lsq_rate:.3f}; "
-          f"{converged}/12 chains converged within 4000 steps")  # fmt: skip
+          f"{converged}/12 chains converged within {MAX_STEPS_COVERAGE} steps")  # fmt: skip
     assert 0.88 <= post_rate <= 0.99
     assert 0.85 <= lsq_rate <= 0.99
 
