@@ -74,6 +74,7 @@ __all__ = [
     "scaling_direction",
     "to_normalisation",
     "normalised_model",
+    "with_threshold_sign",
     "pin_gpi_parameters",
     "parameter_scales",
     "analyse_identifiability",
@@ -149,8 +150,11 @@ def to_normalisation(theta, alpha=None) -> np.ndarray:
     theta = np.asarray(theta, dtype=float)
     target = NORMALISATION["alpha"] if alpha is None else float(alpha)
     current = theta[..., THETA_NAMES.index("alpha")]
-    if not (target < 0 and (current < 0).all()):
-        raise ValueError("alpha must be negative (the 'swapped' reading's thresholds) to normalise")
+    if not (target != 0 and (np.sign(current) == np.sign(target)).all()):
+        raise ValueError(
+            "alpha and the target alpha must be non-zero and of the same sign to normalise "
+            "(the scaling k = target / alpha must be > 0; the sign of the thresholds is a model choice)"
+        )
     return gpi_scaling(theta, target / current)
 
 
@@ -187,6 +191,23 @@ def normalised_model(model: Model, alpha=None) -> Model:
     for name, lower in SIGN_CONSTRAINTS.items():
         p = gpi_params[name]
         gpi_params = gpi_params.replace(name, lower=max(p.lower, lower), value=max(p.value, lower))
+    return Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=gpi_params)
+
+
+def with_threshold_sign(model: Model, sign: int) -> Model:
+    """``model`` with its pinned ``alpha`` given the sign ``sign`` (+1 or -1), magnitude kept.
+
+    The exact scaling degeneracy (k > 0) fixes ``|alpha|`` but not its sign: ``alpha < 0``
+    is the paper's Table 1 (the envelopes' gap makes the loop), ``alpha > 0`` the classical
+    PI's positive thresholds (near-identical envelopes, thin loop tips). The two are
+    different models; :func:`identify.lsq.fit_least_squares` fits both and keeps the better.
+    """
+    if sign not in (-1, 1):
+        raise ValueError(f"sign must be +1 or -1, got {sign!r}")
+    alpha = model.parameters["alpha"]
+    if alpha.vary:
+        raise ValueError("alpha is free in this model: apply the normalisation first (normalised_model)")
+    gpi_params = ParameterSet(model.parameters[: len(THETA_NAMES)]).replace("alpha", value=sign * abs(alpha.value))
     return Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=gpi_params)
 
 

@@ -33,6 +33,11 @@ Starts
     offset fitted by linear least squares of the data on the rescaled prediction (gain
     on ``rho, c0, c3, d0, d3``, offset on ``c3, d3``); this is exact for a record that
     is a scaled copy of the paper's transducer;
+``classical``
+    for a model whose ``alpha`` is positive (classical-PI-like thresholds, see below):
+    identical, mildly saturating envelopes ``3 tanh(0.5 v / max|v|)`` for both branches,
+    ``rho = 1``, ``tau = 0.5``, a gently sloped Omega, then the output gain and offset
+    fitted by linear least squares as for ``data_scaled``;
 ``perturbed-k``
     the best of the above with each free GPI parameter multiplied by
     ``exp(0.15 z)``, ``z ~ N(0, 1)`` from ``rng``; effect parameters measured in seconds
@@ -45,6 +50,16 @@ evaluations, tolerances :data:`TOLERANCE`) and the best of those wins. Starts "a
 when their final chi-square is within 1 of the best (statistically indistinguishable
 fits); a start screened out counts as not agreeing, so ``n_agree`` is a lower bound.
 BLAS runs single-threaded during the fit (see :func:`_single_threaded_blas`).
+
+Sign of the thresholds
+----------------------
+The normalisation (:mod:`identify.identifiability`) pins ``|alpha|``; its sign is a
+model choice the scaling cannot change. ``alpha < 0`` is the paper's Table 1 (the gap
+between the envelopes makes the loop; the bounds must stay ``2 |r_N|`` apart), ``alpha > 0``
+the classical PI's positive thresholds (near-identical envelopes: thin loop tips, e.g.
+a piezo actuator). With ``threshold_sign="auto"`` (default) and no ``start``,
+:func:`fit_least_squares` fits both and keeps the lower chi-square; its ``message`` says
+what the other sign reached. A given ``start`` decides the sign itself.
 
 Covariance
 ----------
@@ -65,7 +80,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from model import THETA_NAMES, Model, ParameterSet
+from model import GPI_PARAMETERS, THETA_NAMES, Model, ParameterSet
 
 from .noise import NoiseModel, energised_mask, estimate_noise, whiten
 
@@ -77,6 +92,7 @@ __all__ = [
     "WhitenedResiduals",
     "DOMAIN_PENALTY",
     "PAPER_PEAK_INPUT",
+    "THRESHOLD_SIGNS",
     "parameter_units",
     "fastest_thread_count",
 ]
@@ -107,6 +123,8 @@ TOLERANCE = 1e-8
 #: Starts whose chi-square is within this of the best count as agreeing.
 AGREE_CHI2 = 1.0
 _SLOPES = ("a1", "b1", "c1", "d1")
+#: ``threshold_sign`` option -> the signs of ``alpha`` fitted.
+THRESHOLD_SIGNS = {"auto": (-1, 1), "negative": (-1,), "positive": (1,)}
 
 
 @dataclass(frozen=True)
@@ -447,6 +465,13 @@ def _data_scaled_theta(record, model: Model) -> np.ndarray | None:
         i = names.index(n)
         if model.parameters[i].vary:
             theta[i] = theta[i] / input_scale
+    return _fit_gain_and_offset(record, model, theta)
+
+
+def _fit_gain_and_offset(record, model: Model, theta: np.ndarray) -> np.ndarray | None:
+    """Scale ``rho, c0, c3, d0, d3`` and shift ``c3, d3`` so the prediction best matches the data
+    in linear least squares; None when ``theta`` is outside the domain or the gain is not > 0."""
+    names = model.names
     theta = np.clip(theta, model.parameters.lower, model.parameters.upper)
     y, valid = model.evaluate(theta, record.time, record.current)
     if not valid[0]:
@@ -459,8 +484,28 @@ def _data_scaled_theta(record, model: Model) -> np.ndarray | None:
         theta[names.index(n)] *= gain
     for n in ("c3", "d3"):
         theta[names.index(n)] += offset
-    theta = np.clip(theta, model.parameters.lower, model.parameters.upper)
-    return theta
+    return np.clip(theta, model.parameters.lower, model.parameters.upper)
+
+
+def _classical_theta(record, model: Model) -> np.ndarray | None:
+    """Start for positive thresholds: identical mildly saturating envelopes (module docstring)."""
+    names = model.names
+    alpha = model.parameters["alpha"].value
+    peak = float(np.max(np.abs(record.current)))
+    if not (alpha > 0 and peak > 0):
+        return None
+    theta = model.default_theta()
+    scale = alpha / abs(float(GPI_PARAMETERS["alpha"].value))  # envelopes scale with |alpha|
+    values = {"rho": 1.0 / scale, "tau": 0.5 / scale}
+    for branch in ("a", "b"):
+        values.update({f"{branch}0": 3.0 * scale, f"{branch}1": 0.5 / peak, f"{branch}2": 0.0, f"{branch}3": 0.0})
+    for branch in ("c", "d"):
+        values.update({f"{branch}0": 1.0, f"{branch}1": 1.0 / peak, f"{branch}2": 0.0, f"{branch}3": 0.0})
+    for n, v in values.items():
+        i = names.index(n)
+        if model.parameters[i].vary:
+            theta[i] = v
+    return _fit_gain_and_offset(record, model, theta)
 
 
 def _is_time_constant(parameter) -> bool:
@@ -527,6 +572,10 @@ def candidate_starts(record, model: Model, *, n_starts=8, rng=None, start=None) 
     scaled = _data_scaled_theta(record, model)
     if scaled is not None and valid(scaled):
         starts.append(("data_scaled", scaled))
+    classical = _classical_theta(record, model)
+    if classical is not None and valid(classical):
+        starts.append(("classical", classical))
+        scaled = classical
     if not starts:
         raise ValueError(
             "no valid least-squares start: Table 1 (rescaled to the record) lies outside the model's "
@@ -608,8 +657,61 @@ def _solve(residuals: "WhitenedResiduals", x0, max_nfev):
     )
 
 
-def fit_least_squares(record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=2) -> FitResult:
+def fit_least_squares(
+    record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=2, threshold_sign="auto"
+) -> FitResult:
     """Least-squares fit of ``model`` to ``record`` (method in the module docstring).
+
+    Parameters are those of :func:`_fit_one_sign`, plus
+
+    threshold_sign : {"auto", "negative", "positive"}, default "auto"
+        Sign of the pinned ``alpha`` (module docstring, "Sign of the thresholds"). Applies
+        when ``alpha`` is pinned and the reading is "swapped"; "auto" fits both signs
+        unless ``start`` is given (its ``alpha`` decides). Ignored when ``alpha`` is free.
+
+    Returns
+    -------
+    FitResult
+        The better fit; ``fit.model`` carries the chosen sign.
+    """
+    from dataclasses import replace
+
+    from .identifiability import with_threshold_sign
+
+    if threshold_sign not in THRESHOLD_SIGNS:
+        raise ValueError(f"threshold_sign must be one of {sorted(THRESHOLD_SIGNS)}, got {threshold_sign!r}")
+    options = dict(noise=noise, start=start, n_starts=n_starts, rng=rng, verbose=verbose, n_polish=n_polish)
+    alpha = model.parameters["alpha"]
+    if alpha.vary or model.reading != "swapped":
+        return _fit_one_sign(record, model, **options)
+    if start is not None:
+        start_alpha = float(np.asarray(start, dtype=float)[model.names.index("alpha")])
+        signs = (1 if start_alpha > 0 else -1,)
+    else:
+        signs = THRESHOLD_SIGNS[threshold_sign]
+    fits, failures = [], []
+    for sign in signs:
+        try:
+            fits.append(_fit_one_sign(record, with_threshold_sign(model, sign), **options))
+        except ValueError as exc:
+            if "no valid least-squares start" not in str(exc):
+                raise
+            failures.append(f"alpha {'>' if sign > 0 else '<'} 0: {exc}")
+    if not fits:
+        raise ValueError("; ".join(failures))
+    best = min(fits, key=lambda f: f.reduced_chi2)
+    if len(signs) > 1:
+        notes = [
+            f"alpha {'>' if f.model.parameters['alpha'].value > 0 else '<'} 0 reached reduced chi-square {f.reduced_chi2:.4g}"
+            for f in fits
+        ] + failures
+        chosen = "positive" if best.model.parameters["alpha"].value > 0 else "negative"
+        best = replace(best, message=f"{best.message}; threshold sign {chosen} chosen ({'; '.join(notes)})")
+    return best
+
+
+def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=2) -> FitResult:
+    """Least-squares fit of ``model`` as given (its pinned parameters, alpha's sign included).
 
     Parameters
     ----------

@@ -135,7 +135,10 @@ _DESCRIPTIONS = {
 # rate independent). The envelope units assume the input is in A; other records
 # rescale them (see identify.records).
 _BOUNDS = {
-    "alpha": (-2.0, -1e-4),
+    # Either sign: alpha < 0 is the paper's (Table 1) reading, alpha > 0 the classical PI's
+    # positive thresholds, which thin loop tips (e.g. piezo actuators) need. The
+    # identification pins |alpha| and chooses the sign (identify.lsq).
+    "alpha": (-2.0, 2.0),
     "rho": (1e-3, 1e3),
     "tau": (-5.0, 5.0),
     "a0": (1e-3, 100.0), "a1": (1e-3, 20.0), "a2": (-20.0, 20.0), "a3": (-100.0, 100.0),

@@ -182,3 +182,51 @@ def test_full_record_rms_matches_noise_sigma():
     assert fit.rms == pytest.approx(truth_sigma, rel=0.05)
     assert fit.noise.sigma == pytest.approx(truth_sigma, rel=0.05)
     assert fit.n_agree >= 2
+
+
+# -- sign of the thresholds ---------------------------------------------------------------
+def classical_record(seed=3, sigma=0.05):
+    """A thin, piezo-like loop: alpha > 0, identical envelopes, +-150 V sine after a quiet start.
+
+    Provenance: the shape of ../shared/realdata/piezo_smarthysteresis (1 Hz, +-150 V,
+    ~40 um range); the paper's alpha < 0 reading cannot represent its thin loop tips.
+    """
+    time = np.arange(0.0, 6.0, 1e-3)
+    volts = np.where(time < 1.0, 0.0, 150.0 * np.sin(2 * np.pi * (time - 1.0)))
+    theta = TABLE1.copy()
+    values = dict(alpha=0.1993, rho=2.0, tau=0.3, a0=4.0, a1=0.004, a2=0.0, a3=0.0,
+                  b0=4.0, b1=0.004, b2=0.0, b3=0.0, c0=5.0, c1=0.006, c2=0.0, c3=0.0,
+                  d0=5.0, d1=0.006, d2=0.0, d3=0.0)  # fmt: skip
+    for name, value in values.items():
+        theta[Model().names.index(name)] = value
+    clean = Model()(theta, time, volts)
+    noise = sigma * np.random.default_rng(seed).standard_normal(time.size)
+    rec = Record(time, volts, clean + noise, source="synthetic", sha256="", input_unit="V")
+    return rec, sigma
+
+
+def test_auto_threshold_sign_picks_positive_for_a_thin_loop_and_reaches_the_noise():
+    rec, sigma = classical_record()
+    fit = fit_least_squares(rec, normalised_model(Model()), n_starts=3, rng=np.random.default_rng(0))
+    assert fit.model.parameters["alpha"].value == pytest.approx(0.1993)
+    assert not fit.model.parameters["alpha"].vary
+    assert "threshold sign positive chosen" in fit.message
+    # Measured 1.12-1.26 sigma (3-8 starts): the truth (chi-square ~T) is in the model class,
+    # but these starts end in a local minimum of the nearly-linear-envelope valley (trf
+    # polishing ends at the same point). Known gap, stated in the README.
+    assert fit.rms < 1.3 * sigma, (fit.rms, sigma)
+    forced = fit_least_squares(rec, normalised_model(Model()), n_starts=3, rng=np.random.default_rng(0), threshold_sign="negative")
+    assert forced.model.parameters["alpha"].value < 0
+    assert forced.rms > 3 * fit.rms  # the paper's sign cannot make thin loop tips
+
+
+def test_auto_threshold_sign_keeps_the_papers_sign_on_the_paper_transducer(clean_fit):
+    rec, fit = clean_fit
+    assert fit.model.parameters["alpha"].value == pytest.approx(-0.1993)
+    assert "threshold sign negative chosen" in fit.message
+
+
+def test_threshold_sign_option_is_validated():
+    rec, _ = classical_record()
+    with pytest.raises(ValueError, match="threshold_sign must be one of"):
+        fit_least_squares(rec, normalised_model(Model()), threshold_sign="both")
