@@ -18,9 +18,10 @@ Method
    standardised excess ``z``.
 
 2. **Adequacy.** The residual is *adequate* unless some test's ``z`` exceeds
-   :attr:`Thresholds.z_critical` **and** the non-noise part is large enough to matter:
-   its estimated RMS (``sqrt`` of the low-frequency structure variance, or of the excess
-   variance) is at least :attr:`Thresholds.structure_floor` times the noise sigma.
+   :attr:`Thresholds.z_critical` **and** the non-noise part that test sees is large
+   enough to matter: its estimated RMS (``sqrt`` of the low-frequency structure variance
+   for that test, of the excess variance for the others) is at least
+   :attr:`Thresholds.structure_floor` times the noise sigma.
    The size floor keeps a statistically detectable but physically negligible misfit of
    a long record (70 000 samples resolve structure of a few % of sigma) from raising
    alarms; the z threshold keeps the tests' false-alarm rate negligible, including the
@@ -202,7 +203,9 @@ class Adequacy:
     excess_rms : float
         ``sqrt`` of the residual's mean square in excess of the noise variance [output units].
     size_ratio : float
-        ``max(structure_rms, excess_rms) / noise sigma``.
+        The misfit of the failed tests over the noise sigma: ``structure_rms`` for the
+        low-frequency test, ``excess_rms`` for the variance and Ljung-Box tests (the
+        largest of the failed ones; 0 when none failed).
     excess_kind : str
         Which measure quantifies the misfit: ``"low_frequency"`` (slow structure),
         ``"variance"`` (extra variance that is not slow), ``"ljung_box"`` (correlation
@@ -263,7 +266,10 @@ def assess_adequacy(profile: ResidualProfile, thresholds: Thresholds = Threshold
     failed = tuple(name for name in ("low_frequency", "variance", "ljung_box") if z[name] > thresholds.z_critical)
     structure_rms = math.sqrt(tests["low_frequency"].structure_variance)
     excess_rms = math.sqrt(tests["variance"].structure_variance)
-    size_ratio = max(structure_rms, excess_rms) / sigma
+    # each failed test's misfit in its own measure: slow structure for the low-frequency
+    # test, the excess variance for the others (the Ljung-Box statistic has no size)
+    size_of = {"low_frequency": structure_rms, "variance": excess_rms, "ljung_box": excess_rms}
+    size_ratio = max((size_of[name] for name in failed), default=0.0) / sigma
     if excess_kind is None:
         excess_kind = failed[0] if failed else "none"
     adequate = not (failed and size_ratio >= thresholds.structure_floor)
@@ -588,10 +594,12 @@ class CandidateResult:
         Effect name (``"a+b"`` for a pair).
     screening : ScreeningResult or None
     refitted : bool
-        True: least squares run to convergence with the effect. False: the numbers are
-        from the short refit (a few solver steps; an upper bound on the chi-square, so
-        ``delta_bic`` and ``explained`` are lower bounds), or from the linearised
-        screening when the baseline was adequate (no refits then).
+        True: least squares run to convergence with the effect, on the whole record.
+        False: the numbers are from the short refit (a few solver steps; an upper bound
+        on the chi-square, so ``delta_bic`` and ``explained`` are lower bounds), or from
+        the linearised screening when the baseline was adequate (no refits then; an
+        optimistic prediction, maximised over the grid), both on the working copy
+        (decimated for long records), so ``delta_bic`` uses its sample count.
     rms_after : float
         Residual RMS over the energised part with the effect added [output units].
     max_error_pct_after : float or None
@@ -1206,25 +1214,24 @@ def diagnose(
             break
         say(f"the baseline improved (chi-square {chi2_0:.6g} -> {challenger.chi2:.6g}); diagnosing again")
         fit = challenger
-    n_eff_0 = _n_eff(_whitened(record, fit))
+    # candidates not refitted: their numbers come from the working copy (the short refit,
+    # or the screening when the baseline was adequate), compared with the baseline there
+    n_eff_small = _n_eff(w_small)
     refitted_names = {c.effect for c in refitted}
     others = []
     for s in screened:
         if s.effect in refitted_names:
             continue
         model_e = fit.model + s.effect
-        # the short refit's (or the screening's) chi-square on the working copy, as a
-        # fraction of the baseline's there, scaled to the whole record
         chi2_after, theta_after = short.get(s.effect, (s.chi2_after, s.start))
-        fraction = min(max(chi2_after, 1e-300) / chi2_0_small, 1.0) if chi2_0_small > 0 else 1.0
-        chi2_after = chi2_0 * fraction
+        chi2_after = min(max(chi2_after, 1e-300), chi2_0_small)
         k = len(get_effect(s.effect).parameters)
-        excess_chi2 = chi2_0 - fit.residual.size
+        excess_small = chi2_0_small - w_small.size
         others.append(
             CandidateResult(
-                s.effect, s, False, fit.rms * math.sqrt(fraction), None,
-                float(n_eff_0 * math.log(chi2_0 / chi2_after) - k * math.log(n_eff_0)), float(n_eff_0),
-                _explained(excess_chi2, excess_chi2 - (chi2_0 - chi2_after)) if excess_chi2 > 0 else 0.0,
+                s.effect, s, False, fit.rms * math.sqrt(chi2_after / chi2_0_small), None,
+                float(n_eff_small * math.log(chi2_0_small / chi2_after) - k * math.log(n_eff_small)), float(n_eff_small),
+                _explained(excess_small, excess_small - (chi2_0_small - chi2_after)) if excess_small > 0 else 0.0,
                 None, {}, {n: float(theta_after[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names},
             )
         )  # fmt: skip

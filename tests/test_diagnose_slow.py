@@ -7,7 +7,9 @@
 * Other functional forms of the same physics (logarithmic creep, a thermal law with two
   time constants, a second-order lag, an exponentially settling drift) are named as
   their library counterpart.
-* Two hidden effects found one after the other, converging to ``adequate``.
+* Two hidden effects found one after the other, converging to ``adequate`` (pairs with
+  distinct signatures; creep + thermal at 2 sigma each is not separated: thermal alone
+  leaves a residual at the noise level, see the README).
 
 Sizes: the hidden effect's noise-free contribution has an RMS of about 2 noise sigmas
 (sigma = 0.5 um) relative to the plain GPI at the same parameters (the bench's
@@ -16,6 +18,8 @@ diagnosis sees is smaller (its ``size_ratio``, 0.4-0.7 sigma here).
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
@@ -108,6 +112,8 @@ def _case_record(case: str, seed: int) -> Record:
     return outside_record(case, seed)
 
 
+#: wall time of each diagnosis in the confusion matrix [s]
+WALL_SECONDS: dict = {}
 CASES = tuple(HIDDEN) + ("initial_state", "none") + OUTSIDE
 VERDICTS = tuple(HIDDEN) + ("initial_state", "adequate", "unexplained")
 
@@ -118,7 +124,10 @@ def confusion():
     results = {}
     for seed in SEEDS:
         for case in CASES:
-            results[case, seed] = diagnose(_case_record(case, seed), rng=np.random.default_rng(seed))
+            record = _case_record(case, seed)
+            started = time.perf_counter()
+            results[case, seed] = diagnose(record, rng=np.random.default_rng(seed))
+            WALL_SECONDS[case, seed] = time.perf_counter() - started
     return results
 
 
@@ -151,7 +160,7 @@ def test_confusion_matrix(confusion, capsys):
         print(format_confusion(confusion))
         for (case, seed), d in sorted(confusion.items()):
             print(f"  {case:<14} seed {seed}: {_verdict(d):<14} RMS {d.rms / d.noise_sigma:.3f} sigma, "
-                  f"misfit {d.adequacy.size_ratio:.2f} sigma, {d.seconds:.0f} s")  # fmt: skip
+                  f"misfit {d.adequacy.size_ratio:.2f} sigma, {WALL_SECONDS[case, seed]:.0f} s")  # fmt: skip
     for (case, seed), d in confusion.items():
         verdict = _verdict(d)
         if case in HIDDEN:
@@ -197,15 +206,13 @@ def test_other_functional_forms_are_named_by_their_physics(kind, expected):
     assert d.best.rms_after / d.noise_sigma < 1.15
 
 
-def test_two_hidden_effects_are_found_one_after_the_other():
-    record = simulate(
-        "creep_amplitude=0.0153,sensor_drift_linear=1.10,sensor_drift_quadratic=0.83", seed=31, noise_sigma=SIGMA
-    ).record
-    hidden = {"creep", "sensor_drift"}
+@pytest.mark.parametrize("hidden", [("lag", "sensor_drift"), ("thermal", "lag")])
+def test_two_hidden_effects_are_found_one_after_the_other(hidden):
+    record = simulate(",".join(HIDDEN[h] for h in hidden), seed=31, noise_sigma=SIGMA).record
     first = diagnose(record, rng=np.random.default_rng(31))
     assert first.status == "missing_effect" and first.missing in hidden, first.reason
     second = diagnose(record, [first.missing], rng=np.random.default_rng(31))
-    assert second.status == "missing_effect" and second.missing == (hidden - {first.missing}).pop(), second.reason
+    assert second.status == "missing_effect" and second.missing == (set(hidden) - {first.missing}).pop(), second.reason
     final = diagnose(record, sorted(hidden), rng=np.random.default_rng(31))
     assert final.status == "adequate", final.reason
     assert first.rms > second.rms > final.rms
