@@ -27,13 +27,13 @@ import difflib
 import hashlib
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
+
+from .fileio import atomic_write_bytes
 
 __all__ = ["Record", "RecordError", "load_record", "write_record", "sidecar_path", "DEFAULT_COLUMNS"]
 
@@ -361,31 +361,6 @@ def load_record(
     )
 
 
-def _current_umask() -> int:
-    """The process umask (read by setting and restoring it)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file in ``path``'s folder, then rename it onto ``path``."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.chmod(tmp, 0o666 & ~_current_umask())  # mkstemp makes 0600; give the usual file mode
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
 def _csv_bytes(columns, arrays) -> bytes:
     out = [",".join(columns)]
     stacked = np.column_stack(arrays)
@@ -444,8 +419,8 @@ def write_record(path, record_or_arrays, sidecar: dict | None = None) -> None:
     side = sidecar_path(path)
     if side == path:
         raise ValueError(f"{path}: a record file must not end in .json (that name is reserved for its sidecar)")
-    _atomic_write(path, data)
+    atomic_write_bytes(path, data)
     if side_bytes is not None:
-        _atomic_write(side, side_bytes)
+        atomic_write_bytes(side, side_bytes)
     elif side.exists():
         side.unlink()

@@ -46,14 +46,14 @@ import base64
 import html
 import io
 import math
-import os
 import time as _time
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
 import emcee
 import numpy as np
+
+from .fileio import atomic_write_bytes
 from scipy.special import ndtr, ndtri
 
 from . import plots, results
@@ -857,18 +857,6 @@ def _flatten(value, prefix=""):
         yield prefix, value
 
 
-def _atomic_write(path: Path, payload: bytes) -> None:
-    """Write to a unique temporary name beside ``path``, then rename (never half-written)."""
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        with open(temporary, "xb") as stream:
-            stream.write(payload)
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-
-
 def _png(figure, dpi) -> bytes:
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=dpi)
@@ -1235,9 +1223,9 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
     figure_html = {}
     for stem, figure, caption in _figures(data, analysis, rng):
         png = _png(figure, DPI.get(stem, DPI["default"]))
-        _atomic_write(data.directory / f"{stem}.png", png)
+        atomic_write_bytes(data.directory / f"{stem}.png", png)
         figure_html[stem] = _figure_html(stem, FIGURES[stem], png, caption)
     page = _page(data, analysis, figure_html, _time.perf_counter() - started)
     path = data.directory / results.FILES["report"]
-    _atomic_write(path, page.encode("utf-8"))
+    atomic_write_bytes(path, page.encode("utf-8"))
     return path
