@@ -986,6 +986,16 @@ class _Working:
     step: int
 
 
+def _threshold_sign_variants(model: Model):
+    """``[(model, sign option)]`` to fit: both signs of a pinned alpha (swapped reading), else the model as is."""
+    alpha = model.parameters["alpha"]
+    if alpha.vary or model.reading != "swapped":
+        return [(model, None)]
+    from .identifiability import with_threshold_sign
+
+    return [(with_threshold_sign(model, -1), "negative"), (with_threshold_sign(model, 1), "positive")]
+
+
 def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
     """``record`` decimated to about :data:`SCREENING_SAMPLES` samples, reversals kept;
     the noise model's lag-1 correlation becomes ``rho ** step``."""
@@ -1145,14 +1155,22 @@ def diagnose(
 
     work = _working_copy(record, noise, find_reversals(record.current).index)
     if fit is None:
-        say(f"least squares of {model!r} ({n_starts} starts)")
-        if work.step == 1:
-            fit = fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng)
-            fit = _finish(record, model, noise, fit.theta[fit.vary], rng, fit=fit)
-        else:
-            small_fit = fit_least_squares(work.record, model, noise=work.noise, n_starts=n_starts, rng=rng)
-            say(f"polishing on the whole record ({len(record)} samples)")
-            fit = _finish(record, model, noise, small_fit.theta[small_fit.vary], rng)
+        # The sign of the thresholds is chosen after the whole baseline (least squares and the
+        # soft-wall polish) for each sign: the polish can overturn the unpolished ranking.
+        baselines = []
+        for sign_model, sign in _threshold_sign_variants(model):
+            say(f"least squares of {sign_model!r} ({n_starts} starts{'' if sign is None else ', alpha ' + sign})")
+            options = {} if sign is None else {"threshold_sign": sign}
+            if work.step == 1:
+                one = fit_least_squares(record, sign_model, noise=noise, n_starts=n_starts, rng=rng, **options)
+                one = _finish(record, one.model, noise, one.theta[one.vary], rng, fit=one)
+            else:
+                small_fit = fit_least_squares(work.record, sign_model, noise=work.noise, n_starts=n_starts, rng=rng, **options)
+                say(f"polishing on the whole record ({len(record)} samples)")
+                one = _finish(record, small_fit.model, noise, small_fit.theta[small_fit.vary], rng)
+            baselines.append(one)
+        fit = min(baselines, key=lambda f: float(np.sum(_whitened(record, f) ** 2)))
+        model = fit.model
     if q_stop >= 20:
         noise_ref = fit_ar_noise(fit.residual[:q_stop])
     elif noise.source == "user":

@@ -699,7 +699,9 @@ def fit_least_squares(
             failures.append(f"alpha {'>' if sign > 0 else '<'} 0: {exc}")
     if not fits:
         raise ValueError("; ".join(failures))
-    best = min(fits, key=lambda f: f.reduced_chi2)
+    # Compare the whitened chi-square in the caller's noise units: with a free sigma each
+    # fit's reduced chi-square is 1 by construction, so rescale by its own sigma estimate.
+    best = min(fits, key=lambda f: f.reduced_chi2 * f.noise.sigma**2)
     if len(signs) > 1:
         notes = [
             f"alpha {'>' if f.model.parameters['alpha'].value > 0 else '<'} 0 reached reduced chi-square {f.reduced_chi2:.4g}"
