@@ -19,8 +19,9 @@
 
 The verdict (:class:`ReproductionReport`) is written to ``NEWDIR/reproduction.json`` and
 printed. Bit-identical results need the same platform, package versions and thread
-count for reductions; numba's parallel kernel is order-independent per parameter set, so
-on one machine a rerun is expected to be bit-identical.
+counts: numba's parallel GPI kernel computes every parameter set independently, but BLAS
+reductions in the least squares change in the last bits with the thread count. A run made
+by ``batch`` records its thread count in ``DIR/batch_job.json``, and the rerun gets the same.
 """
 
 from __future__ import annotations
@@ -170,6 +171,9 @@ class ReproductionReport:
         ``{package: [original, rerun]}`` for every package whose version differs.
     commit_difference : list or None
         ``[original, rerun]`` git commits (and dirty flags) when they differ.
+    threads : int or None
+        The numba/BLAS thread count the rerun was given (from the batch that ran the
+        original, ``DIR/batch_job.json``); None: the current environment's.
     """
 
     original: str
@@ -182,6 +186,7 @@ class ReproductionReport:
     n_numbers_compared: int = 0
     version_differences: dict = field(default_factory=dict)
     commit_difference: list | None = None
+    threads: int | None = None
 
     @property
     def chain_identical(self) -> bool | None:
@@ -233,8 +238,12 @@ class ReproductionReport:
             lines.append(f"  versions differ: {changed}")
         if self.commit_difference:
             lines.append(f"  git commit differs: {self.commit_difference[0]} -> {self.commit_difference[1]}")
+        if self.threads is not None:
+            lines.append(f"  rerun with {self.threads} numba/BLAS thread(s), as the batch ran the original")
         if not self.identical and not self.version_differences and not self.commit_difference:
-            lines.append("  same versions and commit: differences come from the platform (threads, CPU, libraries)")
+            lines.append(
+                "  same versions and commit: differences come from the platform (thread counts, CPU, libraries)"
+            )
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -597,6 +606,24 @@ def compare_runs(original, rerun) -> tuple[list, int, list, dict, list | None]:
     return arrays, n_numbers, numbers, versions, commit
 
 
+#: Environment variables that set the thread counts of numba and the BLAS libraries.
+_THREAD_VARIABLES = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _recorded_threads(directory: Path) -> int | None:
+    """Threads a batch gave the run (``DIR/batch_job.json``), or None for a run started by hand.
+
+    BLAS reductions in the least squares depend on the thread count in the last bits, so a
+    bit-identical rerun needs the same count.
+    """
+    try:
+        job = json.loads((directory / "batch_job.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    threads = job.get("threads") if isinstance(job, dict) else None
+    return int(threads) if isinstance(threads, int) and threads >= 1 else None
+
+
 def _write_text_atomic(path: Path, text: str) -> None:
     from .results import atomic_write_bytes
 
@@ -637,6 +664,10 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     args = rerun_arguments(manifest, location.argument, out)
     out.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
+    threads = _recorded_threads(directory)
+    if threads is not None:
+        for name in _THREAD_VARIABLES:
+            env[name] = str(threads)
     package_root = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     with open(out / "reproduce.log", "w", encoding="utf-8") as log:
@@ -664,6 +695,7 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
         n_numbers_compared=n_numbers,
         version_differences=versions,
         commit_difference=commit,
+        threads=threads,
     )
     from .results import jsonable
 

@@ -179,3 +179,12 @@ def test_timing_keys_are_not_compared():
     assert n == 1 and diffs == []
     n, diffs = R.compare_json("s.json", a, {"fit": {"rms": 0.31}})
     assert [d.path for d in diffs] == ["fit.rms"] and diffs[0].abs_difference == pytest.approx(0.01)
+
+
+def test_batch_thread_count_is_read_for_the_rerun(tmp_path):
+    """A run made by a batch is rerun with the batch's thread count (BLAS sums depend on it)."""
+    assert R._recorded_threads(tmp_path) is None
+    (tmp_path / "batch_job.json").write_text(json.dumps({"key": "r__v", "threads": 1}))
+    assert R._recorded_threads(tmp_path) == 1
+    (tmp_path / "batch_job.json").write_text(json.dumps({"threads": "many"}))
+    assert R._recorded_threads(tmp_path) is None
