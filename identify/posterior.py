@@ -301,6 +301,28 @@ def default_n_walkers(ndim: int) -> int:
     return n + (n % 2)
 
 
+#: Smallest eigenvalue of the walkers' start correlation matrix, relative to the largest
+#: (standard deviation 1e-3 of the largest along any combination); see :func:`initial_walkers`.
+MIN_CORRELATION_EIGENVALUE = 1e-6
+
+
+def _full_rank(covariance) -> np.ndarray:
+    """``covariance`` with its correlation eigenvalues raised to :data:`MIN_CORRELATION_EIGENVALUE` x the largest.
+
+    Unchanged when it already satisfies that; the variances (diagonal) are kept.
+    """
+    sd = np.sqrt(np.diag(covariance))
+    correlation = covariance / np.outer(sd, sd)
+    eigenvalues, eigenvectors = np.linalg.eigh(correlation)
+    smallest = MIN_CORRELATION_EIGENVALUE * eigenvalues[-1]
+    if eigenvalues[0] >= smallest:
+        return covariance
+    raised = (eigenvectors * np.maximum(eigenvalues, smallest)) @ eigenvectors.T
+    rescale = 1.0 / np.sqrt(np.diag(raised))  # back to unit diagonal: keep the variances
+    raised = raised * np.outer(rescale, rescale)
+    return raised * np.outer(sd, sd)
+
+
 def initial_walkers(log_post: LogPosterior, mean, covariance, n_walkers, rng, *, max_rounds=200) -> np.ndarray:
     """Walkers drawn from ``N(mean, covariance)``, each redrawn until its log-posterior is finite.
 
@@ -311,7 +333,13 @@ def initial_walkers(log_post: LogPosterior, mean, covariance, n_walkers, rng, *,
         The least-squares solution in sampled coordinates.
     covariance : array_like, shape (D, D)
         Its covariance (e.g. the Jacobian-based one). A variance below
-        ``(1e-3 max(|mean|, 1e-3 (upper - lower)))^2`` is raised by that floor.
+        ``(1e-3 max(|mean|, 1e-3 (upper - lower)))^2`` is raised by that floor. A
+        covariance that is singular in some direction (a pseudo-inverse drops the least
+        determined combinations, giving them zero variance) has the eigenvalues of its
+        correlation matrix raised to at least :data:`MIN_CORRELATION_EIGENVALUE` times the
+        largest: otherwise every walker lies in a subspace that ensemble moves can never
+        leave (and emcee refuses the start as linearly dependent), so the sampler would
+        never explore exactly the directions the data constrain least.
     n_walkers : int
     rng : numpy.random.Generator
     max_rounds : int, default 200
@@ -335,6 +363,7 @@ def initial_walkers(log_post: LogPosterior, mean, covariance, n_walkers, rng, *,
     floor = (1e-3 * np.maximum(np.abs(mean), 1e-3 * (log_post.upper - log_post.lower))) ** 2
     idx = np.arange(mean.size)
     cov[idx, idx] = np.where(np.diag(cov) < floor, np.diag(cov) + floor, np.diag(cov))
+    cov = _full_rank(cov)
     if not np.isfinite(log_post(mean[None, :])[0]):
         raise ValueError("the least-squares solution has a log-posterior of -inf (outside the support or domain)")
     walkers = np.empty((n_walkers, mean.size))

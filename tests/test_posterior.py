@@ -151,6 +151,31 @@ def test_unconstrained_parameter_still_gets_a_spread(problem):
     assert 0 < spread < 0.01 * abs(mean[0])
 
 
+def test_singular_covariance_gives_walkers_emcee_accepts(problem):
+    """A pseudo-inverse covariance with directions dropped (as on the SmartHysteresis
+    record, where three correlation eigenvalues were ~1e-16 and emcee refused the start:
+    "Initial state has a large condition number") must still give linearly independent
+    walkers that spread along the dropped directions, with the variances kept."""
+    from emcee.ensemble import walkers_independent
+
+    _rec, _model, _fit, log_post, mean, cov = problem
+    sd = np.sqrt(np.diag(cov))
+    correlation = cov / np.outer(sd, sd)
+    eigenvalues, eigenvectors = np.linalg.eigh(correlation)
+    dropped = eigenvectors[:, :3]  # the three least determined combinations
+    eigenvalues[:3] = 0.0
+    singular = (eigenvectors * eigenvalues) @ eigenvectors.T * np.outer(sd, sd)
+    assert np.linalg.matrix_rank(singular / np.outer(sd, sd), tol=1e-10) == mean.size - 3
+    walkers = initial_walkers(log_post, mean, singular, 40, np.random.default_rng(2))
+    assert walkers_independent(walkers)
+    # spread along the dropped (standardised) directions is not zero
+    along = ((walkers - mean) / sd) @ dropped
+    assert np.all(along.std(axis=0) > 1e-4)
+    # the marginal spreads still follow the given variances (40 draws: se of a std ~11 %)
+    ratio = walkers.std(axis=0) / sd
+    assert np.all((ratio > 0.5) & (ratio < 1.5)), ratio
+
+
 def test_default_walkers_even_and_at_least_32():
     assert default_n_walkers(5) == 32
     assert default_n_walkers(18) == 36
