@@ -127,6 +127,8 @@ __all__ = [
     "Diagnosis",
     "diagnose",
     "SCREENING_GRIDS",
+    "GPI_EQUIVALENTS",
+    "exact_reparametrisation",
 ]
 
 #: The three verdicts.
@@ -276,6 +278,125 @@ def assess_adequacy(profile: ResidualProfile, thresholds: Thresholds = Threshold
     return Adequacy(
         adequate, failed, z, structure_rms, excess_rms, size_ratio, excess_kind, _excess_measure(profile, excess_kind)
     )
+
+
+# -- candidates that are exact reparametrisations ---------------------------------------
+
+
+def _initial_state_as_envelope_offset(model_e: Model, theta_e, time, current) -> np.ndarray:
+    r"""``initial_state`` folded into the GPI's offsets: the same output with the effect off.
+
+    The operators' initial memory :math:`z_j(t_0) = \max(L_j, \min(U_j, z^0))`, with
+    :math:`L_j = \gamma_\uparrow(v_0) - r_j`, :math:`U_j = \gamma_\downarrow(v_0) + r_j`, and
+    every later memory update are clamps against the two envelopes. Shifting both envelope
+    offsets (``a3``, ``b3``) by :math:`s` shifts every bound, hence every memory value, by
+    :math:`s`, and the output by :math:`s P`, :math:`P = \sum_j p_j`; lowering both
+    :math:`\Omega` offsets (``c3``, ``d3``) by :math:`s P` cancels that. With
+    :math:`s = -\mathrm{clip}(z^0, \min_j L_j, \max_j U_j)` the initial level becomes 0,
+    the plain GPI's. So a constant initial memory level is *exactly* the plain GPI with
+    other offsets, on every input (the clip only drops levels beyond every bound, which
+    clamp alike).
+
+    Parameters
+    ----------
+    model_e : Model
+        A model containing ``initial_state`` (any other effects).
+    theta_e : ndarray, shape (P,)
+        Its full parameter vector.
+    time, current : ndarray, shape (T,)
+        The record's time [s] and drive [A] (the drive at ``t_0`` sets the bounds).
+
+    Returns
+    -------
+    ndarray, shape (P,)
+        ``theta_e`` with ``initial_state`` off and the four offsets moved.
+    """
+    theta = np.array(theta_e, dtype=float)
+    names = model_e.names
+    drive = np.asarray(current, dtype=float)
+    for effect in model_e.effects:
+        if effect.stage == "input":
+            params = theta[None, model_e.effect_slice(effect.name)]
+            drive = np.asarray(effect.drive(params, time, drive), dtype=float)[0]
+    v0 = float(np.ravel(drive)[0])
+    rising_is_a = READINGS[model_e.reading]
+    a_env = float(envelope(theta[3:7], v0))
+    b_env = float(envelope(theta[7:11], v0))
+    rising, falling = (a_env, b_env) if rising_is_a else (b_env, a_env)
+    thresholds = theta[0] * np.arange(1, model_e.n_operators + 1)
+    weights_sum = float(np.sum(theta[1] * np.exp(-theta[2] * thresholds)))
+    lower, upper = rising - thresholds, falling + thresholds
+    low, high = float(lower.min()), float(upper.max())
+    z0_column = names.index("initial_state_memory")
+    level = min(max(float(theta[z0_column]), low), max(high, low))
+    shift = -level
+    for offset in ("a3", "b3"):
+        theta[names.index(offset)] += shift
+    for offset in ("c3", "d3"):
+        theta[names.index(offset)] -= shift * weights_sum
+    theta[z0_column] = float(get_effect("initial_state").off["initial_state_memory"])
+    return theta
+
+
+#: effect name -> callable(model_e, theta_e, time, current) returning a full vector of
+#: ``model_e`` with the effect off and the same output: effects that are exact
+#: reparametrisations of the GPI (:func:`exact_reparametrisation` checks the claim
+#: numerically on the record before the diagnosis relies on it).
+GPI_EQUIVALENTS: dict[str, Callable] = {"initial_state": _initial_state_as_envelope_offset}
+
+
+def exact_reparametrisation(record, model: Model, theta, effect_name: str, rtol: float = 1e-9) -> bool:
+    """Is adding ``effect_name`` to ``model`` an exact reparametrisation on this record?
+
+    True when :data:`GPI_EQUIVALENTS` has a map for the effect and, at the effect's
+    parameters spread over their bounds (lower, upper, a quarter of the way in from each,
+    the test setting) around ``theta``, the mapped vector with the effect off lies within
+    the model's bounds and domain and reproduces the output to ``rtol`` of its range.
+    Such a candidate can explain nothing the model cannot: the diagnosis reports it as not
+    identifiable instead of refitting it (a refit that "wins" would only credit it with
+    the optimiser's failure to find the equivalent plain fit).
+
+    Parameters
+    ----------
+    record : Record
+        ``time`` [s], ``current`` [A], shape (T,).
+    model : Model
+        The model without the effect.
+    theta : ndarray, shape (P,)
+        A full vector of ``model`` (e.g. the baseline fit).
+    effect_name : str
+    rtol : float, default 1e-9
+        Tolerance relative to the output's range (round-off of the shifted offsets).
+
+    Returns
+    -------
+    bool
+    """
+    if effect_name not in GPI_EQUIVALENTS:
+        return False
+    model_e = model + effect_name
+    if not all(model_e.parameters[name].vary for name in ("a3", "b3", "c3", "d3")):
+        return False
+    effect = get_effect(effect_name)
+    base = _embed(model, theta, model_e)
+    rows, mapped = [], []
+    for parameter in effect.parameters:
+        lo, hi = float(parameter.lower), float(parameter.upper)
+        values = [lo, hi, lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo), effect.get_test_parameters().get(parameter.name, lo)]
+        for value in values:
+            theta_e = base.copy()
+            theta_e[model_e.names.index(parameter.name)] = value
+            rows.append(theta_e)
+            mapped.append(GPI_EQUIVALENTS[effect_name](model_e, theta_e, record.time, record.current))
+    rows, mapped = np.array(rows), np.array(mapped)
+    if not (model_e.in_bounds(rows).all() and model_e.in_bounds(mapped).all()):
+        return False
+    y, valid = model_e.evaluate(np.vstack([rows, mapped]), record.time, record.current)
+    if not valid.all():
+        return False
+    half = len(rows)
+    scale = max(float(np.ptp(y[:half])), 1e-300)
+    return bool(np.max(np.abs(y[:half] - y[half:])) <= rtol * scale)
 
 
 # -- screening --------------------------------------------------------------------------
@@ -621,6 +742,9 @@ class CandidateResult:
     parameter_stderr : dict
     fit : FitResult or None
     profile : ResidualProfile or None
+    note : str
+        Why the candidate was not screened or refitted (e.g. an exact reparametrisation
+        of the model: :func:`exact_reparametrisation`); empty otherwise.
     """
 
     effect: str
@@ -637,9 +761,10 @@ class CandidateResult:
     parameter_stderr: dict = field(default_factory=dict)
     fit: FitResult | None = None
     profile: ResidualProfile | None = None
+    note: str = ""
 
     def to_dict(self) -> dict:
-        """The ranking entry: flat numbers (a table row) plus the fitted ``parameters``."""
+        """The ranking entry: flat numbers (a table row) plus the fitted ``parameters`` (and a ``note`` when set)."""
         return {
             "effect": self.effect,
             "rms_after": float(self.rms_after),
@@ -649,7 +774,7 @@ class CandidateResult:
             "adequate_after": self.adequate_after,
             "refitted": bool(self.refitted),
             "parameters": {k: float(v) for k, v in self.parameters.items()},
-        }
+        } | ({"note": self.note} if self.note else {})
 
     def details(self) -> dict:
         """The rest: effective sample size, tests after, standard errors, screening."""
@@ -769,7 +894,10 @@ class Diagnosis:
                     f"explains {100 * c.explained:5.1f} % of the excess"
                     + (", adequate after" if c.adequate_after else "")
                 )
-        others = [c for c in self.ranking if not c.refitted]
+        others = [c for c in self.ranking if not c.refitted and not c.note]
+        unidentifiable = [c.effect for c in self.ranking if c.note]
+        if unidentifiable:
+            lines.append("not identifiable (exact reparametrisations of the model): " + ", ".join(unidentifiable))
         if others:
             lines.append("other candidates (screening only): " + ", ".join(f"{c.effect} ({100 * c.explained:.0f} %)" for c in others))
         return "\n".join(lines)
@@ -1171,6 +1299,10 @@ def diagnose(
             baselines.append(one)
         fit = min(baselines, key=lambda f: float(np.sum(_whitened(record, f) ** 2)))
         model = fit.model
+    # Candidates that are exact reparametrisations of the baseline model cannot explain
+    # anything it cannot: reported as such, never screened, refitted or named.
+    redundant = [name for name in candidates if exact_reparametrisation(record, fit.model, fit.theta, name)]
+    candidates = [name for name in candidates if name not in redundant]
     if q_stop >= 20:
         noise_ref = fit_ar_noise(fit.residual[:q_stop])
     elif noise.source == "user":
@@ -1254,7 +1386,17 @@ def diagnose(
             )
         )  # fmt: skip
     others.sort(key=lambda c: -c.delta_bic)
-    ranking = refitted + others
+    not_identifiable = []
+    for name in redundant:
+        k = len(get_effect(name).parameters)
+        not_identifiable.append(
+            CandidateResult(
+                name, None, False, float(fit.rms), None, float(-k * math.log(n_eff_small)), float(n_eff_small), 0.0, None,
+                note="not identifiable: an exact reparametrisation of the fitted model (adding it changes nothing the "
+                "model's own parameters cannot; see identify.diagnose.GPI_EQUIVALENTS)",
+            )
+        )  # fmt: skip
+    ranking = refitted + others + not_identifiable
     pair = None
 
     if adequacy.adequate:

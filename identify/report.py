@@ -1134,6 +1134,8 @@ def _diagnosis_html(data: ReportData) -> str:
                     value = r.get(column)
                     if isinstance(value, (int, float)) and not isinstance(value, bool):
                         row.append(_cell(value, f"diagnosis.{r.get('effect')}.{column}"))
+                    elif column == "parameters" and isinstance(value, dict):
+                        row.append(_effect_parameters_cell(value))
                     else:
                         row.append(_text("—" if value is None else value))
                 rows.append(row)
@@ -1143,6 +1145,25 @@ def _diagnosis_html(data: ReportData) -> str:
         alt = f"Diagnosis: {path.stem.replace('_', ' ')}"
         parts.append(_figure_html(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From {DIAGNOSIS_FIGURES}/{path.name}."))
     return "\n".join(parts)
+
+
+def _effect_parameters_cell(parameters: dict) -> str:
+    """A ranking entry's fitted effect parameters as a readable ``name = value unit`` list.
+
+    ``parameters`` is ``{parameter name: value}`` (``diagnosis.json``'s ranking entry); the
+    unit comes from the effect library (:data:`model.EFFECTS`), blank when unknown.
+    """
+    from model import EFFECTS
+
+    units = {p.name: p.unit for cls in EFFECTS.values() for p in cls.parameters}
+    if not parameters:
+        return _text("—")
+    items = []
+    for name, value in parameters.items():
+        unit = units.get(name, "")
+        text = f"{html.escape(str(name))} = {_number(value, 4)}" + (f" {html.escape(unit)}" if unit else "")
+        items.append(f"<li>{text}</li>")
+    return '<td class="parameters"><ul>' + "".join(items) + "</ul></td>"
 
 
 def _provenance_html(data: ReportData, analysis: _Analysis, seconds: float) -> str:

@@ -20,8 +20,10 @@ from identify.diagnose import (
     _refit_starts,
     _short_refit,
     _SoftWallResiduals,
+    GPI_EQUIVALENTS,
     assess_adequacy,
     diagnose,
+    exact_reparametrisation,
     screen_candidates,
     screening_grid,
 )
@@ -145,6 +147,9 @@ def test_diagnose_command_writes_the_contract(clean_csv, tmp_path, capsys):
     assert {r["effect"] for r in content["ranking"]} == {"lag", "initial_state", "creep", "thermal", "sensor_drift"}
     for entry in content["ranking"]:
         assert {"effect", "rms_after", "delta_bic", "explained_fraction", "parameters"} <= set(entry)
+    # initial_state is an exact reparametrisation of the GPI: listed, marked, never credited
+    entry = next(r for r in content["ranking"] if r["effect"] == "initial_state")
+    assert "not identifiable" in entry["note"] and entry["delta_bic"] < 0 and not entry["refitted"]
     assert json.loads((out_dir / "diagnosis.json").read_text()) == content
     pngs = sorted(p.name for p in (out_dir / "diagnosis").glob("*.png"))
     assert pngs == [f"{stem}.png" for stem in ("1_residual_vs_time", "2_residual_vs_current", "3_residual_vs_rate",
@@ -181,3 +186,56 @@ def test_diagnose_rejects_bad_arguments(clean_csv):
     fit = fit_least_squares(record, normalised_model(Model()), n_starts=1)
     with pytest.raises(ValueError, match="not of"):
         diagnose(record, ["creep"], fit=fit)
+
+
+def _increasing_amplitude_input(fs=50.0):
+    """10 s quiet, then a 0.1 Hz sine whose amplitude grows from 0.5 A to 2.5 A (peaks 1-5 A)."""
+    time = np.arange(0.0, 70.0 + 0.5 / fs, 1.0 / fs)
+    grow = 0.5 + 2.0 * np.clip((time - 10.0) / 60.0, 0.0, 1.0)
+    current = np.where(time < 10.0, 0.0, grow * (1.0 - np.cos(0.2 * np.pi * (time - 10.0))))
+    return time, current
+
+
+@pytest.mark.parametrize("effects", [(), ("lag", "thermal")])
+def test_initial_state_is_an_exact_reparametrisation_of_the_gpi(effects):
+    """A constant initial memory level equals shifted envelope and Omega offsets, on any input.
+
+    Checked on the paper's input and on an increasing-amplitude input (where the early
+    small cycles do not wipe the initial memory), from the fully virgin level (-20, every
+    operator on its lower bound) to 20, with other effects present; tolerance 1e-9 of the
+    output range (round-off of offsets of order 1e3 um).
+    """
+    sim = simulate(None, seed=0, fs=50.0)
+    model = normalised_model(Model(list(effects)))
+    model_e = model + "initial_state"
+    values = {"lag_tau": 0.05, "thermal_sensitivity": 0.05, "thermal_expansion": 2.0}
+    base = model_e.theta_from_dict({k: v for k, v in values.items() if k in model_e.names})
+    for time, current in ((sim.record.time, sim.record.current), _increasing_amplitude_input()):
+        for z0 in (-20.0, -2.0, 0.5, 20.0):
+            theta_e = base.copy()
+            theta_e[model_e.names.index("initial_state_memory")] = z0
+            plain = GPI_EQUIVALENTS["initial_state"](model_e, theta_e, time, current)
+            assert plain[model_e.names.index("initial_state_memory")] == 0.0
+            y_effect, y_plain = model_e(np.vstack([theta_e, plain]), time, current)
+            assert np.max(np.abs(y_effect - y_plain)) <= 1e-9 * np.ptp(y_effect)
+            # and the effect did change the output (the check is not vacuous)
+            assert np.max(np.abs(y_effect - model_e(base, time, current))) > 1.0
+    assert exact_reparametrisation(sim.record, model, model.default_theta(), "initial_state")
+    for other in ("creep", "sensor_drift") + (() if effects else ("lag", "thermal")):
+        assert not exact_reparametrisation(sim.record, model, model.default_theta(), other)
+
+
+def test_initial_state_is_not_a_reparametrisation_when_the_offsets_are_pinned():
+    sim = simulate(None, seed=0, fs=25.0)
+    model = normalised_model(Model())
+    pinned = Model([], gpi_parameters=model.parameters.replace("c3", vary=False))
+    assert not exact_reparametrisation(sim.record, pinned, pinned.default_theta(), "initial_state")
+
+
+def test_report_renders_ranking_parameters_as_a_readable_list():
+    from identify.report import _effect_parameters_cell
+
+    cell = _effect_parameters_cell({"thermal_tau": 21.3456789, "thermal_sensitivity": 0.0312})
+    assert "<li>thermal_tau = 21.35 s</li>" in cell and "<li>thermal_sensitivity = 0.0312</li>" in cell
+    assert "{" not in cell
+    assert _effect_parameters_cell({}) == "<td>—</td>"
