@@ -263,6 +263,20 @@ class InitialState(Effect):
     value leaves operators raised (variants left over from earlier excitation). The
     first large excursion wipes the memory out, as the physics demands.
 
+    **Not identifiable next to a GPI with free offsets** (any input, any size). Shifting
+    both envelope offsets (``a3``, ``b3``) by :math:`s` shifts every operator bound and
+    memory by :math:`s`; lowering both :math:`\Omega` offsets (``c3``, ``d3``) by
+    :math:`s \sum_j p_j` restores the output; with :math:`s = -z^0` (clipped to the
+    bounds' range) the plain GPI's initial level 0 gives exactly this effect's output.
+    So the plain GPI already has a free initial state (where 0 lies between its bounds),
+    and this effect adds nothing to it (:data:`identify.diagnose.GPI_EQUIVALENTS`; measured
+    on the virtual bench: z0 = -20, 293 noise sigmas RMS against the plain GPI at the same
+    parameters, is fitted by a plain GPI to 1.4e-13 sigma). The effect matters only where
+    those offsets are pinned or carry another parametrisation (e.g. a peer's fit, whose
+    operators start above their upper bounds). The paper's training effect, a maximum
+    strain reduced *after* the first cycle, is a ratchet on the largest excursion so far,
+    which no initial memory of a GPI represents (the first full excursion wipes it).
+
     Parameters: ``initial_state_memory`` [A, envelope units], ``-20 <= z0 <= 20``; off: 0.
     """
 
