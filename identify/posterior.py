@@ -79,6 +79,7 @@ __all__ = [
     "posterior_from_backend",
     "BACKEND_GROUP",
     "BufferedHDFBackend",
+    "DOMAIN_WALL_WARNING",
 ]
 
 #: HDF5 group of the emcee backend in ``chain.h5``.
@@ -188,6 +189,10 @@ class LogPosterior:
         The prior's support.
     n_errors : int
         Rows whose evaluation raised (and were given ``-inf``).
+    n_in_support, n_outside_domain : int
+        Rows evaluated inside the prior's support, and those of them the model flagged
+        outside its domain (operator bounds crossing); their ratio tells how hard the
+        posterior presses against the domain wall (:attr:`PosteriorResult.outside_domain_fraction`).
     """
 
     def __init__(self, record, model: Model, noise: NoiseModel, *, priors=None):
@@ -232,6 +237,8 @@ class LogPosterior:
             self.prior_names[n] = kind if isinstance(kind, str) else getattr(kind, "__name__", "custom")
             self._prior_fns.append(fn)
         self.n_errors = 0
+        self.n_in_support = 0
+        self.n_outside_domain = 0
 
     @property
     def ndim(self) -> int:
@@ -284,6 +291,8 @@ class LogPosterior:
         ok = np.flatnonzero(np.isfinite(out))
         if ok.size:
             y, valid = self._evaluate_rows(self.full_theta(x2[ok]))
+            self.n_in_support += int(ok.size)
+            self.n_outside_domain += int(ok.size - np.count_nonzero(valid))
             if valid.any():
                 rows = ok[valid]
                 residual = self.data[None, :] - y[valid]
@@ -406,6 +415,13 @@ class PosteriorResult:
         Sampling wall time in this call [s].
     n_errors : int
         Walker evaluations that raised and got ``-inf``.
+    outside_domain_fraction : float
+        Fraction of the proposals inside the prior's support (in this call) that fell
+        outside the model's domain (operator bounds crossing); NaN when unknown (a
+        summary of a stored chain). Above :data:`DOMAIN_WALL_WARNING` the posterior is
+        truncated by the domain wall: its equal-tailed intervals for the parameters
+        the wall constrains then cover a true value near the wall less often than
+        nominal (README, "Identification").
     """
 
     names: tuple
@@ -422,6 +438,12 @@ class PosteriorResult:
     log_prob: np.ndarray = field(repr=False)
     seconds: float = 0.0
     n_errors: int = 0
+    outside_domain_fraction: float = math.nan
+
+    @property
+    def presses_on_domain_wall(self) -> bool:
+        """True when more than :data:`DOMAIN_WALL_WARNING` of the proposals left the domain."""
+        return bool(self.outside_domain_fraction > DOMAIN_WALL_WARNING)
 
     @property
     def tau_max(self) -> float:
@@ -444,8 +466,14 @@ class PosteriorResult:
             "tau_max": _finite_or_none(self.tau_max),
             "n_samples": int(self.samples.shape[0]),
             "n_errors": int(self.n_errors),
+            "outside_domain_fraction": _finite_or_none(self.outside_domain_fraction),
             "seconds": float(self.seconds),
         }
+
+
+#: Fraction of proposals outside the model's domain above which the result warns that the
+#: posterior is truncated by the domain wall.
+DOMAIN_WALL_WARNING = 0.01
 
 
 def _finite_or_none(x):
@@ -507,7 +535,8 @@ def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):
 
 
 def posterior_from_backend(path, names, *, converged=None, message="", tau_factor=50.0, tau_rtol=0.05,
-                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None) -> PosteriorResult:
+                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None,
+                           outside_domain_fraction=math.nan) -> PosteriorResult:
     """Summarise the chain stored in ``path`` (HDF5 backend, group :data:`BACKEND_GROUP`).
 
     ``converged``/``message`` default to the convergence rule applied to the stored
@@ -538,6 +567,7 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
         names=tuple(names), converged=bool(converged), message=message, n_walkers=n_walkers,
         n_steps=n_steps, discard=discard, thin=thin, acceptance_fraction=acceptance, tau=tau,
         ess=ess, samples=samples, log_prob=log_prob, seconds=seconds, n_errors=n_errors,
+        outside_domain_fraction=float(outside_domain_fraction),
     )  # fmt: skip
 
 
@@ -636,6 +666,8 @@ def sample_posterior(
     import numba
 
     threads_before = numba.get_num_threads()
+    counts = lambda: (getattr(log_post, "n_in_support", 0), getattr(log_post, "n_outside_domain", 0))  # noqa: E731
+    in_support_before, outside_before = counts()
     tau_cache: dict[int, np.ndarray] = {}
     t0 = _time.perf_counter()
     converged, message = False, ""
@@ -653,7 +685,10 @@ def sample_posterior(
                     message = f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg
                     break
             steps = min(check_every - done % check_every, max_steps - done)
+            timing_before = counts()
             fastest_thread_count(log_post, np.asarray(state.coords))
+            in_support_before += counts()[0] - timing_before[0]  # timing calls are not proposals
+            outside_before += counts()[1] - timing_before[1]
             for state in sampler.sample(state, iterations=steps, store=True, progress=False):
                 if bar is not None:
                     bar.update(1)
@@ -667,4 +702,9 @@ def sample_posterior(
         path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
         tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
         n_errors=log_post.n_errors, tau_cache=tau_cache,
+        outside_domain_fraction=_ratio(counts()[1] - outside_before, counts()[0] - in_support_before),
     )  # fmt: skip
+
+
+def _ratio(part, whole) -> float:
+    return part / whole if whole > 0 else math.nan

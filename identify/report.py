@@ -58,6 +58,7 @@ from scipy.special import ndtr, ndtri
 
 from . import plots, results
 from .noise import energised_mask
+from .posterior import DOMAIN_WALL_WARNING
 
 __all__ = [
     "write_report",
@@ -908,6 +909,15 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
             f'<div class="alert" id="convergence-alert"><b>NOT CONVERGED.</b> {message or "The chain is too short."} '
             "The intervals and bands below are provisional; rerun the same study command to extend the chain.</div>"
         )
+    wall = posterior.get("outside_domain_fraction")
+    if wall is not None and wall > DOMAIN_WALL_WARNING:
+        parts.append(
+            f'<div class="note" id="domain-wall-note"><b>The posterior presses on the model\'s domain wall:</b> '
+            f"{100.0 * wall:.1f} % of the proposals crossed an operator's bounds (rejected). The posterior is "
+            "truncated there, so the equal-tailed 95 % intervals of the parameters the wall constrains (the envelope "
+            "offsets and amplitudes, ρ, τ) can miss a true value that lies near the wall more often than 5 % "
+            "(README, \"Identification\").</div>"
+        )
     sentence = (
         f"Residual RMS {_number(fit['rms'], 4)} {unit} = {ratio:.3g} × the sensor noise σ = "
         f"{_number(data.noise_sigma, 4)} {unit}; reduced χ² = {_number(fit.get('reduced_chi2'), 4)}."
@@ -1059,6 +1069,8 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
         [_text("steps / τ_max (need ≥ 50)"), _cell(
             posterior["n_steps"] / posterior["tau_max"] if posterior.get("tau_max") else None, "derived.steps_per_tau", 4)],
         [_text("converged"), _cell(converged, "posterior.converged", css="ok" if converged else "alert")],
+        [_text("proposals outside the model's domain (this run)"),
+         _cell(posterior.get("outside_domain_fraction"), "posterior.outside_domain_fraction")],
         [_text("sampling time [s]"), _cell(posterior.get("seconds"), "posterior.seconds")],
     ]  # fmt: skip
     parts.append(_table("posterior-settings", ["quantity", "value"], rows, caption="Posterior sampling (emcee)"))

@@ -344,3 +344,22 @@ def test_autocorrelation_time_matches_emcee():
     reference = emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
     assert np.allclose(ours, reference, rtol=1e-10)
     assert np.allclose(ours, (1 + phis) / (1 - phis), rtol=0.15)
+
+
+def test_outside_domain_fraction_counts_proposals_the_model_rejects(problem, tmp_path):
+    """Proposals inside the bounds but outside the GPI's domain (operator bounds crossing)
+    are counted, so the result can say the posterior presses on the domain wall."""
+    _rec, _model, _fit, log_post, mean, cov = problem
+    inside = mean[None, :]
+    crossing = mean.copy()
+    names = list(log_post.names)
+    crossing[names.index("a3")] += 50.0  # rising envelope far above the falling one
+    assert log_post.in_support(crossing[None, :])[0]
+    before = (log_post.n_in_support, log_post.n_outside_domain)
+    values = log_post(np.vstack([inside, crossing]))
+    assert np.isfinite(values[0]) and values[1] == -np.inf
+    assert (log_post.n_in_support - before[0], log_post.n_outside_domain - before[1]) == (2, 1)
+    result = _run(log_post, mean, cov, tmp_path / "d.h5", seed=4, max_steps=40)
+    assert 0.0 <= result.outside_domain_fraction < 1.0
+    assert result.to_dict()["outside_domain_fraction"] == result.outside_domain_fraction
+    assert result.presses_on_domain_wall == (result.outside_domain_fraction > 0.01)
