@@ -355,28 +355,28 @@ def test_project_identification_beats_the_published_sma_fit(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="known shortfall: fit_least_squares alone (what 'fit' and 'study' use, without diagnose's "
-    "polish through the GPI domain wall) ends at RMS 2.4-21.9 on the SMA record depending on its "
-    "version and operator count, above the GA fit's 2.2587; strict, so it flips when it improves",
-)
 def test_fit_least_squares_alone_against_the_peer_fit():
-    """The plain multi-start least squares (no peer information) on the SMA record."""
+    """The plain multi-start least squares (no peer information) on the SMA record beats the GA.
+
+    ``fit_least_squares`` (what ``fit`` and ``study`` use) polishes every converged start
+    through the GPI's domain wall (:class:`identify.lsq.SoftWallResiduals`). Measured RMS over
+    all 773 samples (16 starts, seed 1): 12 operators 1.9356, 21 operators 3.1251, vs the
+    GA's 2.2587. Before that polish: 20.4 (12) and 22.2 (21; alpha < 0 had no valid start
+    until the Table-1 start was rescaled to 21 operators).
+    """
     from identify.lsq import fit_least_squares
     from identify.noise import estimate_noise
 
     record = sma_record()
     noise = estimate_noise(record, noise_sigma="free")
-    best = math.inf
+    figures = {}
     for n_operators in (12, 21):
-        try:
-            fit = fit_least_squares(record, sma_model(n_operators), noise=noise, n_starts=16, rng=np.random.default_rng(1))
-        except ValueError as exc:  # no valid start for this operator count
-            print(f"{n_operators} operators: {exc}")
-            continue
-        print(f"{n_operators} operators: RMS {full_rms(fit):.4f} (all 773 samples)")
-        best = min(best, full_rms(fit))
+        fit = fit_least_squares(record, sma_model(n_operators), noise=noise, n_starts=16, rng=np.random.default_rng(1))
+        assert fit.model.in_bounds(fit.theta)[0] and fit.model.evaluate(fit.theta, record.time, record.current)[1][0]
+        figures[n_operators] = full_rms(fit)
+        print(f"{n_operators} operators: RMS {figures[n_operators]:.4f} (all 773 samples; peer {PEER_RMSE})")
+    best = min(figures.values())
+    print(f"fit_least_squares best: RMS {best:.4f} vs the GA's {PEER_RMSE}")
     assert best < PEER_RMSE
 
 
