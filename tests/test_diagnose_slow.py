@@ -7,14 +7,22 @@
 * Other functional forms of the same physics (logarithmic creep, a thermal law with two
   time constants, a second-order lag, an exponentially settling drift) are named as
   their library counterpart.
-* Two hidden effects found one after the other, converging to ``adequate`` (pairs with
-  distinct signatures; creep + thermal at 2 sigma each is not separated: thermal alone
-  leaves a residual at the noise level, see the README).
+* Two hidden effects found one after the other, converging to ``adequate``, including
+  creep + thermal at 2 sigma each (thermal absorbs half of creep's visible part, leaving
+  0.21 sigma, which the omnibus noise tests miss on some seeds; the targeted refit of the
+  screened candidates finds it).
+* Visible sizes: what the best plain GPI leaves of each hidden effect, noise-free.
 
 Sizes: the hidden effect's noise-free contribution has an RMS of about 2 noise sigmas
 (sigma = 0.5 um) relative to the plain GPI at the same parameters (the bench's
 ``effect_size.rms_over_noise_sigma``); the GPI's refit absorbs part of it, so what the
-diagnosis sees is smaller (its ``size_ratio``, 0.4-0.7 sigma here).
+diagnosis sees is smaller: the *visible* size, the RMS over the energised part of the
+best plain-GPI fit's residual to the noise-free record (measured at seed 0: thermal
+0.54, creep 0.45, lag 0.51, sensor_drift 0.70 sigma). ``initial_state`` (virgin start,
+z0 = -20: 293 sigma against the plain GPI at the same parameters) is an exact
+reparametrisation of the plain GPI (visible size 1.4e-13 sigma; the proof is in
+:func:`identify.diagnose._initial_state_as_envelope_offset`): no diagnosis can name it,
+and the right verdict is ``adequate``.
 """
 
 from __future__ import annotations
@@ -25,9 +33,11 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
-from identify.diagnose import diagnose
+from identify.diagnose import diagnose, fit_baseline
+from identify.identifiability import normalised_model
+from identify.noise import NoiseModel
 from identify.records import Record
-from model import TABLE1, gpi
+from model import TABLE1, Model, gpi
 from model.effects import first_order_lowpass
 
 pytestmark = pytest.mark.slow
@@ -149,7 +159,9 @@ def format_confusion(results) -> str:
                     counts[v] += 1
                 else:
                     other += 1
-        label = case if case in HIDDEN or case in ("initial_state", "none") else f"{case} (outside library)"
+        label = case if case in HIDDEN or case == "none" else (
+            "initial_state (virgin, z0 = -20; exact reparametrisation)" if case == "initial_state" else f"{case} (outside library)"
+        )
         lines.append(f"| {label} | " + " | ".join(str(counts[v]) for v in VERDICTS) + f" | {other} |")
     return "\n".join(lines)
 
@@ -171,12 +183,13 @@ def test_confusion_matrix(confusion, capsys):
         elif case == "none":
             assert verdict == "adequate", f"clean seed {seed}: {verdict} ({d.reason})"
         elif case == "initial_state":
-            # the virgin first loading is absorbed by a re-parametrised plain GPI on the
-            # paper's input (the first excursion is the largest and wipes the memory): the
-            # data cannot tell, and the honest verdict is "adequate" with a residual at the
-            # noise level, or the effect itself; never another effect
-            assert verdict in ("adequate", "initial_state"), f"initial_state seed {seed}: {verdict}"
-            assert abs(d.rms / d.noise_sigma - 1.0) < 0.15 or verdict == "initial_state"
+            # a constant initial memory is exactly a plain GPI with shifted offsets: the data
+            # cannot tell, the verdict is "adequate" at the noise level, and the ranking
+            # marks the effect as not identifiable (never refitted, never named)
+            assert verdict == "adequate", f"initial_state seed {seed}: {verdict} ({d.reason})"
+            assert abs(d.rms / d.noise_sigma - 1.0) < 0.15
+            entry = next(c for c in d.ranking if c.effect == "initial_state")
+            assert "not identifiable" in entry.note and not entry.refitted
         else:
             assert verdict == "unexplained", f"{case} seed {seed}: blamed {verdict} ({d.reason})"
 
@@ -206,7 +219,7 @@ def test_other_functional_forms_are_named_by_their_physics(kind, expected):
     assert d.best.rms_after / d.noise_sigma < 1.15
 
 
-@pytest.mark.parametrize("hidden", [("lag", "sensor_drift"), ("thermal", "lag")])
+@pytest.mark.parametrize("hidden", [("lag", "sensor_drift"), ("thermal", "lag"), ("creep", "thermal")])
 def test_two_hidden_effects_are_found_one_after_the_other(hidden):
     record = simulate(",".join(HIDDEN[h] for h in hidden), seed=31, noise_sigma=SIGMA).record
     first = diagnose(record, rng=np.random.default_rng(31))
@@ -217,3 +230,27 @@ def test_two_hidden_effects_are_found_one_after_the_other(hidden):
     assert final.status == "adequate", final.reason
     assert first.rms > second.rms > final.rms
     assert abs(final.rms / final.noise_sigma - 1.0) < 0.15
+
+
+def visible_size(spec: str, seed: int = 0) -> float:
+    """RMS over the energised part of the best plain-GPI fit's residual to the noise-free
+    record with the hidden effect ``spec``, in noise sigmas (the diagnosis' baseline fit)."""
+    sim = simulate(spec, seed=seed, noise_sigma=0.0)
+    fit = fit_baseline(sim.record, normalised_model(Model()), NoiseModel(sigma=SIGMA, source="user"),
+                       rng=np.random.default_rng(seed))  # fmt: skip
+    energised = sim.record.time >= 10.0
+    return float(np.sqrt(np.mean(fit.residual[energised] ** 2)) / SIGMA)
+
+
+def test_visible_sizes_of_the_hidden_effects(capsys):
+    sizes = {case: visible_size(HIDDEN[case]) for case in HIDDEN}
+    sizes["initial_state"] = visible_size("initial_state_memory=-20")
+    with capsys.disabled():
+        print("\nvisible size (best plain GPI on the noise-free record, energised RMS / sigma):",
+              {k: f"{v:.3g}" for k, v in sizes.items()})  # fmt: skip
+    # the library effects at ~2 sigma against the plain GPI leave 0.45-0.70 sigma after
+    # the refit (seed 0, measured at c9fe905); a band of +-40 % around that
+    for case in HIDDEN:
+        assert 0.3 < sizes[case] < 1.0, (case, sizes[case])
+    # a virgin initial state is reproduced by a plain GPI exactly (round-off only)
+    assert sizes["initial_state"] < 1e-6
