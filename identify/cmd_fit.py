@@ -20,7 +20,14 @@ __all__ = [
     "noise_from_args",
     "parse_effects",
     "format_fit_table",
+    "print_record_notes",
+    "FitFailedError",
+    "fit_or_explain",
+    "FIT_OUT_FILES",
 ]
+
+#: Files ``fit --out DIR`` writes (roles as in :data:`identify.results.FILES`).
+FIT_OUT_FILES = ("data", "fit", "manifest")
 
 HELP = "least-squares fit of the GPI (+ effects) to a record; prints parameters, stderr, RMS vs noise"
 
@@ -101,6 +108,44 @@ def noise_from_args(args, record):
     return estimate_noise(record, noise_sigma=args.noise_sigma)
 
 
+class FitFailedError(ValueError):
+    """The least squares could not run; the message says what failed and what to try."""
+
+
+def fit_or_explain(record, model, **options):
+    """:func:`identify.lsq.fit_least_squares`, with a failure turned into a :class:`FitFailedError`.
+
+    Parameters
+    ----------
+    record, model
+        As for :func:`identify.lsq.fit_least_squares`.
+    **options
+        Passed on (noise, n_starts, rng, verbose, ...).
+
+    Raises
+    ------
+    FitFailedError
+        The fit raised a ValueError (e.g. no start inside the model's domain); the message
+        names the model and the record and suggests options that change the starts.
+    """
+    from .lsq import fit_least_squares
+
+    try:
+        return fit_least_squares(record, model, **options)
+    except ValueError as exc:
+        raise FitFailedError(
+            f"least squares of {model!r} on {record.source} failed: {exc}. Try: the paper's "
+            "12 operators (--n-operators 12) or fewer, more starts (--n-starts), another --seed, "
+            "or fewer --effects"
+        ) from exc
+
+
+def print_record_notes(record, file=None) -> None:
+    """Print what was assumed while loading ``record`` (its ``notes``), one ``note:`` line each."""
+    for note in getattr(record, "notes", ()):
+        print(f"note: {note}", file=sys.stderr if file is None else file)
+
+
 def format_fit_table(fit, record=None) -> str:
     """Human summary: parameter, value, stderr, unit, Table 1; then RMS vs noise, max error, chi2."""
     import math
@@ -139,29 +184,71 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--free-alpha", action="store_true", help="do not pin alpha (the normalisation); the fit is then degenerate"
     )
     parser.add_argument("--json", default=None, metavar="OUT.json", help="also write the fit (FitResult.to_dict) here")
+    parser.add_argument(
+        "--out",
+        default=None,
+        metavar="DIR",
+        help="results folder: data.npz, fit.json and manifest.json (seed, data hash, settings, versions, "
+        "thread counts), as study writes them; reproducible with 'python -m identify reproduce DIR'",
+    )
+    parser.add_argument("--force", action="store_true", help="with --out: replace a different run already in DIR")
     parser.add_argument("--verbose", action="store_true", help="one line per least-squares start")
 
 
+def _fit_settings(args) -> dict:
+    """The fit's settings for the manifest: every option of the computation (not where it writes)."""
+    from .cmd_study import settings_from_args
+
+    settings = settings_from_args(args)
+    settings.pop("json", None)
+    return settings
+
+
 def run(args) -> int:
+    import time as _time
+    from pathlib import Path
+
     import numpy as np
 
-    from .lsq import fit_least_squares
     from .noise import NoQuietSegmentError
     from .records import RecordError
-    from .results import write_json
+    from .results import FILES, RunMismatchError, build_manifest, check_resumable, finish_manifest, now_iso
+    from .results import write_data, write_fit, write_json
 
+    started, t_start = now_iso(), _time.perf_counter()
     try:
         record = record_from_args(args)
+        print_record_notes(record)
         model = model_from_args(args, normalise=not args.free_alpha)
         noise = noise_from_args(args, record)
-    except (RecordError, NoQuietSegmentError, ValueError) as exc:
+        out = None
+        if args.out:
+            out = Path(args.out)
+            out.mkdir(parents=True, exist_ok=True)
+            manifest = build_manifest(seed=args.seed, record=record, settings=_fit_settings(args), started=started, task="fit")
+            if args.force:
+                for role in FIT_OUT_FILES:
+                    (out / FILES[role]).unlink(missing_ok=True)
+            else:
+                check_resumable(out, manifest)
+        rng = np.random.default_rng(args.seed)
+        print(f"fitting {model!r} to {record.source} ({len(record.time)} samples) ...", file=sys.stderr)
+        fit = fit_or_explain(record, model, noise=noise, n_starts=args.n_starts, rng=rng, verbose=args.verbose)
+    except (RecordError, NoQuietSegmentError, RunMismatchError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    rng = np.random.default_rng(args.seed)
-    print(f"fitting {model!r} to {record.source} ({len(record.time)} samples) ...", file=sys.stderr)
-    fit = fit_least_squares(record, model, noise=noise, n_starts=args.n_starts, rng=rng, verbose=args.verbose)
     print(format_fit_table(fit, record))
     if args.json:
         write_json(args.json, fit.to_dict())
         print(f"wrote {args.json}", file=sys.stderr)
+    if out is not None:
+        # the manifest last: its presence means the folder is complete
+        write_data(out, record)
+        write_fit(out, fit)
+        manifest = finish_manifest(
+            manifest, started=started, seconds=_time.perf_counter() - t_start, status="done",
+            phases={"least_squares": fit.seconds},
+        )  # fmt: skip
+        write_json(out / FILES["manifest"], manifest)
+        print(f"wrote {out / FILES['fit']} and {out / FILES['manifest']}", file=sys.stderr)
     return 0

@@ -34,7 +34,7 @@ HELP = "whole study (noise, least squares, identifiability, emcee posterior, rep
 #: 5 minutes on a 2-core machine (see README "## Identification").
 DEFAULT_MAX_STEPS = 20000
 #: Settings that may differ when a run is resumed.
-RESUMABLE_SETTINGS = ("max_steps", "data")  # the data themselves are compared by sha256
+RESUMABLE_SETTINGS = ("max_steps", "data", "no_report")  # data compared by sha256; no_report changes no number
 #: Options that are not settings of the computation (not compared, not all recorded).
 _NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet")
 
@@ -50,6 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--check-every", type=int, default=500, help="convergence check interval in steps (default 500)")
     parser.add_argument("--moves", default="de", choices=("de", "stretch"), help="emcee moves (default de: differential evolution)")
     parser.add_argument("--force", action="store_true", help="discard a different run already in DIR")
+    parser.add_argument("--no-report", action="store_true", help="skip the report (report.html); write it later with 'report DIR'")
     parser.add_argument(
         "--progress", choices=("auto", "on", "off"), default="auto", help="progress bar (default: when stderr is a terminal)"
     )
@@ -82,6 +83,7 @@ def _remove_run(out: Path) -> None:
 
 
 def run(args) -> int:
+    from .cmd_fit import FitFailedError
     from .noise import NoQuietSegmentError
     from .records import RecordError
     from .results import RunMismatchError
@@ -89,7 +91,7 @@ def run(args) -> int:
     with _sigterm_as_interrupt():
         try:
             return run_study(args)
-        except (RecordError, NoQuietSegmentError, RunMismatchError) as exc:
+        except (RecordError, NoQuietSegmentError, RunMismatchError, FitFailedError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
 
@@ -116,9 +118,9 @@ def run_study(args) -> int:
     """The study (see the module docstring); returns the exit code (0 = done, converged or not)."""
     import numpy as np
 
-    from .cmd_fit import format_fit_table, model_from_args, noise_from_args, record_from_args
+    from .cmd_fit import fit_or_explain, format_fit_table, model_from_args, noise_from_args, print_record_notes
+    from .cmd_fit import record_from_args
     from .identifiability import analyse_fit
-    from .lsq import fit_least_squares
     from .posterior import LogPosterior, default_n_walkers, initial_walkers, sample_posterior
     from .results import (
         FILES,
@@ -142,10 +144,11 @@ def run_study(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     record = record_from_args(args)
+    print_record_notes(record)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     settings = settings_from_args(args)
-    manifest = build_manifest(seed=args.seed, record=record, settings=settings, started=started)
+    manifest = build_manifest(seed=args.seed, record=record, settings=settings, started=started, task="study")
     if args.force:
         _remove_run(out)
         old = None
@@ -184,7 +187,7 @@ def run_study(args) -> int:
             _say(f"least squares: reusing {fit_path}")
         else:
             _say(f"least squares: {model!r}, {args.n_starts} starts ...")
-            fit = fit_least_squares(record, model, noise=noise, n_starts=args.n_starts, rng=lsq_rng)
+            fit = fit_or_explain(record, model, noise=noise, n_starts=args.n_starts, rng=lsq_rng)
             write_fit(out, fit)
         print(format_fit_table(fit, record))
         lap("least_squares")
@@ -234,14 +237,17 @@ def run_study(args) -> int:
         lap("posterior")
 
         # 5. report
-        try:
-            from .report import write_report
-        except ImportError as exc:
-            _say(f"report skipped: identify.report is not available ({exc})")
+        if getattr(args, "no_report", False):
+            _say(f"report skipped (--no-report); write it with: python -m identify report {out}")
         else:
-            path = write_report(out)
-            _say(f"report: {path}")
-        lap("report")
+            try:
+                from .report import write_report
+            except ImportError as exc:
+                _say(f"report skipped: identify.report is not available ({exc})")
+            else:
+                path = write_report(out)
+                _say(f"report: {path}")
+            lap("report")
     finally:
         manifest = finish_manifest(
             manifest, started=started, seconds=_time.perf_counter() - t_start, status=status, phases=phases

@@ -48,6 +48,7 @@ __all__ = [
     "finish_manifest",
     "check_resumable",
     "package_versions",
+    "thread_counts",
     "git_commit",
     "load_results",
     "now_iso",
@@ -262,6 +263,41 @@ def package_versions() -> dict:
     return versions
 
 
+def thread_counts() -> dict:
+    """The thread counts the numbers of a run may depend on, JSON-ready.
+
+    Returns
+    -------
+    dict
+        ``numba``: threads numba uses now (``numba.get_num_threads()``; the least squares
+        picks 1 or ``numba_max`` by speed, which never changes its results: every
+        parameter set is computed independently); ``numba_max``: ``NUMBA_NUM_THREADS``;
+        ``blas``: ``[{"library", "api", "threads"}]`` per BLAS/OpenMP pool loaded
+        (``threadpoolctl``; BLAS reductions change in the last bits with the thread count;
+        the least squares limits BLAS to ``least_squares_blas`` threads); ``cpu_count``.
+    """
+    import os
+
+    counts: dict = {"cpu_count": os.cpu_count(), "least_squares_blas": 1}
+    try:
+        import numba
+
+        counts["numba"] = int(numba.get_num_threads())
+        counts["numba_max"] = int(numba.config.NUMBA_NUM_THREADS)
+    except ImportError:  # pragma: no cover - numba is a dependency
+        counts["numba"] = counts["numba_max"] = None
+    try:
+        from threadpoolctl import threadpool_info
+
+        counts["blas"] = [
+            {"library": info.get("internal_api"), "api": info.get("user_api"), "threads": info.get("num_threads")}
+            for info in threadpool_info()
+        ]
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        counts["blas"] = None
+    return counts
+
+
 def git_commit(path=None) -> dict:
     """``{"commit": sha or None, "dirty": bool or None}`` of the project's git work tree."""
     root = Path(path) if path is not None else Path(__file__).resolve().parent.parent
@@ -278,7 +314,7 @@ def git_commit(path=None) -> dict:
         return {"commit": None, "dirty": None}
 
 
-def build_manifest(*, seed, record, settings: dict, started=None, command=None) -> dict:
+def build_manifest(*, seed, record, settings: dict, started=None, command=None, task=None) -> dict:
     """``manifest.json`` contents at the start of a run.
 
     Parameters
@@ -286,20 +322,38 @@ def build_manifest(*, seed, record, settings: dict, started=None, command=None) 
     seed : int
         The ``--seed`` every random draw derives from.
     record : Record
-        Its ``source`` and ``sha256`` identify the data.
+        Its ``source`` and ``sha256`` identify the data; its ``notes`` (what was assumed
+        while loading it, e.g. no time column) are recorded with them.
     settings : dict
         Every option of the command (JSON-ready values).
     started : str, optional
         ISO time; default now.
     command : list of str, optional
         The command line; default ``sys.argv``.
+    task : str, optional
+        The ``python -m identify`` command that made the run (``"fit"``, ``"study"``);
+        ``reproduce`` reruns that command.
+
+    Returns
+    -------
+    dict
+        Keys ``seed``, ``task``, ``data`` ({file, sha256, n_samples, notes}), ``settings``,
+        ``versions``, ``threads`` (:func:`thread_counts`), ``git``, ``command``,
+        ``started``, ``finished`` (None until :func:`finish_manifest`), ``runs``.
     """
     return jsonable(
         {
             "seed": seed,
-            "data": {"file": str(record.source), "sha256": record.sha256, "n_samples": len(record.time)},
+            "task": task,
+            "data": {
+                "file": str(record.source),
+                "sha256": record.sha256,
+                "n_samples": len(record.time),
+                "notes": list(getattr(record, "notes", ())),
+            },
             "settings": settings,
             "versions": package_versions(),
+            "threads": thread_counts(),
             "git": git_commit(),
             "command": list(sys.argv if command is None else command),
             "started": started or now_iso(),

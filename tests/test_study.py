@@ -194,3 +194,85 @@ def test_piezo_record_with_other_columns_and_units(tmp_path, capsys):
     assert "1/V" in text
     rms_ratio = float(text.split("residual RMS")[1].split("=")[2].split("x")[0])
     assert rms_ratio == pytest.approx(1.0, abs=0.15)
+
+
+# -- fit --out, notes, failures, --no-report ---------------------------------------------------
+
+
+def test_fit_out_writes_a_reproducible_folder_with_notes_and_threads(small_csv, tmp_path, capsys):
+    """``fit --out DIR``: data.npz, fit.json and a manifest as study writes them (task, seed,
+    data hash, the record's notes, thread counts); a rerun with other settings is refused."""
+    from identify.reproduce import rerun_arguments
+
+    no_time = tmp_path / "no_time.csv"  # the same record without its time column: a note
+    lines = small_csv.read_text().splitlines()
+    no_time.write_text("\n".join(",".join(line.split(",")[1:]) for line in lines) + "\n")
+    out = tmp_path / "fit_run"
+    argv = ["fit", str(no_time), "--time-column", "none", "--n-starts", "2", "--seed", "4", "--out", str(out)]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "note: the file has no time column" in err
+    assert {p.name for p in out.iterdir()} == {"data.npz", "fit.json", "manifest.json"}
+    fit = json.loads((out / "fit.json").read_text())
+    assert len(fit["theta"]) == 19 and fit["rms"] > 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["task"] == "fit" and manifest["seed"] == 4
+    assert manifest["data"]["sha256"] == hashlib.sha256(no_time.read_bytes()).hexdigest()
+    assert any("no time column" in note for note in manifest["data"]["notes"])
+    threads = manifest["threads"]
+    assert threads["numba"] >= 1 and threads["numba_max"] >= threads["numba"] and threads["least_squares_blas"] == 1
+    assert isinstance(threads["blas"], list)
+    assert manifest["settings"]["n_starts"] == 2 and "json" not in manifest["settings"]
+    assert [run["status"] for run in manifest["runs"]] == ["done"]
+    # reproduce reruns it as a fit with the same options
+    again = rerun_arguments(manifest, no_time, tmp_path / "again")
+    assert again[0] == "fit" and "--n-starts" in again and again[again.index("--seed") + 1] == "4"
+    # a different run in the same folder is refused (nothing overwritten), unless --force
+    before = (out / "fit.json").read_bytes()
+    assert main([*argv[:-2], "--n-starts", "3", "--out", str(out)]) == 2
+    assert "n_starts: 2 -> 3" in capsys.readouterr().err
+    assert (out / "fit.json").read_bytes() == before
+    assert main([*argv[:-2], "--n-starts", "3", "--out", str(out), "--force"]) == 0
+    assert json.loads((out / "manifest.json").read_text())["settings"]["n_starts"] == 3
+
+
+def test_fit_failure_is_one_clean_error_line(small_csv, monkeypatch, capsys):
+    """A least squares that cannot run (e.g. no start inside the domain) exits 2 with one
+    line saying what failed and what to try, for fit and study alike, never a traceback."""
+    import identify.lsq as lsq
+
+    def no_start(*args, **kwargs):
+        raise ValueError("no valid least-squares start: Table 1 lies outside the model's domain on this input")
+
+    monkeypatch.setattr(lsq, "fit_least_squares", no_start)
+    assert main(["fit", str(small_csv), "--n-operators", "21"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len([line for line in err if line.startswith("error:")]) == 1 and "Traceback" not in "\n".join(err)
+    message = next(line for line in err if line.startswith("error:"))
+    assert "least squares of" in message and "no valid least-squares start" in message
+    assert "--n-operators" in message and "--n-starts" in message
+
+
+def test_fit_with_21_operators_runs(small_csv, tmp_path):
+    """More operators than Table 1's 12: the Table-1-shaped starts are rescaled, so the paper's
+    sign of the thresholds gets a valid start (before: 'no valid least-squares start')."""
+    out_json = tmp_path / "fit21.json"
+    assert main(["fit", str(small_csv), "--n-operators", "21", "--n-starts", "2", "--json", str(out_json)]) == 0
+    fit = json.loads(out_json.read_text())
+    assert fit["model"]["n_operators"] == 21
+    assert "alpha < 0 reached" in fit["message"] and "no valid least-squares start" not in fit["message"]
+    assert fit["rms"] < 1.5 * fit["noise"]["sigma"]  # Table 1 data: 21 operators fit it about as well as 12
+
+
+def test_study_no_report_skips_the_report(small_csv, tmp_path, capsys, report_calls):
+    out = tmp_path / "run"
+    assert main(["study", str(small_csv), "--out", str(out), "--no-report", *FAST]) == 0
+    assert report_calls == [] and not (out / "report.html").exists()
+    assert "report skipped (--no-report)" in capsys.readouterr().err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["task"] == "study" and manifest["settings"]["no_report"] is True
+    assert "report" not in manifest["runs"][-1]["phases"]
+    # resuming without --no-report is allowed (no number depends on it) and writes the report
+    assert main(["study", str(small_csv), "--out", str(out), *FAST]) == 0
+    if "identify.report" in sys.modules:
+        assert [str(p) for p in report_calls] == [str(out)]
