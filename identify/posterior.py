@@ -473,7 +473,7 @@ class PosteriorResult:
 
 #: Fraction of proposals outside the model's domain above which the result warns that the
 #: posterior is truncated by the domain wall.
-DOMAIN_WALL_WARNING = 0.01
+DOMAIN_WALL_WARNING = 0.03
 
 
 def _finite_or_none(x):

@@ -13,6 +13,7 @@ from identify.identifiability import normalised_model
 from identify.lsq import fit_least_squares
 from identify.noise import NoiseModel, estimate_noise, log_likelihood
 from identify.posterior import (
+    DOMAIN_WALL_WARNING,
     BACKEND_GROUP,
     LogPosterior,
     default_n_walkers,
@@ -22,6 +23,7 @@ from identify.posterior import (
 )
 from identify.records import Record
 from model import Model, paper_current
+from model.gpi import THETA_NAMES
 
 
 def short_record(seed=0, fs=5.0):
@@ -280,29 +282,63 @@ def test_convergence_rule_and_not_converged_verdict(tmp_path):
     assert capped.to_dict()["converged"] is False
 
 
-MAX_STEPS_COVERAGE = 8000
+#: Falling-envelope offset added to Table 1 for the calibration truth [A]: Table 1 itself
+#: sits 0.016 A from the domain wall (operator bounds crossing at 5 A, j = 12), so its
+#: posterior is truncated there; +0.5 A puts the wall ~0.5 A (many posterior sds) away.
+OFF_THE_WALL_B3 = 0.5
+MAX_STEPS_COVERAGE = 20000
+
+
+def _off_the_wall_truth():
+    from identify.identifiability import gpi_scaling, to_normalisation
+    from model import TABLE1
+
+    base = TABLE1.copy()
+    base[THETA_NAMES.index("b3")] += OFF_THE_WALL_B3
+    truth_raw = gpi_scaling(base, 1.3)
+    return truth_raw, to_normalisation(truth_raw)
+
+
+@pytest.mark.parametrize("b3_shift, presses", [(0.0, True), (OFF_THE_WALL_B3, False)])
+def test_domain_wall_is_flagged_for_table1_and_not_off_the_wall(b3_shift, presses, tmp_path):
+    """Table 1 sits 0.016 A from the operator-bounds wall: a short chain on a 10 Hz record
+    sends ~12 % of its proposals across it (measured 0.117), and the result says it
+    presses on the wall; 0.5 A further away, < 1 % (measured 0.009)."""
+    from identify.bench import simulate
+    from model import TABLE1
+
+    base = TABLE1.copy()
+    base[THETA_NAMES.index("b3")] += b3_shift
+    rec = simulate(fs=10.0, seed=100, gpi_theta=base).record
+    model = normalised_model(Model())
+    fit = fit_least_squares(rec, model, n_starts=3, rng=np.random.default_rng(0))
+    log_post = LogPosterior(rec, model, fit.noise)
+    free = log_post.free
+    mean, cov = fit.theta[free], fit.covariance[np.ix_(free, free)]
+    result = _run(log_post, mean, cov, tmp_path / "w.h5", seed=0, max_steps=400, check_every=200)
+    assert result.presses_on_domain_wall is presses, result.outside_domain_fraction
 
 
 @pytest.mark.slow
 def test_95_percent_intervals_cover_the_truth_at_about_the_nominal_rate(tmp_path):
-    """Calibration over 12 seeded clean records (paper input at 10 Hz: 701 samples, 101
-    quiet; Table 1 transducer with the GPI scaling k = 1.3 applied, noise 0.5 um).
+    """Calibration over 12 seeded clean records (paper input at 50 Hz: 3501 samples, 501
+    quiet; noise 0.5 um); truth: Table 1 with b3 + 0.5 A (off the domain wall, see
+    :data:`OFF_THE_WALL_B3`) and the GPI scaling k = 1.3 applied, so the raw truth has
+    alpha = 1.3 x Table 1's and only :func:`to_normalisation` makes it comparable.
 
-    The truth is compared *after the normalisation* (alpha pinned at Table 1's value):
-    with k = 1.3 the raw truth has alpha = 1.3 x Table 1's, so only
-    :func:`to_normalisation` makes it comparable. Expected coverage 0.95; over 12 x 18
-    = 216 (correlated) intervals, accept 0.88 - 0.99. The Laplace intervals of least
-    squares (+-1.96 stderr) are checked the same way."""
+    Expected 0.95; over 12 x 18 = 216 (correlated) intervals accept 0.90 - 0.99 for the
+    posterior and for the least squares' +-1.96 stderr intervals. Why not 10 Hz and Table 1
+    itself (README, "Identification"): at 10 Hz Omega's tanh step (width 1/c1 = 0.15 A)
+    falls between samples, so c1 and c2 are not identified and their flat ridge, under the
+    uniform prior, pulls c0 and d0; and Table 1's wall truncates the posterior."""
     from identify.bench import simulate
-    from identify.identifiability import gpi_scaling, to_normalisation
-    from model import TABLE1
 
-    truth_raw = gpi_scaling(TABLE1, 1.3)
-    truth = to_normalisation(truth_raw)
+    truth_raw, truth = _off_the_wall_truth()
     assert not np.allclose(truth_raw, truth)
-    covered_post, covered_lsq, n_intervals, converged = 0, 0, 0, 0
+    covered_post, covered_lsq, n_intervals, converged, wall = 0, 0, 0, 0, []
+    misses = []
     for seed in range(12):
-        rec = simulate(fs=10.0, seed=100 + seed, gpi_theta=truth_raw).record
+        rec = simulate(fs=50.0, seed=100 + seed, gpi_theta=truth_raw).record
         model = normalised_model(Model())
         fit = fit_least_squares(rec, model, n_starts=3, rng=np.random.default_rng(seed))
         log_post = LogPosterior(rec, model, fit.noise)
@@ -318,16 +354,22 @@ def test_95_percent_intervals_cover_the_truth_at_about_the_nominal_rate(tmp_path
             progress=False,
         )
         converged += result.converged
+        wall.append(result.outside_domain_fraction)
         lo, hi = result.quantiles((0.025, 0.975))
-        covered_post += int(np.sum((lo <= truth[free]) & (truth[free] <= hi)))
+        inside = (lo <= truth[free]) & (truth[free] <= hi)
+        misses += [f"{log_post.names[j]}@{seed}" for j in np.flatnonzero(~inside)]
+        covered_post += int(np.sum(inside))
         z = np.abs(fit.theta[free] - truth[free]) / fit.stderr[free]
         covered_lsq += int(np.sum(z <= 1.96))
         n_intervals += free.size
+        print(f"seed {seed}: {result.message[:60]}; posterior misses {int(np.sum(~inside))}, lsq {int(np.sum(z > 1.96))}")
     post_rate, lsq_rate = covered_post / n_intervals, covered_lsq / n_intervals
     print(f"\n95% coverage over {n_intervals} intervals: posterior {post_rate:.3f}, least squares {lsq_rate:.3f}; "
-          f"{converged}/12 chains converged within {MAX_STEPS_COVERAGE} steps")  # fmt: skip
-    assert 0.88 <= post_rate <= 0.99
-    assert 0.85 <= lsq_rate <= 0.99
+          f"{converged}/12 chains converged within {MAX_STEPS_COVERAGE} steps; proposals outside the domain "
+          f"{min(wall):.4f}-{max(wall):.4f}; posterior misses: {', '.join(misses)}")  # fmt: skip
+    assert 0.90 <= post_rate <= 0.99
+    assert 0.90 <= lsq_rate <= 0.99
+    assert converged >= 10
 
 
 def test_autocorrelation_time_matches_emcee():
@@ -362,4 +404,4 @@ def test_outside_domain_fraction_counts_proposals_the_model_rejects(problem, tmp
     result = _run(log_post, mean, cov, tmp_path / "d.h5", seed=4, max_steps=40)
     assert 0.0 <= result.outside_domain_fraction < 1.0
     assert result.to_dict()["outside_domain_fraction"] == result.outside_domain_fraction
-    assert result.presses_on_domain_wall == (result.outside_domain_fraction > 0.01)
+    assert result.presses_on_domain_wall == (result.outside_domain_fraction > DOMAIN_WALL_WARNING)
