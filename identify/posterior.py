@@ -53,9 +53,12 @@ internal ``RandomState`` is seeded from the same generator; nothing touches glob
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import signal
 import sys
+import threading
 import time as _time
 from dataclasses import dataclass, field
 
@@ -100,7 +103,7 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
     readable by the stock backend.
     """
 
-    def __init__(self, filename, name=BACKEND_GROUP, *, flush_every=200, flush_seconds=5.0, **kwargs):
+    def __init__(self, filename, name=BACKEND_GROUP, *, flush_every=200, flush_seconds=1.0, **kwargs):
         super().__init__(str(filename), name=name, **kwargs)
         self.flush_every = int(flush_every)
         self.flush_seconds = float(flush_seconds)
@@ -689,9 +692,13 @@ def sample_posterior(
             fastest_thread_count(log_post, np.asarray(state.coords))
             in_support_before += counts()[0] - timing_before[0]  # timing calls are not proposals
             outside_before += counts()[1] - timing_before[1]
-            for state in sampler.sample(state, iterations=steps, store=True, progress=False):
-                if bar is not None:
-                    bar.update(1)
+            with _stop_between_steps() as stop:
+                for state in sampler.sample(state, iterations=steps, store=True, progress=False):
+                    if bar is not None:
+                        bar.update(1)
+                    if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
+                        backend.flush()
+                        raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
             backend.flush()
     finally:
         numba.set_num_threads(threads_before)
@@ -704,6 +711,36 @@ def sample_posterior(
         n_errors=log_post.n_errors, tau_cache=tau_cache,
         outside_domain_fraction=_ratio(counts()[1] - outside_before, counts()[0] - in_support_before),
     )  # fmt: skip
+
+
+class _StopRequest:
+    requested: str = ""
+
+
+@contextlib.contextmanager
+def _stop_between_steps():
+    """Turn SIGINT (Ctrl-C) and SIGTERM (``kill PID``) into a request honoured after the
+    current step, so no step is cut in half inside emcee (which would print the
+    interrupted likelihood call's traceback); a second signal interrupts at once.
+    Main thread only (elsewhere signals cannot be handled and nothing changes)."""
+    stop = _StopRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def request(signum, frame):
+        if stop.requested:
+            raise KeyboardInterrupt
+        stop.requested = signal.Signals(signum).name
+
+    # a signal the process ignores (SIGINT of a background job) stays ignored
+    catch = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) is not signal.SIG_IGN]
+    previous = {sig: signal.signal(sig, request) for sig in catch}
+    try:
+        yield stop
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _ratio(part, whole) -> float:
