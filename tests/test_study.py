@@ -236,7 +236,7 @@ def test_fit_out_writes_a_reproducible_folder_with_notes_and_threads(small_csv, 
     assert json.loads((out / "manifest.json").read_text())["settings"]["n_starts"] == 3
 
 
-def test_fit_failure_is_one_clean_error_line(small_csv, monkeypatch, capsys):
+def test_fit_failure_is_one_clean_error_line(small_csv, tmp_path, monkeypatch, capsys):
     """A least squares that cannot run (e.g. no start inside the domain) exits 2 with one
     line saying what failed and what to try, for fit and study alike, never a traceback."""
     import identify.lsq as lsq
@@ -251,6 +251,11 @@ def test_fit_failure_is_one_clean_error_line(small_csv, monkeypatch, capsys):
     message = next(line for line in err if line.startswith("error:"))
     assert "least squares of" in message and "no valid least-squares start" in message
     assert "--n-operators" in message and "--n-starts" in message
+    out = tmp_path / "study_run"
+    assert main(["study", str(small_csv), "--out", str(out), "--n-operators", "21", *FAST]) == 2
+    err = capsys.readouterr().err
+    assert "error: least squares of" in err and "Traceback" not in err
+    assert not (out / "fit.json").exists()  # nothing half-done is left as if it were a fit
 
 
 def test_fit_with_21_operators_runs(small_csv, tmp_path):
