@@ -228,3 +228,42 @@ def test_not_utf8(tmp_path):
     path.write_bytes(b"time,current,displacement\n0,0,\xff\xfe\n")
     message = _load_error(path)
     assert "line 2" in message and "UTF-8" in message
+
+
+def test_keep_every_keeps_the_reversals_so_the_gpi_output_is_unchanged():
+    """Thinning by 7 keeps every input extremum (peaks of the decaying sine fall between
+    multiples of 7), so the GPI at the kept samples equals the GPI of the whole record
+    there, bit for bit."""
+    from identify.bench import simulate
+    from identify.records import keep_every
+    from identify.residuals import find_reversals
+    from model import TABLE1, gpi
+
+    record = simulate(fs=100.0, seed=1).record
+    thin = keep_every(record, 7)
+    kept = np.searchsorted(record.time, thin.time)
+    assert np.array_equal(record.time[kept], thin.time)
+    assert set(find_reversals(record.current).index) <= set(kept.tolist())
+    assert not set(find_reversals(record.current).index) <= set(range(0, len(record), 7))  # the test is not vacuous
+    assert kept[-1] == len(record) - 1 and len(thin) < len(record) / 6
+    assert np.array_equal(gpi(TABLE1, record.current)[kept], gpi(TABLE1, thin.current))
+    assert thin.notes[-1].startswith("thinned (--every 7)") and f"{len(thin)} of {len(record)}" in thin.notes[-1]
+    assert thin.sha256 == record.sha256 and thin.input_unit == record.input_unit
+    assert keep_every(record, 1) is record
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(ValueError, match="integer N >= 1"):
+            keep_every(record, bad)
+
+
+def test_every_option_thins_the_record_and_rejects_bad_values(tmp_path, capsys):
+    from identify.bench import simulate
+    from identify.cli import main
+
+    path = tmp_path / "r.csv"
+    write_record(path, simulate(fs=20.0, seed=2).record)
+    assert main(["fit", str(path), "--every", "4", "--n-starts", "1"]) == 0
+    printed = capsys.readouterr()
+    assert "note: thinned (--every 4)" in printed.out + printed.err
+    with pytest.raises(SystemExit):
+        main(["fit", str(path), "--every", "0"])
+    assert "expected an integer >= 1, got 0" in capsys.readouterr().err
