@@ -693,7 +693,11 @@ def sample_posterior(
             in_support_before += counts()[0] - timing_before[0]  # timing calls are not proposals
             outside_before += counts()[1] - timing_before[1]
             with _stop_between_steps() as stop:
-                for state in sampler.sample(state, iterations=steps, store=True, progress=False):
+                # emcee's linear-independence check is for a start we made; walkers the
+                # sampler itself moved (a later chunk, a resumed run) may lie along a
+                # near-exact degeneracy of the posterior and must not stop the run
+                chunk = sampler.sample(state, iterations=steps, store=True, progress=False, skip_initial_state_check=done > 0)
+                for state in chunk:
                     if bar is not None:
                         bar.update(1)
                     if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored

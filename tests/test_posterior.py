@@ -405,3 +405,25 @@ def test_outside_domain_fraction_counts_proposals_the_model_rejects(problem, tmp
     assert 0.0 <= result.outside_domain_fraction < 1.0
     assert result.to_dict()["outside_domain_fraction"] == result.outside_domain_fraction
     assert result.presses_on_domain_wall == (result.outside_domain_fraction > DOMAIN_WALL_WARNING)
+
+
+def test_walkers_along_a_near_exact_degeneracy_do_not_stop_a_resumed_run(tmp_path):
+    """A chain whose walkers lie on a line (as on SmartHysteresis, where after 1500 steps
+    the walkers followed a degeneracy with eigenvalue 1e-12 of the largest and emcee's
+    start check refused the next chunk) resumes; only a start we make is checked."""
+    from emcee.ensemble import walkers_independent
+
+    path = tmp_path / "line.h5"
+    rng = np.random.default_rng(0)
+    t = rng.standard_normal(32)
+    coords = np.column_stack([t, 2.0 * t, rng.standard_normal(32)])  # y = 2x exactly
+    assert not walkers_independent(coords)
+    backend = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP)
+    backend.reset(32, 3)
+    backend.grow(1, None)
+    state = emcee.State(coords, log_prob=Gaussian()(coords), random_state=np.random.RandomState(1).get_state())
+    backend.save_step(state, np.zeros(32, dtype=int))
+    result = sample_posterior(Gaussian(), None, path, np.random.default_rng(1), max_steps=30, check_every=10)
+    assert result.n_steps == 30
+    with pytest.raises(ValueError, match="condition number"):  # a start we are given is still checked
+        sample_posterior(Gaussian(), coords, tmp_path / "fresh.h5", np.random.default_rng(1), max_steps=5, check_every=5)
