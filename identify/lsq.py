@@ -355,22 +355,27 @@ def _array(values):
 def parameter_units(model: Model, record=None) -> list[str]:
     """Units of ``model.names``, with the record's input/output units substituted.
 
-    The GPI's declared units assume a drive in A and an output in um; for a record in
-    other units (e.g. V and um for a piezo) ``A`` and ``um`` are replaced where they
-    refer to the input (slopes ``a1, b1, c1, d1``) or the output (``rho``, ``c0, c3,
-    d0, d3``). The envelope amplitudes stay in the model's internal unit.
+    The GPI's declared units assume a drive in A and an output in um. For a record in
+    other units (e.g. V and um for a piezo) they are rewritten by dimensional analysis:
+    the slopes ``a1, b1, c1, d1`` are per input unit; the envelopes
+    :math:`\gamma(v) = a_0 \tanh(a_1 v + a_2) + a_3` are compared with the thresholds
+    :math:`r_j = \alpha j`, and the paper gives both the input's unit, so ``alpha, a0,
+    a3, b0, b3`` are in the input unit, ``tau`` per input unit and ``rho`` output per
+    input unit; ``c0, c3, d0, d3`` are in the output unit.
     """
     in_unit = getattr(record, "input_unit", "A") if record is not None else "A"
     out_unit = getattr(record, "output_unit", "um") if record is not None else "um"
     units = []
     for p in model.parameters:
         unit = p.unit
-        if p.name in _SLOPES:
+        if p.name in _SLOPES or p.name == "tau":
             unit = f"1/{in_unit}"
+        elif p.name in ("alpha", "a0", "a3", "b0", "b3"):
+            unit = in_unit
         elif p.name in ("c0", "c3", "d0", "d3"):
             unit = out_unit
         elif p.name == "rho":
-            unit = f"{out_unit}/A"
+            unit = f"{out_unit}/{in_unit}"
         units.append(unit)
     return units
 

@@ -192,6 +192,10 @@ def test_piezo_record_with_other_columns_and_units(tmp_path, capsys):
     assert main(argv) == 0
     text = capsys.readouterr().out
     assert "1/V" in text
+    # units by dimensional analysis: no parameter is labelled in A for a V-driven record
+    units = {line.split()[0]: line.split()[3] for line in text.splitlines()
+             if line.split() and line.split()[0] in ("alpha", "rho", "tau", "a0", "a1", "a3", "c0")}  # fmt: skip
+    assert units == {"alpha": "V", "rho": "um/V", "tau": "1/V", "a0": "V", "a1": "1/V", "a3": "V", "c0": "um"}
     rms_ratio = float(text.split("residual RMS")[1].split("=")[2].split("x")[0])
     assert rms_ratio == pytest.approx(1.0, abs=0.15)
 
