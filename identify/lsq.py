@@ -353,7 +353,7 @@ def _array(values):
 
 
 def parameter_units(model: Model, record=None) -> list[str]:
-    """Units of ``model.names``, with the record's input/output units substituted.
+    r"""Units of ``model.names``, with the record's input/output units substituted.
 
     The GPI's declared units assume a drive in A and an output in um. For a record in
     other units (e.g. V and um for a piezo) they are rewritten by dimensional analysis:
