@@ -22,7 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-__all__ = ["HELP", "add_arguments", "run", "write_outputs"]
+__all__ = ["HELP", "add_arguments", "parse_window", "run", "write_outputs"]
 
 HELP = "least squares + diagnosis: is the residual noise, and which physical effect is missing?"
 
@@ -38,6 +38,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", default=None, metavar="DIR", help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png"
     )
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    parser.add_argument(
+        "--drop-window", default=None, metavar="START:STOP",
+        help="leave the samples with START <= time < STOP [s] out (e.g. a switch-on ringing no rate-independent "
+        "model fits; see identify.realdata.drop_window)",
+    )  # fmt: skip
+
+
+def parse_window(text: str) -> tuple[float, float]:
+    """``"START:STOP"`` -> ``(start, stop)`` [s]; ValueError naming the option when malformed."""
+    parts = str(text).split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        start, stop = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ValueError(f"--drop-window must be START:STOP in seconds (e.g. 3.2572:3.2772), got {text!r}") from None
+    return start, stop
 
 
 def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[str]:
@@ -93,6 +110,10 @@ def run(args) -> int:
 
     try:
         record = record_from_args(args)
+        if getattr(args, "drop_window", None):
+            from .realdata import drop_window
+
+            record = drop_window(record, *parse_window(args.drop_window))
         model = model_from_args(args)
         noise = noise_from_args(args, record)
     except (RecordError, NoQuietSegmentError, ValueError) as exc:

@@ -239,3 +239,13 @@ def test_report_renders_ranking_parameters_as_a_readable_list():
     assert "<li>thermal_tau = 21.35 s</li>" in cell and "<li>thermal_sensitivity = 0.0312</li>" in cell
     assert "{" not in cell
     assert _effect_parameters_cell({}) == "<td>—</td>"
+
+
+def test_diagnose_drop_window_option(clean_csv, tmp_path, capsys):
+    out_json = tmp_path / "d.json"
+    assert main(["diagnose", str(clean_csv), "--drop-window", "20:20.5", "--json", str(out_json), "--quiet", "--n-starts", "2"]) == 0
+    assert json.loads(out_json.read_text())["status"] in STATUSES
+    assert main(["diagnose", str(clean_csv), "--drop-window", "20", "--quiet"]) == 2
+    assert "START:STOP" in capsys.readouterr().err
+    assert main(["diagnose", str(clean_csv), "--drop-window", "500:600", "--quiet"]) == 2
+    assert "holds 0" in capsys.readouterr().err
