@@ -271,7 +271,7 @@ class InitialState(Effect):
     So the plain GPI already has a free initial state (where 0 lies between its bounds),
     and this effect adds nothing to it (:data:`identify.diagnose.GPI_EQUIVALENTS`; measured
     on the virtual bench: z0 = -20, 293 noise sigmas RMS against the plain GPI at the same
-    parameters, is fitted by a plain GPI to 1.4e-13 sigma). The effect matters only where
+    parameters, is fitted by a plain GPI to ~1e-13 sigma, round-off). The effect matters only where
     those offsets are pinned or carry another parametrisation (e.g. a peer's fit, whose
     operators start above their upper bounds). The paper's training effect, a maximum
     strain reduced *after* the first cycle, is a ratchet on the largest excursion so far,

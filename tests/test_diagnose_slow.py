@@ -20,7 +20,7 @@ diagnosis sees is smaller: the *visible* size, the RMS over the energised part o
 best plain-GPI fit's residual to the noise-free record (measured at seed 0: thermal
 0.54, creep 0.45, lag 0.51, sensor_drift 0.70 sigma). ``initial_state`` (virgin start,
 z0 = -20: 293 sigma against the plain GPI at the same parameters) is an exact
-reparametrisation of the plain GPI (visible size 1.4e-13 sigma; the proof is in
+reparametrisation of the plain GPI (visible size ~1e-13 sigma, round-off; the proof is in
 :func:`identify.diagnose._initial_state_as_envelope_offset`): no diagnosis can name it,
 and the right verdict is ``adequate``.
 """
