@@ -32,9 +32,11 @@ Sampling
 --------
 :func:`sample_posterior` runs emcee's ensemble sampler with an
 :class:`emcee.backends.HDFBackend` (group ``"mcmc"``; written in batches by
-:class:`BufferedHDFBackend`, flushed on Ctrl-C), so an interrupted run resumes where it
-stopped (the sampler's random state is stored with each
-step, so the resumed chain is the one an uninterrupted run gives, bit for bit). It runs
+:class:`BufferedHDFBackend`, at least every second), so an interrupted run resumes where
+it stopped (the sampler's random state is stored with each step, so the resumed chain is
+the one an uninterrupted run gives, bit for bit). Ctrl-C (SIGINT) and ``kill PID``
+(SIGTERM) are honoured between two steps: the completed step is written and
+``KeyboardInterrupt`` raised; a second signal interrupts at once. It runs
 in chunks of ``check_every`` steps (aligned to multiples of it, so stopping does not
 depend on interruptions) and stops when
 
@@ -43,6 +45,9 @@ depend on interruptions) and stops when
 * the chain is at least ``tau_factor`` (50) times the largest autocorrelation time,
 
 or at ``max_steps``; then the result says plainly that it is **not converged**.
+The fraction of proposals inside the prior's support that the model rejects (operator
+bounds crossing) is reported as :attr:`PosteriorResult.outside_domain_fraction`; above
+:data:`DOMAIN_WALL_WARNING` the posterior is truncated by the domain wall.
 Burn-in ``discard = 2 tau_max`` and ``thin = max(1, tau_min / 2)`` are applied to the
 reported samples; the effective sample size of parameter ``j`` is
 ``n_walkers (n_steps - discard) / tau_j``.
