@@ -58,7 +58,7 @@ from scipy.special import ndtr, ndtri
 
 from . import plots, results
 from .noise import energised_mask
-from .posterior import DOMAIN_WALL_WARNING
+from .posterior import BENCH_COVERAGE, DOMAIN_WALL_WARNING
 
 __all__ = [
     "write_report",
@@ -1058,6 +1058,14 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
             row_classes=classes,
         )
     )  # fmt: skip
+    parts.append(
+        '<p class="note" id="interval-calibration">Which interval to quote: on the virtual bench (12 seeded records, '
+        f"truth known; README, \"Identification\") the least-squares intervals (estimate ± 1.96 std. errors) covered "
+        f"the truth at {BENCH_COVERAGE['least_squares']:.3f} (nominal {BENCH_COVERAGE['nominal']:.2f}), the posterior "
+        f"95 % intervals at only {BENCH_COVERAGE['posterior']:.3f}: at that noise level the posterior is narrower "
+        "than the estimate's scatter. Quote the least-squares intervals for coverage and use the posterior for "
+        "shapes, correlations and the bands.</p>"
+    )
     converged = bool(posterior.get("converged"))
     rows = [
         [_text("walkers"), _cell(posterior.get("n_walkers"), "posterior.n_walkers")],

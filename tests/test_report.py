@@ -263,6 +263,7 @@ def test_every_table_is_present(misfit_page):
     assert expected <= set(misfit_page.table_ids)
     for section in ("glance", "measurement", "fit-quality-section", "parameters-section", "diagnosis", "provenance-section"):
         assert section in misfit_page.element_ids
+    assert "interval-calibration" in misfit_page.element_ids  # which interval to quote, with the bench's coverage
 
 
 def test_page_is_self_contained(misfit_folder, misfit_page):
