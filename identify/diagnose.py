@@ -9,7 +9,7 @@ Method
 ------
 1. **Baseline.** Least squares of the given model (:func:`identify.lsq.fit_least_squares`,
    several starts) finished by a polish through the GPI's domain wall
-   (:class:`_SoftWallResiduals`: a model that misses an effect is misspecified, its fit
+   (:class:`identify.lsq.SoftWallResiduals`: a model that misses an effect is misspecified, its fit
    presses the envelopes against the wall where operator bounds cross, and a hard wall
    stalls trust-region solvers far from the optimum; every fit the diagnosis compares is
    finished this way). Then the residual's profile
@@ -116,17 +116,25 @@ from __future__ import annotations
 import itertools
 import math
 import time as _time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 
-from model import EFFECTS, READINGS, THETA_NAMES, Model, envelope, get_effect
+from model import EFFECTS, READINGS, Model, envelope, get_effect
 
 from .identifiability import normalised_model
-from .lsq import DOMAIN_PENALTY, FitResult, WhitenedResiduals, _single_threaded_blas, candidate_starts, fit_least_squares
-from .noise import NoiseModel, estimate_noise, quiet_segment, whiten
+from .lsq import (
+    FitResult,
+    SoftWallResiduals,
+    WhitenedResiduals,
+    _single_threaded_blas,
+    candidate_starts,
+    fit_least_squares,
+    polish_through_wall,
+)
+from .noise import NoiseModel, estimate_noise, quiet_segment
 from .residuals import ARNoise, ResidualProfile, autocorrelation, fit_ar_noise, residual_profile
 
 __all__ = [
@@ -956,94 +964,6 @@ REFIT_SCREEN_EVALUATIONS = 20
 POLISH_EVALUATIONS = 200
 #: How often a candidate's GPI may replace the baseline before the verdict (see :func:`diagnose`).
 MAX_BASELINE_CHALLENGES = 1
-#: Weight of the GPI domain-wall penalty [whitened residual per A of bound crossing].
-WALL_WEIGHT = 1e4
-
-
-class _SoftWallResiduals:
-    """Whitened residuals continued across the GPI's domain wall, plus one penalty entry.
-
-    :class:`identify.lsq.WhitenedResiduals` answers a parameter set whose operator
-    bounds cross (``"swapped"`` reading) with a constant penalty per sample. That wall
-    stalls trust-region solvers: a misspecified fit (a model missing an effect) pushes
-    its envelopes against it, and the solver stops (``xtol``) at the wall, often far
-    from the optimum, which in the cases examined lies *inside* the domain but must be
-    reached *through* the crossing region (e.g. plain GPI on a record with a hidden
-    ``initial_state``: the wall stops the fit at RMS 15 um; through the crossing
-    region trust-region-reflective reaches the noise level in 26 evaluations).
-    Here the model output is continued across the wall (the clamp
-    ``max(L, min(U, z))`` stays finite and continuous) and one extra residual
-    ``WALL_WEIGHT * violation`` pushes the solution back; :meth:`project` moves a
-    final point that still crosses back inside by shrinking ``|alpha|``.
-    """
-
-    def __init__(self, record, model_e: Model, noise: NoiseModel):
-        self.inner = WhitenedResiduals(record, model_e, noise)
-        self.model = model_e
-        self.time = self.inner.time
-        self.current = self.inner.current
-        self.free, self.lower, self.upper = self.inner.free, self.inner.lower, self.inner.upper
-        self.checks_wall = bool(READINGS[model_e.reading])
-        self.drive_grid = np.linspace(float(self.current.min()), float(self.current.max()), 101)
-
-    def _gpi_gap(self, thetas):
-        """``max_v (rising - falling) - 2 min_j r_j`` per row (> 0: the bounds cross)."""
-        rising = envelope(thetas[:, None, 3:7], self.drive_grid)
-        falling = envelope(thetas[:, None, 7:11], self.drive_grid)
-        alpha = thetas[:, 0]
-        min_threshold = np.where(alpha < 0, alpha * self.model.n_operators, alpha)
-        return np.max(rising - falling, axis=1) - 2.0 * min_threshold
-
-    def batch(self, xs) -> np.ndarray:
-        """Residuals ``(B, T + 1)`` for free vectors ``(B, P_free)`` (last column: the wall penalty)."""
-        thetas = self.inner.full(np.atleast_2d(xs))
-        y, _ = self.model.evaluate(thetas, self.time, self.current)
-        w = whiten(self.inner.data[None, :] - y, self.inner.noise, self.inner.sigma)
-        bad = ~np.isfinite(w).all(axis=1)
-        w[bad] = DOMAIN_PENALTY
-        gap = self._gpi_gap(thetas) if self.checks_wall else np.zeros(thetas.shape[0])
-        return np.hstack([w, WALL_WEIGHT * np.maximum(gap, 0.0)[:, None]])
-
-    def __call__(self, x) -> np.ndarray:
-        return self.batch(np.asarray(x, dtype=float)[None, :])[0]
-
-    def jacobian(self, x) -> np.ndarray:
-        """Forward differences ``(T + 1, P_free)`` from one batched call."""
-        x = np.asarray(x, dtype=float)
-        steps = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(x), 0.01)
-        steps = np.where(x + steps > self.upper, -steps, steps)
-        rows = np.repeat(x[None, :], x.size + 1, axis=0)
-        rows[1 + np.arange(x.size), np.arange(x.size)] += steps
-        w = self.batch(rows)
-        return ((w[1:] - w[0]) / steps[:, None]).T
-
-    def project(self, x) -> np.ndarray:
-        """``x`` moved inside the domain (``alpha`` toward 0 until the bounds no longer cross)."""
-        x = np.asarray(x, dtype=float).copy()
-        if not self.checks_wall:
-            return x
-        theta = self.inner.full(x)
-        if self._gpi_gap(theta[None, :])[0] <= 0 and self.inner.batch(x[None, :])[1][0]:
-            return x
-        alpha_free = np.flatnonzero(self.free == 0)
-        b3_free = np.flatnonzero(self.free == THETA_NAMES.index("b3"))
-        gap_rf = float(np.max(envelope(theta[3:7], self.drive_grid) - envelope(theta[7:11], self.drive_grid)))
-        for margin in (1e-6, 1e-4, 1e-3, 1e-2, 3e-2, 1e-1):
-            trial = x.copy()
-            if alpha_free.size and theta[0] < 0:
-                # alpha toward 0 until the widest operator fits between the envelopes
-                i = int(alpha_free[0])
-                trial[i] = min(max(theta[0], gap_rf / (2.0 * self.model.n_operators) * (1.0 - margin)), self.upper[i])
-            elif b3_free.size:
-                # alpha pinned (the normalisation): raise the falling envelope instead
-                i = int(b3_free[0])
-                gap = float(self._gpi_gap(theta[None, :])[0])
-                trial[i] = min(theta[THETA_NAMES.index("b3")] + max(gap, 0.0) * (1.0 + margin) + margin, self.upper[i])
-            else:
-                return x
-            if self.inner.batch(trial[None, :])[1][0]:
-                return trial
-        return x
 
 
 def _solve(residuals, x0, method, max_nfev, tolerance=1e-10):
@@ -1054,21 +974,17 @@ def _solve(residuals, x0, method, max_nfev, tolerance=1e-10):
         )  # fmt: skip
 
 
-def _polish(residuals: _SoftWallResiduals, x0) -> np.ndarray:
-    """Trust-region-reflective least squares through the soft wall from ``x0``; the result moved
-    inside the domain. Returns ``x0`` itself when that is better (hard-wall chi-square)."""
-    x0 = np.asarray(x0, dtype=float)
-    sol = _solve(residuals, x0, "trf", POLISH_EVALUATIONS)
-    x = residuals.project(sol.x)
-    w_new, valid = residuals.inner.batch(np.vstack([x, x0]))
-    chi2 = np.where(valid, np.sum(w_new**2, axis=1), np.inf)
-    return x if chi2[0] <= chi2[1] else x0
+def _polish(residuals: SoftWallResiduals, x0) -> np.ndarray:
+    """:func:`identify.lsq.polish_through_wall` from ``x0`` (at most :data:`POLISH_EVALUATIONS`
+    evaluations) with single-threaded BLAS, so the diagnosis is the same whatever the thread count."""
+    with _single_threaded_blas():
+        return polish_through_wall(residuals, x0, POLISH_EVALUATIONS)
 
 
 def _finish(record, model_e: Model, noise: NoiseModel, x, rng, fit: FitResult | None = None) -> FitResult:
     """Polish free vector ``x`` (:func:`_polish`) and return the :class:`FitResult` there
     (``fit`` itself when that is no worse)."""
-    residuals = _SoftWallResiduals(record, model_e, noise)
+    residuals = SoftWallResiduals(record, model_e, noise)
     x = _polish(residuals, x)
     if fit is not None:
         w = residuals.inner(x)
@@ -1096,7 +1012,7 @@ def _short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tup
     theta : ndarray, shape (P_e,)
         That point (full vector).
     """
-    residuals = _SoftWallResiduals(record, model_e, noise)
+    residuals = SoftWallResiduals(record, model_e, noise)
     inner = residuals.inner
     best_chi2, best_x = np.inf, None
     for group in start_groups:

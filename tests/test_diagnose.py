@@ -19,7 +19,6 @@ from identify.diagnose import (
     Thresholds,
     _refit_starts,
     _short_refit,
-    _SoftWallResiduals,
     GPI_EQUIVALENTS,
     assess_adequacy,
     diagnose,
@@ -28,7 +27,7 @@ from identify.diagnose import (
     screening_grid,
 )
 from identify.identifiability import normalised_model
-from identify.lsq import fit_least_squares
+from identify.lsq import SoftWallResiduals, fit_least_squares
 from identify.noise import estimate_noise
 from identify.records import write_record
 from identify.residuals import ARNoise, residual_profile
@@ -114,7 +113,7 @@ def test_screening_ranks_the_hidden_effect_first():
 def test_soft_wall_projection_returns_into_the_domain():
     sim = simulate(None, seed=2, fs=50.0)
     for model in (Model(), normalised_model(Model())):
-        residuals = _SoftWallResiduals(sim.record, model, estimate_noise(sim.record))
+        residuals = SoftWallResiduals(sim.record, model, estimate_noise(sim.record))
         theta = model.default_theta()
         theta[model.names.index("a3")] += 0.5  # lifts the rising envelope: the bounds cross
         x = theta[residuals.free]
