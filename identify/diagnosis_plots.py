@@ -15,9 +15,8 @@ rising branch red, falling branch blue.
 from __future__ import annotations
 
 import numpy as np
-from matplotlib.figure import Figure
 
-from .plots import STYLE, axis_label, unit_label
+from .plots import _figure, _styled, axis_label, unit_label
 
 __all__ = [
     "residual_time_figure",
@@ -39,23 +38,6 @@ RISING_COLOUR = "tab:red"
 FALLING_COLOUR = "tab:blue"
 NOISE_COLOUR = "0.6"
 _MAX_POINTS = 4000
-
-
-def _styled(function):
-    def wrapper(*args, **kwargs):
-        import matplotlib
-
-        with matplotlib.rc_context(STYLE):
-            return function(*args, **kwargs)
-
-    wrapper.__name__ = function.__name__
-    wrapper.__doc__ = function.__doc__
-    wrapper.__wrapped__ = function
-    return wrapper
-
-
-def _figure(width, height):
-    return Figure(figsize=(width, height), layout="constrained")
 
 
 def _thin(n, max_points=_MAX_POINTS):
