@@ -1067,13 +1067,13 @@ def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
     the noise model's lag-1 correlation becomes ``rho ** step``."""
     from dataclasses import replace as _replace
 
-    from .records import Record
+    from .records import Record, thinning_indices
 
     n = len(record)
     step = max(1, int(math.ceil(n / SCREENING_SAMPLES)))
     if step == 1:
         return _Working(record, noise, 1)
-    keep = np.union1d(np.union1d(np.arange(0, n, step), np.asarray(reversal_index, dtype=int)), [n - 1])
+    keep = thinning_indices(record.current, step, reversal_index)
     small = Record(
         record.time[keep], record.current[keep], record.displacement[keep],
         source=f"{record.source} (every {step}th sample, for screening)", sha256="",

@@ -922,15 +922,13 @@ def _wall_working_copy(record, noise: NoiseModel):
     the AR(1) correlation of the noise raised to the step; unchanged when short enough."""
     from dataclasses import replace
 
-    from .records import Record
-    from .residuals import find_reversals
+    from .records import Record, thinning_indices
 
     n = len(record)
     step = max(1, int(math.ceil(n / WALL_SAMPLES)))
     if step == 1:
         return record, noise
-    keep = np.union1d(np.arange(0, n, step), np.asarray(find_reversals(record.current).index, dtype=int))
-    keep = np.union1d(keep, [n - 1])
+    keep = thinning_indices(record.current, step)
     small = Record(
         record.time[keep], record.current[keep], record.displacement[keep],
         source=f"{record.source} (every {step}th sample and the reversals)", sha256="",

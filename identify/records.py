@@ -35,7 +35,7 @@ import numpy as np
 
 from .fileio import atomic_write_bytes
 
-__all__ = ["Record", "RecordError", "load_record", "write_record", "sidecar_path", "keep_every", "DEFAULT_COLUMNS"]
+__all__ = ["Record", "RecordError", "load_record", "write_record", "sidecar_path", "keep_every", "thinning_indices", "DEFAULT_COLUMNS"]
 
 #: The default header: time [s], drive [A], output [um].
 DEFAULT_COLUMNS = ("time", "current", "displacement")
@@ -426,6 +426,32 @@ def write_record(path, record_or_arrays, sidecar: dict | None = None) -> None:
         side.unlink()
 
 
+def thinning_indices(current, every: int, reversals=None) -> np.ndarray:
+    """Sorted sample indices kept by thinning: ``0, every, 2 every, ...``, every input reversal and the last sample.
+
+    Parameters
+    ----------
+    current : array_like, shape (T,)
+        The drive.
+    every : int
+        Step (>= 1).
+    reversals : array_like of int, optional
+        Indices of the input reversals when already known; default
+        :func:`identify.residuals.find_reversals` ``(current).index``.
+
+    Returns
+    -------
+    ndarray of int, shape (K,)
+    """
+    n = len(current)
+    if reversals is None:
+        from .residuals import find_reversals
+
+        reversals = find_reversals(current).index
+    keep = np.union1d(np.arange(0, n, int(every)), np.asarray(reversals, dtype=int))
+    return np.union1d(keep, [n - 1])
+
+
 def keep_every(record: Record, every: int) -> Record:
     """The record thinned to every ``every``-th sample, keeping every input reversal.
 
@@ -462,11 +488,8 @@ def keep_every(record: Record, every: int) -> Record:
         return record
     from dataclasses import replace
 
-    from .residuals import find_reversals
-
     n = len(record)
-    keep = np.union1d(np.arange(0, n, every), np.asarray(find_reversals(record.current).index, dtype=int))
-    keep = np.union1d(keep, [n - 1])
+    keep = thinning_indices(record.current, every)
     note = f"thinned (--every {every}): kept every {every}th sample, every input reversal and the last sample: {keep.size} of {n} samples"
     return replace(
         record,
