@@ -681,8 +681,8 @@ def sample_posterior(
     import numba
 
     threads_before = numba.get_num_threads()
-    counts = lambda: (getattr(log_post, "n_in_support", 0), getattr(log_post, "n_outside_domain", 0))  # noqa: E731
-    in_support_before, outside_before = counts()
+    counts = lambda: np.array([getattr(log_post, "n_in_support", 0), getattr(log_post, "n_outside_domain", 0)])  # noqa: E731
+    proposals = np.zeros(2, dtype=int)  # (inside the support, outside the domain) of the sampler's own calls
     tau_cache: dict[int, np.ndarray] = {}
     t0 = _time.perf_counter()
     converged, message = False, ""
@@ -700,10 +700,8 @@ def sample_posterior(
                     message = f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg
                     break
             steps = min(check_every - done % check_every, max_steps - done)
-            timing_before = counts()
             fastest_thread_count(log_post, np.asarray(state.coords))
-            in_support_before += counts()[0] - timing_before[0]  # timing calls are not proposals
-            outside_before += counts()[1] - timing_before[1]
+            chunk_start = counts()
             with _stop_between_steps() as stop:
                 # emcee's linear-independence check is for a start we made; walkers the
                 # sampler itself moved (a later chunk, a resumed run) may lie along a
@@ -715,6 +713,7 @@ def sample_posterior(
                     if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
                         backend.flush()
                         raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
+            proposals += counts() - chunk_start
             backend.flush()
     finally:
         numba.set_num_threads(threads_before)
@@ -725,7 +724,7 @@ def sample_posterior(
         path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
         tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
         n_errors=log_post.n_errors, tau_cache=tau_cache,
-        outside_domain_fraction=_ratio(counts()[1] - outside_before, counts()[0] - in_support_before),
+        outside_domain_fraction=_ratio(proposals[1], proposals[0]),
     )  # fmt: skip
 
 
