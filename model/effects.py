@@ -9,7 +9,7 @@ bit for bit) and a typical "on" setting (:meth:`get_test_parameters`).
 name                stage    equation (one line)
 ==================  =======  ==================================================================
 ``lag``             input    :math:`\tau_L \dot u = i - u`, the GPI sees the drive :math:`u`
-``training``        input    :math:`u = i_0 + (i - i_0)(1 - g e^{-V/V_0})`, :math:`V` the drive's accumulated travel
+``training``        input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`, :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
 ``initial_state``   state    operators' initial memory clamped from :math:`z^0` instead of 0
 ``creep``           output   :math:`y = y_g - A\,(y_g - \tfrac1M \sum_m s_m)`, :math:`\tau_m \dot s_m = y_g - s_m`
 ``thermal``         output   :math:`\tau_T \dot\vartheta = (i/i_\mathrm{ref})^2 - \vartheta`, :math:`y = y_g (1 - S\vartheta) + E\vartheta`
@@ -46,6 +46,7 @@ __all__ = [
     "creep_time_constants",
     "thermal_rise",
     "accumulated_travel",
+    "training_fade",
     "REFERENCE_CURRENT",
     "CREEP_MODES",
 ]
@@ -228,6 +229,27 @@ def accumulated_travel(drive):
     return travel
 
 
+def training_fade(travel, travel_scale, shape):
+    r"""The first-cycle fade :math:`f = \exp(-(V/V_0)^p)` of :class:`Training`.
+
+    Parameters
+    ----------
+    travel : array_like, shape (W, T)
+        Accumulated drive travel :math:`V` [A] (:func:`accumulated_travel`).
+    travel_scale : array_like, shape (W, 1) or scalar
+        :math:`V_0` [A], > 0.
+    shape : array_like, shape (W, 1) or scalar
+        :math:`p` (dimensionless), > 0: 1 an exponential fade, large a step at :math:`V_0`,
+        about 2.4 close to a linear fade to 0 at :math:`2 V_0`.
+
+    Returns
+    -------
+    ndarray, shape (W, T)
+        :math:`f`, 1 at :math:`V = 0`, non-increasing, :math:`1/e` at :math:`V = V_0`.
+    """
+    return np.exp(-((np.asarray(travel, dtype=float) / travel_scale) ** shape))
+
+
 def _column(params, i):
     """Column ``i`` of a ``(W, k)`` parameter array as a contiguous float ``(W,)`` array."""
     return np.ascontiguousarray(np.asarray(params, dtype=float)[:, i])
@@ -277,15 +299,20 @@ class Training(Effect):
 
     .. math::
 
-        u_k = i_0 + (i_k - i_0)\,\big(1 - g\, e^{-V_k / V_0}\big), \qquad
-        V_k = \sum_{m=1}^{k} |i_m - i_{m-1}|
+        f_k = e^{-(V_k / V_0)^p}, \qquad V_k = \sum_{m=1}^{k} |i_m - i_{m-1}|, \qquad
+        \Delta_k = i_k - i_0,
+
+        u_k = i_0 + \operatorname{sign}(\Delta_k)\,\max(|\Delta_k| - F f_k,\ 0)\,(1 - g f_k)
 
     and the GPI sees the drive :math:`u` (after ``lag``'s, when both are present: then
     :math:`i` is the lagged drive). :math:`V` is the drive's accumulated travel since the
-    record's start [A] (:func:`accumulated_travel`): the transient fades with the cycling
-    the material has done, not with time (a pause does not train it). :math:`i_0` is the
-    drive at the first sample (0 A on the paper's record), so the unenergised start is
-    untouched.
+    record's start [A] (:func:`accumulated_travel`), so the difference fades with the
+    cycling the material has done, not with time (a pause does not train it);
+    :math:`f` (:func:`training_fade`) is 1 on the virgin material and falls to :math:`1/e`
+    after :math:`V_0` of travel. :math:`i_0` is the drive at the first sample (0 A on the
+    paper's record): the excursion from it is reduced by the extra threshold :math:`F f`
+    (a soft threshold: nothing moves until the drive exceeds it) and scaled by
+    :math:`1 - g f`. The unenergised start (:math:`\Delta = 0`) is untouched.
 
     Physics: in the virgin (untrained) state the twin boundaries of the MSM crystal must
     first be nucleated or activated, so the first field-induced reorientation needs a
@@ -296,33 +323,39 @@ class Training(Effect):
     2010). The paper (sec. "Magnetic shape memory materials") reports a first cycle that
     differs from the later ones: the return spring "is not sufficiently large to provide
     crystal lattice reorientation ... thus that after first cycle maximum strain is
-    reduced". :math:`g > 0`: the virgin material lacks the fraction :math:`g` of the drive
-    (the first rising branch is delayed and stretched); :math:`g < 0`: the first cycle
-    sees more drive, reaching a larger strain than the later ones.
+    reduced". :math:`F > 0`: an extra field threshold; :math:`g > 0`: the virgin material
+    lacks the fraction :math:`g` of the drive (the first rising branch is delayed and
+    stretched); :math:`g < 0`: the first cycle sees more drive and reaches a larger strain
+    than the later ones. The fade's shape :math:`p` makes the general form absorb other
+    laws of the same physics: 1 is exponential in the travel, about 2.4 close to a linear
+    fade to 0 over :math:`2 V_0`, 8 nearly a step at :math:`V_0` (e.g. at the first reversal).
 
     What the GPI cannot do: its first (virgin) branch is tied to all later branches by the
-    same parameters. A *constant* drive scale, however, is an exact reparametrisation of
-    the GPI (absorbed by the tanh slopes a1, b1, c1, d1), so as :math:`V_0 \to \infty` the
-    effect stops being identifiable; the bounds keep the transient fading within a record
-    (the paper's input has 47.5 A of total travel over 70 s, 10 A per early cycle:
-    :math:`V_0 \le 10` A leaves at most :math:`e^{-4.75} < 1\,\%` of it at the end).
-    Neither the GPI's return-point memory nor ``initial_state`` (an exact
-    reparametrisation, wiped out by the first full excursion) represents it. Measured on
-    the virtual bench (paper input, Table 1, :math:`g = 0.08`, :math:`V_0 = 2` A: 1.9 noise
-    sigmas RMS against the plain GPI at the same parameters, sigma = 0.5 um) the best
-    plain-GPI refit leaves 1.2 sigma RMS over the energised part.
+    same parameters. A *constant* drive scale or shift, however, is an exact
+    reparametrisation of the GPI (absorbed by the tanh slopes a1, b1, c1, d1 and arguments
+    a2, b2, c2, d2), so as :math:`V_0 \to \infty` the effect stops being identifiable; the
+    bounds keep the transient fading within a record (the paper's input has 47.5 A of total
+    travel over 70 s, 10 A per early cycle: at :math:`V_0 = 15` A and :math:`p \ge 1` at
+    most :math:`e^{-3.17} = 4\,\%` of it is left at the end). Neither the GPI's return-point
+    memory nor ``initial_state`` (an exact reparametrisation, wiped out by the first full
+    excursion) represents it. Measured on the virtual bench (paper input, Table 1,
+    :math:`g = 0.08`, :math:`V_0 = 2` A, :math:`p = 1`: 1.94 noise sigmas RMS against the
+    plain GPI at the same parameters, sigma = 0.5 um), the best plain-GPI refit leaves about
+    1.2 sigma RMS over the energised part (a larger share than lag, creep, thermal or drift
+    leave of theirs: the GPI cannot bend its first branch away from the later ones).
 
-    Why a scale and not a drive shift :math:`u = i - F e^{-V/V_0}` (measured first): a
-    shift moves the unenergised start, where :math:`V = 0` and the whole shift acts (F =
-    0.3 A moved the rest level by 23 um, 46 sigmas, a change of the sensor's zero that no
-    field can cause), and a negative shift drives a GPI calibrated up to the record's
-    largest current beyond it at the first peak (Table 1 leaves its domain above 5 A);
-    the scale about :math:`i_0` leaves the rest state alone and, for :math:`g > 0`, keeps
-    the drive between :math:`i_0` and :math:`i`.
+    Why not the plain drive shift :math:`u = i - F e^{-V/V_0}` (measured first): it moves
+    the unenergised start, where :math:`V = 0` and the whole shift acts (F = 0.3 A moved
+    the rest level by 23 um, 46 sigmas: a change of the sensor's zero that no field can
+    cause), and a negative shift drives a GPI calibrated up to the record's largest current
+    beyond it at the first peak (Table 1 leaves its domain above 5 A). The soft threshold
+    and the scale about :math:`i_0` leave the rest state alone and, for :math:`g, F \ge 0`,
+    keep the drive between :math:`i_0` and :math:`i`.
 
     Parameters: ``training_deficit`` :math:`g` (dimensionless), ``-0.5 <= g <= 0.5``;
-    ``training_travel`` :math:`V_0` [A], ``0.5 <= V_0 <= 10``. Off: ``g = 0`` (the drive
-    is the current itself, bit for bit, whatever :math:`V_0`).
+    ``training_threshold`` :math:`F` [A], ``0 <= F <= 2``; ``training_travel`` :math:`V_0`
+    [A], ``0.5 <= V_0 <= 15``; ``training_shape`` :math:`p`, ``0.5 <= p <= 8``. Off:
+    ``g = F = 0`` (the drive is the current itself, bit for bit, whatever :math:`V_0`, :math:`p`).
     """
 
     name = "training"
@@ -334,34 +367,46 @@ class Training(Effect):
                 description="fraction of the drive the virgin material lacks (negative: has in excess)",
             ),
             Parameter(
-                "training_travel", 2.0, 0.5, 10.0, unit="A",
-                description="accumulated drive travel over which the first-cycle deficit fades by 1/e",
+                "training_threshold", 0.0, 0.0, 2.0, unit="A",
+                description="extra drive the virgin material needs before it responds at all",
+            ),
+            Parameter(
+                "training_travel", 2.0, 0.5, 15.0, unit="A",
+                description="accumulated drive travel over which the first-cycle difference fades by 1/e",
+            ),
+            Parameter(
+                "training_shape", 1.0, 0.5, 8.0, unit="",
+                description="exponent of the fade exp(-(V/V0)^p): 1 exponential, large a step at V0",
             ),
         ]
     )  # fmt: skip
-    off = {"training_deficit": 0.0, "training_travel": 2.0}
-    summary = "first-cycle training: u = i0 + (i - i0)(1 - g exp(-V/V0)), V = accumulated drive travel"
+    off = {"training_deficit": 0.0, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0}
+    summary = "first-cycle training: excursion soft-thresholded by F f and scaled by 1 - g f, f = exp(-(V/V0)^p)"
 
     @classmethod
     def get_test_parameters(cls):
-        return {"training_deficit": 0.2, "training_travel": 2.0}
+        return {"training_deficit": 0.2, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0}
 
     def drive(self, params, time, current):
-        """Drive with the fading first-cycle deficit, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
+        """Drive with the fading first-cycle difference, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
         params = np.asarray(params, dtype=float)
-        deficit = params[:, 0:1]
-        travel_scale = params[:, 1:2]
-        bad = ~(np.isfinite(params).all(axis=1) & (travel_scale[:, 0] > 0))
+        deficit, threshold, travel_scale, shape = (params[:, c : c + 1] for c in range(4))
+        bad = ~(np.isfinite(params).all(axis=1) & (travel_scale[:, 0] > 0) & (shape[:, 0] > 0) & (threshold[:, 0] >= 0))
         if bad.any():
             raise ValueError(
-                "training: training_deficit must be finite and training_travel a positive number of A; "
-                f"parameter set(s) {np.flatnonzero(bad)[:5].tolist()} are not ({params[bad][:3].tolist()})"
+                "training: the parameters must be finite, training_threshold >= 0 and training_travel, "
+                f"training_shape > 0; parameter set(s) {np.flatnonzero(bad)[:5].tolist()} are not "
+                f"({params[bad][:3].tolist()})"
             )
         drive = np.atleast_2d(np.asarray(current, dtype=float))
         if drive.shape[0] not in (1, params.shape[0]):
             raise ValueError(f"training: the drive has {drive.shape[0]} rows for {params.shape[0]} parameter sets")
-        start = drive[:, 0:1]
-        return drive - (drive - start) * (deficit * np.exp(-accumulated_travel(drive) / travel_scale))
+        fade = training_fade(accumulated_travel(drive), travel_scale, shape)
+        excursion = drive - drive[:, 0:1]
+        # soft threshold: the excursion less F f toward the start (0 inside the threshold)
+        kept = np.sign(excursion) * np.maximum(np.abs(excursion) - threshold * fade, 0.0)
+        # u = i - (excursion - kept (1 - g f)); every term 0 when g = F = 0, so u == i bit for bit
+        return drive - (excursion - kept * (1.0 - deficit * fade))
 
 
 @register_effect

@@ -23,6 +23,7 @@ from model.effects import (
     creep_time_constants,
     first_order_lowpass,
     thermal_rise,
+    training_fade,
 )
 from model.parameters import Parameter, ParameterSet
 
@@ -248,58 +249,77 @@ def signature_initial_state(paper_input, plain_gpi):
 
 
 def signature_training(paper_input, plain_gpi):
-    """The drive deficit g (i - i0) exp(-V/V0) follows the travel analytically; the quiet start
-    is untouched; the first rising branch is delayed (g > 0) or advanced (g < 0); late in the
-    record the output is the plain GPI's."""
+    """The drive follows the soft threshold and scale of the fading first-cycle difference
+    analytically; the quiet start is untouched; the first rising branch is delayed (g, F > 0)
+    or advanced (g < 0); late in the record the output is the plain GPI's; V0 and p set the fade."""
     time, current = paper_input
     m = Model(["training"])
     effect = m.effects[0]
+    names = ("training_deficit", "training_threshold", "training_travel", "training_shape")
     # Paper input (literal): 0 A until 10 s, then 2.5 - 2.5 cos(0.2 pi (t - 10)) (eq. (15) with
     # -pi/2), undamped until 20 s: rising 0 -> 5 A over 10-15 s, falling to 0 A at 20 s. So the
-    # accumulated travel is V = i on the first rising branch and V = 10 - i on the first falling one.
+    # accumulated travel is V = i on the first rising branch and V = 10 A - i on the first falling one.
     first_rise = (time >= 10.0) & (time <= 15.0)
     first_fall = (time > 15.0) & (time <= 20.0)
     travel = accumulated_travel(current)[0]
     np.testing.assert_allclose(travel[first_rise], current[first_rise], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(travel[first_fall], 10.0 - current[first_fall], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(travel[-1], np.sum(np.abs(np.diff(current))), rtol=1e-12)
-    for deficit, scale in ((0.2, 2.0), (0.3, 0.8), (-0.05, 4.0)):
-        drive = effect.drive(np.array([[deficit, scale]]), time, current)[0]
-        expected = current * (1.0 - deficit * np.exp(-travel / scale))  # i0 = 0 A
-        np.testing.assert_allclose(drive, expected, rtol=1e-13, atol=1e-15)
-        # V0 is read back from the deficit on the first falling branch: at i = 2.5 A (t = 17.5 s)
-        # V = 7.5 A, so (i - u) / (g i) = exp(-7.5 A / V0).
-        k = int(np.argmin(np.abs(time - 17.5)))
-        recovered = -travel[k] / math.log((current[k] - drive[k]) / (deficit * current[k]))
-        np.testing.assert_allclose(recovered, scale, rtol=1e-9)
-        y = m(_theta(m, {"training_deficit": deficit, "training_travel": scale}), time, current)
+    settings = ((0.2, 0.0, 2.0, 1.0), (0.3, 0.0, 0.8, 3.0), (-0.05, 0.0, 4.0, 1.0), (0.0, 0.4, 3.0, 2.0))
+    for deficit, threshold, scale, shape in settings:
+        values = dict(zip(names, (deficit, threshold, scale, shape)))
+        drive = effect.drive(np.array([[deficit, threshold, scale, shape]]), time, current)[0]
+        fade = np.exp(-((travel / scale) ** shape))
+        # i0 = 0 A and i >= 0: u = max(i - F f, 0) (1 - g f)
+        expected = np.maximum(current - threshold * fade, 0.0) * (1.0 - deficit * fade)
+        np.testing.assert_allclose(drive, expected, rtol=1e-13, atol=1e-14)
+        # V0 is read back from the drive where the travel has reached about V0 (on the first
+        # rising branch, V = i): f = exp(-(V / V0)^p) there
+        k = int(np.argmin(np.abs(travel - scale)))
+        if threshold == 0.0:
+            fade_k = (current[k] - drive[k]) / (deficit * current[k])
+        else:
+            fade_k = (current[k] - drive[k]) / threshold
+        np.testing.assert_allclose(travel[k] / (-math.log(fade_k)) ** (1.0 / shape), scale, rtol=1e-8)
+        y = m(_theta(m, values), time, current)
         assert np.array_equal(y[time < 10.0], plain_gpi[time < 10.0])  # the unenergised start is untouched
         change = y - plain_gpi
         # on the first rising branch the GPI output rises with the drive: less drive, less output
-        sign = 1.0 if deficit > 0 else -1.0
+        sign = -1.0 if deficit < 0 else 1.0
         assert np.all(sign * change[first_rise] <= 1e-9) and np.max(np.abs(change[first_rise])) > 0.1
-        # late in the record (t > 50 s, V > 35.5 A): the deficit |g| i exp(-V/V0) < 5e-5 A for these
-        # settings and it does not change the input's direction, so the output moves along the
+        # late in the record (t > 50 s, V > 35.5 A): the change of the drive is below 5e-5 A for
+        # these settings and does not change the input's direction, so the output moves along the
         # same branch, whose slope is below 400 um/A (measured: 312 um/A within a branch on the
         # paper input at 1 kHz): the change is below 0.02 um (measured: < 1e-6 um)
         late = time > 50.0
         assert np.max(np.abs(drive[late] - current[late])) < 5e-5
         assert np.array_equal(np.sign(np.diff(drive[late])), np.sign(np.diff(current[late])))
         assert np.max(np.abs(change[late])) < 0.02
-    # V0 controls how fast it fades: a longer travel scale leaves more of the deficit later on
+    # A threshold F: nothing moves on the first rise until the current exceeds F (f = 1 at V = 0)
+    drive = effect.drive(np.array([[0.0, 0.4, 3.0, 2.0]]), time, current)[0]
+    below = first_rise & (current > 0) & (current < 0.4 * np.exp(-((current / 3.0) ** 2)))
+    assert below.sum() > 5 and np.all(drive[below] == 0.0)
+    # V0 controls how fast it fades: a longer travel scale leaves more of the difference later on
     second_cycle = (time > 20.0) & (time < 30.0)
     fast = m(_theta(m, {"training_deficit": 0.2, "training_travel": 1.0}), time, current) - plain_gpi
     slow = m(_theta(m, {"training_deficit": 0.2, "training_travel": 4.0}), time, current) - plain_gpi
     assert np.max(np.abs(slow[second_cycle])) > 10.0 * np.max(np.abs(fast[second_cycle]))
-    # Chained after lag: the deficit acts on the lagged drive (and its travel).
+    # p shapes it: at the same V0 = 5 A (the first peak), p = 8 keeps nearly all of the
+    # difference until V0 and almost none after 1.5 V0 (f(0.8 V0) = 0.846, f(1.5 V0) = 7.6e-12)
+    step_like = training_fade(travel, 5.0, 8.0)
+    early = first_rise & (current <= 4.0)
+    np.testing.assert_allclose(step_like[early], np.exp(-((current[early] / 5.0) ** 8)), rtol=1e-14)
+    assert np.all(step_like[early] > 0.84) and np.all(step_like[travel >= 7.5] < 1e-11)
+    # Chained after lag: the difference acts on the lagged drive (and its travel).
     m2 = Model(["training", "lag"])
     assert m2.effect_names == ("lag", "training")
     lagged = first_order_lowpass(time, current, 0.05)[0]
-    lagged_travel = accumulated_travel(lagged)[0]
-    y2 = m2(_theta(m2, {"lag_tau": 0.05, "training_deficit": 0.2, "training_travel": 2.0}), time, current)
-    expected_drive = lagged * (1.0 - 0.2 * np.exp(-lagged_travel / 2.0))
-    assert np.array_equal(y2, gpi(TABLE1, effect.drive(np.array([[0.2, 2.0]]), time, lagged)[0]))
-    np.testing.assert_allclose(effect.drive(np.array([[0.2, 2.0]]), time, lagged)[0], expected_drive, rtol=1e-13, atol=1e-15)
+    params = np.array([[0.2, 0.1, 2.0, 1.5]])
+    y2 = m2(_theta(m2, {"lag_tau": 0.05, **dict(zip(names, params[0]))}), time, current)
+    assert np.array_equal(y2, gpi(TABLE1, effect.drive(params, time, lagged)[0]))
+    lagged_fade = np.exp(-((accumulated_travel(lagged)[0] / 2.0) ** 1.5))
+    expected_drive = np.maximum(lagged - 0.1 * lagged_fade, 0.0) * (1.0 - 0.2 * lagged_fade)
+    np.testing.assert_allclose(effect.drive(params, time, lagged)[0], expected_drive, rtol=1e-13, atol=1e-14)
 
 
 SIGNATURES = {
@@ -322,20 +342,28 @@ def test_signature(name, paper_input, plain_gpi):
 
 
 def test_training_drive_batches_and_refusals():
-    """A (W, T) drive (after lag) is transformed row by row; a non-positive travel scale is refused."""
+    """A (W, T) drive (after lag) is transformed row by row about each row's first value; bad
+    parameters are refused."""
     time = _irregular_time(200)
-    drives = np.vstack([1.0 + np.sin(3.0 * time), 0.5 * np.cos(time)])  # starts at 1 A and 0.5 A
+    drives = np.vstack([1.0 + np.sin(3.0 * time), 0.5 * np.cos(time)])  # start at 1 A and 0.5 A, both directions
     effect = EFFECTS["training"]()
-    params = np.array([[0.1, 1.0], [-0.2, 3.0]])
+    params = np.array([[0.1, 0.2, 1.0, 1.0], [-0.2, 0.0, 3.0, 2.0]])
     both = effect.drive(params, time, drives)
     for w in range(2):
         assert np.array_equal(both[w], effect.drive(params[w : w + 1], time, drives[w])[0])
-        # the scale acts about the drive's first value: u - i0 = (i - i0)(1 - g exp(-V/V0))
-        start = drives[w, 0]
-        expected = start + (drives[w] - start) * (1.0 - params[w, 0] * np.exp(-accumulated_travel(drives[w])[0] / params[w, 1]))
+        # u - i0 = sign(d) max(|d| - F f, 0) (1 - g f), d = i - i0: the soft threshold and the
+        # scale act on the excursion from the first value, in both directions
+        deficit, threshold, scale, shape = params[w]
+        excursion = drives[w] - drives[w, 0]
+        fade = training_fade(accumulated_travel(drives[w]), scale, shape)[0]
+        kept = np.sign(excursion) * np.maximum(np.abs(excursion) - threshold * fade, 0.0)
+        expected = drives[w, 0] + kept * (1.0 - deficit * fade)
         np.testing.assert_allclose(both[w], expected, rtol=1e-13, atol=1e-14)
-    with pytest.raises(ValueError, match="training_travel a positive"):
-        effect.drive(np.array([[0.1, 0.0]]), time, drives[0])
+    assert both[0, 0] == drives[0, 0] and both[1, 0] == drives[1, 0]
+    with pytest.raises(ValueError, match="training_travel, training_shape > 0"):
+        effect.drive(np.array([[0.1, 0.0, 0.0, 1.0]]), time, drives[0])
+    with pytest.raises(ValueError, match="training_threshold >= 0"):
+        effect.drive(np.array([[0.1, -0.1, 1.0, 1.0]]), time, drives[0])
     with pytest.raises(ValueError, match="2 rows for 3 parameter sets"):
         effect.drive(np.tile(params[:1], (3, 1)), time, drives)
     assert accumulated_travel(np.array([0.0, 1.0, 0.5, 2.0]))[0].tolist() == [0.0, 1.0, 1.5, 3.0]
