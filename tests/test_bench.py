@@ -47,7 +47,7 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path):
 
 def test_sidecar_round_trip_reproduces_the_record(tmp_path):
     out = tmp_path / "bench.csv"
-    spec = "lag,initial_state,creep,thermal,sensor_drift"
+    spec = "lag,training,initial_state,creep,thermal,sensor_drift"
     assert _run(["--out", str(out), "--effects", spec, "--noise", "0.3", "--noise-rho", "0.6", "--fs", "50", "--seed", "4"]) == 0
     record = load_record(out)
     truth = record.sidecar
