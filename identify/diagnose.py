@@ -57,6 +57,11 @@ Method
    whole candidate stage is repeated from the better baseline (a candidate must not be
    credited with the baseline's own unfinished optimisation; e.g. a virgin initial
    state on the paper's input is exactly absorbed by a re-parametrised plain GPI).
+   When the best refitted candidate still leaves structure, the refitted candidates are
+   also fitted from scratch with the other sign of the pinned thresholds (a misspecified
+   plain GPI can settle on the other sign, a different model, and refits from its basin
+   stay there; e.g. a 3-sigma first-cycle transient flips it to alpha > 0), and such a
+   candidate challenges the plain GPI of its own sign.
    Each refitted candidate is compared with the baseline by
 
    * :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / \chi^2_1) - k \ln n_\mathrm{eff}`

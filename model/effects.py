@@ -340,8 +340,8 @@ class Training(Effect):
     memory nor ``initial_state`` (an exact reparametrisation, wiped out by the first full
     excursion) represents it. Measured on the virtual bench (paper input, Table 1,
     :math:`g = 0.08`, :math:`V_0 = 2` A, :math:`p = 1`: 1.94 noise sigmas RMS against the
-    plain GPI at the same parameters, sigma = 0.5 um), the best plain-GPI refit leaves about
-    1.2 sigma RMS over the energised part (a larger share than lag, creep, thermal or drift
+    plain GPI at the same parameters, sigma = 0.5 um, seed 0), the best plain-GPI refit leaves
+    1.42 sigma RMS over the energised part (a larger share than lag, creep, thermal or drift
     leave of theirs: the GPI cannot bend its first branch away from the later ones).
 
     Why not the plain drive shift :math:`u = i - F e^{-V/V_0}` (measured first): it moves
