@@ -78,6 +78,7 @@ from .noise import NoiseModel, log_likelihood
 __all__ = [
     "PRIORS",
     "MOVES",
+    "SnookerMove",
     "default_priors",
     "LogPosterior",
     "PosteriorResult",
@@ -159,10 +160,45 @@ def _log_uniform_logpdf(x, lower, upper):
 #: prior name -> log-density ``f(x, lower, upper)`` on ``[lower, upper]`` (vectorised in x).
 PRIORS = {"uniform": _uniform_logpdf, "log_uniform": _log_uniform_logpdf}
 
+class SnookerMove(emcee.moves.DESnookerMove):
+    r"""The differential-evolution snooker update of ter Braak and Vrugt (2008), corrected.
+
+    For walker :math:`x`, pick three other walkers :math:`z, z_1, z_2`; with the unit
+    vector :math:`e = (x - z)/\lVert x - z\rVert` propose
+    :math:`x' = x + \gamma_s\, e\, e^\top (z_1 - z_2)` and accept with probability
+    :math:`\min\{1, \pi(x')/\pi(x)\, (\lVert x' - z\rVert / \lVert x - z\rVert)^{d-1}\}`
+    (ter Braak and Vrugt, Stat. Comput. 18, 435-446, 2008, eq. 3).
+
+    emcee 3.1.6's :class:`emcee.moves.DESnookerMove` divides by
+    :math:`\sqrt{\lVert x - z\rVert}` instead of :math:`\lVert x - z\rVert` and uses the
+    exponent :math:`(d-1)/2`; fixed upstream in dfm/emcee pull request #531 (merged
+    2024-12), not in a release yet. The released move does not leave the posterior
+    invariant: on the 18-parameter GPI posterior it drew marginal standard deviations
+    0.83-0.99 times the Laplace ones where a random-walk Metropolis chain drew 1.01-1.14,
+    and on a standard normal it shrinks the variance (``tests/test_posterior.py``).
+    """
+
+    def get_proposal(self, s, c, random):
+        n_walkers, ndim = s.shape
+        sizes = [len(part) for part in c]
+        proposal = np.empty_like(s)
+        log_factor = np.empty(n_walkers, dtype=np.float64)
+        for i in range(n_walkers):
+            picks = np.array([c[j][random.randint(sizes[j])] for j in range(3)])
+            random.shuffle(picks)
+            z, z1, z2 = picks
+            delta = s[i] - z
+            distance = np.linalg.norm(delta)
+            unit = delta / distance
+            proposal[i] = s[i] + unit * self.gammas * (np.dot(unit, z1) - np.dot(unit, z2))
+            log_factor[i] = np.log(np.linalg.norm(proposal[i] - z)) - np.log(distance)
+        return proposal, (ndim - 1.0) * log_factor
+
+
 #: move name -> factory of an emcee move schedule.
 MOVES = {
     "stretch": lambda: emcee.moves.StretchMove(),
-    "de": lambda: [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)],
+    "de": lambda: [(emcee.moves.DEMove(), 0.8), (SnookerMove(), 0.2)],
 }
 
 
