@@ -38,7 +38,7 @@ from identify.identifiability import normalised_model
 from identify.noise import NoiseModel
 from identify.records import Record
 from model import TABLE1, Model, gpi
-from model.effects import first_order_lowpass
+from model.effects import accumulated_travel, first_order_lowpass
 
 pytestmark = pytest.mark.slow
 
@@ -50,6 +50,9 @@ HIDDEN = {
     "creep": "creep_amplitude=0.0153",
     "lag": "lag_tau=0.0127",
     "sensor_drift": "sensor_drift_linear=1.10,sensor_drift_quadratic=0.83",
+    # a first-cycle deficit of 8 % of the drive fading over V0 = 2 A of travel (exponential):
+    # 1.94 sigma RMS against the plain GPI at the same parameters (test parameters otherwise)
+    "training": "training_deficit=0.08",
 }
 OUTSIDE = ("interference", "deadzone", "signflip")
 SEEDS = (11, 12, 13, 14, 15)
@@ -122,6 +125,9 @@ def _case_record(case: str, seed: int) -> Record:
     return outside_record(case, seed)
 
 
+#: visible size of HIDDEN["training"] (seed 0, noise-free, best plain GPI), in sigmas: measured
+#: with visible_size at a5ea29a (1.94 sigma against the plain GPI at the same parameters)
+VISIBLE_TRAINING = 1.42
 #: wall time of each diagnosis in the confusion matrix [s]
 WALL_SECONDS: dict = {}
 CASES = tuple(HIDDEN) + ("initial_state", "none") + OUTSIDE
@@ -219,6 +225,62 @@ def test_other_functional_forms_are_named_by_their_physics(kind, expected):
     assert d.best.rms_after / d.noise_sigma < 1.15
 
 
+def training_alternative_drive(kind: str, current, size: float):
+    """The drive of a first-cycle effect in another functional form than the library's.
+
+    ``abrupt``: the virgin material lacks the fraction ``size`` of the drive until the first
+    input reversal, then nothing (library: a fade in the accumulated travel).
+    ``threshold_linear``: an extra threshold of ``size`` A (nothing moves below it) that fades
+    linearly to 0 over the first 20 A of travel, two of the paper's early cycles.
+    ``scale_linear``: a deficit of the fraction ``size`` fading linearly over 20 A of travel.
+    """
+    current = np.asarray(current, dtype=float)
+    travel = accumulated_travel(current)[0]
+    linear_fade = np.clip(1.0 - travel / 20.0, 0.0, None)
+    if kind == "abrupt":
+        first_reversal = int(np.argmax(np.diff(current) < 0))
+        return np.where(np.arange(current.size) <= first_reversal, (1.0 - size) * current, current)
+    if kind == "threshold_linear":
+        return np.maximum(current - size * linear_fade, 0.0)
+    if kind == "scale_linear":
+        return current * (1.0 - size * linear_fade)
+    raise ValueError(kind)  # pragma: no cover - test bug
+
+
+def training_alternative_record(kind: str, seed: int, size: float = 3.0) -> Record:
+    """A bench record with a first-cycle effect of another form (:func:`training_alternative_drive`)
+    whose noise-free contribution has ``size`` noise sigmas RMS against the plain GPI (the
+    effect's own parameter set to that size by root finding, not a scaled output)."""
+    from scipy.optimize import brentq
+
+    sim = simulate(None, seed=seed, noise_sigma=SIGMA)
+    t, i, plain = sim.record.time, sim.record.current, sim.plain
+
+    def excess(amount):
+        return np.sqrt(np.mean((gpi(TABLE1, training_alternative_drive(kind, i, amount)) - plain) ** 2)) / SIGMA - size
+
+    amount = brentq(excess, 1e-4, 0.5 if kind != "threshold_linear" else 2.0, xtol=1e-6)
+    clean = gpi(TABLE1, training_alternative_drive(kind, i, amount))
+    noise = sim.record.displacement - sim.clean
+    return Record(t, i, clean + noise, source=f"first-cycle form {kind!r} (seed {seed})", sha256="")
+
+
+@pytest.mark.parametrize("kind", ["abrupt", "threshold_linear", "scale_linear"])
+def test_other_first_cycle_forms_are_named_training(kind, capsys):
+    """Measured at seed 21, 3 sigma RMS: named `training` (explains 90-99 % of the misfit);
+    RMS after 1.125 (abrupt), 1.039 (threshold_linear), 1.039 (scale_linear) sigma; only the
+    threshold form leaves an adequate residual (the fade exp(-(V/V0)^p) is no step at the first
+    reversal and no exact linear fade: about 0.2-0.4 sigma of structure remains)."""
+    d = diagnose(training_alternative_record(kind, seed=21), rng=np.random.default_rng(21))
+    with capsys.disabled():
+        print(f"\n{kind}: {d.status} {d.missing}, RMS {d.rms / d.noise_sigma:.3f} -> "
+              f"{d.best.rms_after / d.noise_sigma:.3f} sigma, explained {d.best.explained:.2f}, "
+              f"adequate after {d.best.adequate_after}, {d.best.parameters}")  # fmt: skip
+    assert d.status == "missing_effect" and d.missing == "training", d.reason
+    assert d.best.rms_after / d.noise_sigma < 1.15
+    assert d.best.explained > 0.75
+
+
 @pytest.mark.parametrize("hidden", [("lag", "sensor_drift"), ("thermal", "lag"), ("creep", "thermal")])
 def test_two_hidden_effects_are_found_one_after_the_other(hidden):
     record = simulate(",".join(HIDDEN[h] for h in hidden), seed=31, noise_sigma=SIGMA).record
@@ -249,8 +311,13 @@ def test_visible_sizes_of_the_hidden_effects(capsys):
         print("\nvisible size (best plain GPI on the noise-free record, energised RMS / sigma):",
               {k: f"{v:.3g}" for k, v in sizes.items()})  # fmt: skip
     # the library effects at ~2 sigma against the plain GPI leave 0.45-0.70 sigma after
-    # the refit (seed 0, measured at c9fe905); a band of +-40 % around that
+    # the refit (seed 0, measured at c9fe905); a band of +-40 % around that. training leaves
+    # more of its 1.94 sigma (measured VISIBLE_TRAINING): the GPI cannot bend its first branch
+    # away from the later ones; a band of +-40 % around that
     for case in HIDDEN:
-        assert 0.3 < sizes[case] < 1.0, (case, sizes[case])
+        if case == "training":
+            assert 0.6 * VISIBLE_TRAINING < sizes[case] < 1.4 * VISIBLE_TRAINING, (case, sizes[case])
+        else:
+            assert 0.3 < sizes[case] < 1.0, (case, sizes[case])
     # a virgin initial state is reproduced by a plain GPI exactly (round-off only)
     assert sizes["initial_state"] < 1e-6
