@@ -179,19 +179,19 @@ class SnookerMove(emcee.moves.DESnookerMove):
     """
 
     def get_proposal(self, s, c, random):
+        """Proposals ``(n, D)`` for the walkers ``s`` and the log Jacobian factors ``(n,)``,
+        all walkers at once (emcee's loops over them in Python)."""
         n_walkers, ndim = s.shape
-        sizes = [len(part) for part in c]
-        proposal = np.empty_like(s)
-        log_factor = np.empty(n_walkers, dtype=np.float64)
-        for i in range(n_walkers):
-            picks = np.array([c[j][random.randint(sizes[j])] for j in range(3)])
-            random.shuffle(picks)
-            z, z1, z2 = picks
-            delta = s[i] - z
-            distance = np.linalg.norm(delta)
-            unit = delta / distance
-            proposal[i] = s[i] + unit * self.gammas * (np.dot(unit, z1) - np.dot(unit, z2))
-            log_factor[i] = np.log(np.linalg.norm(proposal[i] - z)) - np.log(distance)
+        picks = np.stack([c[j][random.randint(len(c[j]), size=n_walkers)] for j in range(3)], axis=1)  # (n, 3, D)
+        roles = np.argsort(random.uniform(size=(n_walkers, 3)), axis=1)  # a random order of the three per walker
+        picks = np.take_along_axis(picks, roles[:, :, None], axis=1)
+        z, z1, z2 = picks[:, 0], picks[:, 1], picks[:, 2]
+        delta = s - z
+        distance = np.linalg.norm(delta, axis=1)
+        unit = delta / distance[:, None]
+        step = self.gammas * np.einsum("nd,nd->n", unit, z1 - z2)
+        proposal = s + unit * step[:, None]
+        log_factor = np.log(np.linalg.norm(proposal - z, axis=1)) - np.log(distance)
         return proposal, (ndim - 1.0) * log_factor
 
 
