@@ -26,7 +26,8 @@ ONE model call per step). It returns ``-inf`` for a walker outside the bounds *b
 evaluating the model, and for one the model flags invalid (operator bounds cross, or a
 non-finite output); it never raises and never returns NaN (a model error for the batch
 falls back to one row at a time; rows that still fail get ``-inf`` and are counted in
-:attr:`LogPosterior.n_errors`). The likelihood is :func:`identify.noise.log_likelihood`.
+:attr:`LogPosterior.n_errors`). The likelihood is :func:`identify.noise.log_likelihood`,
+evaluated in one fused pass (:func:`identify.noise.log_likelihood_of_rows`).
 
 Sampling
 --------
@@ -73,7 +74,7 @@ import numpy as np
 from model import Model
 
 from .lsq import fastest_thread_count
-from .noise import NoiseModel, log_likelihood
+from .noise import NoiseModel, log_likelihood_of_rows
 
 __all__ = [
     "PRIORS",
@@ -340,10 +341,8 @@ class LogPosterior:
             self.n_outside_domain += int(ok.size - np.count_nonzero(valid))
             if valid.any():
                 rows = ok[valid]
-                residual = self.data[None, :] - y[valid]
                 sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
-                loglik = log_likelihood(residual, self.noise, sigma)
-                out[rows] += loglik
+                out[rows] += log_likelihood_of_rows(self.data, y, np.flatnonzero(valid), self.noise, sigma)
             out[ok[~valid]] = -np.inf
         out[~np.isfinite(out)] = -np.inf
         return float(out[0]) if x_in.ndim == 1 else out

@@ -163,3 +163,23 @@ def test_log_likelihood_equals_the_multivariate_normal_density(rho):
 def test_whiten_refuses_a_free_sigma_without_a_value():
     with pytest.raises(ValueError, match="sigma"):
         whiten(np.ones(5), NoiseModel(sigma=float("nan"), source="free"))
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.6])
+def test_fused_row_likelihood_equals_the_reference_formula(rho):
+    """log_likelihood_of_rows (the sampler's one-pass kernel) equals log_likelihood on the
+    selected rows to rounding (relative 1e-12), white and AR(1), with a per-row sigma too."""
+    from identify.noise import log_likelihood_of_rows
+
+    rng = np.random.default_rng(4)
+    data = rng.standard_normal(501)
+    model_rows = data + 0.3 * rng.standard_normal((5, 501))
+    rows = np.array([4, 0, 2])
+    noise = NoiseModel(sigma=0.3, rho=rho, kind="ar1" if rho else "white", source="user", quiet=None, n_quiet=0)
+    expected = log_likelihood(data[None, :] - model_rows[rows], noise)
+    assert np.allclose(log_likelihood_of_rows(data, model_rows, rows, noise), expected, rtol=1e-12, atol=0)
+    sigma = np.array([0.2, 0.3, 0.5])
+    expected = log_likelihood(data[None, :] - model_rows[rows], noise, sigma)
+    assert np.allclose(log_likelihood_of_rows(data, model_rows, rows, noise, sigma), expected, rtol=1e-12, atol=0)
+    with pytest.raises(ValueError, match="sigma"):
+        log_likelihood_of_rows(data, model_rows, rows, noise, np.array([0.2, -1.0, 0.3]))
