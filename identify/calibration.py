@@ -196,7 +196,10 @@ class CoverageResult:
 
     @property
     def max_outside_domain_fraction(self) -> float:
-        return max((r.outside_domain_fraction for r in self.records), default=math.nan)
+        """Largest fraction of proposals the domain rejected, over the records where it is
+        known (NaN for a chain that was already complete when resumed); NaN if none."""
+        known = [r.outside_domain_fraction for r in self.records if math.isfinite(r.outside_domain_fraction)]
+        return max(known, default=math.nan)
 
     def misses(self, kind: str = "posterior") -> list[str]:
         """``"name@seed"`` for every interval that missed the truth."""
@@ -209,12 +212,13 @@ class CoverageResult:
         lsq, lsq_se = self.coverage("least_squares")
         taus = [r.tau_max for r in self.records]
         steps = [r.n_steps for r in self.records]
+        unknown = sum(not math.isfinite(r.outside_domain_fraction) for r in self.records)
         return (
             f"95 % interval coverage over {len(self.records)} records ({self.n_intervals} intervals; +- is the "
             f"standard error across records): posterior {post:.3f} +- {post_se:.3f}, least squares {lsq:.3f} +- "
             f"{lsq_se:.3f}\n{self.n_converged}/{len(self.records)} chains converged ({min(steps)}-{max(steps)} steps, "
             f"tau {min(taus):.0f}-{max(taus):.0f}); proposals outside the domain <= "
-            f"{self.max_outside_domain_fraction:.4f}"
+            f"{self.max_outside_domain_fraction:.4f} ({unknown} records resumed complete: fraction unknown)"
         )  # fmt: skip
 
 

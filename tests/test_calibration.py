@@ -68,3 +68,16 @@ def test_a_stored_record_for_another_truth_is_refused_before_any_work(tmp_path):
     (tmp_path / "seed_0.json").write_text(json.dumps(stale))
     with pytest.raises(ValueError, match="another truth"):
         interval_coverage(off_the_wall_truth(), [0], tmp_path)
+
+
+def test_unknown_domain_fractions_are_skipped_not_propagated():
+    """A chain already complete when resumed has no proposals in this call (NaN fraction):
+    the maximum is taken over the known ones, and the summary says how many were unknown."""
+    truth = [0.0, 0.0, 0.0]
+    known = record(0, truth, [-1] * 3, [1] * 3, truth, [1] * 3)
+    unknown = RecordCoverage(**{**known.to_dict(), "names": known.names, "seed": 1, "outside_domain_fraction": float("nan")})
+    known = RecordCoverage(**{**known.to_dict(), "names": known.names, "outside_domain_fraction": 0.002})
+    result = CoverageResult([unknown, known])
+    assert result.max_outside_domain_fraction == 0.002
+    assert "1 records resumed complete" in result.summary()
+    assert np.isnan(CoverageResult([unknown]).max_outside_domain_fraction)
