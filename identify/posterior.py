@@ -70,6 +70,7 @@ from dataclasses import dataclass, field
 
 import emcee
 import numpy as np
+import scipy.fft
 
 from model import Model
 
@@ -551,12 +552,14 @@ def _tau(chain, c=5.0) -> np.ndarray:
     n_steps, _n_walkers, n_dim = chain.shape
     if n_steps < 2:
         return np.full(n_dim, np.inf)
-    n_fft = 1 << int(math.ceil(math.log2(n_steps)))
+    # Any length >= 2 n - 1 gives the exact (non-circular) autocovariance; scipy's fast
+    # length and threads make a 54000-step check ~2.7x cheaper than numpy's power of two.
+    n_fft = scipy.fft.next_fast_len(2 * n_steps - 1, real=True)
     tau = np.empty(n_dim)
     for d in range(n_dim):
         x = chain[:, :, d] - chain[:, :, d].mean(axis=0)
-        spectrum = np.fft.rfft(x, n=2 * n_fft, axis=0)
-        acf = np.fft.irfft(spectrum * np.conjugate(spectrum), n=2 * n_fft, axis=0)[:n_steps]
+        spectrum = scipy.fft.rfft(x, n=n_fft, axis=0, workers=-1)
+        acf = scipy.fft.irfft(spectrum * np.conjugate(spectrum), n=n_fft, axis=0, workers=-1)[:n_steps]
         with np.errstate(invalid="ignore", divide="ignore"):
             acf = acf / acf[0]
             f = np.mean(acf, axis=1)
@@ -728,13 +731,20 @@ def sample_posterior(
     counts = lambda: np.array([getattr(log_post, "n_in_support", 0), getattr(log_post, "n_outside_domain", 0)])  # noqa: E731
     proposals = np.zeros(2, dtype=int)  # (inside the support, outside the domain) of the sampler's own calls
     tau_cache: dict[int, np.ndarray] = {}
+    # The chain in memory for the convergence checks: read from the file once (a resumed
+    # run), then extended with each chunk's steps; re-reading the whole HDF5 chain at every
+    # check cost seconds per check late in a 50000-step run.
+    chain_parts = [backend.get_chain()] if resuming else []
     t0 = _time.perf_counter()
     converged, message = False, ""
     try:
         while True:
             done = backend.iteration
             if done > 0 and done % check_every == 0 or done >= max_steps:
-                chain = backend.get_chain()
+                chain = np.concatenate(chain_parts, axis=0) if len(chain_parts) > 1 else chain_parts[0]
+                chain_parts = [chain]
+                if chain.shape[0] != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
+                    raise RuntimeError(f"in-memory chain has {chain.shape[0]} steps, the backend {done}")
                 ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
                 log(f"step {done}: {msg}")
                 if ok:
@@ -751,12 +761,15 @@ def sample_posterior(
                 # sampler itself moved (a later chunk, a resumed run) may lie along a
                 # near-exact degeneracy of the posterior and must not stop the run
                 chunk = sampler.sample(state, iterations=steps, store=True, progress=False, skip_initial_state_check=done > 0)
+                positions = []
                 for state in chunk:
+                    positions.append(np.array(state.coords))
                     if bar is not None:
                         bar.update(1)
                     if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
                         backend.flush()
                         raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
+                chain_parts.append(np.stack(positions))
             proposals += counts() - chunk_start
             backend.flush()
     finally:
