@@ -308,6 +308,24 @@ def energised_mask(record, noise: NoiseModel | None = None) -> np.ndarray:
     return mask
 
 
+def _checked_sigma(noise: NoiseModel, sigma, caller: str) -> np.ndarray:
+    """``sigma`` (or ``noise.sigma``) as an array, refused unless finite and > 0."""
+    sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
+    if not (np.isfinite(sig).all() and (sig > 0).all()):
+        raise ValueError(f"{caller} needs a finite sigma > 0, got {sig!r} (a free sigma must be passed explicitly)")
+    return sig
+
+
+def _gaussian_log_likelihood(quadratic, n_samples: int, sig, rho: float):
+    """The module docstring's log-likelihood from its quadratic term ``sum w_k^2`` (unit-free)."""
+    return (
+        -0.5 * quadratic
+        - n_samples * np.log(sig)
+        - 0.5 * (n_samples - 1) * math.log(1.0 - rho**2)
+        - 0.5 * n_samples * math.log(2.0 * math.pi)
+    )
+
+
 def whiten(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
     """Whitened, standardised residuals ``w`` (i.i.d. N(0, 1) under the noise model).
 
@@ -324,10 +342,7 @@ def whiten(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
     ndarray, same shape as ``residual`` (dimensionless)
     """
     e = np.asarray(residual, dtype=float)
-    sig = noise.sigma if sigma is None else sigma
-    sig = np.asarray(sig, dtype=float)
-    if not (np.isfinite(sig).all() and (sig > 0).all()):
-        raise ValueError(f"whiten needs a finite sigma > 0, got {sig!r} (a free sigma must be passed explicitly)")
+    sig = _checked_sigma(noise, sigma, "whiten")
     if e.ndim == 2 and sig.ndim == 1:
         sig = sig[:, None]
     if noise.rho == 0.0:
@@ -355,15 +370,8 @@ def log_likelihood(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
     """
     e = np.asarray(residual, dtype=float)
     w = whiten(e, noise, sigma)
-    n_samples = e.shape[-1]
     sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
-    out = (
-        -0.5 * np.sum(w * w, axis=-1)
-        - n_samples * np.log(sig)
-        - 0.5 * (n_samples - 1) * math.log(1.0 - noise.rho**2)
-        - 0.5 * n_samples * math.log(2.0 * math.pi)
-    )
-    return out
+    return _gaussian_log_likelihood(np.sum(w * w, axis=-1), e.shape[-1], sig, noise.rho)
 
 
 @njit(cache=True)
@@ -407,16 +415,8 @@ def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None
     data = np.ascontiguousarray(data, dtype=np.float64)
     model_rows = np.ascontiguousarray(model_rows, dtype=np.float64)
     rows = np.ascontiguousarray(rows, dtype=np.int64)
-    sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
-    if not (np.isfinite(sig).all() and (sig > 0).all()):
-        raise ValueError(f"log_likelihood_of_rows needs a finite sigma > 0, got {sig!r}")
+    sig = _checked_sigma(noise, sigma, "log_likelihood_of_rows")
     sum_of_squares = np.empty(rows.shape[0])
     _whitened_sum_of_squares(data, model_rows, rows, float(noise.rho), sum_of_squares)
-    n_samples = data.shape[0]
-    return (
-        -0.5 * sum_of_squares / sig**2
-        - n_samples * np.log(sig)
-        - 0.5 * (n_samples - 1) * math.log(1.0 - noise.rho**2)
-        - 0.5 * n_samples * math.log(2.0 * math.pi)
-    )
+    return _gaussian_log_likelihood(sum_of_squares / sig**2, data.shape[0], sig, noise.rho)
 
