@@ -43,6 +43,8 @@ __all__ = [
     "RecordCoverage",
     "CoverageResult",
     "interval_coverage",
+    "calibration_problem",
+    "CalibrationProblem",
     "off_the_wall_truth",
     "WALD_Z95",
     "OFF_THE_WALL_B3",
@@ -222,19 +224,55 @@ class CoverageResult:
         )  # fmt: skip
 
 
-def _record_coverage(seed, truth_raw, fs, noise_sigma, chain_path, max_steps, check_every, progress):
+@dataclass(frozen=True)
+class CalibrationProblem:
+    """One calibration record, its least-squares fit and log-posterior (see :func:`calibration_problem`).
+
+    Attributes
+    ----------
+    record : identify.records.Record
+    fit : identify.lsq.FitResult
+        Least squares of the normalised plain GPI.
+    log_post : identify.posterior.LogPosterior
+        Default priors, the fit's noise model.
+    """
+
+    record: object
+    fit: object
+    log_post: object
+
+    @property
+    def laplace(self) -> tuple[np.ndarray, np.ndarray]:
+        """Least-squares mean ``(D,)`` and covariance ``(D, D)`` of the sampled coordinates."""
+        free = self.log_post.free
+        return self.fit.theta[free], self.fit.covariance[np.ix_(free, free)]
+
+
+def calibration_problem(seed: int, truth_raw, *, fs: float = 50.0, noise_sigma: float = 0.5) -> CalibrationProblem:
+    """Record ``seed`` of the calibration (bench seed ``100 + seed``), fitted with generator
+    seed ``seed`` and 3 starts: exactly what :func:`interval_coverage` samples.
+
+    Parameters are those of :func:`interval_coverage`.
+    """
     from .bench import simulate
     from .lsq import fit_least_squares
-    from .posterior import LogPosterior, initial_walkers, sample_posterior
+    from .posterior import LogPosterior
 
-    start = _time.perf_counter()
-    truth = to_normalisation(np.asarray(truth_raw, dtype=float))
     record = simulate(fs=fs, seed=100 + seed, gpi_theta=truth_raw, noise_sigma=noise_sigma).record
     model = normalised_model(Model())
     fit = fit_least_squares(record, model, n_starts=3, rng=np.random.default_rng(seed))
-    log_post = LogPosterior(record, model, fit.noise)
+    return CalibrationProblem(record=record, fit=fit, log_post=LogPosterior(record, model, fit.noise))
+
+
+def _record_coverage(seed, truth_raw, fs, noise_sigma, chain_path, max_steps, check_every, progress):
+    from .posterior import initial_walkers, sample_posterior
+
+    start = _time.perf_counter()
+    truth = to_normalisation(np.asarray(truth_raw, dtype=float))
+    problem = calibration_problem(seed, truth_raw, fs=fs, noise_sigma=noise_sigma)
+    fit, log_post = problem.fit, problem.log_post
     free = log_post.free
-    mean, cov = fit.theta[free], fit.covariance[np.ix_(free, free)]
+    mean, cov = problem.laplace
     result = sample_posterior(
         log_post,
         lambda n, r: initial_walkers(log_post, mean, cov, n, r),

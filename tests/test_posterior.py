@@ -357,20 +357,15 @@ def test_posterior_agrees_with_random_walk_metropolis_on_a_gpi_record(calibratio
     Laplace-shaped proposal) within Monte Carlo error (each ~2-3 %; accept 0.92-1.08 for
     the mean ratio over parameters and 0.8-1.2 for each). The released emcee snooker move
     gave a mean ratio of about 0.85 here."""
-    import emcee
-
-    from identify.bench import simulate
-    from identify.calibration import off_the_wall_truth
+    from identify.calibration import calibration_problem, off_the_wall_truth
     from posterior_reference import random_walk_metropolis
 
     rec_cov = next(r for r in calibration.records if r.seed == 1)
-    record = simulate(fs=50.0, seed=101, gpi_theta=off_the_wall_truth(), noise_sigma=0.5).record
-    model = normalised_model(Model())
-    fit = fit_least_squares(record, model, n_starts=3, rng=np.random.default_rng(1))
-    log_post = LogPosterior(record, model, fit.noise)
+    problem = calibration_problem(1, off_the_wall_truth())
+    log_post = problem.log_post
     free = log_post.free
-    assert np.allclose(fit.theta[free], rec_cov.least_squares)  # the same record and fit as the calibration's
-    mean, cov = fit.theta[free], fit.covariance[np.ix_(free, free)]
+    mean, cov = problem.laplace
+    assert np.allclose(mean, rec_cov.least_squares)  # the same record and fit as the calibration's
     rng = np.random.default_rng(11)
     chain, _ = random_walk_metropolis(log_post, initial_walkers(log_post, mean, cov, 36, rng), cov, rng, n_steps=12000)
     reference_sd = chain[2400:].reshape(-1, free.size).std(axis=0)
@@ -450,7 +445,7 @@ def _gaussian_variance_ratio(moves, dim=18, n_walkers=36, n_steps=4000, discard=
         return -0.5 * np.einsum("wi,ij,wj->w", x, precision, x)
 
     sampler = emcee.EnsembleSampler(n_walkers, dim, log_prob, vectorize=True, moves=moves)
-    sampler._random = np.random.RandomState(1)
+    sampler.random_state = np.random.RandomState(1).get_state()
     sampler.run_mcmc(rng.multivariate_normal(np.zeros(dim), cov, size=n_walkers), n_steps)
     chain = sampler.get_chain(discard=discard, flat=True)
     return float(np.mean(chain.var(axis=0) / np.diag(cov)))
