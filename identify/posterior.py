@@ -162,6 +162,7 @@ def _log_uniform_logpdf(x, lower, upper):
 #: prior name -> log-density ``f(x, lower, upper)`` on ``[lower, upper]`` (vectorised in x).
 PRIORS = {"uniform": _uniform_logpdf, "log_uniform": _log_uniform_logpdf}
 
+
 class SnookerMove(emcee.moves.DESnookerMove):
     r"""The differential-evolution snooker update of ter Braak and Vrugt (2008), corrected.
 
