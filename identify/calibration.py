@@ -264,11 +264,10 @@ def calibration_problem(seed: int, truth_raw, *, fs: float = 50.0, noise_sigma: 
     return CalibrationProblem(record=record, fit=fit, log_post=LogPosterior(record, model, fit.noise))
 
 
-def _record_coverage(seed, truth_raw, fs, noise_sigma, chain_path, max_steps, check_every, progress):
+def _record_coverage(seed, truth_raw, truth_free, fs, noise_sigma, chain_path, max_steps, check_every, progress):
     from .posterior import initial_walkers, sample_posterior
 
     start = _time.perf_counter()
-    truth = to_normalisation(np.asarray(truth_raw, dtype=float))
     problem = calibration_problem(seed, truth_raw, fs=fs, noise_sigma=noise_sigma)
     fit, log_post = problem.fit, problem.log_post
     free = log_post.free
@@ -286,7 +285,7 @@ def _record_coverage(seed, truth_raw, fs, noise_sigma, chain_path, max_steps, ch
     return RecordCoverage(
         seed=int(seed),
         names=tuple(log_post.names),
-        truth=truth[free].tolist(),
+        truth=np.asarray(truth_free, dtype=float).tolist(),
         posterior_interval=np.column_stack([lo, hi]).tolist(),
         least_squares=fit.theta[free].tolist(),
         stderr=fit.stderr[free].tolist(),
@@ -346,18 +345,18 @@ def interval_coverage(
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    expected = to_normalisation(np.asarray(truth_raw, dtype=float))[normalised_model(Model()).parameters.vary]
     result = CoverageResult()
     for seed in seeds:
         seed = int(seed)
         done = out_dir / f"seed_{seed}.json"
         if done.exists():
             rec = RecordCoverage.from_dict(json.loads(done.read_text()))
-            expected = to_normalisation(np.asarray(truth_raw, dtype=float))[normalised_model(Model()).parameters.vary]
             if len(rec.truth) != expected.size or not np.allclose(rec.truth, expected, rtol=1e-12, atol=0):
                 raise ValueError(f"{done} was written for another truth; use another out_dir or delete it")
         else:
             rec = _record_coverage(
-                seed, truth_raw, fs, noise_sigma, out_dir / f"chain_{seed}.h5", max_steps, check_every,
+                seed, truth_raw, expected, fs, noise_sigma, out_dir / f"chain_{seed}.h5", max_steps, check_every,
                 progress,
             )  # fmt: skip
             atomic_write_text(done, json.dumps(rec.to_dict(), indent=1))
