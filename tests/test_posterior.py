@@ -392,6 +392,31 @@ def test_autocorrelation_time_matches_emcee():
     assert np.allclose(ours, (1 + phis) / (1 - phis), rtol=0.15)
 
 
+def test_checks_that_cannot_pass_are_skipped_by_the_anchor_rule():
+    """A check is due only once the chain reaches tau_factor x tau_max of the prefix at
+    the last anchor (check_every * 2**i steps); the anchor's tau is computed once."""
+    from identify.posterior import _check_due, _tau
+
+    rng = np.random.default_rng(1)
+    phi = 0.98  # tau = 99 steps
+    chain = np.zeros((8000, 8, 2))
+    for k in range(1, chain.shape[0]):
+        chain[k] = phi * chain[k - 1] + rng.standard_normal((8, 2))
+    cache = {}
+    tau_at_2000 = float(np.max(_tau(chain[:2000])))
+    assert 60 < tau_at_2000 < 140
+    # 2500 steps: the anchor is 2000 (check_every 500); 2500 < 50 x tau, so skipped
+    assert not _check_due(chain[:2500], 500, 50.0, cache)
+    assert set(cache) == {2000} and float(np.max(cache[2000])) == tau_at_2000
+    # a lower factor makes the same check due, from the cached anchor
+    assert _check_due(chain[:2500], 500, 0.99 * 2500 / tau_at_2000, cache)
+    # 8000 steps: anchor 8000, 8000 >= 50 x tau
+    assert _check_due(chain, 500, 50.0, cache)
+    assert 8000 in cache
+    # no estimate yet (a chain that never moved): check
+    assert _check_due(np.zeros((1000, 8, 2)), 500, 50.0, {})
+
+
 def test_outside_domain_fraction_counts_proposals_the_model_rejects(problem, tmp_path):
     """Proposals inside the bounds but outside the GPI's domain (operator bounds crossing)
     are counted, so the result can say the posterior presses on the domain wall."""
