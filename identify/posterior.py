@@ -291,6 +291,18 @@ class LogPosterior:
                 raise ValueError(f"a log-uniform prior needs a positive lower bound; {n} has {lo}")
             self.prior_names[n] = kind if isinstance(kind, str) else getattr(kind, "__name__", "custom")
             self._prior_fns.append(fn)
+        # The built-in priors in closed form, summed once per call: a constant (every
+        # uniform and log-uniform normalisation) minus the log of the log-uniform
+        # coordinates; any other prior is called as given.
+        builtin = [fn in (_uniform_logpdf, _log_uniform_logpdf) for fn in self._prior_fns]
+        self._log_uniform_columns = np.array(
+            [j for j, fn in enumerate(self._prior_fns) if fn is _log_uniform_logpdf], dtype=int
+        )
+        self._prior_constant = sum(
+            -math.log(hi - lo) if fn is _uniform_logpdf else -math.log(math.log(hi / lo))
+            for fn, lo, hi, b in zip(self._prior_fns, self.lower, self.upper, builtin) if b
+        )  # fmt: skip
+        self._other_priors = [(j, fn) for j, (fn, b) in enumerate(zip(self._prior_fns, builtin)) if not b]
         self.n_errors = 0
         self.n_in_support = 0
         self.n_outside_domain = 0
@@ -318,8 +330,10 @@ class LogPosterior:
         ok = self.in_support(x)
         if ok.any():
             xs = x[ok]
-            total = np.zeros(xs.shape[0])
-            for j, fn in enumerate(self._prior_fns):
+            total = np.full(xs.shape[0], self._prior_constant)
+            if self._log_uniform_columns.size:
+                total -= np.log(xs[:, self._log_uniform_columns]).sum(axis=1)
+            for j, fn in self._other_priors:
                 total += fn(xs[:, j], self.lower[j], self.upper[j])
             out[ok] = total
         return out
