@@ -294,7 +294,7 @@ def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1,
     (``c`` if ``dv >= 0``, else ``d``); ``omega[0]`` is the rising branch.
 
     Both are selected per sample with no branch, so this loop vectorises (see
-    :func:`_tanh`); it holds all of the kernel's transcendental work.
+    :func:`_tanh`); it holds all of the kernel's per-sample transcendental work.
     """
     n_samples = current.shape[1]
     omega[0] = _tanh_env(c0, c1, c2, c3, current[row, 0])
