@@ -47,10 +47,9 @@ depend on interruptions) and stops when
 
 or at ``max_steps``; then the result says plainly that it is **not converged**.
 A check whose chain is shorter than ``tau_factor`` times the autocorrelation time of the
-chain's prefix at the last *anchor* (``check_every * 2**i`` steps, the largest not
-beyond it) is skipped, as it would almost surely fail: each check recomputes the
-autocorrelation time of the whole chain, which cost about 75 s of a 54000-step run when
-every check was made. The anchors depend only on the chain, so a resumed run checks
+chain's prefix at the last *anchor* (geometric, 19 % apart: :func:`_anchor`) is skipped,
+as it would almost surely fail: each check recomputes the autocorrelation time of the
+whole chain, which cost about 75 s of a 54000-step run when every check was made. The anchors depend only on the chain, so a resumed run checks
 where the uninterrupted one does; a skipped check can only delay the stop (by at most
 ``tau_factor`` times the anchor's overestimate of tau), never make it earlier.
 The fraction of proposals inside the prior's support that the model rejects (operator
@@ -579,12 +578,14 @@ def _tau(chain, c=5.0) -> np.ndarray:
     n_fft = scipy.fft.next_fast_len(2 * n_steps - 1, real=True)
     tau = np.empty(n_dim)
     for d in range(n_dim):
-        x = chain[:, :, d] - chain[:, :, d].mean(axis=0)
-        spectrum = scipy.fft.rfft(x, n=n_fft, axis=0, workers=-1)
-        acf = scipy.fft.irfft(spectrum * np.conjugate(spectrum), n=n_fft, axis=0, workers=-1)[:n_steps]
+        x = np.ascontiguousarray(chain[:, :, d].T)  # (walkers, steps): FFTs along the contiguous axis
+        x -= x.mean(axis=1, keepdims=True)
+        spectrum = scipy.fft.rfft(x, n=n_fft, axis=1, workers=-1)
+        # The walker average of the normalised autocorrelations, mean_w acf_w / acf_w[0],
+        # is linear in the power spectra: one inverse FFT per parameter, not one per walker.
         with np.errstate(invalid="ignore", divide="ignore"):
-            acf = acf / acf[0]
-            f = np.mean(acf, axis=1)
+            power = (spectrum.real**2 + spectrum.imag**2) / np.sum(x * x, axis=1)[:, None]
+            f = scipy.fft.irfft(power.sum(axis=0), n=n_fft, workers=-1)[:n_steps] / x.shape[0]
         taus = 2.0 * np.cumsum(f) - 1.0
         inside = np.arange(n_steps) < c * taus
         window = int(np.argmin(inside)) if inside.any() else n_steps - 1
@@ -618,14 +619,23 @@ def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):
     return long_enough and stable, tau, change, msg
 
 
+def _anchor(n, check_every) -> int:
+    """The last anchor at or before step ``n``: anchors are ``check_every`` times
+    ``round(2**(i/4))``, i = 0, 1, ... (500, 1000, ..., 16000, 19000, 22500, 27000, 32000,
+    38000, 45500, 54000 for ``check_every = 500``), so each is at most 19 % past the
+    previous one."""
+    i = 0
+    while check_every * round(2.0 ** ((i + 1) / 4)) <= n:
+        i += 1
+    return check_every * round(2.0 ** (i / 4))
+
+
 def _check_due(chain, check_every, tau_factor, cache) -> bool:
     """Whether the convergence check at the end of ``chain`` can pass: its length reaches
-    ``tau_factor`` times tau_max of the prefix at the last anchor (``check_every * 2**i``
-    steps; tau computed once per anchor through ``cache``). See the module docstring."""
+    ``tau_factor`` times tau_max of the prefix at the last anchor (:func:`_anchor`; tau
+    computed once per anchor through ``cache``). See the module docstring."""
     n = chain.shape[0]
-    anchor = check_every
-    while anchor * 2 <= n:
-        anchor *= 2
+    anchor = _anchor(n, check_every)
     if anchor not in cache:
         cache[anchor] = _tau(chain[:anchor])
     tau_max = float(np.max(cache[anchor]))

@@ -394,8 +394,15 @@ def test_autocorrelation_time_matches_emcee():
 
 def test_checks_that_cannot_pass_are_skipped_by_the_anchor_rule():
     """A check is due only once the chain reaches tau_factor x tau_max of the prefix at
-    the last anchor (check_every * 2**i steps); the anchor's tau is computed once."""
-    from identify.posterior import _check_due, _tau
+    the last anchor (geometric, ratio 2**(1/4), multiples of check_every); the anchor's
+    tau is computed once."""
+    from identify.posterior import _anchor, _check_due, _tau
+
+    anchors = sorted({_anchor(n, 500) for n in range(500, 60001, 500)})
+    assert anchors[:6] == [500, 1000, 1500, 2000, 2500, 3000]
+    assert anchors[-4:] == [32000, 38000, 45500, 54000]
+    assert all(a % 500 == 0 for a in anchors) and max(b / a for a, b in zip(anchors, anchors[1:])) <= 2.0
+    assert _anchor(2999, 500) == 2500 and _anchor(3000, 500) == 3000
 
     rng = np.random.default_rng(1)
     phi = 0.98  # tau = 99 steps
@@ -403,13 +410,13 @@ def test_checks_that_cannot_pass_are_skipped_by_the_anchor_rule():
     for k in range(1, chain.shape[0]):
         chain[k] = phi * chain[k - 1] + rng.standard_normal((8, 2))
     cache = {}
-    tau_at_2000 = float(np.max(_tau(chain[:2000])))
-    assert 60 < tau_at_2000 < 140
-    # 2500 steps: the anchor is 2000 (check_every 500); 2500 < 50 x tau, so skipped
-    assert not _check_due(chain[:2500], 500, 50.0, cache)
-    assert set(cache) == {2000} and float(np.max(cache[2000])) == tau_at_2000
+    tau_at_3000 = float(np.max(_tau(chain[:3000])))
+    assert 60 < tau_at_3000 < 140
+    # 3400 steps: the anchor is 3000; 3400 < 50 x tau, so skipped
+    assert not _check_due(chain[:3400], 500, 50.0, cache)
+    assert set(cache) == {3000} and float(np.max(cache[3000])) == tau_at_3000
     # a lower factor makes the same check due, from the cached anchor
-    assert _check_due(chain[:2500], 500, 0.99 * 2500 / tau_at_2000, cache)
+    assert _check_due(chain[:3400], 500, 0.99 * 3400 / tau_at_3000, cache)
     # 8000 steps: anchor 8000, 8000 >= 50 x tau
     assert _check_due(chain, 500, 50.0, cache)
     assert 8000 in cache
