@@ -545,8 +545,8 @@ class PosteriorResult:
 BENCH_COVERAGE = {
     "least_squares": 0.950,
     "least_squares_se": 0.018,
-    "posterior": 0.936,
-    "posterior_se": 0.021,
+    "posterior": 0.933,
+    "posterior_se": 0.023,
     "nominal": 0.95,
     "n_records": 20,
     "n_intervals": 360,
