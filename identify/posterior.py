@@ -47,11 +47,13 @@ depend on interruptions) and stops when
 
 or at ``max_steps``; then the result says plainly that it is **not converged**.
 A check whose chain is shorter than ``tau_factor`` times the autocorrelation time of the
-chain's prefix at the last *anchor* (geometric, 19 % apart: :func:`_anchor`) is skipped,
-as it would almost surely fail: each check recomputes the autocorrelation time of the
-whole chain, which cost about 75 s of a 54000-step run when every check was made. The anchors depend only on the chain, so a resumed run checks
-where the uninterrupted one does; a skipped check can only delay the stop (by at most
-``tau_factor`` times the anchor's overestimate of tau), never make it earlier.
+chain's prefix at the last *anchor* (nearly geometric, 19 % apart late in a run:
+:func:`_anchor`) is skipped, as it would almost surely fail: each check recomputes the
+autocorrelation time of the whole chain, which cost about 75 s of a 54000-step run when
+every check was made. The
+anchors depend only on the chain, so a resumed run checks where the uninterrupted one
+does; a skipped check can only delay the stop (by at most ``tau_factor`` times the
+anchor's overestimate of tau), never make it earlier.
 The fraction of proposals inside the prior's support that the model rejects (operator
 bounds crossing) is reported as :attr:`PosteriorResult.outside_domain_fraction`; above
 :data:`DOMAIN_WALL_WARNING` the posterior is truncated by the domain wall.
@@ -567,8 +569,8 @@ def _tau(chain, c=5.0) -> np.ndarray:
 
     emcee's estimator (:func:`emcee.autocorr.integrated_time`: walker-averaged
     autocorrelation, Sokal's automatic window with ``c = 5``; agrees with it to 1e-12
-    relative), with one real FFT per parameter over all walkers and no error for short
-    chains (``inf`` where there is no estimate).
+    relative), with one real FFT per walker and parameter, one inverse FFT per parameter,
+    and no error for short chains (``inf`` where there is no estimate).
     """
     n_steps, _n_walkers, n_dim = chain.shape
     if n_steps < 2:
@@ -622,8 +624,8 @@ def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):
 def _anchor(n, check_every) -> int:
     """The last anchor at or before step ``n``: anchors are ``check_every`` times
     ``round(2**(i/4))``, i = 0, 1, ... (500, 1000, ..., 16000, 19000, 22500, 27000, 32000,
-    38000, 45500, 54000 for ``check_every = 500``), so each is at most 19 % past the
-    previous one."""
+    38000, 45500, 54000 for ``check_every = 500``): from the 16th on, each is at most 19 %
+    past the previous one."""
     i = 0
     while check_every * round(2.0 ** ((i + 1) / 4)) <= n:
         i += 1
@@ -778,19 +780,19 @@ def sample_posterior(
     proposals = np.zeros(2, dtype=int)  # (inside the support, outside the domain) of the sampler's own calls
     tau_cache: dict[int, np.ndarray] = {}
     # The chain in memory for the convergence checks: read from the file once (a resumed
-    # run), then extended with each chunk's steps; re-reading the whole HDF5 chain at every
+    # run), then extended in place with each chunk's steps (capacity doubling, so a check
+    # reads a view and never copies the chain); re-reading the whole HDF5 chain at every
     # check cost seconds per check late in a 50000-step run.
-    chain_parts = [backend.get_chain()] if resuming else []
+    chain_buffer = backend.get_chain() if resuming else np.empty((0, n_walkers, ndim))
+    stored = chain_buffer.shape[0]
     t0 = _time.perf_counter()
     converged, message = False, ""
     try:
         while True:
             done = backend.iteration
-            if done > 0 and done % check_every == 0 or done >= max_steps:
-                chain = np.concatenate(chain_parts, axis=0) if len(chain_parts) > 1 else chain_parts[0]
-                chain_parts = [chain]
-                if chain.shape[0] != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
-                    raise RuntimeError(f"in-memory chain has {chain.shape[0]} steps, the backend {done}")
+            if stored != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
+                raise RuntimeError(f"in-memory chain has {stored} steps, the backend {done}")
+            chain = chain_buffer[:done]
             on_check = done > 0 and done % check_every == 0
             if done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache):
                 ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
@@ -817,7 +819,14 @@ def sample_posterior(
                     if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
                         backend.flush()
                         raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
-                chain_parts.append(np.stack(positions))
+                block = np.stack(positions)
+                if stored + len(block) > chain_buffer.shape[0]:
+                    capacity = max(stored + len(block), min(max_steps, 2 * chain_buffer.shape[0]))
+                    grown = np.empty((capacity, n_walkers, ndim))
+                    grown[:stored] = chain_buffer[:stored]
+                    chain_buffer = grown
+                chain_buffer[stored : stored + len(block)] = block
+                stored += len(block)
             proposals += counts() - chunk_start
             backend.flush()
     finally:
