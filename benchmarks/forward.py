@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import model
-from model import TABLE1, THETA_NAMES, gpi, gpi_masked, paper_current
+from model import TABLE1, THETA_NAMES, gpi, paper_current
 
 __all__ = ["numpy_time_loop", "numpy_precomputed_envelopes", "benchmark_theta", "best_time", "main"]
 
@@ -287,19 +287,19 @@ def main(argv=None):
         print(f"  numpy, envelopes first: {f.precomputed.wall * 1e3:9.2f}  ({f.precomputed.cpu * 1e3:9.2f})   "
               f"ratio {f.precomputed.wall / f.gpi.wall:.1f}x wall")
 
-    print("\n== linearity (gpi_masked, same kernel; numba on 1 thread, best CPU time: constant time per unit = linear cost) ==")
+    print("\n== linearity (gpi; numba on 1 thread, best CPU time: constant time per unit = linear cost) ==")
     base_current = paper_current(100.0)[1]
     sizes_t = (100.0, 200.0, 400.0) if args.quick else (100.0, 200.0, 400.0, 800.0)
     print("T sweep (W = %d, N = %d):" % (args.walkers, n_operators))
     for fs in sizes_t:
         current = paper_current(fs)[1]
-        seconds = single_thread_cpu(lambda: gpi_masked(theta, current, n_operators), repeats)
+        seconds = single_thread_cpu(lambda: gpi(theta, current, n_operators), repeats)
         print(f"  T = {current.size:>6}: {seconds * 1e3:8.2f} ms  {seconds / (args.walkers * current.size) * 1e9:6.2f} ns per walker-sample")
     print("N sweep (W = %d, T = %d); cost = per-sample part + per-operator part:" % (args.walkers, base_current.size))
     n_values = (1, 6, 12, 24) if args.quick else (1, 6, 12, 24, 48)
     per_walker_sample = []
     for n in n_values:
-        seconds = single_thread_cpu(lambda: gpi_masked(theta, base_current, n), repeats)
+        seconds = single_thread_cpu(lambda: gpi(theta, base_current, n), repeats)
         per_walker_sample.append(seconds / (args.walkers * base_current.size))
         print(f"  N = {n:>3}: {seconds * 1e3:8.2f} ms  {per_walker_sample[-1] * 1e9:6.2f} ns per walker-sample")
     slope, intercept = np.polyfit(n_values, per_walker_sample, 1)
@@ -307,7 +307,7 @@ def main(argv=None):
     print("W sweep (T = %d, N = %d):" % (base_current.size, n_operators))
     for n_walkers in (16, 32, 64, 128):
         batch = benchmark_theta(n_walkers, np.random.default_rng(args.seed + 1))
-        seconds = single_thread_cpu(lambda: gpi_masked(batch, base_current, n_operators), repeats)
+        seconds = single_thread_cpu(lambda: gpi(batch, base_current, n_operators), repeats)
         print(f"  W = {n_walkers:>4}: {seconds * 1e3:8.2f} ms  {seconds / n_walkers * 1e6:8.1f} us per walker")
 
     print("\n== memory of one gpi call (W = %d, T = 70001, after warm-up) ==" % args.walkers)

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from model import INPUT_READINGS, QUIET_SECONDS, READINGS, TABLE1, envelope, gpi_masked, paper_current
+from model import INPUT_READINGS, QUIET_SECONDS, READINGS, TABLE1, envelope, gpi, paper_current
 
 __all__ = ["HELP", "add_arguments", "run", "ReadingEvidence", "reading_evidence", "FIGURE_FILES", "N_OPERATORS"]
 
@@ -114,8 +114,7 @@ def reading_evidence(time, current, reading, theta=TABLE1, n_operators=N_OPERATO
     -------
     ReadingEvidence
     """
-    displacement, _ = gpi_masked(theta, current, n_operators, reading=reading)  # literal: bounds may cross
-    displacement = displacement[0]
+    displacement = gpi(theta, current, n_operators, reading=reading)
     rising_slice, falling_slice = (slice(3, 7), slice(7, 11)) if READINGS[reading] else (slice(7, 11), slice(3, 7))
     thresholds = theta[0] * np.arange(1, n_operators + 1)
     # upper_j - lower_j = falling + r_j - (rising - r_j); smallest at the smallest r_j.

@@ -3,7 +3,7 @@
 Pure and vectorised: no I/O, no plotting.
 """
 
-from .gpi import GPI_PARAMETERS, READINGS, TABLE1, THETA_NAMES, classical_pi, envelope, gpi, gpi_masked
+from .gpi import GPI_PARAMETERS, READINGS, TABLE1, THETA_NAMES, bound_overlap, classical_pi, envelope, gpi
 from .parameters import Parameter, ParameterSet
 from .composite import EFFECTS, Effect, Model, get_effect, register_effect
 from . import effects as _effects  # noqa: F401  (fills EFFECTS)
@@ -11,7 +11,7 @@ from .signals import INPUT_READINGS, QUIET_SECONDS, paper_current
 
 __all__ = [
     "gpi",
-    "gpi_masked",
+    "bound_overlap",
     "classical_pi",
     "envelope",
     "paper_current",

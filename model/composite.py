@@ -31,7 +31,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .gpi import GPI_PARAMETERS, READINGS, THETA_NAMES, gpi_masked
+from .gpi import GPI_PARAMETERS, READINGS, THETA_NAMES, gpi
 from .parameters import ParameterSet
 
 __all__ = ["Effect", "Model", "EFFECTS", "register_effect", "get_effect", "STAGES"]
@@ -273,8 +273,9 @@ class Model:
         y : ndarray, shape (W, T)
             Displacement [um]. Rows with ``valid = False`` are meaningless.
         valid : ndarray of bool, shape (W,)
-            False where a parameter set is outside the model's domain (operator bounds
-            cross) or produced a non-finite output.
+            False where a parameter set produced a non-finite output (e.g. an effect that
+            overflows far out in its bounds). The GPI itself is defined for every finite
+            parameter set (:mod:`model.gpi`, "The whole domain").
         """
         theta, time, current = self._check(theta, time, current)
         theta2 = np.atleast_2d(theta)
@@ -291,24 +292,25 @@ class Model:
             raise ValueError(f"an input-stage effect returned {drive.shape[0]} rows for {n_sets} parameter sets")
         if not np.isfinite(drive).all():
             raise ValueError("an input-stage effect produced a non-finite drive")
-        y, valid = gpi_masked(theta2[:, : len(THETA_NAMES)], drive, self.n_operators, self.reading, z0)
+        y = gpi(theta2[:, : len(THETA_NAMES)], drive, self.n_operators, self.reading, z0)
+        if y.ndim == 1:
+            y = y[None, :]
         for e in self.effects:
             if e.stage == "output":
                 y = e.output(theta2[:, self._slices[e.name]], time, current, y)
-        valid = valid & np.isfinite(y).all(axis=1)
+        valid = np.isfinite(y).all(axis=1)
         return y, valid
 
     def __call__(self, theta, time, current):
         """Displacement [um], shape ``(T,)`` for a 1-D ``theta`` else ``(W, T)``.
 
-        Raises :class:`ValueError` for a parameter set outside the model's domain.
+        Raises :class:`ValueError` for a parameter set whose output is not finite.
         """
         theta = np.asarray(theta, dtype=float)
         y, valid = self.evaluate(theta, time, current)
         if not valid.all():
             rows = np.flatnonzero(~valid)[:10].tolist()
             raise ValueError(
-                f"parameter set(s) {rows} outside the model's domain: the GPI operator bounds cross on "
-                "this input, or an effect produced a non-finite output"
+                f"parameter set(s) {rows} give a non-finite output on this input (an effect overflowed)"
             )
         return y[0] if theta.ndim == 1 else y

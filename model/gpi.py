@@ -43,30 +43,33 @@ Readings of the paper
     Rising branch along eq. (6) (:math:`\gamma_\uparrow = \gamma_a`), falling along
     eq. (7) (:math:`\gamma_\downarrow = \gamma_b`): the labels of (6) and (7) are swapped
     relative to eq. (5). Thresholds :math:`r_j = \alpha j` with :math:`\alpha < 0` exactly as
-    printed in Table 1. For Table 1 the lower bound :math:`\gamma_a(v) - r_j` stays below
-    the upper bound :math:`\gamma_b(v) + r_j` on the whole 0-5 A range (smallest margin
-    0.0157 at 5 A for ``j = 12``), so each operator is a well-defined clamp, and the
-    response rests at -0.56 um with the coils off and peaks at 295.7 um, which matches
-    the paper's "model output is 0 when not energised". A theta whose bounds cross on
-    the given input is rejected (:class:`ValueError`, or ``valid = False`` from
-    :func:`gpi_masked`).
+    printed in Table 1. With Table 1 the response rests at -0.56 um with the coils off and
+    peaks at 295.7 um, which matches the paper's "model output is 0 when not energised".
 ``"literal"``
     Rising branch along eq. (7), falling along eq. (6), as eq. (5) labels them. With
-    Table 1 the bounds cross everywhere, and the response rests at 217 um, swings from
-    about -569 to +650 um on the paper's input: not a transducer. Kept for comparison;
-    crossing bounds are allowed in this reading.
+    Table 1 the response rests at 217 um, swings from about -569 to +650 um on the
+    paper's input: not a transducer. Kept for comparison.
 
-With increasing envelopes and non-crossing bounds the piecewise law (5) equals the
-clamp form ``z = max(L, min(U, z_prev))`` used by most GPI codes (tested).
+The whole domain
+----------------
+Eq. (5) is defined, and continuous in theta, for every parameter set: the kernel applies
+the piecewise law as printed, for every theta and both readings. Where the lower bound
+:math:`\gamma_\uparrow(v) - r_j` exceeds the upper bound :math:`\gamma_\downarrow(v) + r_j`
+(the bounds *cross*; Table 1 is 0.0157 A from that at 5 A for ``j = 12``) an operator is no
+longer a clamp: at a reversal its memory drops (or rises) by the overlap. That is a
+property of a parameter set, not an error; :func:`bound_overlap` measures it.
+:func:`gpi` raises only for malformed input.
+
+With increasing envelopes and bounds that do not cross, the piecewise law (5) equals the
+clamp form ``z = max(L, min(U, z_prev))`` used by most GPI codes (tested); where they
+cross the two differ, and this module computes eq. (5).
 
 The kernel is compiled with numba, parallel over the batch axis, and never
 materialises a ``(W, T, N)`` array: it keeps ``N`` memory values per parameter set and
 writes only the ``(W, T)`` output. Per parameter set it first evaluates, for every
 sample, the envelope the input moves along and the Omega branch, in a loop LLVM
 vectorises (a branch-free ``tanh`` within 4 ulp of libm's, :func:`_tanh`), then runs
-the recursion over the memories; the crossing check is exact per sample but bounds each
-64-sample block by the envelopes' monotonicity first. ``benchmarks/forward.py``
-measures speed and memory.
+the recursion over the memories. ``benchmarks/forward.py`` measures speed and memory.
 """
 
 from __future__ import annotations
@@ -84,7 +87,7 @@ __all__ = [
     "GPI_PARAMETERS",
     "READINGS",
     "gpi",
-    "gpi_masked",
+    "bound_overlap",
     "classical_pi",
     "envelope",
 ]
@@ -251,42 +254,6 @@ def _weighted_sum(weights, memory):
     return (s0 + s1) + (s2 + s3)
 
 
-#: Samples per block of the bound check (see :func:`_bounds_apart`).
-_CHECK_BLOCK = 64
-
-
-@njit(cache=True)
-def _bounds_apart(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, limit):
-    """True when ``rising(v_k) - falling(v_k) <= limit`` for every sample of ``current[row]``.
-
-    Exact per-sample semantics at a fraction of the cost: each tanh term is monotone in
-    ``v``, so on a block of samples with values in ``[lo, hi]`` the difference is at most
-    ``rising(one end) - falling(other end)``. A block whose bound clears ``limit`` by more
-    than rounding (``slack``) passes; any other block is checked sample by sample.
-    """
-    n_samples = current.shape[1]
-    slack = 1e-12 * (abs(ru0) + abs(ru3) + abs(rd0) + abs(rd3) + abs(limit))
-    rising_max_at_hi = ru0 * ru1 >= 0.0
-    falling_min_at_lo = rd0 * rd1 >= 0.0
-    for start in range(0, n_samples, _CHECK_BLOCK):
-        stop = min(start + _CHECK_BLOCK, n_samples)
-        lo = current[row, start]
-        hi = lo
-        for k in range(start + 1, stop):
-            v = current[row, k]
-            lo = min(lo, v)
-            hi = max(hi, v)
-        rising_max = _tanh_env(ru0, ru1, ru2, ru3, hi if rising_max_at_hi else lo)
-        falling_min = _tanh_env(rd0, rd1, rd2, rd3, lo if falling_min_at_lo else hi)
-        if rising_max - falling_min <= limit - slack:
-            continue
-        for k in range(start, stop):
-            v = current[row, k]
-            if _tanh_env(ru0, ru1, ru2, ru3, v) - _tanh_env(rd0, rd1, rd2, rd3, v) > limit:
-                return False
-    return True
-
-
 @njit(cache=True, error_model="numpy")
 def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1, c2, c3, d0, d1, d2, d3, env, omega):
     """Per sample ``k >= 1``: ``env[k]``, the envelope the input moves along (rising if
@@ -310,8 +277,8 @@ def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1,
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, check_bounds, out, valid):
-    """Fill ``out[w, :]`` with the GPI response of ``theta[w]``; ``valid[w] = False`` when bounds cross.
+def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
+    """Fill ``out[w, :]`` with the GPI response of ``theta[w]``, eq. (5) for every parameter set.
 
     Two passes per parameter set: :func:`_branch_values` evaluates, for every sample, the
     envelope the input moves along and Omega's branch (vectorised over samples); the
@@ -340,18 +307,9 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, check_
         thresholds = np.empty(n_operators)
         weights = np.empty(n_operators)
         memory = np.empty(n_operators)
-        # Binding threshold for the crossing check: rising - r_j <= falling + r_j for
-        # all j  <=>  rising - falling <= 2 * min_j r_j.
-        min_threshold = np.inf
         for j in range(n_operators):
             thresholds[j] = alpha * (j + 1)
             weights[j] = rho * np.exp(-tau * thresholds[j])
-            if thresholds[j] < min_threshold:
-                min_threshold = thresholds[j]
-        if check_bounds:
-            valid[w] = _bounds_apart(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, 2.0 * min_threshold)
-        else:
-            valid[w] = True
 
         env = np.empty(n_samples)
         omega = np.empty(n_samples)
@@ -436,27 +394,11 @@ def _prepare(theta, current, n_operators, reading, initial_memory):
     return theta2, current2, int(n_operators), READINGS[reading], z0, single
 
 
-def gpi_masked(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
-    """Evaluate the GPI for a batch; flag parameter sets whose operator bounds cross.
-
-    Like :func:`gpi`, but instead of raising for crossing bounds it returns a mask, so a
-    log-posterior can give those walkers ``-inf``. Rows with ``valid = False`` hold the
-    (meaningless) clamp result, never NaN; use them only through the mask.
-
-    Returns
-    -------
-    y : ndarray, shape (W, T)
-    valid : ndarray of bool, shape (W,)
-    """
-    theta2, current2, n_operators, rising_is_a, z0, _ = _prepare(theta, current, n_operators, reading, initial_memory)
-    out = np.empty((theta2.shape[0], current2.shape[1]))
-    valid = np.empty(theta2.shape[0], dtype=np.bool_)
-    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, rising_is_a, out, valid)
-    return out, valid
-
-
 def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
     """Generalized Prandtl-Ishlinskii response, eqs. (5)-(13), for one or many parameter sets.
+
+    Defined for every finite parameter set (see "The whole domain" in the module
+    docstring): operator bounds that cross are a property of ``theta``, not an error.
 
     Parameters
     ----------
@@ -471,7 +413,7 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
     reading : {"swapped", "literal"}, default "swapped"
         Which envelope the rising branch follows; see the module docstring.
     initial_memory : float or array_like of shape (W,), default 0.0
-        The level :math:`z^0` each operator's memory is clamped from at ``t_0``;
+        The level :math:`z^0` each operator's memory starts from at ``t_0``;
         0 is the paper's state. Used by the ``initial_state`` effect.
 
     Returns
@@ -482,25 +424,47 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
     Raises
     ------
     ValueError
-        Non-finite or wrongly shaped ``theta``/``current``, fewer than 2 samples,
-        ``n_operators < 1``, an unknown reading, or (``"swapped"`` reading) a parameter
-        set whose lower operator bound exceeds the upper one somewhere on ``current``.
+        Malformed input only: non-finite or wrongly shaped ``theta``/``current``/
+        ``initial_memory``, fewer than 2 samples, ``n_operators < 1``, an unknown reading.
     """
     theta2, current2, n_operators, rising_is_a, z0, single = _prepare(
         theta, current, n_operators, reading, initial_memory
     )
     out = np.empty((theta2.shape[0], current2.shape[1]))
-    valid = np.empty(theta2.shape[0], dtype=np.bool_)
-    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, rising_is_a, out, valid)
-    if not valid.all():
-        rows = np.flatnonzero(~valid)
-        which = "theta" if single else f"theta rows {rows[:10].tolist()}{' ...' if rows.size > 10 else ''}"
-        raise ValueError(
-            f"{which}: the operator bounds cross on this input (rising envelope - r_j exceeds "
-            f"falling envelope + r_j for some sample and j <= {n_operators}); the play operator is "
-            "undefined there. Use gpi_masked() to flag such sets instead of raising."
-        )
+    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, out)
     return out[0] if single else out
+
+
+def bound_overlap(theta, current, n_operators=12, reading="swapped"):
+    """How far the operator bounds cross on ``current``: ``max_k (rising(v_k) - falling(v_k)) - 2 min_j r_j``.
+
+    Negative: every operator is a clamp ``max(L, min(U, z))`` on this input (its lower
+    bound ``rising - r_j`` stays below its upper bound ``falling + r_j``); positive: the
+    bounds of at least one operator cross by that much [input unit], and eq. (5) then
+    drops an operator's memory by the overlap at a reversal. A descriptive property of a
+    parameter set (the model is defined either way).
+
+    Parameters
+    ----------
+    theta : array_like, shape (19,) or (W, 19)
+    current : array_like, shape (T,)
+    n_operators : int, default 12
+    reading : {"swapped", "literal"}, default "swapped"
+
+    Returns
+    -------
+    float or ndarray of shape (W,)
+    """
+    theta2, current2, n_operators, rising_is_a, _, single = _prepare(theta, current, n_operators, reading, 0.0)
+    if current2.shape[0] != 1:
+        raise ValueError("bound_overlap takes a 1-D current shared by the batch")
+    a, b = theta2[:, 3:7], theta2[:, 7:11]
+    rising, falling = (a, b) if rising_is_a else (b, a)
+    v = current2[0][None, :]
+    gap = np.max(envelope(rising[:, None, :], v) - envelope(falling[:, None, :], v), axis=1)
+    thresholds = theta2[:, :1] * np.arange(1, n_operators + 1)[None, :]
+    out = gap - 2.0 * thresholds.min(axis=1)
+    return float(out[0]) if single else out
 
 
 @njit(cache=True)
