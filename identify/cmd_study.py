@@ -228,9 +228,6 @@ def run_study(args) -> int:
         summary = build_summary(record, fit, ident, posterior)
         write_summary(out, summary)
         print(f"posterior: {posterior.message}")
-        if posterior.presses_on_domain_wall:
-            print(f"note: {100 * posterior.outside_domain_fraction:.1f} % of the proposals crossed an operator's bounds: "
-                  "the posterior is truncated by the model's domain wall (README, 'Identification')")  # fmt: skip
         print(
             f"acceptance fraction {posterior.acceptance_fraction:.3f}; tau_max {posterior.tau_max:.1f} steps; "
             f"{posterior.samples.shape[0]} samples after discarding {posterior.discard} and thinning by {posterior.thin}"

@@ -8,11 +8,8 @@ candidate explains convincingly; the closest candidate is *not* blamed).
 Method
 ------
 1. **Baseline.** Least squares of the given model (:func:`identify.lsq.fit_least_squares`,
-   several starts) finished by a polish through the GPI's domain wall
-   (:class:`identify.lsq.SoftWallResiduals`: a model that misses an effect is misspecified, its fit
-   presses the envelopes against the wall where operator bounds cross, and a hard wall
-   stalls trust-region solvers far from the optimum; every fit the diagnosis compares is
-   finished this way). Then the residual's profile
+   several starts, both signs of the thresholds) finished by a trust-region-reflective
+   polish (every fit the diagnosis compares is finished this way). Then the residual's profile
    (:func:`identify.residuals.residual_profile`): noise reference from the quiet
    segment, and three tests (``variance``, ``ljung_box``, ``low_frequency``), each with a
    standardised excess ``z``.
@@ -47,7 +44,7 @@ Method
    the sampling rate; everything compared in the verdict runs on the whole record.
 
 4. **Short refits** of every candidate when the baseline is not adequate: a few
-   soft-wall solver steps from the most promising of two groups of starts (near the
+   solver steps from the most promising of two groups of starts (near the
    baseline: the screening's steps and grid points; far: the data-driven GPI start of
    :mod:`identify.lsq` with the effect on the grid), because a large hidden effect can
    move the GPI far from the baseline's compromise, beyond what a linearisation sees.
@@ -132,12 +129,10 @@ from model import EFFECTS, READINGS, Model, envelope, get_effect
 from .identifiability import normalised_model
 from .lsq import (
     FitResult,
-    SoftWallResiduals,
     WhitenedResiduals,
     _single_threaded_blas,
     candidate_starts,
     fit_least_squares,
-    polish_through_wall,
 )
 from .noise import NoiseModel, estimate_noise, quiet_segment
 from .residuals import ARNoise, ResidualProfile, autocorrelation, fit_ar_noise, residual_profile
@@ -386,7 +381,7 @@ def exact_reparametrisation(record, model: Model, theta, effect_name: str, rtol:
     True when :data:`GPI_EQUIVALENTS` has a map for the effect and, at the effect's
     parameters spread over their bounds (lower, upper, a quarter of the way in from each,
     the test setting) around ``theta``, the mapped vector with the effect off lies within
-    the model's bounds and domain and reproduces the output to ``rtol`` of its range.
+    the model's bounds and reproduces the output to ``rtol`` of its range.
     Such a candidate can explain nothing the model cannot: the diagnosis reports it as not
     identifiable instead of refitting it (a refit that "wins" would only credit it with
     the optimiser's failure to find the equivalent plain fit).
@@ -595,8 +590,7 @@ class ScreeningResult:
         Starts for the refit, most promising first: the best point after the step, then
         the baseline GPI with the effect's parameters moved by their part of the step
         from the best few grid points (the GPI's own step can be large along its
-        near-degenerate directions, and the GPI's domain wall stalls a solver started
-        on the wrong side of it, so several nearby starts are tried).
+        near-degenerate directions, so several nearby starts are tried).
     grid : list of dict
         The grid points tried (effect parameters only).
     """
@@ -1011,27 +1005,31 @@ def _solve(residuals, x0, method, max_nfev, tolerance=1e-10):
         )  # fmt: skip
 
 
-def _polish(residuals: SoftWallResiduals, x0) -> np.ndarray:
-    """:func:`identify.lsq.polish_through_wall` from ``x0`` (at most :data:`POLISH_EVALUATIONS`
-    evaluations) with single-threaded BLAS, so the diagnosis is the same whatever the thread count."""
-    with _single_threaded_blas():
-        return polish_through_wall(residuals, x0, POLISH_EVALUATIONS)
+def _polish(residuals: WhitenedResiduals, x0) -> np.ndarray:
+    """Trust-region-reflective least squares from free vector ``x0`` (at most
+    :data:`POLISH_EVALUATIONS` evaluations, single-threaded BLAS so the diagnosis is the same
+    whatever the thread count); the end point, or ``x0`` when that is no worse."""
+    x0 = np.asarray(x0, dtype=float)
+    sol = _solve(residuals, x0, "trf", POLISH_EVALUATIONS)
+    w, valid = residuals.batch(np.vstack([sol.x, x0]))
+    chi2 = np.where(valid, np.sum(w**2, axis=1), np.inf)
+    return sol.x if chi2[0] <= chi2[1] else x0
 
 
 def _finish(record, model_e: Model, noise: NoiseModel, x, rng, fit: FitResult | None = None) -> FitResult:
     """Polish free vector ``x`` (:func:`_polish`) and return the :class:`FitResult` there
     (``fit`` itself when that is no worse)."""
-    residuals = SoftWallResiduals(record, model_e, noise)
+    residuals = WhitenedResiduals(record, model_e, noise)
     x = _polish(residuals, x)
     if fit is not None:
-        w = residuals.inner(x)
+        w = residuals(x)
         if float(w @ w) > fit.chi2 - 0.1:
             return fit
-    return fit_least_squares(record, model_e, noise=noise, start=residuals.inner.full(x), n_starts=1, rng=rng)
+    return fit_least_squares(record, model_e, noise=noise, start=residuals.full(x), n_starts=1, rng=rng)
 
 
 def _short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tuple[float, np.ndarray]:
-    """Short soft-wall runs from the most promising starts of each group.
+    """Short solver runs from the most promising starts of each group.
 
     Parameters
     ----------
@@ -1045,12 +1043,16 @@ def _short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tup
     Returns
     -------
     chi2 : float
-        Whitened chi-square at the best point reached (inside the domain).
+        Whitened chi-square at the best point reached.
     theta : ndarray, shape (P_e,)
         That point (full vector).
+
+    Raises
+    ------
+    ValueError
+        No start gives a finite model output.
     """
-    residuals = SoftWallResiduals(record, model_e, noise)
-    inner = residuals.inner
+    residuals = inner = WhitenedResiduals(record, model_e, noise)
     best_chi2, best_x = np.inf, None
     for group in start_groups:
         if not len(group):
@@ -1064,12 +1066,12 @@ def _short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tup
             if chi2[i] < best_chi2:
                 best_chi2, best_x = float(chi2[i]), xs[i]
             sol = _solve(residuals, xs[i], "trf", REFIT_SCREEN_EVALUATIONS)
-            x = residuals.project(sol.x)
+            x = sol.x
             wx, ok = inner.batch(x[None, :])
             if ok[0] and float(wx[0] @ wx[0]) < best_chi2:
                 best_chi2, best_x = float(wx[0] @ wx[0]), x
     if best_x is None:
-        raise ValueError(f"no refit start of {model_e!r} lies in the model's domain")
+        raise ValueError(f"no refit start of {model_e!r} gives a finite model output")
     return best_chi2, inner.full(best_x)
 
 
@@ -1214,16 +1216,34 @@ def _other_sign_refits(
             small = fit_least_squares(
                 work.record, fit.model + name, noise=work.noise, n_starts=n_starts, rng=rng, threshold_sign=other
             )
-        except ValueError as exc:  # no start of that sign lies in the domain
+        except CANDIDATE_ERRORS as exc:  # e.g. no start of that sign gives a finite output
             say(f"  not possible: {exc}")
             continue
         screening = next((s for s in screened if s.effect == name), None)
-        results.append(
-            _evaluate_candidate(
-                record, fit, chi2_0, adequacy, name, small.model, small.theta, screening, quiet, noise_ref, thresholds, rng
-            )
-        )  # fmt: skip
+        try:
+            results.append(
+                _evaluate_candidate(
+                    record, fit, chi2_0, adequacy, name, small.model, small.theta, screening, quiet, noise_ref, thresholds, rng
+                )
+            )  # fmt: skip
+        except CANDIDATE_ERRORS as exc:
+            say(f"  not possible: {exc}")
     return results
+
+
+#: What a candidate's refit may raise without stopping the diagnosis (the candidate is then
+#: listed with the reason; see :func:`_failed_candidate`).
+CANDIDATE_ERRORS = (ValueError, ArithmeticError)
+
+
+def _failed_candidate(name: str, screening, fit: FitResult, n_eff: float, stage: str, exc: Exception) -> CandidateResult:
+    """A ranking entry for a candidate whose refit could not start or failed: no gain
+    (delta BIC = -k ln n_eff, the cost of its parameters), the reason in ``note``."""
+    k = sum(len(get_effect(n).parameters) for n in name.split("+"))
+    return CandidateResult(
+        name, screening, False, float(fit.rms), None, float(-k * math.log(n_eff)), float(n_eff), 0.0, None,
+        note=f"{stage} failed: {exc}",
+    )
 
 
 def _explained(before: float, after: float) -> float:
@@ -1236,7 +1256,7 @@ def fit_baseline(
     record, model: Model, noise: NoiseModel, *, n_starts: int = 6, rng: np.random.Generator | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> FitResult:
-    """The diagnosis' baseline fit: least squares finished by the soft-wall polish, both threshold signs.
+    """The diagnosis' baseline fit: least squares finished by a trust-region polish, both threshold signs.
 
     The sign of the thresholds (when ``alpha`` is pinned, swapped reading) is chosen after
     the whole baseline (least squares and polish) for each sign: the polish can overturn
@@ -1384,18 +1404,28 @@ def diagnose(
         w_small = residuals_small(fit.theta[residuals_small.free])
         chi2_0_small = float(w_small @ w_small)
         say(f"screening {len(candidates)} candidate effects" + (f" (on every {work.step}th sample)" if work.step > 1 else ""))
-        screened = sorted(
-            (_screen_one(work.record, fit.model, fit.theta, work.noise, name) for name in candidates),
-            key=lambda r: -r.chi2_drop,
-        )
         short: dict[str, tuple[float, np.ndarray]] = {}
+        failed: dict[str, CandidateResult] = {}
+        n_eff_small = _n_eff(w_small)
+        screened = []
+        for name in candidates:
+            try:
+                screened.append(_screen_one(work.record, fit.model, fit.theta, work.noise, name))
+            except CANDIDATE_ERRORS as exc:
+                say(f"  screening of '{name}' failed: {exc}")
+                failed[name] = _failed_candidate(name, None, fit, n_eff_small, "screening", exc)
+        screened.sort(key=lambda r: -r.chi2_drop)
         if not adequacy.adequate:
             for s in screened:
                 say(f"short refit with '{s.effect}'")
                 model_e = fit.model + s.effect
                 values = {n: float(s.start[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names}
-                groups = _refit_starts(work.record, fit, model_e, [values] + list(s.grid), extra=s.starts)
-                short[s.effect] = _short_refit(work.record, model_e, work.noise, groups)
+                try:
+                    groups = _refit_starts(work.record, fit, model_e, [values] + list(s.grid), extra=s.starts)
+                    short[s.effect] = _short_refit(work.record, model_e, work.noise, groups)
+                except CANDIDATE_ERRORS as exc:
+                    say(f"  short refit with '{s.effect}' failed: {exc}")
+                    failed[s.effect] = _failed_candidate(s.effect, s, fit, n_eff_small, "short refit", exc)
         order = sorted(short, key=lambda name: short[name][0])
         refitted: list[CandidateResult] = []
         for name in order[: thresholds.max_refits]:
@@ -1403,12 +1433,16 @@ def diagnose(
                 continue
             say(f"refitting with '{name}'")
             screening = next(s for s in screened if s.effect == name)
-            refitted.append(
-                _evaluate_candidate(
-                    record, fit, chi2_0, adequacy, name, fit.model + name, short[name][1], screening, quiet,
-                    noise_ref, thresholds, rng,
-                )
-            )  # fmt: skip
+            try:
+                refitted.append(
+                    _evaluate_candidate(
+                        record, fit, chi2_0, adequacy, name, fit.model + name, short[name][1], screening, quiet,
+                        noise_ref, thresholds, rng,
+                    )
+                )  # fmt: skip
+            except CANDIDATE_ERRORS as exc:
+                say(f"  refit with '{name}' failed: {exc}")
+                failed[name] = _failed_candidate(name, screening, fit, n_eff_small, "refit", exc)
         refitted.sort(key=lambda c: -c.delta_bic)
         if not adequacy.adequate and refitted and not refitted[0].adequate_after:
             # The refits started in the baseline's basin; a misspecified plain GPI can settle on
@@ -1435,7 +1469,11 @@ def diagnose(
                 say(f"short refit through '{name}' (an exact reparametrisation: a path for the baseline)")
                 model_e = fit.model + name
                 grid = screening_grid(model_e, name, _embed(fit.model, fit.theta, model_e), work.record)
-                _, theta_e = _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, fit, model_e, grid))
+                try:
+                    _, theta_e = _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, fit, model_e, grid))
+                except CANDIDATE_ERRORS as exc:
+                    say(f"  not possible: {exc}")
+                    continue
                 mapped = GPI_EQUIVALENTS[name](model_e, theta_e, work.record.time, work.record.current)
                 if model_e.in_bounds(mapped)[0]:
                     reparametrised.append(_embed(model_e, mapped, fit.model, drop_extra=True))
@@ -1453,9 +1491,16 @@ def diagnose(
             for c in refitted if not _same_threshold_sign(c.fit.model, fit.model)
             for plain in [_plain_of(c.fit.model, fit.model)]
         ]  # fmt: skip
-        challenges = [
-            (_short_refit(work.record, plain, work.noise, [starts]), plain) for plain, starts in challenger_groups if starts
-        ]
+        challenges = []
+        for plain, starts in challenger_groups:
+            if not starts:
+                continue
+            try:
+                challenges.append((_short_refit(work.record, plain, work.noise, [starts]), plain))
+            except CANDIDATE_ERRORS as exc:
+                say(f"  a challenger of the baseline could not start: {exc}")
+        if not challenges:
+            break
         (challenger_chi2, challenger_theta), challenger_model = min(challenges, key=lambda c: c[0][0])
         if challenger_chi2 >= chi2_0_small - max(1.0, 1e-4 * chi2_0_small):
             break
@@ -1467,11 +1512,10 @@ def diagnose(
         fit = challenger
     # candidates not refitted: their numbers come from the working copy (the short refit,
     # or the screening when the baseline was adequate), compared with the baseline there
-    n_eff_small = _n_eff(w_small)
     refitted_names = {c.effect for c in refitted}
     others = []
     for s in screened:
-        if s.effect in refitted_names:
+        if s.effect in refitted_names or s.effect in failed:
             continue
         model_e = fit.model + s.effect
         chi2_after, theta_after = short.get(s.effect, (s.chi2_after, s.start))
@@ -1497,7 +1541,7 @@ def diagnose(
                 "model's own parameters cannot; see identify.diagnose.GPI_EQUIVALENTS)",
             )
         )  # fmt: skip
-    ranking = refitted + others + not_identifiable
+    ranking = refitted + others + not_identifiable + list(failed.values())
     pair = None
 
     targeted = None
@@ -1513,13 +1557,16 @@ def diagnose(
             s_one = c.screening
             model_e = fit.model + c.effect
             values = {n: float(s_one.start[model_e.names.index(n)]) for n in get_effect(c.effect).parameters.names}
-            groups = _refit_starts(work.record, fit, model_e, [values] + list(s_one.grid), extra=s_one.starts)
-            _, start = _short_refit(work.record, model_e, work.noise, groups)
-            confirmed.append(
-                _evaluate_candidate(
-                    record, fit, chi2_0, adequacy, c.effect, model_e, start, s_one, quiet, noise_ref, thresholds, rng,
-                )
-            )  # fmt: skip
+            try:
+                groups = _refit_starts(work.record, fit, model_e, [values] + list(s_one.grid), extra=s_one.starts)
+                _, start = _short_refit(work.record, model_e, work.noise, groups)
+                confirmed.append(
+                    _evaluate_candidate(
+                        record, fit, chi2_0, adequacy, c.effect, model_e, start, s_one, quiet, noise_ref, thresholds, rng,
+                    )
+                )  # fmt: skip
+            except CANDIDATE_ERRORS as exc:
+                say(f"  targeted refit with '{c.effect}' failed: {exc}")
         confirmed.sort(key=lambda c: -c.delta_bic)
         if confirmed:
             names = {c.effect for c in confirmed}
@@ -1571,13 +1618,17 @@ def diagnose(
                     for n in get_effect(other.effect).parameters.names:
                         start[model_pair.names.index(n)] = other.parameters[n]
                     starts.insert(0, start)
-                groups = _refit_starts(record, fit, model_pair, best.parameters | second.parameters, extra=starts)
-                _, start = _short_refit(record, model_pair, fit.noise, groups)
-                pair = _evaluate_candidate(
-                    record, fit, chi2_0, adequacy, f"{best.effect}+{second.effect}", model_pair, start, None,
-                    quiet, noise_ref, thresholds, rng,
-                )  # fmt: skip
-                if pair.adequate_after or pair.explained >= thresholds.explained_major:
+                try:
+                    groups = _refit_starts(record, fit, model_pair, best.parameters | second.parameters, extra=starts)
+                    _, start = _short_refit(record, model_pair, fit.noise, groups)
+                    pair = _evaluate_candidate(
+                        record, fit, chi2_0, adequacy, f"{best.effect}+{second.effect}", model_pair, start, None,
+                        quiet, noise_ref, thresholds, rng,
+                    )  # fmt: skip
+                except CANDIDATE_ERRORS as exc:
+                    say(f"  the pair refit failed: {exc}")
+                    pair = None
+                if pair is not None and (pair.adequate_after or pair.explained >= thresholds.explained_major):
                     status, missing = "missing_effect", best.effect
                     reason = (
                         f"Two effects seem to be missing: '{best.effect}' alone explains {100 * best.explained:.0f} % "

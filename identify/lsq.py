@@ -8,16 +8,17 @@ included: the model predicts the rest level there) are whitened by the noise mod
 correlated), and :func:`scipy.optimize.least_squares` (dogleg with box bounds,
 :data:`SOLVER_METHOD`) minimises half their sum of squares within each parameter's bounds. Pinned parameters
 (``Parameter.vary = False``, e.g. the normalisation of :mod:`identify.identifiability`)
-stay at their values. A parameter set outside the model's domain (the GPI operator
-bounds cross, or an effect gives a non-finite output) gets a constant residual of
-:data:`DOMAIN_PENALTY` per sample, far above any fit, so the solver backs off.
+stay at their values. The GPI is defined for every parameter set (:mod:`model.gpi`, "The
+whole domain"); a parameter set for which an effect gives a non-finite output gets a
+constant residual of :data:`DOMAIN_PENALTY` per sample, far above any fit, so the solver
+backs off.
 
 Jacobian
 --------
 Forward differences, computed in ONE batched model call: ``theta`` and its ``P``
 perturbed copies are evaluated as a ``(P + 1, P_full)`` batch (the forward model is
 vectorised over parameter sets). Step ``h_j = sqrt(eps) * max(|theta_j|, 0.01)``,
-taken downwards when it would leave the bounds or the domain. The covariance at the
+taken downwards when it would leave the bounds. The covariance at the
 optimum uses central differences (one ``(2P + 1)``-row batch, step
 :data:`CENTRAL_STEP_POWER`) for accuracy.
 
@@ -46,26 +47,14 @@ Starts
 
 Every start first gets :data:`SCREEN_EVALUATIONS` solver evaluations; the
 ``n_polish`` best then run to convergence (at most :data:`POLISH_EVALUATIONS`
-evaluations, tolerances :data:`TOLERANCE`), are polished through the domain wall (below)
-and the best of those wins.
+evaluations, tolerances :data:`TOLERANCE`) and the best of those wins.
 
 Table-1-shaped starts (``table1``, ``data_scaled``, ``classical``) are made for Table 1's
 12 operators; for ``N`` operators they are rescaled so the operators keep the same
 threshold range and total weight (``alpha`` and ``rho`` times ``12/N``, then the exact
 scaling restores a pinned ``alpha``; :func:`_rescaled_to_operators`).
 
-Polish through the domain wall
-------------------------------
-The hard wall (:data:`DOMAIN_PENALTY`) stalls the trust-region solver where a fit presses
-the envelopes against the crossing of the operator bounds, often far from the optimum.
-A polished start that ended at the wall (:meth:`SoftWallResiduals.near_wall`) or on
-``xtol`` is therefore run through a *soft* wall (:class:`SoftWallResiduals`: the output
-continued across the wall plus one penalty residual ``WALL_WEIGHT * crossing``; on a
-copy decimated to about :data:`WALL_SAMPLES` samples for long records), projected back
-inside the domain, and confirmed by the hard-wall solver on the whole record; at most
-:data:`WALL_ROUNDS` rounds while the exact chi-square drops. The reported fit is always
-judged by, and lies inside the domain of, the exact residuals. Starts "agree"
-when their final chi-square is within 1 of the best (statistically indistinguishable
+Starts "agree" when their final chi-square is within 1 of the best (statistically indistinguishable
 fits); a start screened out counts as not agreeing, so ``n_agree`` is a lower bound.
 BLAS runs single-threaded during the fit (see :func:`_single_threaded_blas`).
 
@@ -73,7 +62,7 @@ Sign of the thresholds
 ----------------------
 The normalisation (:mod:`identify.identifiability`) pins ``|alpha|``; its sign is a
 model choice the scaling cannot change. ``alpha < 0`` is the paper's Table 1 (the gap
-between the envelopes makes the loop; the bounds must stay ``2 |r_N|`` apart), ``alpha > 0``
+between the envelopes makes the loop), ``alpha > 0``
 the classical PI's positive thresholds (near-identical envelopes: thin loop tips, e.g.
 a piezo actuator). With ``threshold_sign="auto"`` (default) and no ``start``,
 :func:`fit_least_squares` fits both and keeps the lower chi-square (within
@@ -99,7 +88,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from model import GPI_PARAMETERS, READINGS, THETA_NAMES, Model, ParameterSet, envelope
+from model import GPI_PARAMETERS, THETA_NAMES, Model, ParameterSet
 
 from .noise import NoiseModel, energised_mask, estimate_noise, whiten
 
@@ -109,11 +98,7 @@ __all__ = [
     "fit_least_squares",
     "candidate_starts",
     "WhitenedResiduals",
-    "SoftWallResiduals",
-    "polish_through_wall",
     "DOMAIN_PENALTY",
-    "WALL_WEIGHT",
-    "WALL_POLISH_EVALUATIONS",
     "TABLE1_N_OPERATORS",
     "PAPER_PEAK_INPUT",
     "THRESHOLD_SIGNS",
@@ -121,7 +106,7 @@ __all__ = [
     "fastest_thread_count",
 ]
 
-#: Whitened residual per sample returned for a parameter set outside the model's domain.
+#: Whitened residual per sample returned for a parameter set whose model output is not finite.
 DOMAIN_PENALTY = 1e5
 #: Peak drive of the paper's record [A]; the input scale of the data-driven start.
 PAPER_PEAK_INPUT = 5.0
@@ -146,25 +131,6 @@ POLISH_EVALUATIONS = 400
 TOLERANCE = 1e-8
 #: Starts whose chi-square is within this of the best count as agreeing.
 AGREE_CHI2 = 1.0
-#: Weight of the soft domain wall [whitened residual per unit of operator-bound crossing]
-#: (:class:`SoftWallResiduals`); the value :mod:`identify.diagnose` was calibrated with.
-WALL_WEIGHT = 1e4
-#: Cap on the solver evaluations of each polish through the domain wall (:func:`polish_through_wall`).
-WALL_POLISH_EVALUATIONS = 200
-#: Rounds of (polish through the wall, confirm with the exact residuals) per polished start.
-WALL_ROUNDS = 3
-#: A round through the wall counts (is confirmed, and another may follow) when it lowers the
-#: chi-square by more than this fraction (and by more than :data:`AGREE_CHI2`).
-WALL_ROUND_GAIN = 1e-3
-#: Longer records are polished through the wall on a copy decimated to about this many
-#: samples (input reversals kept; the GPI is rate independent); the confirmation runs on
-#: the whole record.
-WALL_SAMPLES = 2000
-#: A hard-wall optimum within this fraction of the operators' band from the wall is polished
-#: through it (:meth:`SoftWallResiduals.near_wall`); so is one where the solver stopped on
-#: ``xtol`` (status :data:`XTOL_STATUS`), the signature of a step blocked by the wall.
-WALL_NEAR = 3e-4
-XTOL_STATUS = 3
 #: Operators of Table 1's fit (the paper's N); Table-1-shaped starts for another N are rescaled.
 TABLE1_N_OPERATORS = 12
 _SLOPES = ("a1", "b1", "c1", "d1")
@@ -182,7 +148,7 @@ class StartOutcome:
         ``"user"``, ``"table1"``, ``"data_scaled"`` or ``"perturbed-k"``.
     chi2 : float
         Sum of squared whitened residuals at the end (``2 * cost``); ``inf`` when the
-        start was outside the model's domain and could not be repaired.
+        start gave a non-finite model output.
     n_evaluations : int
         Residual evaluations used.
     success : bool
@@ -433,7 +399,7 @@ class WhitenedResiduals:
         return w, valid
 
     def __call__(self, x) -> np.ndarray:
-        """Residual vector ``(T,)``; :data:`DOMAIN_PENALTY` everywhere outside the domain."""
+        """Residual vector ``(T,)``; :data:`DOMAIN_PENALTY` everywhere where the output is not finite."""
         x = np.asarray(x, dtype=float)
         if self._cache_x is not None and np.array_equal(x, self._cache_x):
             return self._cache_r
@@ -463,7 +429,7 @@ class WhitenedResiduals:
             else:
                 bad.append(j)
         if bad and valid[0]:
-            # Step into the domain from the other side (backward), in one more batch.
+            # Non-finite output on the forward step: step backward instead, in one more batch.
             back = np.repeat(x[None, :], len(bad), axis=0)
             back[np.arange(len(bad)), bad] -= steps[bad]
             back = np.clip(back, self.lower, self.upper)
@@ -478,7 +444,7 @@ class WhitenedResiduals:
         """Central-difference Jacobian ``(T, P_free)`` from one ``(2 P_free + 1)``-row batch.
 
         Falls back to one-sided differences for a column whose up or down step leaves
-        the bounds or the domain.
+        the bounds or gives a non-finite output.
         """
         x = np.asarray(x, dtype=float)
         n_free = x.size
@@ -501,173 +467,6 @@ class WhitenedResiduals:
             elif v_down[j] and hd > 0:
                 jac[:, j] = (base - w_down[j]) / hd
         return jac
-
-
-class SoftWallResiduals:
-    """Whitened residuals continued across the GPI's domain wall, plus one wall penalty entry.
-
-    :class:`WhitenedResiduals` answers a parameter set whose operator bounds cross
-    (``"swapped"`` reading) with :data:`DOMAIN_PENALTY` per sample. That wall stalls
-    trust-region solvers: a fit that presses its envelopes against it stops (``xtol``)
-    at the wall, often far from the optimum, which may lie *inside* the domain but is
-    reached only *through* the crossing region (measured on the SMA record of
-    ``../shared/realdata``: the hard wall stops the multi-start fit at RMS 20.4; through
-    the crossing region it reaches 1.95). Here the model output is continued across the
-    wall (the operator clamp ``max(L, min(U, z))`` stays finite and continuous where
-    ``L > U``) and one extra residual ``WALL_WEIGHT * max(gap, 0)`` pushes the solution
-    back, ``gap`` being :meth:`gpi_gap`; :meth:`project` moves a final point that still
-    crosses back inside the domain.
-
-    Parameters
-    ----------
-    record : Record
-        Supplies ``time``, ``current``, ``displacement`` (shape (T,)).
-    model : model.Model
-    noise : NoiseModel
-        As for :class:`WhitenedResiduals` (a free sigma counts as 1).
-    inner : WhitenedResiduals, optional
-        The exact residuals to share (and count evaluations with); default a new one.
-
-    Attributes
-    ----------
-    inner : WhitenedResiduals
-        The exact residuals (hard wall): every fit is judged by them.
-    free, lower, upper : ndarray
-        As :attr:`inner`'s.
-    checks_wall : bool
-        False for a reading in which crossing bounds are allowed (no penalty then).
-    drive_grid : ndarray, shape (101,)
-        Input values [input unit] over the record's range where the gap is evaluated.
-    """
-
-    def __init__(self, record, model: Model, noise: NoiseModel, inner: WhitenedResiduals | None = None):
-        self.inner = WhitenedResiduals(record, model, noise) if inner is None else inner
-        self.model = model
-        self.time = self.inner.time
-        self.current = self.inner.current
-        self.free, self.lower, self.upper = self.inner.free, self.inner.lower, self.inner.upper
-        self.checks_wall = bool(READINGS[model.reading])
-        self.drive_grid = np.linspace(float(self.current.min()), float(self.current.max()), 101)
-
-    def gpi_gap(self, thetas) -> np.ndarray:
-        """``max_v (rising - falling) - 2 min_j r_j`` per row of ``thetas`` ``(B, P)``; > 0: the bounds cross.
-
-        Evaluated on :attr:`drive_grid` (the record's input range); an input-stage effect
-        that drives the GPI outside that range is caught by the exact residuals instead.
-        """
-        thetas = np.atleast_2d(thetas)
-        rising = envelope(thetas[:, None, 3:7], self.drive_grid)
-        falling = envelope(thetas[:, None, 7:11], self.drive_grid)
-        alpha = thetas[:, 0]
-        min_threshold = np.where(alpha < 0, alpha * self.model.n_operators, alpha)
-        return np.max(rising - falling, axis=1) - 2.0 * min_threshold
-
-    def near_wall(self, x) -> bool:
-        """True when free vector ``x`` lies within :data:`WALL_NEAR` of the wall.
-
-        The distance is ``-gap`` relative to twice the smallest threshold ``|min_j r_j|``
-        (the band the operators need between the envelopes). Measured at hard-wall
-        optima: stalled at the wall -1e-7 to -1.5e-5 (absolute), converged inside the
-        domain -3.7e-3 (virtual bench, band 4.8).
-        """
-        if not self.checks_wall:
-            return False
-        theta = self.inner.full(np.asarray(x, dtype=float))[None, :]
-        alpha = theta[0, 0]
-        band = 2.0 * abs(alpha * self.model.n_operators if alpha < 0 else alpha)
-        return bool(self.gpi_gap(theta)[0] > -WALL_NEAR * max(band, np.finfo(float).tiny))
-
-    def batch(self, x_rows) -> np.ndarray:
-        """Residuals ``(B, T + 1)`` for free vectors ``(B, P_free)``; the last column is the wall penalty."""
-        thetas = self.inner.full(np.atleast_2d(x_rows))
-        y, _ = self.model.evaluate(thetas, self.time, self.current)
-        self.inner.n_evaluations += thetas.shape[0]
-        w = whiten(self.inner.data[None, :] - y, self.inner.noise, self.inner.sigma)
-        w[~np.isfinite(w).all(axis=1)] = DOMAIN_PENALTY
-        gap = self.gpi_gap(thetas) if self.checks_wall else np.zeros(thetas.shape[0])
-        return np.hstack([w, WALL_WEIGHT * np.maximum(gap, 0.0)[:, None]])
-
-    def __call__(self, x) -> np.ndarray:
-        """Residual vector ``(T + 1,)`` at free vector ``x``."""
-        return self.batch(np.asarray(x, dtype=float)[None, :])[0]
-
-    def jacobian(self, x) -> np.ndarray:
-        """Forward differences ``(T + 1, P_free)`` from one ``(P_free + 1)``-row batch."""
-        x = np.asarray(x, dtype=float)
-        steps = np.sqrt(np.finfo(float).eps) * np.maximum(np.abs(x), 0.01)
-        steps = np.where(x + steps > self.upper, -steps, steps)
-        rows = np.repeat(x[None, :], x.size + 1, axis=0)
-        rows[1 + np.arange(x.size), np.arange(x.size)] += steps
-        w = self.batch(rows)
-        return ((w[1:] - w[0]) / steps[:, None]).T
-
-    def project(self, x) -> np.ndarray:
-        """``x`` moved inside the domain, or ``x`` itself when it is inside or cannot be moved.
-
-        A free ``alpha < 0`` moves toward 0 until the widest operator fits between the
-        envelopes; with ``alpha`` pinned (the normalisation) the falling envelope's
-        offset ``b3`` rises by the crossing instead. Margins of 1e-6 to 0.1 (relative)
-        are tried in turn; the first point the exact residuals accept is returned.
-        """
-        x = np.asarray(x, dtype=float).copy()
-        if not self.checks_wall:
-            return x
-        theta = self.inner.full(x)
-        if self.gpi_gap(theta[None, :])[0] <= 0 and self.inner.batch(x[None, :])[1][0]:
-            return x
-        alpha_free = np.flatnonzero(self.free == 0)
-        b3 = THETA_NAMES.index("b3")
-        b3_free = np.flatnonzero(self.free == b3)
-        rising_minus_falling = float(
-            np.max(envelope(theta[3:7], self.drive_grid) - envelope(theta[7:11], self.drive_grid))
-        )
-        gap = max(float(self.gpi_gap(theta[None, :])[0]), 0.0)
-        for margin in (1e-6, 1e-4, 1e-3, 1e-2, 3e-2, 1e-1):
-            trial = x.copy()
-            if alpha_free.size and theta[0] < 0:
-                i = int(alpha_free[0])
-                widest = rising_minus_falling / (2.0 * self.model.n_operators) * (1.0 - margin)
-                trial[i] = min(max(theta[0], widest), self.upper[i])
-            elif b3_free.size:
-                i = int(b3_free[0])
-                trial[i] = min(theta[b3] + gap * (1.0 + margin) + margin, self.upper[i])
-            else:
-                return x
-            if self.inner.batch(trial[None, :])[1][0]:
-                return trial
-        return x
-
-
-def polish_through_wall(wall: SoftWallResiduals, x0, max_nfev: int = WALL_POLISH_EVALUATIONS) -> np.ndarray:
-    """Least squares through the soft domain wall from ``x0``, then back inside the domain.
-
-    Trust-region-reflective (``trf``) on :class:`SoftWallResiduals` from free vector
-    ``x0`` (at most ``max_nfev`` evaluations, tolerances 1e-10), the end point moved
-    inside the domain by :meth:`SoftWallResiduals.project`, then judged by the exact
-    residuals (:data:`DOMAIN_PENALTY` semantics).
-
-    Parameters
-    ----------
-    wall : SoftWallResiduals
-    x0 : array_like, shape (P_free,)
-        Start (free parameters), normally a converged hard-wall fit.
-    max_nfev : int, default :data:`WALL_POLISH_EVALUATIONS`
-
-    Returns
-    -------
-    ndarray, shape (P_free,)
-        The polished point when its exact chi-square is no higher than ``x0``'s (it is
-        then inside the domain), else ``x0`` itself.
-    """
-    x0 = np.asarray(x0, dtype=float)
-    sol = least_squares(
-        wall, x0, jac=wall.jacobian, bounds=(wall.lower, wall.upper), method="trf",
-        x_scale="jac", ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev,
-    )  # fmt: skip
-    x = wall.project(sol.x)
-    w, valid = wall.inner.batch(np.vstack([x, x0]))
-    chi2 = np.where(valid, np.sum(w**2, axis=1), np.inf)
-    return x if chi2[0] <= chi2[1] else x0
 
 
 def _rescaled_to_operators(theta: np.ndarray, model: Model) -> np.ndarray:
@@ -719,7 +518,7 @@ def _data_scaled_theta(record, model: Model) -> np.ndarray | None:
 
 def _fit_gain_and_offset(record, model: Model, theta: np.ndarray) -> np.ndarray | None:
     """Scale ``rho, c0, c3, d0, d3`` and shift ``c3, d3`` so the prediction best matches the data
-    in linear least squares; None when ``theta`` is outside the domain or the gain is not > 0."""
+    in linear least squares; None when the output is not finite or the gain is not > 0."""
     names = model.names
     theta = np.clip(theta, model.parameters.lower, model.parameters.upper)
     y, valid = model.evaluate(theta, record.time, record.current)
@@ -781,7 +580,7 @@ def _perturbed_theta(base: np.ndarray, model: Model, rng: np.random.Generator, s
 
 
 def candidate_starts(record, model: Model, *, n_starts=8, rng=None, start=None) -> list[tuple[str, np.ndarray]]:
-    """The multi-start list ``[(label, theta), ...]`` (full vectors within the domain).
+    """The multi-start list ``[(label, theta), ...]`` (full vectors within the bounds, finite output).
 
     Parameters
     ----------
@@ -812,7 +611,7 @@ def candidate_starts(record, model: Model, *, n_starts=8, rng=None, start=None) 
             raise ValueError(f"start must have shape ({model.n_parameters},) for {model!r}, got {theta.shape}")
         theta = np.where(pinned, template, theta)
         if not valid(theta):
-            raise ValueError("the given start lies outside the parameter bounds or the model's domain")
+            raise ValueError("the given start lies outside the parameter bounds or gives a non-finite model output")
         starts.append(("user", theta))
     if getattr(record, "input_unit", "A") == "A" and getattr(record, "output_unit", "um") == "um":
         theta = np.clip(_table1_theta(model), model.parameters.lower, model.parameters.upper)
@@ -827,8 +626,8 @@ def candidate_starts(record, model: Model, *, n_starts=8, rng=None, start=None) 
         scaled = classical
     if not starts:
         raise ValueError(
-            "no valid least-squares start: Table 1 (rescaled to the record) lies outside the model's "
-            "domain on this input; pass an explicit start"
+            "no valid least-squares start: Table 1 (rescaled to the record) gives a non-finite model "
+            "output on this input; pass an explicit start"
         )
     base = starts[-1][1] if scaled is not None else starts[0][1]
     starts = starts[:n_starts]
@@ -916,73 +715,6 @@ class _PolishedStart:
     message: str
 
 
-def _wall_working_copy(record, noise: NoiseModel):
-    """``(record, noise)`` for the polish through the wall: ``record`` decimated to about
-    :data:`WALL_SAMPLES` samples (every reversal of the input kept, and the last sample),
-    the AR(1) correlation of the noise raised to the step; unchanged when short enough."""
-    from dataclasses import replace
-
-    from .records import Record, thinning_indices
-
-    n = len(record)
-    step = max(1, int(math.ceil(n / WALL_SAMPLES)))
-    if step == 1:
-        return record, noise
-    keep = thinning_indices(record.current, step)
-    small = Record(
-        record.time[keep], record.current[keep], record.displacement[keep],
-        source=f"{record.source} (every {step}th sample and the reversals)", sha256="",
-        input_unit=record.input_unit, output_unit=record.output_unit,
-    )  # fmt: skip
-    rho = noise.rho**step if noise.kind == "ar1" else 0.0
-    return small, replace(noise, rho=rho, kind="ar1" if rho else "white", quiet=None, n_quiet=0)
-
-
-def _through_the_wall(wall: SoftWallResiduals, residuals: WhitenedResiduals, sol) -> _PolishedStart:
-    """Polish a converged hard-wall solution through the soft wall, then confirm it.
-
-    Skipped (``sol`` returned as is) when ``sol.x`` converged away from the wall
-    (:meth:`SoftWallResiduals.near_wall` false and not an ``xtol`` stop). Otherwise, on
-    ``wall``'s record (the whole record, or its working copy from
-    :func:`_wall_working_copy`): :func:`polish_through_wall` from ``sol.x``, then, when
-    that lowered the exact chi-square by more than :data:`WALL_ROUND_GAIN` relative, the
-    hard-wall solver from there (at most :data:`POLISH_EVALUATIONS` evaluations); the two
-    steps repeat (at most :data:`WALL_ROUNDS` rounds) while they keep improving. On a
-    working copy, the end point is finally confirmed by the hard-wall solver on the whole
-    record and kept only when its chi-square there is lower than ``sol``'s. Either way the
-    result is a least-squares optimum of the exact residuals, inside the domain.
-    """
-    x, chi2 = sol.x, 2.0 * float(sol.cost)
-    success, message = bool(sol.success), str(sol.message)
-    start_chi2 = chi2
-    if not (wall.near_wall(x) or sol.status == XTOL_STATUS):
-        # converged inside the domain: soft and exact residuals agree there, nothing to gain
-        return _PolishedStart(np.asarray(x, dtype=float), chi2, success, message)
-    working = wall.inner  # exact residuals of the record the wall works on
-    x_work = np.asarray(x, dtype=float)
-    w = working(x_work)
-    chi2_work = float(w @ w)
-    for _round in range(WALL_ROUNDS):
-        x_wall = polish_through_wall(wall, x_work)
-        w = working(x_wall)
-        chi2_wall = float(w @ w)
-        if not chi2_wall < chi2_work - max(AGREE_CHI2, WALL_ROUND_GAIN * chi2_work):
-            break  # no worthwhile gain: stop (a crawl along a flat valley is not worth the time)
-        confirm = _solve(working, x_wall, POLISH_EVALUATIONS)
-        x_work, chi2_work = (confirm.x, 2.0 * float(confirm.cost)) if 2.0 * confirm.cost <= chi2_wall else (x_wall, chi2_wall)
-        if working is residuals:
-            x, chi2 = x_work, chi2_work
-            success, message = bool(confirm.success), str(confirm.message)
-    if working is not residuals and not np.array_equal(x_work, x):
-        confirm = _solve(residuals, x_work, POLISH_EVALUATIONS)
-        if 2.0 * float(confirm.cost) < chi2:
-            x, chi2 = confirm.x, 2.0 * float(confirm.cost)
-            success, message = bool(confirm.success), str(confirm.message)
-    if chi2 < start_chi2 - AGREE_CHI2:
-        message = f"{message} (after polishing through the domain wall: chi-square {start_chi2:.6g} -> {chi2:.6g})"
-    return _PolishedStart(np.asarray(x, dtype=float), chi2, success, message)
-
-
 def fit_least_squares(
     record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=2, threshold_sign="auto"
 ) -> FitResult:
@@ -1032,7 +764,7 @@ def fit_least_squares(
 
     best = min(fits, key=mean_square)
     # Within AGREE_CHI2 of each other the two signs fit equally well (e.g. on the paper's own
-    # transducer through the wall both reach the same chi-square): keep the paper's sign then.
+    # transducer both signs can reach the same chi-square): keep the paper's sign then.
     dof = best.residual.size - int(best.vary.sum())
     tied = [f for f in fits if (mean_square(f) - mean_square(best)) * dof / best.noise.sigma**2 <= AGREE_CHI2]
     tie_note = ""
@@ -1082,11 +814,6 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
     if not isinstance(noise, NoiseModel):
         raise ValueError(f"noise must be a NoiseModel, got {type(noise).__name__}")
     residuals = WhitenedResiduals(record, model, noise)
-    wall_record, wall_noise = _wall_working_copy(record, noise)
-    wall = SoftWallResiduals(wall_record, model, wall_noise, inner=residuals if wall_record is record else None)
-
-    def rows_used() -> int:
-        return residuals.n_evaluations + (0 if wall.inner is residuals else wall.inner.n_evaluations)
     free = residuals.free
     if free.size == 0:
         raise ValueError("every parameter is pinned: nothing to fit")
@@ -1121,12 +848,11 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
                     message = f"screened out after {SCREEN_EVALUATIONS} evaluations (not run to convergence)"
                     outcomes.append(StartOutcome(label, 2.0 * float(sol.cost), n_eval, bool(sol.success), message))
                     continue
-                before = rows_used()
+                before = residuals.n_evaluations
                 if sol.status == 0:
                     sol = _solve(residuals, sol.x, POLISH_EVALUATIONS)
-                # Phase 3: through the domain wall, then confirmed with the exact residuals.
-                end = _through_the_wall(wall, residuals, sol)
-                n_eval += rows_used() - before
+                end = _PolishedStart(np.asarray(sol.x, dtype=float), 2.0 * float(sol.cost), bool(sol.success), str(sol.message))
+                n_eval += residuals.n_evaluations - before
                 outcomes.append(StartOutcome(label, end.chi2, n_eval, end.success, end.message))
                 if verbose:
                     print(f"  polish {label:<14} chi2 = {end.chi2:.6g}  ({end.message})", file=sys.stderr)

@@ -23,8 +23,8 @@ Log-posterior
 -------------
 :class:`LogPosterior` is evaluated for all walkers at once (emcee ``vectorize=True``:
 ONE model call per step). It returns ``-inf`` for a walker outside the bounds *before*
-evaluating the model, and for one the model flags invalid (operator bounds cross, or a
-non-finite output); it never raises and never returns NaN (a model error for the batch
+evaluating the model, and for one whose model output is not finite (the GPI itself is
+defined for every parameter set: :mod:`model.gpi`, "The whole domain"); it never raises and never returns NaN (a model error for the batch
 falls back to one row at a time; rows that still fail get ``-inf`` and are counted in
 :attr:`LogPosterior.n_errors`). The likelihood is :func:`identify.noise.log_likelihood`,
 evaluated in one fused pass (:func:`identify.noise.log_likelihood_of_rows`).
@@ -54,9 +54,6 @@ every check was made. The
 anchors depend only on the chain, so a resumed run checks where the uninterrupted one
 does; a skipped check can only delay the stop (by at most ``tau_factor`` times the
 anchor's overestimate of tau), never make it earlier.
-The fraction of proposals inside the prior's support that the model rejects (operator
-bounds crossing) is reported as :attr:`PosteriorResult.outside_domain_fraction`; above
-:data:`DOMAIN_WALL_WARNING` the posterior is truncated by the domain wall.
 Burn-in ``discard = 2 tau_max`` and ``thin = max(1, tau_min / 2)`` are applied to the
 reported samples; the effective sample size of parameter ``j`` is
 ``n_walkers (n_steps - discard) / tau_j``.
@@ -98,7 +95,6 @@ __all__ = [
     "posterior_from_backend",
     "BACKEND_GROUP",
     "BufferedHDFBackend",
-    "DOMAIN_WALL_WARNING",
     "BENCH_COVERAGE",
 ]
 
@@ -245,10 +241,6 @@ class LogPosterior:
         The prior's support.
     n_errors : int
         Rows whose evaluation raised (and were given ``-inf``).
-    n_in_support, n_outside_domain : int
-        Rows evaluated inside the prior's support, and those of them the model flagged
-        outside its domain (operator bounds crossing); their ratio tells how hard the
-        posterior presses against the domain wall (:attr:`PosteriorResult.outside_domain_fraction`).
     """
 
     def __init__(self, record, model: Model, noise: NoiseModel, *, priors=None):
@@ -305,8 +297,6 @@ class LogPosterior:
         )  # fmt: skip
         self._other_priors = [(j, fn) for j, (fn, b) in enumerate(zip(self._prior_fns, builtin)) if not b]
         self.n_errors = 0
-        self.n_in_support = 0
-        self.n_outside_domain = 0
 
     @property
     def ndim(self) -> int:
@@ -361,8 +351,6 @@ class LogPosterior:
         ok = np.flatnonzero(np.isfinite(out))
         if ok.size:
             y, valid = self._evaluate_rows(self.full_theta(x2[ok]))
-            self.n_in_support += int(ok.size)
-            self.n_outside_domain += int(ok.size - np.count_nonzero(valid))
             if valid.any():
                 rows = ok[valid]
                 sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
@@ -483,13 +471,6 @@ class PosteriorResult:
         Sampling wall time in this call [s].
     n_errors : int
         Walker evaluations that raised and got ``-inf``.
-    outside_domain_fraction : float
-        Fraction of the proposals inside the prior's support (in this call) that fell
-        outside the model's domain (operator bounds crossing); NaN when unknown (a
-        summary of a stored chain). Above :data:`DOMAIN_WALL_WARNING` the posterior is
-        truncated by the domain wall: its equal-tailed intervals for the parameters
-        the wall constrains then cover a true value near the wall less often than
-        nominal (README, "Identification").
     """
 
     names: tuple
@@ -506,12 +487,6 @@ class PosteriorResult:
     log_prob: np.ndarray = field(repr=False)
     seconds: float = 0.0
     n_errors: int = 0
-    outside_domain_fraction: float = math.nan
-
-    @property
-    def presses_on_domain_wall(self) -> bool:
-        """True when more than :data:`DOMAIN_WALL_WARNING` of the proposals left the domain."""
-        return bool(self.outside_domain_fraction > DOMAIN_WALL_WARNING)
 
     @property
     def tau_max(self) -> float:
@@ -534,7 +509,6 @@ class PosteriorResult:
             "tau_max": _finite_or_none(self.tau_max),
             "n_samples": int(self.samples.shape[0]),
             "n_errors": int(self.n_errors),
-            "outside_domain_fraction": _finite_or_none(self.outside_domain_fraction),
             "seconds": float(self.seconds),
         }
 
@@ -553,11 +527,6 @@ BENCH_COVERAGE = {
     "n_records": 20,
     "n_intervals": 360,
 }
-
-#: Fraction of proposals outside the model's domain above which the result warns that the
-#: posterior is truncated by the domain wall.
-DOMAIN_WALL_WARNING = 0.03
-
 
 def _finite_or_none(x):
     x = float(x)
@@ -645,8 +614,7 @@ def _check_due(chain, check_every, tau_factor, cache) -> bool:
 
 
 def posterior_from_backend(path, names, *, converged=None, message="", tau_factor=50.0, tau_rtol=0.05,
-                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None,
-                           outside_domain_fraction=math.nan) -> PosteriorResult:
+                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None) -> PosteriorResult:
     """Summarise the chain stored in ``path`` (HDF5 backend, group :data:`BACKEND_GROUP`).
 
     ``converged``/``message`` default to the convergence rule applied to the stored
@@ -677,7 +645,6 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
         names=tuple(names), converged=bool(converged), message=message, n_walkers=n_walkers,
         n_steps=n_steps, discard=discard, thin=thin, acceptance_fraction=acceptance, tau=tau,
         ess=ess, samples=samples, log_prob=log_prob, seconds=seconds, n_errors=n_errors,
-        outside_domain_fraction=float(outside_domain_fraction),
     )  # fmt: skip
 
 
@@ -776,8 +743,6 @@ def sample_posterior(
     import numba
 
     threads_before = numba.get_num_threads()
-    counts = lambda: np.array([getattr(log_post, "n_in_support", 0), getattr(log_post, "n_outside_domain", 0)])  # noqa: E731
-    proposals = np.zeros(2, dtype=int)  # (inside the support, outside the domain) of the sampler's own calls
     tau_cache: dict[int, np.ndarray] = {}
     # The chain in memory for the convergence checks: read from the file once (a resumed
     # run), then extended in place with each chunk's steps (capacity doubling, so a check
@@ -805,7 +770,6 @@ def sample_posterior(
                     break
             steps = min(check_every - done % check_every, max_steps - done)
             fastest_thread_count(log_post, np.asarray(state.coords))
-            chunk_start = counts()
             with _stop_between_steps() as stop:
                 # emcee's linear-independence check is for a start we made; walkers the
                 # sampler itself moved (a later chunk, a resumed run) may lie along a
@@ -827,7 +791,6 @@ def sample_posterior(
                     chain_buffer = grown
                 chain_buffer[stored : stored + len(block)] = block
                 stored += len(block)
-            proposals += counts() - chunk_start
             backend.flush()
     finally:
         numba.set_num_threads(threads_before)
@@ -838,7 +801,6 @@ def sample_posterior(
         path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
         tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
         n_errors=log_post.n_errors, tau_cache=tau_cache,
-        outside_domain_fraction=_ratio(proposals[1], proposals[0]),
     )  # fmt: skip
 
 
@@ -871,6 +833,3 @@ def _stop_between_steps():
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
-
-def _ratio(part, whole) -> float:
-    return part / whole if whole > 0 else math.nan

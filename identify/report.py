@@ -58,7 +58,7 @@ from scipy.special import ndtr, ndtri
 
 from . import plots, results
 from .noise import energised_mask
-from .posterior import BENCH_COVERAGE, DOMAIN_WALL_WARNING
+from .posterior import BENCH_COVERAGE
 
 __all__ = [
     "write_report",
@@ -338,9 +338,9 @@ class ModelBands:
     predictive_lo, predictive_hi : 95 % predictive band (model plus N(0, sigma^2) noise)
     lsq : the least-squares model curve
     n_draws : int
-        Draws used (inside the model's domain).
+        Draws used (with a finite model output).
     n_outside : int
-        Draws dropped because the model rejected them (operator bounds cross).
+        Draws dropped because their model output is not finite.
     """
 
     median: np.ndarray
@@ -407,10 +407,10 @@ def model_bands(data: ReportData, draws: PosteriorDraws, *, level: float = 0.95)
     batch = np.vstack([draws.theta, data.fit.theta[None, :]])
     curves, valid = data.model.evaluate(batch, record.time, record.current)
     if not valid[-1]:
-        raise ResultsError(f"{data.directory / results.FILES['fit']}: the least-squares vector is outside the model's domain")
+        raise ResultsError(f"{data.directory / results.FILES['fit']}: the least-squares vector gives a non-finite model output")
     inside = valid[:-1]
     if not inside.any():
-        raise ResultsError(f"{data.directory / results.FILES['chain']}: every posterior draw is outside the model's domain")
+        raise ResultsError(f"{data.directory / results.FILES['chain']}: every posterior draw gives a non-finite model output")
     model_curves = curves[:-1][inside]
     tail = 0.5 * (1.0 - level)
     lo, median, hi = np.quantile(model_curves, [tail, 0.5, 1.0 - tail], axis=0)
@@ -909,15 +909,6 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
             f'<div class="alert" id="convergence-alert"><b>NOT CONVERGED.</b> {message or "The chain is too short."} '
             "The intervals and bands below are provisional; rerun the same study command to extend the chain.</div>"
         )
-    wall = posterior.get("outside_domain_fraction")
-    if wall is not None and wall > DOMAIN_WALL_WARNING:
-        parts.append(
-            f'<div class="note" id="domain-wall-note"><b>The posterior presses on the model\'s domain wall:</b> '
-            f"{100.0 * wall:.1f} % of the proposals crossed an operator's bounds (rejected). The posterior is "
-            "truncated there, so the equal-tailed 95 % intervals of the parameters the wall constrains (the envelope "
-            "offsets and amplitudes, ρ, τ) can miss a true value that lies near the wall more often than 5 % "
-            "(README, \"Identification\").</div>"
-        )
     sentence = (
         f"Residual RMS {_number(fit['rms'], 4)} {unit} = {ratio:.3g} × the sensor noise σ = "
         f"{_number(data.noise_sigma, 4)} {unit}; reduced χ² = {_number(fit.get('reduced_chi2'), 4)}."
@@ -963,7 +954,7 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
         )
     items.append(
         f"Bands from {analysis.bands.n_draws} posterior draws"
-        + (f" ({analysis.bands.n_outside} outside the model's domain dropped)" if analysis.bands.n_outside else "")
+        + (f" ({analysis.bands.n_outside} with a non-finite model output dropped)" if analysis.bands.n_outside else "")
         + "."
     )
     parts.append("<ul>" + "".join(f"<li>{item}</li>" for item in items) + "</ul>")
@@ -1079,8 +1070,6 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
         [_text("steps / τ_max (need ≥ 50)"), _cell(
             posterior["n_steps"] / posterior["tau_max"] if posterior.get("tau_max") else None, "derived.steps_per_tau", 4)],
         [_text("converged"), _cell(converged, "posterior.converged", css="ok" if converged else "alert")],
-        [_text("proposals outside the model's domain (this run)"),
-         _cell(posterior.get("outside_domain_fraction"), "posterior.outside_domain_fraction")],
         [_text("sampling time [s]"), _cell(posterior.get("seconds"), "posterior.seconds")],
     ]  # fmt: skip
     parts.append(_table("posterior-settings", ["quantity", "value"], rows, caption="Posterior sampling (emcee)"))

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from identify.calibration import WALD_Z95, CoverageResult, RecordCoverage, interval_coverage, off_the_wall_truth
+from identify.calibration import WALD_Z95, CoverageResult, RecordCoverage, calibration_truth, interval_coverage
 from identify.identifiability import normalised_model, to_normalisation
 from model import TABLE1, THETA_NAMES, Model
 
@@ -19,7 +19,7 @@ def record(seed, truth, lo, hi, estimate, stderr):
     return RecordCoverage(
         seed=seed, names=("a", "b", "c"), truth=list(truth), posterior_interval=np.column_stack([lo, hi]).tolist(),
         least_squares=list(estimate), stderr=list(stderr), converged=True, n_steps=1000, tau_max=10.0,
-        outside_domain_fraction=0.0, seconds=1.0,
+        seconds=1.0,
     )  # fmt: skip
 
 
@@ -50,34 +50,41 @@ def test_records_round_trip_through_json():
     assert RecordCoverage.from_dict(json.loads(json.dumps(r.to_dict()))) == r
 
 
-def test_the_truth_is_table1_off_the_wall_and_scaled():
-    truth_raw = off_the_wall_truth()
-    shifted = TABLE1.copy()
-    shifted[THETA_NAMES.index("b3")] += 0.5
-    assert not np.allclose(truth_raw, shifted)  # scaled: only the normalisation compares them
-    assert np.allclose(to_normalisation(truth_raw), to_normalisation(shifted))
+def test_the_truths_are_table1_with_b3_on_both_sides_of_the_old_wall_and_scaled():
+    from model import bound_overlap, paper_current
+
+    current = paper_current(50.0)[1]
+    overlaps = []
+    for seed in range(20):
+        truth_raw = calibration_truth(seed)
+        shift = to_normalisation(truth_raw)[THETA_NAMES.index("b3")] - to_normalisation(TABLE1)[THETA_NAMES.index("b3")]
+        shifted = TABLE1.copy()
+        shifted[THETA_NAMES.index("b3")] += shift
+        assert not np.allclose(truth_raw, shifted)  # scaled: only the normalisation compares them
+        assert np.allclose(to_normalisation(truth_raw), to_normalisation(shifted))
+        assert -0.25 <= shift <= 0.25
+        overlaps.append(bound_overlap(truth_raw, current))
+    crossing = sum(o > 0 for o in overlaps)
+    assert 7 <= crossing <= 13  # about half of the truths lie beyond where the bounds start to cross
+    np.testing.assert_array_equal(calibration_truth(3), calibration_truth(3))
 
 
 def test_a_stored_record_for_another_truth_is_refused_before_any_work(tmp_path):
     free = normalised_model(Model()).parameters.vary
-    other = to_normalisation(TABLE1)[free]  # Table 1, not the off-the-wall truth
+    other = to_normalisation(TABLE1)[free]  # Table 1, not the calibration truth of seed 0
     stale = record(0, other[:3], [0] * 3, [1] * 3, [0] * 3, [1] * 3).to_dict()
     stale["names"] = list(np.array(normalised_model(Model()).names)[free])
     stale["truth"] = other.tolist()
     stale["posterior_interval"] = [[0.0, 1.0]] * other.size
     (tmp_path / "seed_0.json").write_text(json.dumps(stale))
     with pytest.raises(ValueError, match="another truth"):
-        interval_coverage(off_the_wall_truth(), [0], tmp_path)
+        interval_coverage(calibration_truth, [0], tmp_path)
 
 
-def test_unknown_domain_fractions_are_skipped_not_propagated():
-    """A chain already complete when resumed has no proposals in this call (NaN fraction):
-    the maximum is taken over the known ones, and the summary says how many were unknown."""
+def test_records_written_before_the_wall_was_removed_still_load():
     truth = [0.0, 0.0, 0.0]
-    known = record(0, truth, [-1] * 3, [1] * 3, truth, [1] * 3)
-    unknown = RecordCoverage(**{**known.to_dict(), "names": known.names, "seed": 1, "outside_domain_fraction": float("nan")})
-    known = RecordCoverage(**{**known.to_dict(), "names": known.names, "outside_domain_fraction": 0.002})
-    result = CoverageResult([unknown, known])
-    assert result.max_outside_domain_fraction == 0.002
-    assert "1 records resumed complete" in result.summary()
-    assert np.isnan(CoverageResult([unknown]).max_outside_domain_fraction)
+    old = record(0, truth, [-1] * 3, [1] * 3, truth, [1] * 3).to_dict()
+    old.pop("bound_overlap")
+    old["outside_domain_fraction"] = 0.01
+    back = RecordCoverage.from_dict(old)
+    assert back.bound_overlap is None and CoverageResult([back]).n_crossing == 0

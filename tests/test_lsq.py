@@ -234,13 +234,13 @@ def test_threshold_sign_option_is_validated():
         fit_least_squares(rec, normalised_model(Model()), threshold_sign="both")
 
 
-# -- starts for another number of operators; the polish through the domain wall -------------
+# -- starts for another number of operators; fits across the old domain wall ----------------
 
 
 @pytest.mark.parametrize("n_operators", [21, 30])
 def test_table1_start_is_rescaled_to_more_operators(n_operators):
     """For N != 12 operators the Table-1-shaped start keeps the threshold range and total
-    weight: valid for the paper's sign (it crossed the wall before), alpha still exactly the
+    weight: alpha still exactly the
     pinned value, and an output within 3 % of the range of Table 1's 12-operator output
     (measured 1.3 % for 21, 1.9 % for 30 operators: the discretisation of the density)."""
     from identify.identifiability import with_threshold_sign
@@ -257,33 +257,37 @@ def test_table1_start_is_rescaled_to_more_operators(n_operators):
     assert np.abs(output - reference).max() < 0.03 * np.ptp(reference)
 
 
-def test_soft_wall_is_continuous_across_the_wall_and_projects_back_inside():
-    """Across the crossing of the operator bounds the exact residuals jump to DOMAIN_PENALTY;
-    the soft ones stay the continued model's residuals plus WALL_WEIGHT * crossing, and
-    ``project`` returns a point the exact residuals accept."""
-    from identify.lsq import DOMAIN_PENALTY, WALL_WEIGHT, SoftWallResiduals
+def test_residuals_are_continuous_across_the_old_wall():
+    """Where the operator bounds start to cross, the residuals neither jump nor turn into a
+    penalty: eq. (5) is the model on both sides (model/gpi.py, "The whole domain")."""
+    from model import bound_overlap
 
     rec = simulated_record(fs=5.0, seed=3)
     model = normalised_model(Model())
-    noise = NoiseModel(sigma=SIGMA)
-    exact = WhitenedResiduals(rec, model, noise)
-    wall = SoftWallResiduals(rec, model, noise)
-    x_in = model.default_theta()[exact.free]
+    exact = WhitenedResiduals(rec, model, NoiseModel(sigma=SIGMA))
+    x = model.default_theta()[exact.free]
     b3 = list(exact.free).index(model.names.index("b3"))
-    gap_in = wall.gpi_gap(exact.full(x_in)[None, :])[0]
-    assert gap_in < 0  # Table 1 lies inside (smallest margin 0.0157 at 5 A, model/gpi.py)
-    inside = x_in.copy()
-    inside[b3] += gap_in / 2  # half-way to the wall: still inside
-    across = x_in.copy()
-    across[b3] += gap_in - 0.05  # 0.05 beyond the wall
-    assert np.all(exact(across) == DOMAIN_PENALTY)
-    soft_in, soft_across = wall(inside), wall(across)
-    assert soft_in[-1] == 0.0 and np.array_equal(soft_in[:-1], exact(inside))
-    assert soft_across[-1] == pytest.approx(WALL_WEIGHT * 0.05, rel=1e-6)
-    # continuous: the data residuals barely move over the 0.05 step in b3, no jump to the penalty
-    assert np.abs(soft_across[:-1] - soft_in[:-1]).max() < 10.0
-    projected = wall.project(across)
-    assert exact.batch(projected[None, :])[1][0] and wall.gpi_gap(exact.full(projected)[None, :])[0] <= 0
-    # Table 1's margin (~0.016 of a 4.78 band) is not "at the wall"; the projection (margin 1e-6) is
-    assert not wall.near_wall(x_in)
-    assert wall.near_wall(projected)
+    edge = bound_overlap(model.default_theta(), rec.current)  # < 0: Table 1 is inside
+    inside, across = x.copy(), x.copy()
+    inside[b3] += edge + 1e-4
+    across[b3] += edge - 1e-4
+    assert bound_overlap(exact.full(across), rec.current) > 0 > bound_overlap(exact.full(inside), rec.current)
+    w, valid = exact.batch(np.stack([inside, across]))
+    assert valid.all()
+    assert np.abs(w[0] - w[1]).max() < 0.1  # a 2e-4 A step in b3 moves the output by far less than sigma
+
+
+def test_fit_reaches_the_noise_when_the_truth_lies_beyond_the_old_wall():
+    """A truth whose bounds cross on the record (b3 lowered by 0.1 A) is fitted like any other:
+    the least squares reaches the chi-square of the truth itself (or lower)."""
+    from model import bound_overlap
+
+    theta = TABLE1.copy()
+    theta[Model().names.index("b3")] -= 0.1
+    rec = simulated_record(fs=20.0, seed=5, theta=theta)
+    assert bound_overlap(theta, rec.current) > 0.05
+    model = normalised_model(Model())
+    noise = NoiseModel(sigma=SIGMA)
+    fit = fit_least_squares(rec, model, noise=noise, n_starts=3, rng=np.random.default_rng(0))
+    truth = WhitenedResiduals(rec, fit.model, noise)(theta[fit.vary])
+    assert fit.chi2 <= float(truth @ truth) + 1.0, (fit.chi2, float(truth @ truth))

@@ -437,18 +437,13 @@ def test_report_command_rewrites_the_page(misfit_folder, capsys):
     assert "error:" in capsys.readouterr().err
 
 
-def test_domain_wall_note_follows_the_outside_domain_fraction(folder_copy):
-    """A posterior that presses on the operator-bounds wall (the Table 1 transducer sits
-    0.016 A from it) is said so at a glance; below the threshold no note."""
-    from identify.posterior import DOMAIN_WALL_WARNING
-
+def test_no_domain_wall_note_even_for_a_summary_that_still_counts_proposals(folder_copy):
+    """The GPI has no domain wall any more (model/gpi.py, "The whole domain"): a summary
+    written before, with its ``outside_domain_fraction``, renders without a wall note."""
     path = folder_copy / "summary.json"
     summary = json.loads(path.read_text())
-    for fraction, expected in ((0.07, True), (0.5 * DOMAIN_WALL_WARNING, False), (None, False)):
-        summary["posterior"]["outside_domain_fraction"] = fraction
-        path.write_text(json.dumps(summary))
-        data = report.load_report_data(folder_copy)
-        section = report._glance_html(data, report._analyse(data, 20, np.random.default_rng(0)))
-        assert ("domain-wall-note" in section) is expected
-        if expected:
-            assert "7.0 % of the proposals" in section
+    summary["posterior"]["outside_domain_fraction"] = 0.07
+    path.write_text(json.dumps(summary))
+    data = report.load_report_data(folder_copy)
+    section = report._glance_html(data, report._analyse(data, 20, np.random.default_rng(0)))
+    assert "domain-wall" not in section and "% of the proposals" not in section
