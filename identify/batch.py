@@ -1,6 +1,6 @@
 """Batch identification runs: many records times many model variants, in parallel, one summary.
 
-A batch is described by a TOML file (see ``examples/*.toml`` and the README's "Batch runs")::
+A batch is described by a TOML file (see ``examples/*.toml`` and docs/batch.md)::
 
     task = "fit"                  # fit | diagnose | study: the command each job runs
     out = "../reports/batch"      # results folder (relative to this file)

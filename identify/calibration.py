@@ -17,7 +17,7 @@ pushes ``a0 ... a3`` together), so the unit of replication is the *record*, not 
 interval. :class:`CoverageResult` therefore quotes the mean of the per-record coverage
 fractions with its standard error across records (the spread of the per-record fractions
 over :math:`\sqrt{n_\mathrm{records}}`). Measured on this bench: with 12 records that
-standard error is about 0.04, with 30 about 0.02 (README, "Identification").
+standard error is about 0.04, with 30 about 0.02 (docs/method.md).
 
 Every finished record is written to ``out_dir/seed_<n>.json`` (atomically) and its chain
 to ``out_dir/chain_<n>.h5``, so an interrupted calibration resumes: finished records are

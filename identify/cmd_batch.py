@@ -11,7 +11,7 @@ HELP = "run fit/diagnose/study over many records and model variants in parallel 
 
 def add_arguments(parser) -> None:
     """Options of the ``batch`` command."""
-    parser.add_argument("config", help="batch configuration (TOML); see examples/ and the README's 'Batch runs'")
+    parser.add_argument("config", help="batch configuration (TOML); see examples/ and docs/batch.md")
     parser.add_argument(
         "--workers", type=int, default=None, help="jobs at the same time (overrides the config's 'workers')"
     )

@@ -73,7 +73,7 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
         "record's unenergised start",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the one random generator (default 0)")
-    parser.add_argument("--n-starts", type=int, default=8, help="least-squares starts (default 8)")
+    parser.add_argument("--n-starts", type=int, default=8, help="least-squares starts (default: %(default)s)")
 
 
 def parse_effects(text) -> list[str]:
@@ -141,7 +141,7 @@ def fit_or_explain(record, model, **options):
     Raises
     ------
     FitFailedError
-        The fit raised a ValueError (e.g. no start inside the model's domain); the message
+        The fit raised a ValueError (e.g. no start with a finite model output); the message
         names the model and the record and suggests options that change the starts.
     """
     from .lsq import fit_least_squares

@@ -33,7 +33,7 @@ HELP = "whole study (noise, least squares, identifiability, emcee posterior, rep
 #: Default cap on the chain length [steps]. The bundled record's posterior converges after
 #: 35500-54000 steps depending on the random stream (tau_max 708-1080 with the corrected
 #: snooker move); the cap leaves room for an autocorrelation time up to 1200 steps
-#: (README "## Identification").
+#: (docs/method.md).
 DEFAULT_MAX_STEPS = 60000
 #: Settings that may differ when a run is resumed.
 RESUMABLE_SETTINGS = ("max_steps", "data", "no_report")  # data compared by sha256; no_report changes no number

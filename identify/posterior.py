@@ -517,7 +517,7 @@ class PosteriorResult:
 #: the slow tests in tests/test_posterior.py: 20 seeded clean 50 Hz records, truth 0.5 A off
 #: the domain wall; 2026-11-22, with :class:`SnookerMove`): least squares +-1.96 stderr vs
 #: posterior equal-tailed intervals, mean of the per-record fractions and its standard
-#: error across records. Quoted by the report (README "Identification").
+#: error across records. Quoted by the report (docs/method.md, docs/benchmarks.md).
 BENCH_COVERAGE = {
     "least_squares": 0.950,
     "least_squares_se": 0.018,

@@ -1051,7 +1051,7 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
     )  # fmt: skip
     parts.append(
         '<p class="note" id="interval-calibration">How far to trust the intervals: on the virtual bench '
-        f"({BENCH_COVERAGE['n_records']} seeded records, truth known; README, \"Identification\") the posterior 95 % "
+        f"({BENCH_COVERAGE['n_records']} seeded records, truth known; docs/method.md) the posterior 95 % "
         f"intervals covered the truth at {BENCH_COVERAGE['posterior']:.3f} ± {BENCH_COVERAGE['posterior_se']:.3f} and "
         f"the least-squares ones (estimate ± 1.96 std. errors) at {BENCH_COVERAGE['least_squares']:.3f} ± "
         f"{BENCH_COVERAGE['least_squares_se']:.3f} (nominal {BENCH_COVERAGE['nominal']:.2f}; ± is the standard error "

@@ -1,6 +1,6 @@
 """Rerun a finished run from its manifest and check that it gives the same numbers.
 
-``python -m identify reproduce DIR [--out NEWDIR]`` (see the README's "Reproducing a run"):
+``python -m identify reproduce DIR [--out NEWDIR]`` (see docs/reproducibility.md):
 
 1. read ``DIR/manifest.json`` (seed, data file + SHA-256, settings, package versions,
    git commit, command line);

@@ -206,11 +206,9 @@ def classical_record(seed=3, sigma=0.05):
 
 
 def test_auto_threshold_sign_picks_positive_for_a_thin_loop_and_reaches_the_noise():
-    """Measured with the polish through the domain wall (8 starts, seed 0): alpha > 0 ends at
-    1.116 sigma, alpha < 0 at 1.260 sigma. Before that polish the paper's sign stalled at the
-    wall (> 3x the positive sign's RMS); through it, alpha < 0 can make thin loop tips too
-    (1.09 sigma with 3 starts, where alpha > 0 reached 1.17): the choice between the signs is
-    then decided by the starts, so this test uses 8."""
+    """A thin, piezo-like loop (8 starts, seed 0): the positive thresholds win and the fit
+    comes within 1.3 sigma. alpha < 0 can make thin loop tips too (its operator bounds then
+    cross), so the choice between the signs is decided by the starts; this test uses 8."""
     rec, sigma = classical_record()
     fit = fit_least_squares(rec, normalised_model(Model()), n_starts=8, rng=np.random.default_rng(0))
     assert fit.model.parameters["alpha"].value == pytest.approx(0.1993)

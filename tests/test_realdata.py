@@ -336,7 +336,7 @@ def test_project_identification_beats_the_published_sma_fit(tmp_path):
     """The project's GPI, identified without any peer information, against the GA's 21 operators.
 
     ``diagnose``'s baseline least squares (12 operators, multi-start from the data-scaled
-    Table 1, polished through the GPI's domain wall) on ``input_data_sequence.csv``:
+    Table 1, finished by a trust-region polish) on ``input_data_sequence.csv``:
     measured RMS 1.951 over all 773 samples (max |error| 12.77) vs 2.2587 (16.849) at
     commit 9a03202; 6.99 (max |error| 50.7) at 6853bbe, after the threshold-sign change: a
     regression this test flags.
@@ -359,14 +359,14 @@ def test_fit_least_squares_alone_against_the_peer_fit():
     """The plain multi-start least squares (no peer information) on the SMA record beats the GA.
 
     ``fit_least_squares`` (what ``fit`` and ``study`` use) polishes the two best-screened
-    starts through the GPI's domain wall (:class:`identify.lsq.SoftWallResiduals`). Which
+    starts. Which
     basin they reach is sensitive to the last bits of the model output (the clamps make
     the finite-difference Jacobian jump), so one seed is not a measurement: over seeds 1-5
     (16 starts, 12 and 21 operators, best of the two, RMS over all 773 samples) the
     vectorised-envelope kernel (session 4) gave 5.2795, 2.0193, 1.9098, 2.0683, 1.9378
     and the previous kernel 1.9356, 1.9470, 1.8756, 1.9492, 1.8554, vs the GA's 2.2587.
     With ``n_polish=4`` all five seeds beat the GA with either kernel (1.90-1.94 now).
-    Before the polish through the wall: 20.4 (12) and 22.2 (21, seed 1).
+    Figures after the GPI was given its whole domain: docs/benchmarks.md.
     """
     from identify.lsq import fit_least_squares
     from identify.noise import estimate_noise
