@@ -68,12 +68,12 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
     out_dir : path-like, optional
         Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure.
     """
-    import io
     from pathlib import Path
 
     from .diagnosis_plots import diagnosis_figures
     from .report import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
-    from .results import atomic_write_bytes, write_json
+    from .fileio import atomic_write
+    from .results import write_json
 
     content = diagnosis.to_dict()
     written = []
@@ -88,10 +88,8 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
         for stale in figure_dir.glob("*.png"):  # figures of an earlier diagnosis must not mix in
             stale.unlink()
         for stem, figure in diagnosis_figures(diagnosis, record).items():
-            buffer = io.BytesIO()
-            figure.savefig(buffer, format="png", dpi=100)
             path = figure_dir / f"{stem}.png"
-            atomic_write_bytes(path, buffer.getvalue())
+            atomic_write(path, lambda fh, figure=figure: figure.savefig(fh, format="png", dpi=100))
             written.append(str(path))
         write_json(out / DIAGNOSIS_FILE, content)
         written.append(str(out / DIAGNOSIS_FILE))

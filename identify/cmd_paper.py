@@ -25,7 +25,6 @@ half-written file.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time as wallclock
 from dataclasses import dataclass
@@ -34,6 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from model import INPUT_READINGS, QUIET_SECONDS, READINGS, TABLE1, envelope, gpi_masked, paper_current
+
+from .fileio import atomic_write
 
 __all__ = ["HELP", "add_arguments", "run", "ReadingEvidence", "reading_evidence", "FIGURE_FILES", "N_OPERATORS"]
 
@@ -150,20 +151,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _write_atomically(path: Path, write) -> None:
-    """Call ``write(temporary_path)`` then rename the result to ``path``."""
-    temporary = str(path.with_name(f".{path.name}.{os.getpid()}.tmp"))
-    try:
-        write(temporary)
-        os.replace(temporary, path)
-    except BaseException:
-        if os.path.exists(temporary):
-            os.remove(temporary)
-        raise
-
-
 def _save_figure(figure, path: Path) -> None:
-    _write_atomically(path, lambda temporary: figure.savefig(temporary, format="png", dpi=110))
+    atomic_write(path, lambda fh: figure.savefig(fh, format="png", dpi=110))
 
 
 def _make_figures(time, current, chosen, other, input_reading):
@@ -281,7 +270,7 @@ def run(args) -> int:
     for key, figure in _make_figures(time, current, chosen, other, args.input).items():
         _save_figure(figure, out / FIGURE_FILES[key])
     text = _markdown(args, time, chosen, other)
-    _write_atomically(out / "paper.md", lambda temporary: Path(temporary).write_text(text, encoding="utf-8"))
+    atomic_write(out / "paper.md", text)
 
     for evidence in (chosen, other):
         print(

@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .fileio import atomic_write
+
 __all__ = [
     "DataChangedError",
     "ManifestError",
@@ -624,12 +626,6 @@ def _recorded_threads(directory: Path) -> int | None:
     return int(threads) if isinstance(threads, int) and threads >= 1 else None
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    from .results import atomic_write_bytes
-
-    atomic_write_bytes(path, text.encode("utf-8"))
-
-
 def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionReport:
     """Rerun the run in ``directory`` into ``out`` and compare (see the module docstring).
 
@@ -699,5 +695,5 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     )
     from .results import jsonable
 
-    _write_text_atomic(out / REPORT_FILE, json.dumps(jsonable(report.to_dict()), indent=2, default=str) + "\n")
+    atomic_write(out / REPORT_FILE, json.dumps(jsonable(report.to_dict()), indent=2, default=str) + "\n")
     return report
