@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from . import options
+
 __all__ = ["HELP", "add_arguments", "parse_window", "run", "write_outputs"]
 
 HELP = "least squares + diagnosis: is the residual noise, and which physical effect is missing?"
@@ -33,10 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_record_arguments(parser)
     add_model_arguments(parser)
     parser.set_defaults(n_starts=6)
-    parser.add_argument("--json", default=None, metavar="OUT.json", help="write the diagnosis as JSON here")
     parser.add_argument(
-        "--out", default=None, metavar="DIR", help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png"
+        "--json", default=None, type=options.file_path, metavar="OUT.json", help="write the diagnosis as JSON here"
     )
+    parser.add_argument(
+        "--out", default=None, type=options.folder_path, metavar="DIR",
+        help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png (DIR is locked while they are written)",
+    )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     parser.add_argument(
         "--drop-window", default=None, metavar="START:STOP",
@@ -97,6 +102,22 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
 
 
 def run(args) -> int:
+    """Diagnose; exit code 0 done, 2 bad input, 130 interrupted. ``--out DIR`` is locked from the start."""
+    from .locks import FolderLock
+
+    if getattr(args, "drop_window", None):
+        try:
+            parse_window(args.drop_window)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    if args.out is None:
+        return _run(args)
+    with FolderLock(args.out, command=f"python -m identify diagnose {args.data} --out {args.out}"):
+        return _run(args)
+
+
+def _run(args) -> int:
     import time
 
     import numpy as np

@@ -34,6 +34,7 @@ import numpy as np
 
 from model import INPUT_READINGS, QUIET_SECONDS, READINGS, TABLE1, envelope, gpi_masked, paper_current
 
+from . import options
 from .fileio import atomic_write
 
 __all__ = ["HELP", "add_arguments", "run", "ReadingEvidence", "reading_evidence", "FIGURE_FILES", "N_OPERATORS"]
@@ -139,8 +140,12 @@ def reading_evidence(time, current, reading, theta=TABLE1, n_operators=N_OPERATO
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``paper`` options to ``parser``."""
-    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="folder to write the figures and paper.md into")
-    parser.add_argument("--fs", type=float, default=100.0, metavar="HZ", help="sampling rate of the input in Hz (default 100)")
+    parser.add_argument(
+        "--out", required=True, type=options.folder_path, metavar="DIR", help="folder to write the figures and paper.md into"
+    )
+    parser.add_argument(
+        "--fs", type=options.positive_float, default=100.0, metavar="HZ", help="sampling rate of the input in Hz (default 100)"
+    )
     parser.add_argument(
         "--input", choices=INPUT_READINGS, default="literal",
         help="reading of eq. (16)'s decay: literal (as printed, default) or centred (as the text says)",
@@ -265,12 +270,14 @@ def run(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    from .locks import FolderLock
+
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    for key, figure in _make_figures(time, current, chosen, other, args.input).items():
-        _save_figure(figure, out / FIGURE_FILES[key])
-    text = _markdown(args, time, chosen, other)
-    atomic_write(out / "paper.md", text)
+    with FolderLock(out, command=f"python -m identify paper --out {out}"):
+        for key, figure in _make_figures(time, current, chosen, other, args.input).items():
+            _save_figure(figure, out / FIGURE_FILES[key])
+        text = _markdown(args, time, chosen, other)
+        atomic_write(out / "paper.md", text)
 
     for evidence in (chosen, other):
         print(
