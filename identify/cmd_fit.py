@@ -36,7 +36,7 @@ FIT_OUT_FILES = ("data", "fit", "manifest")
 HELP = "least-squares fit of the GPI (+ effects) to a record; prints parameters, stderr, RMS vs noise"
 
 #: Records with at least this many samples get progress lines from the least squares.
-LONG_RECORD_SAMPLES = 500_000
+LONG_RECORD_SAMPLES = 100_000
 #: Files above this size [bytes] get progress lines while loading.
 _BIG_FILE = 20 * 2**20
 

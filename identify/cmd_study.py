@@ -144,18 +144,23 @@ def run_study(args) -> int:
 
 def _write_report(out: Path) -> None:
     try:
-        from .report import write_report
+        from .report import ResultsError, write_report
     except ImportError as exc:
         _say(f"report skipped: identify.report is not available ({exc})")
         return
-    path = write_report(out)
+    try:
+        path = write_report(out)
+    except ResultsError as exc:  # the results are complete; only the page could not be drawn
+        _say(f"report not written: {exc}")
+        return
     _say(f"report: {path}")
 
 
 def _run_locked(args, model, out: Path) -> int:
     import numpy as np
 
-    from .cmd_fit import fit_or_explain, format_fit_table, noise_from_args, print_record_notes, record_from_args
+    from .cmd_fit import LONG_RECORD_SAMPLES, fit_or_explain, format_fit_table, noise_from_args, print_record_notes
+    from .cmd_fit import record_from_args
     from .identifiability import analyse_fit
     from .posterior import LogPosterior, default_n_walkers, initial_walkers, sample_posterior
     from .results import (
@@ -249,7 +254,7 @@ def _run_locked(args, model, out: Path) -> int:
             _say(f"least squares: reusing {fit_path}")
         else:
             _say(f"least squares: {model!r}, {args.n_starts} starts ...")
-            verbose = len(record) >= 500_000
+            verbose = len(record) >= LONG_RECORD_SAMPLES
             fit = fit_or_explain(record, model, noise=noise, n_starts=args.n_starts, rng=lsq_rng, verbose=verbose)
         # the first writes: the record, the manifest (the run is in progress), the fit
         if not state.has_data:
