@@ -930,6 +930,8 @@ def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
     env, pass_fds = lock.child_environment(_job_environment(job.threads))
     env[PARENT_VARIABLE] = str(os.getpid())  # the command ends (SIGTERM) if the batch dies
     with open(folder / _LOG_FILE, "w", encoding="utf-8") as log:
+        if lock.stale_note():
+            log.write(f"note: {lock.stale_note()}\n")
         log.write("$ " + " ".join(command) + "\n")
         log.flush()
         try:
@@ -1275,6 +1277,8 @@ def run_batch(config: BatchConfig, *, progress: bool = True, rerun: bool = False
 
     lock = FolderLock(config.out, command=f"python -m identify batch {config.source}")
     lock.acquire()
+    if lock.stale_note():
+        print(f"note: {lock.stale_note()}", file=sys.stderr if stream is None else stream)
     try:
         return _run_batch_locked(config, progress=progress, rerun=rerun, stream=stream, lock=lock)
     finally:

@@ -523,29 +523,55 @@ def test_ctrl_c_stops_a_batch_its_commands_and_its_queue(tmp_path):
     assert not list((tmp_path / "runs").glob(".batch_stop*")) and not (tmp_path / "runs" / ".identify.lock").exists()
 
 
-@pytest.mark.slow
-def test_a_batch_killed_with_sigterm_and_rerun_equals_an_uninterrupted_batch(tmp_path):
-    config = batch_config(tmp_path)
-    whole = batch_config(tmp_path, out="whole")
-    completed = cli("batch", whole.name, "--no-progress", cwd=tmp_path)
+@pytest.fixture(scope="module")
+def whole_batch(tmp_path_factory) -> Path:
+    """The batch of three short studies, run without interruption."""
+    folder = tmp_path_factory.mktemp("batch")
+    whole = batch_config(folder, out="whole")
+    completed = cli("batch", whole.name, "--no-progress", cwd=folder)
     assert completed.returncode == 0, completed.stderr[-3000:]
+    return folder / "whole"
 
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_a_batch_killed_and_rerun_equals_an_uninterrupted_batch(tmp_path, whole_batch, signum):
+    """SIGTERM: the batch stops its commands, exits 130 and leaves no process. SIGKILL
+    cannot be caught: its commands get SIGTERM from the kernel (PR_SET_PDEATHSIG), stop
+    between steps and end too. Either way the rerun (which takes over a stale lock after
+    SIGKILL) ends with the uninterrupted batch's summary and chains."""
+    for name in ("r4.csv", "r5.csv", "r6.csv"):
+        shutil.copy2(whole_batch.parent / name, tmp_path / name)
+    config = batch_config(tmp_path)
     batch = start("batch", config.name, "--no-progress", cwd=tmp_path)
     wait_for(lambda: steps(tmp_path / "runs" / "r4__default") >= 300, batch, "300 steps of a job")
     children = descendants(batch.pid)
-    batch.send_signal(signal.SIGTERM)
+    assert len(children) >= 2, children
+    batch.send_signal(signum)
     out, err = batch.communicate(timeout=180)
-    assert batch.returncode == 130 and "Traceback" not in err, err[-3000:]
+    if signum == signal.SIGKILL:
+        assert batch.returncode == -signal.SIGKILL
+        deadline = time.monotonic() + 120
+        while [pid for pid, command in children.items() if alive(pid, command)] and time.monotonic() < deadline:
+            time.sleep(0.2)
+    else:
+        assert batch.returncode == 130 and "Traceback" not in err, err[-3000:]
+        rows = summary_rows(tmp_path / "runs")
+        assert "interrupted" in {r["status"] for r in rows.values()}, rows
     assert not [pid for pid, command in children.items() if alive(pid, command)], "processes outlived the batch"
-    rows = summary_rows(tmp_path / "runs")
-    assert "interrupted" in {r["status"] for r in rows.values()}, rows
+    for job in children.values():
+        assert "Traceback" not in job
+    for log in (tmp_path / "runs").glob("*/batch.log"):
+        assert "Traceback" not in log.read_text()
 
     completed = cli("batch", config.name, "--no-progress", cwd=tmp_path)
     assert completed.returncode == 0, completed.stderr[-3000:]
-    resumed, reference = summary_rows(tmp_path / "runs"), summary_rows(tmp_path / "whole")
+    if signum == signal.SIGKILL:
+        assert "took over the lock of process" in completed.stderr
+    resumed, reference = summary_rows(tmp_path / "runs"), summary_rows(whole_batch)
     assert set(resumed) == set(reference)
     for key, row in resumed.items():
         assert row["status"] in ("ok", "skipped") and reference[key]["status"] == "ok"
         same = {c: row[c] for c in row if c not in ("status", "seconds")}
         assert same == {c: reference[key][c] for c in same}, key
-        assert_same_results(tmp_path / "runs" / key, tmp_path / "whole" / key)
+        assert_same_results(tmp_path / "runs" / key, whole_batch / key)
