@@ -86,6 +86,8 @@ from .lsq import fastest_thread_count
 from .noise import NoiseModel, log_likelihood_of_rows
 
 __all__ = [
+    "ChainFileError",
+    "chain_info",
     "PRIORS",
     "MOVES",
     "SnookerMove",
@@ -98,8 +100,6 @@ __all__ = [
     "posterior_from_backend",
     "BACKEND_GROUP",
     "BufferedHDFBackend",
-    "ChainFileError",
-    "chain_info",
     "DOMAIN_WALL_WARNING",
     "BENCH_COVERAGE",
 ]
