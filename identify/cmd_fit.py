@@ -82,7 +82,7 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
         "record's unenergised start",
     )
     parser.add_argument("--seed", type=options.seed, default=0, help="seed of the one random generator, >= 0 (default 0)")
-    parser.add_argument("--n-starts", type=options.positive_int, default=8, help="least-squares starts (default 8)")
+    parser.add_argument("--n-starts", type=options.positive_int, default=8, help="least-squares starts (default: %(default)s)")
 
 
 def parse_effects(text) -> list[str]:
