@@ -298,6 +298,17 @@ def test_a_finished_study_rerun_leaves_every_byte_unchanged(finished, tmp_path):
     assert digests(run) == before
 
 
+def test_a_finished_fit_rerun_leaves_every_byte_unchanged(base, tmp_path):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    first = cli("fit", "rec.csv", "--n-starts", "1", "--out", "out", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr[-3000:]
+    before = digests(tmp_path / "out")
+    again = cli("fit", "rec.csv", "--n-starts", "1", "--out", "out", cwd=tmp_path)
+    assert again.returncode == 0 and "already holds this fit" in again.stderr, again.stderr[-3000:]
+    assert again.stdout == first.stdout  # the same table
+    assert digests(tmp_path / "out") == before
+
+
 # -- 4. changed settings, reproduce into an existing study ---------------------------------------------
 
 
@@ -439,6 +450,54 @@ def test_exit_codes_are_documented_in_the_help(tmp_path):
         assert completed.returncode == 0
         for code in ("0 ", "1 ", "2 ", "130 "):
             assert f"  {code}" in completed.stdout.split("exit codes:")[1], completed.stdout
+
+
+def test_an_unexpected_failure_is_one_line_with_exit_code_1(monkeypatch, capsys):
+    from identify import cli, cmd_report
+
+    def broken(args):
+        raise RuntimeError("something nobody expected")
+
+    monkeypatch.setattr(cmd_report, "run", broken)
+    monkeypatch.delenv("IDENTIFY_DEBUG", raising=False)
+    assert cli.main(["report", "."]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines() == [
+        "error: unexpected RuntimeError: something nobody expected (rerun with IDENTIFY_DEBUG=1 for the traceback)"
+    ]
+    monkeypatch.setenv("IDENTIFY_DEBUG", "1")
+    with pytest.raises(RuntimeError):
+        cli.main(["report", "."])
+
+
+def test_folder_lock_semantics(tmp_path):
+    """In one process too: a second lock on a held folder is refused naming this PID; the
+    lock file goes with the release; a folder the lock created and left empty goes too;
+    a child given the lock's environment and descriptor holds it as well."""
+    from identify.locks import FolderBusyError, FolderLock, lock_holder
+
+    folder = tmp_path / "new"
+    lock = FolderLock(folder, command="test").acquire()
+    assert lock_holder(folder)["pid"] == os.getpid()
+    with pytest.raises(FolderBusyError, match=f"in use by process {os.getpid()} running 'test'"):
+        FolderLock(folder).acquire()
+    child_env, fds = lock.child_environment(env())
+    probe = (
+        "from identify.locks import FolderLock, FolderBusyError\n"
+        "import sys\n"
+        "lock = FolderLock(sys.argv[1]).acquire(); print('inherited', lock.inherited)\n"
+    )
+    inherited = subprocess.run([sys.executable, "-c", probe, str(folder)], env=child_env, pass_fds=fds,
+                               capture_output=True, text=True)  # fmt: skip
+    assert inherited.stdout.strip() == "inherited True", inherited.stderr
+    stranger = subprocess.run([sys.executable, "-c", probe, str(folder)], env=env(), capture_output=True, text=True)
+    assert stranger.returncode != 0 and "FolderBusyError" in stranger.stderr
+    lock.release()
+    assert not folder.exists()
+    (tmp_path / "kept").mkdir()
+    with FolderLock(tmp_path / "kept"):
+        pass
+    assert (tmp_path / "kept").is_dir() and not list((tmp_path / "kept").iterdir())
 
 
 # -- long records ------------------------------------------------------------------------------------------------
