@@ -148,7 +148,8 @@ def record_from_args(args, *, hint=True):
             say(
                 f"note: {n} samples, about {per:.0f} per input half-cycle: far more than the rate-independent GPI "
                 f"needs. --every {k} keeps every input reversal and about {per / k:.0f} samples per half-cycle "
-                f"(about {k}x less time and memory; the GPI's output at the kept samples is unchanged)"
+                f"(about {k}x less time and memory; the GPI's output at the kept samples is unchanged; with "
+                "time-dependent effects keep their time constants well resolved)"
             )
     if every > 1 and len(record) > 200_000:
         say(f"thinning {len(record)} samples (--every {every}) ...")
