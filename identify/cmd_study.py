@@ -25,6 +25,9 @@ and is replaced by the next run with other settings. See docs/reliability.md.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import shutil
 import sys
 import time as _time
 from pathlib import Path
@@ -156,6 +159,41 @@ def _write_report(out: Path) -> None:
     _say(f"report: {path}")
 
 
+def _holds_finished_result(state) -> bool:
+    """The folder holds a complete result (a posterior summary of the stored chain) that a
+    raised ``--max-steps`` is about to extend."""
+    post = state.posterior
+    return bool(post is not None and state.chain_steps and post.get("n_steps") == state.chain_steps)
+
+
+#: The copy of a finished chain that a raised --max-steps extends (renamed over chain.h5 when done).
+_EXTENDING = ".chain.h5.extending"
+
+
+@contextlib.contextmanager
+def _chain_to_extend(chain: Path, state):
+    """The chain file to sample into. A finished chain (its summary describes it) is
+    extended on a copy that replaces it when sampling ends, by convergence, the cap or an
+    interruption, so a crash (``kill -9``, power loss) during an HDF5 write can never
+    damage the finished result; an unfinished chain is continued in place (a ``kill -9``
+    loses at most its last second)."""
+    work = chain.with_name(_EXTENDING)
+    work.unlink(missing_ok=True)  # left by a crash: the finished chain.h5 is intact
+    if not _holds_finished_result(state):
+        yield chain
+        return
+    shutil.copyfile(chain, work)
+    try:
+        yield work
+    except KeyboardInterrupt:
+        os.replace(work, chain)  # the completed steps are kept, as for any interrupted run
+        raise
+    except BaseException:
+        work.unlink(missing_ok=True)
+        raise
+    os.replace(work, chain)
+
+
 def _run_locked(args, model, out: Path) -> int:
     import numpy as np
 
@@ -189,6 +227,7 @@ def _run_locked(args, model, out: Path) -> int:
     noise = noise_from_args(args, record)
     settings = settings_from_args(args)
     manifest = build_manifest(seed=args.seed, record=record, settings=settings, started=started, task="study")
+    (out / _EXTENDING).unlink(missing_ok=True)  # an extension's copy left by a crash; chain.h5 is intact
     if args.force:
         removed = remove_run(out)
         if removed:
@@ -232,6 +271,7 @@ def _run_locked(args, model, out: Path) -> int:
     status = "interrupted"
     error = None
     wrote_manifest = False
+    extending = _holds_finished_result(state)
     phases: dict[str, float] = {}
     clock = _time.perf_counter()
 
@@ -259,7 +299,8 @@ def _run_locked(args, model, out: Path) -> int:
         # the first writes: the record, the manifest (the run is in progress), the fit
         if not state.has_data:
             write_data(out, record)
-        write_json(out / FILES["manifest"], manifest)
+        if not extending:  # a finished result's manifest changes only when its extension ends
+            write_json(out / FILES["manifest"], manifest)
         wrote_manifest = True
         if not state.has_fit:
             write_fit(out, fit)
@@ -286,18 +327,19 @@ def _run_locked(args, model, out: Path) -> int:
         n_walkers = args.walkers or default_n_walkers(log_post.ndim)
         progress = {"auto": None, "on": True, "off": False}[args.progress]
         _say(f"posterior: {n_walkers} walkers x {log_post.ndim} parameters, up to {args.max_steps} steps ({args.moves} moves)")
-        posterior = sample_posterior(
-            log_post,
-            lambda n, r: initial_walkers(log_post, mean, cov, n, r),
-            out / FILES["chain"],
-            posterior_rng,
-            n_walkers=n_walkers,
-            max_steps=args.max_steps,
-            check_every=args.check_every,
-            moves=args.moves,
-            progress=progress,
-            log=_say,
-        )
+        with _chain_to_extend(out / FILES["chain"], state) as chain_path:
+            posterior = sample_posterior(
+                log_post,
+                lambda n, r: initial_walkers(log_post, mean, cov, n, r),
+                chain_path,
+                posterior_rng,
+                n_walkers=n_walkers,
+                max_steps=args.max_steps,
+                check_every=args.check_every,
+                moves=args.moves,
+                progress=progress,
+                log=_say,
+            )
         summary = build_summary(record, fit, ident, posterior)
         write_summary(out, summary)
         print(f"posterior: {posterior.message}")
@@ -325,7 +367,7 @@ def _run_locked(args, model, out: Path) -> int:
             status, error = "failed", f"{type(exc).__name__}: {exc}"
         raise
     finally:
-        if wrote_manifest:
+        if wrote_manifest and not (extending and status == "failed"):  # a failed extension leaves all as it was
             manifest = finish_manifest(
                 manifest, started=started, seconds=_time.perf_counter() - t_start, status=status, phases=phases, error=error
             )

@@ -309,6 +309,38 @@ def test_a_finished_fit_rerun_leaves_every_byte_unchanged(base, tmp_path):
     assert digests(tmp_path / "out") == before
 
 
+def test_extending_a_finished_chain_never_damages_it_even_under_kill_9(finished, tmp_path):
+    """A raised --max-steps extends a copy of the finished chain: killed with SIGKILL while
+    it writes, the finished result stays byte for byte; interrupted with SIGTERM, the
+    completed steps replace it and the next run resumes from them."""
+    run = copy_of(finished, tmp_path)
+    before = digests(run)
+    longer = list(FINISHED)
+    longer[longer.index("--max-steps") + 1] = "3000"
+    proc = start("study", "rec.csv", "--out", "finished", *longer, cwd=tmp_path)
+    wait_for(lambda: _extending_steps(run) > 400, proc, "steps of the extension")
+    proc.kill()
+    proc.communicate(timeout=60)
+    assert {k: v for k, v in digests(run).items() if not k.startswith(".")} == before
+    again = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
+    assert again.returncode == 0 and "already holds this study, finished" in again.stderr, again.stderr[-3000:]
+    assert digests(run) == before and not (run / ".chain.h5.extending").exists()
+    proc = start("study", "rec.csv", "--out", "finished", *longer, cwd=tmp_path)
+    wait_for(lambda: _extending_steps(run) > 400, proc, "steps of the extension")
+    proc.terminate()
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "Traceback" not in err, err[-3000:]
+    assert steps(run) > 400 and not (run / ".chain.h5.extending").exists()
+
+
+def _extending_steps(run: Path) -> int:
+    try:
+        with h5py.File(run / ".chain.h5.extending", "r") as f:
+            return int(f["mcmc"].attrs["iteration"])
+    except Exception:
+        return 0
+
+
 # -- 4. changed settings, reproduce into an existing study ---------------------------------------------
 
 
