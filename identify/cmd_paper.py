@@ -143,9 +143,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", required=True, type=options.folder_path, metavar="DIR", help="folder to write the figures and paper.md into"
     )
-    parser.add_argument(
-        "--fs", type=options.positive_float, default=100.0, metavar="HZ", help="sampling rate of the input in Hz (default 100)"
-    )
+    parser.add_argument("--fs", type=float, default=100.0, metavar="HZ", help="sampling rate of the input in Hz (default 100)")
     parser.add_argument(
         "--input", choices=INPUT_READINGS, default="literal",
         help="reading of eq. (16)'s decay: literal (as printed, default) or centred (as the text says)",

@@ -44,16 +44,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         ),
     )
     parser.add_argument(
-        "--noise", type=options.non_negative_float, default=DEFAULT_NOISE_SIGMA, metavar="SIGMA",
+        "--noise", type=float, default=DEFAULT_NOISE_SIGMA, metavar="SIGMA",
         help=f"sensor noise standard deviation in um (default {DEFAULT_NOISE_SIGMA})",
     )  # fmt: skip
     parser.add_argument(
-        "--noise-rho", type=options.open_interval(-1.0, 1.0), default=0.0, metavar="RHO",
+        "--noise-rho", type=float, default=0.0, metavar="RHO",
         help="lag-1 autocorrelation of AR(1) noise, -1 < RHO < 1 (default 0: white)",
     )  # fmt: skip
-    parser.add_argument(
-        "--fs", type=options.positive_float, default=DEFAULT_FS, metavar="HZ", help=f"sampling rate in Hz (default {DEFAULT_FS:g})"
-    )
+    parser.add_argument("--fs", type=float, default=DEFAULT_FS, metavar="HZ", help=f"sampling rate in Hz (default {DEFAULT_FS:g})")
     parser.add_argument(
         "--input", choices=INPUT_READINGS, default="literal",
         help="reading of the paper's eq. (16) decay (default literal)",

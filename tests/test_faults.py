@@ -69,7 +69,8 @@ def one_error(completed, *needles, code=2) -> str:
     err = completed.stderr
     assert completed.returncode == code, (completed.returncode, err[-3000:])
     assert "Traceback" not in err and "Traceback" not in completed.stdout, err[-3000:]
-    errors = [line for line in err.splitlines() if line.startswith("error:")]
+    # "error: ..." (simulate and paper keep their own prefixes: "simulate: error: ...", "paper: ...")
+    errors = [line for line in err.splitlines() if line.startswith(("error:", "simulate: error:", "paper: "))]
     assert len(errors) == 1, err
     for needle in needles:
         assert needle in errors[0], (needle, errors[0])
@@ -445,8 +446,10 @@ def test_a_value_beyond_any_physical_range_is_an_error_with_line_and_column(base
         (["study", "rec.csv", "--out", "run", "--effects", "warp"], "unknown effect(s) 'warp'"),
         (["report", "nowhere"], "argument DIR: nowhere: no such folder"),
         (["report", "adir", "--draws", "1"], "argument --draws"),
-        (["simulate", "--out", "x.csv", "--noise-rho", "1"], "argument --noise-rho"),
-        (["simulate", "--out", "x.csv", "--fs", "0"], "argument --fs"),
+        (["simulate", "--out", "x.csv", "--noise-rho", "1"], "noise rho must lie strictly between -1 and 1"),
+        (["simulate", "--out", "x.csv", "--noise", "-1"], "noise sigma must be a finite number >= 0"),
+        (["simulate", "--out", "x.csv", "--seed", "-1"], "argument --seed"),
+        (["paper", "--out", "figs", "--fs", "0"], "fs must be a positive sampling rate"),
         (["paper", "--out", "afile"], "argument --out: afile exists and is not a folder"),
         (["batch", "nothing.toml", "--workers", "0"], "argument --workers"),
     ],
