@@ -41,15 +41,32 @@ A job's folder ``OUT/<record>__<variant>/`` gets ``batch_job.json`` (what runs),
 ``batch.log`` (the command's output) and, **last and atomically**, either the completion
 marker ``batch_done.json`` (the run's figures) or ``batch_failed.json`` (its error). Rerunning
 the same config skips jobs whose marker is present and whose job description (arguments
-and the record file's SHA-256) is unchanged, and redoes failed, interrupted or changed ones.
-After every finished job the summary is rewritten (atomically): ``summary.csv``,
-``summary.md`` and ``index.html`` (links to each run's report) in ``OUT``.
+and the record file's SHA-256) is unchanged, and redoes failed, interrupted or changed ones
+(a ``study`` resumes its chain). After every finished job the summary is rewritten
+(atomically): ``summary.csv``, ``summary.md`` and ``index.html`` (links to each run's
+report) in ``OUT``.
+
+One writer, and stopping
+------------------------
+The batch locks ``OUT`` and each job locks its run folder (:mod:`identify.locks`) before
+writing there; the job's command inherits that lock, so a second batch on the same
+folder is refused at once, and so is a command started by hand in a run folder.
+Ctrl-C or SIGTERM stops the batch: the queue is cancelled, every running command gets
+one SIGTERM (a ``study`` stops between two steps and keeps every completed one), the
+batch waits for them, marks their rows and the cancelled ones ``interrupted`` and exits
+with code 130; rerunning the config resumes them. A second signal kills the commands at
+once. The commands run in their own sessions (the terminal's Ctrl-C reaches only the
+batch) and end with SIGTERM if the batch dies (Linux ``PR_SET_PDEATHSIG``), so no process
+outlives the batch. The stop request is the file ``OUT/.batch_stop``, which jobs on other
+machines (dask) see too.
 
 Executors
 ---------
 :data:`EXECUTORS` maps a name to a class with ``submit_all(fn, jobs)`` yielding
-``(job, result)`` as jobs finish, and ``close()``. ``"local"`` is a
-:class:`concurrent.futures.ProcessPoolExecutor`; ``"dask"`` runs on a
+``(job, result)`` as jobs finish, ``cancel()`` (drop the jobs not started yet) and
+``close()``. ``"local"`` runs the jobs' subprocesses from ``workers`` threads of the batch
+process (:class:`concurrent.futures.ThreadPoolExecutor`: each job is a subprocess already,
+so no pool of worker processes is needed); ``"dask"`` runs on a
 ``dask.distributed`` cluster (a ``LocalCluster`` by default, or a running scheduler given
 by ``executor_options.address``), installed with ``pip install .[dask]``. Register more
 with :func:`register_executor`.
@@ -67,6 +84,7 @@ import json
 import math
 import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -74,7 +92,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from .fileio import atomic_write_bytes
+from .fileio import atomic_write
 
 __all__ = [
     "TASKS",
@@ -100,6 +118,7 @@ __all__ = [
     "COLLECTORS",
     "DONE_MARKER",
     "FAILED_MARKER",
+    "STOP_FILE",
 ]
 
 #: The commands a batch can run, each a registered ``python -m identify`` command.
@@ -108,6 +127,10 @@ TASKS = ("fit", "diagnose", "study")
 DONE_MARKER = "batch_done.json"
 #: Written into a job's folder when the job failed (the job is redone on the next run).
 FAILED_MARKER = "batch_failed.json"
+#: Present in the batch folder while the batch is stopping: running jobs end their commands.
+STOP_FILE = ".batch_stop"
+#: Seconds a stopped command gets to end after SIGTERM before it is killed.
+STOP_GRACE_SECONDS = 120.0
 _JOB_FILE = "batch_job.json"
 # the file a task writes when it only has a --json option
 _JSON_NAMES = {"fit": "fit.json", "diagnose": "diagnosis.json", "study": "summary.json"}
@@ -236,8 +259,10 @@ class JobResult:
     ----------
     key, task, record, variant : str
         As in :class:`Job`.
-    status : {"ok", "failed", "skipped"}
-        ``"skipped"``: finished by an earlier run of the same config (figures from its marker).
+    status : {"ok", "failed", "skipped", "interrupted", "pending"}
+        ``"skipped"``: finished by an earlier run of the same config (figures from its marker);
+        ``"interrupted"``: stopped (or cancelled before it started) by Ctrl-C or SIGTERM, redone
+        (resumed) by the next run of the config.
     rms : float or None
         Residual RMS over the energised part [output unit].
     max_error_pct : float or None
@@ -312,6 +337,10 @@ class BatchResult:
     @property
     def n_ok(self) -> int:
         return sum(r.status in ("ok", "skipped") for r in self.results)
+
+    @property
+    def n_interrupted(self) -> int:
+        return sum(r.status == "interrupted" for r in self.results)
 
 
 # -- configuration ------------------------------------------------------------------------
@@ -665,11 +694,6 @@ def expand_jobs(config: BatchConfig) -> list[Job]:
 # -- running one job ---------------------------------------------------------------------------
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, text.encode("utf-8"))
-
-
 def _read_json(path: Path):
     try:
         return json.loads(path.read_text(encoding="utf-8"))
@@ -838,11 +862,35 @@ def _report_link(folder: Path, batch_out: Path) -> str:
     return ""
 
 
+def _stop_requested(job: Job) -> bool:
+    return (Path(job.out_dir).parent / STOP_FILE).exists()
+
+
+def _stop_now(job: Job) -> bool:
+    """A second Ctrl-C/SIGTERM: kill the commands without waiting for their next step."""
+    return (Path(job.out_dir).parent / (STOP_FILE + ".now")).exists()
+
+
+def _signal_group(proc, sig) -> None:
+    """Send ``sig`` to the job's process group (the command and anything it started)."""
+    try:
+        os.killpg(proc.pid, sig)
+    except (ProcessLookupError, PermissionError, AttributeError):
+        try:
+            proc.send_signal(sig)
+        except ProcessLookupError:
+            pass
+
+
 def run_job(job: Job) -> JobResult:
     """Run one job in a subprocess and record how it ended (never raises for a job failure).
 
-    Writes ``batch_job.json`` first, the command's output to ``batch.log``, and last,
-    atomically, ``batch_done.json`` (success) or ``batch_failed.json`` (failure).
+    Locks the job's folder (the command inherits the lock), writes ``batch_job.json``
+    first, the command's output to ``batch.log``, and last, atomically,
+    ``batch_done.json`` (success) or ``batch_failed.json`` (failure). A stop request
+    (:data:`STOP_FILE`) or the config's ``timeout`` sends the command SIGTERM (it stops
+    between steps), then SIGKILL after :data:`STOP_GRACE_SECONDS`; a stopped job is
+    ``interrupted`` and gets no marker, so the next run of the config redoes it.
 
     Parameters
     ----------
@@ -852,38 +900,80 @@ def run_job(job: Job) -> JobResult:
     -------
     JobResult
     """
+    from .locks import FolderBusyError, FolderLock
+
     folder = Path(job.out_dir)
-    folder.mkdir(parents=True, exist_ok=True)
+    base = dict(key=job.key, task=job.task, record=job.record, variant=job.variant)
+    if _stop_requested(job):
+        return JobResult(**base, status="interrupted", error="stopped before it started; rerun the batch to run it")
+    lock = FolderLock(folder, command=f"python -m identify batch (run {job.key})")
+    try:
+        lock.acquire()
+    except FolderBusyError as exc:  # touch nothing: another process writes there
+        return JobResult(**base, status="failed", error=f"error: {exc}")
+    try:
+        return _run_locked_job(job, folder, base, lock)
+    finally:
+        lock.release()
+
+
+def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
+    from .cli import PARENT_VARIABLE
+
     for marker in (DONE_MARKER, FAILED_MARKER):
         (folder / marker).unlink(missing_ok=True)
-    _atomic_write(folder / _JOB_FILE, json.dumps(asdict(job), indent=2) + "\n")
-    base = dict(key=job.key, task=job.task, record=job.record, variant=job.variant)
+    atomic_write(folder / _JOB_FILE, json.dumps(asdict(job), indent=2) + "\n")
     command = [sys.executable, "-m", "identify", *job.argv]
     started = time.perf_counter()
     error = ""
+    stopped = ""
+    env, pass_fds = lock.child_environment(_job_environment(job.threads))
+    env[PARENT_VARIABLE] = str(os.getpid())  # the command ends (SIGTERM) if the batch dies
     with open(folder / _LOG_FILE, "w", encoding="utf-8") as log:
+        if lock.stale_note():
+            log.write(f"note: {lock.stale_note()}\n")
         log.write("$ " + " ".join(command) + "\n")
         log.flush()
         try:
-            completed = subprocess.run(
-                command,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                stdin=subprocess.DEVNULL,
-                env=_job_environment(job.threads),
-                timeout=job.timeout,
-                check=False,
-            )
-            returncode = completed.returncode
-        except subprocess.TimeoutExpired:
-            returncode = None
-            error = f"timed out after {job.timeout:g} s (the config's timeout); stopped"
+            proc = subprocess.Popen(
+                command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
+                pass_fds=pass_fds, start_new_session=True,
+            )  # fmt: skip
         except OSError as exc:
-            returncode = None
+            proc = None
             error = f"could not start the command: {exc}"
+        returncode = None
+        if proc is not None:
+            deadline = None if job.timeout is None else started + job.timeout
+            kill_at = math.inf
+            while returncode is None:
+                try:
+                    returncode = proc.wait(timeout=0.2)
+                    continue
+                except subprocess.TimeoutExpired:
+                    pass
+                now = time.perf_counter()
+                if not stopped:
+                    if _stop_requested(job):
+                        stopped = "stop"
+                    elif deadline is not None and now > deadline:
+                        stopped = "timeout"
+                    if stopped:  # one SIGTERM: the command stops between two steps
+                        _signal_group(proc, signal.SIGTERM)
+                        kill_at = now + STOP_GRACE_SECONDS
+                if stopped and (now > kill_at or _stop_now(job)):
+                    _signal_group(proc, signal.SIGKILL)
     seconds = time.perf_counter() - started
-    if returncode not in (0, None):
-        error = _error_from_log((folder / _LOG_FILE).read_text(encoding="utf-8", errors="replace"), returncode)
+    log_text = (folder / _LOG_FILE).read_text(encoding="utf-8", errors="replace")
+    if stopped == "timeout" and returncode != 0:
+        error = f"timed out after {job.timeout:g} s (the config's timeout); stopped"
+    elif (stopped == "stop" and returncode != 0) or returncode == 130:
+        return JobResult(
+            **base, status="interrupted", seconds=seconds,
+            error="interrupted (its completed work is kept); rerun the batch to resume it",
+        )  # fmt: skip
+    elif returncode not in (0, None):
+        error = _error_from_log(log_text, returncode)
     result = None
     if not error:
         try:
@@ -900,7 +990,7 @@ def run_job(job: Job) -> JobResult:
         marker = DONE_MARKER
     result.report = _report_link(folder, folder.parent)
     payload = {"fingerprint": job.fingerprint, "result": result.to_dict()}
-    _atomic_write(folder / marker, json.dumps(payload, indent=2) + "\n")
+    atomic_write(folder / marker, json.dumps(payload, indent=2) + "\n")
     return result
 
 
@@ -944,37 +1034,46 @@ def get_executor(name: str, workers: int, **options):
 
 @register_executor("local")
 class LocalExecutor:
-    """Jobs in a :class:`concurrent.futures.ProcessPoolExecutor` of ``workers`` processes.
+    """Jobs run from ``workers`` threads of this process (each job is its own subprocess).
 
     Parameters
     ----------
     workers : int
-        Processes (jobs at the same time).
-    start_method : str, default "spawn"
-        The multiprocessing start method (``spawn`` is safe with threaded libraries).
+        Jobs at the same time.
+    start_method : str, optional
+        Accepted for configs written for the former process pool; ignored.
     """
 
-    def __init__(self, workers: int, start_method: str = "spawn"):
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
+    def __init__(self, workers: int, start_method: str | None = None):
+        from concurrent.futures import ThreadPoolExecutor
 
-        self._pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(start_method))
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="batch-job")
+        self._futures: dict = {}
 
     def submit_all(self, fn: Callable, jobs: Iterable[Job]) -> Iterator[tuple[Job, object]]:
-        """Yield ``(job, result)`` as jobs finish; an exception in ``fn`` is yielded as the result."""
-        from concurrent.futures import as_completed
+        """Yield ``(job, result)`` as jobs finish; an exception in ``fn`` is yielded as the result.
 
-        futures = {self._pool.submit(fn, job): job for job in jobs}
+        A job cancelled before it started (:meth:`cancel`) is yielded with None as its result.
+        """
+        from concurrent.futures import CancelledError, as_completed
+
+        self._futures = {self._pool.submit(fn, job): job for job in jobs}
         try:
-            for future in as_completed(futures):
-                job = futures[future]
+            for future in as_completed(self._futures):
+                job = self._futures[future]
                 try:
                     yield job, future.result()
-                except Exception as exc:  # the worker process itself died
+                except CancelledError:
+                    yield job, None
+                except Exception as exc:  # run_job itself failed
                     yield job, exc
         finally:
-            for future in futures:
-                future.cancel()
+            self.cancel()
+
+    def cancel(self):
+        """Drop the jobs that have not started."""
+        for future in self._futures:
+            future.cancel()
 
     def close(self):
         self._pool.shutdown(wait=True, cancel_futures=True)
@@ -1020,16 +1119,24 @@ class DaskExecutor:
         for job in jobs:
             future = self._client.submit(fn, job, pure=False, key=f"msma-batch-{job.key}-{time.monotonic_ns()}")
             futures[future] = job
+        self._futures = futures
         try:
             for future in as_completed(list(futures)):
                 job = futures[future]
+                if future.cancelled():
+                    yield job, None
+                    continue
                 try:
                     yield job, future.result()
                 except Exception as exc:
                     yield job, exc
         finally:
-            for future in futures:
-                future.cancel()
+            self.cancel()
+
+    def cancel(self):
+        """Drop the jobs that have not started (running ones see the batch's stop file)."""
+        for future in getattr(self, "_futures", {}):
+            future.cancel()
 
     def close(self):
         self._client.close()
@@ -1055,7 +1162,10 @@ def _fmt(value, digits=4) -> str:
 
 def _status_counts(results) -> str:
     """``"6 runs: 3 ok, 1 finished earlier (skipped), 1 failed, 1 pending."``"""
-    labels = (("ok", "ok"), ("skipped", "finished earlier (skipped)"), ("failed", "failed"), ("pending", "pending"))
+    labels = (
+        ("ok", "ok"), ("skipped", "finished earlier (skipped)"), ("failed", "failed"),
+        ("interrupted", "interrupted (rerun to resume)"), ("pending", "pending"),
+    )  # fmt: skip
     parts = [f"{sum(r.status == key for r in results)} {label}" for key, label in labels]
     parts = [p for p in parts if not p.startswith("0 ")] or ["none"]
     return f"{len(results)} runs: {', '.join(parts)}."
@@ -1082,7 +1192,7 @@ def write_summary(out, results: list[JobResult], config: BatchConfig | None = No
     for r in results:
         row = r.to_dict()
         writer.writerow([("" if row[c] is None else (repr(row[c]) if isinstance(row[c], float) else row[c])) for c in _COLUMNS])
-    _atomic_write(out / "summary.csv", buffer.getvalue())
+    atomic_write(out / "summary.csv", buffer.getvalue())
 
     title = f"Batch {config.task} runs from {config.source.name}" if config else "Batch runs"
     counts = _status_counts(results)
@@ -1098,14 +1208,14 @@ def write_summary(out, results: list[JobResult], config: BatchConfig | None = No
             f"| {link} | {r.status} | {_fmt(r.rms)}{unit} | {_fmt(r.max_error_pct, 3)} | {stat} | {r.verdict} | "
             f"{r.seconds:.1f} | {other} |"
         )
-    _atomic_write(out / "summary.md", "\n".join(md) + "\n")
+    atomic_write(out / "summary.md", "\n".join(md) + "\n")
 
     esc = html.escape
     rows = []
     for r in results:
         name = f'<a href="{esc(r.report)}">{esc(r.key)}</a>' if r.report else esc(r.key)
         log = f' <a href="{esc(r.key)}/{_LOG_FILE}">log</a>'
-        css = ' class="failed"' if r.status == "failed" else ""
+        css = f' class="{r.status}"' if r.status in ("failed", "interrupted") else ""
         stat = f"{esc(r.statistic_name)} = {_fmt(r.statistic)}" if r.statistic is not None else ""
         rows.append(
             f"<tr{css}><td>{name}{log}</td><td>{esc(r.record)}</td><td>{esc(r.variant)}</td><td>{esc(r.status)}</td>"
@@ -1120,6 +1230,7 @@ table {{ border-collapse: collapse; }}
 th, td {{ border: 1px solid #bbb; padding: 0.3em 0.6em; text-align: left; vertical-align: top; }}
 th {{ background: #eee; }}
 tr.failed td {{ background: #fde8e8; }}
+tr.interrupted td {{ background: #fff4d6; }}
 </style></head><body>
 <h1>{esc(title)}</h1>
 <p>{esc(counts)} RMS and max error over the energised part of each record;
@@ -1131,7 +1242,7 @@ max error in % of the measured output range. Each run name links to its report (
 </table>
 </body></html>
 """
-    _atomic_write(out / "index.html", page)
+    atomic_write(out / "index.html", page)
 
 
 # -- the batch ----------------------------------------------------------------------------------
@@ -1139,6 +1250,9 @@ max error in % of the measured output range. Each run name links to its report (
 
 def run_batch(config: BatchConfig, *, progress: bool = True, rerun: bool = False, stream=None) -> BatchResult:
     """Run every job of ``config`` that has not finished yet, then write the summary.
+
+    The batch folder is locked for the whole run; Ctrl-C and SIGTERM stop the batch as
+    the module docstring says (the result's jobs are then ``interrupted``).
 
     Parameters
     ----------
@@ -1153,13 +1267,67 @@ def run_batch(config: BatchConfig, *, progress: bool = True, rerun: bool = False
     -------
     BatchResult
         Every job's result, finished earlier (``"skipped"``) or now.
+
+    Raises
+    ------
+    identify.locks.FolderBusyError
+        Another process holds the batch folder.
     """
+    from .locks import FolderLock
+
+    lock = FolderLock(config.out, command=f"python -m identify batch {config.source}")
+    lock.acquire()
+    if lock.stale_note():
+        print(f"note: {lock.stale_note()}", file=sys.stderr if stream is None else stream)
+    try:
+        return _run_batch_locked(config, progress=progress, rerun=rerun, stream=stream, lock=lock)
+    finally:
+        lock.release()
+
+
+class _StopSignals:
+    """While active (main thread only): the first SIGINT/SIGTERM asks the jobs to stop
+    (:data:`STOP_FILE`), a second one to stop at once (``STOP_FILE + ".now"``)."""
+
+    def __init__(self, out: Path, on_stop: Callable[[], None]):
+        self.out = out
+        self.on_stop = on_stop
+        self.requested = ""
+        self._previous = {}
+
+    def _handle(self, signum, frame):
+        name = signal.Signals(signum).name
+        if self.requested:
+            (self.out / (STOP_FILE + ".now")).touch()
+            return
+        self.requested = name
+        (self.out / STOP_FILE).touch()
+        self.on_stop()
+
+    def __enter__(self):
+        import threading
+
+        for name in (STOP_FILE, STOP_FILE + ".now"):
+            (self.out / name).unlink(missing_ok=True)
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                if signal.getsignal(sig) is not signal.SIG_IGN:
+                    self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        for name in (STOP_FILE, STOP_FILE + ".now"):
+            (self.out / name).unlink(missing_ok=True)
+
+
+def _run_batch_locked(config: BatchConfig, *, progress, rerun, stream, lock) -> BatchResult:
     from tqdm import tqdm
 
     stream = sys.stderr if stream is None else stream
     started = time.perf_counter()
     jobs = expand_jobs(config)
-    config.out.mkdir(parents=True, exist_ok=True)
     results: dict[str, JobResult] = {}
     pending = []
     for job in jobs:
@@ -1184,25 +1352,34 @@ def run_batch(config: BatchConfig, *, progress: bool = True, rerun: bool = False
         executor = get_executor(config.executor, config.workers, **config.executor_options)
         bar = tqdm(total=len(pending), desc=f"batch {config.task}", unit="run", file=stream, disable=not progress)
         n_failed = 0
-        try:
-            for job, outcome in executor.submit_all(run_job, pending):
-                if isinstance(outcome, BaseException):
-                    outcome = JobResult(
-                        job.key, job.task, job.record, job.variant, status="failed",
-                        error=f"the job's worker failed: {type(outcome).__name__}: {outcome}",
-                    )  # fmt: skip
-                    _atomic_write(
-                        Path(job.out_dir) / FAILED_MARKER,
-                        json.dumps({"fingerprint": job.fingerprint, "result": outcome.to_dict()}, indent=2) + "\n",
-                    )
-                results[job.key] = outcome
-                n_failed += outcome.status == "failed"
-                bar.set_postfix_str(f"{n_failed} failed" if n_failed else "ok")
-                bar.update(1)
-                write_summary(config.out, summary_rows(), config)
-        finally:
-            bar.close()
-            executor.close()
+        with _StopSignals(config.out, on_stop=lambda: getattr(executor, "cancel", lambda: None)()) as stop:
+            try:
+                for job, outcome in executor.submit_all(run_job, pending):
+                    if outcome is None:  # cancelled before it started
+                        outcome = JobResult(
+                            job.key, job.task, job.record, job.variant, status="interrupted",
+                            error=f"cancelled by {stop.requested or 'the batch'} before it started; rerun the batch to run it",
+                        )  # fmt: skip
+                    elif isinstance(outcome, BaseException):
+                        outcome = JobResult(
+                            job.key, job.task, job.record, job.variant, status="failed",
+                            error=f"the job's worker failed: {type(outcome).__name__}: {outcome}",
+                        )  # fmt: skip
+                        atomic_write(
+                            Path(job.out_dir) / FAILED_MARKER,
+                            json.dumps({"fingerprint": job.fingerprint, "result": outcome.to_dict()}, indent=2) + "\n",
+                            make_parents=True,
+                        )
+                    elif outcome.status == "interrupted" and stop.requested:
+                        outcome.error = f"stopped by {stop.requested}; " + outcome.error
+                    results[job.key] = outcome
+                    n_failed += outcome.status == "failed"
+                    bar.set_postfix_str(f"{n_failed} failed" if n_failed else "ok")
+                    bar.update(1)
+                    write_summary(config.out, summary_rows(), config)
+            finally:
+                bar.close()
+                executor.close()  # waits for the running jobs, which end their commands
     final = [results[k] for k in order if k in results]
     write_summary(config.out, final if len(final) == len(order) else summary_rows(), config)
     return BatchResult(config.out, final, time.perf_counter() - started)

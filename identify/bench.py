@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 import model
 from model import EFFECTS, INPUT_READINGS, READINGS, THETA_NAMES, TABLE1, Model, paper_current
@@ -184,6 +183,8 @@ def sensor_noise(rng: np.random.Generator, n_samples: int, sigma: float, rho: fl
     if rho == 0.0:
         return sigma * innovations
     innovations[1:] *= np.sqrt(1.0 - rho * rho)
+    from scipy.signal import lfilter  # here, not at import: scipy.signal takes ~0.8 s to import (every CLI start)
+
     return sigma * lfilter([1.0], [1.0, -rho], innovations)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from . import options
+
 __all__ = ["HELP", "add_arguments", "run"]
 
 HELP = "run fit/diagnose/study over many records and model variants in parallel (TOML config); one summary table"
@@ -13,7 +15,7 @@ def add_arguments(parser) -> None:
     """Options of the ``batch`` command."""
     parser.add_argument("config", help="batch configuration (TOML); see examples/ and docs/batch.md")
     parser.add_argument(
-        "--workers", type=int, default=None, help="jobs at the same time (overrides the config's 'workers')"
+        "--workers", type=options.positive_int, default=None, help="jobs at the same time (overrides the config's 'workers')"
     )
     parser.add_argument(
         "--executor", default=None, help="executor name (overrides the config's 'executor'): local | dask"
@@ -26,7 +28,8 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    """Run the batch; exit code 0 when every job succeeded, 1 when some failed, 2 for a bad config."""
+    """Run the batch; exit code 0 when every job succeeded, 1 when some failed, 2 for a bad config
+    (or a batch folder in use), 130 when stopped by Ctrl-C or SIGTERM (rerun it to resume)."""
     from dataclasses import replace
 
     from .batch import EXECUTORS, BatchConfigError, expand_jobs, load_config, run_batch
@@ -56,11 +59,16 @@ def run(args) -> int:
     )
     result = run_batch(config, progress=not args.no_progress, rerun=args.rerun)
     n_skipped = sum(r.status == "skipped" for r in result.results)
+    interrupted = f", {result.n_interrupted} interrupted" if result.n_interrupted else ""
     print(
-        f"batch: {result.n_ok} ok ({n_skipped} finished earlier, skipped), {result.n_failed} failed, "
+        f"batch: {result.n_ok} ok ({n_skipped} finished earlier, skipped), {result.n_failed} failed{interrupted}, "
         f"{result.seconds:.1f} s. Summary: {config.out / 'summary.md'}, {config.out / 'index.html'}"
     )
     for r in result.results:
         if r.status == "failed":
             print(f"  FAILED {r.key}: {r.error}", file=sys.stderr)
+    if result.n_interrupted:
+        print(f"interrupted: {result.n_interrupted} run(s) stopped or cancelled, their completed work kept; "
+              f"rerun 'python -m identify batch {args.config}' to resume them", file=sys.stderr)  # fmt: skip
+        return 130
     return 1 if result.n_failed else 0

@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from . import options
+
 __all__ = ["HELP", "add_arguments", "parse_window", "run", "write_outputs"]
 
 HELP = "least squares + diagnosis: is the residual noise, and which physical effect is missing?"
@@ -33,10 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_record_arguments(parser)
     add_model_arguments(parser)
     parser.set_defaults(n_starts=6)
-    parser.add_argument("--json", default=None, metavar="OUT.json", help="write the diagnosis as JSON here")
     parser.add_argument(
-        "--out", default=None, metavar="DIR", help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png"
+        "--json", default=None, type=options.file_path, metavar="OUT.json", help="write the diagnosis as JSON here"
     )
+    parser.add_argument(
+        "--out", default=None, type=options.folder_path, metavar="DIR",
+        help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png (DIR is locked while they are written)",
+    )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     parser.add_argument(
         "--drop-window", default=None, metavar="START:STOP",
@@ -68,12 +73,12 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
     out_dir : path-like, optional
         Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure.
     """
-    import io
     from pathlib import Path
 
     from .diagnosis_plots import diagnosis_figures
     from .report import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
-    from .results import atomic_write_bytes, write_json
+    from .fileio import atomic_write
+    from .results import write_json
 
     content = diagnosis.to_dict()
     written = []
@@ -88,10 +93,8 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
         for stale in figure_dir.glob("*.png"):  # figures of an earlier diagnosis must not mix in
             stale.unlink()
         for stem, figure in diagnosis_figures(diagnosis, record).items():
-            buffer = io.BytesIO()
-            figure.savefig(buffer, format="png", dpi=100)
             path = figure_dir / f"{stem}.png"
-            atomic_write_bytes(path, buffer.getvalue())
+            atomic_write(path, lambda fh, figure=figure: figure.savefig(fh, format="png", dpi=100))
             written.append(str(path))
         write_json(out / DIAGNOSIS_FILE, content)
         written.append(str(out / DIAGNOSIS_FILE))
@@ -99,6 +102,22 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
 
 
 def run(args) -> int:
+    """Diagnose; exit code 0 done, 2 bad input, 130 interrupted. ``--out DIR`` is locked from the start."""
+    from .locks import FolderLock
+
+    if getattr(args, "drop_window", None):
+        try:
+            parse_window(args.drop_window)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    if args.out is None:
+        return _run(args)
+    with FolderLock(args.out, command=f"python -m identify diagnose {args.data} --out {args.out}"):
+        return _run(args)
+
+
+def _run(args) -> int:
     import time
 
     import numpy as np

@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from . import options
+
 __all__ = [
     "HELP",
     "add_arguments",
@@ -24,12 +26,24 @@ __all__ = [
     "FitFailedError",
     "fit_or_explain",
     "FIT_OUT_FILES",
+    "LONG_RECORD_SAMPLES",
+    "say",
 ]
 
 #: Files ``fit --out DIR`` writes (roles as in :data:`identify.results.FILES`).
 FIT_OUT_FILES = ("data", "fit", "manifest")
 
 HELP = "least-squares fit of the GPI (+ effects) to a record; prints parameters, stderr, RMS vs noise"
+
+#: Records with at least this many samples get progress lines from the least squares.
+LONG_RECORD_SAMPLES = 100_000
+#: Files above this size [bytes] get progress lines while loading.
+_BIG_FILE = 20 * 2**20
+
+
+def say(message: str) -> None:
+    """One progress or note line on stderr (flushed at once)."""
+    print(message, file=sys.stderr, flush=True)
 
 
 def add_record_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,38 +56,33 @@ def add_record_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--input-unit", default="A", help="unit of the drive column (default: A)")
     group.add_argument("--output-unit", default="um", help="unit of the output column (default: um)")
     group.add_argument(
-        "--every", type=_positive_int, default=1, metavar="N",
+        "--every", type=options.positive_int, default=1, metavar="N",
         help="keep every N-th sample and every input reversal (default 1: all); for long, densely sampled "
         "records, e.g. --every 10 on a 5 kHz record of a 1 Hz drive",
     )  # fmt: skip
 
 
-def _positive_int(text) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
-    return value
-
-
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """Effects, operators, reading, noise, seed and starts."""
     parser.add_argument(
-        "--effects", default="", help="comma-separated effects added to the GPI (e.g. thermal,creep); default none"
-    )
-    parser.add_argument("--n-operators", type=int, default=12, help="number of play operators N (default 12, the paper's)")
+        "--effects", default="",
+        help="comma-separated effects added to the GPI (e.g. thermal,creep); default none",
+    )  # fmt: skip
+    parser.add_argument(
+        "--n-operators", type=options.n_operators, default=12,
+        help=f"number of play operators N, 1-{options.MAX_OPERATORS} (default 12, the paper's)",
+    )  # fmt: skip
     parser.add_argument("--reading", default="swapped", choices=("swapped", "literal"), help="reading of eqs. (5)-(7) (default swapped)")
     parser.add_argument(
         "--noise-sigma",
         default=None,
+        type=options.noise_sigma,
         metavar="VALUE|free",
         help="sensor noise std in the output unit, or 'free' to identify it; default: estimated from the "
         "record's unenergised start",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the one random generator (default 0)")
-    parser.add_argument("--n-starts", type=int, default=8, help="least-squares starts (default: %(default)s)")
+    parser.add_argument("--seed", type=options.seed, default=0, help="seed of the one random generator, >= 0 (default 0)")
+    parser.add_argument("--n-starts", type=options.positive_int, default=8, help="least-squares starts (default: %(default)s)")
 
 
 def parse_effects(text) -> list[str]:
@@ -93,10 +102,33 @@ def parse_effects(text) -> list[str]:
     return names
 
 
-def record_from_args(args):
-    from .records import keep_every, load_record
+def record_from_args(args, *, hint=True):
+    """The record the options name (loaded, thinned by ``--every``).
+
+    A big file gets progress lines while it loads; a record far longer than the model
+    needs gets a ``note:`` suggesting ``--every`` (:func:`identify.records.suggest_every`).
+    Column names that coincide are an :class:`identify.options.OptionError`.
+    """
+    import time
+    from pathlib import Path
+
+    from .records import keep_every, load_record, suggest_every
 
     time_column = None if str(args.time_column).lower() == "none" else args.time_column
+    names = [("--time-column", time_column), ("--input-column", args.input_column), ("--output-column", args.output_column)]
+    given = [(flag, name) for flag, name in names if name is not None]
+    for i, (flag, name) in enumerate(given):
+        for other, other_name in given[i + 1 :]:
+            if name == other_name:
+                raise options.OptionError(f"{flag} and {other} both name the column {name!r}")
+    try:
+        size = Path(args.data).stat().st_size
+    except OSError:
+        size = 0
+    big = size > _BIG_FILE
+    if big:
+        say(f"reading {args.data} ({size / 2**20:.0f} MB) ...")
+    started = time.perf_counter()
     record = load_record(
         args.data,
         time_column=time_column,
@@ -104,8 +136,24 @@ def record_from_args(args):
         output_column=args.output_column,
         input_unit=args.input_unit,
         output_unit=args.output_unit,
+        progress=say if big else None,
     )
-    return keep_every(record, getattr(args, "every", 1))
+    if big:
+        say(f"read {len(record)} samples in {time.perf_counter() - started:.1f} s")
+    every = getattr(args, "every", 1)
+    if hint and every == 1:
+        suggestion = suggest_every(record)
+        if suggestion is not None:
+            n, (k, per) = len(record), suggestion
+            say(
+                f"note: {n} samples, about {per:.0f} per input half-cycle: far more than the rate-independent GPI "
+                f"needs. --every {k} keeps every input reversal and about {per / k:.0f} samples per half-cycle "
+                f"(about {k}x less time and memory; the GPI's output at the kept samples is unchanged; with "
+                "time-dependent effects keep their time constants well resolved)"
+            )
+    if every > 1 and len(record) > 200_000:
+        say(f"thinning {len(record)} samples (--every {every}) ...")
+    return keep_every(record, every)
 
 
 def model_from_args(args, *, normalise=True):
@@ -199,10 +247,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--free-alpha", action="store_true", help="do not pin alpha (the normalisation); the fit is then degenerate"
     )
-    parser.add_argument("--json", default=None, metavar="OUT.json", help="also write the fit (FitResult.to_dict) here")
+    parser.add_argument(
+        "--json", default=None, type=options.file_path, metavar="OUT.json",
+        help="also write the fit (FitResult.to_dict) here (a file; its folder is created)",
+    )  # fmt: skip
     parser.add_argument(
         "--out",
         default=None,
+        type=options.folder_path,
         metavar="DIR",
         help="results folder: data.npz, fit.json and manifest.json (seed, data hash, settings, versions, "
         "thread counts), as study writes them; reproducible with 'python -m identify reproduce DIR'",
@@ -221,50 +273,68 @@ def _fit_settings(args) -> dict:
 
 
 def run(args) -> int:
+    """Fit; exit code 0 done, 2 bad input (one ``error:`` line), 130 interrupted."""
     import time as _time
     from pathlib import Path
 
     import numpy as np
 
+    from .locks import FolderLock
     from .noise import NoQuietSegmentError
-    from .records import RecordError
-    from .results import FILES, RunMismatchError, build_manifest, check_resumable, finish_manifest, now_iso
-    from .results import write_data, write_fit, write_json
+    from .results import FILES, build_manifest, check_resumable, finish_manifest, last_status, load_fit, now_iso
+    from .results import remove_run, write_data, write_fit, write_json
 
     started, t_start = now_iso(), _time.perf_counter()
+    out = Path(args.out) if args.out else None
+    lock = FolderLock(out, command="python -m identify fit " + str(args.data)) if out is not None else None
     try:
-        record = record_from_args(args)
-        print_record_notes(record)
-        model = model_from_args(args, normalise=not args.free_alpha)
-        noise = noise_from_args(args, record)
-        out = None
-        if args.out:
-            out = Path(args.out)
-            out.mkdir(parents=True, exist_ok=True)
-            manifest = build_manifest(seed=args.seed, record=record, settings=_fit_settings(args), started=started, task="fit")
+        if lock is not None:
+            lock.acquire()  # before anything is written into the folder
+            if lock.stale_note():
+                say(f"note: {lock.stale_note()}")
+        try:
+            record = record_from_args(args)
+            print_record_notes(record)
+            model = model_from_args(args, normalise=not args.free_alpha)
+            noise = noise_from_args(args, record)
+            if out is not None:
+                manifest = build_manifest(seed=args.seed, record=record, settings=_fit_settings(args), started=started, task="fit")
+                if not args.force:
+                    old = check_resumable(out, manifest)
+                    if old is not None and last_status(old) == "done" and (out / FILES["fit"]).exists():
+                        fit = load_fit(out)
+                        print(format_fit_table(fit, record))
+                        say(f"{out} already holds this fit (same data, seed and settings): reused, nothing rewritten "
+                            "(--force to fit again)")  # fmt: skip
+                        if args.json:
+                            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+                            write_json(args.json, fit.to_dict())
+                        return 0
+            rng = np.random.default_rng(args.seed)
+            say(f"fitting {model!r} to {record.source} ({len(record.time)} samples) ...")
+            verbose = args.verbose or len(record) >= LONG_RECORD_SAMPLES
+            fit = fit_or_explain(record, model, noise=noise, n_starts=args.n_starts, rng=rng, verbose=verbose)
+        except (NoQuietSegmentError, FitFailedError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(format_fit_table(fit, record))
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            write_json(args.json, fit.to_dict())
+            say(f"wrote {args.json}")
+        if out is not None:
             if args.force:
-                for role in FIT_OUT_FILES:
-                    (out / FILES[role]).unlink(missing_ok=True)
-            else:
-                check_resumable(out, manifest)
-        rng = np.random.default_rng(args.seed)
-        print(f"fitting {model!r} to {record.source} ({len(record.time)} samples) ...", file=sys.stderr)
-        fit = fit_or_explain(record, model, noise=noise, n_starts=args.n_starts, rng=rng, verbose=args.verbose)
-    except (RecordError, NoQuietSegmentError, RunMismatchError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(format_fit_table(fit, record))
-    if args.json:
-        write_json(args.json, fit.to_dict())
-        print(f"wrote {args.json}", file=sys.stderr)
-    if out is not None:
-        # the manifest last: its presence means the folder is complete
-        write_data(out, record)
-        write_fit(out, fit)
-        manifest = finish_manifest(
-            manifest, started=started, seconds=_time.perf_counter() - t_start, status="done",
-            phases={"least_squares": fit.seconds},
-        )  # fmt: skip
-        write_json(out / FILES["manifest"], manifest)
-        print(f"wrote {out / FILES['fit']} and {out / FILES['manifest']}", file=sys.stderr)
-    return 0
+                remove_run(out)  # the run replaced: none of its files may mix with this one
+            # the manifest last: its presence means the folder is complete
+            write_data(out, record)
+            write_fit(out, fit)
+            manifest = finish_manifest(
+                manifest, started=started, seconds=_time.perf_counter() - t_start, status="done",
+                phases={"least_squares": fit.seconds},
+            )  # fmt: skip
+            write_json(out / FILES["manifest"], manifest)
+            say(f"wrote {out / FILES['fit']} and {out / FILES['manifest']}")
+        return 0
+    finally:
+        if lock is not None:
+            lock.release()

@@ -25,7 +25,6 @@ half-written file.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time as wallclock
 from dataclasses import dataclass
@@ -34,6 +33,9 @@ from pathlib import Path
 import numpy as np
 
 from model import INPUT_READINGS, QUIET_SECONDS, READINGS, TABLE1, envelope, gpi, paper_current
+
+from . import options
+from .fileio import atomic_write
 
 __all__ = ["HELP", "add_arguments", "run", "ReadingEvidence", "reading_evidence", "FIGURE_FILES", "N_OPERATORS"]
 
@@ -137,7 +139,9 @@ def reading_evidence(time, current, reading, theta=TABLE1, n_operators=N_OPERATO
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``paper`` options to ``parser``."""
-    parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="folder to write the figures and paper.md into")
+    parser.add_argument(
+        "--out", required=True, type=options.folder_path, metavar="DIR", help="folder to write the figures and paper.md into"
+    )
     parser.add_argument("--fs", type=float, default=100.0, metavar="HZ", help="sampling rate of the input in Hz (default 100)")
     parser.add_argument(
         "--input", choices=INPUT_READINGS, default="literal",
@@ -149,20 +153,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _write_atomically(path: Path, write) -> None:
-    """Call ``write(temporary_path)`` then rename the result to ``path``."""
-    temporary = str(path.with_name(f".{path.name}.{os.getpid()}.tmp"))
-    try:
-        write(temporary)
-        os.replace(temporary, path)
-    except BaseException:
-        if os.path.exists(temporary):
-            os.remove(temporary)
-        raise
-
-
 def _save_figure(figure, path: Path) -> None:
-    _write_atomically(path, lambda temporary: figure.savefig(temporary, format="png", dpi=110))
+    atomic_write(path, lambda fh: figure.savefig(fh, format="png", dpi=110))
 
 
 def _make_figures(time, current, chosen, other, input_reading):
@@ -275,12 +267,14 @@ def run(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    from .locks import FolderLock
+
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    for key, figure in _make_figures(time, current, chosen, other, args.input).items():
-        _save_figure(figure, out / FIGURE_FILES[key])
-    text = _markdown(args, time, chosen, other)
-    _write_atomically(out / "paper.md", lambda temporary: Path(temporary).write_text(text, encoding="utf-8"))
+    with FolderLock(out, command=f"python -m identify paper --out {out}"):
+        for key, figure in _make_figures(time, current, chosen, other, args.input).items():
+            _save_figure(figure, out / FIGURE_FILES[key])
+        text = _markdown(args, time, chosen, other)
+        atomic_write(out / "paper.md", text)
 
     for evidence in (chosen, other):
         print(

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from model import EFFECTS, INPUT_READINGS
 
+from . import options
 from .bench import DEFAULT_FS, DEFAULT_NOISE_SIGMA, simulate
 from .records import write_record
 
@@ -28,7 +29,10 @@ HELP = "simulate a bench measurement (paper input, Table 1 transducer, hidden ef
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``simulate`` options to ``parser``."""
-    parser.add_argument("--out", required=True, type=Path, help="CSV file to write; the truth goes to the same stem .json")
+    parser.add_argument(
+        "--out", required=True, type=lambda text: Path(options.file_path(text)),
+        help="CSV file to write; the truth goes to the same stem .json",
+    )  # fmt: skip
     parser.add_argument(
         "--effects",
         default="",
@@ -43,13 +47,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--noise", type=float, default=DEFAULT_NOISE_SIGMA, metavar="SIGMA",
         help=f"sensor noise standard deviation in um (default {DEFAULT_NOISE_SIGMA})",
     )  # fmt: skip
-    parser.add_argument("--noise-rho", type=float, default=0.0, metavar="RHO", help="lag-1 autocorrelation of AR(1) noise (default 0: white)")
+    parser.add_argument(
+        "--noise-rho", type=float, default=0.0, metavar="RHO",
+        help="lag-1 autocorrelation of AR(1) noise, -1 < RHO < 1 (default 0: white)",
+    )  # fmt: skip
     parser.add_argument("--fs", type=float, default=DEFAULT_FS, metavar="HZ", help=f"sampling rate in Hz (default {DEFAULT_FS:g})")
     parser.add_argument(
         "--input", choices=INPUT_READINGS, default="literal",
         help="reading of the paper's eq. (16) decay (default literal)",
     )  # fmt: skip
-    parser.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the noise generator (default 0)")
+    parser.add_argument("--seed", type=options.seed, default=0, metavar="N", help="seed of the noise generator, >= 0 (default 0)")
 
 
 def git_commit(path=None) -> str | None:

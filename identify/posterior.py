@@ -83,6 +83,8 @@ from .lsq import fastest_thread_count
 from .noise import NoiseModel, log_likelihood_of_rows
 
 __all__ = [
+    "ChainFileError",
+    "chain_info",
     "PRIORS",
     "MOVES",
     "SnookerMove",
@@ -153,6 +155,59 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
     def grow(self, ngrow, blobs):
         self.flush()
         super().grow(ngrow, blobs)
+
+
+class ChainFileError(ValueError):
+    """A ``chain.h5`` that cannot be read back (truncated, overwritten, not emcee's format)."""
+
+
+def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
+    """``(steps, walkers, dimension)`` of the chain stored in ``path``, checked readable.
+
+    Opens the file read-only and reads every stored step (in blocks of ``block_steps``,
+    so memory stays small), the log-probabilities, acceptance counts and the random state
+    a resumed run needs. Returns None when there is no file.
+
+    Raises
+    ------
+    ChainFileError
+        The file cannot be opened or read, or lacks what emcee's backend writes.
+    """
+    import h5py
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        return None
+    try:
+        with h5py.File(path, "r") as f:
+            if BACKEND_GROUP not in f:
+                raise ChainFileError(f"{path} is damaged (no group {BACKEND_GROUP!r}: not a chain written by study)")
+            g = f[BACKEND_GROUP]
+            n_walkers, n_dim = int(g.attrs["nwalkers"]), int(g.attrs["ndim"])
+            steps = int(g.attrs["iteration"])
+            chain, log_prob, accepted = g["chain"], g["log_prob"], g["accepted"]
+            if (
+                chain.shape[1:] != (n_walkers, n_dim) or log_prob.shape[1:] != (n_walkers,)
+                or accepted.shape != (n_walkers,) or not 0 <= steps <= min(chain.shape[0], log_prob.shape[0])
+            ):  # fmt: skip
+                raise ChainFileError(
+                    f"{path} is damaged (inconsistent shapes: {steps} steps, chain {chain.shape}, "
+                    f"log_prob {log_prob.shape}, accepted {accepted.shape})"
+                )
+            accepted[()]
+            for start in range(0, steps, int(block_steps)):
+                stop = min(steps, start + int(block_steps))
+                chain[start:stop]
+                log_prob[start:stop]
+            if steps > 0:
+                for i in range(5):
+                    g.attrs[f"random_state_{i}"]
+    except ChainFileError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:
+        detail = " ".join(str(exc).split())[:200]
+        raise ChainFileError(f"{path} is damaged ({type(exc).__name__}: {detail})") from None
+    return steps, n_walkers, n_dim
 
 
 def _uniform_logpdf(x, lower, upper):

@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .fileio import atomic_write_bytes
+from .fileio import atomic_write
 
 __all__ = [
     "shared_realdata_dir",
@@ -198,11 +198,10 @@ class ConversionResult:
     sha256: str
 
 
-def _atomic_write_text(path: Path, text: str) -> str:
+def _write_ascii(path: Path, text: str) -> str:
     """Write ``text`` (ASCII, ``\\n`` line ends) to ``path`` via a temporary file; return its SHA-256."""
     data = text.encode("ascii")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(path, data)
+    atomic_write(path, data, make_parents=True)
     return hashlib.sha256(data).hexdigest()
 
 
@@ -260,7 +259,7 @@ def convert_smarthysteresis(source, destination) -> ConversionResult:
             raise ValueError(f"{source}, line {number}: time {time_text} does not increase")
         previous_time = float(time_text)
         out.append(f"{time_text},{voltage_text},{displacement_text}")
-    sha = _atomic_write_text(Path(destination), "\n".join(out) + "\n")
+    sha = _write_ascii(Path(destination), "\n".join(out) + "\n")
     return ConversionResult(Path(destination), len(out) - 1, hashlib.sha256(raw).hexdigest(), sha)
 
 
@@ -308,7 +307,7 @@ def convert_micromanipulator(source, destination, rows=(0, 7432)) -> ConversionR
         voltage_text = _check_number(cells[0], source, number + 1, "voltage (column 1)")
         displacement_text = _check_number(cells[4], source, number + 1, "displacement (column 5)")
         out.append(f"{k / _MICROMANIPULATOR_FS:.3f},{voltage_text},{displacement_text}")
-    sha = _atomic_write_text(Path(destination), "\n".join(out) + "\n")
+    sha = _write_ascii(Path(destination), "\n".join(out) + "\n")
     return ConversionResult(Path(destination), len(out) - 1, hashlib.sha256(raw).hexdigest(), sha)
 
 

@@ -35,7 +35,10 @@ import numpy as np
 
 from .fileio import atomic_write_bytes
 
-__all__ = ["Record", "RecordError", "load_record", "write_record", "sidecar_path", "keep_every", "thinning_indices", "DEFAULT_COLUMNS"]
+__all__ = [
+    "Record", "RecordError", "load_record", "write_record", "sidecar_path", "keep_every", "thinning_indices",
+    "suggest_every", "DEFAULT_COLUMNS", "MAX_ABS_VALUE", "MAX_ABS_TIME",
+]  # fmt: skip
 
 #: The default header: time [s], drive [A], output [um].
 DEFAULT_COLUMNS = ("time", "current", "displacement")
@@ -149,6 +152,54 @@ def _looks_numeric(text: str) -> bool:
     return True
 
 
+#: Largest magnitude accepted in a drive or output column, in any unit: beyond it a value
+#: is no measurement (a corrupted cell), and squares and sums of such values would
+#: overflow the noise and likelihood arithmetic.
+MAX_ABS_VALUE = 1e15
+#: Largest magnitude accepted in the time column [s] (leaves room for epoch times in ms).
+MAX_ABS_TIME = 1e18
+#: Files larger than this report their loading progress through ``progress``.
+_PROGRESS_BYTES = 20 * 2**20
+_CHUNK = 1 << 20
+
+
+def _hash_and_check_text(path: Path):
+    """SHA-256 of the file and its size, checking it is UTF-8 text, in 1 MB chunks (memory O(1)).
+
+    Raises RecordError naming the line of the first byte that is not UTF-8."""
+    import codecs
+
+    digest = hashlib.sha256()
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    newlines = 0
+    size = 0
+    nonblank = False
+    try:
+        with open(path, "rb") as fh:
+            for chunk in iter(lambda: fh.read(_CHUNK), b""):
+                digest.update(chunk)
+                size += len(chunk)
+                try:
+                    decoder.decode(chunk)
+                except UnicodeDecodeError as exc:
+                    line = newlines + exc.object[: exc.start].count(b"\n") + 1
+                    raise _fail(path, line, f"not UTF-8 text (byte {size - len(chunk) + exc.start}); "
+                                "a record is a plain-text CSV file") from None  # fmt: skip
+                newlines += chunk.count(b"\n")
+                nonblank = nonblank or bool(chunk.strip())
+            try:
+                decoder.decode(b"", final=True)
+            except UnicodeDecodeError:
+                raise _fail(path, newlines + 1, "not UTF-8 text (the file ends inside a character)") from None
+    except FileNotFoundError:
+        raise _fail(path, None, "no such file") from None
+    except IsADirectoryError:
+        raise _fail(path, None, "is a folder, not a record file") from None
+    except OSError as exc:
+        raise _fail(path, None, f"cannot read the file ({exc.strerror or exc})") from None
+    return digest.hexdigest(), size, nonblank
+
+
 def load_record(
     path,
     *,
@@ -158,8 +209,13 @@ def load_record(
     input_unit="A",
     output_unit="um",
     min_samples=200,
+    progress=None,
 ) -> Record:
     """Load a CSV record, checking everything; raise :class:`RecordError` on any problem.
+
+    The file is read as a stream (memory about 50 bytes per sample whatever the line
+    length: no copy of the text is held), after a first pass that computes its SHA-256
+    and checks it is UTF-8.
 
     Parameters
     ----------
@@ -176,6 +232,8 @@ def load_record(
         Units of those columns, stored on the record for labels.
     min_samples : int, default 200
         Fewest samples accepted.
+    progress : callable, optional
+        ``progress(message)`` is called about every 10 % of a file above 20 MB.
 
     Returns
     -------
@@ -186,124 +244,141 @@ def load_record(
     RecordError
         Missing or unreadable file, empty file, no header, missing or misnamed columns
         (the message lists the columns present and close matches), a row with the wrong
-        number of cells, an empty or non-numeric cell, NaN or infinity, times that do
+        number of cells, an empty or non-numeric cell, NaN or infinity, a value beyond
+        any physical range (:data:`MAX_ABS_VALUE`, :data:`MAX_ABS_TIME`), times that do
         not strictly increase, fewer than ``min_samples`` samples, or a malformed
-        sidecar. The message names the file and line.
+        sidecar. The message names the file, the line and, for a value, the column.
     """
+    from array import array
+
     path = Path(path)
     wanted = [c for c in (time_column, input_column, output_column) if c is not None]
     if len(set(wanted)) != len(wanted):
         raise ValueError(f"time/input/output column names must differ, got {wanted}")
     if isinstance(min_samples, bool) or not isinstance(min_samples, (int, np.integer)) or min_samples < 2:
         raise ValueError(f"min_samples must be an integer >= 2, got {min_samples!r}")
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise _fail(path, None, "no such file") from None
-    except OSError as exc:
-        raise _fail(path, None, f"cannot read the file ({exc.strerror or exc})") from None
-    digest = hashlib.sha256(raw).hexdigest()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise _fail(path, line, f"not UTF-8 text (byte {exc.start}); a record is a plain-text CSV file") from None
-    if not text.strip():
+    digest, size, nonblank = _hash_and_check_text(path)
+    if not nonblank:
         raise _fail(path, None, "the file is empty; expected a header line such as 'time,current,displacement' and data rows")
 
     notes: list[str] = []
-    lines = text.splitlines()
     n_skipped = 0
-    header_line = None
-    for number, line in enumerate(lines, start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            n_skipped += 1
-            continue
-        header_line = number
-        break
-    if header_line is None:
-        raise _fail(path, None, "the file holds only comments or blank lines; expected a header and data rows")
+    skipped_lines: list[int] = []  # blank/comment lines after the header, to map rows to lines
+    with open(path, encoding="utf-8-sig", newline=None) as fh:
+        header_line = None
+        header_text = ""
+        number = 0
+        for number, line in enumerate(fh, start=1):
+            stripped = line.strip()
+            if not stripped or stripped.startswith("#"):
+                n_skipped += 1
+                continue
+            header_line, header_text = number, line.rstrip("\n")
+            break
+        if header_line is None:
+            raise _fail(path, None, "the file holds only comments or blank lines; expected a header and data rows")
 
-    header_text = lines[header_line - 1]
-    delimiter = next((d for d in _DELIMITERS if d in header_text), ",")
-    if delimiter != ",":
-        notes.append(f"columns are separated by {delimiter!r} rather than commas")
-    header = [h.strip() for h in header_text.split(delimiter)]
-    if all(_looks_numeric(h) for h in header if h):
-        raise _fail(
-            path,
-            header_line,
-            f"no header line: the first line is numbers ({header_text.strip()[:60]!r}); "
-            f"expected column names {','.join(wanted)}",
-        )
-    seen = {}
-    for j, h in enumerate(header):
-        if not h:
-            raise _fail(path, header_line, f"column {j + 1} of the header has no name")
-        if h in seen:
-            raise _fail(path, header_line, f"column name {h!r} appears twice (columns {seen[h] + 1} and {j + 1})")
-        seen[h] = j
+        delimiter = next((d for d in _DELIMITERS if d in header_text), ",")
+        if delimiter != ",":
+            notes.append(f"columns are separated by {delimiter!r} rather than commas")
+        header = [h.strip() for h in header_text.split(delimiter)]
+        if all(_looks_numeric(h) for h in header if h):
+            raise _fail(
+                path,
+                header_line,
+                f"no header line: the first line is numbers ({header_text.strip()[:60]!r}); "
+                f"expected column names {','.join(wanted)}",
+            )
+        seen = {}
+        for j, h in enumerate(header):
+            if not h:
+                raise _fail(path, header_line, f"column {j + 1} of the header has no name")
+            if h in seen:
+                raise _fail(path, header_line, f"column name {h!r} appears twice (columns {seen[h] + 1} and {j + 1})")
+            seen[h] = j
 
-    def find(name):
-        if name in seen:
-            return seen[name]
-        folded = [h for h in header if h.casefold() == name.casefold()]
-        if len(folded) == 1:
-            notes.append(f"column {folded[0]!r} taken as {name!r} (letter case differs)")
-            return seen[folded[0]]
-        return None
+        def find(name):
+            if name in seen:
+                return seen[name]
+            folded = [h for h in header if h.casefold() == name.casefold()]
+            if len(folded) == 1:
+                notes.append(f"column {folded[0]!r} taken as {name!r} (letter case differs)")
+                return seen[folded[0]]
+            return None
 
-    indices = {}
-    missing = []
-    for name in wanted:
-        j = find(name)
-        if j is None:
-            missing.append(name)
-        else:
-            indices[name] = j
-    if missing:
-        hints = "; ".join(f"{m!r}{_suggest(m, header)}" for m in missing)
-        raise _fail(
-            path,
-            header_line,
-            f"missing column(s) {hints}. Columns present: {', '.join(repr(h) for h in header)}. "
-            "Rename the header or pass the column names (time_column/input_column/output_column).",
-        )
-    extra = [h for j, h in enumerate(header) if j not in indices.values()]
-    if time_column is None and any(h.casefold() in ("time", "t", "t_s", "time_s") for h in extra):
-        notes.append("the file's time-like column was ignored because time_column=None")
-    if extra:
-        notes.append(f"ignored column(s): {', '.join(extra)}")
-
-    n_columns = len(header)
-    rows = {name: [] for name in wanted}
-    line_numbers = []
-    for number in range(header_line + 1, len(lines) + 1):
-        line = lines[number - 1]
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            n_skipped += 1
-            continue
-        cells = line.split(delimiter)
-        if len(cells) != n_columns:
-            raise _fail(path, number, f"{len(cells)} cells, but the header has {n_columns} columns ({','.join(header)})")
+        indices = {}
+        missing = []
         for name in wanted:
-            cell = cells[indices[name]].strip()
-            if not cell:
-                raise _fail(path, number, f"column {name!r} is empty")
+            j = find(name)
+            if j is None:
+                missing.append(name)
+            else:
+                indices[name] = j
+        if missing:
+            hints = "; ".join(f"{m!r}{_suggest(m, header)}" for m in missing)
+            raise _fail(
+                path,
+                header_line,
+                f"missing column(s) {hints}. Columns present: {', '.join(repr(h) for h in header)}. "
+                "Rename the header or pass the column names (time_column/input_column/output_column).",
+            )
+        extra = [h for j, h in enumerate(header) if j not in indices.values()]
+        if time_column is None and any(h.casefold() in ("time", "t", "t_s", "time_s") for h in extra):
+            notes.append("the file's time-like column was ignored because time_column=None")
+        if extra:
+            notes.append(f"ignored column(s): {', '.join(extra)}")
+
+        n_columns = len(header)
+        columns = [(name, indices[name], array("d")) for name in wanted]
+        appends = [(j, values.append) for _name, j, values in columns]
+        report_every = max(1, size // 10) if (progress is not None and size > _PROGRESS_BYTES) else 0
+        next_report = report_every
+        read_bytes = 0
+        for number, line in enumerate(fh, start=header_line + 1):
+            cells = line.split(delimiter)
             try:
-                value = float(cell)
+                if len(cells) != n_columns:
+                    raise ValueError
+                for j, append in appends:
+                    append(float(cells[j]))
             except ValueError:
-                raise _fail(path, number, f"column {name!r}: {cell[:40]!r} is not a number") from None
-            if not math.isfinite(value):
-                raise _fail(path, number, f"column {name!r}: {cell!r} is not a finite number (NaN or infinity)")
-            rows[name].append(value)
-        line_numbers.append(number)
+                stripped = line.strip()
+                if not stripped or stripped.startswith("#"):
+                    # undo a partial row (a comment line with the right number of cells)
+                    n_done = len(columns[-1][2])
+                    for _name, _j, values in columns:
+                        del values[n_done:]
+                    n_skipped += 1
+                    skipped_lines.append(number)
+                    continue
+                if len(cells) != n_columns:
+                    raise _fail(path, number, f"{len(cells)} cells, but the header has {n_columns} columns ({','.join(header)})") from None
+                for name, j, _values in columns:
+                    cell = cells[j].strip()
+                    if not cell:
+                        raise _fail(path, number, f"column {name!r} is empty") from None
+                    if not _looks_numeric(cell):
+                        raise _fail(path, number, f"column {name!r}: {cell[:40]!r} is not a number") from None
+                raise  # pragma: no cover - every cell parsed after all
+            if report_every:
+                read_bytes += len(line)
+                if read_bytes >= next_report:
+                    progress(f"reading {path.name}: {min(100, 100 * read_bytes // size)} % ({len(columns[0][2])} rows)")
+                    next_report += report_every
+        n_samples = len(columns[0][2])
     if n_skipped:
         notes.append(f"skipped {n_skipped} blank or comment ('#') line(s)")
 
-    n_samples = len(line_numbers)
+    def line_of(k: int) -> int:
+        """File line (1-based) of data row ``k`` (0-based)."""
+        line = header_line + 1 + k
+        for s in skipped_lines:
+            if s <= line:
+                line += 1
+            else:
+                break
+        return line
+
     if n_samples < min_samples:
         raise _fail(
             path,
@@ -311,6 +386,23 @@ def load_record(
             f"only {n_samples} data row(s), fewer than the {min_samples} samples required "
             "(a record needs a quiet start and several cycles)",
         )
+    arrays = {}
+    for name, j, values in columns:
+        arr = np.frombuffer(values, dtype=float)
+        limit = MAX_ABS_TIME if name == time_column else MAX_ABS_VALUE
+        bad = ~(np.abs(arr) <= limit)  # NaN and infinity included
+        if bad.any():
+            k = int(np.argmax(bad))
+            value = float(arr[k])
+            where = f"column {name!r} (column {j + 1})"
+            if not math.isfinite(value):
+                raise _fail(path, line_of(k), f"{where}: {value!r} is not a finite number (NaN or infinity)")
+            raise _fail(
+                path, line_of(k),
+                f"{where}: {value:.6g} is beyond any physical range (|value| > {limit:.0e} in any unit); "
+                "a corrupted value? Correct or remove that line",
+            )  # fmt: skip
+        arrays[name] = arr
 
     if time_column is None:
         time = np.arange(n_samples, dtype=float)
@@ -319,7 +411,7 @@ def load_record(
             "in samples rather than seconds); time constants come out in samples"
         )
     else:
-        time = np.array(rows[time_column])
+        time = arrays[time_column]
         steps = np.diff(time)
         bad = np.flatnonzero(steps <= 0)
         if bad.size:
@@ -327,10 +419,11 @@ def load_record(
             kind = "repeats" if steps[k] == 0 else "is smaller than"
             raise _fail(
                 path,
-                line_numbers[k + 1],
-                f"time {time[k + 1]!r} {kind} the previous time {time[k]!r} (line {line_numbers[k]}); "
+                line_of(k + 1),
+                f"time {time[k + 1]!r} {kind} the previous time {time[k]!r} (line {line_of(k)}); "
                 "times must strictly increase",
             )
+        del steps
 
     sidecar = None
     side = sidecar_path(path)
@@ -347,8 +440,8 @@ def load_record(
 
     return Record(
         time=time,
-        current=np.array(rows[input_column]),
-        displacement=np.array(rows[output_column]),
+        current=arrays[input_column],
+        displacement=arrays[output_column],
         source=str(path),
         sha256=digest,
         input_name=input_column,
@@ -498,3 +591,35 @@ def keep_every(record: Record, every: int) -> Record:
         displacement=record.displacement[keep],
         notes=(*record.notes, note),
     )
+
+
+#: :func:`suggest_every` aims at about this many samples per input half-cycle.
+SAMPLES_PER_HALF_CYCLE = 250
+
+
+def suggest_every(record: Record, *, min_samples=20000, per_half_cycle=SAMPLES_PER_HALF_CYCLE) -> tuple[int, float] | None:
+    """A ``--every N`` for a record far longer than the rate-independent GPI needs, or None.
+
+    The GPI's output depends only on the input's sequence of extrema, so a few hundred
+    samples between two reversals describe a branch well; a record of ``min_samples``
+    or more with four or more times that many (e.g. a 5 kHz record of a 1 Hz drive)
+    costs time and memory in proportion to its length for no information the model can
+    use. Reversals are counted on at most 200,000 evenly spaced samples (cheap for any
+    length).
+
+    Returns
+    -------
+    (every, samples_per_half_cycle) or None
+        ``every`` keeps about ``per_half_cycle`` samples per half-cycle (and every
+        reversal, :func:`keep_every`).
+    """
+    from .residuals import find_reversals
+
+    n = len(record)
+    if n < min_samples:
+        return None
+    stride = max(1, n // 200_000)
+    n_reversals = len(find_reversals(np.asarray(record.current)[::stride]).index)
+    per = n / (n_reversals + 1)
+    every = int(per // per_half_cycle)
+    return (every, per) if every >= 4 else None

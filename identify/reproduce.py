@@ -7,7 +7,10 @@
 2. check the data file still has the recorded SHA-256: a changed (or missing) file is a
    :class:`DataChangedError` that says which file and both hashes, and nothing runs;
 3. rerun the same command with the same settings and seed into ``NEWDIR`` (default
-   ``DIR-reproduced``), as a subprocess ``python -m identify COMMAND ...``;
+   ``DIR-reproduced``), as a subprocess ``python -m identify COMMAND ...``. ``NEWDIR``
+   must be new (or an empty folder): a reproduction never writes into an existing study
+   (:class:`OutputExistsError`). ``DIR`` is locked while it is read, ``NEWDIR`` while the
+   rerun writes it (:mod:`identify.locks`);
 4. compare the two folders:
 
    * every dataset of ``chain.h5`` (the emcee chain, log-probabilities, acceptance
@@ -37,9 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .fileio import atomic_write
+
 __all__ = [
     "DataChangedError",
     "ManifestError",
+    "OutputExistsError",
     "ArrayComparison",
     "NumberDifference",
     "ReproductionReport",
@@ -72,6 +78,10 @@ class ManifestError(ValueError):
 
 class DataChangedError(ValueError):
     """The data file of a run is missing or no longer has the SHA-256 recorded in its manifest."""
+
+
+class OutputExistsError(ValueError):
+    """The folder for the rerun already holds something (e.g. another study)."""
 
 
 @dataclass(frozen=True)
@@ -624,10 +634,27 @@ def _recorded_threads(directory: Path) -> int | None:
     return int(threads) if isinstance(threads, int) and threads >= 1 else None
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    from .results import atomic_write_bytes
+def _check_readable(directory: Path) -> None:
+    """Every result file of the original run reads back (else nothing is rerun).
 
-    atomic_write_bytes(path, text.encode("utf-8"))
+    Raises
+    ------
+    identify.results.DamagedResultsError
+    """
+    from .posterior import ChainFileError, chain_info
+    from .results import DamagedResultsError, read_json
+
+    for name in _JSON_FILES:
+        if (directory / name).exists():
+            read_json(directory / name, hint="the run cannot be compared with a rerun")
+    if (directory / "data.npz").exists():
+        from .results import load_data
+
+        load_data(directory)
+    try:
+        chain_info(directory / "chain.h5")
+    except ChainFileError as exc:
+        raise DamagedResultsError(f"{exc}; the run cannot be compared with a rerun") from None
 
 
 def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionReport:
@@ -655,14 +682,24 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     ManifestError, DataChangedError
         Before anything runs.
     """
+    from .locks import FolderLock
+
     directory = Path(directory).resolve()
     manifest = read_manifest(directory)
+    _check_readable(directory)
     location = locate_data(manifest, directory, data)
     out = Path(out).resolve() if out is not None else directory.with_name(directory.name + "-reproduced")
     if out == directory:
-        raise ValueError("--out must be a new folder, not the run being reproduced")
+        raise OutputExistsError("--out must be a new folder, not the run being reproduced")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        what = "is a file" if not out.is_dir() else (
+            "holds a study (manifest.json)" if (out / "manifest.json").exists() else "is not empty"
+        )  # fmt: skip
+        raise OutputExistsError(
+            f"{out} {what}: a reproduction writes into a new folder and never into an existing one. "
+            "Remove it, or pass --out NEWDIR"
+        )
     args = rerun_arguments(manifest, location.argument, out)
-    out.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     threads = _recorded_threads(directory)
     if threads is not None:
@@ -670,34 +707,45 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
             env[name] = str(threads)
     package_root = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    with open(out / "reproduce.log", "w", encoding="utf-8") as log:
-        log.write("$ python -m identify " + " ".join(args) + "\n")
-        log.flush()
-        completed = subprocess.run(
-            [sys.executable, "-m", "identify", *args],
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            env=env,
-            cwd=location.cwd,
-        )
-    if stream is not None:
-        stream.write((out / "reproduce.log").read_text(encoding="utf-8", errors="replace"))
-    arrays, n_numbers, numbers, versions, commit = compare_runs(directory, out)
-    report = ReproductionReport(
-        original=str(directory),
-        rerun=str(out),
-        command=args,
-        data_file=str(location.path),
-        returncode=int(completed.returncode),
-        arrays=arrays,
-        numbers=numbers,
-        n_numbers_compared=n_numbers,
-        version_differences=versions,
-        commit_difference=commit,
-        threads=threads,
-    )
-    from .results import jsonable
+    import contextlib
 
-    _write_text_atomic(out / REPORT_FILE, json.dumps(jsonable(report.to_dict()), indent=2, default=str) + "\n")
+    with contextlib.ExitStack() as stack:
+        reading = FolderLock(directory, command=f"python -m identify reproduce {directory} (reading it)")
+        try:
+            stack.enter_context(reading)  # no study may write into it while it is read
+        except PermissionError:  # a read-only results folder: nobody can write into it either
+            pass
+        new_lock = stack.enter_context(FolderLock(out, command=f"python -m identify reproduce {directory} --out {out}"))
+        env, pass_fds = new_lock.child_environment(env)  # the rerun writes under this lock
+        with open(out / "reproduce.log", "w", encoding="utf-8") as log:
+            log.write("$ python -m identify " + " ".join(args) + "\n")
+            log.flush()
+            completed = subprocess.run(
+                [sys.executable, "-m", "identify", *args],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env=env,
+                cwd=location.cwd,
+                pass_fds=pass_fds,
+            )
+        if stream is not None:
+            stream.write((out / "reproduce.log").read_text(encoding="utf-8", errors="replace"))
+        arrays, n_numbers, numbers, versions, commit = compare_runs(directory, out)
+        report = ReproductionReport(
+            original=str(directory),
+            rerun=str(out),
+            command=args,
+            data_file=str(location.path),
+            returncode=int(completed.returncode),
+            arrays=arrays,
+            numbers=numbers,
+            n_numbers_compared=n_numbers,
+            version_differences=versions,
+            commit_difference=commit,
+            threads=threads,
+        )
+        from .results import jsonable
+
+        atomic_write(out / REPORT_FILE, json.dumps(jsonable(report.to_dict()), indent=2, default=str) + "\n")
     return report

@@ -11,8 +11,12 @@ Layout (docs/CONTRACTS.md)::
       manifest.json    seed, data file + sha256, settings, package versions, git commit, times
       report.html + *.png   written by identify.report
 
-Every file is written to a temporary name in ``DIR`` and renamed into place, so a crash
-never leaves a half-written file. JSON is strict (NaN and infinity written as ``null``).
+Every file is written to a temporary name in ``DIR`` and renamed into place
+(:mod:`identify.fileio`), so a crash never leaves a half-written file. JSON is strict (NaN
+and infinity written as ``null``). A file that cannot be read back (damaged from outside,
+e.g. truncated) is a :class:`DamagedResultsError` naming it and saying what to do;
+:func:`inspect_run` reads a whole folder's state (what is stored, whether it is finished)
+before a rerun touches anything.
 """
 
 from __future__ import annotations
@@ -28,13 +32,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .fileio import atomic_write_bytes
+from .fileio import atomic_write
 
 __all__ = [
     "FILES",
+    "RUN_FILES",
     "RunMismatchError",
+    "DamagedResultsError",
     "StudyResults",
-    "atomic_write_bytes",
+    "RunState",
+    "inspect_run",
+    "remove_run",
     "write_json",
     "read_json",
     "jsonable",
@@ -47,6 +55,8 @@ __all__ = [
     "build_manifest",
     "finish_manifest",
     "check_resumable",
+    "read_manifest",
+    "last_status",
     "package_versions",
     "thread_counts",
     "git_commit",
@@ -65,8 +75,17 @@ FILES = {
 }
 
 
+#: Files of a run (removed by ``--force`` and by the rollback of a failed fresh run).
+RUN_FILES = ("data", "chain", "fit", "summary", "manifest", "report")
+
+
 class RunMismatchError(ValueError):
     """The results folder holds a run with different data or settings."""
+
+
+class DamagedResultsError(ValueError):
+    """A results file that cannot be read back (truncated, not JSON, wrong content); the
+    message names the file and says what to do."""
 
 
 def now_iso() -> str:
@@ -99,57 +118,93 @@ def jsonable(obj):
 def write_json(path, obj) -> None:
     """Strict JSON (sorted keys kept in insertion order, 2-space indent), atomically."""
     text = json.dumps(jsonable(obj), indent=2, allow_nan=False) + "\n"
-    atomic_write_bytes(path, text.encode("utf-8"))
+    atomic_write(path, text.encode("utf-8"))
 
 
-def read_json(path) -> dict:
-    """Read a JSON file, with a clear error naming it."""
+def read_json(path, *, hint="") -> dict:
+    """Read a JSON object from a file.
+
+    Raises
+    ------
+    FileNotFoundError
+        The file is missing (the message names it).
+    DamagedResultsError
+        Unreadable, not UTF-8, not valid JSON, or not an object; the message names the
+        file and ends with ``hint`` (what to do).
+    """
     path = Path(path)
+    hint = f"; {hint}" if hint else ""
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        text = path.read_bytes().decode("utf-8")
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: missing (not a complete results folder?)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DamagedResultsError(f"{path} is damaged (cannot read it: {exc}){hint}") from None
+    try:
+        value = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+        raise DamagedResultsError(f"{path} is damaged (not valid JSON: {exc}){hint}") from None
+    if not isinstance(value, dict):
+        raise DamagedResultsError(f"{path} is damaged (a JSON object was expected, found {type(value).__name__}){hint}")
+    return value
 
 
 def write_data(out_dir, record) -> None:
-    """``data.npz``: the record's arrays, units, column names, source and sha256."""
-    import io
+    """``data.npz``: the record's arrays, units, column names, source and sha256 (streamed
+    to the file, no copy of the record in memory)."""
 
-    buf = io.BytesIO()
-    np.savez(
-        buf,
-        time=np.asarray(record.time, dtype=float),
-        current=np.asarray(record.current, dtype=float),
-        displacement=np.asarray(record.displacement, dtype=float),
-        input_unit=np.array(record.input_unit),
-        output_unit=np.array(record.output_unit),
-        input_name=np.array(record.input_name),
-        output_name=np.array(record.output_name),
-        source=np.array(str(record.source)),
-        sha256=np.array(record.sha256),
-    )
-    atomic_write_bytes(Path(out_dir) / FILES["data"], buf.getvalue())
+    def save(fh):
+        np.savez(
+            fh,
+            time=np.asarray(record.time, dtype=float),
+            current=np.asarray(record.current, dtype=float),
+            displacement=np.asarray(record.displacement, dtype=float),
+            input_unit=np.array(record.input_unit),
+            output_unit=np.array(record.output_unit),
+            input_name=np.array(record.input_name),
+            output_name=np.array(record.output_name),
+            source=np.array(str(record.source)),
+            sha256=np.array(record.sha256),
+        )
+
+    atomic_write(Path(out_dir) / FILES["data"], save)
 
 
 def load_data(out_dir):
-    """The record stored in ``DIR/data.npz`` as an :class:`identify.records.Record`."""
+    """The record stored in ``DIR/data.npz`` as an :class:`identify.records.Record`.
+
+    Raises
+    ------
+    FileNotFoundError
+        No ``data.npz``.
+    DamagedResultsError
+        The file cannot be read or does not hold a valid record.
+    """
+    import zipfile
+
     from .records import Record
 
     path = Path(out_dir) / FILES["data"]
-    with np.load(path, allow_pickle=False) as z:
-        return Record(
-            time=z["time"],
-            current=z["current"],
-            displacement=z["displacement"],
-            source=str(z["source"]),
-            sha256=str(z["sha256"]),
-            input_name=str(z["input_name"]),
-            input_unit=str(z["input_unit"]),
-            output_name=str(z["output_name"]),
-            output_unit=str(z["output_unit"]),
-        )
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing (not a complete results folder?)")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return Record(
+                time=z["time"],
+                current=z["current"],
+                displacement=z["displacement"],
+                source=str(z["source"]),
+                sha256=str(z["sha256"]),
+                input_name=str(z["input_name"]),
+                input_unit=str(z["input_unit"]),
+                output_name=str(z["output_name"]),
+                output_unit=str(z["output_unit"]),
+            )
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise DamagedResultsError(
+            f"{path} is damaged ({type(exc).__name__}: {exc}); rerun the command that wrote the folder "
+            "with --force to rewrite it"
+        ) from None
 
 
 def write_fit(out_dir, fit) -> None:
@@ -157,11 +212,33 @@ def write_fit(out_dir, fit) -> None:
     write_json(Path(out_dir) / FILES["fit"], fit.to_dict())
 
 
+#: What to do about a damaged fit.json.
+_FIT_HINT = (
+    "delete it and rerun the same command to redo the least squares (the same seed gives the same fit; "
+    "a stored chain is kept), or use --force to start the run over"
+)
+
+
 def load_fit(out_dir):
-    """The :class:`identify.lsq.FitResult` stored in ``DIR/fit.json``."""
+    """The :class:`identify.lsq.FitResult` stored in ``DIR/fit.json``.
+
+    Raises
+    ------
+    FileNotFoundError
+        No ``fit.json``.
+    DamagedResultsError
+        Not valid JSON, or not a complete fit (the message says what to do).
+    """
     from .lsq import FitResult
 
-    return FitResult.from_dict(read_json(Path(out_dir) / FILES["fit"]))
+    path = Path(out_dir) / FILES["fit"]
+    content = read_json(path, hint=_FIT_HINT)
+    try:
+        return FitResult.from_dict(content)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise DamagedResultsError(
+            f"{path} is damaged (not a complete fit: {type(exc).__name__}: {exc}); {_FIT_HINT}"
+        ) from None
 
 
 def write_summary(out_dir, summary: dict) -> None:
@@ -363,14 +440,17 @@ def build_manifest(*, seed, record, settings: dict, started=None, command=None, 
     )
 
 
-def finish_manifest(manifest: dict, *, started, seconds: float, status: str, phases=None) -> dict:
+def finish_manifest(manifest: dict, *, started, seconds: float, status: str, phases=None, error=None) -> dict:
     """Record one (possibly resumed) run's times and status in ``manifest["runs"]``.
 
-    ``phases`` is ``{phase: seconds}`` (e.g. least_squares, posterior, report).
+    ``phases`` is ``{phase: seconds}`` (e.g. least_squares, posterior, report); ``error``
+    the one-line reason of a ``failed`` run.
     """
     finished = now_iso()
     manifest = dict(manifest)
     run = {"started": started, "finished": finished, "seconds": float(seconds), "status": status}
+    if error:
+        run["error"] = str(error)[:500]
     if phases:
         run["phases"] = {k: float(v) for k, v in phases.items()}
     manifest["runs"] = list(manifest.get("runs", [])) + [run]
@@ -378,39 +458,195 @@ def finish_manifest(manifest: dict, *, started, seconds: float, status: str, pha
     return manifest
 
 
-def check_resumable(out_dir, manifest: dict, *, ignore=()) -> dict | None:
-    """Compare a new run with the one stored in ``DIR/manifest.json``.
+#: What to do about a damaged manifest.json.
+_MANIFEST_HINT = (
+    "the run's settings cannot be compared with this command's. Use --force to discard the run in the folder "
+    "and start over, or another output folder"
+)
 
-    Returns the stored manifest (None when the folder holds no run yet).
+
+def read_manifest(out_dir) -> dict | None:
+    """``DIR/manifest.json`` (None when absent); :class:`DamagedResultsError` when unreadable."""
+    path = Path(out_dir) / FILES["manifest"]
+    if not path.exists():
+        return None
+    manifest = read_json(path, hint=_MANIFEST_HINT)
+    if not isinstance(manifest.get("settings"), dict) or not isinstance(manifest.get("data"), dict):
+        raise DamagedResultsError(f"{path} is damaged (no 'settings' or 'data'); {_MANIFEST_HINT}")
+    return manifest
+
+
+def last_status(manifest: dict | None) -> str | None:
+    """Status of the last run recorded in a manifest (``converged``, ``not converged``,
+    ``done``, ``interrupted``, ``failed``, ``running``), or None."""
+    if not manifest:
+        return None
+    runs = manifest.get("runs") or []
+    if runs and isinstance(runs[-1], dict):
+        return runs[-1].get("status")
+    return "running" if manifest.get("finished") is None else None
+
+
+def check_resumable(out_dir, manifest: dict, *, ignore=(), chain_steps=None) -> dict | None:
+    """Compare a new run with the one stored in ``DIR/manifest.json``, before anything is written.
+
+    Parameters
+    ----------
+    out_dir : path-like
+    manifest : dict
+        The new run's (:func:`build_manifest`).
+    ignore : sequence of str
+        Settings that may differ (e.g. ``no_report``, the data file's path; the data
+        are compared by SHA-256).
+    chain_steps : int, optional
+        Steps the folder's chain holds. When given, ``max_steps`` may change only to a
+        cap the stored chain does not exceed: a lower cap would not give the result a
+        run with that cap gives.
+
+    Returns
+    -------
+    dict or None
+        The stored manifest (None when the folder holds no run yet).
 
     Raises
     ------
     RunMismatchError
-        Different data (sha256), seed or settings (except the names in ``ignore``,
-        e.g. a raised step cap); the message lists every difference.
+        Different task, data (sha256), seed or settings; the message lists every difference.
+    DamagedResultsError
+        The stored manifest cannot be read.
     """
-    path = Path(out_dir) / FILES["manifest"]
-    if not path.exists():
+    old = read_manifest(out_dir)
+    if old is None:
         return None
-    old = read_json(path)
     diffs = []
+    if old.get("task") is not None and manifest.get("task") is not None and old.get("task") != manifest.get("task"):
+        diffs.append(f"command {old.get('task')} -> {manifest.get('task')}")
     if old.get("data", {}).get("sha256") != manifest["data"]["sha256"]:
         diffs.append(f"data sha256 {old.get('data', {}).get('sha256')} -> {manifest['data']['sha256']}")
     if old.get("seed") != manifest["seed"]:
         diffs.append(f"seed {old.get('seed')} -> {manifest['seed']}")
     old_settings, new_settings = old.get("settings", {}), manifest["settings"]
     for key in sorted(set(old_settings) | set(new_settings)):
-        if key in ignore:
+        if key in ignore or (key == "max_steps" and chain_steps is not None):
             continue
         if old_settings.get(key) != new_settings.get(key):
             diffs.append(f"{key}: {old_settings.get(key)!r} -> {new_settings.get(key)!r}")
+    if chain_steps is not None:
+        new_cap = new_settings.get("max_steps")
+        if isinstance(new_cap, int) and chain_steps > new_cap:
+            diffs.append(
+                f"max_steps: {old_settings.get('max_steps')!r} -> {new_cap!r}, but its chain already holds "
+                f"{chain_steps} steps (give --max-steps {chain_steps} or more to extend it)"
+            )
     if diffs:
         raise RunMismatchError(
             f"{out_dir} holds a run with different data or settings ("
             + "; ".join(diffs)
-            + "). Use another --out folder, or --force to discard that run."
+            + "). Nothing was changed. Use another --out folder, or --force to discard that run."
         )
     return old
+
+
+def remove_run(out_dir, roles=RUN_FILES) -> list[str]:
+    """Delete a run's files (and its figures) from ``DIR``; returns the names removed."""
+    out = Path(out_dir)
+    removed = []
+    had_run = (out / FILES["manifest"]).exists() or (out / FILES["report"]).exists()
+    for role in roles:
+        path = out / FILES[role]
+        if path.exists():
+            path.unlink()
+            removed.append(path.name)
+    if "report" in roles and had_run:  # the report's figures (never PNGs of a folder that held no run)
+        for png in out.glob("*.png"):
+            png.unlink()
+            removed.append(png.name)
+    return removed
+
+
+@dataclass
+class RunState:
+    """What a results folder holds, read before a rerun touches anything (:func:`inspect_run`).
+
+    Attributes
+    ----------
+    manifest : dict or None
+    status : str or None
+        The last run's status (:func:`last_status`).
+    has_fit : bool
+        ``fit.json`` exists and reads back as a fit.
+    has_data : bool
+        ``data.npz`` exists and reads back (when damaged it is rewritten from the record,
+        whose SHA-256 the manifest check has matched).
+    chain_steps : int or None
+        Steps in ``chain.h5`` (None: no chain yet).
+    summary : dict or None
+        ``summary.json`` when it reads back (None when absent or damaged: it is rebuilt).
+    """
+
+    manifest: dict | None = None
+    status: str | None = None
+    has_fit: bool = False
+    has_data: bool = False
+    chain_steps: int | None = None
+    summary: dict | None = None
+
+    @property
+    def posterior(self) -> dict | None:
+        post = (self.summary or {}).get("posterior")
+        return post if isinstance(post, dict) else None
+
+    def finished(self, max_steps: int) -> bool:
+        """A complete study whose result a run capped at ``max_steps`` would not change:
+        its posterior summary describes the stored chain, which converged or reached the cap."""
+        post = self.posterior
+        if self.status not in ("converged", "not converged") or post is None or not self.has_fit:
+            return False
+        if self.chain_steps is None or post.get("n_steps") != self.chain_steps:
+            return False
+        return bool(post.get("converged")) or self.chain_steps >= max_steps
+
+
+def inspect_run(out_dir, *, chain=True) -> RunState:
+    """Read the state of ``DIR`` without writing anything.
+
+    Raises
+    ------
+    DamagedResultsError
+        A damaged ``manifest.json``, ``fit.json`` or ``chain.h5`` (each message says what
+        to do). A damaged ``summary.json`` is not an error: it is derived from the others
+        and rewritten by the rerun.
+    """
+    out = Path(out_dir)
+    state = RunState()
+    state.manifest = read_manifest(out)
+    state.status = last_status(state.manifest)
+    if (out / FILES["fit"]).exists():
+        load_fit(out)
+        state.has_fit = True
+    if (out / FILES["data"]).exists():
+        try:
+            load_data(out)
+            state.has_data = True
+        except DamagedResultsError:
+            state.has_data = False
+    if chain:
+        from .posterior import ChainFileError, chain_info
+
+        try:
+            info = chain_info(out / FILES["chain"])
+        except ChainFileError as exc:
+            raise DamagedResultsError(
+                f"{exc}. The other results in {out} are untouched. To redo the sampling, delete "
+                f"{out / FILES['chain']} and rerun the same command (the fit is reused and the same seed gives "
+                "the same chain), or use --force to start the run over"
+            ) from None
+        state.chain_steps = None if info is None else info[0]
+    try:
+        state.summary = read_json(out / FILES["summary"]) if (out / FILES["summary"]).exists() else None
+    except DamagedResultsError:
+        state.summary = None
+    return state
 
 
 @dataclass
@@ -469,6 +705,6 @@ def load_results(out_dir) -> StudyResults:
         path=path,
         record=load_data(path),
         fit=load_fit(path),
-        summary=read_json(path / FILES["summary"]),
-        manifest=read_json(path / FILES["manifest"]),
+        summary=read_json(path / FILES["summary"], hint="rerun the same study command to rewrite it"),
+        manifest=read_json(path / FILES["manifest"], hint=_MANIFEST_HINT),
     )

@@ -9,6 +9,7 @@ that folder, so the fast set runs two short studies in all.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -36,11 +37,14 @@ def study_run(tmp_path_factory):
     rng = np.random.default_rng(5)
     y = model.Model()(model.TABLE1, time_s, current) + 0.3 * rng.standard_normal(time_s.size)
     write_record(base / "rec.csv", (time_s, current, y))
+    root = str(Path(__file__).resolve().parents[1])  # this work tree's code, wherever the package is installed from
+    env = dict(os.environ, PYTHONPATH=root + (os.pathsep + os.environ["PYTHONPATH"] if os.environ.get("PYTHONPATH") else ""))
     completed = subprocess.run(
         [sys.executable, "-m", "identify", "study", "rec.csv", "--out", "run", *STUDY_OPTIONS],
         cwd=base,
         capture_output=True,
         text=True,
+        env=env,
     )
     assert completed.returncode == 0, completed.stderr[-2000:]
     return base, base / "run"

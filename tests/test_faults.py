@@ -1,0 +1,671 @@
+"""Faults a hostile, realistic user causes (issue 15), reproduced with real subprocesses.
+
+Every case asserts what the user sees and what is left on disk: no traceback, the right
+exit code (docs/reliability.md), one ``error:`` line naming the option, the line or the
+file, results equal to an uninterrupted run's (chains bit for bit, every result value
+but wall times), no process left behind (checked by PID), nothing corrupted.
+
+Records are the paper's input at 5 Hz (351 samples) and chains are short, so the fast
+part runs in about a minute on two cores; the whole-batch equality is ``slow``.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from identify.bench import simulate
+from identify.records import write_record
+from identify.reproduce import TIMING_KEYS
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Short studies: 1 least-squares start, no report.
+STUDY = ["--n-starts", "1", "--progress", "off", "--no-report"]
+#: Result values that are not expected to survive an interruption (being removed from
+#: the summary by another change: it counts only the last process's proposals).
+NOT_RESUMABLE = {"outside_domain_fraction"}
+
+
+# -- helpers ---------------------------------------------------------------------------------
+
+
+def env() -> dict:
+    """The environment of a subprocess that runs this work tree's code."""
+    e = dict(os.environ, PYTHONUNBUFFERED="1")
+    e["PYTHONPATH"] = str(ROOT) + (os.pathsep + e["PYTHONPATH"] if e.get("PYTHONPATH") else "")
+    e.pop("IDENTIFY_DEBUG", None)
+    return e
+
+
+def cli(*args, cwd, timeout=600) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "identify", *map(str, args)], cwd=cwd, env=env(), capture_output=True, text=True,
+        timeout=timeout, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+
+
+def start(*args, cwd) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "identify", *map(str, args)], cwd=cwd, env=env(), stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # Ctrl-C even when pytest runs in the background
+    )  # fmt: skip
+
+
+def one_error(completed, *needles, code=2) -> str:
+    """The single ``error:`` line of a failed command (no traceback), checked for ``needles``."""
+    err = completed.stderr
+    assert completed.returncode == code, (completed.returncode, err[-3000:])
+    assert "Traceback" not in err and "Traceback" not in completed.stdout, err[-3000:]
+    # "error: ..." (simulate and paper keep their own prefixes: "simulate: error: ...", "paper: ...")
+    errors = [line for line in err.splitlines() if line.startswith(("error:", "simulate: error:", "paper: "))]
+    assert len(errors) == 1, err
+    for needle in needles:
+        assert needle in errors[0], (needle, errors[0])
+    return errors[0]
+
+
+def digests(folder: Path) -> dict:
+    """SHA-256 of every file under ``folder`` (relative path -> digest)."""
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*")) if p.is_file()
+    }  # fmt: skip
+
+
+def chain_arrays(folder: Path) -> dict:
+    with h5py.File(folder / "chain.h5", "r") as f:
+        g = f["mcmc"]
+        arrays = {name: g[name][()] for name in ("chain", "log_prob", "accepted")}
+        arrays["iteration"] = int(g.attrs["iteration"])
+        arrays["random_state"] = [np.asarray(g.attrs[f"random_state_{i}"]) for i in range(5)]
+    n = arrays["iteration"]
+    arrays["chain"], arrays["log_prob"] = arrays["chain"][:n], arrays["log_prob"][:n]
+    return arrays
+
+
+def assert_same_chain(a: Path, b: Path) -> None:
+    x, y = chain_arrays(a), chain_arrays(b)
+    assert x["iteration"] == y["iteration"]
+    for name in ("chain", "log_prob", "accepted"):
+        assert x[name].tobytes() == y[name].tobytes(), name
+    for u, v in zip(x["random_state"], y["random_state"]):
+        assert np.array_equal(u, v)
+
+
+def values(document, path=""):
+    """Every leaf of a JSON document except wall times and :data:`NOT_RESUMABLE`."""
+    if isinstance(document, dict):
+        out = {}
+        for k, v in document.items():
+            if k not in TIMING_KEYS and k not in NOT_RESUMABLE:
+                out.update(values(v, f"{path}.{k}"))
+        return out
+    if isinstance(document, list):
+        out = {}
+        for i, v in enumerate(document):
+            out.update(values(v, f"{path}[{i}]"))
+        return out
+    return {path: document}
+
+
+def assert_same_results(a: Path, b: Path) -> None:
+    """Same chain bit for bit, same data, and every value of fit.json and summary.json equal."""
+    assert_same_chain(a, b)
+    with np.load(a / "data.npz") as x, np.load(b / "data.npz") as y:
+        for name in ("time", "current", "displacement"):
+            assert x[name].tobytes() == y[name].tobytes()
+    for name in ("fit.json", "summary.json"):
+        va = values(json.loads((a / name).read_text()))
+        vb = values(json.loads((b / name).read_text()))
+        assert va == vb, {k: (va.get(k), vb.get(k)) for k in set(va) | set(vb) if va.get(k) != vb.get(k)}
+
+
+def descendants(pid: int) -> dict[int, str]:
+    """Processes below ``pid`` (PID -> command line), from /proc."""
+    parents, commands = {}, {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            commands[int(entry.name)] = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        parents[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
+    found, frontier = {}, [pid]
+    while frontier:
+        p = frontier.pop()
+        for child, parent in parents.items():
+            if parent == p and child not in found:
+                found[child] = commands.get(child, "")
+                frontier.append(child)
+    return found
+
+
+def alive(pid: int, command: str) -> bool:
+    """The process still exists (and is the same program: guards against PID reuse), not a zombie."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z" and cmdline == command
+
+
+def steps(folder: Path) -> int:
+    """Steps in ``folder/chain.h5`` (0 when absent or being written)."""
+    try:
+        with h5py.File(folder / "chain.h5", "r") as f:
+            return int(f["mcmc"].attrs["iteration"])
+    except Exception:
+        return 0
+
+
+def wait_for(condition, proc, what, timeout=300.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert proc.poll() is None, f"ended before {what}: {proc.communicate()}"
+        assert time.monotonic() < deadline, f"no {what} within {timeout} s"
+        time.sleep(0.05)
+
+
+def record_csv(path: Path, seed: int = 4, quiet=True) -> Path:
+    record = simulate(fs=5.0, seed=seed).record
+    if not quiet:
+        keep = record.time >= 12.0
+        write_record(path, (record.time[keep] - 12.0, record.current[keep], record.displacement[keep]))
+    else:
+        write_record(path, record)
+    return path
+
+
+def replace_cell(path: Path, line: int, column: int, text: str) -> None:
+    """Set the cell at 1-based ``line`` and ``column`` of a CSV file."""
+    lines = path.read_text().splitlines()
+    cells = lines[line - 1].split(",")
+    cells[column - 1] = text
+    lines[line - 1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+
+
+# -- fixtures ---------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("faults")
+    record_csv(folder / "rec.csv")
+    (folder / "rec.json").unlink(missing_ok=True)
+    return folder
+
+
+FINISHED = ["--seed", "2", "--max-steps", "300", "--check-every", "100", *STUDY]
+
+
+@pytest.fixture(scope="module")
+def finished(base) -> Path:
+    """A finished 300-step study of rec.csv (not converged, at its cap)."""
+    completed = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=base)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    return base / "finished"
+
+
+def copy_of(finished: Path, tmp_path: Path) -> Path:
+    """A copy of the finished run and its record, same relative layout."""
+    shutil.copy2(finished.parent / "rec.csv", tmp_path / "rec.csv")
+    shutil.copytree(finished, tmp_path / "finished")
+    return tmp_path / "finished"
+
+
+RESUMABLE = ["--seed", "3", "--max-steps", "1500", "--check-every", "500", *STUDY]
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(base) -> Path:
+    completed = cli("study", "rec.csv", "--out", "whole", *RESUMABLE, cwd=base)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    return base / "whole"
+
+
+# -- 1. two writers on one folder -----------------------------------------------------------------
+
+
+def test_two_studies_on_one_folder_one_runs_the_other_refuses_at_once(base, tmp_path, uninterrupted):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    first = start("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path)
+    wait_for(lambda: steps(tmp_path / "run") >= 20, first, "the first study's steps")
+    second = cli("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path)
+    assert first.poll() is None, "the second command waited for the first one"
+    one_error(second, "is in use by process", str(first.pid))
+    out, err = first.communicate(timeout=600)
+    assert first.returncode == 0 and "Traceback" not in err, err[-3000:]
+    # the one that ran is exactly the run made alone
+    assert_same_results(tmp_path / "run", uninterrupted)
+    assert not (tmp_path / "run" / ".identify.lock").exists(), "the lock is released"
+
+
+def test_a_stale_lock_of_a_dead_process_is_taken_over(base, tmp_path):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / ".identify.lock").write_text(json.dumps({"pid": dead.pid, "host": os.uname().nodename}))
+    completed = cli("fit", "rec.csv", "--n-starts", "1", "--out", "out", cwd=tmp_path)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert f"took over the lock of process {dead.pid}" in completed.stderr
+    assert (tmp_path / "out" / "fit.json").is_file() and not (tmp_path / "out" / ".identify.lock").exists()
+
+
+# -- 3. resumed and finished runs ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)], ids=["SIGTERM", "SIGINT"])
+def test_an_interrupted_study_resumes_to_every_figure_of_the_uninterrupted_one(signum, base, tmp_path, uninterrupted):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    proc = start("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path)
+    wait_for(lambda: steps(tmp_path / "run") >= 200, proc, "200 steps")
+    proc.send_signal(signum)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "Traceback" not in err, (proc.returncode, err[-3000:])
+    assert "interrupted; completed work is kept" in err
+    kept = steps(tmp_path / "run")
+    assert 200 <= kept < 1500
+    manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
+    assert manifest["runs"][-1]["status"] == "interrupted"
+    again = cli("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path)
+    assert again.returncode == 0 and "resuming" in again.stderr, again.stderr[-3000:]
+    assert_same_results(tmp_path / "run", uninterrupted)
+
+
+def test_a_finished_study_rerun_leaves_every_byte_unchanged(finished, tmp_path):
+    run = copy_of(finished, tmp_path)
+    before = digests(run)
+    completed = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert "already holds this study, finished" in completed.stderr
+    assert digests(run) == before
+
+
+def test_a_finished_fit_rerun_leaves_every_byte_unchanged(base, tmp_path):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    first = cli("fit", "rec.csv", "--n-starts", "1", "--out", "out", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr[-3000:]
+    before = digests(tmp_path / "out")
+    again = cli("fit", "rec.csv", "--n-starts", "1", "--out", "out", cwd=tmp_path)
+    assert again.returncode == 0 and "already holds this fit" in again.stderr, again.stderr[-3000:]
+    assert again.stdout == first.stdout  # the same table
+    assert digests(tmp_path / "out") == before
+
+
+def test_extending_a_finished_chain_never_damages_it_even_under_kill_9(finished, tmp_path):
+    """A raised --max-steps extends a copy of the finished chain: killed with SIGKILL while
+    it writes, the finished result stays byte for byte; interrupted with SIGTERM, the
+    completed steps replace it and the next run resumes from them."""
+    run = copy_of(finished, tmp_path)
+    before = digests(run)
+    longer = list(FINISHED)
+    longer[longer.index("--max-steps") + 1] = "3000"
+    proc = start("study", "rec.csv", "--out", "finished", *longer, cwd=tmp_path)
+    wait_for(lambda: _extending_steps(run) > 400, proc, "steps of the extension")
+    proc.kill()
+    proc.communicate(timeout=60)
+    assert {k: v for k, v in digests(run).items() if not k.startswith(".")} == before
+    again = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
+    assert again.returncode == 0 and "already holds this study, finished" in again.stderr, again.stderr[-3000:]
+    assert digests(run) == before and not (run / ".chain.h5.extending").exists()
+    proc = start("study", "rec.csv", "--out", "finished", *longer, cwd=tmp_path)
+    wait_for(lambda: _extending_steps(run) > 400, proc, "steps of the extension")
+    proc.terminate()
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "Traceback" not in err, err[-3000:]
+    assert steps(run) > 400 and not (run / ".chain.h5.extending").exists()
+
+
+def _extending_steps(run: Path) -> int:
+    try:
+        with h5py.File(run / ".chain.h5.extending", "r") as f:
+            return int(f["mcmc"].attrs["iteration"])
+    except Exception:
+        return 0
+
+
+# -- 4. changed settings, reproduce into an existing study ---------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        (["--max-steps", "100"], "max_steps: 300 -> 100, but its chain already holds 300 steps"),
+        (["--check-every", "50"], "check_every: 100 -> 50"),
+        (["--seed", "9"], "seed 2 -> 9"),
+    ],
+    ids=["lower max-steps", "check-every", "seed"],
+)
+def test_a_changed_setting_is_refused_before_anything_is_touched(finished, tmp_path, change, needle):
+    run = copy_of(finished, tmp_path)
+    before = digests(run)
+    options = list(FINISHED)
+    for flag, value in zip(change[::2], change[1::2]):
+        options[options.index(flag) + 1] = value
+    completed = cli("study", "rec.csv", "--out", "finished", *options, cwd=tmp_path)
+    one_error(completed, "holds a run with different data or settings", needle, "--force")
+    assert digests(run) == before
+
+
+def test_reproduce_never_writes_into_an_existing_study(finished, tmp_path):
+    run = copy_of(finished, tmp_path)
+    other = tmp_path / "other"
+    shutil.copytree(run, other)
+    before = digests(other)
+    completed = cli("reproduce", "finished", "--out", "other", cwd=tmp_path)
+    one_error(completed, "holds a study", "never into an existing one")
+    assert digests(other) == before and digests(run) == digests(finished)
+
+
+# -- 5. damaged files -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "name, needles",
+    [
+        ("chain.h5", ["chain.h5 is damaged", "delete", "--force"]),
+        ("fit.json", ["fit.json is damaged", "delete it", "--force"]),
+        ("manifest.json", ["manifest.json is damaged", "--force"]),
+    ],
+)
+def test_a_damaged_file_is_one_error_and_damages_nothing_else(finished, tmp_path, name, needles):
+    run = copy_of(finished, tmp_path)
+    path = run / name
+    os.truncate(path, path.stat().st_size // 2)
+    before = digests(run)
+    completed = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
+    one_error(completed, *needles)
+    assert digests(run) == before  # summary.json (and everything else) untouched
+    for command in (["report", "finished"], ["reproduce", "finished", "--out", "again"]):
+        completed = cli(*command, cwd=tmp_path)
+        assert completed.returncode == 2 and "Traceback" not in completed.stderr, completed.stderr[-3000:]
+        assert digests(run) == before
+    assert not (tmp_path / "again").exists()
+    if name == "chain.h5":  # following the advice: the chain is recomputed, equal to the original
+        path.unlink()
+        completed = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
+        assert completed.returncode == 0, completed.stderr[-3000:]
+        assert "least squares: reusing" in completed.stderr
+        assert_same_results(run, finished)
+
+
+# -- bad input ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "column, value, name",
+    [(3, "1e308", "displacement"), (3, "-1e200", "displacement"), (2, "1e308", "current"), (3, "1e154", "displacement")],
+    ids=["displacement 1e308", "displacement -1e200", "current 1e308", "spike 1e154"],
+)
+def test_a_value_beyond_any_physical_range_is_an_error_with_line_and_column(base, tmp_path, column, value, name):
+    path = tmp_path / "bad.csv"
+    shutil.copy2(base / "rec.csv", path)
+    replace_cell(path, 120, column, value)
+    for command in (["fit", path.name], ["study", path.name, "--out", "run", *FINISHED]):
+        completed = cli(*command, cwd=tmp_path)
+        one_error(completed, "bad.csv, line 120", f"column {name!r} (column {column})", "beyond any physical range")
+        assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    "command, needle",
+    [
+        (["fit", "rec.csv", "--n-operators", "0"], "argument --n-operators"),
+        (["study", "rec.csv", "--out", "run", "--seed", "-1"], "argument --seed"),
+        (["study", "rec.csv", "--out", "afile"], "argument --out: afile exists and is not a folder"),
+        (["fit", "rec.csv", "--out", "afile"], "argument --out: afile exists and is not a folder"),
+        (["fit", "rec.csv", "--json", "adir"], "argument --json: adir is a folder"),
+        (["study", "rec.csv", "--out", "run", "--max-steps", "0"], "argument --max-steps"),
+        (["study", "rec.csv", "--out", "run", "--max-steps", "-5"], "argument --max-steps"),
+        (["study", "rec.csv", "--out", "run", "--check-every", "0"], "argument --check-every"),
+        (["study", "rec.csv", "--out", "run", "--walkers", "3"], "--walkers 3: needs an even number >= 36"),
+        (["study", "rec.csv", "--out", "run", "--walkers", "37"], "--walkers 37: needs an even number >= 36"),
+        (["study", "rec.csv", "--out", "run", "--walkers", "0"], "argument --walkers"),
+        (["fit", "rec.csv", "--noise-sigma", "-0.5"], "argument --noise-sigma"),
+        (["fit", "rec.csv", "--n-starts", "0"], "argument --n-starts"),
+        (["fit", "rec.csv", "--every", "0"], "argument --every"),
+        (["fit", "rec.csv", "--input-column", "time"], "--time-column and --input-column both name the column 'time'"),
+        (["study", "rec.csv", "--out", "run", "--effects", "warp"], "unknown effect(s) 'warp'"),
+        (["report", "nowhere"], "argument DIR: nowhere: no such folder"),
+        (["report", "adir", "--draws", "1"], "argument --draws"),
+        (["simulate", "--out", "x.csv", "--noise-rho", "1"], "noise rho must lie strictly between -1 and 1"),
+        (["simulate", "--out", "x.csv", "--noise", "-1"], "noise sigma must be a finite number >= 0"),
+        (["simulate", "--out", "x.csv", "--seed", "-1"], "argument --seed"),
+        (["paper", "--out", "figs", "--fs", "0"], "fs must be a positive sampling rate"),
+        (["paper", "--out", "afile"], "argument --out: afile exists and is not a folder"),
+        (["batch", "nothing.toml", "--workers", "0"], "argument --workers"),
+    ],
+    ids=lambda v: " ".join(v) if isinstance(v, list) else None,
+)
+def test_every_option_is_checked_up_front_in_one_line(base, tmp_path, command, needle):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    (tmp_path / "afile").write_text("precious\n")
+    (tmp_path / "adir").mkdir()
+    before = digests(tmp_path)
+    completed = cli(*command, cwd=tmp_path)
+    one_error(completed, needle)
+    assert digests(tmp_path) == before and sorted(p.name for p in tmp_path.iterdir()) == ["adir", "afile", "rec.csv"]
+
+
+def test_a_failed_study_leaves_nothing_that_blocks_the_corrected_one(base, tmp_path):
+    record_csv(tmp_path / "busy.csv", quiet=False)  # no unenergised start: no noise estimate
+    completed = cli("study", "busy.csv", "--out", "run", *FINISHED, cwd=tmp_path)
+    one_error(completed, "--noise-sigma VALUE", "--noise-sigma free")
+    assert not (tmp_path / "run").exists()
+    (tmp_path / "run").mkdir()  # an existing empty folder is kept empty
+    completed = cli("study", "busy.csv", "--out", "run", *FINISHED, cwd=tmp_path)
+    one_error(completed, "--noise-sigma VALUE")
+    assert list((tmp_path / "run").iterdir()) == []
+    completed = cli("study", "busy.csv", "--out", "run", "--noise-sigma", "0.5", *FINISHED, cwd=tmp_path)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["posterior"]["n_steps"] == 300
+
+
+def test_exit_codes_are_documented_in_the_help(tmp_path):
+    for command in ([], ["study"], ["batch"]):
+        completed = cli(*command, "--help", cwd=tmp_path)
+        assert completed.returncode == 0
+        for code in ("0 ", "1 ", "2 ", "130 "):
+            assert f"  {code}" in completed.stdout.split("exit codes:")[1], completed.stdout
+
+
+def test_an_unexpected_failure_is_one_line_with_exit_code_1(monkeypatch, capsys):
+    from identify import cli, cmd_report
+
+    def broken(args):
+        raise RuntimeError("something nobody expected")
+
+    monkeypatch.setattr(cmd_report, "run", broken)
+    monkeypatch.delenv("IDENTIFY_DEBUG", raising=False)
+    assert cli.main(["report", "."]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().splitlines() == [
+        "error: unexpected RuntimeError: something nobody expected (rerun with IDENTIFY_DEBUG=1 for the traceback)"
+    ]
+    monkeypatch.setenv("IDENTIFY_DEBUG", "1")
+    with pytest.raises(RuntimeError):
+        cli.main(["report", "."])
+
+
+def test_folder_lock_semantics(tmp_path):
+    """In one process too: a second lock on a held folder is refused naming this PID; the
+    lock file goes with the release; a folder the lock created and left empty goes too;
+    a child given the lock's environment and descriptor holds it as well."""
+    from identify.locks import FolderBusyError, FolderLock, lock_holder
+
+    folder = tmp_path / "new"
+    lock = FolderLock(folder, command="test").acquire()
+    assert lock_holder(folder)["pid"] == os.getpid()
+    with pytest.raises(FolderBusyError, match=f"in use by process {os.getpid()} running 'test'"):
+        FolderLock(folder).acquire()
+    child_env, fds = lock.child_environment(env())
+    probe = (
+        "from identify.locks import FolderLock, FolderBusyError\n"
+        "import sys\n"
+        "lock = FolderLock(sys.argv[1]).acquire(); print('inherited', lock.inherited)\n"
+    )
+    inherited = subprocess.run([sys.executable, "-c", probe, str(folder)], env=child_env, pass_fds=fds,
+                               capture_output=True, text=True)  # fmt: skip
+    assert inherited.stdout.strip() == "inherited True", inherited.stderr
+    stranger = subprocess.run([sys.executable, "-c", probe, str(folder)], env=env(), capture_output=True, text=True)
+    assert stranger.returncode != 0 and "FolderBusyError" in stranger.stderr
+    lock.release()
+    assert not folder.exists()
+    (tmp_path / "kept").mkdir()
+    with FolderLock(tmp_path / "kept"):
+        pass
+    assert (tmp_path / "kept").is_dir() and not list((tmp_path / "kept").iterdir())
+
+
+# -- long records ------------------------------------------------------------------------------------------------
+
+
+def test_a_long_record_loads_in_memory_proportional_to_it_with_progress_and_an_every_hint(tmp_path):
+    """400,000 samples (21 MB of CSV): loading raises the resident set by < 100 bytes per
+    sample (the three float columns are 24; the loader before this change took ~460), the
+    command prints progress while loading and suggests --every."""
+    n = 400_000
+    t = np.arange(n) / 5000.0  # 5 kHz, a 1 Hz drive after a 2 s quiet start
+    current = np.where(t < 2.0, 0.0, 2.5 - 2.5 * np.cos(2 * np.pi * (t - 2.0)))
+    rng = np.random.default_rng(0)
+    displacement = 50.0 * current + rng.normal(0.0, 0.1, n)
+    write_record(tmp_path / "long.csv", (t, current, displacement))
+    assert (tmp_path / "long.csv").stat().st_size > 20 * 2**20
+    probe = (
+        "import sys\n"
+        "def status(key):\n"
+        "    return next(int(l.split()[1]) * 1024 for l in open('/proc/self/status') if l.startswith(key))\n"
+        "from identify.records import load_record\n"
+        "before = status('VmRSS:')\n"
+        "record = load_record(sys.argv[1])\n"
+        "print(len(record), status('VmHWM:') - before)\n"
+    )
+    completed = subprocess.run([sys.executable, "-c", probe, "long.csv"], cwd=tmp_path, env=env(), capture_output=True, text=True)
+    assert completed.returncode == 0, completed.stderr
+    samples, growth = map(int, completed.stdout.split())
+    assert samples == n and growth < 100 * n, f"loading took {growth / n:.0f} bytes per sample"
+    # the command: progress while loading, then the hint; the unknown effect stops it right after
+    completed = cli("fit", "long.csv", "--noise-sigma", "free", "--effects", "warp", cwd=tmp_path)
+    one_error(completed, "unknown effect")
+    assert "reading long.csv" in completed.stderr and f"read {n} samples" in completed.stderr
+    assert "--every 10 keeps every input reversal" in completed.stderr, completed.stderr
+
+
+# -- 2. batches that stop ----------------------------------------------------------------------------------------
+
+
+def batch_config(folder: Path, out="runs", workers=2, max_steps=1500) -> Path:
+    for seed in (4, 5, 6):
+        if not (folder / f"r{seed}.csv").exists():
+            record_csv(folder / f"r{seed}.csv", seed=seed)
+            (folder / f"r{seed}.json").unlink(missing_ok=True)
+    path = folder / f"{out}.toml"
+    path.write_text(
+        f'task = "study"\nout = "{out}"\nworkers = {workers}\n[options]\nn_starts = 1\nmax_steps = {max_steps}\n'
+        'check_every = 500\nprogress = "off"\nno_report = true\n[[records]]\nglob = "r*.csv"\n'
+    )
+    return path
+
+
+def summary_rows(out: Path) -> dict:
+    with open(out / "summary.csv", newline="") as fh:
+        return {row["key"]: row for row in csv.DictReader(fh)}
+
+
+def test_ctrl_c_stops_a_batch_its_commands_and_its_queue(tmp_path):
+    """One worker, three study jobs: Ctrl-C while the first samples stops it between two
+    steps (its steps kept), cancels the other two, marks all three interrupted, exits 130
+    and leaves no process. While it runs, a second batch and a study started by hand in
+    its run folder are refused."""
+    config = batch_config(tmp_path, workers=1)
+    batch = start("batch", config.name, "--no-progress", cwd=tmp_path)
+    first = tmp_path / "runs" / "r4__default"
+    wait_for(lambda: steps(first) >= 100, batch, "100 steps of the first job")
+    children = descendants(batch.pid)
+    assert any("identify study" in c for c in children.values()), children
+    second = cli("batch", config.name, "--no-progress", cwd=tmp_path)
+    one_error(second, "runs is in use by process", str(batch.pid))
+    by_hand = cli("study", "r4.csv", "--out", first, *FINISHED, cwd=tmp_path)
+    one_error(by_hand, "r4__default is in use by process")
+    batch.send_signal(signal.SIGINT)
+    out, err = batch.communicate(timeout=180)
+    assert batch.returncode == 130 and "Traceback" not in err + out, (batch.returncode, err[-3000:])
+    assert not [pid for pid, command in children.items() if alive(pid, command)], "processes outlived the batch"
+    rows = summary_rows(tmp_path / "runs")
+    assert {k: r["status"] for k, r in rows.items()} == dict.fromkeys(("r4__default", "r5__default", "r6__default"), "interrupted")
+    assert "stopped by SIGINT" in rows["r4__default"]["error"] and "before it started" in rows["r6__default"]["error"]
+    assert 100 <= steps(first) < 1500
+    assert not (first / "batch_done.json").exists() and not (first / "batch_failed.json").exists()
+    assert not list((tmp_path / "runs").glob(".batch_stop*")) and not (tmp_path / "runs" / ".identify.lock").exists()
+
+
+@pytest.fixture(scope="module")
+def whole_batch(tmp_path_factory) -> Path:
+    """The batch of three short studies, run without interruption."""
+    folder = tmp_path_factory.mktemp("batch")
+    whole = batch_config(folder, out="whole")
+    completed = cli("batch", whole.name, "--no-progress", cwd=folder)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    return folder / "whole"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+def test_a_batch_killed_and_rerun_equals_an_uninterrupted_batch(tmp_path, whole_batch, signum):
+    """SIGTERM: the batch stops its commands, exits 130 and leaves no process. SIGKILL
+    cannot be caught: its commands get SIGTERM from the kernel (PR_SET_PDEATHSIG), stop
+    between steps and end too. Either way the rerun (which takes over a stale lock after
+    SIGKILL) ends with the uninterrupted batch's summary and chains."""
+    for name in ("r4.csv", "r5.csv", "r6.csv"):
+        shutil.copy2(whole_batch.parent / name, tmp_path / name)
+    config = batch_config(tmp_path)
+    batch = start("batch", config.name, "--no-progress", cwd=tmp_path)
+    wait_for(lambda: steps(tmp_path / "runs" / "r4__default") >= 300, batch, "300 steps of a job")
+    children = descendants(batch.pid)
+    assert len(children) >= 2, children
+    batch.send_signal(signum)
+    out, err = batch.communicate(timeout=180)
+    if signum == signal.SIGKILL:
+        assert batch.returncode == -signal.SIGKILL
+        deadline = time.monotonic() + 120
+        while [pid for pid, command in children.items() if alive(pid, command)] and time.monotonic() < deadline:
+            time.sleep(0.2)
+    else:
+        assert batch.returncode == 130 and "Traceback" not in err, err[-3000:]
+        rows = summary_rows(tmp_path / "runs")
+        assert "interrupted" in {r["status"] for r in rows.values()}, rows
+    assert not [pid for pid, command in children.items() if alive(pid, command)], "processes outlived the batch"
+    for job in children.values():
+        assert "Traceback" not in job
+    for log in (tmp_path / "runs").glob("*/batch.log"):
+        assert "Traceback" not in log.read_text()
+
+    completed = cli("batch", config.name, "--no-progress", cwd=tmp_path)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    if signum == signal.SIGKILL:
+        assert "took over the lock of process" in completed.stderr
+    resumed, reference = summary_rows(tmp_path / "runs"), summary_rows(whole_batch)
+    assert set(resumed) == set(reference)
+    for key, row in resumed.items():
+        assert row["status"] in ("ok", "skipped") and reference[key]["status"] == "ok"
+        same = {c: row[c] for c in row if c not in ("status", "seconds")}
+        assert same == {c: reference[key][c] for c in same}, key
+        assert_same_results(tmp_path / "runs" / key, whole_batch / key)
