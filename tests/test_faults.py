@@ -572,7 +572,7 @@ def test_a_long_record_loads_in_memory_proportional_to_it_with_progress_and_an_e
 # -- 2. batches that stop ----------------------------------------------------------------------------------------
 
 
-def batch_config(folder: Path, out="runs", workers=2, max_steps=1500) -> Path:
+def batch_config(folder: Path, out="runs", workers=2, max_steps=1500, check_every=500) -> Path:
     for seed in (4, 5, 6):
         if not (folder / f"r{seed}.csv").exists():
             record_csv(folder / f"r{seed}.csv", seed=seed)
@@ -580,7 +580,7 @@ def batch_config(folder: Path, out="runs", workers=2, max_steps=1500) -> Path:
     path = folder / f"{out}.toml"
     path.write_text(
         f'task = "study"\nout = "{out}"\nworkers = {workers}\n[options]\nn_starts = 1\nmax_steps = {max_steps}\n'
-        'check_every = 500\nprogress = "off"\nno_report = true\n[[records]]\nglob = "r*.csv"\n'
+        f'check_every = {check_every}\nprogress = "off"\nno_report = true\n[[records]]\nglob = "r*.csv"\n'
     )
     return path
 
@@ -594,8 +594,9 @@ def test_ctrl_c_stops_a_batch_its_commands_and_its_queue(tmp_path):
     """One worker, three study jobs: Ctrl-C while the first samples stops it between two
     steps (its steps kept), cancels the other two, marks all three interrupted, exits 130
     and leaves no process. While it runs, a second batch and a study started by hand in
-    its run folder are refused."""
-    config = batch_config(tmp_path, workers=1)
+    its run folder are refused. The first job is long (60000 steps, no convergence check
+    before its cap), so it cannot finish while the checks run on a loaded machine."""
+    config = batch_config(tmp_path, workers=1, max_steps=60000, check_every=60000)
     batch = start("batch", config.name, "--no-progress", cwd=tmp_path)
     first = tmp_path / "runs" / "r4__default"
     wait_for(lambda: steps(first) >= 100, batch, "100 steps of the first job")
@@ -612,7 +613,7 @@ def test_ctrl_c_stops_a_batch_its_commands_and_its_queue(tmp_path):
     rows = summary_rows(tmp_path / "runs")
     assert {k: r["status"] for k, r in rows.items()} == dict.fromkeys(("r4__default", "r5__default", "r6__default"), "interrupted")
     assert "stopped by SIGINT" in rows["r4__default"]["error"] and "before it started" in rows["r6__default"]["error"]
-    assert 100 <= steps(first) < 1500
+    assert 100 <= steps(first) < 60000
     assert not (first / "batch_done.json").exists() and not (first / "batch_failed.json").exists()
     assert not list((tmp_path / "runs").glob(".batch_stop*")) and not (tmp_path / "runs" / ".identify.lock").exists()
 
