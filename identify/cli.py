@@ -21,6 +21,8 @@ COMMANDS = {
     "batch": "identify.cmd_batch",
     "reproduce": "identify.cmd_reproduce",
     "diagnose": "identify.cmd_diagnose",
+    "predict": "identify.cmd_predict",
+    "compensate": "identify.cmd_compensate",
 }
 
 def build_parser() -> argparse.ArgumentParser:
