@@ -65,9 +65,12 @@ __all__ = [
     "REACH_TOLERANCE",
 ]
 
-#: ``verdict`` values of a prediction: the diagnosis' statuses, plus ``not_adequate`` when
-#: the residual is not noise and the candidate search was not run.
-VERDICTS = ("adequate", "missing_effect", "unexplained", "not_adequate")
+#: ``verdict`` values of a prediction: ``adequate`` (the validation residual is the sensor's
+#: noise), the diagnosis' ``missing_effect`` and ``unexplained``, ``parameters_differ`` (the
+#: residual is not noise, but the diagnosis, refitting its baseline on the record, finds the
+#: model adequate there: no effect is missing, the study's parameters do not carry over),
+#: and ``not_adequate`` (not noise; the candidate search was not run).
+VERDICTS = ("adequate", "missing_effect", "unexplained", "parameters_differ", "not_adequate")
 PREDICTION_FILE = "prediction.json"
 COMPENSATION_FILE = "compensation.json"
 COMPENSATION_CSV = "compensation.csv"
@@ -489,7 +492,9 @@ def predict(
         noise?). ``"auto"`` then, when it is not noise, runs the candidate search
         (:func:`identify.diagnose.diagnose` on the window, the study's least-squares vector
         as its baseline: which effect does the new record reveal?); ``"adequacy"`` stops at
-        the test (verdict ``not_adequate``).
+        the test (verdict ``not_adequate``). The diagnosis runs the model on the window
+        alone (from the model's initial state at ``T0``) and may refit its baseline there;
+        when that refit makes the model adequate the verdict is ``parameters_differ``.
     n_starts : int, default 6
         Least-squares starts of a diagnosis that must refit its baseline.
     progress : callable(str), optional
@@ -626,6 +631,12 @@ def predict(
         except ValueError as exc:
             raise UseError(f"{record.source}: the diagnosis cannot run on this window ({exc})") from None
         verdict, missing = found.status, found.missing
+        if verdict == "adequate" and not np.array_equal(found.fit.theta, study.fit.theta):
+            verdict = "parameters_differ"
+            notes.append(
+                f"the diagnosis refitted the model's parameters on this window and found it adequate there (RMS "
+                f"{found.rms:.4g} {record.output_unit}): no effect is missing, but the study's parameters do not carry over"
+            )
         seconds["diagnosis"] = _time.perf_counter() - clock
     return Prediction(
         study=study, record=record, window=window, start=start, stop=stop, time=time, current=current,

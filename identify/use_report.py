@@ -219,6 +219,9 @@ def _verdict_html(p) -> str:
         "missing_effect": f"the record reveals the effect <b>{html.escape(str(p.missing))}</b>, which the study's model "
         f"lacks; identify it again with <code>--effects {html.escape(','.join(list(p.study.model.effect_names) + [str(p.missing)]))}</code>.",
         "unexplained": "structure remains in the validation residual that no effect of the library explains.",
+        "parameters_differ": "the validation residual is not noise, yet no effect is missing: refitted on this record the "
+        "same model is adequate, so the study's parameters do not carry over (they drifted between the records, or the "
+        "study's record did not determine them where this one needs them).",
         "not_adequate": "the validation residual is not the sensor noise (the candidate search was not run: "
         "<code>--diagnosis adequacy</code>).",
     }[p.verdict]
