@@ -273,7 +273,7 @@ def bands_of(model: Model, draws, lsq_theta, time, drive, sigma, *, level=0.95, 
     curves_out : list, optional
         Gets the draws' curves inside the domain, shape (N_inside, T), appended.
     """
-    from .report import mixture_quantile
+    from .bands import mixture_quantile
 
     batch = np.vstack([draws, np.asarray(lsq_theta)[None, :]])
     curves, valid = model.evaluate(batch, time, drive)
