@@ -51,6 +51,9 @@ __all__ = [
     "Compensation",
     "load_study",
     "load_record_for_study",
+    "check_units",
+    "default_current_range",
+    "reachable_range",
     "load_target",
     "predict",
     "compensate",
@@ -818,6 +821,27 @@ def _compensation_theta(model: Model, theta):
     return theta
 
 
+def reachable_range(model: Model, theta, time, current_range) -> tuple[float, float]:
+    """Lowest and highest output of ``model`` over a sweep of the current ``lo -> hi -> lo`` on ``time``.
+
+    The static reach of the drive limits: with increasing envelopes and Omega the output at
+    the upper limit after a rise is the highest the model gives (the rise wipes the memory)
+    and the lowest lies at the lower limit (the rest, or the end of the fall). The sweep
+    runs on the target's own time base, so time-dependent effects (heating) act as over
+    the target. A target beyond this range is unreachable; a target inside it that still
+    saturates a limit somewhere (a lag that cannot cross a dead zone at once, a transducer
+    that has heated) is reported, not refused.
+    """
+    lo, hi = current_range
+    n = len(time)
+    peak = n // 2
+    sweep = np.concatenate([np.linspace(lo, hi, peak + 1), np.linspace(hi, lo, n - peak)[1:]])
+    y, valid = model.evaluate(theta, time, sweep)
+    if not valid[0]:
+        raise UseError(f"the posterior-median model is outside its domain on a sweep of the current {lo:g}..{hi:g}")
+    return float(y[0].min()), float(y[0].max())
+
+
 def default_current_range(study: Study) -> tuple[float, float]:
     """The rig's 0-5 A for a study in A (:data:`model.inverse.DEFAULT_CURRENT_RANGE`), else the training drive's range."""
     if study.record.input_unit == "A":
@@ -865,9 +889,10 @@ def compensate(
     Raises
     ------
     UseError
-        Not a finished study; a target the median model cannot reach within the current
-        limits (the message names the first such sample, what it asks, what the model
-        reaches and at which limit); an effect the inverse does not know.
+        Not a finished study; a target beyond the displacement the median model reaches
+        within the current limits (:func:`reachable_range`; the message gives the range,
+        the first such sample, what it asks and how many samples); an effect the inverse
+        does not know.
     """
     say = progress or (lambda message: None)
     seconds: dict[str, float] = {}
@@ -906,17 +931,18 @@ def compensate(
         raise UseError(f"{study.path}: {exc}") from None
     seconds["inverse_median"] = _time.perf_counter() - clock
     tolerance = max(REACH_TOLERANCE * max(span, 1.0), med.ytol)
-    unreachable = (med.status == STATUS_SATURATED) & (np.abs(med.error) > tolerance)
+    y_low, y_high = reachable_range(model, median_theta, time, (lo, hi))
+    beyond = ((med.current >= hi) & (y_target > y_high + tolerance)) | ((med.current <= lo) & (y_target < y_low - tolerance))
+    unreachable = (med.status == STATUS_SATURATED) & beyond
     if unreachable.any():
         k = int(np.flatnonzero(unreachable)[0])
-        limit = "upper" if med.current[k] >= hi else "lower"
-        reach = "reaches only" if med.error[k] < 0 else "comes down only to"
+        side = "above the highest" if y_target[k] > y_high else "below the lowest"
         raise UseError(
-            f"{target.source}: the target leaves the displacement the model reaches with the current in "
-            f"{lo:g}..{hi:g} {in_unit}: at t = {time[k]:.6g} s it asks for {y_target[k]:.6g} {unit}, but the model "
-            f"{reach} {med.output[k]:.6g} {unit} there (current at its {limit} limit, {med.current[k]:g} {in_unit}; "
-            f"{int(unreachable.sum())} such samples; the target spans {y_target.min():.6g} to {y_target.max():.6g} "
-            f"{unit}). Shrink the target or widen --current-range"
+            f"{target.source}: the target leaves the displacement the model reaches with the current in {lo:g}..{hi:g} "
+            f"{in_unit} ({y_low:.6g} to {y_high:.6g} {unit} over a sweep between the limits): at t = {time[k]:.6g} s it "
+            f"asks for {y_target[k]:.6g} {unit}, {side}; the model gives {med.output[k]:.6g} {unit} there at the "
+            f"{'upper' if med.current[k] >= hi else 'lower'} limit ({int(unreachable.sum())} such samples; the target spans "
+            f"{y_target.min():.6g} to {y_target.max():.6g} {unit}). Shrink the target or widen --current-range"
         )
     # posterior draws: their own inverses (the band of the feedforward) and the median's current through them
     draws, draw_sigma = study.draws(n_draws, rng)

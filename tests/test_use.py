@@ -194,9 +194,9 @@ def test_compensate_command_writes_the_current_and_the_json(study_dir, tmp_path)
 def test_compensate_refuses_unreachable_and_malformed_targets(study_dir, tmp_path):
     t, y = _triangle(high=320.0)  # Table 1 reaches ~296 um at 5 A
     cases = [
-        (_write_target(tmp_path / "high.csv", t, y), [], ["asks for", "reaches only", "upper limit", "5 A"]),
-        (_write_target(tmp_path / "low.csv", t, y - 60.0), [], ["asks for", "comes down only to", "lower limit"]),
-        (_write_target(tmp_path / "narrow.csv", *_triangle()), ["--current-range", "0:2"], ["0..2 A", "upper limit"]),
+        (_write_target(tmp_path / "high.csv", t, y), [], ["asks for", "above the highest", "0..5 A", "t = "]),
+        (_write_target(tmp_path / "low.csv", t, y - 60.0), [], ["asks for", "below the lowest", "0..5 A"]),
+        (_write_target(tmp_path / "narrow.csv", *_triangle()), ["--current-range", "0:2"], ["0..2 A", "above the highest"]),
         (_write_target(tmp_path / "cols.csv", t, y, header="t,position"), [], ["missing column", "'time'", "'position'"]),
     ]
     bad_time = tmp_path / "time.csv"
@@ -280,7 +280,7 @@ def test_python_api_errors_are_use_errors(study_dir, tmp_path):
         load_study(tmp_path / "missing")
     study = load_study(study_dir)
     t, y = _triangle(high=330.0)
-    with pytest.raises(UseError, match="reaches only"):
+    with pytest.raises(UseError, match="above the highest"):
         compensate(study, Target(t, y), n_draws=5)
     with pytest.raises(UseError, match="strictly increase"):
         Target(np.array([0.0, 0.0, 1.0]), np.array([1.0, 2.0, 3.0]))
