@@ -838,7 +838,11 @@ def reachable_range(model: Model, theta, time, current_range) -> tuple[float, fl
     sweep = np.concatenate([np.linspace(lo, hi, peak + 1), np.linspace(hi, lo, n - peak)[1:]])
     y, valid = model.evaluate(theta, time, sweep)
     if not valid[0]:
-        raise UseError(f"the posterior-median model is outside its domain on a sweep of the current {lo:g}..{hi:g}")
+        raise UseError(
+            f"the posterior-median model is outside its domain (operator bounds cross, or a non-finite output) for a "
+            f"current between {lo:g} and {hi:g}: it is not defined that far beyond what it was identified on; narrow "
+            "--current-range"
+        )
     return float(y[0].min()), float(y[0].max())
 
 
