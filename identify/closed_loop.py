@@ -6,7 +6,8 @@ own tools and nothing the user would not have:
 1. a bench record of the paper's transducer with a hidden effect (:func:`identify.bench.simulate`,
    truth in its sidecar), or a given bench CSV with its sidecar;
 2. :func:`identify.diagnose.diagnose` of the plain GPI on it; the effect it names is added;
-3. ``python -m identify study RECORD --effects NAMED`` (the real command, in-process);
+3. ``python -m identify study RECORD --effects NAMED`` (the real command, in a subprocess as
+   :mod:`identify.batch` runs it);
 4. for targets the study never saw (:func:`bench_targets`: a triangle and a multi-sine within
    the reachable range), :func:`identify.use.compensate` gives the feedforward current;
 5. the bench's **true** transducer (the sidecar's model and parameters, ``sensor_drift`` off:
@@ -22,8 +23,6 @@ own tools and nothing the user would not have:
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import time as _time
 from dataclasses import asdict, dataclass, field
@@ -161,8 +160,11 @@ def closed_loop(
     study_options : sequence of str
         Extra ``study`` options (e.g. ``("--max-steps", "20000")``).
     """
+    import os
+    import subprocess
+    import sys
+
     from .bench import sensor_noise, simulate
-    from .cli import main as identify_main
     from .diagnose import diagnose
     from .records import load_record, write_record
     from .use import compensate, load_study, write_compensation
@@ -198,11 +200,12 @@ def closed_loop(
     say(f"study with effects {chosen or 'none'} into {study_dir}")
     argv = ["study", str(record), "--out", str(study_dir), "--seed", str(seed), "--progress", "off", "--no-report",
             "--effects", ",".join(chosen) or "none", *study_options]  # fmt: skip
-    captured = io.StringIO()
-    with contextlib.redirect_stdout(captured), contextlib.redirect_stderr(captured):
-        code = identify_main(argv)
-    if code != 0:
-        raise RuntimeError(f"study exited with {code}:\n{captured.getvalue()}")
+    env = dict(os.environ)
+    package_root = str(Path(__file__).resolve().parent.parent)
+    env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    completed = subprocess.run([sys.executable, "-m", "identify", *argv], env=env, capture_output=True, text=True)
+    if completed.returncode != 0:
+        raise RuntimeError(f"study exited with {completed.returncode}:\n{completed.stdout}{completed.stderr}")
     seconds["study"] = _time.perf_counter() - clock
     study = load_study(study_dir)
     noise = data.sidecar.get("noise", {})
