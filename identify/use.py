@@ -538,7 +538,8 @@ def predict(
     noise = _noise_for(record, study)
     notes: list[str] = []
     if not study.converged:
-        notes.append(f"the study's posterior is NOT CONVERGED ({study.summary['posterior'].get('message')}); the bands are provisional")
+        message = str(study.summary["posterior"].get("message") or "").removeprefix("NOT CONVERGED:").strip()
+        notes.append(f"the study's posterior is NOT CONVERGED ({message}); the bands are provisional")
     lo_train, hi_train = float(np.min(study.record.current)), float(np.max(study.record.current))
     lo_new, hi_new = float(np.min(record.current[:stop])), float(np.max(record.current[:stop]))
     if lo_new < lo_train - 1e-9 * (hi_train - lo_train) or hi_new > hi_train + 1e-9 * (hi_train - lo_train):
