@@ -29,6 +29,8 @@ COMMANDS = {
     "batch": "identify.cmd_batch",
     "reproduce": "identify.cmd_reproduce",
     "diagnose": "identify.cmd_diagnose",
+    "predict": "identify.cmd_predict",
+    "compensate": "identify.cmd_compensate",
 }
 
 #: Exit code -> meaning (printed by ``--help``; docs/reliability.md).
