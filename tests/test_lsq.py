@@ -205,18 +205,23 @@ def classical_record(seed=3, sigma=0.05):
     return rec, sigma
 
 
-def test_auto_threshold_sign_picks_positive_for_a_thin_loop_and_reaches_the_noise():
-    """A thin, piezo-like loop (8 starts, seed 0): the positive thresholds win and the fit
-    comes within 1.3 sigma. alpha < 0 can make thin loop tips too (its operator bounds then
-    cross), so the choice between the signs is decided by the starts; this test uses 8."""
+def test_auto_threshold_sign_fits_both_signs_of_a_thin_loop_and_keeps_the_better():
+    """A thin, piezo-like loop made with positive thresholds (8 starts, seed 0). On its whole
+    domain the paper's alpha < 0 can make thin loop tips too (its operator bounds then cross):
+    measured 1.096 sigma for alpha < 0 against 1.112 for alpha > 0 (2026-11-23). Both signs are
+    fitted and reported, the one with the lower chi-square is kept, and the fit comes within
+    1.3 sigma (the truth, ~1 sigma, is in the model class: the rest is a local minimum of the
+    nearly-linear-envelope valley)."""
+    import re
+
     rec, sigma = classical_record()
     fit = fit_least_squares(rec, normalised_model(Model()), n_starts=8, rng=np.random.default_rng(0))
-    assert fit.model.parameters["alpha"].value == pytest.approx(0.1993)
+    assert abs(fit.model.parameters["alpha"].value) == pytest.approx(0.1993)
     assert not fit.model.parameters["alpha"].vary
-    assert "threshold sign positive chosen" in fit.message
-    assert "alpha < 0 reached" in fit.message  # the other sign was fitted and reported
-    # The truth (chi-square ~T) is in the model class, but the starts end in local minima of
-    # the nearly-linear-envelope valley. Known gap, stated in the README.
+    reached = {sign: float(value) for sign, value in re.findall(r"alpha ([<>]) 0 reached reduced chi-square ([0-9.e+-]+)", fit.message)}
+    assert set(reached) == {"<", ">"}, fit.message  # both signs fitted and reported
+    chosen = ">" if fit.model.parameters["alpha"].value > 0 else "<"
+    assert reached[chosen] == min(reached.values()) or abs(reached["<"] - reached[">"]) * (rec.time.size - 18) <= 1.0
     assert fit.rms < 1.3 * sigma, (fit.rms, sigma)
 
 
