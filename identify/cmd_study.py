@@ -342,6 +342,11 @@ def _run_locked(args, model, out: Path) -> int:
             )
         summary = build_summary(record, fit, ident, posterior)
         write_summary(out, summary)
+        from .inference import sampled_units, write_chain_attributes, write_inference_data
+
+        write_chain_attributes(out / FILES["chain"], log_post.names, sampled_units(log_post, record))
+        write_inference_data(out, record, log_post, posterior, seed=args.seed)
+        _say(f"posterior: ArviZ InferenceData in {out / 'posterior.nc'}")
         print(f"posterior: {posterior.message}")
         print(
             f"acceptance fraction {posterior.acceptance_fraction:.3f}; tau_max {posterior.tau_max:.1f} steps; "

@@ -72,11 +72,12 @@ FILES = {
     "summary": "summary.json",
     "manifest": "manifest.json",
     "report": "report.html",
+    "inference": "posterior.nc",
 }
 
 
 #: Files of a run (removed by ``--force`` and by the rollback of a failed fresh run).
-RUN_FILES = ("data", "chain", "fit", "summary", "manifest", "report")
+RUN_FILES = ("data", "chain", "fit", "summary", "manifest", "report", "inference")
 
 
 class RunMismatchError(ValueError):
@@ -277,6 +278,8 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
             "table1": float(TABLE1[THETA_NAMES.index(name)]) if name in THETA_NAMES else None,
             "lsq": float(fit.theta[i]),
             "lsq_stderr": float(fit.stderr[i]),
+            "mean": None,
+            "sd": None,
             "median": None,
             "lo95": None,
             "hi95": None,
@@ -292,6 +295,7 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
             entry.update(
                 lo95=float(quantiles[0, j]), median=float(quantiles[1, j]), hi95=float(quantiles[2, j]),
                 tau=float(posterior.tau[j]), ess=float(posterior.ess[j]),
+                mean=float(np.mean(posterior.samples[:, j])), sd=float(np.std(posterior.samples[:, j], ddof=1)),
                 **{k: posterior.diagnostic(k, j) for k in DIAGNOSTICS},
             )  # fmt: skip
         parameters.append(entry)
