@@ -82,6 +82,7 @@ import scipy.fft
 
 from model import Model
 
+from .defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 from .lsq import fastest_thread_count
 from .noise import NoiseModel, log_likelihood_of_rows
 
@@ -101,11 +102,14 @@ __all__ = [
     "BACKEND_GROUP",
     "BufferedHDFBackend",
     "BENCH_COVERAGE",
+    "DEFAULT_MAX_STEPS",
+    "DEFAULT_CHECK_EVERY",
     "RHAT_MAX",
     "ESS_BULK_MIN",
     "DIAGNOSTICS",
     "chain_diagnostics",
 ]
+
 
 #: HDF5 group of the emcee backend in ``chain.h5``.
 BACKEND_GROUP = "mcmc"
@@ -797,8 +801,8 @@ def sample_posterior(
     rng: np.random.Generator,
     *,
     n_walkers=None,
-    max_steps=20000,
-    check_every=500,
+    max_steps=DEFAULT_MAX_STEPS,
+    check_every=DEFAULT_CHECK_EVERY,
     tau_factor=50.0,
     tau_rtol=0.05,
     moves="de",
@@ -819,7 +823,7 @@ def sample_posterior(
         Seeds emcee's internal RandomState (and the walker start).
     n_walkers : int, optional
         Default :func:`default_n_walkers` ``(D)``, or the backend's when resuming.
-    max_steps : int, default 20000
+    max_steps : int, default :data:`DEFAULT_MAX_STEPS` (60000, as ``study``)
         Cap on the chain length [steps], counting resumed steps.
     check_every : int, default 500
         Convergence check interval [steps].

@@ -27,3 +27,17 @@ def test_test_command_installs_the_dask_extra():
     # the study command installs the package itself
     (study,) = [c for c in _readme_commands() if " study " in c]
     assert study.startswith("python -m pip install -e . &&")
+
+
+def test_api_and_cli_share_the_sampler_defaults():
+    """sample_posterior's step cap and check interval are study's (issue 18)."""
+    import inspect
+
+    from identify.cli import build_parser
+    from identify.defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
+    from identify.posterior import sample_posterior
+
+    params = inspect.signature(sample_posterior).parameters
+    args = build_parser().parse_args(["study", "x.csv", "--out", "o"])
+    assert params["max_steps"].default == args.max_steps == DEFAULT_MAX_STEPS == 60000
+    assert params["check_every"].default == args.check_every == DEFAULT_CHECK_EVERY
