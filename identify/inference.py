@@ -23,7 +23,8 @@
   ``posterior`` group holds all draws.
 * :func:`write_chain_attributes` puts the parameter names and units on the emcee group of
   ``chain.h5`` (attributes ``parameter_names``, ``parameter_units``), where
-  ``emcee.backends.HDFBackend(path, name="mcmc").open()`` finds them.
+  ``emcee.backends.HDFBackend(path, name="mcmc").open()`` finds them (fixed-length UTF-8
+  bytes: ``[n.decode() for n in attrs["parameter_names"]]``).
 """
 
 from __future__ import annotations
@@ -60,8 +61,9 @@ def write_chain_attributes(path, names, units) -> None:
 
     with h5py.File(os.fspath(path), "a") as f:
         g = f[BACKEND_GROUP]
-        g.attrs["parameter_names"] = np.array([str(n) for n in names], dtype=h5py.string_dtype())
-        g.attrs["parameter_units"] = np.array([str(u) for u in units], dtype=h5py.string_dtype())
+        # fixed-length UTF-8 bytes (decode when reading): plain arrays, compared bit for bit by reproduce
+        g.attrs["parameter_names"] = np.array([str(n).encode() for n in names], dtype=bytes)
+        g.attrs["parameter_units"] = np.array([str(u).encode() for u in units], dtype=bytes)
 
 
 def pointwise_log_likelihood(residual, noise, sigma=None) -> np.ndarray:
