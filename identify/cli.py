@@ -60,6 +60,16 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"error: {self.prog}: {message} (see '{self.prog} --help')\n")
 
 
+def version() -> str:
+    """The installed package's version (``msma-gpi``), or pyproject's when run from a checkout."""
+    import importlib.metadata as md
+
+    try:
+        return md.version("msma-gpi")
+    except md.PackageNotFoundError:  # pragma: no cover - not installed
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="python -m identify",
@@ -67,6 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_exit_code_text(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module in COMMANDS.items():
         mod = importlib.import_module(module)

@@ -34,16 +34,12 @@ from pathlib import Path
 
 from . import options
 from .cmd_fit import add_model_arguments, add_record_arguments, say
+from .defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 
 __all__ = ["HELP", "add_arguments", "run", "run_study", "RESUMABLE_SETTINGS", "DEFAULT_MAX_STEPS", "settings_from_args"]
 
 HELP = "whole study (noise, least squares, identifiability, emcee posterior, report) into a results folder"
 
-#: Default cap on the chain length [steps]. The bundled record's posterior converges after
-#: 35500-54000 steps depending on the random stream (tau_max 708-1080 with the corrected
-#: snooker move); the cap leaves room for an autocorrelation time up to 1200 steps
-#: (docs/method.md).
-DEFAULT_MAX_STEPS = 60000
 #: Settings that may differ when a run is resumed (``max_steps`` is checked against the
 #: stored chain instead, :func:`identify.results.check_resumable`).
 RESUMABLE_SETTINGS = ("data", "no_report")  # data compared by sha256; no_report changes no number
@@ -67,7 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"cap on the chain length, >= 1 (default {DEFAULT_MAX_STEPS}); raise it to extend a chain that did not converge",
     )  # fmt: skip
     parser.add_argument(
-        "--check-every", type=options.positive_int, default=500, help="convergence check interval in steps, >= 1 (default 500)"
+        "--check-every", type=options.positive_int, default=DEFAULT_CHECK_EVERY,
+        help=f"convergence check interval in steps, >= 1 (default {DEFAULT_CHECK_EVERY})"
     )
     parser.add_argument("--moves", default="de", choices=("de", "stretch"), help="emcee moves (default de: differential evolution)")
     parser.add_argument("--force", action="store_true", help="discard a different (or damaged) run already in DIR")
@@ -342,6 +339,11 @@ def _run_locked(args, model, out: Path) -> int:
             )
         summary = build_summary(record, fit, ident, posterior)
         write_summary(out, summary)
+        from .inference import sampled_units, write_chain_attributes, write_inference_data
+
+        write_chain_attributes(out / FILES["chain"], log_post.names, sampled_units(log_post, record))
+        write_inference_data(out, record, log_post, posterior, seed=args.seed)
+        _say(f"posterior: ArviZ InferenceData in {out / 'posterior.nc'}")
         print(f"posterior: {posterior.message}")
         print(
             f"acceptance fraction {posterior.acceptance_fraction:.3f}; tau_max {posterior.tau_max:.1f} steps; "

@@ -44,6 +44,9 @@ depend on interruptions) and stops when
 * the integrated autocorrelation time of every parameter changed by less than
   ``tau_rtol`` (5 %) since the previous check, and
 * the chain is at least ``tau_factor`` (50) times the largest autocorrelation time,
+* and then (computed only when tau passes) every parameter's split-R-hat is below
+  :data:`RHAT_MAX` (1.01) and its bulk ESS at least :data:`ESS_BULK_MIN` (400), ArviZ's
+  definitions on the chain after burn-in and thinning (:func:`chain_diagnostics`),
 
 or at ``max_steps``; then the result says plainly that it is **not converged**.
 A check whose chain is shorter than ``tau_factor`` times the autocorrelation time of the
@@ -79,6 +82,7 @@ import scipy.fft
 
 from model import Model
 
+from .defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 from .lsq import fastest_thread_count
 from .noise import NoiseModel, log_likelihood_of_rows
 
@@ -98,7 +102,14 @@ __all__ = [
     "BACKEND_GROUP",
     "BufferedHDFBackend",
     "BENCH_COVERAGE",
+    "DEFAULT_MAX_STEPS",
+    "DEFAULT_CHECK_EVERY",
+    "RHAT_MAX",
+    "ESS_BULK_MIN",
+    "DIAGNOSTICS",
+    "chain_diagnostics",
 ]
+
 
 #: HDF5 group of the emcee backend in ``chain.h5``.
 BACKEND_GROUP = "mcmc"
@@ -542,6 +553,16 @@ class PosteriorResult:
     log_prob: np.ndarray = field(repr=False)
     seconds: float = 0.0
     n_errors: int = 0
+    rhat: np.ndarray | None = None
+    ess_bulk: np.ndarray | None = None
+    ess_tail: np.ndarray | None = None
+    mcse_mean: np.ndarray | None = None
+    mcse_sd: np.ndarray | None = None
+
+    def diagnostic(self, name: str, j: int):
+        """Diagnostic ``name`` (one of :data:`DIAGNOSTICS`) of coordinate ``j``; None when absent or not finite."""
+        values = getattr(self, name)
+        return None if values is None else _finite_or_none(values[j])
 
     @property
     def tau_max(self) -> float:
@@ -562,6 +583,10 @@ class PosteriorResult:
             "thin": int(self.thin),
             "acceptance_fraction": float(self.acceptance_fraction),
             "tau_max": _finite_or_none(self.tau_max),
+            "rhat_max": None if self.rhat is None else _finite_or_none(np.max(self.rhat)),
+            "ess_bulk_min": None if self.ess_bulk is None else _finite_or_none(np.min(self.ess_bulk)),
+            "ess_tail_min": None if self.ess_tail is None else _finite_or_none(np.min(self.ess_tail)),
+            "rule": {"rhat_max": RHAT_MAX, "ess_bulk_min": ESS_BULK_MIN},
             "n_samples": int(self.samples.shape[0]),
             "n_errors": int(self.n_errors),
             "seconds": float(self.seconds),
@@ -582,6 +607,73 @@ BENCH_COVERAGE = {
     "n_records": 20,
     "n_intervals": 360,
 }
+
+#: The convergence verdict's thresholds beside tau (docs/method.md, "Convergence"): every
+#: parameter's rank-normalised split-R-hat below :data:`RHAT_MAX` and bulk effective sample
+#: size at least :data:`ESS_BULK_MIN` (Vehtari et al. 2021, the values ArviZ recommends).
+RHAT_MAX = 1.01
+ESS_BULK_MIN = 400.0
+
+#: Names of the per-parameter diagnostics (:func:`chain_diagnostics`), as in summary.json.
+DIAGNOSTICS = ("rhat", "ess_bulk", "ess_tail", "mcse_mean", "mcse_sd")
+
+
+def _arviz():
+    import warnings
+
+    with warnings.catch_warnings():  # arviz 0.2x announces its refactor on import
+        warnings.simplefilter("ignore", FutureWarning)
+        import arviz
+
+    return arviz
+
+
+def chain_diagnostics(draws) -> dict[str, np.ndarray]:
+    """ArviZ's convergence diagnostics per parameter of ``draws`` ``(steps, walkers, D)``.
+
+    The walkers are ArviZ's chains (as in ``arviz.from_emcee``); ``draws`` is the chain
+    after burn-in and thinning, the draws ``posterior.nc`` holds. Returns ``{name: (D,)}``
+    for :data:`DIAGNOSTICS`: rank-normalised split-R-hat (``arviz.rhat``), bulk and tail
+    effective sample sizes (``arviz.ess``, ``method="bulk"``/``"tail"``), and the Monte
+    Carlo standard errors of the mean and of the standard deviation (``arviz.mcse``,
+    ``method="mean"``/``"sd"``). NaN where ArviZ gives no value (fewer than 4 draws per
+    walker).
+    """
+    draws = np.asarray(draws, dtype=float)
+    n_dim = draws.shape[2]
+    out = {k: np.full(n_dim, np.nan) for k in DIAGNOSTICS}
+    if draws.shape[0] < 4:
+        return out
+    az = _arviz()
+    # one az.summary call (its mcse_sd path also works where az.mcse(method="sd") on an
+    # array fails with numpy 2); full precision, one variable per parameter
+    data = {f"p{d}": np.ascontiguousarray(draws[:, :, d].T) for d in range(n_dim)}  # (chain, draw)
+    table = az.summary(az.convert_to_dataset(data), kind="diagnostics", round_to="none")
+    columns = {"rhat": "r_hat", "ess_bulk": "ess_bulk", "ess_tail": "ess_tail", "mcse_mean": "mcse_mean", "mcse_sd": "mcse_sd"}
+    for key, column in columns.items():
+        out[key] = np.array([float(table.loc[f"p{d}", column]) for d in range(n_dim)])
+    return out
+
+
+def _burn_in(tau, n_steps) -> tuple[int, int]:
+    """``(discard, thin)`` for a chain of ``n_steps`` with autocorrelation times ``tau``."""
+    finite = np.isfinite(tau).all()
+    tau_max = float(np.max(tau)) if finite else float(n_steps)
+    discard = min(int(math.ceil(2 * tau_max)), n_steps - 1)
+    tau_min = float(np.min(tau)) if finite else 1.0
+    return discard, max(1, int(0.5 * tau_min))
+
+
+def _diagnostics_verdict(diag) -> tuple[bool, str]:
+    """(passes, words) of the R-hat and bulk-ESS rule on :func:`chain_diagnostics` output."""
+    rhat, ess = diag["rhat"], diag["ess_bulk"]
+    if not (np.isfinite(rhat).all() and np.isfinite(ess).all()):
+        return False, "R-hat and ESS not available (too few draws)"
+    ok = bool(np.max(rhat) < RHAT_MAX and np.min(ess) >= ESS_BULK_MIN)
+    words = (f"R-hat max {np.max(rhat):.4f} (need < {RHAT_MAX:g}), "
+             f"bulk ESS min {np.min(ess):.0f} (need >= {ESS_BULK_MIN:g})")  # fmt: skip
+    return ok, words
+
 
 def _finite_or_none(x):
     x = float(x)
@@ -684,14 +776,13 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
         raise ValueError(f"{path}: the chain is empty")
     check_every = check_every or max(1, n_steps // 2)
     ok, tau, _change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
+    discard, thin = _burn_in(tau, n_steps)
+    diag = chain_diagnostics(chain[discard::thin])
+    diag_ok, diag_msg = _diagnostics_verdict(diag)
     if converged is None:
-        converged = ok
+        converged = ok and diag_ok
     if not message:
-        message = ("converged: " if converged else "NOT CONVERGED: ") + msg
-    tau_max = float(np.max(tau)) if np.isfinite(tau).all() else float(n_steps)
-    discard = min(int(math.ceil(2 * tau_max)), n_steps - 1)
-    tau_min = float(np.min(tau)) if np.isfinite(tau).all() else 1.0
-    thin = max(1, int(0.5 * tau_min))
+        message = ("converged: " if converged else "NOT CONVERGED: ") + msg + "; " + diag_msg
     samples = chain[discard::thin].reshape(-1, ndim)
     log_prob = log_prob_chain[discard::thin].reshape(-1)
     ess = n_walkers * (n_steps - discard) / tau
@@ -699,7 +790,7 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
     return PosteriorResult(
         names=tuple(names), converged=bool(converged), message=message, n_walkers=n_walkers,
         n_steps=n_steps, discard=discard, thin=thin, acceptance_fraction=acceptance, tau=tau,
-        ess=ess, samples=samples, log_prob=log_prob, seconds=seconds, n_errors=n_errors,
+        ess=ess, samples=samples, log_prob=log_prob, seconds=seconds, n_errors=n_errors, **diag,
     )  # fmt: skip
 
 
@@ -710,8 +801,8 @@ def sample_posterior(
     rng: np.random.Generator,
     *,
     n_walkers=None,
-    max_steps=20000,
-    check_every=500,
+    max_steps=DEFAULT_MAX_STEPS,
+    check_every=DEFAULT_CHECK_EVERY,
     tau_factor=50.0,
     tau_rtol=0.05,
     moves="de",
@@ -732,7 +823,7 @@ def sample_posterior(
         Seeds emcee's internal RandomState (and the walker start).
     n_walkers : int, optional
         Default :func:`default_n_walkers` ``(D)``, or the backend's when resuming.
-    max_steps : int, default 20000
+    max_steps : int, default :data:`DEFAULT_MAX_STEPS` (60000, as ``study``)
         Cap on the chain length [steps], counting resumed steps.
     check_every : int, default 500
         Convergence check interval [steps].
@@ -817,11 +908,17 @@ def sample_posterior(
             if done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache):
                 ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
                 log(f"step {done}: {msg}")
-                if ok:
-                    converged, message = True, "converged: " + msg
-                    break
+                diag_msg = ""
+                if ok:  # tau says converged: R-hat and bulk ESS must agree (computed only then)
+                    discard, thin = _burn_in(tau, done)
+                    diag_ok, diag_msg = _diagnostics_verdict(chain_diagnostics(chain[discard::thin]))
+                    log(f"step {done}: {diag_msg}")
+                    if diag_ok:
+                        converged, message = True, "converged: " + msg + "; " + diag_msg
+                        break
                 if done >= max_steps:
-                    message = f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg
+                    message = f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg + (
+                        "; " + diag_msg if diag_msg else "")
                     break
             steps = min(check_every - done % check_every, max_steps - done)
             fastest_thread_count(log_post, np.asarray(state.coords))

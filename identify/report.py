@@ -1015,6 +1015,10 @@ def _fit_quality_html(data: ReportData, analysis: _Analysis) -> str:
     return "\n".join(parts)
 
 
+#: ArviZ's diagnostics shown in the parameter table (summary.json keys; identify.posterior.DIAGNOSTICS).
+_DIAGNOSTIC_COLUMNS = ("rhat", "ess_bulk", "ess_tail", "mcse_mean")
+
+
 def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -> str:
     summary, posterior = data.summary, data.summary["posterior"]
     rows, classes = [], {}
@@ -1025,6 +1029,7 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
             _cell(p.get("lsq"), f"{key}.lsq"), _cell(p.get("lsq_stderr"), f"{key}.lsq_stderr"),
             _cell(p.get("median"), f"{key}.median"), _cell(p.get("lo95"), f"{key}.lo95"), _cell(p.get("hi95"), f"{key}.hi95"),
             _cell(p.get("tau"), f"{key}.tau"), _cell(p.get("ess"), f"{key}.ess"),
+            *[_cell(p.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS],
             _text("varies" if p.get("vary") else "pinned by normalisation"),
         ])  # fmt: skip
         if not p.get("vary"):
@@ -1036,16 +1041,19 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
             _text("noise σ"), _text(plots.unit_label(data.record.output_unit)), _cell(None), _cell(summary["noise"]["sigma"], "noise.sigma"),
             _cell(None), _cell(noise_posterior.get("median"), f"{key}.median"), _cell(noise_posterior.get("lo95"), f"{key}.lo95"),
             _cell(noise_posterior.get("hi95"), f"{key}.hi95"), _cell(noise_posterior.get("tau"), f"{key}.tau"),
-            _cell(noise_posterior.get("ess"), f"{key}.ess"), _text("varies (free noise)"),
+            _cell(noise_posterior.get("ess"), f"{key}.ess"),
+            *[_cell(noise_posterior.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS], _text("varies (free noise)"),
         ])  # fmt: skip
     parts = ['<h2 id="parameters-section">3. Parameters</h2>']
     parts.append(
         _table(
             "parameters",
             ["parameter", "unit", "Table 1", "least squares", "± std. error", "posterior median", "2.5 %", "97.5 %",
-             "τ [steps]", "ESS", "status"],
+             "τ [steps]", "ESS", "R-hat", "bulk ESS", "tail ESS", "MCSE (mean)", "status"],
             rows,
-            caption="Parameters: the paper's Table 1 (— for effects), least squares, posterior median and 95 % interval",
+            caption="Parameters: the paper's Table 1 (— for effects), least squares, posterior median and 95 % interval; "
+            "ESS = walkers x steps after burn-in / τ; R-hat, bulk and tail ESS and MCSE are ArviZ's "
+            "(walkers as chains, after burn-in and thinning)",
             row_classes=classes,
         )
     )  # fmt: skip

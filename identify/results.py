@@ -72,11 +72,12 @@ FILES = {
     "summary": "summary.json",
     "manifest": "manifest.json",
     "report": "report.html",
+    "inference": "posterior.nc",
 }
 
 
 #: Files of a run (removed by ``--force`` and by the rollback of a failed fresh run).
-RUN_FILES = ("data", "chain", "fit", "summary", "manifest", "report")
+RUN_FILES = ("data", "chain", "fit", "summary", "manifest", "report", "inference")
 
 
 class RunMismatchError(ValueError):
@@ -260,6 +261,7 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
     from model import TABLE1, THETA_NAMES
 
     from .lsq import parameter_units
+    from .posterior import DIAGNOSTICS
 
     model = fit.model
     units = parameter_units(model, record)
@@ -276,11 +278,14 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
             "table1": float(TABLE1[THETA_NAMES.index(name)]) if name in THETA_NAMES else None,
             "lsq": float(fit.theta[i]),
             "lsq_stderr": float(fit.stderr[i]),
+            "mean": None,
+            "sd": None,
             "median": None,
             "lo95": None,
             "hi95": None,
             "tau": None,
             "ess": None,
+            **{k: None for k in DIAGNOSTICS},
             "vary": bool(fit.vary[i]),
         }
         if not fit.vary[i]:
@@ -290,6 +295,8 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
             entry.update(
                 lo95=float(quantiles[0, j]), median=float(quantiles[1, j]), hi95=float(quantiles[2, j]),
                 tau=float(posterior.tau[j]), ess=float(posterior.ess[j]),
+                mean=float(np.mean(posterior.samples[:, j])), sd=float(np.std(posterior.samples[:, j], ddof=1)),
+                **{k: posterior.diagnostic(k, j) for k in DIAGNOSTICS},
             )  # fmt: skip
         parameters.append(entry)
     noise = {
@@ -302,7 +309,8 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
     if posterior is not None and "noise_log_sigma" in post_index:
         j = post_index["noise_log_sigma"]
         lo, med, hi = np.exp(quantiles[:, j])
-        noise["posterior"] = {"median": med, "lo95": lo, "hi95": hi, "tau": posterior.tau[j], "ess": posterior.ess[j]}
+        noise["posterior"] = {"median": med, "lo95": lo, "hi95": hi, "tau": posterior.tau[j], "ess": posterior.ess[j],
+                              **{k: posterior.diagnostic(k, j) for k in DIAGNOSTICS}}
     ident = None
     if identifiability is not None:
         ident = identifiability.to_dict()
@@ -332,7 +340,7 @@ def package_versions() -> dict:
     import importlib.metadata as md
 
     versions = {"python": sys.version.split()[0], "platform": platform.platform()}
-    for dist in ("msma-gpi", "numpy", "scipy", "numba", "emcee", "h5py", "matplotlib", "threadpoolctl"):
+    for dist in ("msma-gpi", "numpy", "scipy", "numba", "emcee", "h5py", "matplotlib", "threadpoolctl", "arviz"):
         try:
             versions[dist] = md.version(dist)
         except md.PackageNotFoundError:

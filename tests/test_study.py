@@ -80,7 +80,8 @@ def test_study_writes_the_contract_folder(small_csv, tmp_path, capsys, report_ca
     params = summary["parameters"]
     assert [p["name"] for p in params][:3] == ["alpha", "rho", "tau"] and len(params) == 19
     for p in params:
-        assert set(p) == {"name", "unit", "table1", "lsq", "lsq_stderr", "median", "lo95", "hi95", "tau", "ess", "vary"}
+        assert set(p) == {"name", "unit", "table1", "lsq", "lsq_stderr", "median", "lo95", "hi95", "tau", "ess", "vary",
+                          "rhat", "ess_bulk", "ess_tail", "mcse_mean", "mcse_sd", "mean", "sd"}
         assert p["lo95"] <= p["median"] <= p["hi95"]
     alpha = params[0]
     assert alpha["vary"] is False and alpha["lsq_stderr"] is None and alpha["median"] == -0.1993

@@ -1,0 +1,129 @@
+"""The posterior in the ecosystem's standard forms: ArviZ's diagnostics in summary.json and
+the report, ``posterior.nc`` (InferenceData), names and units in ``chain.h5``."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import emcee
+import numpy as np
+import pytest
+
+from identify.bench import simulate
+from identify.cli import main
+from identify.posterior import BACKEND_GROUP, chain_diagnostics
+from identify.records import write_record
+
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore", FutureWarning)
+    import arviz as az
+
+STEPS = ["--max-steps", "120", "--check-every", "60", "--n-starts", "2", "--progress", "off"]
+
+
+@pytest.fixture(scope="module")
+def study_dir(tmp_path_factory):
+    """A small finished study (Table 1 transducer at 5 Hz, 120 steps: not converged), no report."""
+    base = tmp_path_factory.mktemp("eco")
+    csv = base / "small.csv"
+    write_record(csv, simulate(fs=5.0, seed=4).record)
+    out = base / "run"
+    code = main(["study", str(csv), "--out", str(out), "--seed", "5", "--no-report", *STEPS])
+    assert code in (0, 1)
+    return out
+
+
+def _stored_draws(folder, summary):
+    backend = emcee.backends.HDFBackend(str(folder / "chain.h5"), name=BACKEND_GROUP, read_only=True)
+    post = summary["posterior"]
+    return backend.get_chain()[post["discard"] :: post["thin"]]  # (steps, walkers, D)
+
+
+def test_diagnostics_equal_arviz_on_the_stored_chain(study_dir):
+    summary = json.loads((study_dir / "summary.json").read_text())
+    draws = _stored_draws(study_dir, summary)
+    varying = [p for p in summary["parameters"] if p["vary"]]
+    assert len(varying) == draws.shape[2]
+    for j, p in enumerate(varying):
+        x = draws[:, :, j].T  # ArviZ: (chain, draw), walkers as chains
+        assert p["rhat"] == pytest.approx(float(az.rhat(x)), rel=1e-12)
+        assert p["ess_bulk"] == pytest.approx(float(az.ess(x, method="bulk")), rel=1e-12)
+        assert p["ess_tail"] == pytest.approx(float(az.ess(x, method="tail")), rel=1e-12)
+        assert p["mcse_mean"] == pytest.approx(float(np.ravel(az.mcse(x, method="mean"))[0]), rel=1e-12)
+    # az.mcse(method="sd") on an array fails with numpy 2 in arviz 0.23.4; az.summary's works
+    data = az.convert_to_dataset({p["name"]: draws[:, :, j].T for j, p in enumerate(varying)})
+    table = az.summary(data, kind="diagnostics", round_to="none")
+    for p in varying:
+        assert p["mcse_sd"] == pytest.approx(float(table.loc[p["name"], "mcse_sd"]), rel=1e-12)
+        assert p["rhat"] == pytest.approx(float(table.loc[p["name"], "r_hat"]), rel=1e-12)
+    pinned = [p for p in summary["parameters"] if not p["vary"]]
+    assert pinned and all(p["rhat"] is None for p in pinned)
+    post = summary["posterior"]
+    assert post["rhat_max"] == pytest.approx(max(p["rhat"] for p in varying))
+    assert post["rule"] == {"rhat_max": 1.01, "ess_bulk_min": 400.0}
+
+
+def test_verdict_needs_rhat_and_bulk_ess(tmp_path):
+    """tau alone passes on a short Gaussian chain; the verdict also needs bulk ESS >= 400."""
+    from identify import posterior as P
+
+    good = np.random.default_rng(0).standard_normal((400, 40, 2))
+    diag = chain_diagnostics(good)
+    ok, words = P._diagnostics_verdict(diag)
+    assert ok and "R-hat max" in words
+    few = good[:8, :4]  # 32 draws: bulk ESS far below 400
+    ok, words = P._diagnostics_verdict(chain_diagnostics(few))
+    assert not ok and "need >= 400" in words
+    shifted = good.copy()
+    shifted[:, :20] += 1.0  # half the walkers elsewhere: R-hat >> 1.01
+    ok, _ = P._diagnostics_verdict(chain_diagnostics(shifted))
+    assert not ok and np.max(chain_diagnostics(shifted)["rhat"]) > 1.01
+
+
+def test_posterior_nc_opens_in_arviz(study_dir):
+    """posterior.nc: az.summary's means are summary.json's; names, units; az.loo runs."""
+    summary = json.loads((study_dir / "summary.json").read_text())
+    idata = az.from_netcdf(study_dir / "posterior.nc")
+    assert {"posterior", "sample_stats", "observed_data", "log_likelihood", "posterior_predictive"} <= set(idata.groups())
+    table = az.summary(idata, kind="stats", round_to="none")
+    varying = [p for p in summary["parameters"] if p["vary"]]
+    assert list(idata.posterior.data_vars) == [p["name"] for p in varying]
+    for p in varying:
+        assert float(table.loc[p["name"], "mean"]) == pytest.approx(p["mean"], rel=1e-12, abs=1e-300)
+        assert idata.posterior[p["name"]].attrs["unit"] == p["unit"]
+        assert idata.posterior[p["name"]].attrs["prior"] in ("uniform", "log_uniform")
+    n = summary["posterior"]["n_samples"]
+    assert idata.posterior.sizes["chain"] * idata.posterior.sizes["draw"] == n
+    assert idata.observed_data["displacement"].size == idata.log_likelihood["displacement"].sizes["time"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        loo = az.loo(idata, pointwise=True)
+    assert np.isfinite(loo.elpd_loo)
+    # the pointwise log-likelihood sums to the likelihood of each draw
+    from identify.posterior import LogPosterior  # noqa: F401  (the definition it must agree with)
+
+    total = idata.log_likelihood["displacement"].sum("time")
+    assert np.isfinite(total).all()
+
+
+def test_chain_h5_carries_names_and_units(study_dir):
+    summary = json.loads((study_dir / "summary.json").read_text())
+    backend = emcee.backends.HDFBackend(str(study_dir / "chain.h5"), name=BACKEND_GROUP, read_only=True)
+    with backend.open() as f:
+        names = [n.decode() if isinstance(n, bytes) else n for n in f[BACKEND_GROUP].attrs["parameter_names"]]
+        units = [u.decode() if isinstance(u, bytes) else u for u in f[BACKEND_GROUP].attrs["parameter_units"]]
+    varying = [p for p in summary["parameters"] if p["vary"]]
+    assert names == [p["name"] for p in varying] and units == [p["unit"] for p in varying]
+    assert backend.get_chain().shape[2] == len(names)
+
+
+def test_pointwise_log_likelihood_sums_to_the_likelihood():
+    from identify.inference import pointwise_log_likelihood
+    from identify.noise import NoiseModel, log_likelihood
+
+    rng = np.random.default_rng(1)
+    residual = rng.standard_normal((3, 50))
+    for rho in (0.0, 0.6):
+        noise = NoiseModel(sigma=0.7, rho=rho, kind="ar1" if rho else "white", source="user")
+        assert np.allclose(pointwise_log_likelihood(residual, noise).sum(axis=1), log_likelihood(residual, noise))
