@@ -61,7 +61,7 @@ def test_diagnostics_equal_arviz_on_the_stored_chain(study_dir):
     assert pinned and all(p["rhat"] is None for p in pinned)
     post = summary["posterior"]
     assert post["rhat_max"] == pytest.approx(max(p["rhat"] for p in varying))
-    assert post["rule"] == {"rhat_max": 1.01, "ess_bulk_min": 400.0}
+    assert post["rule"] == {"rhat_max": 1.05, "ess_bulk_min": 400.0}
 
 
 def test_verdict_needs_rhat_and_bulk_ess(tmp_path):
@@ -76,9 +76,9 @@ def test_verdict_needs_rhat_and_bulk_ess(tmp_path):
     ok, words = P._diagnostics_verdict(chain_diagnostics(few))
     assert not ok and "need >= 400" in words
     shifted = good.copy()
-    shifted[:, :20] += 1.0  # half the walkers elsewhere: R-hat >> 1.01
+    shifted[:, :20] += 1.0  # half the walkers elsewhere: R-hat >> 1.05
     ok, _ = P._diagnostics_verdict(chain_diagnostics(shifted))
-    assert not ok and np.max(chain_diagnostics(shifted)["rhat"]) > 1.01
+    assert not ok and np.max(chain_diagnostics(shifted)["rhat"]) > 1.05
 
 
 def test_posterior_nc_opens_in_arviz(study_dir):
