@@ -161,7 +161,7 @@ def test_diagnose_command_writes_the_contract(clean_csv, tmp_path, capsys):
     assert content["status"] in STATUSES and content["status"] == "adequate" and content["missing"] is None
     assert content["effects"] == []
     assert 0.8 < content["rms"] / content["noise_sigma"] < 1.2
-    assert {r["effect"] for r in content["ranking"]} == {"lag", "training", "initial_state", "creep", "thermal", "sensor_drift"}
+    assert {r["effect"] for r in content["ranking"]} == {"lag", "training", "initial_state", "incomplete_reset", "creep", "thermal", "sensor_drift"}
     for entry in content["ranking"]:
         assert {"effect", "rms_after", "delta_bic", "explained_fraction", "parameters"} <= set(entry)
     # initial_state is an exact reparametrisation of the GPI: listed, marked, never credited
