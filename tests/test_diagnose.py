@@ -104,10 +104,12 @@ def test_screening_ranks_the_hidden_effect_first():
     fit = fit_least_squares(sim.record, model, n_starts=1)
     ranking = screen_candidates(sim.record, fit)
     assert ranking[0].effect == "thermal"
-    # a drift and a record-long fade of the drive scale (training with V0 ~ 10 A) are both slow
-    # changes of the response over the record, like heating: their linearised scores overlap
-    # with thermal's (training 1704 vs thermal 2873 here); the refits separate them (slow tests)
-    slow_changes = ("sensor_drift", "training")
+    # a drift, a record-long fade of the drive scale (training with V0 ~ 10 A), a retained
+    # first-cycle strain fading with the travel (incomplete_reset) and logarithmic creep are all
+    # slow changes of the response over the record, like heating: their linearised scores
+    # overlap with thermal's (thermal 3512, incomplete_reset 2766, creep 2409, drift 2159,
+    # training 1539 here); the refits separate them (slow tests)
+    slow_changes = ("sensor_drift", "training", "incomplete_reset", "creep")
     assert ranking[0].chi2_drop > 10 * max(r.chi2_drop for r in ranking[1:] if r.effect not in slow_changes)
     assert ranking[0].chi2_drop > 0.5 * (fit.chi2 - len(sim.record))  # explains most of the excess
     # the short refit from the screening's starts realises most of the predicted drop
