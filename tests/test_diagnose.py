@@ -301,3 +301,44 @@ def test_threshold_sign_helpers():
     assert plain.effect_names == ("lag",) and plain.parameters["alpha"].value == positive.parameters["alpha"].value
     free = Model(["lag"])  # alpha free: no sign to switch
     assert _plain_of(free + "training", free) is free and _same_threshold_sign(free, free + "training")
+
+
+def test_texts_state_the_comparison_actually_made():
+    """A test that fires below the size floor is reported as such (its z above the threshold,
+    its size below the floor), never as 'largest z 18.0 < 5'."""
+    from identify.diagnose import Adequacy, _tests_text
+
+    thresholds = Thresholds()
+    small = Adequacy(True, ("ljung_box",), {"variance": 1.0, "ljung_box": 18.0, "low_frequency": 2.0}, 0.01, 0.05, 0.05,
+                     "ljung_box", 3.0)  # fmt: skip
+    text = _tests_text(small, thresholds)
+    assert "ljung_box z 18.0" in text and "above z = 5" in text and "0.050 sigma, below the 0.1 sigma floor" in text
+    assert "< 5" not in text
+    quiet = Adequacy(True, (), {"variance": 1.0, "ljung_box": 2.5, "low_frequency": -0.3}, 0.0, 0.0, 0.0, "none", 0.0)
+    assert "no test's excess reaches z = 5 (largest 2.5)" in _tests_text(quiet, thresholds)
+    bad = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.5, "low_frequency": 40.0}, 0.5, 0.5, 0.5,
+                   "low_frequency", 0.25)  # fmt: skip
+    assert "low_frequency z 40.0" in _tests_text(bad, thresholds) and ">= the 0.1 sigma floor" in _tests_text(bad, thresholds)
+
+
+def test_a_targeted_finding_needs_a_practical_size():
+    """The issue's false addition: RMS 0.6999 -> 0.6947 um at sigma 0.738 um (0.74 %, 0.115 sigma
+    explained) is no finding; creep next to a fitted thermal effect (1.022 -> 1.0 sigma: 2.2 %,
+    0.21 sigma) is."""
+    from types import SimpleNamespace
+
+    from identify.diagnose import _practical, _practical_size
+
+    thresholds = Thresholds()
+    fit = SimpleNamespace(rms=0.6999, noise=SimpleNamespace(sigma=0.738))
+    change, size = _practical_size(fit, SimpleNamespace(rms_after=0.6947))
+    assert change == pytest.approx(0.0074, abs=1e-4) and size == pytest.approx(0.115, abs=1e-3)
+    assert not _practical(fit, SimpleNamespace(rms_after=0.6947), thresholds)
+    fit = SimpleNamespace(rms=1.022, noise=SimpleNamespace(sigma=1.0))
+    assert _practical(fit, SimpleNamespace(rms_after=1.0), thresholds)
+    # a large RMS change that explains less than the floor cannot happen at the noise level, but a
+    # 1 % change of a residual far below sigma can: both conditions are required
+    fit = SimpleNamespace(rms=0.5, noise=SimpleNamespace(sigma=1.0))
+    assert not _practical(fit, SimpleNamespace(rms_after=0.494), thresholds)  # 1.2 %, 0.077 sigma
+    with pytest.raises(ValueError, match="practical_rms_change"):
+        Thresholds(practical_rms_change=-0.1)
