@@ -54,7 +54,7 @@ Method
    whole candidate stage is repeated from the better baseline (a candidate must not be
    credited with the baseline's own unfinished optimisation; e.g. a virgin initial
    state on the paper's input is exactly absorbed by a re-parametrised plain GPI).
-   When the best refitted candidate still leaves structure, the refitted candidates are
+   When the best refitted candidate still leaves structure, it is
    also fitted from scratch with the other sign of the pinned thresholds (a misspecified
    plain GPI can settle on the other sign, a different model, and refits from its basin
    stay there; e.g. a 3-sigma first-cycle transient flips it to alpha > 0), and such a
@@ -1486,8 +1486,10 @@ def diagnose(
             # sigma; with alpha < 0 it fits to 1.1 sigma). When the best candidate leaves
             # structure, the refitted candidates are fitted from scratch with the other sign too
             # (never reached when a candidate's residual is adequate: those verdicts unchanged).
+            # (the best candidate only: the sign flip is a property of the model that fits the
+            # record best, and each from-scratch fit costs a baseline's worth of starts)
             retried = {c.effect: c for c in _other_sign_refits(
-                record, work, fit, chi2_0, adequacy, [c.effect for c in refitted], screened, quiet, noise_ref,
+                record, work, fit, chi2_0, adequacy, [refitted[0].effect], screened, quiet, noise_ref,
                 thresholds, n_starts, rng, say,
             )}  # fmt: skip
             refitted = [
@@ -1805,8 +1807,11 @@ def _short_pair(work, fit, one, other) -> tuple[float, Model, np.ndarray]:
         for n, v in b_values.items():
             start[model_pair.names.index(n)] = v
         starts.append(start)
-    groups = _refit_starts(work.record, fit, model_pair, values, extra=starts)
-    chi2, theta = _short_refit(work.record, model_pair, work.noise, groups)
+    # near starts only: each single candidate's fit already explored the distant (data-driven)
+    # GPI basins, and a pair's optimum lies near one of its members' optima plus the other's
+    # parameters
+    near, _ = _refit_starts(work.record, fit, model_pair, values, extra=starts)
+    chi2, theta = _short_refit(work.record, model_pair, work.noise, [near])
     return chi2, model_pair, theta
 
 
