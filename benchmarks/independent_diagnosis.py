@@ -190,6 +190,14 @@ def main(argv=None) -> int:
     results_dir.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
     csvs = sorted(records.glob("*.csv"))
+    # round robin over the physics (the generator writes them grouped), so that an
+    # interrupted run has covered every kind of record
+    position, seen = {}, Counter()
+    for csv in csvs:
+        kind = "+".join(truth_of(csv)[0]) or "none"
+        position[csv] = (seen[kind], kind)
+        seen[kind] += 1
+    csvs.sort(key=lambda c: position[c])
     if args.only:
         keys = [k for k in args.only.split(",") if k]
         csvs = [c for c in csvs if any(k in c.stem for k in keys)]
