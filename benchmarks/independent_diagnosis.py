@@ -68,10 +68,17 @@ def diagnose_once(csv: Path, effects: list[str], workdir: Path) -> dict:
     command = [sys.executable, "-m", "identify", "diagnose", str(csv), "--json", str(out), "--quiet"]
     if effects:
         command += ["--effects", ",".join(effects)]
-    started = time.perf_counter()
-    run = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
-    seconds = time.perf_counter() - started
-    if run.returncode != 0 or not out.exists():
+    timing = out.with_suffix(".seconds")
+    if out.exists() and timing.exists():  # finished before an interruption: reuse it
+        seconds = float(timing.read_text())
+        run = None
+    else:
+        started = time.perf_counter()
+        run = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
+        seconds = time.perf_counter() - started
+        if run.returncode == 0 and out.exists():
+            timing.write_text(repr(seconds))
+    if run is not None and (run.returncode != 0 or not out.exists()):
         return {"effects": effects, "status": "error", "missing": None, "error": (run.stderr or run.stdout)[-2000:],
                 "seconds": seconds}  # fmt: skip
     result = json.loads(out.read_text())
@@ -182,6 +189,8 @@ def main(argv=None) -> int:
     parser.add_argument("--n", type=int, default=None, help="the generator's number of clean records (its default: 100)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--generator", type=Path, default=DEFAULT_GENERATOR)
+    parser.add_argument("--reverse", action="store_true",
+                        help="work from the end of the list (a second worker beside a first one; records are locked)")
     parser.add_argument("--only", default="", help="comma-separated substrings: diagnose only records whose stem contains one")
     args = parser.parse_args(argv)
     records = generate(args.generator, args.suite, args.out, args.seed, args.per_form, args.n)
@@ -201,6 +210,8 @@ def main(argv=None) -> int:
     if args.only:
         keys = [k for k in args.only.split(",") if k]
         csvs = [c for c in csvs if any(k in c.stem for k in keys)]
+    if args.reverse:
+        csvs = csvs[::-1]
     results = {}
     for csv in csvs:
         target = results_dir / (csv.stem + ".json")
@@ -208,11 +219,18 @@ def main(argv=None) -> int:
         if target.exists():
             results[csv.stem] = json.loads(target.read_text())
             continue
+        lock = results_dir / (csv.stem + ".lock")
+        try:
+            descriptor = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)  # another worker has it
+        except FileExistsError:
+            continue
+        os.close(descriptor)
         history = diagnose_record(csv, args.rounds, work)
         result = {"physics": physics, "history": history, "score": score(physics, history)}
         tmp = target.with_suffix(".tmp")
         tmp.write_text(json.dumps(result, indent=1))
         tmp.replace(target)
+        lock.unlink(missing_ok=True)
         results[csv.stem] = result
         s = result["score"]
         print(f"{csv.stem:<40} truth {'+'.join(physics) or 'none':<28} -> "
