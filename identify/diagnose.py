@@ -75,7 +75,11 @@ Method
 5. **Verdict.** With the best candidate by :math:`\Delta\mathrm{BIC}`:
 
    * ``missing_effect`` if its :math:`\Delta\mathrm{BIC}` exceeds
-     :attr:`Thresholds.bic_significant` and its residual is adequate;
+     :attr:`Thresholds.bic_significant`, its residual is adequate, and no other refitted
+     candidate comes within :attr:`Thresholds.bic_significant` of its
+     :math:`\Delta\mathrm{BIC}` (the BIC difference between the two candidate models: less
+     than 10 is no strong evidence for either, so neither can be named: e.g. logarithmic
+     creep and a slow heating node can both absorb a slow drift);
    * otherwise one candidate alone cannot be trusted (a wrong effect can absorb part of two
      hidden ones: a drift takes the slow part of heating next to a lag). When the best
      explains at least :attr:`Thresholds.explained_minor`, the pairs of the best
@@ -1609,7 +1613,10 @@ def diagnose(
             names = {c.effect for c in confirmed}
             ranking = confirmed + [c for c in ranking if c.effect not in names]
             top = confirmed[0]
-            if top.delta_bic > thresholds.bic_significant and top.adequate_after and _practical(fit, top, thresholds):
+            if (
+                top.delta_bic > thresholds.bic_significant and top.adequate_after and _practical(fit, top, thresholds)
+                and _rival(top, confirmed, thresholds) is None
+            ):
                 targeted = top
     tests_text = _tests_text(adequacy, thresholds)
     pairs_tried: list[CandidateResult] = []
@@ -1640,15 +1647,16 @@ def diagnose(
         status, missing, reason = "unexplained", None, ""
         best = refitted[0] if refitted else None
         significant = best is not None and best.delta_bic > thresholds.bic_significant
-        if significant and best.adequate_after:
+        rival = _rival(best, refitted, thresholds) if best is not None else None
+        if significant and best.adequate_after and rival is None:
             status, missing = "missing_effect", best.effect
             reason = (
                 f"Adding '{best.effect}' explains {100 * best.explained:.0f} % of the misfit "
                 f"(delta BIC {best.delta_bic:.0f}) and leaves a residual consistent with the noise."
             )
         elif significant and thresholds.try_pairs and best.explained >= thresholds.explained_minor:
-            # No single candidate leaves the noise, so the best one alone cannot be trusted: a
-            # wrong effect can absorb part of two hidden ones (e.g. a drift the slow part of
+            # No single candidate leaves the noise (or two do about equally well), so the best one
+            # alone cannot be trusted: a wrong effect can absorb part of two hidden ones (e.g. a drift the slow part of
             # heating, next to a lag). Pairs of the best three are refitted; the model with the
             # highest delta BIC among the best single and the pairs decides (BIC charges the
             # second effect's parameters, so a pair wins only when both effects are needed).
@@ -1676,7 +1684,9 @@ def diagnose(
             if pairs_tried:
                 pair = pairs_tried[0]
             top = pair if pair is not None and pair.delta_bic > best.delta_bic else best
-            if top is best and best.explained >= thresholds.explained_major:
+            if top is best and rival is not None:
+                pass  # two candidates fit about equally well: the data cannot tell which is missing
+            elif top is best and best.explained >= thresholds.explained_major:
                 # a differently shaped version of one effect's physics: its general form
                 # absorbs most of it, and no second effect adds enough to pay for itself
                 status, missing = "missing_effect", best.effect
@@ -1704,6 +1714,14 @@ def diagnose(
             candidates_text = _candidates_text(refitted, pairs_tried)
             if best is None:
                 reason = f"The residual is not noise ({tests_text}), and no candidate effect helps. {where}"
+            elif rival is not None and significant:
+                reason = (
+                    f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
+                    f"{adequacy.size_ratio:.2f} sigma), and two candidates explain it about equally well: "
+                    f"'{best.effect}' (delta BIC {best.delta_bic:.0f}) and '{rival.effect}' ({rival.delta_bic:.0f}), "
+                    f"less than {thresholds.bic_significant:g} apart, which is no strong evidence for either, so "
+                    f"neither is named. Candidates: {candidates_text}. {where}"
+                )
             else:
                 reason = (
                     f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
@@ -1727,6 +1745,16 @@ def diagnose(
         thresholds=thresholds,
         seconds=_time.perf_counter() - t_start,
     )
+
+
+def _rival(best: CandidateResult, candidates, thresholds: Thresholds) -> CandidateResult | None:
+    """Another refitted candidate whose delta BIC is within :attr:`Thresholds.bic_significant`
+    of ``best``'s: between the two models the data give no strong evidence (the BIC
+    difference of the two is that of their delta BICs), so ``best`` cannot be named."""
+    for c in candidates:
+        if c is not best and c.refitted and c.effect != best.effect and c.delta_bic > best.delta_bic - thresholds.bic_significant:
+            return c
+    return None
 
 
 def _practical_size(fit: FitResult, candidate: CandidateResult) -> tuple[float, float]:

@@ -342,3 +342,20 @@ def test_a_targeted_finding_needs_a_practical_size():
     assert not _practical(fit, SimpleNamespace(rms_after=0.494), thresholds)  # 1.2 %, 0.077 sigma
     with pytest.raises(ValueError, match="practical_rms_change"):
         Thresholds(practical_rms_change=-0.1)
+
+
+def test_a_rival_within_the_bic_threshold_blocks_a_name():
+    """Two refitted candidates whose delta BICs are less than 10 apart: no strong evidence for
+    either, so the best cannot be named (the issue's 'never a wrong name')."""
+    from types import SimpleNamespace
+
+    from identify.diagnose import _rival
+
+    def cand(effect, bic, refitted=True):
+        return SimpleNamespace(effect=effect, delta_bic=bic, refitted=refitted)
+
+    best = cand("creep", 3712.0)
+    assert _rival(best, [best, cand("thermal", 3686.0)], Thresholds()) is None  # 26 apart: creep is named
+    close = cand("thermal", 3705.0)
+    assert _rival(best, [best, close], Thresholds()) is close
+    assert _rival(best, [best, cand("thermal", 3705.0, refitted=False)], Thresholds()) is None  # screening numbers
