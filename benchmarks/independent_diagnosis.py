@@ -189,6 +189,7 @@ def main(argv=None) -> int:
     parser.add_argument("--n", type=int, default=None, help="the generator's number of clean records (its default: 100)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--generator", type=Path, default=DEFAULT_GENERATOR)
+    parser.add_argument("--summary-only", action="store_true", help="only summarise the records diagnosed so far")
     parser.add_argument("--reverse", action="store_true",
                         help="work from the end of the list (a second worker beside a first one; records are locked)")
     parser.add_argument("--only", default="", help="comma-separated substrings: diagnose only records whose stem contains one")
@@ -218,6 +219,8 @@ def main(argv=None) -> int:
         physics, _ = truth_of(csv)
         if target.exists():
             results[csv.stem] = json.loads(target.read_text())
+            continue
+        if args.summary_only:
             continue
         lock = results_dir / (csv.stem + ".lock")
         try:
