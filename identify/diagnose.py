@@ -1645,6 +1645,7 @@ def diagnose(
             )
     else:
         status, missing, reason = "unexplained", None, ""
+        common, ambiguous_pairs = None, []
         best = refitted[0] if refitted else None
         significant = best is not None and best.delta_bic > thresholds.bic_significant
         rival = _rival(best, refitted, thresholds) if best is not None else None
@@ -1669,8 +1670,18 @@ def diagnose(
                 except CANDIDATE_ERRORS as exc:
                     say(f"  the pair refit failed: {exc}")
             if shorts:
-                # the pair that fits the working copy best is refitted on the whole record
-                _, model_pair, start, one, other = min(shorts, key=lambda item: item[0])
+                # the pair that fits the working copy best is refitted on the whole record; the
+                # pairs whose short refits come within bic_significant of it (BIC on the working
+                # copy) fit about as well, so only an effect common to all of them can be named
+                def short_bic(item):
+                    k = sum(len(get_effect(n).parameters) for n in (item[3][0], item[4][0]))
+                    return n_eff_small * math.log(chi2_0_small / max(item[0], 1e-300)) - k * math.log(n_eff_small)
+
+                top_bic = max(short_bic(item) for item in shorts)
+                competitive = [item for item in shorts if short_bic(item) >= top_bic - thresholds.bic_significant]
+                common = set.intersection(*({item[3][0], item[4][0]} for item in competitive))
+                ambiguous_pairs = [f"{item[3][0]}+{item[4][0]}" for item in competitive]
+                _, model_pair, start, one, other = max(shorts, key=short_bic)
                 say(f"refitting with '{one[0]}' and '{other[0]}' together")
                 try:
                     pairs_tried.append(
@@ -1696,11 +1707,13 @@ def diagnose(
                     + (f"(best pair '{pair.effect}': delta BIC {pair.delta_bic:.0f}); " if pair is not None else "")
                     + "some structure remains (a differently shaped version of the same physics?)."
                 )
+            elif top is not best and common is not None and not common:
+                pass  # two pairs without a common effect fit about equally well: nothing can be named
             elif top is not best and (top.adequate_after or top.explained >= thresholds.explained_major):
-                members = top.effect.split("+")
+                members = [n for n in top.effect.split("+") if common is None or n in common]
                 single = {c.effect: c.delta_bic for c in refitted}
                 first = max(members, key=lambda n: single.get(n, -math.inf))
-                second_name = [n for n in members if n != first][0]
+                second_name = [n for n in top.effect.split("+") if n != first][0]
                 status, missing = "missing_effect", first
                 reason = (
                     f"Two effects seem to be missing: '{first}' and '{second_name}' together explain "
@@ -1714,6 +1727,13 @@ def diagnose(
             candidates_text = _candidates_text(refitted, pairs_tried)
             if best is None:
                 reason = f"The residual is not noise ({tests_text}), and no candidate effect helps. {where}"
+            elif common is not None and not common and len(ambiguous_pairs) > 1:
+                reason = (
+                    f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
+                    f"{adequacy.size_ratio:.2f} sigma); no single candidate leaves the noise, and pairs with no effect "
+                    f"in common fit about equally well ({', '.join(ambiguous_pairs)}: within {thresholds.bic_significant:g} "
+                    f"of delta BIC on the working copy), so none is named. Candidates: {candidates_text}. {where}"
+                )
             elif rival is not None and significant:
                 reason = (
                     f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
