@@ -88,7 +88,9 @@ Method
      charges the second effect's parameters, so a pair wins only when both effects are
      needed): a pair that is adequate or explains :attr:`Thresholds.explained_major` names
      its member with the larger single :math:`\Delta\mathrm{BIC}` (add it, diagnose again,
-     the second follows); the single candidate, when no pair beats it, is named if it
+     the second follows), if that member is common to every pair whose short refit comes
+     within :attr:`Thresholds.bic_significant` of the best pair's BIC (on the working copy):
+     two pairs without a common effect that fit about equally well name nothing; the single candidate, when no pair beats it, is named if it
      explains :attr:`Thresholds.explained_major` (its general form absorbs most of a
      differently shaped version of its physics);
    * otherwise ``unexplained``: significant structure remains that no candidate (or
