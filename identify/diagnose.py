@@ -86,7 +86,7 @@ Method
      :data:`PAIR_POOL` candidates are refitted together, and the model with the highest
      :math:`\Delta\mathrm{BIC}` among the best single candidate and the pairs decides (BIC
      charges the second effect's parameters, so a pair wins only when both effects are
-     needed): a pair that is adequate or explains :attr:`Thresholds.explained_major` names
+     needed): a pair that leaves a residual consistent with the noise names
      its member with the larger single :math:`\Delta\mathrm{BIC}` (add it, diagnose again,
      the second follows), if that member is common to every pair whose short refit comes
      within :attr:`Thresholds.bic_significant` of the best pair's BIC (on the working copy):
@@ -1711,7 +1711,10 @@ def diagnose(
                 )
             elif top is not best and common is not None and not common:
                 pass  # two pairs without a common effect fit about equally well: nothing can be named
-            elif top is not best and (top.adequate_after or top.explained >= thresholds.explained_major):
+            elif top is not best and top.adequate_after:
+                # (a pair that still leaves structure is not trusted either: measured on the
+                # independent bench, a rate-dependent loop width outside the library was 82 %
+                # explained by thermal + creep)
                 members = [n for n in top.effect.split("+") if common is None or n in common]
                 single = {c.effect: c.delta_bic for c in refitted}
                 first = max(members, key=lambda n: single.get(n, -math.inf))
@@ -1720,9 +1723,8 @@ def diagnose(
                 reason = (
                     f"Two effects seem to be missing: '{first}' and '{second_name}' together explain "
                     f"{100 * top.explained:.0f} % of the misfit (delta BIC {top.delta_bic:.0f} against the best single "
-                    f"candidate's {best.delta_bic:.0f}, '{best.effect}'; RMS {fit.rms:.4g} -> {top.rms_after:.4g}"
-                    + (", consistent with the noise" if top.adequate_after else "")
-                    + f"). Add '{first}' (the stronger of the two alone) and diagnose again."
+                    f"candidate's {best.delta_bic:.0f}, '{best.effect}'; RMS {fit.rms:.4g} -> {top.rms_after:.4g}, "
+                    f"consistent with the noise). Add '{first}' (the stronger of the two alone) and diagnose again."
                 )
         if status == "unexplained":
             where = _where_summary(profile)
