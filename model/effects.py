@@ -5,20 +5,26 @@ Every effect registers itself in :data:`model.composite.EFFECTS` with
 physical units and bounds, has an exact ``off`` setting (the model is then the plain GPI
 bit for bit) and a typical "on" setting (:meth:`get_test_parameters`).
 
-==================  =======  ==================================================================
-name                stage    equation (one line)
-==================  =======  ==================================================================
-``lag``             input    :math:`\tau_L \dot u = i - u`, the GPI sees the drive :math:`u`
-``training``        input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`, :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
-``initial_state``   state    operators' initial memory clamped from :math:`z^0` instead of 0
-``creep``           output   :math:`y = y_g - A\,(y_g - \tfrac1M \sum_m s_m)`, :math:`\tau_m \dot s_m = y_g - s_m`
-``thermal``         output   :math:`\tau_T \dot\vartheta = (i/i_\mathrm{ref})^2 - \vartheta`, :math:`y = y_g (1 - S\vartheta) + E\vartheta`
-``sensor_drift``    output   :math:`y = y_g + D_1 s + D_2 s^2`, :math:`s = (t - t_0)/(t_{T-1} - t_0)`
-==================  =======  ==================================================================
+====================  =======  ================================================================
+name                  stage    equation (one line)
+====================  =======  ================================================================
+``lag``               input    :math:`\tau_L \dot v = i - v`, the GPI sees :math:`u(t) = v(t - d)` (first order plus dead time)
+``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`, :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
+``initial_state``     state    operators' initial memory clamped from :math:`z^0` instead of 0
+``incomplete_reset``  output   :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading with travel
+``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change
+``thermal``           output   two nodes :math:`\tau_T \dot\vartheta_1 = (i/i_\mathrm{ref})^2 - \vartheta_1`, :math:`\tau_2 \dot\vartheta_2 = \vartheta_1 - \vartheta_2`, :math:`y = y_g (1 - S\vartheta_1 - S_2\vartheta_2) + E\vartheta_1 + E_2\vartheta_2`
+``sensor_drift``      output   :math:`y = y_g + D_1 s + D_2 s^2 + D_w (1 - e^{-t/\tau_w})`, :math:`s = (t - t_0)/(t_{T-1} - t_0)`
+====================  =======  ================================================================
 
-Output-stage effects act in the order creep, thermal, sensor drift (the registration
-order): creep belongs to the hysteretic strain, temperature scales the strain and adds
-expansion, and the sensor drifts on top of everything.
+Output-stage effects act in the order incomplete reset, creep, thermal, sensor drift (the
+registration order): the first-cycle strain and creep belong to the strain, temperature
+scales the strain and adds expansion, and the sensor drifts on top of everything.
+
+Each effect is written in a general physical form whose earlier, simpler form is a special
+case (its extra amplitudes 0): the test parameters (:meth:`get_test_parameters`) are that
+simpler form. Each docstring says which parameters trade off with each other or with the
+GPI; ``docs/effects.md`` gives the measured Jacobian ranks on the paper's input.
 
 All first-order filters use the actual sample times (no assumed sampling rate) and the
 exact solution of :math:`\tau \dot u = x - u` for an input that is linear between
@@ -42,19 +48,32 @@ __all__ = [
     "Creep",
     "Thermal",
     "SensorDrift",
+    "IncompleteReset",
     "first_order_lowpass",
+    "delayed_lowpass",
+    "log_creep_time_constants",
+    "incomplete_reset_strain",
     "creep_time_constants",
     "thermal_rise",
     "accumulated_travel",
     "training_fade",
     "REFERENCE_CURRENT",
     "CREEP_MODES",
+    "LOG_CREEP_MODES_PER_DECADE",
 ]
 
 #: Current [A] at which the normalised heating (i / i_ref)^2 is 1: the paper's 5 A excitation.
 REFERENCE_CURRENT = 5.0
 #: Number of relaxation modes spanning the creep spectrum.
 CREEP_MODES = 9
+#: Logarithmic creep: modes per decade of time constant, each weighing 1/this decades.
+LOG_CREEP_MODES_PER_DECADE = 2
+#: Weight [decades] of each logarithmic-creep mode.
+LOG_CREEP_MODE_WEIGHT = 1.0 / LOG_CREEP_MODES_PER_DECADE
+#: Logarithmic creep modes reach this multiple of the record's duration (it keeps growing over the whole record).
+LOG_CREEP_REACH = 10.0
+#: Most logarithmic-creep modes (a 1 ms onset on a 70 s record needs 12).
+LOG_CREEP_MAX_MODES = 24
 
 
 # -- numerical core ------------------------------------------------------------------
@@ -116,17 +135,163 @@ def _creep_kernel(time, displacement, amplitude, taus, out):
             out[w, k] = y_now - amplitude[w] * (y_now - total / n_modes)
 
 
+@njit(cache=True, inline="always")
+def _lowpass_coefficients(step, tau):
+    """``(decay, gain)`` of :func:`_lowpass_step` for one step (``tau > 0``)."""
+    ratio = step / tau
+    decay = math.exp(-ratio)
+    if ratio > 1e-3:
+        gain = (1.0 - decay) / ratio
+    else:
+        gain = 1.0 - ratio * (0.5 - ratio * (1.0 / 6.0 - ratio * (1.0 / 24.0 - ratio / 120.0)))
+    return decay, gain
+
+
 @njit(parallel=True, cache=True)
-def _thermal_kernel(time, heating, tau, sensitivity, expansion, displacement, out):
-    """``out = displacement (1 - S rise) + E rise`` with ``rise`` the low-passed ``heating`` (from 0)."""
+def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2, displacement, out):
+    """Two-node thermal network: ``rise`` (node 1) low-passes ``heating``, ``rise2`` (node 2)
+    low-passes ``rise`` (both from 0); ``out = displacement (1 - S rise - S2 rise2) + E rise + E2 rise2``.
+    Node 2 is skipped (exactly the one-node form) where both of its gains are 0."""
     n_sets = displacement.shape[0]
     n_samples = displacement.shape[1]
     for w in prange(n_sets):
+        second = sensitivity2[w] != 0.0 or expansion2[w] != 0.0
         rise = 0.0
+        rise2 = 0.0
         out[w, 0] = displacement[w, 0] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
         for k in range(1, n_samples):
-            rise = _lowpass_step(rise, heating[k - 1], heating[k], time[k] - time[k - 1], tau[w])
-            out[w, k] = displacement[w, k] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
+            step = time[k] - time[k - 1]
+            previous = rise
+            rise = _lowpass_step(rise, heating[k - 1], heating[k], step, tau[w])
+            if second:
+                rise2 = _lowpass_step(rise2, previous, rise, step, tau2[w])
+                out[w, k] = (
+                    displacement[w, k] * (1.0 - sensitivity[w] * rise - sensitivity2[w] * rise2)
+                    + expansion[w] * rise + expansion2[w] * rise2
+                )
+            else:
+                out[w, k] = displacement[w, k] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
+
+
+@njit(parallel=True, cache=True)
+def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log, out):
+    """Creep of each row of ``displacement``: ``taus.shape[1]`` equal-weight saturating modes
+    (amplitude ``amplitude[w]``) plus ``n_log[w]`` logarithmic-creep modes ``log_taus[w, :n_log[w]]``
+    of weight :data:`LOG_CREEP_MODE_WEIGHT` decades each (rate ``log_rate[w]`` per decade).
+    A part whose amplitude is 0 is skipped. The per-step decay is recomputed only when the step
+    changes by more than 1e-12 of itself (uniform sampling: once per mode)."""
+    n_sets = displacement.shape[0]
+    n_samples = displacement.shape[1]
+    n_modes = taus.shape[1]
+    n_log_max = log_taus.shape[1]
+    for w in prange(n_sets):
+        modes = np.empty(n_modes)
+        logs = np.empty(n_log_max)
+        decay = np.empty(n_modes + n_log_max)
+        gain = np.empty(n_modes + n_log_max)
+        spectrum = amplitude[w] != 0.0
+        logarithmic = log_rate[w] != 0.0 and n_log[w] > 0
+        y0 = displacement[w, 0]
+        for m in range(n_modes):
+            modes[m] = y0  # at rest at the start: every mode at equilibrium
+        for m in range(n_log_max):
+            logs[m] = y0
+        out[w, 0] = y0
+        last_step = -1.0
+        for k in range(1, n_samples):
+            step = time[k] - time[k - 1]
+            if abs(step - last_step) > 1e-12 * step:
+                last_step = step
+                for m in range(n_modes):
+                    if taus[w, m] > 0.0:
+                        a, g = _lowpass_coefficients(step, taus[w, m])
+                        decay[m] = a
+                        gain[m] = g
+                for m in range(n_log[w]):
+                    a, g = _lowpass_coefficients(step, log_taus[w, m])
+                    decay[n_modes + m] = a
+                    gain[n_modes + m] = g
+            y_prev = displacement[w, k - 1]
+            y_now = displacement[w, k]
+            value = y_now
+            if spectrum:
+                total = 0.0
+                for m in range(n_modes):
+                    if taus[w, m] > 0.0:
+                        modes[m] = y_now - (y_now - y_prev) * gain[m] + decay[m] * (modes[m] - y_prev)
+                    else:
+                        modes[m] = y_now
+                    total += modes[m]
+                value -= amplitude[w] * (y_now - total / n_modes)
+            if logarithmic:
+                grown = 0.0
+                for m in range(n_log[w]):
+                    j = n_modes + m
+                    logs[m] = y_now - (y_now - y_prev) * gain[j] + decay[j] * (logs[m] - y_prev)
+                    grown += logs[m] - y0
+                value += log_rate[w] * LOG_CREEP_MODE_WEIGHT * grown
+            out[w, k] = value
+
+
+@njit(parallel=True, cache=True)
+def _delay_kernel(time, signal, lagged, tau, delay, out):
+    """``out[w, k]`` = the first-order lag of ``signal`` (``lagged[w]`` at the samples) at time
+    ``t_k - delay[w]``: from the sample ``m`` before it, an exact partial step with the signal
+    linear between samples; ``signal[row, 0]`` (at rest) before the record's start."""
+    n_sets = out.shape[0]
+    n_samples = out.shape[1]
+    row_step = 0 if signal.shape[0] == 1 else 1
+    for w in prange(n_sets):
+        row = w * row_step
+        d = delay[w]
+        if d <= 0.0:
+            for k in range(n_samples):
+                out[w, k] = lagged[w, k]
+            continue
+        m = 0
+        for k in range(n_samples):
+            target = time[k] - d
+            if target <= time[0]:
+                out[w, k] = signal[row, 0]
+                continue
+            while m + 1 < n_samples and time[m + 1] <= target:
+                m += 1
+            if m + 1 >= n_samples or target == time[m]:
+                out[w, k] = lagged[w, m]
+                continue
+            step = time[m + 1] - time[m]
+            part = target - time[m]
+            x_target = signal[row, m] + (signal[row, m + 1] - signal[row, m]) * (part / step)
+            out[w, k] = _lowpass_step(lagged[w, m], signal[row, m], x_target, part, tau[w])
+
+
+@njit(parallel=True, cache=True)
+def _incomplete_reset_kernel(current, strain, retained, fade, scale, out_extra):
+    """Extra strain of :class:`IncompleteReset` per row (see its docstring), shape ``(W, T)``."""
+    n_sets = out_extra.shape[0]
+    n_samples = out_extra.shape[1]
+    for w in prange(n_sets):
+        i0 = current[0]
+        reached = 0.0  # largest excursion |i - i0| so far (the virgin territory)
+        unreset = 0.0  # virgin extra strain the spring can still reset (normalised)
+        kept = 0.0  # retained part (normalised)
+        previous = 0.0
+        out_extra[w, 0] = 0.0
+        for k in range(1, n_samples):
+            excursion = abs(current[k] - i0)
+            change = excursion - previous
+            if kept != 0.0 and fade[w] > 0.0:
+                kept *= math.exp(-fade[w] * abs(change))
+            if excursion > reached:
+                grown = (excursion - reached) / scale
+                reached = excursion
+                unreset += grown
+            elif change < 0.0:
+                moved = min(unreset, -change / scale)
+                unreset -= moved
+                kept += retained[w] * moved
+            previous = excursion
+            out_extra[w, k] = strain[w] * (unreset + kept)
 
 
 def first_order_lowpass(time, signal, tau, initial=None):
@@ -163,6 +328,88 @@ def first_order_lowpass(time, signal, tau, initial=None):
     out = np.empty((n_sets, time.size))
     _lowpass_kernel(time, signal2, tau, initial, out)
     return out
+
+
+def delayed_lowpass(time, signal, tau, delay):
+    r"""First order plus dead time: :math:`\tau \dot u = x - u`, read at :math:`t - d`.
+
+    The lag is :func:`first_order_lowpass` (exact for a signal linear between samples);
+    its value at :math:`t_k - d` is reached from the sample before that time by an exact
+    partial step, so a delay that is not a whole number of samples is resolved with the
+    same accuracy as the lag itself, and the output is continuous in :math:`d` (with
+    :math:`\tau > 0` also its derivative: the lag's response to a piecewise-linear signal
+    is continuously differentiable in time). Before the record's start the system is at
+    rest: :math:`u = x(t_0)`.
+
+    Parameters
+    ----------
+    time : array_like, shape (T,)
+        Sample times [s], strictly increasing.
+    signal : array_like, shape (T,) or (W, T)
+    tau : float or array_like, shape (W,)
+        Time constants [s]; 0 is no lag (then the delayed signal is the linear
+        interpolation of ``signal``).
+    delay : float or array_like, shape (W,)
+        Dead time [s], ``>= 0``; 0 returns the lag itself, bit for bit.
+
+    Returns
+    -------
+    ndarray, shape (W, T)
+    """
+    time = np.ascontiguousarray(time, dtype=float)
+    signal2 = np.ascontiguousarray(np.atleast_2d(np.asarray(signal, dtype=float)))
+    tau = np.atleast_1d(np.asarray(tau, dtype=float))
+    delay = np.atleast_1d(np.asarray(delay, dtype=float))
+    n_sets = max(signal2.shape[0], tau.size, delay.size)
+    if delay.size not in (1, n_sets):
+        raise ValueError(f"delay has {delay.size} values for {n_sets} rows")
+    if np.any(~np.isfinite(delay)) or np.any(delay < 0):
+        raise ValueError("the dead time must be finite and >= 0")
+    lagged = first_order_lowpass(time, signal2, np.broadcast_to(tau, (n_sets,)) if tau.size == 1 else tau)
+    if lagged.shape[0] != n_sets:
+        lagged = np.ascontiguousarray(np.broadcast_to(lagged, (n_sets, time.size)))
+    delay = np.ascontiguousarray(np.broadcast_to(delay, (n_sets,)))
+    if not np.any(delay > 0):
+        return lagged
+    tau_rows = np.ascontiguousarray(np.broadcast_to(tau, (n_sets,)))
+    out = np.empty((n_sets, time.size))
+    _delay_kernel(time, signal2, np.ascontiguousarray(lagged), tau_rows, delay, out)
+    return out
+
+
+def log_creep_time_constants(onset, duration):
+    r"""Time constants of the logarithmic-creep modes: :math:`\tau_j = t_0\,10^{j/2}`, :math:`j = 1, 2, \ldots`
+
+    up to the first one at or beyond :data:`LOG_CREEP_REACH` times the record's
+    ``duration`` (at most :data:`LOG_CREEP_MAX_MODES`). With each mode weighing half a
+    decade, :math:`\sum_j \tfrac12 (1 - e^{-t/\tau_j})` follows :math:`\log_{10}(1 + t/t_0)`
+    within 0.05 for :math:`t \ge 10\,t_0` up to about the longest mode (and rises as
+    :math:`0.4\,t/t_0` below :math:`t_0`): a step keeps creeping by a constant amount per
+    decade of elapsed time over the whole record.
+
+    Parameters
+    ----------
+    onset : array_like, shape (W,)
+        :math:`t_0` [s], > 0.
+    duration : float
+        Record length [s].
+
+    Returns
+    -------
+    taus : ndarray, shape (W, J)
+        Rows padded with 0 past their count.
+    counts : ndarray of int64, shape (W,)
+    """
+    onset = np.atleast_1d(np.asarray(onset, dtype=float))
+    reach = LOG_CREEP_REACH * max(float(duration), 1e-300)
+    counts = np.clip(
+        np.ceil(LOG_CREEP_MODES_PER_DECADE * np.log10(np.maximum(reach / onset, 1.0 + 1e-12))), 1, LOG_CREEP_MAX_MODES
+    ).astype(np.int64)
+    width = int(counts.max()) if counts.size else 1
+    j = np.arange(1, width + 1)
+    taus = onset[:, None] * 10.0 ** (j[None, :] / LOG_CREEP_MODES_PER_DECADE)
+    taus[j[None, :] > counts[:, None]] = 0.0
+    return np.ascontiguousarray(taus), counts
 
 
 def creep_time_constants(tau, decades, n_modes=CREEP_MODES):
@@ -260,37 +507,69 @@ def _column(params, i):
 
 @register_effect
 class Lag(Effect):
-    r"""Rate dependence: the field-equivalent drive lags the coil current.
+    r"""Rate dependence: the field-equivalent drive lags the coil current (first order plus dead time).
 
-    .. math::  \tau_L \frac{du}{dt} = i(t) - u(t), \qquad u(t_0) = i(t_0)
+    .. math::  \tau_L \frac{dv}{dt} = i(t) - v(t), \quad v(t_0) = i(t_0), \qquad u(t) = v(t - d)
 
-    and the GPI sees :math:`u` instead of :math:`i`. Physics: the magnetic field in the
-    air gap is set by the flux, which follows the current through the magnetic
-    circuit's inductance and, in a solid (non-laminated) steel core such as the paper's
-    S215, through eddy currents that oppose flux changes; to first order both give a
-    first-order lag (e.g. the eddy-current time constant of a solid core). Discretised
-    exactly for a current linear between samples, with the actual time steps.
+    and the GPI sees :math:`u` instead of :math:`i` (:math:`u = i(t_0)` for
+    :math:`t - d < t_0`: at rest before the record). Physics: the magnetic field in the
+    air gap is set by the flux, which follows the current through the magnetic circuit's
+    inductance and, in a solid (non-laminated) steel core such as the paper's S215,
+    through eddy currents that oppose flux changes; to first order both give a
+    first-order lag (e.g. the eddy-current time constant of a solid core). The dead time
+    :math:`d` is the latency of the chain outside the magnetics: the power source's
+    control loop, the DAC/ADC pipeline of the control and acquisition system (the paper's
+    dSPACE), a sensor's filter group delay: the displacement belongs to an earlier
+    current than the one recorded with it. A higher-order lag (several cascaded poles,
+    amplifier plus core) is close to one pole plus a dead time (the usual FOPDT reduction),
+    so this form absorbs both a smooth lag and a pure delay.
+    Discretised exactly for a current linear between samples, with the actual time steps;
+    a delay that is not a whole number of samples is read by an exact partial step of the
+    lag (:func:`delayed_lowpass`), so the output is continuous in :math:`d` (and, with
+    :math:`\tau_L > 0`, differentiable): a least-squares solver can move it smoothly.
 
-    Parameters: ``lag_tau`` [s], ``0 <= lag_tau <= 5``; off: ``lag_tau = 0`` (the drive
-    is the current itself).
+    What the dead time does to the GPI's reversals: the GPI is rate independent, so a pure
+    delay moves its output in time, :math:`y(t) = \mathrm{GPI}[i](t - d)`, every reversal
+    (and the memory wiped there) :math:`d` later; nothing else changes. With a delay that
+    is not a whole number of samples the drive is read between samples, so a reversal's
+    peak value is the linear interpolation there: an input peak can be cut by up to
+    (slope change) x (sample step), a minor-loop tip slightly lower than the recorded
+    peak (the continuous-time drive's true peak is not a sample either). The lag instead
+    rounds a reversal off and lowers its peak by about :math:`\tau_L` x the slope.
+
+    Trade-offs: for a slowly varying drive, a lag :math:`\tau_L` and a delay
+    :math:`d = \tau_L` give nearly the same drive (both shift the response by
+    :math:`\tau_L`; they differ at the reversals and in the amplitude of fast
+    components), so ``lag_tau`` and ``lag_delay`` are strongly correlated, separated by
+    the reversals' shape. Neither is a reparametrisation of the GPI (rate independent:
+    no GPI parameter moves a branch in time). Measured Jacobian rank on the paper's
+    input (``docs/effects.md``).
+
+    Parameters: ``lag_tau`` [s], ``0 <= lag_tau <= 5``; ``lag_delay`` [s],
+    ``0 <= lag_delay <= 0.5``. Off: both 0 (the drive is the current itself).
     """
 
     name = "lag"
     stage = "input"
     parameters = ParameterSet(
-        [Parameter("lag_tau", 0.0, 0.0, 5.0, unit="s", description="time constant of the field behind the current")]
+        [
+            Parameter("lag_tau", 0.0, 0.0, 5.0, unit="s", description="time constant of the field behind the current"),
+            Parameter("lag_delay", 0.0, 0.0, 0.5, unit="s", description="dead time of drive and acquisition"),
+        ]
     )
-    off = {"lag_tau": 0.0}
-    summary = "coil/eddy-current lag: tau du/dt = i - u, the hysteresis sees u"
+    off = {"lag_tau": 0.0, "lag_delay": 0.0}
+    summary = "coil/eddy-current lag plus dead time: tau dv/dt = i - v, the hysteresis sees u(t) = v(t - d)"
 
     @classmethod
     def get_test_parameters(cls):
-        return {"lag_tau": 0.05}
+        return {"lag_tau": 0.05, "lag_delay": 0.0}
 
     def drive(self, params, time, current):
-        """Lagged drive ``u``, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
+        """Lagged, delayed drive ``u``, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
+        params = np.asarray(params, dtype=float)
         tau = _column(params, 0)
-        return first_order_lowpass(time, current, tau)
+        delay = _column(params, 1)
+        return delayed_lowpass(time, current, tau, delay)
 
 
 @register_effect
@@ -467,34 +746,168 @@ class InitialState(Effect):
 
 
 @register_effect
-class Creep(Effect):
-    r"""Creep: slow continued motion of the twin boundaries after the input stops or reverses.
+class IncompleteReset(Effect):
+    r"""First-cycle strain: extra strain on the virgin loading, partly kept after unloading.
 
-    The displacement relaxes toward the hysteretic value :math:`y_g` through a spectrum
-    of :math:`M` = :data:`CREEP_MODES` equally weighted first-order relaxation modes:
+    With :math:`e_k = |i_k - i_0|` the drive's excursion from its first value,
+    :math:`E = \max_k e_k` the record's largest, and two states (normalised by :math:`E`)
+    updated at every sample:
 
     .. math::
 
-        \tau_m \dot s_m = y_g - s_m, \qquad
-        y = y_g - A \Big(y_g - \frac1M \sum_m s_m\Big), \qquad
-        \tau_m = \tau\, 10^{\,d\,(m/(M-1) - 1/2)}
+        \text{new excursion } (e_k > \max_{m<k} e_m):\quad
+            n \leftarrow n + \frac{e_k - \max_{m<k} e_m}{E}
 
-    After a step :math:`\Delta` of :math:`y_g` the output jumps by :math:`(1-A)\Delta` and
-    creeps the rest as :math:`A\Delta\,(1 - \frac1M\sum_m e^{-t/\tau_m})`. The static gain
-    is 1 (the final value is the GPI's), so creep does not trade off with the GPI's
-    scale. ``d = 0`` is a single exponential; a wide spectrum (``d`` of 2-4 decades,
-    log-uniform) reproduces logarithmic creep :math:`\propto \log t` for
-    :math:`\tau 10^{-d/2} \ll t \ll \tau 10^{d/2}`. This is the linear creep operator of
-    Krejci and Kuhnen (IEE Proc. Control Theory Appl., 2001), a superposition of
-    first-order elements with log-spaced time constants, with the weights tied to one
-    amplitude and a width so the form stays general with three parameters; logarithmic
-    creep of smart actuators is described e.g. by Jung and Gweon (Rev. Sci. Instrum.,
-    2000). In MSMA the twin boundaries keep moving under the constant field and spring
-    force until the twinning stress balances them.
+        \text{unloading } (e_k < e_{k-1}):\quad
+            \delta = \min\Big(n, \frac{e_{k-1} - e_k}{E}\Big),\quad n \leftarrow n - \delta,\quad
+            q \leftarrow q + R\,\delta
+
+        q \leftarrow q\, e^{-\lambda |e_k - e_{k-1}|}, \qquad y = y_g + A\,(n + q)
+
+    (:math:`n, q = 0` at the start). So the virgin loading adds the extra strain
+    :math:`A` (at the record's largest excursion, proportionally before it) to the GPI's
+    response; unloading resets it, proportionally to how far the drive comes back, except
+    the fraction :math:`R`, which stays (:math:`q`); later cycles within the excursion
+    already reached add no extra strain and ride on the retained :math:`R A`, fixed
+    (:math:`\lambda = 0`) or fading with the drive's further travel (:math:`\lambda > 0`
+    per unit of drive: cycling and the spring progressively reset the lattice). Only an
+    excursion beyond the largest so far (virgin territory) adds extra strain again.
+
+    Physics, the paper's first-cycle effect (sec. "Magnetic shape memory materials"): in
+    the spring-returned mode the pretensioned spring must reorient the variants after
+    the field is removed, but its "compressive force is not sufficiently large to provide
+    crystal lattice reorientation which was deformed in magnetic field thus that after
+    first cycle maximum strain is reduced". On the virgin loading the field reorients
+    more of the crystal than on later cycles (the as-received sample starts fully
+    compressed, :math:`R = 0` of the variants left over); the spring resets only part
+    of it when the field goes, so the strain stays raised by the retained fraction and
+    later cycles span a reduced range on top of it. This lives on the strain side (an
+    incomplete reset of the lattice), unlike :class:`Training`, which changes the drive
+    the virgin material needs.
+
+    What the GPI cannot do: its first branch is tied to the later ones, and its rest
+    level after the first cycle is set by the same operators. A raised level after the
+    first cycle is partly within the GPI's reach (its initial memory already makes the
+    virgin curve differ from later ones; :class:`InitialState` is an exact
+    reparametrisation of it), so :math:`A R` trades off with the GPI's rest level
+    (the Omega offsets c3, d3 and the envelope offsets) where the first cycle starts from
+    rest; the transient part :math:`A (1 - R)` on the first loading does not. Within the
+    effect, :math:`A` and :math:`R` are separated by the first loading (only :math:`A`
+    acts there); :math:`\lambda` trades off with :math:`R` when the retained strain fades
+    fast (a retained part that fades within a cycle looks like a smaller :math:`R`).
+    Measured Jacobian rank with the GPI on the paper's input: ``docs/effects.md``.
+
+    Parameters: ``incomplete_reset_strain`` :math:`A` [um] (-50-50), the extra strain of
+    the virgin loading at the record's largest excursion; ``incomplete_reset_retained``
+    :math:`R` (0-1), the fraction of it the unloading does not reset;
+    ``incomplete_reset_fade`` :math:`\lambda` [1/A] (0-2), how fast the retained strain
+    fades with the drive's travel (0: fixed). Off: :math:`A = 0`.
+    """
+
+    name = "incomplete_reset"
+    stage = "output"
+    parameters = ParameterSet(
+        [
+            Parameter(
+                "incomplete_reset_strain", 0.0, -50.0, 50.0, unit="um",
+                description="extra strain of the virgin loading at the record's largest excursion",
+            ),
+            Parameter(
+                "incomplete_reset_retained", 0.5, 0.0, 1.0, unit="",
+                description="fraction of the virgin extra strain that the unloading does not reset",
+            ),
+            Parameter(
+                "incomplete_reset_fade", 0.0, 0.0, 2.0, unit="1/A",
+                description="fading of the retained strain per unit of drive travel (0: fixed)",
+            ),
+        ]
+    )  # fmt: skip
+    off = {"incomplete_reset_strain": 0.0, "incomplete_reset_retained": 0.5, "incomplete_reset_fade": 0.0}
+    summary = "first-cycle strain: extra strain A on the virgin loading, fraction R kept after unloading (fading with travel)"
+
+    @classmethod
+    def get_test_parameters(cls):
+        return {"incomplete_reset_strain": 6.0, "incomplete_reset_retained": 0.5, "incomplete_reset_fade": 0.0}
+
+    def output(self, params, time, current, displacement):
+        """Displacement plus the first-cycle extra strain, shape ``(W, T)`` [um]."""
+        params = np.asarray(params, dtype=float)
+        displacement = np.atleast_2d(np.asarray(displacement, dtype=float))
+        extra = incomplete_reset_strain(current, params[:, 0], params[:, 1], params[:, 2])
+        return displacement + extra
+
+
+def incomplete_reset_strain(current, strain, retained, fade):
+    """The extra strain :math:`A (n + q)` of :class:`IncompleteReset`, shape ``(W, T)`` [um].
+
+    Parameters
+    ----------
+    current : array_like, shape (T,)
+        Drive [A].
+    strain, retained, fade : array_like, shape (W,)
+        :math:`A` [um], :math:`R`, :math:`\\lambda` [1/A].
+    """
+    current = np.ascontiguousarray(current, dtype=float)
+    strain = np.ascontiguousarray(np.atleast_1d(strain), dtype=float)
+    retained = np.ascontiguousarray(np.broadcast_to(np.asarray(retained, dtype=float), strain.shape))
+    fade = np.ascontiguousarray(np.broadcast_to(np.asarray(fade, dtype=float), strain.shape))
+    scale = float(np.max(np.abs(current - current[0]))) if current.size else 0.0
+    out = np.zeros((strain.size, current.size))
+    if scale > 0:
+        _incomplete_reset_kernel(current, strain, retained, fade, scale, out)
+    return out
+
+
+@register_effect
+class Creep(Effect):
+    r"""Creep: slow continued motion of the twin boundaries after the input stops or reverses.
+
+    Two general forms met in actuators, each with an exact off setting, on top of the
+    hysteretic value :math:`y_g`:
+
+    .. math::
+
+        y = y_g - A \Big(y_g - \frac1M \sum_{m=1}^{M} s_m\Big)
+              + \gamma\, \sum_{j=1}^{J} \tfrac12\,\big(l_j - y_g(t_0)\big),
+
+        \tau_m \dot s_m = y_g - s_m, \quad \tau_m = \tau\, 10^{\,d\,(m/(M-1) - 1/2)}, \qquad
+        \tau^{\log}_j \dot l_j = y_g - l_j, \quad \tau^{\log}_j = t_0\, 10^{j/2}
+
+    **Saturating creep** (:math:`A`, :math:`\tau`, :math:`d`; :math:`M` =
+    :data:`CREEP_MODES`): after a step :math:`\Delta` of :math:`y_g` the output jumps by
+    :math:`(1-A)\Delta` and creeps the rest as
+    :math:`A\Delta\,(1 - \frac1M\sum_m e^{-t/\tau_m})`; the static gain is 1 (the final
+    value is the GPI's), so it does not trade off with the GPI's scale. ``d = 0`` is a
+    single exponential, a wide spectrum (2-4 decades) is logarithmic *within* its span.
+    This is the linear creep operator of Krejci and Kuhnen (IEE Proc. Control Theory
+    Appl., 2001), with the weights tied to one amplitude and a width.
+
+    **Logarithmic creep** (:math:`\gamma`, :math:`t_0`): after a step :math:`\Delta` the
+    output keeps growing by :math:`\gamma\Delta` per decade of elapsed time,
+    :math:`\gamma\Delta \log_{10}(1 + t/t_0)` (the classical law of piezo and smart
+    actuators, e.g. Jung and Gweon, Rev. Sci. Instrum. 2000), after *each* change of the
+    output, superposed: a Prony series of :math:`J` modes half a decade apart reaching ten
+    times the record's length (:func:`log_creep_time_constants`; within 0.05 decade-units
+    of the logarithm for :math:`t \ge 10 t_0`), so it never saturates within a record.
+    Its instantaneous response is :math:`y_g` itself and it moves the output beyond the
+    GPI's value, so over a record it trades off partly with the GPI's gain (``rho`` and
+    the envelope amplitudes: a part that has grown by the same amount at every peak looks
+    like a larger gain); the growth with time since each reversal separates them.
+    In MSMA the twin boundaries keep moving under the constant field and spring force
+    until the twinning stress balances them; thermally activated boundary motion gives
+    the logarithmic law.
+
+    Trade-offs within the effect: :math:`\tau` with :math:`d` (a wide spectrum with a
+    shorter centre resembles a narrower one with a longer centre over a record), and
+    :math:`A` with :math:`\gamma` where the saturating spectrum is wide (both logarithmic
+    within the span). Measured Jacobian rank with the GPI on the paper's input:
+    ``docs/effects.md``.
 
     Parameters: ``creep_amplitude`` (fraction of a step that creeps, 0-0.5),
     ``creep_tau`` [s] (central time constant, 0.01-100), ``creep_decades`` (spectrum
-    width, 0-4). Off: ``creep_amplitude = 0``.
+    width, 0-4), ``creep_log_rate`` :math:`\gamma` (fraction of a step per decade of time,
+    -0.1-0.1), ``creep_log_onset`` :math:`t_0` [s] (0.001-10). Off: ``creep_amplitude = 0``
+    and ``creep_log_rate = 0``.
     """
 
     name = "creep"
@@ -504,72 +917,125 @@ class Creep(Effect):
             Parameter("creep_amplitude", 0.0, 0.0, 0.5, unit="", description="fraction of a displacement step that creeps"),
             Parameter("creep_tau", 1.0, 0.01, 100.0, unit="s", description="central creep time constant (geometric mean)"),
             Parameter("creep_decades", 1.0, 0.0, 4.0, unit="decades", description="width of the log-spaced creep spectrum"),
+            Parameter(
+                "creep_log_rate", 0.0, -0.1, 0.1, unit="",
+                description="logarithmic creep: fraction of a step added per decade of elapsed time",
+            ),
+            Parameter(
+                "creep_log_onset", 0.1, 0.001, 10.0, unit="s",
+                description="logarithmic creep: time after a change from which it grows logarithmically",
+            ),
         ]
-    )
-    off = {"creep_amplitude": 0.0, "creep_tau": 1.0, "creep_decades": 1.0}
-    summary = "creep: y relaxes to the GPI value through log-spaced modes, y = y_g - A (y_g - mean_m s_m)"
+    )  # fmt: skip
+    off = {"creep_amplitude": 0.0, "creep_tau": 1.0, "creep_decades": 1.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1}
+    summary = "creep: saturating log-spaced modes, y_g - A (y_g - mean s_m), plus logarithmic creep gamma per decade after each change"
 
     @classmethod
     def get_test_parameters(cls):
-        return {"creep_amplitude": 0.05, "creep_tau": 2.0, "creep_decades": 2.0}
+        return {"creep_amplitude": 0.05, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1}
 
     def output(self, params, time, current, displacement):
         """Displacement after creep, shape ``(W, T)`` [um]."""
         params = np.asarray(params, dtype=float)
+        time = np.ascontiguousarray(time, dtype=float)
         amplitude = _column(params, 0)
         taus = np.ascontiguousarray(creep_time_constants(params[:, 1], params[:, 2]))
+        log_rate = _column(params, 3)
+        duration = float(time[-1] - time[0]) if time.size else 0.0
+        log_taus, counts = log_creep_time_constants(params[:, 4], duration)
         displacement = np.ascontiguousarray(np.atleast_2d(displacement), dtype=float)
         out = np.empty_like(displacement)
-        _creep_kernel(np.ascontiguousarray(time, dtype=float), displacement, amplitude, taus, out)
+        _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, counts, out)
         return out
 
 
 @register_effect
 class Thermal(Effect):
-    r"""Joule heating of the coils changing the strain response over the run.
+    r"""Joule heating of the coils changing the strain response over the run: a two-node thermal network.
 
-    The coils dissipate :math:`i^2 R`; through the thermal time constant of coil and
-    core the normalised temperature rise :math:`\vartheta` follows
+    The coils dissipate :math:`i^2 R`; the coil (node 1) warms through its own time
+    constant, and the sample with the core (node 2) warms from the coil through theirs:
 
     .. math::
 
-        \tau_T \dot\vartheta = \Big(\frac{i}{i_\mathrm{ref}}\Big)^2 - \vartheta, \quad
-        \vartheta(t_0) = 0, \qquad
-        y = y_g\,(1 - S\,\vartheta) + E\,\vartheta
+        \tau_T \dot\vartheta_1 = \Big(\frac{i}{i_\mathrm{ref}}\Big)^2 - \vartheta_1, \quad
+        \tau_2 \dot\vartheta_2 = \vartheta_1 - \vartheta_2, \quad
+        \vartheta_{1,2}(t_0) = 0,
+
+        y = y_g\,(1 - S\,\vartheta_1 - S_2\,\vartheta_2) + E\,\vartheta_1 + E_2\,\vartheta_2
 
     with :math:`i_\mathrm{ref}` = :data:`REFERENCE_CURRENT` = 5 A (the paper's excitation),
-    so :math:`\vartheta = 1` is the steady rise under a constant 5 A. :math:`S` is the
-    relative loss of field-induced strain per unit rise (the magnetocrystalline
-    anisotropy, hence the MSM strain, falls as the alloy warms toward its transformation
-    temperatures; e.g. Heczko and Straka, J. Appl. Phys. 2003), :math:`E` [um] the
-    thermal expansion of rod, core and frame seen by the sensor. :math:`\vartheta = 0`
-    before the coils are energised, so the quiet start is untouched.
+    so :math:`\vartheta = 1` is a node's steady rise under a constant 5 A. :math:`S, S_2`
+    are the relative losses of field-induced strain per unit rise of each node (the
+    magnetocrystalline anisotropy, hence the MSM strain, falls as the alloy warms toward
+    its transformation temperatures; e.g. Heczko and Straka, J. Appl. Phys. 2003; the
+    sample sits in the core, node 2, but a fast node is also what a thin sample close to
+    the coil sees), :math:`E, E_2` [um] the thermal expansion seen by the sensor (coil
+    former and frame follow the coil, rod and core follow node 2). :math:`\vartheta = 0`
+    before the coils are energised, so the quiet start is untouched. Any linear two-node
+    network (coil and sample/core, each with a heat capacity, coupled to each other and to
+    the ambient) has a response of this two-pole form with two gains per output term;
+    :math:`S_2 = E_2 = 0` is the one-pole form (exactly: node 2 is not computed), and a
+    one-pole heating through either time constant is a special case.
+
+    Discretised exactly for the heating linear between samples (node 1) and with node 1
+    taken as linear between samples in node 2's step (error of order
+    :math:`(h/\tau)^2` of a step, below 1e-6 of the rise for :math:`\tau \ge 1` s at 100 Hz).
+
+    Trade-offs: the gains of a node trade off with its time constant where the record is
+    much shorter than it (a rise that is still linear in time fixes only the product
+    gain/tau); node 2's gains and node 1's are nearly interchangeable when
+    :math:`\tau_2 \ll \tau_T` (then :math:`\vartheta_2 \approx \vartheta_1`: an exact
+    degeneracy only in the limit :math:`\tau_2 \to 0`, excluded by its lower bound of
+    1 s); the sensitivities scale the GPI's output, but with a rise that changes over the
+    record, so they are not a reparametrisation of its gain (``rho``). Measured Jacobian
+    rank with the GPI on the paper's input: ``docs/effects.md``.
 
     Parameters: ``thermal_tau`` [s] (1-2000), ``thermal_sensitivity`` (-0.5-0.5),
-    ``thermal_expansion`` [um] (-50-50). Off: sensitivity = expansion = 0.
+    ``thermal_expansion`` [um] (-50-50) for node 1 (the coil); ``thermal_tau_core`` [s]
+    (1-5000), ``thermal_sensitivity_core`` (-0.5-0.5), ``thermal_expansion_core`` [um]
+    (-50-50) for node 2 (sample and core). Off: every sensitivity and expansion 0.
     """
 
     name = "thermal"
     stage = "output"
     parameters = ParameterSet(
         [
-            Parameter("thermal_tau", 30.0, 1.0, 2000.0, unit="s", description="thermal time constant of coil and core"),
+            Parameter("thermal_tau", 30.0, 1.0, 2000.0, unit="s", description="thermal time constant of the coil (node 1)"),
             Parameter(
                 "thermal_sensitivity", 0.0, -0.5, 0.5, unit="",
-                description="relative strain loss per unit normalised temperature rise",
+                description="relative strain loss per unit normalised temperature rise of node 1",
             ),
             Parameter(
                 "thermal_expansion", 0.0, -50.0, 50.0, unit="um",
-                description="displacement from thermal expansion at unit normalised temperature rise",
+                description="displacement from thermal expansion at unit normalised rise of node 1",
+            ),
+            Parameter(
+                "thermal_tau_core", 300.0, 1.0, 5000.0, unit="s",
+                description="thermal time constant of sample and core (node 2, heated by node 1)",
+            ),
+            Parameter(
+                "thermal_sensitivity_core", 0.0, -0.5, 0.5, unit="",
+                description="relative strain loss per unit normalised temperature rise of node 2",
+            ),
+            Parameter(
+                "thermal_expansion_core", 0.0, -50.0, 50.0, unit="um",
+                description="displacement from thermal expansion at unit normalised rise of node 2",
             ),
         ]
     )  # fmt: skip
-    off = {"thermal_tau": 30.0, "thermal_sensitivity": 0.0, "thermal_expansion": 0.0}
-    summary = "Joule heating: tau dth/dt = (i/5 A)^2 - th, y = y_g (1 - S th) + E th"
+    off = {
+        "thermal_tau": 30.0, "thermal_sensitivity": 0.0, "thermal_expansion": 0.0,
+        "thermal_tau_core": 300.0, "thermal_sensitivity_core": 0.0, "thermal_expansion_core": 0.0,
+    }  # fmt: skip
+    summary = "Joule heating through coil and core: tau th1' = (i/5 A)^2 - th1, tau2 th2' = th1 - th2, y = y_g (1 - S th1 - S2 th2) + E th1 + E2 th2"
 
     @classmethod
     def get_test_parameters(cls):
-        return {"thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0}
+        return {
+            "thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0,
+            "thermal_tau_core": 300.0, "thermal_sensitivity_core": 0.0, "thermal_expansion_core": 0.0,
+        }  # fmt: skip
 
     def output(self, params, time, current, displacement):
         """Displacement with the heating's effect, shape ``(W, T)`` [um]."""
@@ -577,7 +1043,8 @@ class Thermal(Effect):
         heating = np.ascontiguousarray((np.asarray(current, dtype=float) / REFERENCE_CURRENT) ** 2)
         displacement = np.ascontiguousarray(np.atleast_2d(displacement), dtype=float)
         out = np.empty_like(displacement)
-        _thermal_kernel(time, heating, _column(params, 0), _column(params, 1), _column(params, 2), displacement, out)
+        columns = [_column(params, c) for c in range(6)]
+        _thermal_kernel(time, heating, *columns, displacement, out)
         return out
 
 
@@ -585,15 +1052,30 @@ class Thermal(Effect):
 class SensorDrift(Effect):
     r"""Slow additive drift of the displacement sensor, present even with the coils off.
 
-    .. math::  y = y_g + D_1 s + D_2 s^2, \qquad s = \frac{t - t_0}{t_{T-1} - t_0} \in [0, 1]
+    .. math::
 
-    so :math:`D_1 + D_2` is the drift accumulated over the record and the drift is 0 at
-    the first sample. Physics: warm-up and temperature drift of the sensor electronics
-    and of the sensor's mount (laser triangulation or LVDT), independent of the drive;
-    the paper's quiet first 10 s show the sensor's behaviour without excitation.
+        y = y_g + D_1 s + D_2 s^2 + D_w \big(1 - e^{-(t - t_0)/\tau_w}\big), \qquad
+        s = \frac{t - t_0}{t_{T-1} - t_0} \in [0, 1]
+
+    so the drift is 0 at the first sample. Physics: warm-up and temperature drift of the
+    sensor electronics and of the sensor's mount (laser triangulation or LVDT),
+    independent of the drive; the paper's quiet first 10 s show the sensor's behaviour
+    without excitation. The polynomial is a drift that keeps going over the record
+    (per record: normalised time); the exponential is a warm-up that *settles*: an offset
+    :math:`D_w` approached with the time constant :math:`\tau_w` (a sensor switched on
+    shortly before the record).
+
+    Trade-offs: for :math:`\tau_w` much longer than the record the settling term is
+    nearly a line plus a parabola (its cubic remainder is :math:`(T/\tau_w)^3/6` of
+    :math:`D_w`), so :math:`D_w, \tau_w` trade off with :math:`D_1, D_2` there (a near, not
+    exact, degeneracy: the bound :math:`\tau_w \le 500` s keeps the remainder above 5e-5
+    of :math:`D_w` on a 70 s record); a drift is additive and present while the drive is
+    off, so it is no reparametrisation of the GPI (whose offsets act at every sample
+    alike). Measured Jacobian rank with the GPI on the paper's input: ``docs/effects.md``.
 
     Parameters: ``sensor_drift_linear`` and ``sensor_drift_quadratic`` [um], each
-    -50-50. Off: both 0. Note they are per record (normalised time).
+    -50-50; ``sensor_drift_settling`` :math:`D_w` [um] (-50-50);
+    ``sensor_drift_settling_tau`` :math:`\tau_w` [s] (0.5-500). Off: the three amplitudes 0.
     """
 
     name = "sensor_drift"
@@ -602,14 +1084,22 @@ class SensorDrift(Effect):
         [
             Parameter("sensor_drift_linear", 0.0, -50.0, 50.0, unit="um", description="linear drift over the record"),
             Parameter("sensor_drift_quadratic", 0.0, -50.0, 50.0, unit="um", description="quadratic drift over the record"),
+            Parameter("sensor_drift_settling", 0.0, -50.0, 50.0, unit="um", description="offset a settling warm-up approaches"),
+            Parameter("sensor_drift_settling_tau", 10.0, 0.5, 500.0, unit="s", description="time constant of the warm-up"),
         ]
     )
-    off = {"sensor_drift_linear": 0.0, "sensor_drift_quadratic": 0.0}
-    summary = "sensor drift: y = y_g + D1 s + D2 s^2, s = normalised record time"
+    off = {
+        "sensor_drift_linear": 0.0, "sensor_drift_quadratic": 0.0,
+        "sensor_drift_settling": 0.0, "sensor_drift_settling_tau": 10.0,
+    }  # fmt: skip
+    summary = "sensor drift: y = y_g + D1 s + D2 s^2 + Dw (1 - exp(-t/tau_w)), s = normalised record time"
 
     @classmethod
     def get_test_parameters(cls):
-        return {"sensor_drift_linear": 2.0, "sensor_drift_quadratic": 1.5}
+        return {
+            "sensor_drift_linear": 2.0, "sensor_drift_quadratic": 1.5,
+            "sensor_drift_settling": 0.0, "sensor_drift_settling_tau": 10.0,
+        }  # fmt: skip
 
     def output(self, params, time, current, displacement):
         """Displacement plus drift, shape ``(W, T)`` [um]."""
@@ -617,4 +1107,8 @@ class SensorDrift(Effect):
         time = np.asarray(time, dtype=float)
         span = time[-1] - time[0]
         s = (time - time[0]) / span if span > 0 else np.zeros_like(time)
-        return displacement + (params[:, 0:1] * s + params[:, 1:2] * s**2)
+        drift = params[:, 0:1] * s + params[:, 1:2] * s**2
+        settling = params[:, 2:3]
+        if np.any(settling != 0.0):
+            drift = drift + settling * -np.expm1(-(time - time[0]) / params[:, 3:4])
+        return displacement + drift

@@ -47,7 +47,7 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path):
 
 def test_sidecar_round_trip_reproduces_the_record(tmp_path):
     out = tmp_path / "bench.csv"
-    spec = "lag,training,initial_state,creep,thermal,sensor_drift"
+    spec = ",".join(EFFECTS)  # the whole library
     assert _run(["--out", str(out), "--effects", spec, "--noise", "0.3", "--noise-rho", "0.6", "--fs", "50", "--seed", "4"]) == 0
     record = load_record(out)
     truth = record.sidecar
@@ -109,7 +109,7 @@ def test_spec_parsing():
     assert chosen["thermal"] == {**EFFECTS["thermal"].off, **EFFECTS["thermal"].get_test_parameters()}
     assert chosen["creep"]["creep_amplitude"] == 0.02
     assert chosen["creep"]["creep_tau"] == EFFECTS["creep"].get_test_parameters()["creep_tau"]
-    assert parse_effect_spec({"lag": {"lag_tau": 0.2}}) == {"lag": {"lag_tau": 0.2}}
+    assert parse_effect_spec({"lag": {"lag_tau": 0.2}}) == {"lag": {"lag_tau": 0.2, "lag_delay": 0.0}}
 
 
 @pytest.mark.parametrize(

@@ -17,6 +17,10 @@ import model
 from model import EFFECTS, TABLE1, Effect, Model, gpi, paper_current
 from model.effects import (
     CREEP_MODES,
+    LOG_CREEP_MODES_PER_DECADE,
+    delayed_lowpass,
+    incomplete_reset_strain,
+    log_creep_time_constants,
     REFERENCE_CURRENT,
     SensorDrift,
     accumulated_travel,
@@ -49,7 +53,7 @@ def _theta(m: Model, values: dict) -> np.ndarray:
 
 
 def test_registry_holds_the_required_effects():
-    assert {"lag", "training", "creep", "thermal", "sensor_drift", "initial_state"} <= set(EFFECTS)
+    assert {"lag", "training", "creep", "thermal", "sensor_drift", "initial_state", "incomplete_reset"} <= set(EFFECTS)
 
 
 @pytest.mark.parametrize("name", list(EFFECTS))
@@ -123,7 +127,7 @@ def signature_lag(paper_input, plain_gpi):
     current = slope * np.minimum(time, t_hold)
     tau = 0.3
     m = Model(["lag"])
-    drive = m.effects[0].drive(np.array([[tau]]), time, current)[0]
+    drive = m.effects[0].drive(np.array([[tau, 0.0]]), time, current)[0]
     # tau u' = i - u, u(0) = 0, i = s t: u = s (t - tau (1 - exp(-t/tau))).
     # After t_h the current holds at i_h: u = i_h - s tau (1 - exp(-t_h/tau)) exp(-(t - t_h)/tau).
     ramp = time <= t_hold
@@ -150,7 +154,7 @@ def signature_creep(paper_input, plain_gpi):
     y_g = step * np.clip((time - t_a) / (t_b - t_a), 0.0, 1.0)
     amplitude, tau, decades = 0.1, 1.5, 2.0
     creep = EFFECTS["creep"]()
-    y = creep.output(np.array([[amplitude, tau, decades]]), time, np.zeros_like(time), y_g[None, :])[0]
+    y = creep.output(np.array([[amplitude, tau, decades, 0.0, 0.1]]), time, np.zeros_like(time), y_g[None, :])[0]
     taus = creep_time_constants(tau, decades)[0]
     # Each mode s_m (tau_m s' = y_g - s): 0 before t_a; on the ramp (slope k = step/(t_b - t_a))
     # s = k (t' - tau_m (1 - exp(-t'/tau_m))), t' = t - t_a; after t_b it relaxes to step:
@@ -194,7 +198,7 @@ def signature_thermal(paper_input, plain_gpi):
     tau, sensitivity, expansion = 8.0, 0.1, 4.0
     y_g = 100.0 + 30.0 * np.sin(time)
     thermal = EFFECTS["thermal"]()
-    y = thermal.output(np.array([[tau, sensitivity, expansion]]), time, current, y_g[None, :])[0]
+    y = thermal.output(np.array([[tau, sensitivity, expansion, 300.0, 0.0, 0.0]]), time, current, y_g[None, :])[0]
     # tau th' = rate (t - t_on) - th, th(t_on) = 0: th = rate ((t - t_on) - tau (1 - exp(-(t - t_on)/tau))).
     dt = np.clip(time - t_on, 0.0, None)
     rise = rate * (dt - tau * -np.expm1(-dt / tau))
@@ -322,6 +326,136 @@ def signature_training(paper_input, plain_gpi):
     np.testing.assert_allclose(effect.drive(params, time, lagged)[0], expected_drive, rtol=1e-13, atol=1e-14)
 
 
+def signature_lag_dead_time(paper_input, plain_gpi):
+    """The dead time: a whole number of samples shifts the lagged drive by exactly those
+    samples; a fractional one equals the lag computed on a 1 ms grid at t - d; the output is
+    continuous in d; before t0 + d the drive is at rest."""
+    time, current = paper_input
+    m = Model(["lag"])
+    shifted = delayed_lowpass(time, current, 0.1, 0.05)[0]  # 5 samples at 100 Hz
+    lagged = first_order_lowpass(time, current, 0.1)[0]
+    np.testing.assert_allclose(shifted[5:], lagged[:-5], rtol=0, atol=1e-12)
+    assert np.all(shifted[:6] == current[0])
+    # fractional: against the exact lag on a fine grid (current linear between the samples)
+    fine = np.arange(0.0, 70.0 + 5e-4, 1e-3)
+    lagged_fine = first_order_lowpass(fine, np.interp(fine, time, current), 0.1)[0]
+    delay = 0.0537
+    exact = np.interp(time - delay, fine, lagged_fine, left=current[0])
+    np.testing.assert_allclose(delayed_lowpass(time, current, 0.1, delay)[0], exact, rtol=0, atol=2e-6)
+    # a pure delay reads the current by linear interpolation
+    np.testing.assert_allclose(
+        delayed_lowpass(time, current, 0.0, delay)[0], np.interp(time - delay, time, current, left=current[0]), atol=1e-12
+    )
+    # continuous in the delay: d and d + 1e-7 s differ by about slope x 1e-7 (slope <= 3.2 A/s here)
+    a, b = delayed_lowpass(time, current, [0.1, 0.1], [delay, delay + 1e-7])
+    assert np.max(np.abs(a - b)) < 5e-7
+    # through the model: the GPI of that drive (rate independent: a pure delay shifts its output)
+    y = m(m.theta_from_dict({"lag_delay": 0.05}), time, current)
+    np.testing.assert_allclose(y[5:], plain_gpi[:-5], rtol=0, atol=1e-9)
+    # the batch mixes delays and rows without delay (bit for bit the lag alone there)
+    both = delayed_lowpass(time, current, [0.1, 0.1], [0.0, 0.02])
+    assert np.array_equal(both[0], lagged)
+
+
+def signature_incomplete_reset(paper_input, plain_gpi):
+    """On the paper's input (0 A, a first peak of 5 A at 15 s = the largest excursion, then
+    smaller peaks): the extra strain grows with the current to A at the first peak, falls
+    to R A at the first trough (20 s), stays there (no fade) or fades with the travel, and is 0
+    in the quiet start."""
+    time, current = paper_input
+    m = Model(["incomplete_reset"])
+    A, R = 6.0, 0.4
+    change = m(m.theta_from_dict({"incomplete_reset_strain": A, "incomplete_reset_retained": R}), time, current) - plain_gpi
+    np.testing.assert_allclose(change[time < 10.0], 0.0, atol=1e-12)
+    first_rise = (time >= 10.0) & (time <= 15.0)
+    first_fall = (time > 15.0) & (time <= 20.0)
+    np.testing.assert_allclose(change[first_rise], A * current[first_rise] / 5.0, rtol=1e-12, atol=1e-12)
+    # unloading resets the share (1 - R) proportionally: A (i / 5) + R A (1 - i / 5)
+    expected = A * current[first_fall] / 5.0 + R * A * (1.0 - current[first_fall] / 5.0)
+    np.testing.assert_allclose(change[first_fall], expected, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(change[time > 20.0], R * A, rtol=1e-12)  # fixed afterwards
+    # fading with the travel: q = R A exp(-lambda V') with V' the travel after the first peak
+    fade = 0.05
+    faded = incomplete_reset_strain(current, [A], [R], [fade])[0]
+    assert faded[-1] < R * A * math.exp(-fade * 30.0) and faded[-1] > 0
+    assert np.all(np.diff(faded[time > 20.0]) <= 1e-15)
+    # R = 1: nothing is reset; R = 0: only the virgin loading differs
+    full = incomplete_reset_strain(current, [A], [1.0], [0.0])[0]
+    np.testing.assert_allclose(full[time >= 15.0], A, rtol=1e-12)
+    none = incomplete_reset_strain(current, [A], [0.0], [0.0])[0]
+    np.testing.assert_allclose(none[time >= 20.0], 0.0, atol=1e-12)
+    # an excursion beyond the largest so far (an increasing-amplitude input) adds extra strain again
+    t2 = np.linspace(0, 4, 401)
+    i2 = np.concatenate([np.linspace(0, 2, 101), np.linspace(2, 0, 100)[1:], np.linspace(0, 4, 201)[1:], [4.0]])[: t2.size]
+    extra = incomplete_reset_strain(i2, [A], [0.0], [0.0])[0]
+    assert extra[100] == pytest.approx(A * 0.5) and abs(extra[199]) < 1e-12
+    assert extra[-1] == pytest.approx(A * 0.5, rel=1e-9)  # only the new 2 A of virgin territory
+
+
+def signature_thermal_two_nodes(paper_input, plain_gpi):
+    """Node 2 follows node 1 through its own time constant: against the analytic two-pole
+    response to a constant heating switched on at t_on; node 2's gains 0 is the one-node form bit for bit."""
+    time = np.linspace(0.0, 400.0, 40001)
+    t_on = 10.0
+    current = np.where(time >= t_on, REFERENCE_CURRENT, 0.0)
+    current[np.searchsorted(time, t_on)] = REFERENCE_CURRENT  # step at a sample
+    tau1, tau2 = 5.0, 60.0
+    thermal = EFFECTS["thermal"]()
+    y_g = np.full((1, time.size), 100.0)
+    params = np.array([[tau1, 0.0, 0.0, tau2, 0.0, 1.0]])  # node 2 expansion only: y - y_g = theta2
+    y = thermal.output(params, time, current, y_g)[0] - 100.0
+    dt = np.clip(time - t_on, 0.0, None)
+    # theta1 = 1 - exp(-t/tau1) (after a ramp over one 10 ms sample); theta2 = 1 - (tau2 e^{-t/tau2} - tau1 e^{-t/tau1})/(tau2 - tau1)
+    theta2 = 1.0 - (tau2 * np.exp(-dt / tau2) - tau1 * np.exp(-dt / tau1)) / (tau2 - tau1)
+    late = time > t_on + 1.0
+    np.testing.assert_allclose(y[late], theta2[late], rtol=0, atol=2e-3)
+    # one-node form: node 2 gains 0 -> exactly the old kernel's formula
+    time_p, current_p = paper_input
+    m = Model(["thermal"])
+    test = EFFECTS["thermal"].get_test_parameters()
+    assert test["thermal_sensitivity_core"] == 0.0 and test["thermal_expansion_core"] == 0.0
+    rise = thermal_rise(time_p, current_p, test["thermal_tau"])[0]
+    change = m(_theta(m, test), time_p, current_p) - plain_gpi
+    np.testing.assert_allclose(change, -test["thermal_sensitivity"] * rise * plain_gpi + test["thermal_expansion"] * rise,
+                               rtol=1e-12, atol=1e-12)  # fmt: skip
+    # node 2 rises more slowly than node 1
+    values = dict(test, thermal_sensitivity=0.0, thermal_expansion=0.0, thermal_expansion_core=3.0, thermal_tau_core=100.0)
+    slow = m(_theta(m, values), time_p, current_p) - plain_gpi
+    assert np.all(slow[time_p < 10.0] == 0.0)
+    assert 0 < slow[time_p <= 30.0][-1] < 3.0 * rise[time_p <= 30.0][-1]
+
+
+def signature_log_creep(paper_input, plain_gpi):
+    """After a step, logarithmic creep keeps growing by gamma step per decade of time (within
+    0.05 decade-units of log10(1 + t/t0) for t >= 10 t0), without saturating within the record."""
+    time = np.linspace(0.0, 200.0, 200001)
+    step = 50.0
+    y_g = np.where(time >= 1.0, step, 0.0)[None, :]
+    creep = EFFECTS["creep"]()
+    gamma, onset = 0.02, 0.01
+    y = creep.output(np.array([[0.0, 1.0, 1.0, gamma, onset]]), time, np.zeros_like(time), y_g)[0]
+    after = time - 1.0
+    window = (after >= 10 * onset) & (after <= 100.0)
+    grown = (y - y_g[0])[window] / (gamma * step)
+    assert np.max(np.abs(grown - np.log10(1.0 + after[window] / onset))) < 0.06
+    assert (y[-1] - y[time.searchsorted(101.0)]) > 0.25 * gamma * step  # still growing at 100-199 s
+    taus, counts = log_creep_time_constants(np.array([onset]), 200.0)
+    assert counts[0] == math.ceil(LOG_CREEP_MODES_PER_DECADE * math.log10(2000.0 / onset))
+    # combined with the saturating spectrum: the sum of both parts
+    both = creep.output(np.array([[0.05, 2.0, 2.0, gamma, onset]]), time, np.zeros_like(time), y_g)[0]
+    saturating = creep.output(np.array([[0.05, 2.0, 2.0, 0.0, onset]]), time, np.zeros_like(time), y_g)[0]
+    np.testing.assert_allclose(both - saturating, y - y_g[0], rtol=1e-9, atol=1e-9)
+
+
+def signature_settling_drift(paper_input, plain_gpi):
+    """The warm-up term settles: D_w (1 - exp(-t / tau_w)), on top of the polynomial."""
+    time, current = paper_input
+    m = Model(["sensor_drift"])
+    values = {"sensor_drift_linear": 0.5, "sensor_drift_settling": 3.0, "sensor_drift_settling_tau": 8.0}
+    change = m(_theta(m, values), time, current) - plain_gpi
+    np.testing.assert_allclose(change, 0.5 * time / 70.0 + 3.0 * -np.expm1(-time / 8.0), rtol=1e-9, atol=1e-12)
+
+
 SIGNATURES = {
     "lag": signature_lag,
     "training": signature_training,
@@ -329,11 +463,24 @@ SIGNATURES = {
     "thermal": signature_thermal,
     "sensor_drift": signature_sensor_drift,
     "initial_state": signature_initial_state,
+    "incomplete_reset": signature_incomplete_reset,
+}
+#: the general forms' other parts (each effect's extra terms beyond its test parameters)
+GENERAL_FORMS = {
+    "lag dead time": signature_lag_dead_time,
+    "thermal two nodes": signature_thermal_two_nodes,
+    "logarithmic creep": signature_log_creep,
+    "settling drift": signature_settling_drift,
 }
 
 
 def test_every_effect_has_a_signature_test():
     assert set(SIGNATURES) == set(EFFECTS), "every registered effect needs a signature test in SIGNATURES"
+
+
+@pytest.mark.parametrize("form", list(GENERAL_FORMS))
+def test_general_form(form, paper_input, plain_gpi):
+    GENERAL_FORMS[form](paper_input, plain_gpi)
 
 
 @pytest.mark.parametrize("name", list(SIGNATURES))
