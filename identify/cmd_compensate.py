@@ -26,6 +26,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from . import options
+
 __all__ = ["HELP", "add_arguments", "run"]
 
 HELP = "inverse of the identified model: the drive current that makes it follow a target trajectory"
@@ -39,8 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--current-range", default=None, metavar="LO:HI",
         help="limits of the drive (default 0:5 for a study in A, the rig's; else the training record's drive range)",
     )  # fmt: skip
-    parser.add_argument("--draws", type=int, default=200, help="posterior draws inverted and driven (default 200)")
-    parser.add_argument("--seed", type=int, default=0, help="seed choosing the draws (default 0)")
+    parser.add_argument("--draws", type=options.integer(2, None, "an integer >= 2"), default=200, help="posterior draws inverted and driven (default 200)")
+    parser.add_argument("--seed", type=options.seed, default=0, help="seed choosing the draws (default 0)")
     parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
 
 
@@ -61,8 +63,6 @@ def run(args) -> int:
 
     try:
         limits = parse_span(args.current_range, "--current-range") if args.current_range else None
-        if args.draws < 2:
-            raise ValueError(f"--draws must be >= 2, got {args.draws}")
         study = load_study(args.dir)
         target = load_target(args.target, output_column=study.record.output_name)
         progress(f"inverting the model of {study.path} for {target.source} ({target.time.size} samples)")

@@ -23,6 +23,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from . import options
+
 __all__ = ["HELP", "add_arguments", "run", "parse_span"]
 
 HELP = "apply a finished study's model to another record (validation, no refit): report, bands, verdict"
@@ -33,14 +35,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", metavar="NEW.csv", help="record of the same rig (the study's columns and units)")
     parser.add_argument("--out", default=None, metavar="OUT", help="output folder (default DIR/predict-<NEW stem>)")
     parser.add_argument("--window", default=None, metavar="T0:T1", help="score only T0 <= time <= T1 [s]; the model still runs from the record's start")
-    parser.add_argument("--draws", type=int, default=200, help="posterior draws pushed through the model (default 200)")
-    parser.add_argument("--seed", type=int, default=0, help="seed choosing the draws (and of a diagnosis; default 0)")
+    parser.add_argument("--draws", type=options.integer(2, None, "an integer >= 2"), default=200, help="posterior draws pushed through the model (default 200)")
+    parser.add_argument("--seed", type=options.seed, default=0, help="seed choosing the draws (and of a diagnosis; default 0)")
     parser.add_argument(
         "--diagnosis", choices=("auto", "adequacy"), default="auto",
         help="auto (default): when the validation residual is not noise, search which effect the record reveals; "
         "adequacy: only test whether it is noise",
     )  # fmt: skip
-    parser.add_argument("--n-starts", type=int, default=6, help="least-squares starts of a diagnosis (default 6)")
+    parser.add_argument("--n-starts", type=options.positive_int, default=6, help="least-squares starts of a diagnosis (default 6)")
     group = parser.add_argument_group("record columns and units (default: the study's)")
     for option in ("time-column", "input-column", "output-column", "input-unit", "output-unit"):
         group.add_argument(f"--{option}", default=None)
@@ -75,8 +77,6 @@ def run(args) -> int:
 
     try:
         window = parse_span(args.window, "--window") if args.window else None
-        if args.draws < 2:
-            raise ValueError(f"--draws must be >= 2, got {args.draws}")
         study = load_study(args.dir)
         record = load_record_for_study(
             args.data, study, time_column=args.time_column, input_column=args.input_column,
