@@ -716,6 +716,14 @@ def _solve(residuals: "WhitenedResiduals", x0, max_nfev, method=SOLVER_METHOD):
     )
 
 
+def _converged(residuals: "WhitenedResiduals", sol, note: str = "") -> "_PolishedStart":
+    """``sol`` run on to convergence with :data:`SOLVER_METHOD` when it stopped at its
+    evaluation cap (status 0), as a :class:`_PolishedStart` (``note`` appended to the message)."""
+    if sol.status == 0:
+        sol = _solve(residuals, sol.x, POLISH_EVALUATIONS)
+    return _PolishedStart(np.asarray(sol.x, dtype=float), 2.0 * float(sol.cost), bool(sol.success), f"{sol.message}{note}")
+
+
 def _gpi_at_bound(residuals: "WhitenedResiduals", x) -> list[str]:
     """Names of the free GPI parameters of free vector ``x`` that sit on a box bound."""
     n_gpi = len(THETA_NAMES)
@@ -869,42 +877,36 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
             polish = set(order[:n_polish])
             outcomes: list[StartOutcome] = []
             best = None
+
+            def keep(label, end, n_eval):
+                nonlocal best
+                outcomes.append(StartOutcome(label, end.chi2, n_eval, end.success, end.message))
+                if verbose:
+                    print(f"  polish {label:<14} chi2 = {end.chi2:.6g}  ({end.message})", file=sys.stderr)
+                if best is None or end.chi2 < best.chi2:
+                    best = end
+
             for k, (label, sol, n_eval) in enumerate(screened):
                 if k not in polish:
                     message = f"screened out after {SCREEN_EVALUATIONS} evaluations (not run to convergence)"
                     outcomes.append(StartOutcome(label, 2.0 * float(sol.cost), n_eval, bool(sol.success), message))
                     continue
                 before = residuals.n_evaluations
-                if sol.status == 0:
-                    sol = _solve(residuals, sol.x, POLISH_EVALUATIONS)
-                end = _PolishedStart(np.asarray(sol.x, dtype=float), 2.0 * float(sol.cost), bool(sol.success), str(sol.message))
-                n_eval += residuals.n_evaluations - before
-                outcomes.append(StartOutcome(label, end.chi2, n_eval, end.success, end.message))
-                if verbose:
-                    print(f"  polish {label:<14} chi2 = {end.chi2:.6g}  ({end.message})", file=sys.stderr)
-                if best is None or end.chi2 < best.chi2:
-                    best = end
+                end = _converged(residuals, sol)
+                keep(label, end, n_eval + residuals.n_evaluations - before)
             # Phase 3: an optimum with a GPI parameter on its box bound is a degenerate limit
             # (e.g. an Omega branch whose tanh is stretched into a line: c0 at -1000, c1 -> 0),
             # into which dogbox's large steps can fall; the same starts are then polished from
             # their origin with the interior, reflective method (trf) too, finished by dogbox.
             gpi_at_bound = _gpi_at_bound(residuals, best.x)
             if gpi_at_bound:
+                note = (f" ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum "
+                        f"had {', '.join(gpi_at_bound)} on a bound)")  # fmt: skip
                 for k in sorted(polish):
-                    label = screened[k][0]
                     before = residuals.n_evaluations
                     sol = _solve(residuals, origins[k], POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
-                    if sol.status == 0:
-                        sol = _solve(residuals, sol.x, POLISH_EVALUATIONS)
-                    end = _PolishedStart(np.asarray(sol.x, dtype=float), 2.0 * float(sol.cost), bool(sol.success),
-                                         f"{sol.message} ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum "
-                                         f"had {', '.join(gpi_at_bound)} on a bound)")  # fmt: skip
-                    outcomes.append(StartOutcome(f"{label} ({ALTERNATE_METHOD})", end.chi2, residuals.n_evaluations - before,
-                                                 end.success, end.message))  # fmt: skip
-                    if verbose:
-                        print(f"  polish {label:<14} chi2 = {end.chi2:.6g}  ({end.message})", file=sys.stderr)
-                    if end.chi2 < best.chi2:
-                        best = end
+                    end = _converged(residuals, sol, note)
+                    keep(f"{screened[k][0]} ({ALTERNATE_METHOD})", end, residuals.n_evaluations - before)
     finally:
         numba.set_num_threads(threads_before)
     x_best = best.x
