@@ -113,6 +113,15 @@ def noise_sigma(text) -> str:
     return str(text)
 
 
+def _nearest_parent_is_a_folder(text, path: Path) -> None:
+    """The nearest existing parent of ``path`` must be a folder (the rest is created)."""
+    for parent in path.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                _fail(f"{text}: {parent} is a file, not a folder")
+            break
+
+
 def folder_path(text) -> str:
     """A folder to write into: it may exist, but not as a file."""
     path = Path(text)
@@ -120,11 +129,7 @@ def folder_path(text) -> str:
         _fail("expected a folder path, got ''")
     if path.exists() and not path.is_dir():
         _fail(f"{text} exists and is not a folder")
-    for parent in path.absolute().parents:
-        if parent.exists():
-            if not parent.is_dir():
-                _fail(f"{text}: {parent} is a file, not a folder")
-            break
+    _nearest_parent_is_a_folder(text, path)
     return text
 
 
@@ -145,11 +150,7 @@ def file_path(text) -> str:
         _fail("expected a file path, got ''")
     if path.is_dir() or str(text).endswith(("/", "\\")):
         _fail(f"{text} is a folder; give a file name")
-    for parent in path.absolute().parents:
-        if parent.exists():
-            if not parent.is_dir():
-                _fail(f"{text}: {parent} is a file, not a folder")
-            break
+    _nearest_parent_is_a_folder(text, path)
     return text
 
 
