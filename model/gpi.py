@@ -138,11 +138,11 @@ _DESCRIPTIONS = {
 # and slopes are positive (a0 tanh(a1 v + a2) = (-a0) tanh(-a1 v - a2) is an exact
 # sign symmetry, removed by this choice, and increasing envelopes make the operator
 # rate independent). The envelope units assume the input is in A; other records
-# rescale them (see identify.records).
+# rescale them (see identify.data.records).
 _BOUNDS = {
     # Either sign: alpha < 0 is the paper's (Table 1) reading, alpha > 0 the classical PI's
     # positive thresholds, which thin loop tips (e.g. piezo actuators) need. The
-    # identification pins |alpha| and chooses the sign (identify.lsq).
+    # identification pins |alpha| and chooses the sign (identify.fitting.lsq).
     "alpha": (-2.0, 2.0),
     "rho": (1e-3, 1e3),
     "tau": (-5.0, 5.0),

@@ -1,11 +1,11 @@
-"""identify.bands.mixture_quantile against the report's bisection and a direct check."""
+"""identify.output.bands.mixture_quantile against the report's bisection and a direct check."""
 
 import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from identify.bands import mixture_quantile
-from identify.report import mixture_quantile as bisection
+from identify.output.bands import mixture_quantile
+from identify.output.report import mixture_quantile as bisection
 
 
 @pytest.mark.parametrize("probability", [0.025, 0.5, 0.975])

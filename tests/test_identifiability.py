@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identify.identifiability import (
+from identify.fitting.identifiability import (
     EXACT_RATIO,
     NORMALISATION,
     SCALING_PARAMETERS,
@@ -20,9 +20,9 @@ from identify.identifiability import (
     scaling_direction,
     to_normalisation,
 )
-from identify.lsq import WhitenedResiduals, fit_least_squares
-from identify.noise import NoiseModel
-from identify.records import Record
+from identify.fitting.lsq import WhitenedResiduals, fit_least_squares
+from identify.fitting.noise import NoiseModel
+from identify.data.records import Record
 from model import TABLE1, THETA_NAMES, Model, paper_current
 
 

@@ -1,4 +1,4 @@
-"""Tests of the uncertainty report (identify.report, identify.plots, identify.cmd_report).
+"""Tests of the uncertainty report (identify.output.report, identify.output.plots, identify.cli.report).
 
 End-to-end tests run the real ``study`` on a small simulated record (tests/report_fixture.py,
 ~15 s of CPU once per session) and parse the page it writes back: every figure and table
@@ -20,7 +20,8 @@ from matplotlib.collections import PolyCollection
 from scipy.stats import norm
 
 import model
-from identify import plots, report
+from identify.output import plots
+from identify.output import report
 from identify.cli import main as identify_main
 from report_fixture import FixtureSettings, build_results_folder
 

@@ -1,4 +1,4 @@
-"""Tests of identify.residuals: the "where it fails" statistics and the noise tests (pure arrays, fast)."""
+"""Tests of identify.diagnosis.residuals: the "where it fails" statistics and the noise tests (pure arrays, fast)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from identify.residuals import (
+from identify.diagnosis.residuals import (
     ARNoise,
     autocorrelation,
     binned_residual,
@@ -190,7 +190,7 @@ def test_variance_and_low_frequency_tests_measure_the_structure():
 def test_no_false_alarm_with_the_quiet_segment_as_reference():
     """The tests' null (noise model estimated on a 1000-sample quiet segment, then applied to a
     7001-sample record): over 60 seeds of white and AR(1) noise no test reaches z = 5, the
-    diagnosis' threshold (identify.diagnose.Thresholds.z_critical)."""
+    diagnosis' threshold (identify.diagnosis.diagnose.Thresholds.z_critical)."""
     time, current = paper_current(100.0)
     quiet = slice(0, 1001)
     worst = 0.0
