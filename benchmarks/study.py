@@ -52,7 +52,7 @@ def main(argv=None) -> int:
     parser.add_argument("--skip-study", action="store_true", help="only the least-squares timings")
     args = parser.parse_args(argv)
 
-    from identify.fitting.identifiability import normalised_model
+    from identify.fitting.parametrisation import normalised_model
     from identify.fitting.lsq import fit_least_squares
     from identify.data.records import load_record
     from model import Model

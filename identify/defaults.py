@@ -8,3 +8,19 @@ module is cheap, so ``--help`` stays fast)."""
 DEFAULT_MAX_STEPS = 60000
 #: Convergence check interval [steps] (API and ``study --check-every``).
 DEFAULT_CHECK_EVERY = 500
+#: Least-squares starts of a fit and a study (API and ``--n-starts``).
+DEFAULT_N_STARTS = 8
+
+# Names the command line offers in its --help without importing the model (numba): kept
+# equal to model.EFFECTS, model.READINGS and model.INPUT_READINGS by tests/test_layout.py.
+#: The effects of the library, in model.EFFECTS' order.
+EFFECT_NAMES = ("lag", "training", "initial_state", "incomplete_reset", "creep", "thermal", "sensor_drift")
+#: Readings of the paper's eqs. (5)-(7).
+READINGS = ("swapped", "literal")
+#: Readings of the decay in the paper's eq. (16).
+INPUT_READINGS = ("literal", "centred")
+
+#: Default sensor noise standard deviation of the simulated bench [um]: about 0.2 % of the ~300 um full scale.
+DEFAULT_NOISE_SIGMA = 0.5
+#: Default sampling rate of the simulated bench [Hz] (7001 samples over the paper's 70 s).
+DEFAULT_FS = 100.0

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from identify.bench.calibration import WALD_Z95, CoverageResult, RecordCoverage, calibration_truth, interval_coverage
-from identify.fitting.identifiability import normalised_model, to_normalisation
+from identify.fitting.parametrisation import normalised_model, to_normalisation
 from model import TABLE1, THETA_NAMES, Model
 
 

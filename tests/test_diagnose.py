@@ -29,7 +29,7 @@ from identify.diagnosis.diagnose import (
     screen_candidates,
     screening_grid,
 )
-from identify.fitting.identifiability import normalised_model, with_threshold_sign
+from identify.fitting.parametrisation import normalised_model, with_threshold_sign
 from identify.fitting.lsq import fit_least_squares
 from identify.fitting.noise import estimate_noise
 from identify.data.records import write_record

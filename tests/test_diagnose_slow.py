@@ -34,7 +34,7 @@ import pytest
 
 from identify.bench import simulate
 from identify.diagnosis.diagnose import diagnose, fit_baseline
-from identify.fitting.identifiability import normalised_model
+from identify.fitting.parametrisation import normalised_model
 from identify.fitting.noise import NoiseModel
 from identify.data.records import Record
 from model import TABLE1, Model, gpi

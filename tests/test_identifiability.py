@@ -6,13 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identify.fitting.identifiability import (
-    EXACT_RATIO,
+from identify.fitting.identifiability import EXACT_RATIO, analyse_fit, analyse_identifiability
+from identify.fitting.parametrisation import (
     NORMALISATION,
     SCALING_PARAMETERS,
     SCALING_POWERS,
-    analyse_fit,
-    analyse_identifiability,
     gpi_scaling,
     normalised_model,
     parameter_scales,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identify.fitting.identifiability import normalised_model
+from identify.fitting.parametrisation import normalised_model
 from identify.fitting.lsq import FitResult, WhitenedResiduals, candidate_starts, fit_least_squares
 from identify.fitting.noise import NoiseModel, estimate_noise
 from identify.data.records import Record
@@ -246,7 +246,7 @@ def test_table1_start_is_rescaled_to_more_operators(n_operators):
     weight: alpha still exactly the
     pinned value, and an output within 3 % of the range of Table 1's 12-operator output
     (measured 1.3 % for 21, 1.9 % for 30 operators: the discretisation of the density)."""
-    from identify.fitting.identifiability import with_threshold_sign
+    from identify.fitting.parametrisation import with_threshold_sign
 
     rec = simulated_record(seed=2)
     model_n = with_threshold_sign(normalised_model(Model(n_operators=n_operators)), -1)

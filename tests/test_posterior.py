@@ -10,7 +10,7 @@ import emcee
 import numpy as np
 import pytest
 
-from identify.fitting.identifiability import normalised_model
+from identify.fitting.parametrisation import normalised_model
 from identify.fitting.lsq import fit_least_squares
 from identify.fitting.noise import NoiseModel, estimate_noise, log_likelihood
 from identify.fitting.posterior import (

@@ -236,7 +236,7 @@ def test_keep_every_keeps_the_reversals_so_the_gpi_output_is_unchanged():
     there, bit for bit."""
     from identify.bench import simulate
     from identify.data.records import keep_every
-    from identify.diagnosis.residuals import find_reversals
+    from identify.data.reversals import find_reversals
     from model import TABLE1, gpi
 
     record = simulate(fs=100.0, seed=1).record

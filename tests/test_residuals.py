@@ -6,20 +6,17 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
+from identify.data.reversals import branch_direction, find_reversals, input_rate, time_since_reversal
 from identify.diagnosis.residuals import (
     ARNoise,
     autocorrelation,
     binned_residual,
-    branch_direction,
     cycle_statistics,
     extremum_levels,
-    find_reversals,
     fit_ar_noise,
-    input_rate,
     ljung_box,
     low_frequency_test,
     residual_profile,
-    time_since_reversal,
     variance_ratio_test,
 )
 from model import paper_current

@@ -8,7 +8,7 @@ with emcee, and asks, parameter by parameter, whether
 * the **least-squares** Wald interval :math:`\hat\theta \pm 1.96\,\mathrm{se}`
 
 contain the true value. The comparison is made in the model's normalisation
-(:func:`identify.fitting.identifiability.to_normalisation`): the GPI's exact scaling degeneracy
+(:func:`identify.fitting.parametrisation.to_normalisation`): the GPI's exact scaling degeneracy
 makes only the normalised parameters identifiable.
 
 How precise is a coverage figure? The intervals of one record are strongly correlated
@@ -37,7 +37,7 @@ import numpy as np
 from model import Model
 
 from ..data.fileio import atomic_write_text
-from ..fitting.identifiability import normalised_model, to_normalisation
+from ..fitting.parametrisation import normalised_model, to_normalisation
 
 __all__ = [
     "RecordCoverage",
@@ -61,7 +61,7 @@ B3_SHIFT_RANGE = (-0.25, 0.25)
 #: Golden-ratio step of the low-discrepancy sequence that spreads the shifts over the seeds.
 _GOLDEN = 0.6180339887498949
 #: GPI scaling applied to the calibration truth, so that only the normalisation makes the
-#: estimates comparable with it (:func:`identify.fitting.identifiability.gpi_scaling`).
+#: estimates comparable with it (:func:`identify.fitting.parametrisation.gpi_scaling`).
 GPI_SCALING_K = 1.3
 
 
@@ -72,7 +72,7 @@ def calibration_truth(seed: int) -> np.ndarray:
     start to cross), scaled by :data:`GPI_SCALING_K` (raw; compare after :func:`to_normalisation`)."""
     from model import TABLE1, THETA_NAMES
 
-    from ..fitting.identifiability import gpi_scaling
+    from ..fitting.parametrisation import gpi_scaling
 
     lo, hi = B3_SHIFT_RANGE
     base = TABLE1.copy()
@@ -319,13 +319,13 @@ def interval_coverage(
     """Simulate, fit and sample one clean bench record per seed; count interval coverage.
 
     The fitted model is the plain GPI (12 operators, the paper's reading) in its
-    normalisation (:func:`identify.fitting.identifiability.normalised_model`).
+    normalisation (:func:`identify.fitting.parametrisation.normalised_model`).
 
     Parameters
     ----------
     truths : callable or array_like of shape (19,)
         The true GPI parameters (:data:`model.THETA_NAMES` order, any scaling: they are
-        compared after :func:`identify.fitting.identifiability.to_normalisation`): one vector for
+        compared after :func:`identify.fitting.parametrisation.to_normalisation`): one vector for
         every record, or ``truths(seed)`` giving each record its own (e.g.
         :func:`calibration_truth`).
     seeds : iterable of int

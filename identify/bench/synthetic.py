@@ -23,6 +23,7 @@ import numpy as np
 import model
 from model import EFFECTS, INPUT_READINGS, READINGS, THETA_NAMES, TABLE1, Model, paper_current
 
+from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA
 from ..data.records import Record
 
 __all__ = [
@@ -34,10 +35,6 @@ __all__ = [
     "DEFAULT_FS",
 ]
 
-#: Default sensor noise standard deviation [um]: about 0.2 % of the ~300 um full scale.
-DEFAULT_NOISE_SIGMA = 0.5
-#: Default sampling rate [Hz] (7001 samples over the paper's 70 s).
-DEFAULT_FS = 100.0
 
 
 @dataclass(frozen=True)

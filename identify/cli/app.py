@@ -135,6 +135,8 @@ def _main(argv) -> int:
             return 2
         module = importlib.import_module(args._module)
         return int(module.run(args) or 0)
+    except SystemExit:  # --help, --version and usage errors: before the clauses below import anything
+        raise
     except KeyboardInterrupt:
         print("interrupted; completed work is kept (rerun the same command to resume)", file=sys.stderr)
         return 130

@@ -30,7 +30,7 @@ HELP = "least squares + diagnosis: is the residual noise, and which physical eff
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from .fit import add_model_arguments, add_record_arguments
+    from .common import add_model_arguments, add_record_arguments
 
     add_record_arguments(parser)
     add_model_arguments(parser)
@@ -122,7 +122,7 @@ def _run(args) -> int:
 
     import numpy as np
 
-    from .fit import model_from_args, noise_from_args, record_from_args
+    from .common import model_from_args, noise_from_args, record_from_args
     from ..diagnosis.diagnose import diagnose
     from ..fitting.noise import NoQuietSegmentError
     from ..data.records import RecordError

@@ -16,11 +16,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from model import EFFECTS, INPUT_READINGS
-
+from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA, EFFECT_NAMES, INPUT_READINGS
 from . import options
-from ..bench.synthetic import DEFAULT_FS, DEFAULT_NOISE_SIGMA, simulate
-from ..data.records import write_record
 
 __all__ = ["HELP", "add_arguments", "run", "git_commit"]
 
@@ -40,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=(
             "comma-separated hidden effects: a name switches an effect on with its test parameters, "
             "PARAM=VALUE sets one parameter, e.g. thermal,creep_amplitude=0.02. Effects: "
-            + ", ".join(EFFECTS)
+            + ", ".join(EFFECT_NAMES)
         ),
     )
     parser.add_argument(
@@ -74,6 +71,9 @@ def git_commit(path=None) -> str | None:
 
 def run(args) -> int:
     """Simulate and write the record and its sidecar; 0 on success, 2 on a bad option."""
+    from ..bench.synthetic import simulate
+    from ..data.records import write_record
+
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
         print(f"simulate: error: --out must name a .csv file (the truth goes beside it as .json), got {out}", file=sys.stderr)

@@ -34,6 +34,7 @@ from typing import Mapping
 import numpy as np
 
 from .fileio import atomic_write_bytes
+from .reversals import find_reversals
 
 __all__ = [
     "Record", "RecordError", "load_record", "write_record", "sidecar_path", "keep_every", "thinning_indices",
@@ -530,7 +531,7 @@ def thinning_indices(current, every: int, reversals=None) -> np.ndarray:
         Step (>= 1).
     reversals : array_like of int, optional
         Indices of the input reversals when already known; default
-        :func:`identify.diagnosis.residuals.find_reversals` ``(current).index``.
+        :func:`identify.data.reversals.find_reversals` ``(current).index``.
 
     Returns
     -------
@@ -538,8 +539,6 @@ def thinning_indices(current, every: int, reversals=None) -> np.ndarray:
     """
     n = len(current)
     if reversals is None:
-        from ..diagnosis.residuals import find_reversals
-
         reversals = find_reversals(current).index
     keep = np.union1d(np.arange(0, n, int(every)), np.asarray(reversals, dtype=int))
     return np.union1d(keep, [n - 1])
@@ -550,7 +549,7 @@ def keep_every(record: Record, every: int) -> Record:
 
     For the rate-independent GPI the output at a kept sample depends only on the input
     sequence's extrema, so keeping the reversals (peaks and troughs, by
-    :func:`identify.diagnosis.residuals.find_reversals`) besides every ``every``-th sample and the
+    :func:`identify.data.reversals.find_reversals`) besides every ``every``-th sample and the
     last one leaves the model output at every kept sample unchanged (exactly, when the
     input has no wiggles smaller than ``find_reversals``' 2 % swing); only the number of
     residuals (and so the information) shrinks, e.g. a 5 kHz record of a 1 Hz drive
@@ -613,8 +612,6 @@ def suggest_every(record: Record, *, min_samples=20000, per_half_cycle=SAMPLES_P
         ``every`` keeps about ``per_half_cycle`` samples per half-cycle (and every
         reversal, :func:`keep_every`).
     """
-    from ..diagnosis.residuals import find_reversals
-
     n = len(record)
     if n < min_samples:
         return None

@@ -145,15 +145,11 @@ from scipy.optimize import least_squares, lsq_linear
 
 from model import EFFECTS, READINGS, Model, envelope, get_effect
 
-from ..fitting.identifiability import normalised_model
-from ..fitting.lsq import (
-    FitResult,
-    WhitenedResiduals,
-    _single_threaded_blas,
-    candidate_starts,
-    fit_least_squares,
-)
+from ..data.reversals import find_reversals
+from ..fitting.lsq import FitResult, WhitenedResiduals, candidate_starts, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
+from ..fitting.parametrisation import normalised_model, with_threshold_sign
+from ..fitting.threads import single_threaded_blas
 from .residuals import ARNoise, ResidualProfile, autocorrelation, fit_ar_noise, residual_profile
 
 __all__ = [
@@ -683,7 +679,7 @@ def _partial_jacobian(residuals: WhitenedResiduals, x, columns) -> np.ndarray:
 
 
 def _screen_one(record, model: Model, theta0, noise: NoiseModel, effect_name: str) -> ScreeningResult:
-    with _single_threaded_blas():  # small dense algebra: threads only compete with the model
+    with single_threaded_blas():  # small dense algebra: threads only compete with the model
         return _screen_one_impl(record, model, theta0, noise, effect_name)
 
 
@@ -1039,7 +1035,7 @@ MAX_BASELINE_CHALLENGES = 1
 
 
 def _solve(residuals, x0, method, max_nfev, tolerance=1e-10):
-    with _single_threaded_blas():
+    with single_threaded_blas():
         return least_squares(
             residuals, x0, jac=residuals.jacobian, bounds=(residuals.lower, residuals.upper), method=method,
             x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, max_nfev=max_nfev,
@@ -1137,8 +1133,6 @@ def _threshold_sign_variants(model: Model):
     alpha = model.parameters["alpha"]
     if alpha.vary or model.reading != "swapped":
         return [(model, None)]
-    from ..fitting.identifiability import with_threshold_sign
-
     return [(with_threshold_sign(model, -1), "negative"), (with_threshold_sign(model, 1), "positive")]
 
 
@@ -1226,8 +1220,6 @@ def _same_threshold_sign(model_a: Model, model_b: Model) -> bool:
 
 def _plain_of(model_e: Model, base: Model) -> Model:
     """``base`` (effects and all) with ``model_e``'s threshold sign (``base`` when alpha is free)."""
-    from ..fitting.identifiability import with_threshold_sign
-
     alpha = model_e.parameters["alpha"]
     return base if alpha.vary else with_threshold_sign(base, 1 if alpha.value > 0 else -1)
 
@@ -1309,7 +1301,7 @@ def fit_baseline(
     record : Record
         ``time`` [s], ``current`` [A], ``displacement`` [um], shape (T,).
     model : Model
-        The model to fit (e.g. :func:`identify.fitting.identifiability.normalised_model`).
+        The model to fit (e.g. :func:`identify.fitting.parametrisation.normalised_model`).
     noise : NoiseModel
         Its noise model (a known sigma).
     n_starts : int, default 6
@@ -1325,8 +1317,6 @@ def fit_baseline(
     """
     say = progress or (lambda message: None)
     rng = np.random.default_rng(0) if rng is None else rng
-    from .residuals import find_reversals
-
     work = _working_copy(record, noise, find_reversals(record.current).index)
     baselines = []
     for sign_model, sign in _threshold_sign_variants(model):
@@ -1364,7 +1354,7 @@ def diagnose(
         unenergised start (the noise reference), at least 20 samples.
     model : Model or sequence of str, optional
         The model to diagnose; effect names give the GPI plus those effects with the
-        project's normalisation (:func:`identify.fitting.identifiability.normalised_model`:
+        project's normalisation (:func:`identify.fitting.parametrisation.normalised_model`:
         alpha pinned), as the ``fit`` and ``study`` commands use; default the
         normalised plain GPI.
     noise : NoiseModel, optional
@@ -1416,8 +1406,6 @@ def diagnose(
         )
     quiet = noise.quiet if noise.quiet is not None else quiet_segment(record.current)
     q_stop = quiet.indices(len(record))[1]
-    from .residuals import find_reversals
-
     work = _working_copy(record, noise, find_reversals(record.current).index)
     if fit is None:
         fit = fit_baseline(record, model, noise, n_starts=n_starts, rng=rng, progress=say)

@@ -47,12 +47,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from ..data.reversals import Reversals, as_1d, branch_direction, find_reversals, input_rate, time_since_reversal
+
 __all__ = [
-    "Reversals",
-    "find_reversals",
-    "branch_direction",
-    "time_since_reversal",
-    "input_rate",
     "BinnedResidual",
     "binned_residual",
     "CycleStatistics",
@@ -71,18 +68,6 @@ __all__ = [
 ]
 
 
-def _as_1d(name, values, size=None):
-    arr = np.asarray(values, dtype=float)
-    if arr.ndim != 1:
-        raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
-    if size is not None and arr.size != size:
-        raise ValueError(f"{name} has {arr.size} samples, expected {size}")
-    if not np.isfinite(arr).all():
-        k = int(np.flatnonzero(~np.isfinite(arr))[0])
-        raise ValueError(f"{name} has a non-finite value at sample {k}")
-    return arr
-
-
 def _as_mask(name, mask, size):
     if mask is None:
         return np.ones(size, dtype=bool)
@@ -90,144 +75,6 @@ def _as_mask(name, mask, size):
     if m.dtype != bool or m.shape != (size,):
         raise ValueError(f"{name} must be a boolean array of shape ({size},), got {m.dtype} {m.shape}")
     return m
-
-
-# -- reversals and the input's geometry ----------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Reversals:
-    """Turning points of the drive.
-
-    Attributes
-    ----------
-    index : ndarray of int, shape (R,)
-        Sample index of each reversal, increasing. On a plateau the *last* sample of
-        the plateau is taken (where the input starts moving the other way).
-    kind : ndarray of int, shape (R,)
-        ``+1`` for a peak (maximum, the input turns down), ``-1`` for a trough.
-    min_swing : float
-        The swing [input units] a turn had to exceed to count.
-    """
-
-    index: np.ndarray
-    kind: np.ndarray
-    min_swing: float
-
-    def __len__(self):
-        return int(self.index.size)
-
-    @property
-    def peaks(self) -> np.ndarray:
-        """Indices of the peaks, shape (P,)."""
-        return self.index[self.kind > 0]
-
-    @property
-    def troughs(self) -> np.ndarray:
-        """Indices of the troughs, shape (Q,)."""
-        return self.index[self.kind < 0]
-
-
-def find_reversals(current, min_swing=None) -> Reversals:
-    """Peaks and troughs of the drive by a zig-zag rule.
-
-    A candidate extremum becomes a reversal once the input has moved away from it by
-    more than ``min_swing``; smaller wiggles (measurement noise on a read-back current)
-    are ignored. The quiet start (constant input) followed by the first rise gives a
-    trough at the last quiet sample.
-
-    Parameters
-    ----------
-    current : array_like, shape (T,)
-        Drive [A].
-    min_swing : float, optional
-        Minimum confirming swing [A]; default 2 % of the input's range.
-
-    Returns
-    -------
-    Reversals
-        Empty when the input never moves by more than ``min_swing``.
-    """
-    v = _as_1d("current", current)
-    span = float(v.max() - v.min()) if v.size else 0.0
-    if min_swing is None:
-        min_swing = 0.02 * span
-    if not (np.isfinite(min_swing) and min_swing >= 0):
-        raise ValueError(f"min_swing must be a finite number >= 0, got {min_swing!r}")
-    if span == 0.0 or v.size < 3:
-        return Reversals(np.zeros(0, dtype=int), np.zeros(0, dtype=int), float(min_swing))
-    index, kind = [], []
-    hi_i = lo_i = 0
-    hi = lo = v[0]
-    direction = 0  # +1 looking for a peak, -1 looking for a trough, 0 undecided
-    for k in range(1, v.size):
-        x = v[k]
-        if direction >= 0 and x >= hi:
-            hi, hi_i = x, k
-        if direction <= 0 and x <= lo:
-            lo, lo_i = x, k
-        if direction == 0:
-            if x - lo > min_swing and x > v[lo_i]:
-                index.append(lo_i)
-                kind.append(-1)
-                direction, hi, hi_i = +1, x, k
-            elif hi - x > min_swing and x < v[hi_i]:
-                index.append(hi_i)
-                kind.append(+1)
-                direction, lo, lo_i = -1, x, k
-        elif direction > 0 and hi - x > min_swing:
-            index.append(hi_i)
-            kind.append(+1)
-            direction, lo, lo_i = -1, x, k
-        elif direction < 0 and x - lo > min_swing:
-            index.append(lo_i)
-            kind.append(-1)
-            direction, hi, hi_i = +1, x, k
-    return Reversals(np.asarray(index, dtype=int), np.asarray(kind, dtype=int), float(min_swing))
-
-
-def branch_direction(n_samples, reversals: Reversals) -> np.ndarray:
-    """The branch each sample lies on: ``+1`` rising, ``-1`` falling, ``0`` before the first reversal.
-
-    Between a trough and the next peak the input rises; after the last reversal the
-    direction continues.
-
-    Returns
-    -------
-    ndarray of int8, shape (T,)
-    """
-    direction = np.zeros(int(n_samples), dtype=np.int8)
-    for i, (k, kind) in enumerate(zip(reversals.index, reversals.kind)):
-        stop = reversals.index[i + 1] if i + 1 < len(reversals) else n_samples
-        direction[k + 1 : stop + 1] = -kind  # after a peak (+1) the input falls
-    return direction
-
-
-def time_since_reversal(time, reversals: Reversals) -> np.ndarray:
-    """Seconds since the most recent reversal at or before each sample.
-
-    Returns
-    -------
-    ndarray, shape (T,)
-        [s]; NaN before the first reversal (undefined there).
-    """
-    t = _as_1d("time", time)
-    out = np.full(t.size, np.nan)
-    if len(reversals) == 0:
-        return out
-    last = np.searchsorted(reversals.index, np.arange(t.size), side="right") - 1
-    ok = last >= 0
-    out[ok] = t[ok] - t[reversals.index[last[ok]]]
-    return out
-
-
-def input_rate(time, current) -> np.ndarray:
-    """Rate of change of the drive, ``dI/dt`` [A/s], central differences, shape (T,)."""
-    t = _as_1d("time", time)
-    v = _as_1d("current", current, t.size)
-    if t.size < 2:
-        raise ValueError("input_rate needs at least 2 samples")
-    return np.gradient(v, t)
 
 
 # -- binned views -------------------------------------------------------------------------
@@ -282,7 +129,7 @@ def binned_residual(x, residual, n_bins=20, mask=None, edges=None) -> BinnedResi
     edges : array_like, shape (B+1,), optional
         Explicit increasing bin edges.
     """
-    r = _as_1d("residual", residual)
+    r = as_1d("residual", residual)
     xv = np.asarray(x, dtype=float)
     if xv.shape != r.shape:
         raise ValueError(f"x has shape {xv.shape}, residual {r.shape}: they must match")
@@ -360,8 +207,8 @@ def cycle_statistics(time, residual, reversals: Reversals, output_range) -> Cycl
     output_range : float
         Measured displacement range (max - min) [output units], > 0, for the % figure.
     """
-    t = _as_1d("time", time)
-    r = _as_1d("residual", residual, t.size)
+    t = as_1d("time", time)
+    r = as_1d("residual", residual, t.size)
     if not (np.isfinite(output_range) and output_range > 0):
         raise ValueError(f"output_range must be a positive number, got {output_range!r}")
     troughs = reversals.troughs
@@ -431,9 +278,9 @@ def extremum_levels(time, current, residual, reversals: Reversals, half_window=2
         Samples either side of the reversal averaged (5 samples by default: less
         noise, still local).
     """
-    t = _as_1d("time", time)
-    v = _as_1d("current", current, t.size)
-    r = _as_1d("residual", residual, t.size)
+    t = as_1d("time", time)
+    v = as_1d("current", current, t.size)
+    r = as_1d("residual", residual, t.size)
     if int(half_window) < 0:
         raise ValueError(f"half_window must be >= 0, got {half_window}")
     h = int(half_window)
@@ -459,7 +306,7 @@ def autocorrelation(x, max_lag) -> np.ndarray:
     ndarray, shape (max_lag + 1,)
         ``rho_0 = 1``; all zeros after lag 0 for a constant ``x``.
     """
-    xv = _as_1d("x", x)
+    xv = as_1d("x", x)
     max_lag = int(max_lag)
     if not (0 <= max_lag < xv.size):
         raise ValueError(f"max_lag must satisfy 0 <= max_lag < {xv.size}, got {max_lag}")
@@ -546,7 +393,7 @@ class ARNoise:
         -------
         ndarray, shape (n - p,)
         """
-        xv = _as_1d("x", x)
+        xv = as_1d("x", x)
         p = self.order
         if xv.size <= p + 1:
             raise ValueError(f"need more than {p + 1} samples to whiten with an AR({p}) model")
@@ -582,7 +429,7 @@ def fit_ar_noise(quiet, max_order=5, detrend=True) -> ARNoise:
     -------
     ARNoise
     """
-    q = _as_1d("quiet", quiet)
+    q = as_1d("quiet", quiet)
     if q.size < 20:
         raise ValueError(f"the quiet segment has {q.size} samples; at least 20 are needed for a noise model")
     if detrend:
@@ -679,7 +526,7 @@ def ljung_box(whitened, n_lags=40, filter_error=0.0) -> StatTest:
         then has mean ``m + c`` and sd ``sqrt(2 m + 2 c^2)`` (a scaled
         :math:`\chi^2` term for the filter error); the p-value is that normal tail.
     """
-    w = _as_1d("whitened", whitened)
+    w = as_1d("whitened", whitened)
     n = w.size
     m = int(min(n_lags, n // 4))
     if m < 1:
@@ -717,7 +564,7 @@ def variance_ratio_test(residual, noise: ARNoise, n_fitted=0) -> StatTest:
         Parameters fitted to the residual's data (their absorption lowers the expected
         mean square by the factor ``1 - n_fitted / n``).
     """
-    r = _as_1d("residual", residual)
+    r = as_1d("residual", residual)
     n = r.size
     inflation = noise.variance_inflation()
     expected = 1.0 - min(n_fitted, n - 1) / n
@@ -746,7 +593,7 @@ def low_frequency_test(residual, noise: ARNoise, block_length) -> StatTest:
     block_length : int
         Samples per block ``L >= 1``; the last partial block is dropped.
     """
-    r = _as_1d("residual", residual)
+    r = as_1d("residual", residual)
     L = int(block_length)
     if L < 1:
         raise ValueError(f"block_length must be >= 1, got {block_length}")
@@ -904,9 +751,9 @@ def residual_profile(
     min_swing : float, optional
         Passed to :func:`find_reversals`.
     """
-    t = _as_1d("time", time)
-    v = _as_1d("current", current, t.size)
-    r = _as_1d("residual", residual, t.size)
+    t = as_1d("time", time)
+    v = as_1d("current", current, t.size)
+    r = as_1d("residual", residual, t.size)
     if quiet is None:
         if noise is None:
             raise ValueError("without a quiet segment the noise model must be given (noise=ARNoise(...))")

@@ -86,9 +86,9 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
     """Write ``DIR/posterior.nc`` (module docstring) and return its path."""
     import emcee
 
-    from .posterior import BACKEND_GROUP, _arviz
+    from .posterior import BACKEND_GROUP, import_arviz
 
-    az = _arviz()
+    az = import_arviz()
     out_dir = Path(out_dir)
     backend = emcee.backends.HDFBackend(str(out_dir / "chain.h5"), name=BACKEND_GROUP, read_only=True)
     chain = backend.get_chain()[posterior.discard :: posterior.thin]  # (draw, walker, D)

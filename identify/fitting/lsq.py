@@ -56,7 +56,7 @@ scaling restores a pinned ``alpha``; :func:`_rescaled_to_operators`).
 
 Starts "agree" when their final chi-square is within 1 of the best (statistically indistinguishable
 fits); a start screened out counts as not agreeing, so ``n_agree`` is a lower bound.
-BLAS runs single-threaded during the fit (see :func:`_single_threaded_blas`).
+BLAS runs single-threaded during the fit (see :func:`identify.fitting.threads.single_threaded_blas`).
 
 Sign of the thresholds
 ----------------------
@@ -79,7 +79,6 @@ columns are zero, their standard errors NaN). With a free sigma, sigma is estima
 
 from __future__ import annotations
 
-import contextlib
 import math
 import sys
 import time as _time
@@ -91,6 +90,8 @@ from scipy.optimize import least_squares
 from model import GPI_PARAMETERS, THETA_NAMES, Model, ParameterSet
 
 from .noise import NoiseModel, energised_mask, estimate_noise, whiten
+from .parametrisation import gpi_scaling, with_threshold_sign
+from .threads import fastest_thread_count, single_threaded_blas
 
 __all__ = [
     "FitResult",
@@ -103,7 +104,6 @@ __all__ = [
     "PAPER_PEAK_INPUT",
     "THRESHOLD_SIGNS",
     "parameter_units",
-    "fastest_thread_count",
 ]
 
 #: Whitened residual per sample returned for a parameter set whose model output is not finite.
@@ -486,7 +486,7 @@ def _rescaled_to_operators(theta: np.ndarray, model: Model) -> np.ndarray:
     The ``N`` operators keep the 12 operators' threshold range and total weight:
     ``alpha`` and ``rho`` times ``12 / N`` (a finer discretisation of the same density
     ``p(r)``). When ``alpha`` is pinned (the normalisation), the exact scaling (k = N / 12,
-    :func:`identify.fitting.identifiability.gpi_scaling`) then brings it back to its pinned value:
+    :func:`identify.fitting.parametrisation.gpi_scaling`) then brings it back to its pinned value:
     ``rho`` times ``(12/N)**2``, ``tau`` times ``12/N``, ``a0, a3, b0, b3`` times ``N/12``.
     The output is unchanged up to the discretisation of the density. Returns a new
     array, shape (P,); ``theta`` itself when ``N`` is 12.
@@ -494,8 +494,6 @@ def _rescaled_to_operators(theta: np.ndarray, model: Model) -> np.ndarray:
     n_operators = model.n_operators
     if n_operators == TABLE1_N_OPERATORS:
         return theta
-    from .identifiability import gpi_scaling
-
     ratio = TABLE1_N_OPERATORS / n_operators
     i_alpha, i_rho = THETA_NAMES.index("alpha"), THETA_NAMES.index("rho")
     out = np.array(theta, dtype=float)
@@ -660,47 +658,6 @@ def candidate_starts(record, model: Model, *, n_starts=8, rng=None, start=None) 
     return starts
 
 
-def _single_threaded_blas():
-    """Limit BLAS to one thread: the small SVDs of the solver are ~50x slower when
-    OpenBLAS threads compete with the (numba-parallel) model on a loaded 2-core machine."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        return contextlib.nullcontext()
-    return threadpool_limits(1, user_api="blas")
-
-
-def fastest_thread_count(fn, argument, repeats=3) -> int:
-    """Set numba's thread count (1 or the maximum) that runs ``fn(argument)`` fastest now.
-
-    On a loaded 2-core machine a parallel region waits for its second thread to be
-    scheduled (measured: 8 ms for 18 parameter sets on 2 threads vs 3.2 ms on 1),
-    while on an idle one 2 threads are faster; callers re-measure from time to time.
-    Every parameter set is computed independently, so results do not depend on it.
-
-    Returns
-    -------
-    int
-        The thread count now set (restore the previous one with
-        ``numba.set_num_threads`` when done).
-    """
-    import numba
-
-    counts = sorted({1, int(numba.config.NUMBA_NUM_THREADS)})
-    best_count, best_time = counts[-1], math.inf
-    for count in counts:
-        numba.set_num_threads(count)
-        timings = []
-        for _ in range(repeats):
-            t0 = _time.perf_counter()
-            fn(argument)
-            timings.append(_time.perf_counter() - t0)
-        if min(timings) < best_time:
-            best_count, best_time = count, min(timings)
-    numba.set_num_threads(best_count)
-    return best_count
-
-
 def _solve(residuals: "WhitenedResiduals", x0, max_nfev, method=SOLVER_METHOD):
     return least_squares(
         residuals,
@@ -766,8 +723,6 @@ def fit_least_squares(
         The better fit; ``fit.model`` carries the chosen sign.
     """
     from dataclasses import replace
-
-    from .identifiability import with_threshold_sign
 
     if threshold_sign not in THRESHOLD_SIGNS:
         raise ValueError(f"threshold_sign must be one of {sorted(THRESHOLD_SIGNS)}, got {threshold_sign!r}")
@@ -861,7 +816,7 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
     x_probe = np.repeat(np.clip(starts[0][1][free], residuals.lower, residuals.upper)[None, :], free.size + 1, axis=0)
     fastest_thread_count(residuals.batch, x_probe)
     try:
-        with _single_threaded_blas():
+        with single_threaded_blas():
             # Phase 1: screen every start with a few solver steps.
             screened, origins = [], []
             for label, theta0 in starts:
@@ -919,7 +874,7 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
         scale2 = sigma_hat**2
     else:
         scale2 = 1.0
-    with _single_threaded_blas():
+    with single_threaded_blas():
         jac = residuals.central_jacobian(x_best)
     cov_free = scale2 * np.linalg.pinv(jac.T @ jac, rcond=1e-15, hermitian=True)
     n_par = model.n_parameters

@@ -83,11 +83,12 @@ import scipy.fft
 from model import Model
 
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
-from .lsq import fastest_thread_count
+from .threads import fastest_thread_count
 from .noise import NoiseModel, log_likelihood_of_rows
 
 __all__ = [
     "ChainFileError",
+    "import_arviz",
     "chain_info",
     "PRIORS",
     "MOVES",
@@ -623,7 +624,8 @@ ESS_BULK_MIN = 400.0
 DIAGNOSTICS = ("rhat", "ess_bulk", "ess_tail", "mcse_mean", "mcse_sd")
 
 
-def _arviz():
+def import_arviz():
+    """The ``arviz`` module, imported without its FutureWarning about the coming refactor."""
     import warnings
 
     with warnings.catch_warnings():  # arviz 0.2x announces its refactor on import
@@ -649,7 +651,7 @@ def chain_diagnostics(draws) -> dict[str, np.ndarray]:
     out = {k: np.full(n_dim, np.nan) for k in DIAGNOSTICS}
     if draws.shape[0] < 4:
         return out
-    az = _arviz()
+    az = import_arviz()
     # one az.summary call (its mcse_sd path also works where az.mcse(method="sd") on an
     # array fails with numpy 2); full precision, one variable per parameter
     data = {f"p{d}": np.ascontiguousarray(draws[:, :, d].T) for d in range(n_dim)}  # (chain, draw)

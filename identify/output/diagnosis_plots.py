@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .plots import _figure, _styled, axis_label, unit_label
+from .plots import axis_label, new_figure, styled, unit_label
 
 __all__ = [
     "residual_time_figure",
@@ -55,7 +55,7 @@ def _mark_reversals(ax, profile, with_labels=True):
         ax.plot([], [], color=FALLING_COLOUR, ls="--", lw=0.7, label="input trough")
 
 
-@_styled
+@styled
 def residual_time_figure(profile, *, output_unit="um", title=None):
     """Residual against time with the input reversals marked, the noise band and per-cycle RMS.
 
@@ -65,7 +65,7 @@ def residual_time_figure(profile, *, output_unit="um", title=None):
     output_unit : str, default "um"
     title : str, optional
     """
-    fig = _figure(11, 4.2)
+    fig = new_figure(11, 4.2)
     ax = fig.add_subplot()
     sigma = profile.noise.sigma
     ax.plot(profile.time, profile.residual, color=MEASUREMENT_COLOUR, lw=0.5, label="residual (data - model)")
@@ -81,10 +81,10 @@ def residual_time_figure(profile, *, output_unit="um", title=None):
     return fig
 
 
-@_styled
+@styled
 def residual_branches_figure(profile, *, input_unit="A", output_unit="um"):
     """Residual against the drive, rising and falling branches apart (binned mean ± 2 s.e.)."""
-    fig = _figure(9, 4.8)
+    fig = new_figure(9, 4.8)
     ax = fig.add_subplot()
     mask = profile.energised
     for label, direction, colour, binned in (
@@ -109,10 +109,10 @@ def residual_branches_figure(profile, *, input_unit="A", output_unit="um"):
     return fig
 
 
-@_styled
+@styled
 def residual_rate_figure(profile, *, input_unit="A", output_unit="um"):
     """Residual (binned mean and RMS) against input rate and against time since the last reversal."""
-    fig = _figure(11, 4.2)
+    fig = new_figure(11, 4.2)
     axes = fig.subplots(1, 2)
     for ax, binned, xlabel, title in (
         (axes[0], profile.by_rate, axis_label("input rate", f"{unit_label(input_unit)}/s"), "vs input rate"),
@@ -133,10 +133,10 @@ def residual_rate_figure(profile, *, input_unit="A", output_unit="um"):
     return fig
 
 
-@_styled
+@styled
 def cycles_figure(profile, *, output_unit="um"):
     """Cycle by cycle: RMS and max error (% of range), and the residual level at each peak and trough."""
-    fig = _figure(11, 4.2)
+    fig = new_figure(11, 4.2)
     axes = fig.subplots(1, 2)
     cyc = profile.cycles
     centre = 0.5 * (cyc.t_start + cyc.t_stop)
@@ -168,10 +168,10 @@ def cycles_figure(profile, *, output_unit="um"):
     return fig
 
 
-@_styled
+@styled
 def residual_autocorrelation_figure(profile):
     """Residual autocorrelation against the quiet segment's, with the whiteness tests' results."""
-    fig = _figure(9, 4.2)
+    fig = new_figure(9, 4.2)
     ax = fig.add_subplot()
     n = int(profile.energised.sum())
     ax.plot(profile.lags, profile.residual_acf, "o-", ms=3, color=BEFORE_COLOUR, label="residual (energised part)")
@@ -191,7 +191,7 @@ def residual_autocorrelation_figure(profile):
     return fig
 
 
-@_styled
+@styled
 def before_after_loops_figure(current, displacement, model_before, model_after, energised, *, after_label="after",
                               input_unit="A", output_unit="um"):  # fmt: skip
     """Hysteresis loops: measurement, model before and after adding the effect, overlaid.
@@ -205,7 +205,7 @@ def before_after_loops_figure(current, displacement, model_before, model_after, 
     after_label : str
         Legend text of the after model (e.g. ``"GPI + thermal"``).
     """
-    fig = _figure(11, 5)
+    fig = new_figure(11, 5)
     axes = fig.subplots(1, 2)
     x = current[energised]
     ax = axes[0]
@@ -228,11 +228,11 @@ def before_after_loops_figure(current, displacement, model_before, model_after, 
     return fig
 
 
-@_styled
+@styled
 def before_after_error_figure(time, residual_before, residual_after, noise_sigma, *, after_label="after",
                               output_unit="um"):  # fmt: skip
     """Error against time before and after adding the effect, with the noise band."""
-    fig = _figure(11, 4.2)
+    fig = new_figure(11, 4.2)
     ax = fig.add_subplot()
     ax.plot(time, residual_before, color=BEFORE_COLOUR, lw=0.5, label="before")
     ax.plot(time, residual_after, color=AFTER_COLOUR, lw=0.5, alpha=0.8, label=after_label)
@@ -244,7 +244,7 @@ def before_after_error_figure(time, residual_before, residual_after, noise_sigma
     return fig
 
 
-@_styled
+@styled
 def ranking_figure(diagnosis, *, output_unit="um"):
     """Candidates side by side: RMS after, max error % after, delta BIC and explained fraction."""
     ranking = diagnosis.ranking
@@ -255,7 +255,7 @@ def ranking_figure(diagnosis, *, output_unit="um"):
     ]
     colours = ["0.5"] + [AFTER_COLOUR if c.effect == diagnosis.missing else ("tab:olive" if c.refitted else "0.75")
                          for c in ranking]  # fmt: skip
-    fig = _figure(12, 4.2)
+    fig = new_figure(12, 4.2)
     axes = fig.subplots(1, 4)
     ax = axes[0]
     ax.bar(names, rms, color=colours)

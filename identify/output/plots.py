@@ -28,6 +28,8 @@ __all__ = [
     "trace_figure",
     "autocorrelation_figure",
     "STYLE",
+    "new_figure",
+    "styled",
 ]
 
 #: rcParams applied while a figure is drawn (readable at normal size in a browser).
@@ -64,12 +66,12 @@ def axis_label(quantity: str, unit: str) -> str:
     return f"{quantity} [{unit_label(unit)}]"
 
 
-def _figure(width, height):
+def new_figure(width, height):
     """A detached figure of ``width`` x ``height`` inches with constrained layout."""
     return Figure(figsize=(width, height), layout="constrained")
 
 
-def _styled(function):
+def styled(function):
     """Run a figure builder inside :data:`STYLE` (rcParams are read when artists are made)."""
 
     def wrapper(*args, **kwargs):
@@ -84,7 +86,7 @@ def _styled(function):
     return wrapper
 
 
-@_styled
+@styled
 def input_figure(time, current, *, input_name="current", input_unit="A", reversals=None):
     """The drive against time, as the paper's Fig. 5.
 
@@ -99,7 +101,7 @@ def input_figure(time, current, *, input_name="current", input_unit="A", reversa
     reversals : ndarray of int, optional
         Sample indices of the input reversals, marked with dots.
     """
-    fig = _figure(10, 3.6)
+    fig = new_figure(10, 3.6)
     ax = fig.add_subplot()
     ax.plot(time, current, color=MEASUREMENT_COLOUR, lw=1.2, label=f"input {input_name}")
     if reversals is not None and len(reversals):
@@ -111,7 +113,7 @@ def input_figure(time, current, *, input_name="current", input_unit="A", reversa
     return fig
 
 
-@_styled
+@styled
 def displacement_figure(
     time,
     measured,
@@ -142,7 +144,7 @@ def displacement_figure(
         ``(t_start, t_end)`` [s]: plot only this window (a zoom); the y range follows it.
     title : str, optional
     """
-    fig = _figure(10, 4.6)
+    fig = new_figure(10, 4.6)
     ax = fig.add_subplot()
     if window is not None:
         keep = (time >= window[0]) & (time <= window[1])
@@ -166,7 +168,7 @@ def displacement_figure(
     return fig
 
 
-@_styled
+@styled
 def error_figure(
     time,
     error_median,
@@ -198,7 +200,7 @@ def error_figure(
     energised_from : float, optional
         Time [s] where the quiet segment ends (shaded before it).
     """
-    fig = _figure(10, 4.8)
+    fig = new_figure(10, 4.8)
     ax = fig.add_subplot()
     ax.axhspan(-2 * noise_sigma, 2 * noise_sigma, color=NOISE_COLOUR, alpha=0.15, lw=0,
                label=f"±2σ sensor noise (σ = {noise_sigma:.3g} {unit_label(output_unit)})")  # fmt: skip
@@ -242,7 +244,7 @@ def _draw_loops(ax, current, measured, median, credible_lo, credible_hi, segment
     ax.plot(current, measured, color=MEASUREMENT_COLOUR, lw=0.5, alpha=0.8)
 
 
-@_styled
+@styled
 def loops_figure(
     current,
     measured,
@@ -279,7 +281,7 @@ def loops_figure(
         ``((current_min, current_max), (displacement_min, displacement_max))`` shown in
         the right-hand panel (and outlined in green on the left).
     """
-    fig = _figure(13, 6.8)
+    fig = new_figure(13, 6.8)
     full_ax, zoom_ax = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.35, 1]})
     for ax in (full_ax, zoom_ax):
         _draw_loops(ax, current, measured, median, credible_lo, credible_hi, segments, rising)
@@ -354,7 +356,7 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
     return fig
 
 
-@_styled
+@styled
 def trace_figure(chain, log_prob, labels, *, steps, discard):
     """Walker traces of every varying parameter and of the log-posterior, burn-in shaded.
 
@@ -402,7 +404,7 @@ def trace_figure(chain, log_prob, labels, *, steps, discard):
     return fig
 
 
-@_styled
+@styled
 def autocorrelation_figure(chain_lengths, tau, labels, *, tau_reported=None):
     """Integrated autocorrelation time estimate against chain length, with the N/50 line.
 
@@ -419,7 +421,7 @@ def autocorrelation_figure(chain_lengths, tau, labels, *, tau_reported=None):
     tau_reported : float, optional
         The run's reported max tau (summary.json), drawn as a dotted line.
     """
-    fig = _figure(9, 5.2)
+    fig = new_figure(9, 5.2)
     ax = fig.add_subplot()
     tau = np.asarray(tau, dtype=float)
     finals = np.where(np.isfinite(tau[-1]), tau[-1], -np.inf)

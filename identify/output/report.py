@@ -42,9 +42,7 @@ digits, so a test can parse them back and compare them with ``summary.json``.
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 import time as _time
 from dataclasses import dataclass
@@ -57,6 +55,7 @@ from ..data.fileio import atomic_write_bytes
 from scipy.special import ndtr, ndtri
 
 from . import plots
+from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
 
 from . import results
 from ..fitting.noise import energised_mask
@@ -112,8 +111,6 @@ REVERSAL_TOLERANCE = 0.01
 REVERSAL_NOISE_MULTIPLE = 10.0
 #: The zoom window is wide enough for the output to move this many predictive half-widths.
 ZOOM_BAND_MULTIPLE = 15.0
-#: Significant digits of the numbers in the tables.
-DIGITS = 6
 #: PNG resolution [dots per inch]; the corner plot is larger in inches, so lower.
 DPI = {"default": 100, "corner": 80}
 
@@ -789,57 +786,6 @@ def _figures(data: ReportData, analysis: _Analysis, rng: np.random.Generator):
 # --------------------------------------------------------------------------------------
 # HTML
 # --------------------------------------------------------------------------------------
-def _number(value, digits=DIGITS) -> str:
-    """Table text of a number: ``digits`` significant digits; "—" for None/NaN."""
-    if value is None:
-        return "—"
-    if isinstance(value, str):
-        return html.escape(value)
-    if isinstance(value, (bool, np.bool_)):
-        return "yes" if value else "no"
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    value = float(value)
-    if not math.isfinite(value):
-        return "—"
-    return f"{value:.{digits}g}"
-
-
-def _cell(value, key=None, digits=DIGITS, css=None) -> str:
-    attributes = ""
-    if key is not None:
-        attributes += f' data-key="{html.escape(key)}"'
-    if css:
-        attributes += f' class="{css}"'
-    return f"<td{attributes}>{_number(value, digits)}</td>"
-
-
-def _text(value, css=None) -> str:
-    attributes = f' class="{css}"' if css else ""
-    return f"<td{attributes}>{html.escape(str(value))}</td>"
-
-
-def _table(table_id, header, rows, caption=None, row_classes=None) -> str:
-    """An HTML table; ``rows`` are lists of ready cell strings, ``row_classes`` optional CSS classes."""
-    parts = [f'<table id="{table_id}">']
-    if caption:
-        parts.append(f"<caption>{caption}</caption>")
-    parts.append("<thead><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr></thead><tbody>")
-    for i, row in enumerate(rows):
-        css = (row_classes or {}).get(i)
-        parts.append((f'<tr class="{css}">' if css else "<tr>") + "".join(row) + "</tr>")
-    parts.append("</tbody></table>")
-    return "\n".join(parts)
-
-
-def _figure_html(stem, alt, png_bytes, caption) -> str:
-    encoded = base64.b64encode(png_bytes).decode("ascii")
-    return (
-        f'<figure id="figure-{html.escape(stem)}"><img alt="{html.escape(alt)}" src="data:image/png;base64,{encoded}">'
-        f"<figcaption><b>{html.escape(alt)}.</b> {html.escape(caption)}</figcaption></figure>"
-    )
-
-
 def _combination_text(combination) -> str:
     if isinstance(combination, dict):
         return " ".join(f"{weight:+.3g}·{name}" for name, weight in combination.items())
@@ -858,30 +804,6 @@ def _flatten(value, prefix=""):
         yield prefix, " ".join(map(str, value)) if value else "(none)"
     else:
         yield prefix, value
-
-
-def _png(figure, dpi) -> bytes:
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=dpi)
-    return buffer.getvalue()
-
-
-_CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;max-width:1250px;margin:1.5em auto;padding:0 1em;color:#222;line-height:1.45}
-h1{font-size:1.6em} h2{border-bottom:2px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
-table{border-collapse:collapse;margin:.8em 0;font-size:.92em}
-th,td{border:1px solid #ccc;padding:.25em .55em;text-align:right}
-th{background:#f2f2f2} td:first-child,th:first-child{text-align:left}
-caption{text-align:left;font-weight:bold;padding:.3em 0}
-tr.worst td{background:#ffe3e0} tr.pinned td{color:#777;background:#f7f7f7}
-td.alert{background:#fdecea;font-weight:bold} td.ok{background:#e8f5e9}
-figure{margin:1.2em 0} img{max-width:100%;height:auto;border:1px solid #ddd}
-figcaption{font-size:.92em;color:#444;margin-top:.3em}
-div.alert{background:#fdecea;border-left:6px solid #d93025;padding:.6em 1em;margin:1em 0}
-div.ok{background:#e8f5e9;border-left:6px solid #2e7d32;padding:.6em 1em;margin:1em 0}
-div.note{background:#fff8e1;border-left:6px solid #f9a825;padding:.6em 1em;margin:1em 0}
-code{background:#f4f4f4;padding:0 .2em}
-"""
 
 
 def _fit_verdict(summary, noise_sigma):
@@ -912,8 +834,8 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
             "The intervals and bands below are provisional; rerun the same study command to extend the chain.</div>"
         )
     sentence = (
-        f"Residual RMS {_number(fit['rms'], 4)} {unit} = {ratio:.3g} × the sensor noise σ = "
-        f"{_number(data.noise_sigma, 4)} {unit}; reduced χ² = {_number(fit.get('reduced_chi2'), 4)}."
+        f"Residual RMS {number_text(fit['rms'], 4)} {unit} = {ratio:.3g} × the sensor noise σ = "
+        f"{number_text(data.noise_sigma, 4)} {unit}; reduced χ² = {number_text(fit.get('reduced_chi2'), 4)}."
     )
     if data.noise_is_free:
         parts.append(
@@ -945,7 +867,7 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     items = [
         f"Max error <b>{analysis.max_error_pct:.3g} %</b> of the measured displacement range "
         f"({analysis.displacement_range:.4g} {unit}) for the posterior-median model, worst at {where}; least squares: "
-        f"{_number(fit.get('max_error_pct'), 4)} % (the paper reports less than 3 %).",
+        f"{number_text(fit.get('max_error_pct'), 4)} % (the paper reports less than 3 %).",
         f"{analysis.inside_predictive_pct:.1f} % of the measured samples lie inside the 95 % predictive band.",
     ]
     if widths:
@@ -970,22 +892,22 @@ def _fit_quality_html(data: ReportData, analysis: _Analysis) -> str:
     ratio, _ = _fit_verdict(summary, data.noise_sigma)
     worst = analysis.worst
     rows = [
-        [_text(f"residual RMS, least squares [{unit}]"), _cell(fit["rms"], "fit.rms")],
-        [_text(f"sensor noise σ [{unit}] (from: {noise.get('source')}, {noise.get('kind')})"), _cell(noise["sigma"], "noise.sigma")],
-        [_text("lag-1 autocorrelation of the noise ρ"), _cell(noise.get("rho"), "noise.rho")],
-        [_text("quiet samples used for the noise"), _cell(noise.get("n_quiet"), "noise.n_quiet")],
-        [_text("RMS / σ"), _cell(ratio, "derived.rms_ratio", css="alert" if ratio > RMS_RATIO_LIMIT else None)],
-        [_text("reduced χ²"), _cell(fit.get("reduced_chi2"), "fit.reduced_chi2",
+        [text_cell(f"residual RMS, least squares [{unit}]"), number_cell(fit["rms"], "fit.rms")],
+        [text_cell(f"sensor noise σ [{unit}] (from: {noise.get('source')}, {noise.get('kind')})"), number_cell(noise["sigma"], "noise.sigma")],
+        [text_cell("lag-1 autocorrelation of the noise ρ"), number_cell(noise.get("rho"), "noise.rho")],
+        [text_cell("quiet samples used for the noise"), number_cell(noise.get("n_quiet"), "noise.n_quiet")],
+        [text_cell("RMS / σ"), number_cell(ratio, "derived.rms_ratio", css="alert" if ratio > RMS_RATIO_LIMIT else None)],
+        [text_cell("reduced χ²"), number_cell(fit.get("reduced_chi2"), "fit.reduced_chi2",
                                     css="alert" if (fit.get("reduced_chi2") or 0) > REDUCED_CHI2_LIMIT else None)],
-        [_text("max error, least squares [% of displacement range]"), _cell(fit.get("max_error_pct"), "fit.max_error_pct")],
-        [_text("max error, posterior median [% of displacement range]"), _cell(analysis.max_error_pct, "derived.max_error_pct")],
-        [_text(f"max |error|, posterior median [{unit}]"), _cell(abs(float(analysis.error[worst])), "derived.max_abs_error")],
-        [_text("time of the max error [s]"), _cell(float(record.time[worst]), "derived.time_of_max")],
-        [_text("measured samples inside the 95 % predictive band [%]"), _cell(analysis.inside_predictive_pct, "derived.inside_predictive_pct")],
-        [_text("least-squares time [s]"), _cell(fit.get("seconds"), "fit.seconds")],
+        [text_cell("max error, least squares [% of displacement range]"), number_cell(fit.get("max_error_pct"), "fit.max_error_pct")],
+        [text_cell("max error, posterior median [% of displacement range]"), number_cell(analysis.max_error_pct, "derived.max_error_pct")],
+        [text_cell(f"max |error|, posterior median [{unit}]"), number_cell(abs(float(analysis.error[worst])), "derived.max_abs_error")],
+        [text_cell("time of the max error [s]"), number_cell(float(record.time[worst]), "derived.time_of_max")],
+        [text_cell("measured samples inside the 95 % predictive band [%]"), number_cell(analysis.inside_predictive_pct, "derived.inside_predictive_pct")],
+        [text_cell("least-squares time [s]"), number_cell(fit.get("seconds"), "fit.seconds")],
     ]  # fmt: skip
     parts = ['<h2 id="fit-quality-section">2. Fit quality</h2>']
-    parts.append(_table("fit-quality", ["quantity", "value"], rows, caption="Fit quality (energised part of the record)"))
+    parts.append(html_table("fit-quality", ["quantity", "value"], rows, caption="Fit quality (energised part of the record)"))
     parts.append(
         f"<p>“Far above the noise” means RMS &gt; {RMS_RATIO_LIMIT} σ or reduced χ² &gt; {REDUCED_CHI2_LIMIT}. "
         "Least-squares numbers are those of <code>summary.json</code>; the posterior-median numbers are computed here "
@@ -997,15 +919,15 @@ def _fit_quality_html(data: ReportData, analysis: _Analysis) -> str:
     for i, c in enumerate(analysis.cycles):
         key = f"cycles.{c.index}"
         rows.append([
-            _cell(c.index, f"{key}.index"), _cell(c.time_start, f"{key}.time_start", 4), _cell(c.time_end, f"{key}.time_end", 4),
-            _cell(c.input_peak, f"{key}.input_peak", 4), _cell(c.rms, f"{key}.rms", 4),
-            _cell(c.max_abs_error, f"{key}.max_abs_error", 4), _cell(c.max_error_pct, f"{key}.max_error_pct", 4),
-            _cell(c.time_of_max, f"{key}.time_of_max", 4),
+            number_cell(c.index, f"{key}.index"), number_cell(c.time_start, f"{key}.time_start", 4), number_cell(c.time_end, f"{key}.time_end", 4),
+            number_cell(c.input_peak, f"{key}.input_peak", 4), number_cell(c.rms, f"{key}.rms", 4),
+            number_cell(c.max_abs_error, f"{key}.max_abs_error", 4), number_cell(c.max_error_pct, f"{key}.max_error_pct", 4),
+            number_cell(c.time_of_max, f"{key}.time_of_max", 4),
         ])  # fmt: skip
         if c is worst_cycle:
             classes[i] = "worst"
     parts.append(
-        _table(
+        html_table(
             "cycle-errors",
             ["cycle", "start [s]", "end [s]", f"input peak [{in_unit}]", f"RMS [{unit}]", f"max |error| [{unit}]",
              "max error [%]", "at [s]"],
@@ -1027,12 +949,12 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
     for i, p in enumerate(summary["parameters"]):
         key = f"parameters.{p['name']}"
         rows.append([
-            _text(p["name"]), _text(plots.unit_label(p.get("unit") or "")), _cell(p.get("table1"), f"{key}.table1"),
-            _cell(p.get("lsq"), f"{key}.lsq"), _cell(p.get("lsq_stderr"), f"{key}.lsq_stderr"),
-            _cell(p.get("median"), f"{key}.median"), _cell(p.get("lo95"), f"{key}.lo95"), _cell(p.get("hi95"), f"{key}.hi95"),
-            _cell(p.get("tau"), f"{key}.tau"), _cell(p.get("ess"), f"{key}.ess"),
-            *[_cell(p.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS],
-            _text("varies" if p.get("vary") else "pinned by normalisation"),
+            text_cell(p["name"]), text_cell(plots.unit_label(p.get("unit") or "")), number_cell(p.get("table1"), f"{key}.table1"),
+            number_cell(p.get("lsq"), f"{key}.lsq"), number_cell(p.get("lsq_stderr"), f"{key}.lsq_stderr"),
+            number_cell(p.get("median"), f"{key}.median"), number_cell(p.get("lo95"), f"{key}.lo95"), number_cell(p.get("hi95"), f"{key}.hi95"),
+            number_cell(p.get("tau"), f"{key}.tau"), number_cell(p.get("ess"), f"{key}.ess"),
+            *[number_cell(p.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS],
+            text_cell("varies" if p.get("vary") else "pinned by normalisation"),
         ])  # fmt: skip
         if not p.get("vary"):
             classes[i] = "pinned"
@@ -1040,15 +962,15 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
     if noise_posterior:
         key = "noise.posterior"
         rows.append([
-            _text("noise σ"), _text(plots.unit_label(data.record.output_unit)), _cell(None), _cell(summary["noise"]["sigma"], "noise.sigma"),
-            _cell(None), _cell(noise_posterior.get("median"), f"{key}.median"), _cell(noise_posterior.get("lo95"), f"{key}.lo95"),
-            _cell(noise_posterior.get("hi95"), f"{key}.hi95"), _cell(noise_posterior.get("tau"), f"{key}.tau"),
-            _cell(noise_posterior.get("ess"), f"{key}.ess"),
-            *[_cell(noise_posterior.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS], _text("varies (free noise)"),
+            text_cell("noise σ"), text_cell(plots.unit_label(data.record.output_unit)), number_cell(None), number_cell(summary["noise"]["sigma"], "noise.sigma"),
+            number_cell(None), number_cell(noise_posterior.get("median"), f"{key}.median"), number_cell(noise_posterior.get("lo95"), f"{key}.lo95"),
+            number_cell(noise_posterior.get("hi95"), f"{key}.hi95"), number_cell(noise_posterior.get("tau"), f"{key}.tau"),
+            number_cell(noise_posterior.get("ess"), f"{key}.ess"),
+            *[number_cell(noise_posterior.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS], text_cell("varies (free noise)"),
         ])  # fmt: skip
     parts = ['<h2 id="parameters-section">3. Parameters</h2>']
     parts.append(
-        _table(
+        html_table(
             "parameters",
             ["parameter", "unit", "Table 1", "least squares", "± std. error", "posterior median", "2.5 %", "97.5 %",
              "τ [steps]", "ESS", "R-hat", "bulk ESS", "tail ESS", "MCSE (mean)", "status"],
@@ -1071,18 +993,18 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
     )
     converged = bool(posterior.get("converged"))
     rows = [
-        [_text("walkers"), _cell(posterior.get("n_walkers"), "posterior.n_walkers")],
-        [_text("steps"), _cell(posterior.get("n_steps"), "posterior.n_steps")],
-        [_text("burn-in discarded [steps]"), _cell(posterior.get("discard"), "posterior.discard")],
-        [_text("thin (summaries)"), _cell(posterior.get("thin"), "posterior.thin")],
-        [_text("mean acceptance fraction"), _cell(posterior.get("acceptance_fraction"), "posterior.acceptance_fraction")],
-        [_text("largest autocorrelation time τ [steps]"), _cell(posterior.get("tau_max"), "posterior.tau_max")],
-        [_text("steps / τ_max (need ≥ 50)"), _cell(
+        [text_cell("walkers"), number_cell(posterior.get("n_walkers"), "posterior.n_walkers")],
+        [text_cell("steps"), number_cell(posterior.get("n_steps"), "posterior.n_steps")],
+        [text_cell("burn-in discarded [steps]"), number_cell(posterior.get("discard"), "posterior.discard")],
+        [text_cell("thin (summaries)"), number_cell(posterior.get("thin"), "posterior.thin")],
+        [text_cell("mean acceptance fraction"), number_cell(posterior.get("acceptance_fraction"), "posterior.acceptance_fraction")],
+        [text_cell("largest autocorrelation time τ [steps]"), number_cell(posterior.get("tau_max"), "posterior.tau_max")],
+        [text_cell("steps / τ_max (need ≥ 50)"), number_cell(
             posterior["n_steps"] / posterior["tau_max"] if posterior.get("tau_max") else None, "derived.steps_per_tau", 4)],
-        [_text("converged"), _cell(converged, "posterior.converged", css="ok" if converged else "alert")],
-        [_text("sampling time [s]"), _cell(posterior.get("seconds"), "posterior.seconds")],
+        [text_cell("converged"), number_cell(converged, "posterior.converged", css="ok" if converged else "alert")],
+        [text_cell("sampling time [s]"), number_cell(posterior.get("seconds"), "posterior.seconds")],
     ]  # fmt: skip
-    parts.append(_table("posterior-settings", ["quantity", "value"], rows, caption="Posterior sampling (emcee)"))
+    parts.append(html_table("posterior-settings", ["quantity", "value"], rows, caption="Posterior sampling (emcee)"))
     parts.append(figures_html)
     parts.append(_identifiability_html(summary.get("identifiability")))
     return "\n".join(parts)
@@ -1102,21 +1024,21 @@ def _identifiability_html(identifiability) -> str:
     condition = identifiability.get("condition_number")
     if condition is not None:
         parts.append(f'<p>Condition number of the scaled Fisher information: <span data-key="identifiability.condition_number">'
-                     f"{_number(condition)}</span>.</p>")  # fmt: skip
+                     f"{number_text(condition)}</span>.</p>")  # fmt: skip
     normalisation = identifiability.get("normalisation") or {}
-    rows = [[_text(k), _cell(v, f"identifiability.normalisation.{k}")] for k, v in normalisation.items()]
-    parts.append(_table("identifiability-normalisation", ["pinned parameter", "value"], rows or [[_text("(none)"), _text("")]],
+    rows = [[text_cell(k), number_cell(v, f"identifiability.normalisation.{k}")] for k, v in normalisation.items()]
+    parts.append(html_table("identifiability-normalisation", ["pinned parameter", "value"], rows or [[text_cell("(none)"), text_cell("")]],
                         caption="Normalisation used"))  # fmt: skip
     for kind, caption in (("exact", "Exact degeneracies"), ("near", "Near-degenerate combinations")):
         rows = []
         for i, item in enumerate(identifiability.get(kind) or []):
             item = item if isinstance(item, dict) else {"combination": item}
             key = f"identifiability.{kind}.{i}"
-            rows.append([_cell(item.get("eigenvalue"), f"{key}.eigenvalue"), _cell(item.get("relative_std"), f"{key}.relative_std"),
-                         _text(_combination_text(item.get("combination")))])  # fmt: skip
+            rows.append([number_cell(item.get("eigenvalue"), f"{key}.eigenvalue"), number_cell(item.get("relative_std"), f"{key}.relative_std"),
+                         text_cell(_combination_text(item.get("combination")))])  # fmt: skip
         parts.append(
-            _table(f"identifiability-{kind}", ["eigenvalue", "relative std.", "combination (weights)"],
-                   rows or [[_text("(none)"), _text(""), _text("")]], caption=caption)
+            html_table(f"identifiability-{kind}", ["eigenvalue", "relative std.", "combination (weights)"],
+                   rows or [[text_cell("(none)"), text_cell(""), text_cell("")]], caption=caption)
         )  # fmt: skip
     return "\n".join(parts)
 
@@ -1154,17 +1076,17 @@ def _diagnosis_html(data: ReportData) -> str:
                 for column in columns:
                     value = r.get(column)
                     if isinstance(value, (int, float)) and not isinstance(value, bool):
-                        row.append(_cell(value, f"diagnosis.{r.get('effect')}.{column}"))
+                        row.append(number_cell(value, f"diagnosis.{r.get('effect')}.{column}"))
                     elif column == "parameters" and isinstance(value, dict):
                         row.append(_effect_parameters_cell(value))
                     else:
-                        row.append(_text("—" if value is None else value))
+                        row.append(text_cell("—" if value is None else value))
                 rows.append(row)
-            parts.append(_table("diagnosis-ranking", [html.escape(c) for c in columns], rows,
+            parts.append(html_table("diagnosis-ranking", [html.escape(c) for c in columns], rows,
                                 caption="Candidate effects, best first (rms_after: residual RMS with the effect added)"))  # fmt: skip
     for path in pngs:
         alt = f"Diagnosis: {path.stem.replace('_', ' ')}"
-        parts.append(_figure_html(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From {DIAGNOSIS_FIGURES}/{path.name}."))
+        parts.append(embedded_figure(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From {DIAGNOSIS_FIGURES}/{path.name}."))
     return "\n".join(parts)
 
 
@@ -1178,24 +1100,24 @@ def _effect_parameters_cell(parameters: dict) -> str:
 
     units = {p.name: p.unit for cls in EFFECTS.values() for p in cls.parameters}
     if not parameters:
-        return _text("—")
+        return text_cell("—")
     items = []
     for name, value in parameters.items():
         unit = units.get(name, "")
-        text = f"{html.escape(str(name))} = {_number(value, 4)}" + (f" {html.escape(unit)}" if unit else "")
+        text = f"{html.escape(str(name))} = {number_text(value, 4)}" + (f" {html.escape(unit)}" if unit else "")
         items.append(f"<li>{text}</li>")
     return '<td class="parameters"><ul>' + "".join(items) + "</ul></td>"
 
 
 def _provenance_html(data: ReportData, analysis: _Analysis, seconds: float) -> str:
     converged = bool(data.summary["posterior"].get("converged"))
-    rows = [[_text("convergence"), _text("converged" if converged else "NOT CONVERGED", css="ok" if converged else "alert")]]
-    rows += [[_text(name), _text(value)] for name, value in _flatten(data.manifest)]
-    rows.append([_text("record stored in the results folder"), _text(f"{results.FILES['data']} (sha256 {data.record.sha256})")])
-    rows.append([_text("report: posterior draws for the bands"), _cell(analysis.bands.n_draws)])
-    rows.append([_text("report: generated in [s]"), _cell(seconds, digits=3)])
-    rows.append([_text("report: generated at (UTC)"), _text(results.now_iso())])
-    return '<h2 id="provenance-section">5. Provenance</h2>\n' + _table(
+    rows = [[text_cell("convergence"), text_cell("converged" if converged else "NOT CONVERGED", css="ok" if converged else "alert")]]
+    rows += [[text_cell(name), text_cell(value)] for name, value in _flatten(data.manifest)]
+    rows.append([text_cell("record stored in the results folder"), text_cell(f"{results.FILES['data']} (sha256 {data.record.sha256})")])
+    rows.append([text_cell("report: posterior draws for the bands"), number_cell(analysis.bands.n_draws)])
+    rows.append([text_cell("report: generated in [s]"), number_cell(seconds, digits=3)])
+    rows.append([text_cell("report: generated at (UTC)"), text_cell(results.now_iso())])
+    return '<h2 id="provenance-section">5. Provenance</h2>\n' + html_table(
         "provenance", ["item", "value"], rows, caption="Provenance (manifest.json)"
     )
 
@@ -1209,7 +1131,7 @@ def _page(data: ReportData, analysis: _Analysis, figure_html: dict, seconds: flo
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+        f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
         f"<p>Model: GPI with {data.model.n_operators} play operators, reading <code>{html.escape(data.model.reading)}</code>, "
         f"effects: {html.escape(effects)}. Record: {len(record.time)} samples over "
@@ -1264,9 +1186,9 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
     analysis = _analyse(data, int(n_draws), rng)
     figure_html = {}
     for stem, figure, caption in _figures(data, analysis, rng):
-        png = _png(figure, DPI.get(stem, DPI["default"]))
+        png = png_bytes(figure, DPI.get(stem, DPI["default"]))
         atomic_write_bytes(data.directory / f"{stem}.png", png)
-        figure_html[stem] = _figure_html(stem, FIGURES[stem], png, caption)
+        figure_html[stem] = embedded_figure(stem, FIGURES[stem], png, caption)
     page = _page(data, analysis, figure_html, _time.perf_counter() - started)
     path = data.directory / results.FILES["report"]
     atomic_write_bytes(path, page.encode("utf-8"))

@@ -27,15 +27,9 @@ from .diagnosis_plots import (
     residual_rate_figure,
     residual_time_figure,
 )
-from .plots import _figure, _styled, axis_label, unit_label
+from .plots import axis_label, new_figure, styled, unit_label
+from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
 from .report import (
-    _CSS,
-    _cell,
-    _figure_html,
-    _number,
-    _png,
-    _table,
-    _text,
     branches,
     input_reversals,
     loop_zoom_box,
@@ -92,7 +86,7 @@ def _page(title, body_parts) -> bytes:
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+        f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
         *body_parts,
         "</body></html>",
@@ -188,24 +182,24 @@ def _prediction_tables(p) -> str:
         return None if a is None or not b else a / b
 
     rows = [
-        [_text("samples scored (energised)"), _cell(training["n_samples"], "training.n_samples"),
-         _cell(int(p.energised.sum()), "validation.n_scored")],
-        [_text(f"sensor noise σ [{unit}]"), _cell(sigma_t, "training.noise_sigma"), _cell(sigma_v, "validation.noise_sigma")],
-        [_text(f"RMS error, posterior median [{unit}]"), _cell(training["rms"], "training.rms"), _cell(p.rms, "validation.rms")],
-        [_text("RMS / σ"), _cell(ratio(training["rms"], sigma_t), "training.rms_ratio"),
-         _cell(ratio(p.rms, sigma_v), "validation.rms_ratio", css="alert" if p.rms > 1.2 * sigma_v else "ok")],
-        [_text(f"RMS error, least squares [{unit}]"), _cell(training["rms_lsq"], "training.rms_lsq"),
-         _cell(p.rms_lsq, "validation.rms_lsq")],
-        [_text("max error, posterior median [% of range]"), _cell(training["max_error_pct"], "training.max_error_pct"),
-         _cell(p.max_error_pct, "validation.max_error_pct")],
-        [_text("max error, least squares [% of range]"), _cell(training["max_error_pct_lsq"], "training.max_error_pct_lsq"),
-         _cell(p.max_error_pct_lsq, "validation.max_error_pct_lsq")],
-        [_text("inside the 95 % predictive band [%]"),
-         _cell(100 * training["inside_predictive_band"], "training.inside_predictive_band_pct"),
-         _cell(100 * p.inside_predictive_band, "validation.inside_predictive_band_pct")],
-        [_text("reduced χ² of the fit"), _cell(training.get("reduced_chi2"), "training.reduced_chi2"), _text("— (no fit)")],
+        [text_cell("samples scored (energised)"), number_cell(training["n_samples"], "training.n_samples"),
+         number_cell(int(p.energised.sum()), "validation.n_scored")],
+        [text_cell(f"sensor noise σ [{unit}]"), number_cell(sigma_t, "training.noise_sigma"), number_cell(sigma_v, "validation.noise_sigma")],
+        [text_cell(f"RMS error, posterior median [{unit}]"), number_cell(training["rms"], "training.rms"), number_cell(p.rms, "validation.rms")],
+        [text_cell("RMS / σ"), number_cell(ratio(training["rms"], sigma_t), "training.rms_ratio"),
+         number_cell(ratio(p.rms, sigma_v), "validation.rms_ratio", css="alert" if p.rms > 1.2 * sigma_v else "ok")],
+        [text_cell(f"RMS error, least squares [{unit}]"), number_cell(training["rms_lsq"], "training.rms_lsq"),
+         number_cell(p.rms_lsq, "validation.rms_lsq")],
+        [text_cell("max error, posterior median [% of range]"), number_cell(training["max_error_pct"], "training.max_error_pct"),
+         number_cell(p.max_error_pct, "validation.max_error_pct")],
+        [text_cell("max error, least squares [% of range]"), number_cell(training["max_error_pct_lsq"], "training.max_error_pct_lsq"),
+         number_cell(p.max_error_pct_lsq, "validation.max_error_pct_lsq")],
+        [text_cell("inside the 95 % predictive band [%]"),
+         number_cell(100 * training["inside_predictive_band"], "training.inside_predictive_band_pct"),
+         number_cell(100 * p.inside_predictive_band, "validation.inside_predictive_band_pct")],
+        [text_cell("reduced χ² of the fit"), number_cell(training.get("reduced_chi2"), "training.reduced_chi2"), text_cell("— (no fit)")],
     ]  # fmt: skip
-    return _table(
+    return html_table(
         "validation-vs-training", ["quantity", "training (the study's record)", "validation (this record)"], rows,
         caption="Validation beside training: the same posterior draws on both records; nothing refitted",
     )  # fmt: skip
@@ -231,10 +225,10 @@ def _verdict_html(p) -> str:
     from ..diagnosis.diagnose import Thresholds
 
     z_critical = Thresholds().z_critical
-    rows = [[_text(name), _cell(z, f"adequacy.z.{name}", css="alert" if z > z_critical else None)] for name, z in a["z"].items()]
-    rows.append([_text(f"structure RMS (slow part) [{unit_label(p.record.output_unit)}]"), _cell(a["structure_rms"], "adequacy.structure_rms")])
-    rows.append([_text(f"excess RMS over the noise [{unit_label(p.record.output_unit)}]"), _cell(a["excess_rms"], "adequacy.excess_rms")])
-    parts.append(_table("adequacy-tests", ["noise test", "standardised excess z"], rows,
+    rows = [[text_cell(name), number_cell(z, f"adequacy.z.{name}", css="alert" if z > z_critical else None)] for name, z in a["z"].items()]
+    rows.append([text_cell(f"structure RMS (slow part) [{unit_label(p.record.output_unit)}]"), number_cell(a["structure_rms"], "adequacy.structure_rms")])
+    rows.append([text_cell(f"excess RMS over the noise [{unit_label(p.record.output_unit)}]"), number_cell(a["excess_rms"], "adequacy.excess_rms")])
+    parts.append(html_table("adequacy-tests", ["noise test", "standardised excess z"], rows,
                         caption=f"Noise tests on the least-squares validation residual: adequate unless a test has z > "
                                 f"{z_critical:g} and the misfit it sees is at least {Thresholds().structure_floor:g} σ"))  # fmt: skip
     if p.diagnosis is not None:
@@ -243,12 +237,12 @@ def _verdict_html(p) -> str:
         rows = []
         for c in d.ranking:
             c = c.to_dict()
-            rows.append([_text(c.get("effect")), _cell(c.get("rms_after"), f"diagnosis.{c.get('effect')}.rms_after"),
-                         _cell(c.get("delta_bic"), f"diagnosis.{c.get('effect')}.delta_bic"),
-                         _cell(c.get("explained_fraction"), f"diagnosis.{c.get('effect')}.explained_fraction"),
-                         _text("yes" if c.get("adequate_after") else "no")])  # fmt: skip
+            rows.append([text_cell(c.get("effect")), number_cell(c.get("rms_after"), f"diagnosis.{c.get('effect')}.rms_after"),
+                         number_cell(c.get("delta_bic"), f"diagnosis.{c.get('effect')}.delta_bic"),
+                         number_cell(c.get("explained_fraction"), f"diagnosis.{c.get('effect')}.explained_fraction"),
+                         text_cell("yes" if c.get("adequate_after") else "no")])  # fmt: skip
         if rows:
-            parts.append(_table("diagnosis-ranking", ["effect", "RMS after", "ΔBIC", "explained fraction", "adequate after"],
+            parts.append(html_table("diagnosis-ranking", ["effect", "RMS after", "ΔBIC", "explained fraction", "adequate after"],
                                 rows, caption="Candidate effects on the validation window, best first (refitted on it)"))  # fmt: skip
     return "\n".join(parts)
 
@@ -258,18 +252,18 @@ def prediction_files(p) -> dict:
     files: dict[str, bytes] = {}
     figure_html = []
     for stem, figure, caption in _prediction_figures(p):
-        png = _png(figure, 100)
+        png = png_bytes(figure, 100)
         files[f"{stem}.png"] = png
-        figure_html.append((stem, _figure_html(stem, PREDICTION_FIGURES[stem], png, caption)))
+        figure_html.append((stem, embedded_figure(stem, PREDICTION_FIGURES[stem], png, caption)))
     diagnosis_html = []
     if p.diagnosis is not None:
         from dataclasses import replace
 
         window_record = replace(p.record, time=p.time, current=p.current, displacement=p.measured)
         for stem, figure in diagnosis_figures(p.diagnosis, window_record).items():
-            png = _png(figure, 100)
+            png = png_bytes(figure, 100)
             files[f"diagnosis/{stem}.png"] = png
-            diagnosis_html.append(_figure_html(f"diagnosis-{stem}", f"Diagnosis of the validation window: {stem.replace('_', ' ')}",
+            diagnosis_html.append(embedded_figure(f"diagnosis-{stem}", f"Diagnosis of the validation window: {stem.replace('_', ' ')}",
                                                png, f"From diagnosis/{stem}.png."))  # fmt: skip
     files["prediction.json"] = _json_bytes(p.to_dict())
     study = p.study
@@ -283,10 +277,10 @@ def prediction_files(p) -> dict:
         f"<code>{html.escape(str(p.record.source))}</code>, window {p.window[0]:.6g}–{p.window[1]:.6g} s "
         f"({p.stop - p.start} samples, the model run from the record's first sample). Nothing is refitted.</p>",
         '<h2 id="glance">At a glance</h2>',
-        f'<div class="{glance_css}" id="glance-box">Validation RMS <b data-key="rms">{_number(p.rms, 4)}</b> {unit} '
-        f"= {p.rms / p.noise_sigma:.3g} σ (training {_number(p.training['rms'], 4)} {unit}); max error "
-        f"<b data-key=\"max_error_pct\">{_number(p.max_error_pct, 4)}</b> % of the range (training "
-        f"{_number(p.training['max_error_pct'], 4)} %); <span data-key=\"inside_predictive_band\">"
+        f'<div class="{glance_css}" id="glance-box">Validation RMS <b data-key="rms">{number_text(p.rms, 4)}</b> {unit} '
+        f"= {p.rms / p.noise_sigma:.3g} σ (training {number_text(p.training['rms'], 4)} {unit}); max error "
+        f"<b data-key=\"max_error_pct\">{number_text(p.max_error_pct, 4)}</b> % of the range (training "
+        f"{number_text(p.training['max_error_pct'], 4)} %); <span data-key=\"inside_predictive_band\">"
         f"{100 * p.inside_predictive_band:.1f}</span> % inside the 95 % predictive band; verdict "
         f"<b>{html.escape(p.verdict)}</b>{' (' + html.escape(str(p.missing)) + ')' if p.missing else ''}.</div>",
         _notes_html(p.notes),
@@ -298,15 +292,15 @@ def prediction_files(p) -> dict:
         _verdict_html(p),
         *diagnosis_html,
         '<h2 id="provenance">4. Provenance</h2>',
-        _table("provenance", ["item", "value"], [
-            [_text("study folder"), _text(str(study.path))],
-            [_text("study data"), _text(f"{study.manifest.get('data', {}).get('file')} (sha256 {study.manifest.get('data', {}).get('sha256')})")],
-            [_text("study converged"), _text("yes" if study.converged else "NOT CONVERGED")],
-            [_text("record"), _text(f"{p.record.source} (sha256 {p.record.sha256 or '—'})")],
-            [_text("posterior draws"), _cell(p.bands.n_draws)],
-            [_text("draws outside the model's domain"), _cell(p.bands.n_outside)],
-            *([[_text(f"time: {k} [s]"), _cell(v, digits=3)] for k, v in p.seconds.items()]),
-            [_text("written at (UTC)"), _text(now_iso())],
+        html_table("provenance", ["item", "value"], [
+            [text_cell("study folder"), text_cell(str(study.path))],
+            [text_cell("study data"), text_cell(f"{study.manifest.get('data', {}).get('file')} (sha256 {study.manifest.get('data', {}).get('sha256')})")],
+            [text_cell("study converged"), text_cell("yes" if study.converged else "NOT CONVERGED")],
+            [text_cell("record"), text_cell(f"{p.record.source} (sha256 {p.record.sha256 or '—'})")],
+            [text_cell("posterior draws"), number_cell(p.bands.n_draws)],
+            [text_cell("draws outside the model's domain"), number_cell(p.bands.n_outside)],
+            *([[text_cell(f"time: {k} [s]"), number_cell(v, digits=3)] for k, v in p.seconds.items()]),
+            [text_cell("written at (UTC)"), text_cell(now_iso())],
         ], caption="Provenance"),
     ]  # fmt: skip
     title = f"Prediction report — {Path(str(p.record.source)).name} with the study {study.path.name}"
@@ -317,10 +311,10 @@ def prediction_files(p) -> dict:
 # --------------------------------------------------------------------------------------
 # compensation
 # --------------------------------------------------------------------------------------
-@_styled
+@styled
 def compensation_target_figure(time, target, model_output, band_lo, band_hi, *, output_name="displacement", output_unit="um"):
     """Target, the median model's output on the feedforward current, and the posterior's 95 % band of it."""
-    fig = _figure(10, 4.4)
+    fig = new_figure(10, 4.4)
     ax = fig.add_subplot()
     ax.fill_between(time, band_lo, band_hi, color=plots.MODEL_COLOUR, alpha=0.35, lw=0,
                     label="95 % credible band: posterior draws on the feedforward current")  # fmt: skip
@@ -333,10 +327,10 @@ def compensation_target_figure(time, target, model_output, band_lo, band_hi, *, 
     return fig
 
 
-@_styled
+@styled
 def compensation_current_figure(time, current, lo, hi, limits, *, input_name="current", input_unit="A", status=None):
     """The feedforward current with the band of the draws' own inverses and the current limits."""
-    fig = _figure(10, 4.0)
+    fig = new_figure(10, 4.0)
     ax = fig.add_subplot()
     ax.fill_between(time, lo, hi, color="tab:blue", alpha=0.3, lw=0, label="95 % band: each draw's own inverse")
     ax.plot(time, current, color="tab:blue", lw=1.0, label="feedforward (posterior median)")
@@ -352,10 +346,10 @@ def compensation_current_figure(time, current, lo, hi, limits, *, input_name="cu
     return fig
 
 
-@_styled
+@styled
 def compensation_error_figure(time, median, lo, hi, predictive_lo, predictive_hi, self_error, *, noise_sigma, output_unit="um"):
     """Predicted tracking error: posterior median, 95 % credible and predictive bands, the median model's own."""
-    fig = _figure(10, 4.4)
+    fig = new_figure(10, 4.4)
     ax = fig.add_subplot()
     ax.fill_between(time, predictive_lo, predictive_hi, color=plots.PREDICTIVE_COLOUR, alpha=0.25, lw=0,
                     label=f"95 % predictive band (as measured, σ = {noise_sigma:.3g})")  # fmt: skip
@@ -370,10 +364,10 @@ def compensation_error_figure(time, median, lo, hi, predictive_lo, predictive_hi
     return fig
 
 
-@_styled
+@styled
 def compensation_loop_figure(target, current, *, input_name="current", input_unit="A", output_name="displacement", output_unit="um"):
     """The inverse hysteresis: current against the target displacement."""
-    fig = _figure(7, 6)
+    fig = new_figure(7, 6)
     ax = fig.add_subplot()
     ax.plot(target, current, color="tab:blue", lw=0.8)
     ax.set_xlabel(axis_label(f"target {output_name}", output_unit))
@@ -428,31 +422,31 @@ def compensation_files(c) -> dict:
     }  # fmt: skip
     figure_html = []
     for stem, (figure, caption) in figures.items():
-        png = _png(figure, 100)
+        png = png_bytes(figure, 100)
         files[f"{stem}.png"] = png
-        figure_html.append(_figure_html(stem, COMPENSATION_FIGURES[stem], png, caption))
+        figure_html.append(embedded_figure(stem, COMPENSATION_FIGURES[stem], png, caption))
     s = c.summary
     te, mt = s["tracking_error"], s["model_tracking"]
     u = unit_label(unit)
     rows = [
-        [_text(f"tracking error RMS [{u}]"), _cell(te["rms"]["median"], "tracking_error.rms.median"),
-         _cell(te["rms"]["lo95"], "tracking_error.rms.lo95"), _cell(te["rms"]["hi95"], "tracking_error.rms.hi95")],
-        [_text("tracking error RMS [% of the target's range]"), _cell(te["rms_pct"]["median"], "tracking_error.rms_pct.median"),
-         _cell(te["rms_pct"]["lo95"], "tracking_error.rms_pct.lo95"), _cell(te["rms_pct"]["hi95"], "tracking_error.rms_pct.hi95")],
-        [_text(f"max |tracking error| [{u}]"), _cell(te["max_abs"]["median"], "tracking_error.max_abs.median"),
-         _cell(te["max_abs"]["lo95"], "tracking_error.max_abs.lo95"), _cell(te["max_abs"]["hi95"], "tracking_error.max_abs.hi95")],
-        [_text("max |tracking error| [% of the target's range]"), _cell(te["max_abs_pct"]["median"], "tracking_error.max_abs_pct.median"),
-         _cell(te["max_abs_pct"]["lo95"], "tracking_error.max_abs_pct.lo95"), _cell(te["max_abs_pct"]["hi95"], "tracking_error.max_abs_pct.hi95")],
+        [text_cell(f"tracking error RMS [{u}]"), number_cell(te["rms"]["median"], "tracking_error.rms.median"),
+         number_cell(te["rms"]["lo95"], "tracking_error.rms.lo95"), number_cell(te["rms"]["hi95"], "tracking_error.rms.hi95")],
+        [text_cell("tracking error RMS [% of the target's range]"), number_cell(te["rms_pct"]["median"], "tracking_error.rms_pct.median"),
+         number_cell(te["rms_pct"]["lo95"], "tracking_error.rms_pct.lo95"), number_cell(te["rms_pct"]["hi95"], "tracking_error.rms_pct.hi95")],
+        [text_cell(f"max |tracking error| [{u}]"), number_cell(te["max_abs"]["median"], "tracking_error.max_abs.median"),
+         number_cell(te["max_abs"]["lo95"], "tracking_error.max_abs.lo95"), number_cell(te["max_abs"]["hi95"], "tracking_error.max_abs.hi95")],
+        [text_cell("max |tracking error| [% of the target's range]"), number_cell(te["max_abs_pct"]["median"], "tracking_error.max_abs_pct.median"),
+         number_cell(te["max_abs_pct"]["lo95"], "tracking_error.max_abs_pct.lo95"), number_cell(te["max_abs_pct"]["hi95"], "tracking_error.max_abs_pct.hi95")],
     ]  # fmt: skip
     counts = mt["samples"]
     inverse_rows = [
-        [_text(f"median model on its own inverse: RMS / max [{u}]"), _text(f"{_number(mt['rms'], 3)} / {_number(mt['max_abs'], 3)}")],
-        [_text("samples exact / at a current limit / in an Omega gap"), _text(f"{counts['exact']} / {counts['saturated']} / {counts['branch']}")],
-        [_text(f"feedforward current range [{unit_label(in_unit)}]"), _text(f"{s['current']['min']:.4g} – {s['current']['max']:.4g}")],
-        [_text(f"half-width of the draws' current band, median [{unit_label(in_unit)}]"), _cell(s["current"]["draws_band_half_width_median"])],
-        [_text("posterior draws (outside the domain)"), _text(f"{s['n_draws']} ({s['n_outside']})")],
-        [_text("model steps evaluated per sample (median inverse)"), _cell(s["inverse"]["evaluations_per_sample"], digits=3)],
-        *([[_text(f"time: {k} [s]"), _cell(v, digits=3)] for k, v in c.seconds.items()]),
+        [text_cell(f"median model on its own inverse: RMS / max [{u}]"), text_cell(f"{number_text(mt['rms'], 3)} / {number_text(mt['max_abs'], 3)}")],
+        [text_cell("samples exact / at a current limit / in an Omega gap"), text_cell(f"{counts['exact']} / {counts['saturated']} / {counts['branch']}")],
+        [text_cell(f"feedforward current range [{unit_label(in_unit)}]"), text_cell(f"{s['current']['min']:.4g} – {s['current']['max']:.4g}")],
+        [text_cell(f"half-width of the draws' current band, median [{unit_label(in_unit)}]"), number_cell(s["current"]["draws_band_half_width_median"])],
+        [text_cell("posterior draws (outside the domain)"), text_cell(f"{s['n_draws']} ({s['n_outside']})")],
+        [text_cell("model steps evaluated per sample (median inverse)"), number_cell(s["inverse"]["evaluations_per_sample"], digits=3)],
+        *([[text_cell(f"time: {k} [s]"), number_cell(v, digits=3)] for k, v in c.seconds.items()]),
     ]  # fmt: skip
     effects = ", ".join(study.model.effect_names) or "none"
     body = [
@@ -463,9 +457,9 @@ def compensation_files(c) -> dict:
         "(<code>model.inverse</code>: a root find per sample carried forward with the model's state); the tracking "
         "error below is what the posterior predicts when that current drives the transducer.</p>",
         _notes_html(c.notes),
-        _table("tracking-error", ["quantity", "median over draws", "2.5 %", "97.5 %"], rows,
+        html_table("tracking-error", ["quantity", "median over draws", "2.5 %", "97.5 %"], rows,
                caption="Predicted tracking error (posterior draws driven by the feedforward current)"),
-        _table("inverse", ["quantity", "value"], inverse_rows, caption="The inverse"),
+        html_table("inverse", ["quantity", "value"], inverse_rows, caption="The inverse"),
         *figure_html,
     ]  # fmt: skip
     files["compensation.html"] = _page(f"Compensation — {Path(c.target.source).name} with the study {study.path.name}", body)
