@@ -2,11 +2,11 @@
 
 The 95 % predictive band of a model curve is, at every sample ``t``, the 2.5 % and 97.5 %
 quantiles of the equal-weight mixture of ``N(c_i(t), s_i^2)`` over the draws ``i`` (the
-draw's curve plus sensor noise of sd ``s_i``). :func:`identify.output.report.mixture_quantile`
-finds them by vectorised bisection in numpy; this is the same quantity by a safeguarded
-Newton iteration in a numba kernel parallel over samples (about 5 iterations instead of
-about 12, no temporaries), for long records (70001 samples x 200 draws: ~0.5 s CPU
-instead of ~7 s). Pure: no I/O.
+draw's curve plus sensor noise of sd ``s_i``), found by a safeguarded Newton iteration in
+a numba kernel parallel over samples (about 5 iterations instead of a vectorised
+bisection's 12, no temporaries: 70001 samples x 200 draws in ~0.5 s CPU instead of
+~7 s). The one home of this quantile: the study's report
+(:func:`identify.output.report.model_bands`) and ``predict`` use it. Pure: no I/O.
 """
 
 from __future__ import annotations

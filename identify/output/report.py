@@ -52,9 +52,9 @@ import emcee
 import numpy as np
 
 from ..data.fileio import atomic_write_bytes
-from scipy.special import ndtr, ndtri
 
 from . import plots
+from .bands import mixture_quantile
 from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
 
 from . import results
@@ -67,7 +67,6 @@ __all__ = [
     "read_chain",
     "posterior_draws",
     "model_bands",
-    "mixture_quantile",
     "input_reversals",
     "branches",
     "cycle_errors",
@@ -350,43 +349,6 @@ class ModelBands:
     lsq: np.ndarray
     n_draws: int
     n_outside: int
-
-
-def mixture_quantile(centres, sigmas, probability, tolerance=1e-3, block=4096):
-    """Quantile of the equal-weight mixture of N(centres[i, t], sigmas[i]^2), for every t.
-
-    Bisection on the mixture CDF inside the exact bracket
-    ``[min_i (c_i + s_i z_p), max_i (c_i + s_i z_p)]`` (every component's CDF is below
-    ``p`` at the left end and above it at the right end), to ``tolerance * min(s)``; in
-    blocks of ``block`` samples to bound memory.
-
-    Parameters
-    ----------
-    centres : ndarray, shape (D, T)
-    sigmas : ndarray, shape (D,)
-        All > 0.
-    probability : float
-
-    Returns
-    -------
-    ndarray, shape (T,)
-    """
-    sigmas = np.asarray(sigmas, dtype=float)[:, None]
-    n_samples = centres.shape[1]
-    result = np.empty(n_samples)
-    offsets = sigmas * ndtri(probability)
-    precision = tolerance * float(sigmas.min())
-    for start in range(0, n_samples, block):
-        c = centres[:, start : start + block]
-        low = (c + offsets).min(axis=0)
-        high = (c + offsets).max(axis=0)
-        while (high - low).max() > precision:
-            middle = 0.5 * (low + high)
-            below = ndtr((middle[None, :] - c) / sigmas).mean(axis=0) < probability
-            low = np.where(below, middle, low)
-            high = np.where(below, high, middle)
-        result[start : start + block] = 0.5 * (low + high)
-    return result
 
 
 def model_bands(data: ReportData, draws: PosteriorDraws, *, level: float = 0.95) -> ModelBands:
