@@ -1,0 +1,130 @@
+"""The sampler coordinates of the GPI (identify.fitting.coordinates): an exact bijection,
+the right Jacobian, and a move that leaves the posterior of the parameters invariant."""
+
+import emcee
+import numpy as np
+import pytest
+
+from identify.fitting.coordinates import CoordinateMove, GPICoordinates, IdentityCoordinates, coordinates_for
+from identify.fitting.posterior import SnookerMove
+
+
+def _coords(**changes):
+    kw, x = GPICoordinates.get_test_parameters()
+    kw.update(changes)
+    return GPICoordinates(**kw), x
+
+
+def _spread(x, rng, n, rel=0.1):
+    return x * (1 + rel * rng.standard_normal((n, x.size)))
+
+
+def test_all_blocks_in_use_for_the_normalised_gpi():
+    coords, _ = _coords()
+    assert coords.blocks == ("weights", "envelope_a", "envelope_b", "omega_c", "omega_d")
+
+
+@pytest.mark.parametrize("alpha", [-0.1993, 0.1993, -1.3])
+def test_round_trip_is_exact(alpha):
+    kw, x = GPICoordinates.get_test_parameters()
+    template = np.array(kw["template"], dtype=float)
+    template[0] = alpha  # alpha is the first GPI parameter
+    coords = GPICoordinates(**{**kw, "template": template})
+    rng = np.random.default_rng(1)
+    xs = _spread(x, rng, 200)
+    xs[:, 1] = rng.uniform(-1, 1, 200)  # tau of either sign
+    back = coords.inverse(coords.forward(xs))
+    assert np.isfinite(back).all()
+    np.testing.assert_allclose(back, xs, rtol=1e-12, atol=1e-12)
+
+
+def test_round_trip_from_the_coordinates_side():
+    coords, x = _coords()
+    u = coords.forward(_spread(x, np.random.default_rng(2), 50))
+    np.testing.assert_allclose(coords.forward(coords.inverse(u)), u, rtol=1e-12, atol=1e-12)
+
+
+def test_log_det_matches_a_numerical_jacobian():
+    coords, x = _coords()
+    rng = np.random.default_rng(3)
+    for x0 in _spread(x, rng, 5):
+        h = 1e-6 * np.maximum(np.abs(x0), 1e-3)
+        jac = np.empty((x0.size, x0.size))
+        for k in range(x0.size):
+            up, down = x0.copy(), x0.copy()
+            up[k] += h[k]
+            down[k] -= h[k]
+            jac[:, k] = (coords.forward(up)[0] - coords.forward(down)[0]) / (2 * h[k])
+        assert coords.log_det(x0[None, :])[0] == pytest.approx(np.linalg.slogdet(jac)[1], abs=1e-6)
+
+
+def test_points_outside_the_range_map_to_nan():
+    coords, x = _coords()
+    u = coords.forward(np.vstack([x, x, x]))
+    u[0, 0] = -1.0  # a negative total weight
+    u[1, 1] = 1e3 * u[1, 0]  # a threshold moment no tau in [-5, 5] gives
+    back = coords.inverse(u)
+    assert np.isnan(back[:2]).all() and np.isfinite(back[2]).all()
+
+
+def test_blocks_with_pinned_or_unbounded_parameters_are_left_alone():
+    kw, x = GPICoordinates.get_test_parameters()
+    names = list(kw["names"])
+    keep = [i for i, n in enumerate(names) if n not in ("tau", "a2")]
+    lower = np.array(kw["lower"])[keep]
+    lower[[names[i] for i in keep].index("c1")] = -50.0  # c1 may change sign: no log
+    coords = GPICoordinates(**{**kw, "names": [names[i] for i in keep], "lower": lower})
+    assert coords.blocks == ("envelope_b", "omega_d")
+    xs = _spread(x[keep], np.random.default_rng(4), 20)
+    np.testing.assert_allclose(coords.inverse(coords.forward(xs)), xs, rtol=1e-12)
+
+
+def test_registry():
+    class NoModel:
+        pass
+
+    assert isinstance(coordinates_for("gpi", NoModel()), IdentityCoordinates)
+    assert isinstance(coordinates_for("identity", None), IdentityCoordinates)
+    assert coordinates_for(lambda lp: "mine", None) == "mine"
+    with pytest.raises(ValueError, match="unknown sampler coordinates 'polar'"):
+        coordinates_for("polar", None)
+
+
+def _sample_gaussian_in_parameters(jacobian=True, steps=3000, seed=5):
+    """emcee with the coordinate move on a Gaussian *in the parameters* (sd 15 %)."""
+    coords, x = _coords()
+    sd = 0.15 * np.abs(x)
+
+    def log_prob(xs):
+        return -0.5 * (((xs - x) / sd) ** 2).sum(axis=1)
+
+    class NoJacobian(GPICoordinates):
+        def log_det(self, xs):
+            return np.zeros(np.atleast_2d(xs).shape[0])
+
+    if not jacobian:
+        kw, _ = GPICoordinates.get_test_parameters()
+        coords = NoJacobian(**kw)
+    moves = [(CoordinateMove(emcee.moves.DEMove(), coords), 0.8), (CoordinateMove(SnookerMove(), coords), 0.2)]
+    rng = np.random.default_rng(seed)
+    sampler = emcee.EnsembleSampler(40, x.size, log_prob, vectorize=True, moves=moves)
+    sampler.random_state = np.random.RandomState(seed).get_state()
+    sampler.run_mcmc(x + 0.1 * sd * rng.standard_normal((40, x.size)), steps, progress=False)
+    draws = sampler.get_chain(discard=1000, flat=True)
+    return draws, x, sd
+
+
+def test_the_move_leaves_the_parameter_posterior_invariant():
+    draws, x, sd = _sample_gaussian_in_parameters()
+    z = (draws.mean(axis=0) - x) / sd
+    assert np.abs(z).max() < 0.15  # means within ~3 Monte Carlo errors (ESS ~ 2000)
+    ratio = draws.std(axis=0) / sd
+    assert 0.9 < ratio.min() and ratio.max() < 1.1
+
+
+def test_without_the_jacobian_the_same_move_samples_the_wrong_distribution():
+    """The check above can fail: dropping the Jacobian factor biases the scale parameters."""
+    draws, x, sd = _sample_gaussian_in_parameters(jacobian=False)
+    z = (draws.mean(axis=0) - x) / sd
+    ratio = draws.std(axis=0) / sd
+    assert np.abs(z).max() > 0.3 or ratio.min() < 0.85 or ratio.max() > 1.15
