@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import os
 import shutil
 import sys
@@ -33,8 +34,9 @@ import time as _time
 from pathlib import Path
 
 from . import options
-from .cmd_fit import add_model_arguments, add_record_arguments, say
-from .defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
+from .cmd_fit import add_model_arguments, add_record_arguments
+from .defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, EXIT_FINDING
+from .logs import say as log_line
 
 __all__ = ["HELP", "add_arguments", "run", "run_study", "RESUMABLE_SETTINGS", "DEFAULT_MAX_STEPS", "settings_from_args"]
 
@@ -44,7 +46,7 @@ HELP = "whole study (noise, least squares, identifiability, emcee posterior, rep
 #: stored chain instead, :func:`identify.results.check_resumable`).
 RESUMABLE_SETTINGS = ("data", "no_report")  # data compared by sha256; no_report changes no number
 #: Options that are not settings of the computation (not compared, not all recorded).
-_NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet")
+_NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet", "verbose")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,8 +72,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force", action="store_true", help="discard a different (or damaged) run already in DIR")
     parser.add_argument("--no-report", action="store_true", help="skip the report (report.html); write it later with 'report DIR'")
     parser.add_argument(
-        "--progress", choices=("auto", "on", "off"), default="auto", help="progress bar (default: when stderr is a terminal)"
-    )
+        "--progress", choices=("auto", "on", "off"), default="auto",
+        help="the chain's progress: auto (default) = a bar with the projected steps (50 tau) in a terminal, "
+        "else a log line every 10 s (IDENTIFY_PROGRESS_SECONDS); on = the bar; off = neither (-q implies off)",
+    )  # fmt: skip
 
 
 def settings_from_args(args) -> dict:
@@ -85,12 +89,13 @@ def settings_from_args(args) -> dict:
     return settings
 
 
-def _say(message: str) -> None:
-    say(message)
+def _say(message: str, level: int = logging.INFO) -> None:
+    log_line(message, level)
 
 
 def run(args) -> int:
-    """The study; exit code 0 done (converged or not), 2 bad input, 130 interrupted."""
+    """The study; exit code 0 done and converged, 1 done but the chain did NOT CONVERGE, 2 bad input,
+    130 interrupted (:data:`identify.cli.EXIT_CODES`)."""
     from .cli import _input_errors
     from .cmd_fit import FitFailedError
     from .noise import NoQuietSegmentError
@@ -122,7 +127,7 @@ def _check_walkers(args, model) -> None:
 
 
 def run_study(args) -> int:
-    """The study (see the module docstring); returns the exit code (0 = done, converged or not)."""
+    """The study (see the module docstring); returns the exit code (0 converged, 1 NOT CONVERGED)."""
     from .cmd_fit import model_from_args
     from .locks import FolderLock
 
@@ -259,7 +264,7 @@ def _run_locked(args, model, out: Path) -> int:
             )
             if not args.no_report and not (out / FILES["report"]).exists():
                 _write_report(out)
-            return 0
+            return 0 if post.get("converged") else EXIT_FINDING
     if state.manifest is not None:
         manifest["started"] = state.manifest.get("started", started)
         manifest["runs"] = state.manifest.get("runs", [])
@@ -323,6 +328,8 @@ def _run_locked(args, model, out: Path) -> int:
             cov[-1, -1] = 1.0 / (2.0 * dof)
         n_walkers = args.walkers or default_n_walkers(log_post.ndim)
         progress = {"auto": None, "on": True, "off": False}[args.progress]
+        if progress is None and getattr(args, "quiet", 0):
+            progress = False  # -q: no bar and no progress lines
         _say(f"posterior: {n_walkers} walkers x {log_post.ndim} parameters, up to {args.max_steps} steps ({args.moves} moves)")
         with _chain_to_extend(out / FILES["chain"], state) as chain_path:
             posterior = sample_posterior(
@@ -373,4 +380,7 @@ def _run_locked(args, model, out: Path) -> int:
             write_json(out / FILES["manifest"], manifest)
     _say("times: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in phases.items()))
     _say(f"study finished in {_time.perf_counter() - t_start:.1f} s: {out}")
+    if not posterior.converged:
+        _say(f"exit code {EXIT_FINDING}: the chain did NOT CONVERGE (raise --max-steps to extend it)", logging.WARNING)
+        return EXIT_FINDING
     return 0

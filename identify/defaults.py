@@ -8,3 +8,14 @@ module is cheap, so ``--help`` stays fast)."""
 DEFAULT_MAX_STEPS = 60000
 #: Convergence check interval [steps] (API and ``study --check-every``).
 DEFAULT_CHECK_EVERY = 500
+
+#: Exit codes of every command (the meanings: :data:`identify.cli.EXIT_CODES`, docs/reproducibility.md).
+EXIT_OK = 0
+#: Done, but with a finding the user must look at: a study whose chain did NOT CONVERGE, a
+#: fit whose solver did not converge, a batch with a failed or unconverged run, a rerun
+#: that differs (``reproduce``); also an unexpected failure (one error line).
+EXIT_FINDING = 1
+#: Bad input or usage (an invalid option, an unreadable record or priors file, ...).
+EXIT_INPUT = 2
+#: Interrupted by Ctrl-C or SIGTERM; completed work is kept.
+EXIT_INTERRUPTED = 130

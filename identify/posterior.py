@@ -71,7 +71,6 @@ import contextlib
 import math
 import os
 import signal
-import sys
 import threading
 import time as _time
 from dataclasses import dataclass, field
@@ -839,7 +838,11 @@ def sample_posterior(
         7001-sample record the DE moves' autocorrelation time was about a third of the
         stretch move's (71 vs 200 steps after 3000 steps, 36 walkers).
     progress : bool, optional
-        tqdm bar on stderr; default: when stderr is a terminal.
+        True: a tqdm bar on stderr whose total is the projected chain length
+        ``tau_factor x tau_max``, re-estimated at each check (:mod:`identify.progress`);
+        False: none; None (default): the bar when stderr is a terminal, else a log line
+        (``identify.posterior`` logger, INFO) every 10 s with the step, steps/s, tau_max and
+        the projected length.
     log : callable, optional
         ``log(str)`` for one line per check.
 
@@ -884,13 +887,9 @@ def sample_posterior(
             raise ValueError(f"initial walkers must have shape ({n_walkers}, {ndim}), got {coords.shape}")
         state = emcee.State(coords, random_state=np.random.RandomState(emcee_seed).get_state())
 
-    if progress is None:
-        progress = sys.stderr.isatty()
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    from .progress import ChainProgress, progress_mode
 
-        bar = tqdm(total=max_steps, initial=backend.iteration, desc="emcee", unit="step", file=sys.stderr)
+    bar = ChainProgress(done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress))
     import numba
 
     threads_before = numba.get_num_threads()
@@ -910,8 +909,12 @@ def sample_posterior(
                 raise RuntimeError(f"in-memory chain has {stored} steps, the backend {done}")
             chain = chain_buffer[:done]
             on_check = done > 0 and done % check_every == 0
-            if done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache):
+            due = done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache)
+            if on_check and tau_cache and not due:  # the anchor's tau: the projection of a skipped check
+                bar.estimate(np.max(tau_cache[max(tau_cache)]))
+            if due:
                 ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
+                bar.estimate(np.max(tau))
                 log(f"step {done}: {msg}")
                 diag_msg = ""
                 if ok:  # tau says converged: R-hat and bulk ESS must agree (computed only then)
@@ -935,8 +938,7 @@ def sample_posterior(
                 positions = []
                 for state in chunk:
                     positions.append(np.array(state.coords))
-                    if bar is not None:
-                        bar.update(1)
+                    bar.update(1)
                     if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
                         backend.flush()
                         raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
@@ -952,8 +954,7 @@ def sample_posterior(
     finally:
         numba.set_num_threads(threads_before)
         backend.flush()  # also on Ctrl-C: no completed step is lost
-        if bar is not None:
-            bar.close()
+        bar.close()
     return posterior_from_backend(
         path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
         tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
