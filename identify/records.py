@@ -144,6 +144,12 @@ def _suggest(wanted: str, present: list[str]) -> str:
     return f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
 
 
+def _decimal_comma_float(text: str) -> float:
+    """``"-0,25"`` -> -0.25 (a decimal comma; ``"0.25"`` reads too). ValueError for anything else,
+    e.g. ``"1.234,5"`` (a thousands separator is not read)."""
+    return float(text.replace(",", "."))
+
+
 def _looks_numeric(text: str) -> bool:
     try:
         float(text)
@@ -221,7 +227,11 @@ def load_record(
     ----------
     path : str or path-like
         The CSV file. A JSON file with the same stem beside it is read into
-        :attr:`Record.sidecar`.
+        :attr:`Record.sidecar`. Columns are separated by ``,``, ``;`` or a tab (the first
+        of them in the header); with ``;`` or a tab, a comma in a number is a decimal
+        comma (``0,25``, as European MATLAB/Excel exports write; a note says so). A file
+        ending in ``.mat`` is a MATLAB file, read by :func:`identify.matfile.load_mat_record`
+        (column names are then variable names).
     time_column : str or None, default "time"
         Header name of the time column [s]. ``None``: the file has no time column (any
         column named like one is ignored); the time axis becomes the sample index
@@ -252,6 +262,11 @@ def load_record(
     from array import array
 
     path = Path(path)
+    if path.suffix.lower() == ".mat":  # a MATLAB file: the same checks, by variable (identify.matfile)
+        from .matfile import load_mat_record
+
+        return load_mat_record(path, time_column=time_column, input_column=input_column, output_column=output_column,
+                               input_unit=input_unit, output_unit=output_unit, min_samples=min_samples)  # fmt: skip
     wanted = [c for c in (time_column, input_column, output_column) if c is not None]
     if len(set(wanted)) != len(wanted):
         raise ValueError(f"time/input/output column names must differ, got {wanted}")
@@ -281,6 +296,8 @@ def load_record(
         delimiter = next((d for d in _DELIMITERS if d in header_text), ",")
         if delimiter != ",":
             notes.append(f"columns are separated by {delimiter!r} rather than commas")
+        # with ';' or tab between columns a comma is a decimal comma (European MATLAB/Excel exports)
+        parse_number = float if delimiter == "," else _decimal_comma_float
         header = [h.strip() for h in header_text.split(delimiter)]
         if all(_looks_numeric(h) for h in header if h):
             raise _fail(
@@ -334,13 +351,14 @@ def load_record(
         report_every = max(1, size // 10) if (progress is not None and size > _PROGRESS_BYTES) else 0
         next_report = report_every
         read_bytes = 0
+        decimal_comma = False
         for number, line in enumerate(fh, start=header_line + 1):
             cells = line.split(delimiter)
             try:
                 if len(cells) != n_columns:
                     raise ValueError
                 for j, append in appends:
-                    append(float(cells[j]))
+                    append(parse_number(cells[j]))
             except ValueError:
                 stripped = line.strip()
                 if not stripped or stripped.startswith("#"):
@@ -357,9 +375,11 @@ def load_record(
                     cell = cells[j].strip()
                     if not cell:
                         raise _fail(path, number, f"column {name!r} is empty") from None
-                    if not _looks_numeric(cell):
+                    if not _looks_numeric(cell.replace(",", ".") if delimiter != "," else cell):
                         raise _fail(path, number, f"column {name!r}: {cell[:40]!r} is not a number") from None
                 raise  # pragma: no cover - every cell parsed after all
+            if not decimal_comma and parse_number is not float and "," in line:
+                decimal_comma = True
             if report_every:
                 read_bytes += len(line)
                 if read_bytes >= next_report:
@@ -368,6 +388,8 @@ def load_record(
         n_samples = len(columns[0][2])
     if n_skipped:
         notes.append(f"skipped {n_skipped} blank or comment ('#') line(s)")
+    if decimal_comma:
+        notes.append("decimal commas read as decimal points (e.g. 0,25 = 0.25)")
 
     def line_of(k: int) -> int:
         """File line (1-based) of data row ``k`` (0-based)."""
