@@ -415,6 +415,11 @@ def _check_options(table: dict, where: str, source: Path) -> dict:
             raise BatchConfigError(f"{source}: {where}.{key}: a list option may hold only plain values")
         if isinstance(value, float) and not math.isfinite(value):
             raise BatchConfigError(f"{source}: {where}.{key}: {value} is not a finite number")
+        if key.replace("-", "_") == "priors" and isinstance(value, str):  # a priors file, relative to this config
+            priors = (source.parent if source.suffix else Path.cwd()) / value
+            if not priors.is_file():
+                raise BatchConfigError(f"{source}: {where}.{key}: no such priors file {str(priors)!r}")
+            value = str(priors.resolve())
         options[key.replace("-", "_")] = value
     return options
 

@@ -107,10 +107,11 @@ def _input_errors() -> tuple:
     """Exception types that mean bad input or usage (exit code 2)."""
     from .locks import FolderBusyError
     from .options import OptionError
+    from .priors import PriorsError
     from .records import RecordError
     from .results import DamagedResultsError, RunMismatchError
 
-    return (FolderBusyError, OptionError, RecordError, DamagedResultsError, RunMismatchError)
+    return (FolderBusyError, OptionError, PriorsError, RecordError, DamagedResultsError, RunMismatchError)
 
 
 def _die_with_parent() -> None:

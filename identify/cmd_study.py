@@ -68,6 +68,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--check-every", type=options.positive_int, default=DEFAULT_CHECK_EVERY,
         help=f"convergence check interval in steps, >= 1 (default {DEFAULT_CHECK_EVERY})"
     )
+    parser.add_argument(
+        "--priors", default=None, type=options.existing_file, metavar="FILE.toml",
+        help="priors of some parameters (distribution and bounds, TOML; docs/method.md 'Priors file'); "
+        "the others keep the defaults",
+    )  # fmt: skip
     parser.add_argument("--moves", default="de", choices=("de", "stretch"), help="emcee moves (default de: differential evolution)")
     parser.add_argument("--force", action="store_true", help="discard a different (or damaged) run already in DIR")
     parser.add_argument("--no-report", action="store_true", help="skip the report (report.html); write it later with 'report DIR'")
@@ -86,6 +91,13 @@ def settings_from_args(args) -> dict:
             continue
         settings[key] = value
     settings["data"] = str(args.data)
+    if getattr(args, "priors", None):  # the file's content counts, not only its name
+        import hashlib
+
+        try:
+            settings["priors_sha256"] = hashlib.sha256(Path(args.priors).read_bytes()).hexdigest()
+        except OSError:
+            pass  # reported by the priors check with the file's name
     return settings
 
 
@@ -142,6 +154,10 @@ def run_study(args) -> int:
         except ValueError as exc:
             raise options.OptionError(str(exc)) from None
         _check_walkers(args, model)
+        if getattr(args, "priors", None):  # checked before anything is written (exit code 2)
+            from .priors import apply_priors
+
+            apply_priors(model, args.priors)
         return _run_locked(args, model, out)
     finally:
         lock.release()
@@ -317,7 +333,14 @@ def _run_locked(args, model, out: Path) -> int:
         lap("identifiability")
 
         # 4. posterior
-        log_post = LogPosterior(record, fit.model, fit.noise)
+        post_model, priors = fit.model, None
+        if getattr(args, "priors", None):
+            from .priors import apply_priors
+
+            post_model, priors = apply_priors(fit.model, args.priors, start=fit.theta,
+                                              start_name="least-squares estimate")  # fmt: skip
+            _say(f"priors: {', '.join(f'{n} {p.distribution}' for n, p in priors.items())} from {args.priors}")
+        log_post = LogPosterior(record, post_model, fit.noise, priors=priors)
         free = log_post.free
         mean = fit.theta[free]
         cov = fit.covariance[np.ix_(free, free)]
@@ -345,6 +368,9 @@ def _run_locked(args, model, out: Path) -> int:
                 log=_say,
             )
         summary = build_summary(record, fit, ident, posterior)
+        from .priors import prior_table
+
+        summary["priors"] = prior_table(log_post)
         write_summary(out, summary)
         from .inference import sampled_units, write_chain_attributes, write_inference_data
 

@@ -296,7 +296,9 @@ class LogPosterior:
         A free sigma (``source="free"``) adds the coordinate ``noise_log_sigma``.
     priors : dict, optional
         ``{name: prior name or callable f(x, lower, upper)}``; missing names use
-        :func:`default_priors`.
+        :func:`default_priors`. The support is the model's bounds; a priors file
+        (:mod:`identify.priors`) gives :class:`identify.priors.Prior` objects and a model
+        with its bounds.
 
     Attributes
     ----------
@@ -321,6 +323,8 @@ class LogPosterior:
         upper = list(model.parameters.upper[self.free])
         kinds = default_priors(model)
         kinds.update(priors or {})
+        #: the priors given (``{name: name or callable}``, e.g. :class:`identify.priors.Prior`); the rest are defaults
+        self.priors_used = dict(priors or {})
         unknown = set(priors or {}) - set(model.names) - {"noise_log_sigma"}
         if unknown:
             raise ValueError(f"priors given for unknown parameters {sorted(unknown)}")

@@ -1057,6 +1057,7 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
             row_classes=classes,
         )
     )  # fmt: skip
+    parts.append(_priors_html(summary.get("priors"), summary["parameters"]))
     parts.append(
         '<p class="note" id="interval-calibration">How far to trust the intervals: on the virtual bench '
         f"({BENCH_COVERAGE['n_records']} seeded records, truth known; docs/method.md) the posterior 95 % "
@@ -1084,6 +1085,29 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
     parts.append(figures_html)
     parts.append(_identifiability_html(summary.get("identifiability")))
     return "\n".join(parts)
+
+
+def _priors_html(priors, parameters) -> str:
+    """The priors the posterior used (``summary.json`` ``priors``: defaults and a priors file's)."""
+    if not priors:  # a study from before the priors were recorded
+        return '<p class="note" id="priors">Priors: not recorded in summary.json (the defaults of docs/method.md).</p>'
+    units = {p["name"]: p.get("unit") or "" for p in parameters}
+    rows, classes = [], {}
+    for i, prior in enumerate(priors):
+        given = prior.get("source") != "default"
+        rows.append([
+            _text(prior["name"]), _text(plots.unit_label(units.get(prior["name"], ""))), _text(prior["distribution"]),
+            _cell(prior.get("lower")), _cell(prior.get("upper")), _cell(prior.get("mu")), _cell(prior.get("sigma")),
+            _text(prior.get("source", "")),
+        ])  # fmt: skip
+        if given:
+            classes[i] = "given-prior"
+    return _table(
+        "priors", ["parameter", "unit", "distribution", "lower", "upper", "μ", "σ", "source"], rows,
+        caption="Priors of the sampled parameters: the defaults (uniform, or log-uniform for positive scale "
+        "parameters spanning two decades) and those of a priors file (study --priors), on the bounds shown",
+        row_classes=classes,
+    )  # fmt: skip
 
 
 def _identifiability_html(identifiability) -> str:
