@@ -3,7 +3,7 @@
 The records come from ``benchmarks/independent/generator.py`` (suite ``clean``), written
 blind to the library: eq. (5) with every GPI parameter within +-10 % of Table 1 (on both
 sides of where the operator bounds start to cross), both input readings, 100 Hz and 1 kHz,
-white and AR(1) noise, sigma 0.3-1 um. For each record this runs :func:`identify.diagnose`
+white and AR(1) noise, sigma 0.3-1 um. For each record this runs :func:`identify.diagnosis.diagnose`
 (its baseline least squares, then the adequacy test and the candidates) and compares
 
 * the baseline's residual RMS over the energised part with the RMS of the *true*
@@ -37,9 +37,9 @@ RMS_TOLERANCE = 1.005
 
 def score_record(csv_path: Path, npz_path: Path, seed: int = 0) -> dict:
     """Diagnose one clean record; return its figures (JSON-ready)."""
-    from identify import diagnose
-    from identify.noise import energised_mask
-    from identify.records import load_record
+    from identify.diagnosis import diagnose
+    from identify.fitting.noise import energised_mask
+    from identify.data.records import load_record
 
     record = load_record(csv_path)
     truth = np.load(npz_path)

@@ -1,4 +1,4 @@
-"""Compensation in closed loop on the virtual bench, over seeds (identify.closed_loop).
+"""Compensation in closed loop on the virtual bench, over seeds (identify.bench.closed_loop).
 
 For each seed: a bench record with the hidden thermal effect of ``data/bench_default.csv``
 (seed 1 *is* that record), the diagnosis of the plain GPI on it, the study with the effect
@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "closed_loop")
     parser.add_argument("--draws", type=int, default=200)
     args = parser.parse_args(argv)
-    from identify.closed_loop import DEFAULT_BENCH_EFFECTS, closed_loop
+    from identify.bench.closed_loop import DEFAULT_BENCH_EFFECTS, closed_loop
 
     effects = args.effects or DEFAULT_BENCH_EFFECTS
     print(f"load average {os.getloadavg()[0]:.2f}; hidden effects {effects}; results in {args.out}", flush=True)

@@ -44,7 +44,7 @@ def run_once(fs: float, workdir: Path, case: str = "creep") -> tuple[float, floa
     if case == "unexplained":
         import numpy as np
 
-        from identify.records import load_record, write_record
+        from identify.data.records import load_record, write_record
 
         record = load_record(csv)
         t, i = record.time, record.current

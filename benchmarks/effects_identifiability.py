@@ -28,7 +28,7 @@ import argparse
 
 import numpy as np
 
-from identify.identifiability import normalised_model
+from identify.fitting.parametrisation import normalised_model
 from model import TABLE1, Model, paper_current
 
 #: typical "on" settings of the general forms (every term of the general form on)

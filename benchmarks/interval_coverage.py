@@ -1,8 +1,8 @@
 """Interval calibration: 95 % coverage of the posterior and least-squares intervals.
 
-Runs :func:`identify.calibration.interval_coverage` on clean bench records (paper input
+Runs :func:`identify.bench.calibration.interval_coverage` on clean bench records (paper input
 at 50 Hz, 3501 samples, noise 0.5 um) whose truths are Table 1 with the falling-envelope
-offset b3 shifted within +-0.25 A (:func:`identify.calibration.calibration_truth`: about
+offset b3 shifted within +-0.25 A (:func:`identify.bench.calibration.calibration_truth`: about
 half of them with crossing operator bounds) and the GPI scaling k = 1.3 applied, and
 prints:
 
@@ -34,7 +34,7 @@ def main(argv=None) -> int:
     parser.add_argument("--records", type=int, default=30, help="number of seeded records (default 30)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "coverage")
     args = parser.parse_args(argv)
-    from identify.calibration import calibration_truth, interval_coverage
+    from identify.bench.calibration import calibration_truth, interval_coverage
 
     start = time.perf_counter()
     print(f"load average {os.getloadavg()[0]:.2f}; results in {args.out}", flush=True)

@@ -7,8 +7,8 @@ Prints, for a 7001-sample target (a 100 Hz triangle between 30 and 270 um):
   and the whole ``compensate`` workflow (both inverses plus the 200 draws driven by the
   median's current);
 * ``predict`` with 200 draws on a 70001-sample record (the bench transducer at 1 kHz,
-  70 s), the computation (:func:`identify.use.predict`) and the files
-  (:func:`identify.use.write_prediction`) apart.
+  70 s), the computation (:func:`identify.workflows.use.predict`) and the files
+  (:func:`identify.workflows.use.write_prediction`) apart.
 
 With ``--study DIR`` (a finished study of a bench record in A and um, e.g. the bundled
 ``data/bench_default.csv`` with ``--effects thermal``) its model and posterior are used;
@@ -75,7 +75,7 @@ def main(argv=None) -> int:
     time_axis, target = _triangle()
     study = None
     if args.study:
-        from identify.use import load_study
+        from identify.workflows.use import load_study
 
         study = load_study(args.study)
         model = study.model
@@ -101,8 +101,8 @@ def main(argv=None) -> int:
         return 0
 
     from identify.bench import simulate
-    from identify.records import write_record
-    from identify.use import Target, compensate, predict, write_prediction
+    from identify.data.records import write_record
+    from identify.workflows.use import Target, compensate, predict, write_prediction
 
     _, *times = _timed(lambda: compensate(study, Target(time_axis, target), n_draws=200), max(1, args.repeats // 2))
     _say(f"compensate workflow (both inverses + tracking), {time_axis.size} samples", times)

@@ -7,7 +7,7 @@ Run from the repository root::
 Builds exactly the records of ``tests/test_diagnose_slow.py::test_confusion_matrix``
 (every library effect hidden alone at about 2 noise sigmas RMS in its test form, a virgin
 initial state, a clean record, three effects outside the library; seeds 11-15), diagnoses
-each (``identify.diagnose.diagnose``, the seed's generator), writes one JSON line per
+each (``identify.diagnosis.diagnose.diagnose``, the seed's generator), writes one JSON line per
 record to ``OUT/results.jsonl`` as it finishes (a rerun skips the records already there),
 and prints the matrix in the slow test's format with the wall time per diagnosis. The
 slow test asserts the same verdicts; this script only measures, so an interrupted run
@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_diagnose_slow import CASES, SEEDS, _case_record, format_confusion  # noqa: E402
 
-from identify.diagnose import diagnose  # noqa: E402
+from identify.diagnosis.diagnose import diagnose  # noqa: E402
 
 
 class _Result:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from identify.bench import simulate
-from identify.records import write_record
+from identify.data.records import write_record
 from model import EFFECTS, TABLE1, Model, gpi, paper_current
 
 

@@ -52,9 +52,9 @@ def main(argv=None) -> int:
     parser.add_argument("--skip-study", action="store_true", help="only the least-squares timings")
     args = parser.parse_args(argv)
 
-    from identify.identifiability import normalised_model
-    from identify.lsq import fit_least_squares
-    from identify.records import load_record
+    from identify.fitting.parametrisation import normalised_model
+    from identify.fitting.lsq import fit_least_squares
+    from identify.data.records import load_record
     from model import Model
 
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} (1 min)")

@@ -712,7 +712,7 @@ class InitialState(Effect):
     :math:`s \sum_j p_j` restores the output; with :math:`s = -z^0` (clipped to the
     bounds' range) the plain GPI's initial level 0 gives exactly this effect's output.
     So the plain GPI already has a free initial state (where 0 lies between its bounds),
-    and this effect adds nothing to it (:data:`identify.diagnose.GPI_EQUIVALENTS`; measured
+    and this effect adds nothing to it (:data:`identify.diagnosis.diagnose.GPI_EQUIVALENTS`; measured
     on the virtual bench: z0 = -20, 293 noise sigmas RMS against the plain GPI at the same
     parameters, is fitted by a plain GPI to ~1e-13 sigma, round-off). The effect matters only where
     those offsets are pinned or carry another parametrisation (e.g. a peer's fit, whose

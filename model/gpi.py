@@ -139,11 +139,11 @@ _DESCRIPTIONS = {
 # sign symmetry, removed by this choice, and increasing envelopes make the operator
 # rate independent). The envelope units assume the input is in A and the output in
 # um; they are not rescaled for records in other units (a priors file sets bounds in the
-# record's units: identify.priors, docs/method.md).
+# record's units: identify.fitting.priors, docs/method.md).
 _BOUNDS = {
     # Either sign: alpha < 0 is the paper's (Table 1) reading, alpha > 0 the classical PI's
     # positive thresholds, which thin loop tips (e.g. piezo actuators) need. The
-    # identification pins |alpha| and chooses the sign (identify.lsq).
+    # identification pins |alpha| and chooses the sign (identify.fitting.lsq).
     "alpha": (-2.0, 2.0),
     "rho": (1e-3, 1e3),
     "tau": (-5.0, 5.0),

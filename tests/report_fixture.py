@@ -8,7 +8,7 @@ its end is written by the same code path as theirs:
 1. the paper's input (eqs. 14-17) at a low sampling rate; Table 1 through the GPI
    (:class:`model.Model`); Gaussian sensor noise of known sigma; optionally a hidden
    ripple the model cannot represent (a misfit); written with
-   :func:`identify.records.write_record` as ``record.csv`` beside the results folder;
+   :func:`identify.data.records.write_record` as ``record.csv`` beside the results folder;
 2. ``study record.csv --out DIR`` with one least-squares start and a step cap far below
    convergence, so ``summary["posterior"]["converged"]`` is False.
 
@@ -26,7 +26,7 @@ import numpy as np
 
 import model
 from identify.cli import main as identify_main
-from identify.records import write_record
+from identify.data.records import write_record
 
 __all__ = ["FixtureSettings", "simulate_record", "build_results_folder"]
 

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 import model
-from identify import batch as B
+from identify.workflows import batch as B
 from identify import cli
-from identify.records import write_record
+from identify.data.records import write_record
 
 NOISE_SIGMA = 0.3  # um, the simulated sensor noise
 
@@ -33,7 +33,7 @@ def require_fit_command():
 def fit_registered(monkeypatch):
     """Make 'fit' known to in-process config validation even before it is registered."""
     if "fit" not in cli.COMMANDS:
-        monkeypatch.setitem(cli.COMMANDS, "fit", "identify.cmd_fit")
+        monkeypatch.setitem(cli.COMMANDS, "fit", "identify.cli.fit")
 
 
 def simulated_record(path: Path, seed: int, columns=("time", "current", "displacement")) -> Path:

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 import identify
-from identify import cli, cmd_simulate
+from identify import cli
+from identify.cli import simulate as cmd_simulate
 from identify.bench import parse_effect_spec, sensor_noise, simulate
-from identify.records import load_record, sidecar_path
+from identify.data.records import load_record, sidecar_path
 from model import EFFECTS, TABLE1, Model, gpi, paper_current
 
 
@@ -24,7 +25,7 @@ def _run(argv) -> int:
 
 
 def test_simulate_is_registered():
-    assert cli.COMMANDS["simulate"] == "identify.cmd_simulate"
+    assert cli.COMMANDS["simulate"] == "identify.cli.simulate"
 
 
 def test_same_seed_same_bytes_other_seed_differs(tmp_path):

@@ -1,4 +1,4 @@
-"""identify.calibration: coverage bookkeeping, its standard error across records, resume checks.
+"""identify.bench.calibration: coverage bookkeeping, its standard error across records, resume checks.
 
 The calibration itself (fits and chains on 20 records) is the slow test in
 tests/test_posterior.py; here the arithmetic is checked on hand-made records."""
@@ -10,8 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from identify.calibration import WALD_Z95, CoverageResult, RecordCoverage, calibration_truth, interval_coverage
-from identify.identifiability import normalised_model, to_normalisation
+from identify.bench.calibration import WALD_Z95, CoverageResult, RecordCoverage, calibration_truth, interval_coverage
+from identify.fitting.parametrisation import normalised_model, to_normalisation
 from model import TABLE1, THETA_NAMES, Model
 
 

@@ -35,7 +35,7 @@ def test_api_and_cli_share_the_sampler_defaults():
 
     from identify.cli import build_parser
     from identify.defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
-    from identify.posterior import sample_posterior
+    from identify.fitting.posterior import sample_posterior
 
     params = inspect.signature(sample_posterior).parameters
     args = build_parser().parse_args(["study", "x.csv", "--out", "o"])

@@ -32,7 +32,7 @@ import pytest  # noqa: E402
 
 from identify.bench import simulate  # noqa: E402
 from identify.cli import main  # noqa: E402
-from identify.records import write_record  # noqa: E402
+from identify.data.records import write_record  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +98,7 @@ def test_study_not_converged_exits_1_and_says_so(small_csv, tmp_path):
 
 
 def test_fit_whose_solver_did_not_converge_exits_1(small_csv, monkeypatch, capsys):
-    import identify.lsq as lsq
+    import identify.fitting.lsq as lsq
 
     real = lsq.fit_least_squares
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from identify.cli import main
-from identify.cmd_paper import FIGURE_FILES, reading_evidence
+from identify.workflows.paper import FIGURE_FILES, reading_evidence
 from model import TABLE1, gpi, paper_current
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

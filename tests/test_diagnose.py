@@ -14,7 +14,7 @@ import pytest
 
 from identify.bench import simulate
 from identify.cli import main
-from identify.diagnose import (
+from identify.diagnosis.diagnose import (
     STATUSES,
     Thresholds,
     _refit_starts,
@@ -29,11 +29,11 @@ from identify.diagnose import (
     screen_candidates,
     screening_grid,
 )
-from identify.identifiability import normalised_model, with_threshold_sign
-from identify.lsq import fit_least_squares
-from identify.noise import estimate_noise
-from identify.records import write_record
-from identify.residuals import ARNoise, residual_profile
+from identify.fitting.parametrisation import normalised_model, with_threshold_sign
+from identify.fitting.lsq import fit_least_squares
+from identify.fitting.noise import estimate_noise
+from identify.data.records import write_record
+from identify.diagnosis.residuals import ARNoise, residual_profile
 from model import EFFECTS, Model, paper_current
 
 
@@ -125,7 +125,7 @@ def test_a_candidate_whose_refit_fails_is_listed_with_its_reason_and_the_verdict
     """The diagnosis never crashes on a record that loads: a candidate whose refit cannot
     start is listed with the reason, and the verdict is still given (here the hidden
     thermal effect, named by its own refit)."""
-    import identify.diagnose as diagnosis
+    import identify.diagnosis.diagnose as diagnosis
 
     sim = simulate("thermal", seed=1, fs=25.0)
     real_short_refit = diagnosis._short_refit
@@ -195,7 +195,7 @@ def test_diagnose_command_errors(tmp_path, capsys, clean_csv):
 
 
 def test_diagnose_rejects_bad_arguments(clean_csv):
-    from identify.records import load_record
+    from identify.data.records import load_record
 
     record = load_record(clean_csv)
     with pytest.raises(ValueError, match="already in the model"):
@@ -252,7 +252,7 @@ def test_initial_state_is_not_a_reparametrisation_when_the_offsets_are_pinned():
 
 
 def test_report_renders_ranking_parameters_as_a_readable_list():
-    from identify.report import _effect_parameters_cell
+    from identify.output.report import _effect_parameters_cell
 
     cell = _effect_parameters_cell({"thermal_tau": 21.3456789, "thermal_sensitivity": 0.0312})
     assert "<li>thermal_tau = 21.35 s</li>" in cell and "<li>thermal_sensitivity = 0.0312</li>" in cell
@@ -306,7 +306,7 @@ def test_threshold_sign_helpers():
 def test_texts_state_the_comparison_actually_made():
     """A test that fires below the size floor is reported as such (its z above the threshold,
     its size below the floor), never as 'largest z 18.0 < 5'."""
-    from identify.diagnose import Adequacy, _tests_text
+    from identify.diagnosis.diagnose import Adequacy, _tests_text
 
     thresholds = Thresholds()
     small = Adequacy(True, ("ljung_box",), {"variance": 1.0, "ljung_box": 18.0, "low_frequency": 2.0}, 0.01, 0.05, 0.05,
@@ -327,7 +327,7 @@ def test_a_targeted_finding_needs_a_practical_size():
     0.21 sigma) is."""
     from types import SimpleNamespace
 
-    from identify.diagnose import _practical, _practical_size
+    from identify.diagnosis.diagnose import _practical, _practical_size
 
     thresholds = Thresholds()
     fit = SimpleNamespace(rms=0.6999, noise=SimpleNamespace(sigma=0.738))
@@ -349,7 +349,7 @@ def test_a_rival_within_the_bic_threshold_blocks_a_name():
     either, so the best cannot be named (the issue's 'never a wrong name')."""
     from types import SimpleNamespace
 
-    from identify.diagnose import _rival
+    from identify.diagnosis.diagnose import _rival
 
     def cand(effect, bic, refitted=True):
         return SimpleNamespace(effect=effect, delta_bic=bic, refitted=refitted)

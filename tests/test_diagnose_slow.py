@@ -21,7 +21,7 @@ best plain-GPI fit's residual to the noise-free record (measured at seed 0: ther
 0.54, creep 0.45, lag 0.51, sensor_drift 0.70 sigma). ``initial_state`` (virgin start,
 z0 = -20: 293 sigma against the plain GPI at the same parameters) is an exact
 reparametrisation of the plain GPI (visible size ~1e-13 sigma, round-off; the proof is in
-:func:`identify.diagnose._initial_state_as_envelope_offset`): no diagnosis can name it,
+:func:`identify.diagnosis.diagnose._initial_state_as_envelope_offset`): no diagnosis can name it,
 and the right verdict is ``adequate``.
 """
 
@@ -33,10 +33,10 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
-from identify.diagnose import diagnose, fit_baseline
-from identify.identifiability import normalised_model
-from identify.noise import NoiseModel
-from identify.records import Record
+from identify.diagnosis.diagnose import diagnose, fit_baseline
+from identify.fitting.parametrisation import normalised_model
+from identify.fitting.noise import NoiseModel
+from identify.data.records import Record
 from model import TABLE1, Model, gpi
 from model.effects import accumulated_travel, first_order_lowpass
 

@@ -12,8 +12,8 @@ import pytest
 
 from identify.bench import simulate
 from identify.cli import main
-from identify.posterior import BACKEND_GROUP, chain_diagnostics
-from identify.records import write_record
+from identify.fitting.posterior import BACKEND_GROUP, chain_diagnostics
+from identify.data.records import write_record
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", FutureWarning)
@@ -66,7 +66,7 @@ def test_diagnostics_equal_arviz_on_the_stored_chain(study_dir):
 
 def test_verdict_needs_rhat_and_bulk_ess(tmp_path):
     """tau alone passes on a short Gaussian chain; the verdict also needs bulk ESS >= 400."""
-    from identify import posterior as P
+    from identify.fitting import posterior as P
 
     good = np.random.default_rng(0).standard_normal((400, 40, 2))
     diag = chain_diagnostics(good)
@@ -101,7 +101,7 @@ def test_posterior_nc_opens_in_arviz(study_dir):
         loo = az.loo(idata, pointwise=True)
     assert np.isfinite(loo.elpd_loo)
     # the pointwise log-likelihood sums to the likelihood of each draw
-    from identify.posterior import LogPosterior  # noqa: F401  (the definition it must agree with)
+    from identify.fitting.posterior import LogPosterior  # noqa: F401  (the definition it must agree with)
 
     total = idata.log_likelihood["displacement"].sum("time")
     assert np.isfinite(total).all()
@@ -119,8 +119,8 @@ def test_chain_h5_carries_names_and_units(study_dir):
 
 
 def test_pointwise_log_likelihood_sums_to_the_likelihood():
-    from identify.inference import pointwise_log_likelihood
-    from identify.noise import NoiseModel, log_likelihood
+    from identify.fitting.inference import pointwise_log_likelihood
+    from identify.fitting.noise import NoiseModel, log_likelihood
 
     rng = np.random.default_rng(1)
     residual = rng.standard_normal((3, 50))

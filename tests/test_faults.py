@@ -27,8 +27,8 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
-from identify.records import write_record
-from identify.reproduce import TIMING_KEYS
+from identify.data.records import write_record
+from identify.workflows.reproduce import TIMING_KEYS
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Short studies: 1 least-squares start, no report.
@@ -499,8 +499,9 @@ def test_exit_codes_are_documented_in_the_help(tmp_path):
 
 
 def test_an_unexpected_failure_is_one_line_with_exit_code_1(monkeypatch, capsys):
-    from identify import cli, cmd_report
+    from identify import cli
 
+    from identify.cli import report as cmd_report
     def broken(args):
         raise RuntimeError("something nobody expected")
 
@@ -520,7 +521,7 @@ def test_folder_lock_semantics(tmp_path):
     """In one process too: a second lock on a held folder is refused naming this PID; the
     lock file goes with the release; a folder the lock created and left empty goes too;
     a child given the lock's environment and descriptor holds it as well."""
-    from identify.locks import FolderBusyError, FolderLock, lock_holder
+    from identify.data.locks import FolderBusyError, FolderLock, lock_holder
 
     folder = tmp_path / "new"
     lock = FolderLock(folder, command="test").acquire()
@@ -529,7 +530,7 @@ def test_folder_lock_semantics(tmp_path):
         FolderLock(folder).acquire()
     child_env, fds = lock.child_environment(env())
     probe = (
-        "from identify.locks import FolderLock, FolderBusyError\n"
+        "from identify.data.locks import FolderLock, FolderBusyError\n"
         "import sys\n"
         "lock = FolderLock(sys.argv[1]).acquire(); print('inherited', lock.inherited)\n"
     )
@@ -564,7 +565,7 @@ def test_a_long_record_loads_in_memory_proportional_to_it_with_progress_and_an_e
         "import sys\n"
         "def status(key):\n"
         "    return next(int(l.split()[1]) * 1024 for l in open('/proc/self/status') if l.startswith(key))\n"
-        "from identify.records import load_record\n"
+        "from identify.data.records import load_record\n"
         "before = status('VmRSS:')\n"
         "record = load_record(sys.argv[1])\n"
         "print(len(record), status('VmHWM:') - before)\n"

@@ -11,7 +11,7 @@ import scipy.io
 
 from identify.bench import simulate
 from identify.cli import main
-from identify.records import RecordError, load_record
+from identify.data.records import RecordError, load_record
 
 
 @pytest.fixture(scope="module")

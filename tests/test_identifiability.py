@@ -6,13 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identify.identifiability import (
-    EXACT_RATIO,
+from identify.fitting.identifiability import EXACT_RATIO, analyse_fit, analyse_identifiability
+from identify.fitting.parametrisation import (
     NORMALISATION,
     SCALING_PARAMETERS,
     SCALING_POWERS,
-    analyse_fit,
-    analyse_identifiability,
     gpi_scaling,
     normalised_model,
     parameter_scales,
@@ -20,9 +18,9 @@ from identify.identifiability import (
     scaling_direction,
     to_normalisation,
 )
-from identify.lsq import WhitenedResiduals, fit_least_squares
-from identify.noise import NoiseModel
-from identify.records import Record
+from identify.fitting.lsq import WhitenedResiduals, fit_least_squares
+from identify.fitting.noise import NoiseModel
+from identify.data.records import Record
 from model import TABLE1, THETA_NAMES, Model, paper_current
 
 

@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
-from identify.posterior import BACKEND_GROUP
-from identify.records import write_record
+from identify.fitting.posterior import BACKEND_GROUP
+from identify.data.records import write_record
 
 MAX_STEPS = 1500
 #: 5 Hz record (351 samples): a step takes ~1-3 ms, so the chain is still running when signalled.

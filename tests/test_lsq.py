@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identify.identifiability import normalised_model
-from identify.lsq import FitResult, WhitenedResiduals, candidate_starts, fit_least_squares
-from identify.noise import NoiseModel, estimate_noise
-from identify.records import Record
+from identify.fitting.parametrisation import normalised_model
+from identify.fitting.lsq import FitResult, WhitenedResiduals, candidate_starts, fit_least_squares
+from identify.fitting.noise import NoiseModel, estimate_noise
+from identify.data.records import Record
 from model import TABLE1, Model, paper_current
 
 SIGMA = 0.5  # um, the bench's default sensor noise
@@ -173,7 +173,7 @@ def test_ar1_noise_whitening_gives_honest_chi_square():
 def test_full_record_rms_matches_noise_sigma():
     """The 7001-sample clean bench record (data/bench_clean.csv, sigma 0.5 um, no hidden
     effect): residual RMS within 5 % of the sidecar's sigma."""
-    from identify.records import load_record
+    from identify.data.records import load_record
 
     path = Path(__file__).resolve().parent.parent / "data" / "bench_clean.csv"
     rec = load_record(path)
@@ -246,7 +246,7 @@ def test_table1_start_is_rescaled_to_more_operators(n_operators):
     weight: alpha still exactly the
     pinned value, and an output within 3 % of the range of Table 1's 12-operator output
     (measured 1.3 % for 21, 1.9 % for 30 operators: the discretisation of the density)."""
-    from identify.identifiability import with_threshold_sign
+    from identify.fitting.parametrisation import with_threshold_sign
 
     rec = simulated_record(seed=2)
     model_n = with_threshold_sign(normalised_model(Model(n_operators=n_operators)), -1)

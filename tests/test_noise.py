@@ -10,7 +10,7 @@ import pytest
 from scipy.signal import lfilter
 from scipy.stats import multivariate_normal
 
-from identify.noise import (
+from identify.fitting.noise import (
     MIN_QUIET_SAMPLES,
     NoiseModel,
     NoQuietSegmentError,
@@ -20,7 +20,7 @@ from identify.noise import (
     quiet_segment,
     whiten,
 )
-from identify.records import Record
+from identify.data.records import Record
 
 
 def ar1_noise(rng, n, sigma, rho):
@@ -169,7 +169,7 @@ def test_whiten_refuses_a_free_sigma_without_a_value():
 def test_fused_row_likelihood_equals_the_reference_formula(rho):
     """log_likelihood_of_rows (the sampler's one-pass kernel) equals log_likelihood on the
     selected rows to rounding (relative 1e-12), white and AR(1), with a per-row sigma too."""
-    from identify.noise import log_likelihood_of_rows
+    from identify.fitting.noise import log_likelihood_of_rows
 
     rng = np.random.default_rng(4)
     data = rng.standard_normal(501)

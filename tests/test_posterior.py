@@ -10,10 +10,10 @@ import emcee
 import numpy as np
 import pytest
 
-from identify.identifiability import normalised_model
-from identify.lsq import fit_least_squares
-from identify.noise import NoiseModel, estimate_noise, log_likelihood
-from identify.posterior import (
+from identify.fitting.parametrisation import normalised_model
+from identify.fitting.lsq import fit_least_squares
+from identify.fitting.noise import NoiseModel, estimate_noise, log_likelihood
+from identify.fitting.posterior import (
     BACKEND_GROUP,
     MOVES,
     LogPosterior,
@@ -22,7 +22,7 @@ from identify.posterior import (
     initial_walkers,
     sample_posterior,
 )
-from identify.records import Record
+from identify.data.records import Record
 from model import Model, paper_current
 from model.gpi import THETA_NAMES
 
@@ -285,14 +285,14 @@ def test_convergence_rule_and_not_converged_verdict(tmp_path):
 
 
 #: Records in the interval calibration (standard error of the coverage across records
-#: about 0.02 at 30; identify.calibration's docstring).
+#: about 0.02 at 30; identify.bench.calibration's docstring).
 COVERAGE_RECORDS = 20
 
 @pytest.fixture(scope="module")
 def calibration(tmp_path_factory):
     """:data:`COVERAGE_RECORDS` seeded clean records (paper input at 50 Hz: 3501 samples,
-    501 quiet; noise 0.5 um), fitted and sampled by :func:`identify.calibration.interval_coverage`;
-    truths: :func:`identify.calibration.calibration_truth` (Table 1 with b3 shifted within
+    501 quiet; noise 0.5 um), fitted and sampled by :func:`identify.bench.calibration.interval_coverage`;
+    truths: :func:`identify.bench.calibration.calibration_truth` (Table 1 with b3 shifted within
     +-0.25 A, about half of them with crossing operator bounds, and the GPI scaling k = 1.3,
     so only the normalisation makes them comparable). Why not 10 Hz: Omega's tanh step
     (width 1/c1 = 0.15 A) falls between samples there, so c1 and c2 are not identified.
@@ -300,7 +300,7 @@ def calibration(tmp_path_factory):
     About 40 s per record on a quiet 2-core machine (median 42 s). With the environment variable
     ``CALIBRATION_DIR`` set, the records are kept there and an interrupted run resumes
     (``python benchmarks/interval_coverage.py`` writes the same records to its ``--out``)."""
-    from identify.calibration import calibration_truth, interval_coverage
+    from identify.bench.calibration import calibration_truth, interval_coverage
 
     out_dir = os.environ.get("CALIBRATION_DIR") or tmp_path_factory.mktemp("calibration")
     result = interval_coverage(calibration_truth, range(COVERAGE_RECORDS), out_dir)
@@ -321,7 +321,7 @@ def test_least_squares_intervals_cover_the_truth_and_chains_converge(calibration
 @pytest.mark.slow
 def test_posterior_intervals_cover_the_truth_at_about_the_nominal_rate(calibration):
     """Expected 0.95; accept 0.90 - 0.99 (as above). Before the corrected snooker move
-    (identify.posterior.SnookerMove) the released emcee move shrank the posterior and
+    (identify.fitting.posterior.SnookerMove) the released emcee move shrank the posterior and
     these intervals covered 0.861 on 12 records."""
     coverage, _ = calibration.coverage("posterior")
     assert 0.90 <= coverage <= 0.99
@@ -335,7 +335,7 @@ def test_posterior_agrees_with_random_walk_metropolis_on_a_gpi_record(calibratio
     Laplace-shaped proposal) within Monte Carlo error (each ~2-3 %; accept 0.92-1.08 for
     the mean ratio over parameters and 0.8-1.2 for each). The released emcee snooker move
     gave a mean ratio of about 0.85 here."""
-    from identify.calibration import calibration_problem, calibration_truth
+    from identify.bench.calibration import calibration_problem, calibration_truth
     from posterior_reference import random_walk_metropolis
 
     rec_cov = next(r for r in calibration.records if r.seed == 1)
@@ -357,7 +357,7 @@ def test_posterior_agrees_with_random_walk_metropolis_on_a_gpi_record(calibratio
 def test_autocorrelation_time_matches_emcee():
     """The vectorised estimator equals emcee.autocorr.integrated_time (tolerance: FFT
     round-off) on AR(1) chains with known tau = (1 + phi) / (1 - phi)."""
-    from identify.posterior import _tau
+    from identify.fitting.posterior import _tau
 
     rng = np.random.default_rng(0)
     phis = np.array([0.0, 0.5, 0.9])
@@ -374,7 +374,7 @@ def test_checks_that_cannot_pass_are_skipped_by_the_anchor_rule():
     """A check is due only once the chain reaches tau_factor x tau_max of the prefix at
     the last anchor (geometric, ratio 2**(1/4), multiples of check_every); the anchor's
     tau is computed once."""
-    from identify.posterior import _anchor, _check_due, _tau
+    from identify.fitting.posterior import _anchor, _check_due, _tau
 
     anchors = sorted({_anchor(n, 500) for n in range(500, 60001, 500)})
     assert anchors[:6] == [500, 1000, 1500, 2000, 2500, 3000]
@@ -451,7 +451,7 @@ def test_the_study_moves_leave_a_gaussian_posterior_invariant():
 
 
 def test_emcee_3_1_6_snooker_move_shrinks_the_posterior():
-    """Why :class:`identify.posterior.SnookerMove` exists: the released
+    """Why :class:`identify.fitting.posterior.SnookerMove` exists: the released
     ``emcee.moves.DESnookerMove`` (3.1.6; fixed upstream in dfm/emcee#531, unreleased) in the
     same schedule shrinks the variances (measured 0.86 on this Gaussian, 0.80 on an 18-D
     standard normal). If this fails, emcee has released the fix and the override can go."""

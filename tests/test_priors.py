@@ -12,9 +12,9 @@ from scipy.integrate import quad
 
 from identify.bench import simulate
 from identify.cli import main
-from identify.cmd_fit import model_from_args
-from identify.priors import Prior, PriorsError, apply_priors
-from identify.records import write_record
+from identify.cli.common import model_from_args
+from identify.fitting.priors import Prior, PriorsError, apply_priors
+from identify.data.records import write_record
 
 STUDY = ["--max-steps", "400", "--check-every", "200", "--n-starts", "2", "--seed", "5", "--progress", "off", "--no-report"]
 
@@ -117,7 +117,7 @@ def test_a_tight_normal_prior_pulls_the_posterior_and_is_reported(bench, tmp_pat
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["settings"]["priors"] == str(priors) and len(manifest["settings"]["priors_sha256"]) == 64
     # and in the report
-    from identify.report import write_report
+    from identify.output.report import write_report
 
     page = write_report(out).read_text()
     table = page.split('<table id="priors">')[1].split("</table>")[0]
@@ -142,9 +142,9 @@ def test_default_bounds_are_the_models_whatever_the_record_units(tmp_path, model
     """Documented behaviour (docs/method.md, 'Priors file'): the default bounds are sized for a
     drive in A and an output in um and are NOT rescaled for a record in other units (the units
     are labels); a priors file gives bounds in the record's units."""
-    from identify.noise import estimate_noise
-    from identify.posterior import LogPosterior
-    from identify.records import Record
+    from identify.fitting.noise import estimate_noise
+    from identify.fitting.posterior import LogPosterior
+    from identify.data.records import Record
 
     rec = simulate(fs=5.0, seed=4).record
     amps = Record(rec.time, rec.current, rec.displacement, source="a", sha256="")

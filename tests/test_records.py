@@ -1,4 +1,4 @@
-"""Tests of identify.records: every load error names file, line and problem; exact round trip."""
+"""Tests of identify.data.records: every load error names file, line and problem; exact round trip."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from identify.records import Record, RecordError, load_record, sidecar_path, write_record
+from identify.data.records import Record, RecordError, load_record, sidecar_path, write_record
 
 N_ROWS = 250  # above the default min_samples = 200
 
@@ -235,8 +235,8 @@ def test_keep_every_keeps_the_reversals_so_the_gpi_output_is_unchanged():
     multiples of 7), so the GPI at the kept samples equals the GPI of the whole record
     there, bit for bit."""
     from identify.bench import simulate
-    from identify.records import keep_every
-    from identify.residuals import find_reversals
+    from identify.data.records import keep_every
+    from identify.data.reversals import find_reversals
     from model import TABLE1, gpi
 
     record = simulate(fs=100.0, seed=1).record

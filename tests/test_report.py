@@ -1,4 +1,4 @@
-"""Tests of the uncertainty report (identify.report, identify.plots, identify.cmd_report).
+"""Tests of the uncertainty report (identify.output.report, identify.output.plots, identify.cli.report).
 
 End-to-end tests run the real ``study`` on a small simulated record (tests/report_fixture.py,
 ~15 s of CPU once per session) and parse the page it writes back: every figure and table
@@ -20,7 +20,8 @@ from matplotlib.collections import PolyCollection
 from scipy.stats import norm
 
 import model
-from identify import plots, report
+from identify.output import plots
+from identify.output import report
 from identify.cli import main as identify_main
 from report_fixture import FixtureSettings, build_results_folder
 
@@ -175,18 +176,20 @@ def test_cycle_errors_split_at_the_input_minima():
 
 
 def test_mixture_quantile_against_closed_forms():
+    from identify.output.bands import mixture_quantile
+
     sigma = np.array([0.5])
     centres = np.array([[0.0, 3.0, -2.0]])
     # one component: the normal quantile c + sigma z_p
-    np.testing.assert_allclose(report.mixture_quantile(centres, sigma, 0.025), centres[0] + 0.5 * norm.ppf(0.025), atol=1e-3 * 0.5)
+    np.testing.assert_allclose(mixture_quantile(centres, sigma, 0.025), centres[0] + 0.5 * norm.ppf(0.025), atol=1e-3 * 0.5)
     # two far-apart unit components: 0.5 Phi(x) + 0.5 Phi(x - 20) = 0.025  =>  Phi(x) = 0.05
     two = np.array([[0.0], [20.0]])
-    np.testing.assert_allclose(report.mixture_quantile(two, np.array([1.0, 1.0]), 0.025), norm.ppf(0.05), atol=1e-3)
+    np.testing.assert_allclose(mixture_quantile(two, np.array([1.0, 1.0]), 0.025), norm.ppf(0.05), atol=1e-3)
     # unequal sigmas, equal centres: solve 0.5 Phi(x/1) + 0.5 Phi(x/3) = 0.975 by bisection with scipy
     from scipy.optimize import brentq
 
     expected = brentq(lambda x: 0.5 * norm.cdf(x) + 0.5 * norm.cdf(x / 3.0) - 0.975, 0, 20)
-    np.testing.assert_allclose(report.mixture_quantile(np.zeros((2, 1)), np.array([1.0, 3.0]), 0.975), expected, atol=1e-3)
+    np.testing.assert_allclose(mixture_quantile(np.zeros((2, 1)), np.array([1.0, 3.0]), 0.975), expected, atol=1e-3)
 
 
 def test_zoom_window_grows_until_the_curve_moves_enough():

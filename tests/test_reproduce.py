@@ -21,8 +21,8 @@ import pytest
 
 import model
 from identify import cli
-from identify import reproduce as R
-from identify.records import write_record
+from identify.workflows import reproduce as R
+from identify.data.records import write_record
 
 STUDY_OPTIONS = ["--max-steps", "40", "--check-every", "20", "--n-starts", "1", "--seed", "3", "--walkers", "40"]
 

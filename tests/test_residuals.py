@@ -1,4 +1,4 @@
-"""Tests of identify.residuals: the "where it fails" statistics and the noise tests (pure arrays, fast)."""
+"""Tests of identify.diagnosis.residuals: the "where it fails" statistics and the noise tests (pure arrays, fast)."""
 
 from __future__ import annotations
 
@@ -6,20 +6,17 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from identify.residuals import (
+from identify.data.reversals import branch_direction, find_reversals, input_rate, time_since_reversal
+from identify.diagnosis.residuals import (
     ARNoise,
     autocorrelation,
     binned_residual,
-    branch_direction,
     cycle_statistics,
     extremum_levels,
-    find_reversals,
     fit_ar_noise,
-    input_rate,
     ljung_box,
     low_frequency_test,
     residual_profile,
-    time_since_reversal,
     variance_ratio_test,
 )
 from model import paper_current
@@ -190,7 +187,7 @@ def test_variance_and_low_frequency_tests_measure_the_structure():
 def test_no_false_alarm_with_the_quiet_segment_as_reference():
     """The tests' null (noise model estimated on a 1000-sample quiet segment, then applied to a
     7001-sample record): over 60 seeds of white and AR(1) noise no test reaches z = 5, the
-    diagnosis' threshold (identify.diagnose.Thresholds.z_critical)."""
+    diagnosis' threshold (identify.diagnosis.diagnose.Thresholds.z_critical)."""
     time, current = paper_current(100.0)
     quiet = slice(0, 1001)
     worst = 0.0

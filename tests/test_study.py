@@ -14,8 +14,8 @@ import pytest
 
 from identify.bench import simulate
 from identify.cli import main
-from identify.posterior import BACKEND_GROUP
-from identify.records import write_record
+from identify.fitting.posterior import BACKEND_GROUP
+from identify.data.records import write_record
 
 FAST = ["--max-steps", "40", "--check-every", "20", "--n-starts", "2", "--progress", "off"]
 #: Exit code of a FAST study: its 40-step chain stops at the cap, NOT CONVERGED (a finding, docs/reproducibility.md).
@@ -33,13 +33,13 @@ def small_csv(tmp_path_factory):
 
 @pytest.fixture(autouse=True)
 def report_calls(request, monkeypatch):
-    """Record study's call of identify.report.write_report instead of drawing the report
+    """Record study's call of identify.output.report.write_report instead of drawing the report
     (its figures take most of a small study's time); the slow test draws it for real."""
     calls = []
     if request.node.name.startswith("test_report_is_written"):
         return calls
     try:
-        import identify.report as report
+        import identify.output.report as report
     except ImportError:
         return calls
 
@@ -61,7 +61,7 @@ def test_study_writes_the_contract_folder(small_csv, tmp_path, capsys, report_ca
     assert main(["study", str(small_csv), "--out", str(out), "--seed", "5", *FAST]) == NOT_CONVERGED
     printed = capsys.readouterr()
     assert "exit code 1: the chain did NOT CONVERGE" in printed.err
-    if "identify.report" in sys.modules:
+    if "identify.output.report" in sys.modules:
         assert [str(p) for p in report_calls] == [str(out)]  # the report is written from this folder
     for name in ("data.npz", "chain.h5", "fit.json", "summary.json", "manifest.json"):
         assert (out / name).is_file(), name
@@ -142,7 +142,7 @@ def test_same_seed_same_chain_bit_for_bit(small_csv, tmp_path):
 
 @pytest.mark.slow
 def test_report_is_written_when_the_report_module_exists(small_csv, tmp_path):
-    pytest.importorskip("identify.report")
+    pytest.importorskip("identify.output.report")
     out = tmp_path / "run"
     assert main(["study", str(small_csv), "--out", str(out), *FAST]) == NOT_CONVERGED
     assert (out / "report.html").is_file()
@@ -210,7 +210,7 @@ def test_piezo_record_with_other_columns_and_units(tmp_path, capsys):
 def test_fit_out_writes_a_reproducible_folder_with_notes_and_threads(small_csv, tmp_path, capsys):
     """``fit --out DIR``: data.npz, fit.json and a manifest as study writes them (task, seed,
     data hash, the record's notes, thread counts); a rerun with other settings is refused."""
-    from identify.reproduce import rerun_arguments
+    from identify.workflows.reproduce import rerun_arguments
 
     no_time = tmp_path / "no_time.csv"  # the same record without its time column: a note
     lines = small_csv.read_text().splitlines()
@@ -247,7 +247,7 @@ def test_fit_out_writes_a_reproducible_folder_with_notes_and_threads(small_csv, 
 def test_fit_failure_is_one_clean_error_line(small_csv, tmp_path, monkeypatch, capsys):
     """A least squares that cannot run (e.g. no start inside the domain) exits 2 with one
     line saying what failed and what to try, for fit and study alike, never a traceback."""
-    import identify.lsq as lsq
+    import identify.fitting.lsq as lsq
 
     def no_start(*args, **kwargs):
         raise ValueError("no valid least-squares start: Table 1 lies outside the model's domain on this input")
@@ -287,5 +287,5 @@ def test_study_no_report_skips_the_report(small_csv, tmp_path, capsys, report_ca
     assert "report" not in manifest["runs"][-1]["phases"]
     # resuming without --no-report is allowed (no number depends on it) and writes the report
     assert main(["study", str(small_csv), "--out", str(out), *FAST]) == NOT_CONVERGED
-    if "identify.report" in sys.modules:
+    if "identify.output.report" in sys.modules:
         assert [str(p) for p in report_calls] == [str(out)]

@@ -1,4 +1,4 @@
-"""predict and compensate (identify/use.py, the commands): results, files, bad input, a small closed loop."""
+"""predict and compensate (identify/workflows/use.py, the commands): results, files, bad input, a small closed loop."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ import pytest
 
 import model
 from identify.cli import main as identify_main
-from identify.records import write_record
-from identify.use import Target, UseError, compensate, load_study, predict
+from identify.data.records import write_record
+from identify.workflows.use import Target, UseError, compensate, load_study, predict
 
 SIGMA = 0.5
 
@@ -264,7 +264,7 @@ def test_predict_names_the_effect_a_new_record_reveals(study_dir, tmp_path):
 def test_compensate_leaves_sensor_drift_out(study_dir):
     """sensor_drift moves the sensor's reading, not the transducer: a study with it
     compensates exactly as without it (same GPI parameters)."""
-    from identify.use import _compensation_theta
+    from identify.workflows.use import _compensation_theta
 
     m = model.Model(["sensor_drift"])
     theta = m.theta_from_dict(dict(zip(m.names[:19], model.TABLE1)) | {"sensor_drift_linear": 5.0})
@@ -292,7 +292,7 @@ def test_closed_loop_on_the_bundled_bench_record(tmp_path):
     study adds it, and the TRUE transducer driven with the feedforward current tracks a
     triangle and a multi-sine to < 0.25 % RMS and < 1 % max of the target's range, against
     >= 10 % with the best linear drive; the predictive band covers the measured error."""
-    from identify.closed_loop import closed_loop
+    from identify.bench.closed_loop import closed_loop
 
     root = Path(__file__).resolve().parent.parent
     result = closed_loop(tmp_path, record=root / "data" / "bench_default.csv", seed=1)

@@ -1,0 +1,157 @@
+"""``python -m identify diagnose DATA.csv``: least squares plus the diagnosis (no posterior).
+
+Prints a short human summary (verdict, why, candidates) and writes, on request:
+
+``--json OUT.json``
+    :meth:`identify.diagnosis.diagnose.Diagnosis.to_dict`: ``effects``, ``noise_sigma``, ``rms``,
+    ``max_error_pct``, ``status``, ``missing``, ``ranking`` (best first: ``effect``,
+    ``rms_after``, ``delta_bic``, ``explained_fraction``, ``parameters``, ...), and the
+    details (``reason``, ``adequacy``, ``where``, ``pair``, ``details``, ``fit``).
+``--out DIR``
+    ``DIR/diagnosis.json`` (the same content) and the figures ``DIR/diagnosis/*.png``
+    (:data:`identify.output.diagnosis_plots.FIGURES`); the report (:mod:`identify.output.report`) of a
+    study written to the same ``DIR`` shows them.
+
+Every file is written to a temporary name and renamed, so an interrupted run leaves no
+half-written file. ``--effects`` adds effects to the diagnosed model, as for ``fit`` and
+``study``: diagnose, add the effect named, diagnose again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import options
+from ..logs import say
+
+__all__ = ["HELP", "add_arguments", "parse_window", "run", "write_outputs"]
+
+HELP = "least squares + diagnosis: is the residual noise, and which physical effect is missing?"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from .common import add_model_arguments, add_record_arguments
+
+    add_record_arguments(parser)
+    add_model_arguments(parser)
+    parser.set_defaults(n_starts=6)
+    parser.add_argument(
+        "--json", default=None, type=options.file_path, metavar="OUT.json", help="write the diagnosis as JSON here"
+    )
+    parser.add_argument(
+        "--out", default=None, type=options.folder_path, metavar="DIR",
+        help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png (DIR is locked while they are written)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--drop-window", default=None, metavar="START:STOP",
+        help="leave the samples with START <= time < STOP [s] out (e.g. a switch-on ringing no rate-independent "
+        "model fits; see identify.data.realdata.drop_window)",
+    )  # fmt: skip
+
+
+def parse_window(text: str) -> tuple[float, float]:
+    """``"START:STOP"`` -> ``(start, stop)`` [s]; ValueError naming the option when malformed."""
+    parts = str(text).split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        start, stop = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ValueError(f"--drop-window must be START:STOP in seconds (e.g. 3.2572:3.2772), got {text!r}") from None
+    return start, stop
+
+
+def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[str]:
+    """Write the JSON and (with ``out_dir``) the figures; returns the paths written.
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis
+    record : Record
+    json_path : path-like, optional
+    out_dir : path-like, optional
+        Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure.
+    """
+    from pathlib import Path
+
+    from ..output.diagnosis_plots import diagnosis_figures
+    from ..output.report import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
+    from ..data.fileio import atomic_write
+    from ..output.results import write_json
+
+    content = diagnosis.to_dict()
+    written = []
+    if json_path is not None:
+        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+        write_json(json_path, content)
+        written.append(str(json_path))
+    if out_dir is not None:
+        out = Path(out_dir)
+        figure_dir = out / DIAGNOSIS_FIGURES
+        figure_dir.mkdir(parents=True, exist_ok=True)
+        for stale in figure_dir.glob("*.png"):  # figures of an earlier diagnosis must not mix in
+            stale.unlink()
+        for stem, figure in diagnosis_figures(diagnosis, record).items():
+            path = figure_dir / f"{stem}.png"
+            atomic_write(path, lambda fh, figure=figure: figure.savefig(fh, format="png", dpi=100))
+            written.append(str(path))
+        write_json(out / DIAGNOSIS_FILE, content)
+        written.append(str(out / DIAGNOSIS_FILE))
+    return written
+
+
+def run(args) -> int:
+    """Diagnose; exit code 0 done, 2 bad input, 130 interrupted. ``--out DIR`` is locked from the start."""
+    from ..data.locks import FolderLock
+
+    if getattr(args, "drop_window", None):
+        try:
+            parse_window(args.drop_window)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    if args.out is None:
+        return _run(args)
+    with FolderLock(args.out, command=f"python -m identify diagnose {args.data} --out {args.out}"):
+        return _run(args)
+
+
+def _run(args) -> int:
+    import time
+
+    import numpy as np
+
+    from .common import model_from_args, noise_from_args, record_from_args
+    from ..diagnosis.diagnose import diagnose
+    from ..fitting.noise import NoQuietSegmentError
+    from ..data.records import RecordError
+
+    try:
+        record = record_from_args(args)
+        if getattr(args, "drop_window", None):
+            from ..data.realdata import drop_window
+
+            record = drop_window(record, *parse_window(args.drop_window))
+        model = model_from_args(args)
+        noise = noise_from_args(args, record)
+    except (RecordError, NoQuietSegmentError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    started = time.perf_counter()
+
+    def progress(message):  # INFO: hidden by -q (the old --quiet)
+        say(f"[{time.perf_counter() - started:6.1f} s] {message}")
+
+    progress(f"diagnosing {model!r} on {record.source} ({len(record.time)} samples)")
+    try:
+        result = diagnose(record, model, noise=noise, n_starts=args.n_starts, rng=np.random.default_rng(args.seed),
+                          progress=progress)  # fmt: skip
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(result.summary())
+    for path in write_outputs(result, record, json_path=args.json, out_dir=args.out):
+        progress(f"wrote {path}")
+    progress(f"done in {result.seconds:.1f} s")
+    return 0

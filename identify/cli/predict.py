@@ -1,0 +1,102 @@
+"""``python -m identify predict DIR NEW.csv``: a finished study's model on another record, no refit.
+
+Applies the posterior draws and the least-squares vector of the study in ``DIR`` to the
+record ``NEW.csv`` (same rig: the study's columns and units; ``--window T0:T1`` scores
+part of it, e.g. the rest of a record whose first part trained the study) and writes
+``OUT`` (default ``DIR/predict-<NEW stem>``), all at once:
+
+``prediction.json``
+    ``rms``, ``max_error_pct``, ``noise_sigma``, ``inside_predictive_band``, ``verdict``
+    (:data:`identify.workflows.use.VERDICTS`), ``missing``, the training figures, the window, the
+    noise tests and, when run, the diagnosis (:meth:`identify.workflows.use.Prediction.to_dict`).
+``prediction.html`` and ``*.png``
+    The page: measured vs predicted displacement and loops with the 95 % credible and
+    predictive bands, validation beside training, where the prediction fails, the
+    diagnosis' verdict (:mod:`identify.output.use_report`).
+
+Exit code 0 when written; 2 with one ``error:`` line (a folder that is not a finished
+study, a record with other columns or units, an empty window), nothing written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import options
+from ..logs import say
+
+__all__ = ["HELP", "add_arguments", "run", "parse_span"]
+
+HELP = "apply a finished study's model to another record (validation, no refit): report, bands, verdict"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dir", metavar="DIR", help="results folder of a finished `python -m identify study`")
+    parser.add_argument("data", metavar="NEW.csv", help="record of the same rig (the study's columns and units)")
+    parser.add_argument("--out", default=None, metavar="OUT", help="output folder (default DIR/predict-<NEW stem>)")
+    parser.add_argument("--window", default=None, metavar="T0:T1", help="score only T0 <= time <= T1 [s]; the model still runs from the record's start")
+    parser.add_argument("--draws", type=options.integer(2, None, "an integer >= 2"), default=200, help="posterior draws pushed through the model (default 200)")
+    parser.add_argument("--seed", type=options.seed, default=0, help="seed choosing the draws (and of a diagnosis; default 0)")
+    parser.add_argument(
+        "--diagnosis", choices=("auto", "adequacy"), default="auto",
+        help="auto (default): when the validation residual is not noise, search which effect the record reveals; "
+        "adequacy: only test whether it is noise",
+    )  # fmt: skip
+    parser.add_argument("--n-starts", type=options.positive_int, default=6, help="least-squares starts of a diagnosis (default 6)")
+    group = parser.add_argument_group("record columns and units (default: the study's)")
+    for option in ("time-column", "input-column", "output-column", "input-unit", "output-unit"):
+        group.add_argument(f"--{option}", default=None)
+
+
+def parse_span(text: str, option: str) -> tuple[float, float]:
+    """``"A:B"`` -> ``(A, B)`` floats; ValueError naming ``option`` when malformed."""
+    parts = str(text).split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a, b = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ValueError(f"{option} must be A:B with two numbers (e.g. 0:5), got {text!r}") from None
+    return a, b
+
+
+def run(args) -> int:
+    import time
+    from pathlib import Path
+
+    import numpy as np
+
+    from ..workflows.use import UseError, load_record_for_study, load_study, predict, write_prediction
+
+    started = time.perf_counter()
+
+    def progress(message):  # INFO: hidden by -q (the old --quiet)
+        say(f"[{time.perf_counter() - started:6.1f} s] {message}")
+
+    try:
+        window = parse_span(args.window, "--window") if args.window else None
+        study = load_study(args.dir)
+        record = load_record_for_study(
+            args.data, study, time_column=args.time_column, input_column=args.input_column,
+            output_column=args.output_column, input_unit=args.input_unit, output_unit=args.output_unit,
+        )  # fmt: skip
+        progress(f"predicting {record.source} ({len(record)} samples) with the study {study.path}")
+        prediction = predict(study, record, window=window, n_draws=args.draws, rng=np.random.default_rng(args.seed),
+                             diagnosis=args.diagnosis, n_starts=args.n_starts, progress=progress)  # fmt: skip
+        out = Path(args.out) if args.out else Path(args.dir) / f"predict-{Path(args.data).stem}"
+        write_prediction(prediction, out)
+    except (UseError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    unit = record.output_unit
+    t = prediction.training
+    print(f"validation: RMS {prediction.rms:.4g} {unit} = {prediction.rms / prediction.noise_sigma:.3f} sigma "
+          f"(training {t['rms']:.4g} {unit}), max error {prediction.max_error_pct:.3g} % of the range "
+          f"(training {t['max_error_pct']:.3g} %), {100 * prediction.inside_predictive_band:.1f} % inside the 95 % "
+          "predictive band")  # fmt: skip
+    print(f"verdict: {prediction.verdict}" + (f" -> the record reveals '{prediction.missing}'" if prediction.missing else ""))
+    for note in prediction.notes:
+        print(f"note: {note}")
+    print(f"wrote {out / 'prediction.json'} and {out / 'prediction.html'} ({time.perf_counter() - started:.1f} s)")
+    return 0

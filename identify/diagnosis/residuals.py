@@ -1,0 +1,810 @@
+r"""Where the model fails: statistics of a residual, on plain arrays.
+
+Everything here is pure (arrays in, dataclasses out; no I/O, no plots, no model
+calls), so the diagnosis (:mod:`identify.diagnosis.diagnose`), the figures
+(:mod:`identify.output.diagnosis_plots`) and the tests share one set of numbers.
+
+What is computed
+----------------
+*Location of the error.* Input reversals (peaks and troughs of the drive, found by a
+zig-zag rule that ignores wiggles smaller than ``min_swing``), the branch each sample
+lies on (rising/falling between reversals), the input rate, the time since the last
+reversal, and the residual binned against each of them; the residual level at every
+peak and trough; RMS, max and mean error cycle by cycle (trough to trough).
+
+*Is it noise?* The noise reference is the record's quiet (unenergised) segment: an
+AR(p) model (:class:`ARNoise`, order by AIC, ``p <= 5``) fitted to it after removing a
+straight line (so a slowly drifting sensor shows up as *structure* in the residual,
+not as noise). Three tests compare the residual with it:
+
+``variance``
+    :math:`R = \overline{r^2} / \sigma^2`. Under the null its standard deviation is
+    :math:`\sqrt{2/n_{\mathrm{eff}} + 2/n_{q,\mathrm{eff}}}`, the first term for the
+    residual's own sampling error, the second for the error of the quiet segment's
+    :math:`\hat\sigma^2`; ``n_eff`` is the number of samples divided by the noise's
+    variance inflation :math:`\sum_k \rho_k^2` (for AR(1): :math:`(1+\rho^2)/(1-\rho^2)`).
+``ljung_box``
+    Ljung-Box :math:`Q = n(n+2)\sum_{k=1}^m \hat\rho_k^2/(n-k)` on the residual
+    *whitened* by the quiet segment's AR filter; :math:`\chi^2_m` under the null.
+``low_frequency``
+    Block means of length ``L`` (default 0.2 s): under the null each has the variance
+    :math:`V_L = L^{-2}\sum_{|k|<L}(L-|k|)\gamma_k` of the AR noise, so
+    :math:`S = \sum_b \bar r_b^2 / V_L \sim \chi^2_B`; its standardised excess allows
+    for the error of :math:`\hat\sigma^2` as above. ``L (mean_b \bar r_b^2 - V_L)``
+    estimates the mean square of the slowly varying part of the residual
+    (:attr:`StatTest.structure_variance`), which is what a missing physical effect
+    leaves: every effect of the library acts on the time scale of the drive (seconds),
+    not of the sensor noise (samples).
+
+Each test returns a standardised excess ``z`` (0 mean, unit sd under the null) and a
+one-sided p-value; the verdict thresholds live in :mod:`identify.diagnosis.diagnose`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from ..data.reversals import Reversals, as_1d, branch_direction, find_reversals, input_rate, time_since_reversal
+
+__all__ = [
+    "BinnedResidual",
+    "binned_residual",
+    "CycleStatistics",
+    "cycle_statistics",
+    "ExtremumLevels",
+    "extremum_levels",
+    "autocorrelation",
+    "ARNoise",
+    "fit_ar_noise",
+    "StatTest",
+    "ljung_box",
+    "variance_ratio_test",
+    "low_frequency_test",
+    "ResidualProfile",
+    "residual_profile",
+]
+
+
+def _as_mask(name, mask, size):
+    if mask is None:
+        return np.ones(size, dtype=bool)
+    m = np.asarray(mask)
+    if m.dtype != bool or m.shape != (size,):
+        raise ValueError(f"{name} must be a boolean array of shape ({size},), got {m.dtype} {m.shape}")
+    return m
+
+
+# -- binned views -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BinnedResidual:
+    """Residual statistics in bins of some variable ``x``.
+
+    Attributes
+    ----------
+    edges : ndarray, shape (B+1,)
+        Bin edges in the units of ``x``.
+    centres : ndarray, shape (B,)
+    count : ndarray of int, shape (B,)
+    mean : ndarray, shape (B,)
+        Mean residual [output units]; NaN where ``count == 0``.
+    rms : ndarray, shape (B,)
+        RMS residual; NaN where ``count == 0``.
+    sem : ndarray, shape (B,)
+        Standard error of the mean (sample sd / sqrt(count)); NaN where ``count < 2``.
+    """
+
+    edges: np.ndarray
+    centres: np.ndarray
+    count: np.ndarray
+    mean: np.ndarray
+    rms: np.ndarray
+    sem: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {
+            k: [None if not np.isfinite(x) else float(x) for x in getattr(self, k)]
+            for k in ("edges", "centres", "mean", "rms", "sem")
+        } | {"count": [int(c) for c in self.count]}
+
+
+def binned_residual(x, residual, n_bins=20, mask=None, edges=None) -> BinnedResidual:
+    """Mean, RMS and standard error of ``residual`` in bins of ``x``.
+
+    Parameters
+    ----------
+    x : array_like, shape (T,)
+        The variable to bin by (current, rate, time since reversal, ...). NaN entries
+        are left out.
+    residual : array_like, shape (T,)
+        Data minus model.
+    n_bins : int, default 20
+        Equal-width bins over the selected ``x`` range (ignored when ``edges`` is given).
+    mask : array_like of bool, shape (T,), optional
+        Samples to use.
+    edges : array_like, shape (B+1,), optional
+        Explicit increasing bin edges.
+    """
+    r = as_1d("residual", residual)
+    xv = np.asarray(x, dtype=float)
+    if xv.shape != r.shape:
+        raise ValueError(f"x has shape {xv.shape}, residual {r.shape}: they must match")
+    use = _as_mask("mask", mask, r.size) & np.isfinite(xv)
+    if edges is None:
+        if int(n_bins) < 1:
+            raise ValueError(f"n_bins must be >= 1, got {n_bins}")
+        if use.any():
+            lo, hi = float(xv[use].min()), float(xv[use].max())
+        else:
+            lo, hi = 0.0, 1.0
+        if hi <= lo:
+            hi = lo + 1.0
+        edges = np.linspace(lo, hi, int(n_bins) + 1)
+    edges = np.asarray(edges, dtype=float)
+    if edges.ndim != 1 or edges.size < 2 or not (np.diff(edges) > 0).all():
+        raise ValueError("edges must be a 1-D increasing array with at least 2 entries")
+    nb = edges.size - 1
+    which = np.clip(np.searchsorted(edges, xv[use], side="right") - 1, 0, nb - 1)
+    inside = (xv[use] >= edges[0]) & (xv[use] <= edges[-1])
+    which, rr = which[inside], r[use][inside]
+    count = np.bincount(which, minlength=nb)
+    total = np.bincount(which, weights=rr, minlength=nb)
+    total_sq = np.bincount(which, weights=rr * rr, minlength=nb)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+        rms = np.where(count > 0, np.sqrt(total_sq / np.maximum(count, 1)), np.nan)
+        var = (total_sq - count * np.nan_to_num(mean) ** 2) / np.maximum(count - 1, 1)
+        sem = np.where(count > 1, np.sqrt(np.maximum(var, 0.0) / np.maximum(count, 1)), np.nan)
+    return BinnedResidual(edges, 0.5 * (edges[:-1] + edges[1:]), count, mean, rms, sem)
+
+
+# -- cycle by cycle ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CycleStatistics:
+    """Error statistics per drive cycle (trough to next trough).
+
+    Attributes
+    ----------
+    start, stop : ndarray of int, shape (C,)
+        Sample range ``[start, stop)`` of each cycle.
+    t_start, t_stop : ndarray, shape (C,)
+        [s].
+    rms, max_abs, mean : ndarray, shape (C,)
+        Residual RMS, max absolute value and mean over the cycle [output units].
+    max_error_pct : ndarray, shape (C,)
+        ``max_abs`` as % of the measured output range of the whole record.
+    """
+
+    start: np.ndarray
+    stop: np.ndarray
+    t_start: np.ndarray
+    t_stop: np.ndarray
+    rms: np.ndarray
+    max_abs: np.ndarray
+    mean: np.ndarray
+    max_error_pct: np.ndarray
+
+    def __len__(self):
+        return int(self.start.size)
+
+    def to_dict(self) -> dict:
+        return {k: [float(x) for x in getattr(self, k)] for k in ("t_start", "t_stop", "rms", "max_abs", "mean", "max_error_pct")}
+
+
+def cycle_statistics(time, residual, reversals: Reversals, output_range) -> CycleStatistics:
+    """RMS, max and mean error for each trough-to-trough cycle.
+
+    Parameters
+    ----------
+    time, residual : array_like, shape (T,)
+    reversals : Reversals
+    output_range : float
+        Measured displacement range (max - min) [output units], > 0, for the % figure.
+    """
+    t = as_1d("time", time)
+    r = as_1d("residual", residual, t.size)
+    if not (np.isfinite(output_range) and output_range > 0):
+        raise ValueError(f"output_range must be a positive number, got {output_range!r}")
+    troughs = reversals.troughs
+    starts, stops = troughs[:-1], troughs[1:]
+    if starts.size == 0 and len(reversals) > 0:  # less than one full cycle: use what there is
+        starts, stops = reversals.index[:1], np.array([t.size])
+    rms, max_abs, mean = [], [], []
+    for a, b in zip(starts, stops):
+        seg = r[a:b]
+        rms.append(float(np.sqrt(np.mean(seg**2))))
+        max_abs.append(float(np.abs(seg).max()))
+        mean.append(float(seg.mean()))
+    starts = np.asarray(starts, dtype=int)
+    stops = np.asarray(stops, dtype=int)
+    max_abs_arr = np.asarray(max_abs, dtype=float)
+    return CycleStatistics(
+        starts,
+        stops,
+        t[starts] if starts.size else np.zeros(0),
+        t[np.minimum(stops, t.size - 1)] if stops.size else np.zeros(0),
+        np.asarray(rms, dtype=float),
+        max_abs_arr,
+        np.asarray(mean, dtype=float),
+        100.0 * max_abs_arr / float(output_range),
+    )
+
+
+@dataclass(frozen=True)
+class ExtremumLevels:
+    """Residual level at each reversal (the paper: "error peaks occur for input signal returns").
+
+    Attributes
+    ----------
+    index : ndarray of int, shape (R,)
+    time : ndarray, shape (R,) [s]
+    kind : ndarray of int, shape (R,)
+        ``+1`` peak, ``-1`` trough.
+    current : ndarray, shape (R,)
+        Drive at the reversal [A].
+    residual : ndarray, shape (R,)
+        Mean residual over ``index - half_window .. index + half_window``.
+    """
+
+    index: np.ndarray
+    time: np.ndarray
+    kind: np.ndarray
+    current: np.ndarray
+    residual: np.ndarray
+
+    def to_dict(self) -> dict:
+        return {
+            "time": [float(x) for x in self.time],
+            "kind": ["peak" if k > 0 else "trough" for k in self.kind],
+            "current": [float(x) for x in self.current],
+            "residual": [float(x) for x in self.residual],
+        }
+
+
+def extremum_levels(time, current, residual, reversals: Reversals, half_window=2) -> ExtremumLevels:
+    """Residual averaged over a short window around every peak and trough.
+
+    Parameters
+    ----------
+    time, current, residual : array_like, shape (T,)
+    reversals : Reversals
+    half_window : int, default 2
+        Samples either side of the reversal averaged (5 samples by default: less
+        noise, still local).
+    """
+    t = as_1d("time", time)
+    v = as_1d("current", current, t.size)
+    r = as_1d("residual", residual, t.size)
+    if int(half_window) < 0:
+        raise ValueError(f"half_window must be >= 0, got {half_window}")
+    h = int(half_window)
+    levels = np.array([r[max(k - h, 0) : k + h + 1].mean() for k in reversals.index], dtype=float)
+    idx = reversals.index
+    return ExtremumLevels(idx, t[idx], reversals.kind, v[idx], levels)
+
+
+# -- correlation and the noise reference ------------------------------------------------
+
+
+def autocorrelation(x, max_lag) -> np.ndarray:
+    """Sample autocorrelation ``rho_0 .. rho_max_lag`` (mean removed, biased estimator).
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+    max_lag : int
+        ``0 <= max_lag < n``.
+
+    Returns
+    -------
+    ndarray, shape (max_lag + 1,)
+        ``rho_0 = 1``; all zeros after lag 0 for a constant ``x``.
+    """
+    xv = as_1d("x", x)
+    max_lag = int(max_lag)
+    if not (0 <= max_lag < xv.size):
+        raise ValueError(f"max_lag must satisfy 0 <= max_lag < {xv.size}, got {max_lag}")
+    y = xv - xv.mean()
+    n = y.size
+    size = 1 << int(np.ceil(np.log2(2 * n)))
+    spectrum = np.fft.rfft(y, size)
+    acov = np.fft.irfft(spectrum * np.conj(spectrum), size)[: max_lag + 1] / n
+    if acov[0] <= 0:
+        out = np.zeros(max_lag + 1)
+        out[0] = 1.0
+        return out
+    return acov / acov[0]
+
+
+@dataclass(frozen=True)
+class ARNoise:
+    r"""Stationary AR(p) noise :math:`e_k = \sum_i \phi_i e_{k-i} + \sigma_\epsilon \epsilon_k`.
+
+    Attributes
+    ----------
+    coefficients : ndarray, shape (p,)
+        :math:`\phi_1 .. \phi_p` (empty for white noise).
+    innovation_sigma : float
+        :math:`\sigma_\epsilon` [output units].
+    sigma : float
+        Marginal standard deviation of the noise [output units].
+    n_samples : int
+        Samples the model was fitted on.
+    """
+
+    coefficients: np.ndarray
+    innovation_sigma: float
+    sigma: float
+    n_samples: int
+
+    @property
+    def order(self) -> int:
+        return int(self.coefficients.size)
+
+    def autocovariance(self, max_lag) -> np.ndarray:
+        """Theoretical autocovariance :math:`\\gamma_0..\\gamma_{max\\_lag}`, shape (max_lag+1,) [units^2]."""
+        max_lag = int(max_lag)
+        if self.order == 0:
+            out = np.zeros(max_lag + 1)
+            out[0] = self.sigma**2
+            return out
+        # impulse response psi_j (MA(inf) weights), truncated where negligible
+        n_psi = max(4 * max_lag, 2000)
+        psi = np.zeros(n_psi)
+        psi[0] = 1.0
+        for j in range(1, n_psi):
+            m = min(j, self.order)
+            psi[j] = np.dot(self.coefficients[:m], psi[j - 1 :: -1][:m])
+        gamma = np.array([np.dot(psi[: n_psi - k], psi[k:]) for k in range(max_lag + 1)])
+        gamma *= self.innovation_sigma**2
+        return gamma
+
+    def autocorrelation(self, max_lag) -> np.ndarray:
+        """Theoretical autocorrelation, shape (max_lag + 1,)."""
+        g = self.autocovariance(max_lag)
+        return g / g[0]
+
+    def variance_inflation(self) -> float:
+        """:math:`\\sum_k \\rho_k^2` over all lags: the sample-variance inflation (1 for white)."""
+        rho = self.autocorrelation(400)
+        return float(1.0 + 2.0 * np.sum(rho[1:] ** 2))
+
+    def block_mean_variance(self, block_length) -> float:
+        """Variance of the mean of ``block_length`` consecutive noise samples [units^2]."""
+        n = int(block_length)
+        if n < 1:
+            raise ValueError(f"block_length must be >= 1, got {block_length}")
+        g = self.autocovariance(n - 1)
+        k = np.arange(1, n)
+        return float((n * g[0] + 2.0 * np.sum((n - k) * g[1:])) / n**2)
+
+    def whiten(self, x) -> np.ndarray:
+        """Innovations of ``x`` under this model, divided by :math:`\\sigma_\\epsilon` (unit variance under the null).
+
+        The first ``p`` samples are dropped (no past to condition on).
+
+        Returns
+        -------
+        ndarray, shape (n - p,)
+        """
+        xv = as_1d("x", x)
+        p = self.order
+        if xv.size <= p + 1:
+            raise ValueError(f"need more than {p + 1} samples to whiten with an AR({p}) model")
+        e = xv[p:].copy()
+        for i in range(p):
+            e -= self.coefficients[i] * xv[p - 1 - i : xv.size - 1 - i]
+        return e / self.innovation_sigma
+
+    def to_dict(self) -> dict:
+        return {
+            "order": self.order,
+            "coefficients": [float(c) for c in self.coefficients],
+            "innovation_sigma": float(self.innovation_sigma),
+            "sigma": float(self.sigma),
+            "n_samples": int(self.n_samples),
+        }
+
+
+def fit_ar_noise(quiet, max_order=5, detrend=True) -> ARNoise:
+    """AR(p) noise model of a quiet segment by Yule-Walker, order by AIC.
+
+    Parameters
+    ----------
+    quiet : array_like, shape (n,)
+        Output samples of the unenergised segment (or any segment of pure noise),
+        ``n >= 20``.
+    max_order : int, default 5
+    detrend : bool, default True
+        Remove a least-squares straight line first (a drifting sensor is structure to
+        be diagnosed, not noise).
+
+    Returns
+    -------
+    ARNoise
+    """
+    q = as_1d("quiet", quiet)
+    if q.size < 20:
+        raise ValueError(f"the quiet segment has {q.size} samples; at least 20 are needed for a noise model")
+    if detrend:
+        k = np.arange(q.size, dtype=float)
+        slope, intercept = np.polyfit(k, q, 1)
+        q = q - (slope * k + intercept)
+    else:
+        q = q - q.mean()
+    n = q.size
+    var0 = float(np.mean(q**2))
+    if var0 <= 0:
+        raise ValueError("the quiet segment is constant: its noise level is zero, nothing to compare with")
+    max_order = int(min(max_order, n // 10))
+    rho = autocorrelation(q, max(max_order, 1))
+    best = (n * np.log(var0), np.zeros(0), var0)  # AIC of white noise
+    for p in range(1, max_order + 1):
+        toeplitz = rho[np.abs(np.subtract.outer(np.arange(p), np.arange(p)))]
+        try:
+            phi = np.linalg.solve(toeplitz, rho[1 : p + 1])
+        except np.linalg.LinAlgError:
+            break
+        innov = var0 * (1.0 - np.dot(phi, rho[1 : p + 1]))
+        if innov <= 0:
+            break
+        aic = n * np.log(innov) + 2 * p
+        if aic < best[0] - 1e-12:
+            best = (aic, phi, innov)
+    _, phi, innov = best
+    return ARNoise(np.asarray(phi, dtype=float), float(np.sqrt(innov)), float(np.sqrt(var0)), int(n))
+
+
+# -- tests --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StatTest:
+    """One test of "the residual is noise like the quiet segment's".
+
+    Attributes
+    ----------
+    name : str
+        ``"variance"``, ``"ljung_box"`` or ``"low_frequency"``.
+    statistic : float
+        The raw statistic (see the module docstring).
+    null_mean, null_sd : float
+        Its mean and sd under the null.
+    z : float
+        ``(statistic - null_mean) / null_sd``: the standardised excess (one-sided: large = structure).
+    p_value : float
+        One-sided p-value of the excess.
+    structure_variance : float
+        Estimated mean square of the non-noise part [output units^2] (``variance``
+        and ``low_frequency`` tests; NaN-free: 0 where it does not apply).
+    details : dict
+        Test-specific numbers (lags, block length, ...).
+    """
+
+    name: str
+    statistic: float
+    null_mean: float
+    null_sd: float
+    z: float
+    p_value: float
+    structure_variance: float = 0.0
+    details: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "statistic": float(self.statistic),
+            "null_mean": float(self.null_mean),
+            "null_sd": float(self.null_sd),
+            "z": float(self.z),
+            "p_value": float(self.p_value),
+            "structure_variance": float(self.structure_variance),
+            "details": self.details,
+        }
+
+
+def ljung_box(whitened, n_lags=40, filter_error=0.0) -> StatTest:
+    r"""Ljung-Box portmanteau test of whiteness.
+
+    Parameters
+    ----------
+    whitened : array_like, shape (n,)
+        A series that is white under the null (e.g. :meth:`ARNoise.whiten` of the residual).
+    n_lags : int, default 40
+        Lags ``m`` summed; clipped to ``n // 4``.
+    filter_error : float, default 0
+        Expected extra ``Q`` from an *estimated* whitening filter: a filter fitted on
+        ``n_q`` samples misses the true one by ``~ n_q^{-1/2}`` per coefficient, which
+        leaves autocorrelations of that size and adds about ``n / n_q`` per
+        coefficient to ``Q`` (``(n / n_q) max(p, 1)`` for an AR(p) filter). The null
+        then has mean ``m + c`` and sd ``sqrt(2 m + 2 c^2)`` (a scaled
+        :math:`\chi^2` term for the filter error); the p-value is that normal tail.
+    """
+    w = as_1d("whitened", whitened)
+    n = w.size
+    m = int(min(n_lags, n // 4))
+    if m < 1:
+        raise ValueError(f"ljung_box needs at least 4 samples per lag, got {n} samples")
+    if not (np.isfinite(filter_error) and filter_error >= 0):
+        raise ValueError(f"filter_error must be a finite number >= 0, got {filter_error!r}")
+    rho = autocorrelation(w, m)[1:]
+    q = float(n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, m + 1))))
+    c = float(filter_error)
+    null_mean = m + c
+    null_sd = float(np.sqrt(2.0 * m + 2.0 * c * c))
+    z = (q - null_mean) / null_sd
+    p_value = float(stats.chi2.sf(q, m)) if c == 0.0 else float(stats.norm.sf(z))
+    return StatTest(
+        "ljung_box",
+        q,
+        float(null_mean),
+        null_sd,
+        float(z),
+        p_value,
+        0.0,
+        {"n_lags": m, "n": int(n), "lag1": float(rho[0]), "filter_error": c},
+    )
+
+
+def variance_ratio_test(residual, noise: ARNoise, n_fitted=0) -> StatTest:
+    """Residual mean square against the quiet segment's noise variance.
+
+    Parameters
+    ----------
+    residual : array_like, shape (n,)
+    noise : ARNoise
+        Fitted on the quiet segment (``noise.n_samples`` sets the error of its variance).
+    n_fitted : int, default 0
+        Parameters fitted to the residual's data (their absorption lowers the expected
+        mean square by the factor ``1 - n_fitted / n``).
+    """
+    r = as_1d("residual", residual)
+    n = r.size
+    inflation = noise.variance_inflation()
+    expected = 1.0 - min(n_fitted, n - 1) / n
+    ratio = float(np.mean(r**2) / noise.sigma**2)
+    sd = float(np.sqrt(2.0 * inflation / n + 2.0 * inflation / noise.n_samples))
+    z = (ratio - expected) / sd
+    return StatTest(
+        "variance",
+        ratio,
+        expected,
+        sd,
+        float(z),
+        float(stats.norm.sf(z)),
+        float(max(ratio - expected, 0.0) * noise.sigma**2),
+        {"n": int(n), "rms": float(np.sqrt(np.mean(r**2))), "noise_sigma": float(noise.sigma)},
+    )
+
+
+def low_frequency_test(residual, noise: ARNoise, block_length) -> StatTest:
+    """Block-mean test for slowly varying structure (see the module docstring).
+
+    Parameters
+    ----------
+    residual : array_like, shape (n,)
+    noise : ARNoise
+    block_length : int
+        Samples per block ``L >= 1``; the last partial block is dropped.
+    """
+    r = as_1d("residual", residual)
+    L = int(block_length)
+    if L < 1:
+        raise ValueError(f"block_length must be >= 1, got {block_length}")
+    n_blocks = r.size // L
+    if n_blocks < 4:
+        raise ValueError(f"{r.size} samples make only {n_blocks} blocks of {L}; at least 4 are needed")
+    means = r[: n_blocks * L].reshape(n_blocks, L).mean(axis=1)
+    block_var = noise.block_mean_variance(L)
+    statistic = float(np.sum(means**2) / block_var)
+    # the quiet segment's sigma^2 has relative sd ~ sqrt(2 * inflation / n_quiet)
+    rel_sd_sigma2 = np.sqrt(2.0 * noise.variance_inflation() / noise.n_samples)
+    null_sd = float(np.sqrt(2.0 * n_blocks + (n_blocks * rel_sd_sigma2) ** 2))
+    z = (statistic - n_blocks) / null_sd
+    structure = float(max(np.mean(means**2) - block_var, 0.0))
+    return StatTest(
+        "low_frequency",
+        statistic,
+        float(n_blocks),
+        null_sd,
+        float(z),
+        float(stats.norm.sf(z)),
+        structure,
+        {"block_length": L, "n_blocks": int(n_blocks), "block_noise_variance": block_var},
+    )
+
+
+# -- the whole profile --------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ResidualProfile:
+    """Where a fit fails, and whether its residual is noise: everything for the report.
+
+    Attributes
+    ----------
+    time, current, residual : ndarray, shape (T,)
+        [s], [A], data - model [output units].
+    energised : ndarray of bool, shape (T,)
+        Samples after the quiet segment.
+    reversals : Reversals
+    direction : ndarray of int8, shape (T,)
+        ``+1`` rising, ``-1`` falling, ``0`` before the first reversal.
+    rate : ndarray, shape (T,)
+        Input rate [A/s].
+    since_reversal : ndarray, shape (T,)
+        [s], NaN before the first reversal.
+    rising, falling : BinnedResidual
+        Residual vs current on each branch (energised samples).
+    by_rate, by_since_reversal : BinnedResidual
+    cycles : CycleStatistics
+    extrema : ExtremumLevels
+    lags : ndarray of int, shape (M+1,)
+    residual_acf : ndarray, shape (M+1,)
+        Sample autocorrelation of the energised residual.
+    quiet_acf : ndarray, shape (M+1,)
+        Sample autocorrelation of the (detrended) quiet segment.
+    noise : ARNoise
+        Noise model of the quiet segment.
+    tests : dict of str -> StatTest
+        ``variance``, ``ljung_box``, ``low_frequency`` over the whole record.
+    rms, max_abs, max_error_pct : float
+        Over the energised part; % of the measured output range.
+    """
+
+    time: np.ndarray
+    current: np.ndarray
+    residual: np.ndarray
+    energised: np.ndarray
+    reversals: Reversals
+    direction: np.ndarray
+    rate: np.ndarray
+    since_reversal: np.ndarray
+    rising: BinnedResidual
+    falling: BinnedResidual
+    by_rate: BinnedResidual
+    by_since_reversal: BinnedResidual
+    cycles: CycleStatistics
+    extrema: ExtremumLevels
+    lags: np.ndarray
+    residual_acf: np.ndarray
+    quiet_acf: np.ndarray
+    noise: ARNoise
+    tests: dict
+    rms: float
+    max_abs: float
+    max_error_pct: float
+
+    @property
+    def structure_rms(self) -> float:
+        """RMS of the slowly varying (non-noise) part of the residual [output units]."""
+        return float(np.sqrt(self.tests["low_frequency"].structure_variance))
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (binned and per-cycle figures, tests; not the raw arrays)."""
+        return {
+            "rms": self.rms,
+            "max_abs": self.max_abs,
+            "max_error_pct": self.max_error_pct,
+            "structure_rms": self.structure_rms,
+            "noise": self.noise.to_dict(),
+            "tests": {k: t.to_dict() for k, t in self.tests.items()},
+            "n_reversals": len(self.reversals),
+            "cycles": self.cycles.to_dict(),
+            "extrema": self.extrema.to_dict(),
+            "rising": self.rising.to_dict(),
+            "falling": self.falling.to_dict(),
+            "by_rate": self.by_rate.to_dict(),
+            "by_since_reversal": self.by_since_reversal.to_dict(),
+            "acf": {
+                "lags": [int(k) for k in self.lags],
+                "residual": [float(x) for x in self.residual_acf],
+                "quiet": [float(x) for x in self.quiet_acf],
+            },
+        }
+
+
+def residual_profile(
+    time,
+    current,
+    residual,
+    quiet,
+    *,
+    output_range,
+    noise: ARNoise | None = None,
+    block_seconds=0.2,
+    n_lags=40,
+    n_bins=20,
+    n_fitted=0,
+    min_swing=None,
+) -> ResidualProfile:
+    """Compute every "where it fails" statistic of a residual.
+
+    Parameters
+    ----------
+    time, current, residual : array_like, shape (T,)
+        [s], [A], data - model [output units].
+    quiet : slice or None
+        The unenergised segment (noise reference), at least 20 samples. None: the
+        record has none; ``noise`` must then be given (e.g. white noise of a
+        user-given sigma), every sample counts as energised and the "quiet"
+        autocorrelation is the noise model's.
+    output_range : float
+        Measured output range [output units] for % figures.
+    noise : ARNoise, optional
+        Noise model; by default fitted to ``residual[quiet]`` (detrended).
+    block_seconds : float, default 0.2
+        Block length of the low-frequency test [s]: far longer than the noise's
+        correlation, far shorter than the drive's 10 s period.
+    n_lags : int, default 40
+        Ljung-Box lags (and the plotted autocorrelation range).
+    n_bins : int, default 20
+        Bins of the binned views.
+    n_fitted : int, default 0
+        Parameters fitted (for the variance test's expectation).
+    min_swing : float, optional
+        Passed to :func:`find_reversals`.
+    """
+    t = as_1d("time", time)
+    v = as_1d("current", current, t.size)
+    r = as_1d("residual", residual, t.size)
+    if quiet is None:
+        if noise is None:
+            raise ValueError("without a quiet segment the noise model must be given (noise=ARNoise(...))")
+        q_start = q_stop = 0
+    elif not isinstance(quiet, slice):
+        raise ValueError(f"quiet must be a slice of the record or None, got {type(quiet).__name__}")
+    else:
+        q_start, q_stop, _ = quiet.indices(t.size)
+        if q_stop - q_start < 20:
+            raise ValueError(f"the quiet segment {quiet} has {q_stop - q_start} samples; at least 20 are needed")
+    if noise is None:
+        noise = fit_ar_noise(r[q_start:q_stop])
+    energised = np.zeros(t.size, dtype=bool)
+    energised[q_stop:] = True
+    if energised.sum() < 20:
+        raise ValueError("fewer than 20 energised samples after the quiet segment")
+    reversals = find_reversals(v, min_swing)
+    direction = branch_direction(t.size, reversals)
+    rate = input_rate(t, v)
+    since = time_since_reversal(t, reversals)
+    cur_edges = np.linspace(float(v[energised].min()), float(v[energised].max()) + 1e-12, n_bins + 1)
+    rising = binned_residual(v, r, mask=energised & (direction > 0), edges=cur_edges)
+    falling = binned_residual(v, r, mask=energised & (direction < 0), edges=cur_edges)
+    by_rate = binned_residual(rate, r, n_bins=n_bins, mask=energised)
+    by_since = binned_residual(since, r, n_bins=n_bins, mask=energised)
+    cycles = cycle_statistics(t, r, reversals, output_range)
+    extrema = extremum_levels(t, v, r, reversals)
+    r_en = r[energised]
+    n_quiet = q_stop - q_start
+    n_acf = int(min(n_lags, r_en.size - 1, n_quiet - 1 if n_quiet else n_lags))
+    lags = np.arange(n_acf + 1)
+    residual_acf = autocorrelation(r_en, n_acf)
+    if n_quiet:
+        qd = r[q_start:q_stop]
+        k = np.arange(qd.size, dtype=float)
+        qd = qd - np.polyval(np.polyfit(k, qd, 1), k)
+        quiet_acf = autocorrelation(qd, n_acf)
+    else:
+        quiet_acf = noise.autocorrelation(n_acf)
+    dt = float(np.median(np.diff(t)))
+    block = max(int(round(block_seconds / dt)), 1)
+    block = min(block, max(t.size // 8, 1))
+    tests = {
+        "variance": variance_ratio_test(r_en, noise, n_fitted),
+        "ljung_box": ljung_box(noise.whiten(r), n_lags, filter_error=t.size / noise.n_samples * max(noise.order, 1)),
+        "low_frequency": low_frequency_test(r, noise, block),
+    }
+    rms = float(np.sqrt(np.mean(r_en**2)))
+    max_abs = float(np.abs(r_en).max())
+    return ResidualProfile(
+        t, v, r, energised, reversals, direction, rate, since, rising, falling, by_rate, by_since,
+        cycles, extrema, lags, residual_acf, quiet_acf, noise, tests, rms, max_abs,
+        100.0 * max_abs / float(output_range),
+    )  # fmt: skip

@@ -1,0 +1,422 @@
+r"""Sensor noise from the record's unenergised start, and the Gaussian likelihood it implies.
+
+The quiet segment
+-----------------
+The paper's record starts with 10 s in which the coils carry no current; the model
+output is then the constant rest level and everything the sensor shows is noise. The
+segment is detected from the data, not assumed: it is the run of samples from the
+first one on whose drive satisfies ``|current| <= current_tolerance`` (default
+:data:`DEFAULT_CURRENT_TOLERANCE` times the largest ``|current|``, i.e. zero up to
+round-off). It must hold at least :data:`MIN_QUIET_SAMPLES` samples.
+
+Estimates
+---------
+In the quiet segment a straight line (least squares in time) is removed from the
+displacement, which takes out the rest level and any slow sensor drift. From the
+detrended values :math:`e_k` (``n`` samples):
+
+* ``sigma`` = :math:`\sqrt{\sum e_k^2 / (n - 2)}` (two fitted line coefficients), the
+  marginal standard deviation of the noise [output unit];
+* ``rho`` = :math:`\sum_{k\ge1} e_k e_{k-1} / \sum_k e_k^2`, the lag-1 autocorrelation.
+
+White or AR(1): the significance rule
+-------------------------------------
+Under white noise the lag-1 sample autocorrelation is approximately
+:math:`N(-1/n, 1/n)` (Bartlett). The noise is called AR(1) when
+
+.. math::  |\hat\rho + 1/n| \sqrt{n} > z_{1 - p/2}, \qquad p = 0.01 \;(z = 2.576)
+
+(:data:`AR1_SIGNIFICANCE`), i.e. white noise is rejected at the two-sided 1 % level;
+otherwise the noise is white and ``rho = 0``.
+
+Likelihood
+----------
+With residuals :math:`e_k = y_k - \hat y_k` over the whole record (the quiet segment
+included: the model predicts the rest level there), AR(1) noise of marginal standard
+deviation :math:`\sigma` and lag-1 correlation :math:`\rho` is whitened exactly:
+
+.. math::
+
+    w_0 = e_0 / \sigma, \qquad
+    w_k = (e_k - \rho e_{k-1}) / (\sigma\sqrt{1 - \rho^2}) \quad (k \ge 1),
+
+so the :math:`w_k` are i.i.d. standard normal and
+
+.. math::
+
+    \log L = -\tfrac12 \sum_k w_k^2 - T \log\sigma - \tfrac{T-1}{2}\log(1-\rho^2)
+             - \tfrac{T}{2}\log 2\pi .
+
+White noise is the case :math:`\rho = 0`.
+
+No quiet segment
+----------------
+Then :func:`estimate_noise` raises :class:`NoQuietSegmentError` naming the two
+documented fallbacks, and never guesses:
+
+``noise_sigma=VALUE`` (CLI ``--noise-sigma VALUE``)
+    a user-given sigma [output unit], white noise;
+``noise_sigma="free"`` (CLI ``--noise-sigma free``)
+    sigma is a free parameter: least squares estimates it from the residual RMS with a
+    degrees-of-freedom correction, the posterior samples ``noise_log_sigma`` (the
+    natural log of sigma, uniform prior, i.e. log-uniform in sigma) with the rest.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "NoiseModel",
+    "NoQuietSegmentError",
+    "estimate_noise",
+    "energised_mask",
+    "quiet_segment",
+    "whiten",
+    "log_likelihood",
+    "log_likelihood_of_rows",
+    "MIN_QUIET_SAMPLES",
+    "AR1_SIGNIFICANCE",
+    "DEFAULT_CURRENT_TOLERANCE",
+    "NOISE_SOURCES",
+]
+
+#: Fewest quiet samples accepted for a noise estimate.
+MIN_QUIET_SAMPLES = 50
+#: Two-sided significance level of the white-noise test on the lag-1 autocorrelation.
+AR1_SIGNIFICANCE = 0.01
+#: Quiet means ``|current| <= DEFAULT_CURRENT_TOLERANCE * max|current|``.
+DEFAULT_CURRENT_TOLERANCE = 1e-9
+#: Where a noise model's sigma comes from.
+NOISE_SOURCES = ("quiet_segment", "user", "free")
+
+_FALLBACKS = (
+    "Fall back explicitly: pass --noise-sigma VALUE (a known sensor noise std in the output "
+    "unit; Python: noise_sigma=VALUE) or --noise-sigma free (sigma becomes a free parameter: "
+    "least squares estimates it from the residual RMS, the posterior samples noise_log_sigma; "
+    'Python: noise_sigma="free").'
+)
+
+
+class NoQuietSegmentError(ValueError):
+    """The record has no (or too short an) unenergised start to estimate the noise from."""
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Gaussian sensor noise: white or AR(1).
+
+    Parameters
+    ----------
+    sigma : float
+        Marginal noise standard deviation [output unit, um by default]. ``NaN`` only for
+        ``source="free"`` before least squares has estimated it.
+    rho : float
+        Lag-1 autocorrelation, ``-1 < rho < 1`` (0 for white noise).
+    kind : {"white", "ar1"}
+    source : {"quiet_segment", "user", "free"}
+        Where ``sigma`` comes from (see the module docstring).
+    quiet : slice or None
+        The samples of the unenergised start used for the estimate (None unless
+        ``source="quiet_segment"``).
+    n_quiet : int
+        Number of those samples (0 when ``quiet`` is None).
+    """
+
+    sigma: float
+    rho: float = 0.0
+    kind: str = "white"
+    source: str = "quiet_segment"
+    quiet: slice | None = None
+    n_quiet: int = 0
+
+    def __post_init__(self):
+        if self.kind not in ("white", "ar1"):
+            raise ValueError(f"NoiseModel.kind must be 'white' or 'ar1', got {self.kind!r}")
+        if self.source not in NOISE_SOURCES:
+            raise ValueError(f"NoiseModel.source must be one of {NOISE_SOURCES}, got {self.source!r}")
+        if not (-1.0 < self.rho < 1.0):
+            raise ValueError(f"NoiseModel.rho must lie in (-1, 1), got {self.rho!r}")
+        if self.kind == "white" and self.rho != 0.0:
+            raise ValueError(f"white noise has rho = 0, got {self.rho!r}")
+        if self.source == "free":
+            if not (math.isnan(self.sigma) or self.sigma > 0):
+                raise ValueError(f"a free noise sigma is NaN (not yet estimated) or > 0, got {self.sigma!r}")
+        elif not (math.isfinite(self.sigma) and self.sigma > 0):
+            raise ValueError(f"NoiseModel.sigma must be finite and > 0, got {self.sigma!r}")
+
+    @property
+    def is_free(self) -> bool:
+        """True when sigma is a free parameter of the identification."""
+        return self.source == "free"
+
+    def with_sigma(self, sigma: float) -> "NoiseModel":
+        """A copy with ``sigma`` replaced (e.g. the least-squares estimate of a free sigma)."""
+        return replace(self, sigma=float(sigma))
+
+    def to_dict(self) -> dict:
+        """JSON-ready: sigma, rho, kind, source, n_quiet and the quiet samples [start, stop)."""
+        return {
+            "sigma": None if math.isnan(self.sigma) else float(self.sigma),
+            "rho": float(self.rho),
+            "kind": self.kind,
+            "source": self.source,
+            "n_quiet": int(self.n_quiet),
+            "quiet": None if self.quiet is None else [int(self.quiet.start), int(self.quiet.stop)],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "NoiseModel":
+        """Inverse of :meth:`to_dict`."""
+        quiet = d.get("quiet")
+        sigma = d.get("sigma")
+        return cls(
+            sigma=float("nan") if sigma is None else float(sigma),
+            rho=float(d.get("rho", 0.0)),
+            kind=d.get("kind", "white"),
+            source=d.get("source", "quiet_segment"),
+            quiet=None if quiet is None else slice(int(quiet[0]), int(quiet[1])),
+            n_quiet=int(d.get("n_quiet", 0)),
+        )
+
+
+def quiet_segment(current, *, current_tolerance=None) -> slice:
+    """The unenergised start: samples ``0 .. n-1`` with ``|current| <= tolerance``.
+
+    Parameters
+    ----------
+    current : array_like, shape (T,)
+        Drive signal.
+    current_tolerance : float, optional
+        Largest ``|current|`` still counted as "off" [input unit]. Default
+        :data:`DEFAULT_CURRENT_TOLERANCE` ``* max|current|``.
+
+    Returns
+    -------
+    slice
+        ``slice(0, n)``; ``n = 0`` when the first sample is already energised.
+    """
+    current = np.asarray(current, dtype=float)
+    if current.ndim != 1:
+        raise ValueError(f"current must have shape (T,), got {current.shape}")
+    if current_tolerance is None:
+        current_tolerance = DEFAULT_CURRENT_TOLERANCE * float(np.max(np.abs(current), initial=0.0))
+    if not (np.isfinite(current_tolerance) and current_tolerance >= 0):
+        raise ValueError(f"current_tolerance must be finite and >= 0, got {current_tolerance!r}")
+    on = np.abs(current) > current_tolerance
+    n = int(np.argmax(on)) if on.any() else current.size
+    return slice(0, n)
+
+
+def _ar1_is_significant(rho_hat: float, n: int, level: float = AR1_SIGNIFICANCE) -> bool:
+    from scipy.stats import norm
+
+    z = abs(rho_hat + 1.0 / n) * math.sqrt(n)
+    return bool(z > norm.ppf(1.0 - level / 2.0))
+
+
+def estimate_noise(record, *, noise_sigma=None, current_tolerance=None, min_quiet=MIN_QUIET_SAMPLES) -> NoiseModel:
+    """The noise model of a record (see the module docstring for the method).
+
+    Parameters
+    ----------
+    record : identify.data.records.Record
+        Uses ``time``, ``current`` and ``displacement`` (all shape (T,)).
+    noise_sigma : None, float or "free", default None
+        None: estimate from the quiet segment (white or AR(1)). A positive float: a
+        user-given sigma [output unit], white noise. ``"free"``: sigma is a free
+        parameter (the returned model has ``sigma = NaN`` until least squares).
+    current_tolerance : float, optional
+        See :func:`quiet_segment`.
+    min_quiet : int, default :data:`MIN_QUIET_SAMPLES`
+        Fewest quiet samples accepted.
+
+    Returns
+    -------
+    NoiseModel
+
+    Raises
+    ------
+    NoQuietSegmentError
+        ``noise_sigma`` is None and the record has no quiet start of ``min_quiet``
+        samples, or the quiet displacement has zero spread; the message names the
+        fallbacks.
+    ValueError
+        A ``noise_sigma`` that is neither None, ``"free"`` nor a positive finite number.
+    """
+    if isinstance(noise_sigma, str):
+        text = noise_sigma.strip().lower()
+        if text == "free":
+            return NoiseModel(sigma=float("nan"), rho=0.0, kind="white", source="free")
+        try:
+            noise_sigma = float(text)
+        except ValueError:
+            raise ValueError(f"noise_sigma must be a positive number or 'free', got {noise_sigma!r}") from None
+    if noise_sigma is not None:
+        if isinstance(noise_sigma, bool) or not (np.isfinite(noise_sigma) and noise_sigma > 0):
+            raise ValueError(f"noise_sigma must be a positive finite number or 'free', got {noise_sigma!r}")
+        return NoiseModel(sigma=float(noise_sigma), rho=0.0, kind="white", source="user")
+
+    quiet = quiet_segment(record.current, current_tolerance=current_tolerance)
+    n = quiet.stop
+    where = getattr(record, "source", "the record")
+    if n < min_quiet:
+        found = "no unenergised start (the first sample already carries drive)" if n == 0 else (
+            f"an unenergised start of only {n} samples (at least {min_quiet} needed)"
+        )
+        raise NoQuietSegmentError(
+            f"{where}: cannot estimate the sensor noise: the record has {found}; the noise is "
+            f"estimated from the samples before the drive first leaves zero. {_FALLBACKS}"
+        )
+    t = np.asarray(record.time[quiet], dtype=float)
+    y = np.asarray(record.displacement[quiet], dtype=float)
+    design = np.column_stack([np.ones(n), t - t.mean()])
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    detrended = y - design @ coef
+    sum_sq = float(detrended @ detrended)
+    # "Zero" up to round-off of the line fit, relative to the record's magnitude.
+    level = 1e-9 * max(float(np.max(np.abs(record.displacement))), 1e-300)
+    if not sum_sq > n * level**2:
+        raise NoQuietSegmentError(
+            f"{where}: the {n}-sample unenergised start has zero spread after removing a line "
+            f"(a noise-free or heavily quantised record?), so it gives no noise estimate. {_FALLBACKS}"
+        )
+    sigma = math.sqrt(sum_sq / (n - 2))
+    rho_hat = float(detrended[1:] @ detrended[:-1]) / sum_sq
+    if _ar1_is_significant(rho_hat, n):
+        rho = float(np.clip(rho_hat, -0.99, 0.99))
+        return NoiseModel(sigma=sigma, rho=rho, kind="ar1", source="quiet_segment", quiet=quiet, n_quiet=n)
+    return NoiseModel(sigma=sigma, rho=0.0, kind="white", source="quiet_segment", quiet=quiet, n_quiet=n)
+
+
+def energised_mask(record, noise: NoiseModel | None = None) -> np.ndarray:
+    """Boolean ``(T,)``: True for the samples after the unenergised start.
+
+    Uses ``noise.quiet`` when the noise came from the quiet segment, else detects the
+    zero-current start with :func:`quiet_segment` (any length, possibly none).
+    """
+    n_samples = len(record.current)
+    quiet = noise.quiet if (noise is not None and noise.quiet is not None) else quiet_segment(record.current)
+    mask = np.ones(n_samples, dtype=bool)
+    mask[quiet] = False
+    if not mask.any():
+        raise ValueError(f"{getattr(record, 'source', 'record')}: the drive is zero throughout; nothing is energised")
+    return mask
+
+
+def _checked_sigma(noise: NoiseModel, sigma, caller: str) -> np.ndarray:
+    """``sigma`` (or ``noise.sigma``) as an array, refused unless finite and > 0."""
+    sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
+    if not (np.isfinite(sig).all() and (sig > 0).all()):
+        raise ValueError(f"{caller} needs a finite sigma > 0, got {sig!r} (a free sigma must be passed explicitly)")
+    return sig
+
+
+def _gaussian_log_likelihood(quadratic, n_samples: int, sig, rho: float):
+    """The module docstring's log-likelihood from its quadratic term ``sum w_k^2`` (unit-free)."""
+    return (
+        -0.5 * quadratic
+        - n_samples * np.log(sig)
+        - 0.5 * (n_samples - 1) * math.log(1.0 - rho**2)
+        - 0.5 * n_samples * math.log(2.0 * math.pi)
+    )
+
+
+def whiten(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
+    """Whitened, standardised residuals ``w`` (i.i.d. N(0, 1) under the noise model).
+
+    Parameters
+    ----------
+    residual : array_like, shape (T,) or (W, T)
+        Data minus model [output unit].
+    noise : NoiseModel
+    sigma : float or array_like of shape (W,), optional
+        Overrides ``noise.sigma`` (required when the noise sigma is free).
+
+    Returns
+    -------
+    ndarray, same shape as ``residual`` (dimensionless)
+    """
+    e = np.asarray(residual, dtype=float)
+    sig = _checked_sigma(noise, sigma, "whiten")
+    if e.ndim == 2 and sig.ndim == 1:
+        sig = sig[:, None]
+    if noise.rho == 0.0:
+        return e / sig
+    rho = noise.rho
+    w = np.empty_like(e)
+    w[..., 0] = e[..., 0]
+    w[..., 1:] = (e[..., 1:] - rho * e[..., :-1]) / math.sqrt(1.0 - rho * rho)
+    return w / sig
+
+
+def log_likelihood(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
+    """Gaussian log-likelihood of residuals under the noise model (formula in the module docstring).
+
+    Parameters
+    ----------
+    residual : array_like, shape (T,) or (W, T)
+    noise : NoiseModel
+    sigma : float or array_like of shape (W,), optional
+        Overrides ``noise.sigma`` (required when the noise sigma is free).
+
+    Returns
+    -------
+    float or ndarray of shape (W,)
+    """
+    e = np.asarray(residual, dtype=float)
+    w = whiten(e, noise, sigma)
+    sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
+    return _gaussian_log_likelihood(np.sum(w * w, axis=-1), e.shape[-1], sig, noise.rho)
+
+
+@njit(cache=True)
+def _whitened_sum_of_squares(data, model_rows, rows, rho, out):
+    """``out[i] = sum_k w_k^2`` for the residual ``data - model_rows[rows[i]]`` whitened with
+    unit sigma (AR(1) with ``rho``; white for 0), in one pass and without temporaries."""
+    scale = 1.0 / (1.0 - rho * rho)
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        previous = data[0] - model_rows[r, 0]
+        total = previous * previous
+        for k in range(1, data.shape[0]):
+            e = data[k] - model_rows[r, k]
+            innovation = e - rho * previous
+            total += innovation * innovation * scale
+            previous = e
+        out[i] = total
+
+
+def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None) -> np.ndarray:
+    """:func:`log_likelihood` of ``data - model_rows[rows]``, fused (the sampler's hot path).
+
+    Parameters
+    ----------
+    data : ndarray, shape (T,)
+        Measured output [output unit].
+    model_rows : ndarray, shape (W, T)
+        Model outputs.
+    rows : ndarray of int, shape (R,)
+        Which rows to score.
+    noise : NoiseModel
+    sigma : array_like of shape (R,), optional
+        Per-row sigma (required when the noise sigma is free).
+
+    Returns
+    -------
+    ndarray, shape (R,)
+        Equal to ``log_likelihood(data - model_rows[rows], noise, sigma)`` up to rounding
+        (one pass, no (R, T) temporaries).
+    """
+    data = np.ascontiguousarray(data, dtype=np.float64)
+    model_rows = np.ascontiguousarray(model_rows, dtype=np.float64)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    sig = _checked_sigma(noise, sigma, "log_likelihood_of_rows")
+    sum_of_squares = np.empty(rows.shape[0])
+    _whitened_sum_of_squares(data, model_rows, rows, float(noise.rho), sum_of_squares)
+    return _gaussian_log_likelihood(sum_of_squares / sig**2, data.shape[0], sig, noise.rho)
+

@@ -1,0 +1,999 @@
+r"""Posterior sampling of the model parameters with emcee: priors, log-posterior, resumable runs.
+
+Priors (:data:`PRIORS`)
+-----------------------
+Independent for each free parameter, supported on its bounds
+(:class:`model.parameters.Parameter` ``lower``/``upper``), normalised:
+
+``"uniform"``
+    :math:`p(\theta) = 1 / (u - l)`: location-like parameters (offsets, shifts, alpha,
+    tau) and everything else by default.
+``"log_uniform"``
+    :math:`p(\theta) = 1 / (\theta \log(u / l))`, uniform in :math:`\log\theta`: used by
+    :func:`default_priors` for *scale* parameters, i.e. a strictly positive lower bound
+    and bounds spanning at least two decades (``rho``, the envelope amplitudes and
+    slopes ``a0, a1, b0, b1``, and any effect time constant bounded away from 0),
+    because for those no particular magnitude is preferred.
+
+With a free noise sigma the last coordinate is ``noise_log_sigma`` (natural log of
+sigma in the output unit), uniform on ``[log(1e-6 span), log(span)]`` with ``span``
+the measured displacement range, i.e. log-uniform in sigma.
+
+Log-posterior
+-------------
+:class:`LogPosterior` is evaluated for all walkers at once (emcee ``vectorize=True``:
+ONE model call per step). It returns ``-inf`` for a walker outside the bounds *before*
+evaluating the model, and for one whose model output is not finite (the GPI itself is
+defined for every parameter set: :mod:`model.gpi`, "The whole domain"); it never raises and never returns NaN (a model error for the batch
+falls back to one row at a time; rows that still fail get ``-inf`` and are counted in
+:attr:`LogPosterior.n_errors`). The likelihood is :func:`identify.fitting.noise.log_likelihood`,
+evaluated in one fused pass (:func:`identify.fitting.noise.log_likelihood_of_rows`).
+
+Sampling
+--------
+:func:`sample_posterior` runs emcee's ensemble sampler with an
+:class:`emcee.backends.HDFBackend` (group ``"mcmc"``; written in batches by
+:class:`BufferedHDFBackend`, at least every second), so an interrupted run resumes where
+it stopped (the sampler's random state is stored with each step, so the resumed chain is
+the one an uninterrupted run gives, bit for bit). Ctrl-C (SIGINT) and ``kill PID``
+(SIGTERM) are honoured between two steps: the completed step is written and
+``KeyboardInterrupt`` raised; a second signal interrupts at once. It runs
+in chunks of ``check_every`` steps (aligned to multiples of it, so stopping does not
+depend on interruptions) and stops when
+
+* the integrated autocorrelation time of every parameter changed by less than
+  ``tau_rtol`` (5 %) since the previous check, and
+* the chain is at least ``tau_factor`` (50) times the largest autocorrelation time,
+* and then (computed only when tau passes) every parameter's split-R-hat is below
+  :data:`RHAT_MAX` (1.05) and its bulk ESS at least :data:`ESS_BULK_MIN` (400), ArviZ's
+  definitions on the chain after burn-in and thinning (:func:`chain_diagnostics`),
+
+or at ``max_steps``; then the result says plainly that it is **not converged**.
+A check whose chain is shorter than ``tau_factor`` times the autocorrelation time of the
+chain's prefix at the last *anchor* (nearly geometric, 19 % apart late in a run:
+:func:`_anchor`) is skipped, as it would almost surely fail: each check recomputes the
+autocorrelation time of the whole chain, which cost about 75 s of a 54000-step run when
+every check was made. The
+anchors depend only on the chain, so a resumed run checks where the uninterrupted one
+does; a skipped check can only delay the stop (by at most ``tau_factor`` times the
+anchor's overestimate of tau), never make it earlier.
+Burn-in ``discard = 2 tau_max`` and ``thin = max(1, tau_min / 2)`` are applied to the
+reported samples; the effective sample size of parameter ``j`` is
+``n_walkers (n_steps - discard) / tau_j``.
+
+Randomness: the walkers' start uses the ``numpy.random.Generator`` passed in; emcee's
+internal ``RandomState`` is seeded from the same generator; nothing touches global state.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import signal
+import threading
+import time as _time
+from dataclasses import dataclass, field
+
+import emcee
+import numpy as np
+import scipy.fft
+
+from model import Model
+
+from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
+from .threads import fastest_thread_count
+from .noise import NoiseModel, log_likelihood_of_rows
+
+__all__ = [
+    "ChainFileError",
+    "import_arviz",
+    "chain_info",
+    "PRIORS",
+    "MOVES",
+    "SnookerMove",
+    "default_priors",
+    "LogPosterior",
+    "PosteriorResult",
+    "default_n_walkers",
+    "initial_walkers",
+    "sample_posterior",
+    "posterior_from_backend",
+    "BACKEND_GROUP",
+    "BufferedHDFBackend",
+    "BENCH_COVERAGE",
+    "DEFAULT_MAX_STEPS",
+    "DEFAULT_CHECK_EVERY",
+    "RHAT_MAX",
+    "ESS_BULK_MIN",
+    "DIAGNOSTICS",
+    "chain_diagnostics",
+]
+
+
+#: HDF5 group of the emcee backend in ``chain.h5``.
+BACKEND_GROUP = "mcmc"
+
+
+class BufferedHDFBackend(emcee.backends.HDFBackend):
+    """emcee's HDF5 backend, writing steps in batches instead of opening the file per step.
+
+    The stock :class:`emcee.backends.HDFBackend` opens, writes and closes the file for
+    every step (about 3-10 ms, as much as a 36-walker model evaluation). This subclass
+    keeps completed steps in memory and writes them in one go every ``flush_every``
+    steps or ``flush_seconds`` seconds, before the chain grows, and whenever
+    :meth:`flush` is called: :func:`sample_posterior` flushes after every chunk and on
+    any exception, including ``KeyboardInterrupt`` (Ctrl-C) and the ``SIGTERM`` that
+    ``study`` turns into one. Only a hard kill (``SIGKILL``, power loss) can lose the
+    unflushed steps, at most ``flush_seconds`` of work. The file format is emcee's,
+    readable by the stock backend.
+    """
+
+    def __init__(self, filename, name=BACKEND_GROUP, *, flush_every=200, flush_seconds=1.0, **kwargs):
+        super().__init__(str(filename), name=name, **kwargs)
+        self.flush_every = int(flush_every)
+        self.flush_seconds = float(flush_seconds)
+        self._pending = []
+        self._last_flush = _time.monotonic()
+
+    def save_step(self, state, accepted):
+        if state.blobs is not None:
+            raise ValueError("BufferedHDFBackend does not store blobs")
+        self._pending.append((np.array(state.coords), np.array(state.log_prob), np.array(accepted), state.random_state))
+        if len(self._pending) >= self.flush_every or _time.monotonic() - self._last_flush > self.flush_seconds:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the buffered steps (one file open); a no-op when nothing is pending."""
+        self._last_flush = _time.monotonic()
+        if not self._pending:
+            return
+        pending, self._pending = self._pending, []
+        n = len(pending)
+        with self.open("a") as f:
+            g = f[self.name]
+            start = int(g.attrs["iteration"])
+            if g["chain"].shape[0] < start + n:
+                g["chain"].resize(start + n, axis=0)
+                g["log_prob"].resize(start + n, axis=0)
+            g["chain"][start : start + n] = np.stack([p[0] for p in pending])
+            g["log_prob"][start : start + n] = np.stack([p[1] for p in pending])
+            g["accepted"][:] += np.sum([p[2] for p in pending], axis=0)
+            for i, value in enumerate(pending[-1][3]):
+                g.attrs[f"random_state_{i}"] = value
+            g.attrs["iteration"] = start + n
+
+    def grow(self, ngrow, blobs):
+        self.flush()
+        super().grow(ngrow, blobs)
+
+
+class ChainFileError(ValueError):
+    """A ``chain.h5`` that cannot be read back (truncated, overwritten, not emcee's format)."""
+
+
+def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
+    """``(steps, walkers, dimension)`` of the chain stored in ``path``, checked readable.
+
+    Opens the file read-only and reads every stored step (in blocks of ``block_steps``,
+    so memory stays small), the log-probabilities, acceptance counts and the random state
+    a resumed run needs. Returns None when there is no file.
+
+    Raises
+    ------
+    ChainFileError
+        The file cannot be opened or read, or lacks what emcee's backend writes.
+    """
+    import h5py
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        return None
+    try:
+        with h5py.File(path, "r") as f:
+            if BACKEND_GROUP not in f:
+                raise ChainFileError(f"{path} is damaged (no group {BACKEND_GROUP!r}: not a chain written by study)")
+            g = f[BACKEND_GROUP]
+            n_walkers, n_dim = int(g.attrs["nwalkers"]), int(g.attrs["ndim"])
+            steps = int(g.attrs["iteration"])
+            chain, log_prob, accepted = g["chain"], g["log_prob"], g["accepted"]
+            if (
+                chain.shape[1:] != (n_walkers, n_dim) or log_prob.shape[1:] != (n_walkers,)
+                or accepted.shape != (n_walkers,) or not 0 <= steps <= min(chain.shape[0], log_prob.shape[0])
+            ):  # fmt: skip
+                raise ChainFileError(
+                    f"{path} is damaged (inconsistent shapes: {steps} steps, chain {chain.shape}, "
+                    f"log_prob {log_prob.shape}, accepted {accepted.shape})"
+                )
+            accepted[()]
+            for start in range(0, steps, int(block_steps)):
+                stop = min(steps, start + int(block_steps))
+                chain[start:stop]
+                log_prob[start:stop]
+            if steps > 0:
+                for i in range(5):
+                    g.attrs[f"random_state_{i}"]
+    except ChainFileError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:
+        detail = " ".join(str(exc).split())[:200]
+        raise ChainFileError(f"{path} is damaged ({type(exc).__name__}: {detail})") from None
+    return steps, n_walkers, n_dim
+
+
+def _uniform_logpdf(x, lower, upper):
+    return np.full(x.shape, -math.log(upper - lower))
+
+
+def _log_uniform_logpdf(x, lower, upper):
+    return -np.log(x) - math.log(math.log(upper / lower))
+
+
+#: prior name -> log-density ``f(x, lower, upper)`` on ``[lower, upper]`` (vectorised in x).
+PRIORS = {"uniform": _uniform_logpdf, "log_uniform": _log_uniform_logpdf}
+
+
+class SnookerMove(emcee.moves.DESnookerMove):
+    r"""The differential-evolution snooker update of ter Braak and Vrugt (2008), corrected.
+
+    For walker :math:`x`, pick three other walkers :math:`z, z_1, z_2`; with the unit
+    vector :math:`e = (x - z)/\lVert x - z\rVert` propose
+    :math:`x' = x + \gamma_s\, e\, e^\top (z_1 - z_2)` and accept with probability
+    :math:`\min\{1, \pi(x')/\pi(x)\, (\lVert x' - z\rVert / \lVert x - z\rVert)^{d-1}\}`
+    (ter Braak and Vrugt, Stat. Comput. 18, 435-446, 2008, eq. 3).
+
+    emcee 3.1.6's :class:`emcee.moves.DESnookerMove` divides by
+    :math:`\sqrt{\lVert x - z\rVert}` instead of :math:`\lVert x - z\rVert` and uses the
+    exponent :math:`(d-1)/2`; fixed upstream in dfm/emcee pull request #531 (merged
+    2024-12), not in a release yet. The released move does not leave the posterior
+    invariant: on the 18-parameter GPI posterior it drew marginal standard deviations
+    0.83-0.99 times the Laplace ones where a random-walk Metropolis chain drew 1.01-1.14,
+    and on a standard normal it shrinks the variance (``tests/test_posterior.py``).
+    """
+
+    def get_proposal(self, s, c, random):
+        """Proposals ``(n, D)`` for the walkers ``s`` and the log Jacobian factors ``(n,)``,
+        all walkers at once (emcee's loops over them in Python)."""
+        n_walkers, ndim = s.shape
+        picks = np.stack([c[j][random.randint(len(c[j]), size=n_walkers)] for j in range(3)], axis=1)  # (n, 3, D)
+        roles = np.argsort(random.uniform(size=(n_walkers, 3)), axis=1)  # a random order of the three per walker
+        picks = np.take_along_axis(picks, roles[:, :, None], axis=1)
+        z, z1, z2 = picks[:, 0], picks[:, 1], picks[:, 2]
+        delta = s - z
+        distance = np.linalg.norm(delta, axis=1)
+        unit = delta / distance[:, None]
+        step = self.gammas * np.einsum("nd,nd->n", unit, z1 - z2)
+        proposal = s + unit * step[:, None]
+        log_factor = np.log(np.linalg.norm(proposal - z, axis=1)) - np.log(distance)
+        return proposal, (ndim - 1.0) * log_factor
+
+
+#: move name -> factory of an emcee move schedule.
+MOVES = {
+    "stretch": lambda: emcee.moves.StretchMove(),
+    "de": lambda: [(emcee.moves.DEMove(), 0.8), (SnookerMove(), 0.2)],
+}
+
+
+def default_priors(model: Model) -> dict[str, str]:
+    """``{name: prior}`` for every parameter of ``model`` (rule in the module docstring)."""
+    kinds = {}
+    for p in model.parameters:
+        scale_like = p.lower > 0 and np.isfinite(p.upper) and p.upper / p.lower >= 100.0
+        kinds[p.name] = "log_uniform" if scale_like else "uniform"
+    return kinds
+
+
+class LogPosterior:
+    """Vectorised log-posterior of the free parameters (and ``noise_log_sigma`` if free).
+
+    Parameters
+    ----------
+    record : Record
+        ``time``, ``current``, ``displacement``, shape (T,).
+    model : model.Model
+        Pinned parameters (``vary=False``) stay at their values.
+    noise : NoiseModel
+        A free sigma (``source="free"``) adds the coordinate ``noise_log_sigma``.
+    priors : dict, optional
+        ``{name: prior name or callable f(x, lower, upper)}``; missing names use
+        :func:`default_priors`. The support is the model's bounds; a priors file
+        (:mod:`identify.fitting.priors`) gives :class:`identify.fitting.priors.Prior` objects and a model
+        with its bounds.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Coordinates sampled, shape (D,).
+    lower, upper : ndarray, shape (D,)
+        The prior's support.
+    n_errors : int
+        Rows whose evaluation raised (and were given ``-inf``).
+    """
+
+    def __init__(self, record, model: Model, noise: NoiseModel, *, priors=None):
+        self.time = np.asarray(record.time, dtype=float)
+        self.current = np.asarray(record.current, dtype=float)
+        self.data = np.asarray(record.displacement, dtype=float)
+        self.model = model
+        self.noise = noise
+        self.free = np.flatnonzero(model.parameters.vary)
+        self.template = model.parameters.values.copy()
+        names = [model.names[i] for i in self.free]
+        lower = list(model.parameters.lower[self.free])
+        upper = list(model.parameters.upper[self.free])
+        kinds = default_priors(model)
+        kinds.update(priors or {})
+        #: the priors given (``{name: name or callable}``, e.g. :class:`identify.fitting.priors.Prior`); the rest are defaults
+        self.priors_used = dict(priors or {})
+        unknown = set(priors or {}) - set(model.names) - {"noise_log_sigma"}
+        if unknown:
+            raise ValueError(f"priors given for unknown parameters {sorted(unknown)}")
+        self.free_sigma = noise.is_free
+        if self.free_sigma:
+            span = float(np.ptp(self.data))
+            if not span > 0:
+                raise ValueError("a free noise sigma needs a displacement that is not constant")
+            names.append("noise_log_sigma")
+            lower.append(math.log(1e-6 * span))
+            upper.append(math.log(span))
+            kinds.setdefault("noise_log_sigma", "uniform")
+        self.names = tuple(names)
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        self.prior_names = {}
+        self._prior_fns = []
+        for n, lo, hi in zip(self.names, self.lower, self.upper):
+            kind = kinds.get(n, "uniform")
+            fn = PRIORS.get(kind) if isinstance(kind, str) else kind
+            if fn is None:
+                raise ValueError(f"unknown prior {kind!r} for {n}; known: {', '.join(PRIORS)}")
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                raise ValueError(f"parameter {n} needs finite bounds for a proper prior, got [{lo}, {hi}]")
+            if kind == "log_uniform" and not lo > 0:
+                raise ValueError(f"a log-uniform prior needs a positive lower bound; {n} has {lo}")
+            self.prior_names[n] = kind if isinstance(kind, str) else getattr(kind, "__name__", "custom")
+            self._prior_fns.append(fn)
+        # The built-in priors in closed form, summed once per call: a constant (every
+        # uniform and log-uniform normalisation) minus the log of the log-uniform
+        # coordinates; any other prior is called as given.
+        builtin = [fn in (_uniform_logpdf, _log_uniform_logpdf) for fn in self._prior_fns]
+        self._log_uniform_columns = np.array(
+            [j for j, fn in enumerate(self._prior_fns) if fn is _log_uniform_logpdf], dtype=int
+        )
+        self._prior_constant = sum(
+            -math.log(hi - lo) if fn is _uniform_logpdf else -math.log(math.log(hi / lo))
+            for fn, lo, hi, b in zip(self._prior_fns, self.lower, self.upper, builtin) if b
+        )  # fmt: skip
+        self._other_priors = [(j, fn) for j, (fn, b) in enumerate(zip(self._prior_fns, builtin)) if not b]
+        self.n_errors = 0
+
+    @property
+    def ndim(self) -> int:
+        return len(self.names)
+
+    def full_theta(self, x) -> np.ndarray:
+        """Full model vectors ``(W, P)`` from sampled coordinates ``(W, D)``."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        theta = np.repeat(self.template[None, :], x.shape[0], axis=0)
+        theta[:, self.free] = x[:, : self.free.size]
+        return theta
+
+    def in_support(self, x) -> np.ndarray:
+        """Boolean ``(W,)``: finite and within the bounds."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        return np.isfinite(x).all(axis=1) & (x >= self.lower).all(axis=1) & (x <= self.upper).all(axis=1)
+
+    def log_prior(self, x) -> np.ndarray:
+        """Log prior density ``(W,)``; ``-inf`` outside the support."""
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        out = np.full(x.shape[0], -np.inf)
+        ok = self.in_support(x)
+        if ok.any():
+            xs = x[ok]
+            total = np.full(xs.shape[0], self._prior_constant)
+            if self._log_uniform_columns.size:
+                total -= np.log(xs[:, self._log_uniform_columns]).sum(axis=1)
+            for j, fn in self._other_priors:
+                total += fn(xs[:, j], self.lower[j], self.upper[j])
+            out[ok] = total
+        return out
+
+    def _evaluate_rows(self, theta):
+        try:
+            return self.model.evaluate(theta, self.time, self.current)
+        except Exception:  # never raise for a walker: fall back to one row at a time
+            y = np.zeros((theta.shape[0], self.time.size))
+            valid = np.zeros(theta.shape[0], dtype=bool)
+            for k in range(theta.shape[0]):
+                try:
+                    yk, vk = self.model.evaluate(theta[k], self.time, self.current)
+                    y[k], valid[k] = yk[0], vk[0]
+                except Exception:
+                    self.n_errors += 1
+            return y, valid
+
+    def __call__(self, x) -> np.ndarray:
+        """Log-posterior (up to the evidence) of ``(W, D)`` coordinates -> ``(W,)``; 1-D in -> float."""
+        x_in = np.asarray(x, dtype=float)
+        x2 = np.atleast_2d(x_in)
+        out = self.log_prior(x2)
+        ok = np.flatnonzero(np.isfinite(out))
+        if ok.size:
+            y, valid = self._evaluate_rows(self.full_theta(x2[ok]))
+            if valid.any():
+                rows = ok[valid]
+                sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
+                out[rows] += log_likelihood_of_rows(self.data, y, np.flatnonzero(valid), self.noise, sigma)
+            out[ok[~valid]] = -np.inf
+        out[~np.isfinite(out)] = -np.inf
+        return float(out[0]) if x_in.ndim == 1 else out
+
+
+def default_n_walkers(ndim: int) -> int:
+    """About twice the dimension, even, at least 32."""
+    n = max(32, 2 * int(ndim))
+    return n + (n % 2)
+
+
+#: Smallest eigenvalue of the walkers' start correlation matrix, relative to the largest
+#: (standard deviation 1e-3 of the largest along any combination); see :func:`initial_walkers`.
+MIN_CORRELATION_EIGENVALUE = 1e-6
+
+
+def _full_rank(covariance) -> np.ndarray:
+    """``covariance`` with its correlation eigenvalues raised to :data:`MIN_CORRELATION_EIGENVALUE` x the largest.
+
+    Unchanged when it already satisfies that; the variances (diagonal) are kept.
+    """
+    sd = np.sqrt(np.diag(covariance))
+    correlation = covariance / np.outer(sd, sd)
+    eigenvalues, eigenvectors = np.linalg.eigh(correlation)
+    smallest = MIN_CORRELATION_EIGENVALUE * eigenvalues[-1]
+    if eigenvalues[0] >= smallest:
+        return covariance
+    raised = (eigenvectors * np.maximum(eigenvalues, smallest)) @ eigenvectors.T
+    rescale = 1.0 / np.sqrt(np.diag(raised))  # back to unit diagonal: keep the variances
+    raised = raised * np.outer(rescale, rescale)
+    return raised * np.outer(sd, sd)
+
+
+def initial_walkers(log_post: LogPosterior, mean, covariance, n_walkers, rng, *, max_rounds=200) -> np.ndarray:
+    """Walkers drawn from ``N(mean, covariance)``, each redrawn until its log-posterior is finite.
+
+    Parameters
+    ----------
+    log_post : LogPosterior
+    mean : array_like, shape (D,)
+        The least-squares solution in sampled coordinates.
+    covariance : array_like, shape (D, D)
+        Its covariance (e.g. the Jacobian-based one). A variance below
+        ``(1e-3 max(|mean|, 1e-3 (upper - lower)))^2`` is raised by that floor. A
+        covariance that is singular in some direction (a pseudo-inverse drops the least
+        determined combinations, giving them zero variance) has the eigenvalues of its
+        correlation matrix raised to at least :data:`MIN_CORRELATION_EIGENVALUE` times the
+        largest: otherwise every walker lies in a subspace that ensemble moves can never
+        leave (and emcee refuses the start as linearly dependent), so the sampler would
+        never explore exactly the directions the data constrain least.
+    n_walkers : int
+    rng : numpy.random.Generator
+    max_rounds : int, default 200
+        Redraw rounds; every 20 rounds without success the covariance is halved.
+
+    Returns
+    -------
+    ndarray, shape (n_walkers, D)
+
+    Raises
+    ------
+    ValueError
+        When ``mean`` itself is outside the support or no draws land in it.
+    """
+    mean = np.asarray(mean, dtype=float)
+    cov = np.asarray(covariance, dtype=float)
+    cov = 0.5 * (cov + cov.T)
+    # A parameter the data do not constrain at the optimum (e.g. an effect's time
+    # constant while its amplitude is 0) has (near-)zero variance in a pseudo-inverse
+    # covariance; give it a small spread so the walkers are linearly independent.
+    floor = (1e-3 * np.maximum(np.abs(mean), 1e-3 * (log_post.upper - log_post.lower))) ** 2
+    idx = np.arange(mean.size)
+    cov[idx, idx] = np.where(np.diag(cov) < floor, np.diag(cov) + floor, np.diag(cov))
+    cov = _full_rank(cov)
+    if not np.isfinite(log_post(mean[None, :])[0]):
+        raise ValueError("the least-squares solution has a log-posterior of -inf (outside the support or domain)")
+    walkers = np.empty((n_walkers, mean.size))
+    missing = np.arange(n_walkers)
+    shrink = 1.0
+    for round_ in range(max_rounds):
+        draws = rng.multivariate_normal(mean, shrink * cov, size=missing.size, method="eigh")
+        good = np.isfinite(log_post(draws))
+        walkers[missing[good]] = draws[good]
+        missing = missing[~good]
+        if missing.size == 0:
+            return walkers
+        if (round_ + 1) % 20 == 0:
+            shrink *= 0.5
+    raise ValueError(f"could not place {missing.size} of {n_walkers} walkers inside the posterior's support")
+
+
+@dataclass
+class PosteriorResult:
+    """Summary of an emcee run (see the module docstring for the definitions).
+
+    Parameters
+    ----------
+    names : tuple of str
+        Sampled coordinates, shape (D,).
+    converged : bool
+    message : str
+        Plain words, e.g. "converged: ..." or "NOT CONVERGED: ...".
+    n_walkers, n_steps, discard, thin : int
+    acceptance_fraction : float
+        Mean over walkers.
+    tau : ndarray, shape (D,)
+        Integrated autocorrelation times [steps].
+    ess : ndarray, shape (D,)
+        Effective sample sizes.
+    samples : ndarray, shape (N, D)
+        Flat samples after burn-in and thinning.
+    log_prob : ndarray, shape (N,)
+    seconds : float
+        Sampling wall time in this call [s].
+    n_errors : int
+        Walker evaluations that raised and got ``-inf``.
+    """
+
+    names: tuple
+    converged: bool
+    message: str
+    n_walkers: int
+    n_steps: int
+    discard: int
+    thin: int
+    acceptance_fraction: float
+    tau: np.ndarray
+    ess: np.ndarray
+    samples: np.ndarray = field(repr=False)
+    log_prob: np.ndarray = field(repr=False)
+    seconds: float = 0.0
+    n_errors: int = 0
+    rhat: np.ndarray | None = None
+    ess_bulk: np.ndarray | None = None
+    ess_tail: np.ndarray | None = None
+    mcse_mean: np.ndarray | None = None
+    mcse_sd: np.ndarray | None = None
+
+    def diagnostic(self, name: str, j: int):
+        """Diagnostic ``name`` (one of :data:`DIAGNOSTICS`) of coordinate ``j``; None when absent or not finite."""
+        values = getattr(self, name)
+        return None if values is None else _finite_or_none(values[j])
+
+    @property
+    def tau_max(self) -> float:
+        return float(np.max(self.tau))
+
+    def quantiles(self, q=(0.025, 0.5, 0.975)) -> np.ndarray:
+        """Quantiles ``(len(q), D)`` of the flat samples."""
+        return np.quantile(self.samples, q, axis=0)
+
+    def to_dict(self) -> dict:
+        """The ``posterior`` block of ``summary.json``."""
+        return {
+            "converged": bool(self.converged),
+            "message": self.message,
+            "n_walkers": int(self.n_walkers),
+            "n_steps": int(self.n_steps),
+            "discard": int(self.discard),
+            "thin": int(self.thin),
+            "acceptance_fraction": float(self.acceptance_fraction),
+            "tau_max": _finite_or_none(self.tau_max),
+            "rhat_max": None if self.rhat is None else _finite_or_none(np.max(self.rhat)),
+            "ess_bulk_min": None if self.ess_bulk is None else _finite_or_none(np.min(self.ess_bulk)),
+            "ess_tail_min": None if self.ess_tail is None else _finite_or_none(np.min(self.ess_tail)),
+            "rule": {"rhat_max": RHAT_MAX, "ess_bulk_min": ESS_BULK_MIN},
+            "n_samples": int(self.samples.shape[0]),
+            "n_errors": int(self.n_errors),
+            "seconds": float(self.seconds),
+        }
+
+
+#: Measured 95 % interval coverage on the virtual bench (benchmarks/interval_coverage.py and
+#: the slow tests in tests/test_posterior.py: 20 seeded clean 50 Hz records, truth 0.5 A off
+#: the domain wall; 2026-11-22, with :class:`SnookerMove`): least squares +-1.96 stderr vs
+#: posterior equal-tailed intervals, mean of the per-record fractions and its standard
+#: error across records. Quoted by the report (docs/method.md, docs/benchmarks.md).
+BENCH_COVERAGE = {
+    "least_squares": 0.950,
+    "least_squares_se": 0.018,
+    "posterior": 0.933,
+    "posterior_se": 0.023,
+    "nominal": 0.95,
+    "n_records": 20,
+    "n_intervals": 360,
+}
+
+#: The convergence verdict's thresholds beside tau (docs/method.md, "Convergence"): every
+#: parameter's rank-normalised split-R-hat below :data:`RHAT_MAX` and bulk effective sample
+#: size at least :data:`ESS_BULK_MIN` (Vehtari et al. 2021). Their 1.01 presumes independent
+#: chains; emcee's walkers move together and are not (the emcee author's caution, dfm/emcee
+#: #279), and split-R-hat of ~70 correlated walkers with ~35 autocorrelation times each
+#: scatters above 1.01 at convergence: the bundled record's seed-0 chain had passed the tau
+#: rule at 68.7 tau with R-hat 1.018 and was still refused at the 60000-step cap. 1.05 is
+#: the threshold commonly used for dependent or few-draw chains.
+RHAT_MAX = 1.05
+ESS_BULK_MIN = 400.0
+
+#: Names of the per-parameter diagnostics (:func:`chain_diagnostics`), as in summary.json.
+DIAGNOSTICS = ("rhat", "ess_bulk", "ess_tail", "mcse_mean", "mcse_sd")
+
+
+def import_arviz():
+    """The ``arviz`` module, imported without its FutureWarning about the coming refactor."""
+    import warnings
+
+    with warnings.catch_warnings():  # arviz 0.2x announces its refactor on import
+        warnings.simplefilter("ignore", FutureWarning)
+        import arviz
+
+    return arviz
+
+
+def chain_diagnostics(draws) -> dict[str, np.ndarray]:
+    """ArviZ's convergence diagnostics per parameter of ``draws`` ``(steps, walkers, D)``.
+
+    The walkers are ArviZ's chains (as in ``arviz.from_emcee``); ``draws`` is the chain
+    after burn-in and thinning, the draws ``posterior.nc`` holds. Returns ``{name: (D,)}``
+    for :data:`DIAGNOSTICS`: rank-normalised split-R-hat (``arviz.rhat``), bulk and tail
+    effective sample sizes (``arviz.ess``, ``method="bulk"``/``"tail"``), and the Monte
+    Carlo standard errors of the mean and of the standard deviation (``arviz.mcse``,
+    ``method="mean"``/``"sd"``). NaN where ArviZ gives no value (fewer than 4 draws per
+    walker).
+    """
+    draws = np.asarray(draws, dtype=float)
+    n_dim = draws.shape[2]
+    out = {k: np.full(n_dim, np.nan) for k in DIAGNOSTICS}
+    if draws.shape[0] < 4:
+        return out
+    az = import_arviz()
+    # one az.summary call (its mcse_sd path also works where az.mcse(method="sd") on an
+    # array fails with numpy 2); full precision, one variable per parameter
+    data = {f"p{d}": np.ascontiguousarray(draws[:, :, d].T) for d in range(n_dim)}  # (chain, draw)
+    table = az.summary(az.convert_to_dataset(data), kind="diagnostics", round_to="none")
+    columns = {"rhat": "r_hat", "ess_bulk": "ess_bulk", "ess_tail": "ess_tail", "mcse_mean": "mcse_mean", "mcse_sd": "mcse_sd"}
+    for key, column in columns.items():
+        out[key] = np.array([float(table.loc[f"p{d}", column]) for d in range(n_dim)])
+    return out
+
+
+def _burn_in(tau, n_steps) -> tuple[int, int]:
+    """``(discard, thin)`` for a chain of ``n_steps`` with autocorrelation times ``tau``."""
+    finite = np.isfinite(tau).all()
+    tau_max = float(np.max(tau)) if finite else float(n_steps)
+    discard = min(int(math.ceil(2 * tau_max)), n_steps - 1)
+    tau_min = float(np.min(tau)) if finite else 1.0
+    return discard, max(1, int(0.5 * tau_min))
+
+
+def _diagnostics_verdict(diag) -> tuple[bool, str]:
+    """(passes, words) of the R-hat and bulk-ESS rule on :func:`chain_diagnostics` output."""
+    rhat, ess = diag["rhat"], diag["ess_bulk"]
+    if not (np.isfinite(rhat).all() and np.isfinite(ess).all()):
+        return False, "R-hat and ESS not available (too few draws)"
+    ok = bool(np.max(rhat) < RHAT_MAX and np.min(ess) >= ESS_BULK_MIN)
+    words = (f"R-hat max {np.max(rhat):.4f} (need < {RHAT_MAX:g}), "
+             f"bulk ESS min {np.min(ess):.0f} (need >= {ESS_BULK_MIN:g})")  # fmt: skip
+    return ok, words
+
+
+def _finite_or_none(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _tau(chain, c=5.0) -> np.ndarray:
+    """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain.
+
+    emcee's estimator (:func:`emcee.autocorr.integrated_time`: walker-averaged
+    autocorrelation, Sokal's automatic window with ``c = 5``; agrees with it to 1e-12
+    relative), with one real FFT per walker and parameter, one inverse FFT per parameter,
+    and no error for short chains (``inf`` where there is no estimate).
+    """
+    n_steps, _n_walkers, n_dim = chain.shape
+    if n_steps < 2:
+        return np.full(n_dim, np.inf)
+    # Any length >= 2 n - 1 gives the exact (non-circular) autocovariance; scipy's fast
+    # length and threads make a 54000-step check ~2.7x cheaper than numpy's power of two.
+    n_fft = scipy.fft.next_fast_len(2 * n_steps - 1, real=True)
+    tau = np.empty(n_dim)
+    for d in range(n_dim):
+        x = np.ascontiguousarray(chain[:, :, d].T)  # (walkers, steps): FFTs along the contiguous axis
+        x -= x.mean(axis=1, keepdims=True)
+        spectrum = scipy.fft.rfft(x, n=n_fft, axis=1, workers=-1)
+        # The walker average of the normalised autocorrelations, mean_w acf_w / acf_w[0],
+        # is linear in the power spectra: one inverse FFT per parameter, not one per walker.
+        with np.errstate(invalid="ignore", divide="ignore"):
+            power = (spectrum.real**2 + spectrum.imag**2) / np.sum(x * x, axis=1)[:, None]
+            f = scipy.fft.irfft(power.sum(axis=0), n=n_fft, workers=-1)[:n_steps] / x.shape[0]
+        taus = 2.0 * np.cumsum(f) - 1.0
+        inside = np.arange(n_steps) < c * taus
+        window = int(np.argmin(inside)) if inside.any() else n_steps - 1
+        tau[d] = taus[window]
+    return np.where(np.isfinite(tau), tau, np.inf)  # a chain that never moved: no estimate
+
+
+def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):
+    """(converged, tau, relative change, message) at the end of ``chain``.
+
+    ``cache`` (dict: chain length -> tau) avoids recomputing the previous check's tau.
+    """
+    cache = {} if cache is None else cache
+    n = chain.shape[0]
+    tau = cache[n] if n in cache else _tau(chain)
+    cache[n] = tau
+    prev_n = n - check_every
+    if prev_n >= check_every:
+        tau_prev = cache[prev_n] if prev_n in cache else _tau(chain[:prev_n])
+        with np.errstate(invalid="ignore"):
+            relative = np.abs(tau - tau_prev) / tau
+        change = float(np.max(relative)) if np.isfinite(relative).all() else math.inf
+    else:
+        change = math.inf
+    long_enough = bool(np.isfinite(tau).all() and n >= tau_factor * np.max(tau))
+    stable = change < tau_rtol
+    msg = (
+        f"{n} steps = {n / np.max(tau):.1f} x tau_max ({np.max(tau):.1f} steps; need >= {tau_factor:g}), "
+        f"tau change since the previous check {change:.1%} (need < {tau_rtol:.0%})"
+    )
+    return long_enough and stable, tau, change, msg
+
+
+def _anchor(n, check_every) -> int:
+    """The last anchor at or before step ``n``: anchors are ``check_every`` times
+    ``round(2**(i/4))``, i = 0, 1, ... (500, 1000, ..., 16000, 19000, 22500, 27000, 32000,
+    38000, 45500, 54000 for ``check_every = 500``): from the 16th on, each is at most 19 %
+    past the previous one."""
+    i = 0
+    while check_every * round(2.0 ** ((i + 1) / 4)) <= n:
+        i += 1
+    return check_every * round(2.0 ** (i / 4))
+
+
+def _check_due(chain, check_every, tau_factor, cache) -> bool:
+    """Whether the convergence check at the end of ``chain`` can pass: its length reaches
+    ``tau_factor`` times tau_max of the prefix at the last anchor (:func:`_anchor`; tau
+    computed once per anchor through ``cache``). See the module docstring."""
+    n = chain.shape[0]
+    anchor = _anchor(n, check_every)
+    if anchor not in cache:
+        cache[anchor] = _tau(chain[:anchor])
+    tau_max = float(np.max(cache[anchor]))
+    return not (math.isfinite(tau_max) and n < tau_factor * tau_max)
+
+
+def posterior_from_backend(path, names, *, converged=None, message="", tau_factor=50.0, tau_rtol=0.05,
+                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None) -> PosteriorResult:
+    """Summarise the chain stored in ``path`` (HDF5 backend, group :data:`BACKEND_GROUP`).
+
+    ``converged``/``message`` default to the convergence rule applied to the stored
+    chain; ``tau_cache`` (chain length -> tau) reuses autocorrelation times already
+    computed.
+    """
+    backend = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP, read_only=True)
+    chain = backend.get_chain()
+    log_prob_chain = backend.get_log_prob()
+    n_steps, n_walkers, ndim = chain.shape
+    if n_steps == 0:
+        raise ValueError(f"{path}: the chain is empty")
+    check_every = check_every or max(1, n_steps // 2)
+    ok, tau, _change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
+    discard, thin = _burn_in(tau, n_steps)
+    diag = chain_diagnostics(chain[discard::thin])
+    diag_ok, diag_msg = _diagnostics_verdict(diag)
+    if converged is None:
+        converged = ok and diag_ok
+    if not message:
+        message = ("converged: " if converged else "NOT CONVERGED: ") + msg + "; " + diag_msg
+    samples = chain[discard::thin].reshape(-1, ndim)
+    log_prob = log_prob_chain[discard::thin].reshape(-1)
+    ess = n_walkers * (n_steps - discard) / tau
+    acceptance = float(np.mean(backend.accepted / n_steps))
+    return PosteriorResult(
+        names=tuple(names), converged=bool(converged), message=message, n_walkers=n_walkers,
+        n_steps=n_steps, discard=discard, thin=thin, acceptance_fraction=acceptance, tau=tau,
+        ess=ess, samples=samples, log_prob=log_prob, seconds=seconds, n_errors=n_errors, **diag,
+    )  # fmt: skip
+
+
+def sample_posterior(
+    log_post: LogPosterior,
+    initial,
+    backend_path,
+    rng: np.random.Generator,
+    *,
+    n_walkers=None,
+    max_steps=DEFAULT_MAX_STEPS,
+    check_every=DEFAULT_CHECK_EVERY,
+    tau_factor=50.0,
+    tau_rtol=0.05,
+    moves="de",
+    progress=None,
+    log=None,
+) -> PosteriorResult:
+    """Run (or resume) emcee until converged or ``max_steps`` (rules in the module docstring).
+
+    Parameters
+    ----------
+    log_post : LogPosterior
+    initial : callable or array_like
+        Walker start ``(n_walkers, D)``, or a callable ``f(n_walkers, rng)`` returning
+        one; used only when the backend holds no steps yet.
+    backend_path : path-like
+        The HDF5 file (``DIR/chain.h5``); an existing chain of the same shape is resumed.
+    rng : numpy.random.Generator
+        Seeds emcee's internal RandomState (and the walker start).
+    n_walkers : int, optional
+        Default :func:`default_n_walkers` ``(D)``, or the backend's when resuming.
+    max_steps : int, default :data:`DEFAULT_MAX_STEPS` (60000, as ``study``)
+        Cap on the chain length [steps], counting resumed steps.
+    check_every : int, default 500
+        Convergence check interval [steps].
+    tau_factor, tau_rtol : float, default 50, 0.05
+    moves : str, default "de"
+        A key of :data:`MOVES`: ``"de"`` (differential evolution 80 %, DE snooker
+        20 %) or ``"stretch"`` (emcee's default). On the 18-parameter GPI posterior of a
+        7001-sample record the DE moves' autocorrelation time was about a third of the
+        stretch move's (71 vs 200 steps after 3000 steps, 36 walkers).
+    progress : bool, optional
+        True: a tqdm bar on stderr whose total is the projected chain length
+        ``tau_factor x tau_max``, re-estimated at each check (:mod:`identify.fitting.progress`);
+        False: none; None (default): the bar when stderr is a terminal, else a log line
+        (``identify.posterior`` logger, INFO) every 10 s with the step, steps/s, tau_max and
+        the projected length.
+    log : callable, optional
+        ``log(str)`` for one line per check.
+
+    Returns
+    -------
+    PosteriorResult
+    """
+    if moves not in MOVES:
+        raise ValueError(f"unknown move {moves!r}; known: {', '.join(MOVES)}")
+    if isinstance(max_steps, bool) or int(max_steps) < 1 or int(check_every) < 1:
+        raise ValueError(f"max_steps and check_every must be >= 1, got {max_steps!r}, {check_every!r}")
+    max_steps, check_every = int(max_steps), int(check_every)
+    log = log or (lambda _msg: None)
+    ndim = log_post.ndim
+    path = os.fspath(backend_path)
+    backend = BufferedHDFBackend(path, name=BACKEND_GROUP)
+    # The emcee seed and the walker-start generator are drawn first, so they do not
+    # depend on whether this call starts or resumes.
+    emcee_seed = int(rng.integers(2**32))
+    start_rng = rng.spawn(1)[0]
+    resuming = backend.initialized and backend.iteration > 0
+    if resuming:
+        stored_walkers, stored_dim = backend.shape
+        if stored_dim != ndim or (n_walkers is not None and n_walkers != stored_walkers):
+            raise ValueError(
+                f"{path} holds a chain of {stored_walkers} walkers x {stored_dim} parameters, "
+                f"not {n_walkers or 'any'} x {ndim}: a different run (use a new folder or --force)"
+            )
+        n_walkers = stored_walkers
+    n_walkers = default_n_walkers(ndim) if n_walkers is None else int(n_walkers)
+    if n_walkers < 2 * ndim or n_walkers % 2:
+        raise ValueError(f"n_walkers must be even and >= 2 x {ndim} (the dimension), got {n_walkers}")
+    if backend.initialized and backend.iteration == 0:
+        backend.reset(n_walkers, ndim)
+    sampler = emcee.EnsembleSampler(n_walkers, ndim, log_post, vectorize=True, backend=backend, moves=MOVES[moves]())
+    if resuming:
+        state = sampler.get_last_sample()  # carries the stored random state
+        log(f"resuming the chain in {path} at step {backend.iteration}")
+    else:
+        coords = initial(n_walkers, start_rng) if callable(initial) else np.asarray(initial, dtype=float)
+        if coords.shape != (n_walkers, ndim):
+            raise ValueError(f"initial walkers must have shape ({n_walkers}, {ndim}), got {coords.shape}")
+        state = emcee.State(coords, random_state=np.random.RandomState(emcee_seed).get_state())
+
+    from .progress import ChainProgress, progress_mode
+
+    bar = ChainProgress(done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress))
+    import numba
+
+    threads_before = numba.get_num_threads()
+    tau_cache: dict[int, np.ndarray] = {}
+    # The chain in memory for the convergence checks: read from the file once (a resumed
+    # run), then extended in place with each chunk's steps (capacity doubling, so a check
+    # reads a view and never copies the chain); re-reading the whole HDF5 chain at every
+    # check cost seconds per check late in a 50000-step run.
+    chain_buffer = backend.get_chain() if resuming else np.empty((0, n_walkers, ndim))
+    stored = chain_buffer.shape[0]
+    t0 = _time.perf_counter()
+    converged, message = False, ""
+    try:
+        while True:
+            done = backend.iteration
+            if stored != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
+                raise RuntimeError(f"in-memory chain has {stored} steps, the backend {done}")
+            chain = chain_buffer[:done]
+            on_check = done > 0 and done % check_every == 0
+            due = done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache)
+            if on_check and tau_cache and not due:  # the anchor's tau: the projection of a skipped check
+                bar.estimate(np.max(tau_cache[max(tau_cache)]))
+            if due:
+                ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
+                bar.estimate(np.max(tau))
+                log(f"step {done}: {msg}")
+                diag_msg = ""
+                if ok:  # tau says converged: R-hat and bulk ESS must agree (computed only then)
+                    discard, thin = _burn_in(tau, done)
+                    diag_ok, diag_msg = _diagnostics_verdict(chain_diagnostics(chain[discard::thin]))
+                    log(f"step {done}: {diag_msg}")
+                    if diag_ok:
+                        converged, message = True, "converged: " + msg + "; " + diag_msg
+                        break
+                if done >= max_steps:
+                    message = f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg + (
+                        "; " + diag_msg if diag_msg else "")
+                    break
+            steps = min(check_every - done % check_every, max_steps - done)
+            fastest_thread_count(log_post, np.asarray(state.coords))
+            with _stop_between_steps() as stop:
+                # emcee's linear-independence check is for a start we made; walkers the
+                # sampler itself moved (a later chunk, a resumed run) may lie along a
+                # near-exact degeneracy of the posterior and must not stop the run
+                chunk = sampler.sample(state, iterations=steps, store=True, progress=False, skip_initial_state_check=done > 0)
+                positions = []
+                for state in chunk:
+                    positions.append(np.array(state.coords))
+                    bar.update(1)
+                    if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
+                        backend.flush()
+                        raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
+                block = np.stack(positions)
+                if stored + len(block) > chain_buffer.shape[0]:
+                    capacity = max(stored + len(block), min(max_steps, 2 * chain_buffer.shape[0]))
+                    grown = np.empty((capacity, n_walkers, ndim))
+                    grown[:stored] = chain_buffer[:stored]
+                    chain_buffer = grown
+                chain_buffer[stored : stored + len(block)] = block
+                stored += len(block)
+            backend.flush()
+    finally:
+        numba.set_num_threads(threads_before)
+        backend.flush()  # also on Ctrl-C: no completed step is lost
+        bar.close()
+    return posterior_from_backend(
+        path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
+        tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
+        n_errors=log_post.n_errors, tau_cache=tau_cache,
+    )  # fmt: skip
+
+
+class _StopRequest:
+    requested: str = ""
+
+
+@contextlib.contextmanager
+def _stop_between_steps():
+    """Turn SIGINT (Ctrl-C) and SIGTERM (``kill PID``) into a request honoured after the
+    current step, so no step is cut in half inside emcee (which would print the
+    interrupted likelihood call's traceback); a second signal interrupts at once.
+    Main thread only (elsewhere signals cannot be handled and nothing changes)."""
+    stop = _StopRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def request(signum, frame):
+        if stop.requested:
+            raise KeyboardInterrupt
+        stop.requested = signal.Signals(signum).name
+
+    # a signal the process ignores (SIGINT of a background job) stays ignored
+    catch = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) is not signal.SIG_IGN]
+    previous = {sig: signal.signal(sig, request) for sig in catch}
+    try:
+        yield stop
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+

@@ -1,0 +1,92 @@
+"""The HTML of the reports: numbers as table text, cells, tables, embedded PNG figures and
+the pages' style sheet (one home for :mod:`identify.output.report` and
+:mod:`identify.output.use_report`)."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+
+import numpy as np
+
+__all__ = ["DIGITS", "CSS", "number_text", "number_cell", "text_cell", "html_table", "embedded_figure", "png_bytes"]
+
+#: Significant digits of the numbers in the tables.
+DIGITS = 6
+
+
+def number_text(value, digits=DIGITS) -> str:
+    """Table text of a number: ``digits`` significant digits; "—" for None/NaN."""
+    if value is None:
+        return "—"
+    if isinstance(value, str):
+        return html.escape(value)
+    if isinstance(value, (bool, np.bool_)):
+        return "yes" if value else "no"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    value = float(value)
+    if not math.isfinite(value):
+        return "—"
+    return f"{value:.{digits}g}"
+
+
+def number_cell(value, key=None, digits=DIGITS, css=None) -> str:
+    attributes = ""
+    if key is not None:
+        attributes += f' data-key="{html.escape(key)}"'
+    if css:
+        attributes += f' class="{css}"'
+    return f"<td{attributes}>{number_text(value, digits)}</td>"
+
+
+def text_cell(value, css=None) -> str:
+    attributes = f' class="{css}"' if css else ""
+    return f"<td{attributes}>{html.escape(str(value))}</td>"
+
+
+def html_table(table_id, header, rows, caption=None, row_classes=None) -> str:
+    """An HTML table; ``rows`` are lists of ready cell strings, ``row_classes`` optional CSS classes."""
+    parts = [f'<table id="{table_id}">']
+    if caption:
+        parts.append(f"<caption>{caption}</caption>")
+    parts.append("<thead><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr></thead><tbody>")
+    for i, row in enumerate(rows):
+        css = (row_classes or {}).get(i)
+        parts.append((f'<tr class="{css}">' if css else "<tr>") + "".join(row) + "</tr>")
+    parts.append("</tbody></table>")
+    return "\n".join(parts)
+
+
+def embedded_figure(stem, alt, png_bytes, caption) -> str:
+    encoded = base64.b64encode(png_bytes).decode("ascii")
+    return (
+        f'<figure id="figure-{html.escape(stem)}"><img alt="{html.escape(alt)}" src="data:image/png;base64,{encoded}">'
+        f"<figcaption><b>{html.escape(alt)}.</b> {html.escape(caption)}</figcaption></figure>"
+    )
+
+
+def png_bytes(figure, dpi) -> bytes:
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi)
+    return buffer.getvalue()
+
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;max-width:1250px;margin:1.5em auto;padding:0 1em;color:#222;line-height:1.45}
+h1{font-size:1.6em} h2{border-bottom:2px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
+table{border-collapse:collapse;margin:.8em 0;font-size:.92em}
+th,td{border:1px solid #ccc;padding:.25em .55em;text-align:right}
+th{background:#f2f2f2} td:first-child,th:first-child{text-align:left}
+caption{text-align:left;font-weight:bold;padding:.3em 0}
+tr.worst td{background:#ffe3e0} tr.pinned td{color:#777;background:#f7f7f7}
+td.alert{background:#fdecea;font-weight:bold} td.ok{background:#e8f5e9}
+figure{margin:1.2em 0} img{max-width:100%;height:auto;border:1px solid #ddd}
+figcaption{font-size:.92em;color:#444;margin-top:.3em}
+div.alert{background:#fdecea;border-left:6px solid #d93025;padding:.6em 1em;margin:1em 0}
+div.ok{background:#e8f5e9;border-left:6px solid #2e7d32;padding:.6em 1em;margin:1em 0}
+div.note{background:#fff8e1;border-left:6px solid #f9a825;padding:.6em 1em;margin:1em 0}
+code{background:#f4f4f4;padding:0 .2em}
+"""

@@ -1,0 +1,3 @@
+"""The package version (one place; cheap to import)."""
+
+__version__ = "0.1.0"

@@ -1,0 +1,126 @@
+"""The least-squares step of a study and of ``fit``, shared by the workflows and the command line:
+effects by name, the fit with a failure explained, the parameter table and the notes.
+
+Nothing here parses arguments: :mod:`identify.cli.common` turns options into the record,
+model and noise these functions take.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from ..logs import say as _log_line
+
+__all__ = [
+    "LONG_RECORD_SAMPLES",
+    "FitFailedError",
+    "parse_effects",
+    "fit_or_explain",
+    "format_fit_table",
+    "print_record_notes",
+    "say",
+]
+
+#: Records with at least this many samples get progress lines from the least squares.
+LONG_RECORD_SAMPLES = 100_000
+
+
+def say(message: str, level: int = logging.INFO) -> None:
+    """One progress or note line, logged (INFO by default) through the ``identify`` logger
+    (:mod:`identify.logs`: on stderr from the command line, hidden by ``-q``; a program
+    shows them by configuring :mod:`logging`, e.g. ``logging.basicConfig(level=logging.INFO)``)."""
+    _log_line(message, level)
+
+
+def parse_effects(text) -> list[str]:
+    """``"thermal, creep"`` -> ``["thermal", "creep"]``; unknown names raise a ValueError listing the known ones."""
+    from model import EFFECTS
+
+    if text is None:
+        return []
+    names = [n.strip() for n in str(text).split(",") if n.strip()]
+    if names in (["none"], ["gpi"]):
+        return []
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {', '.join(map(repr, unknown))}; known effects: {', '.join(EFFECTS)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"an effect is named twice in --effects {text!r}")
+    return names
+
+
+class FitFailedError(ValueError):
+    """The least squares could not run; the message says what failed and what to try."""
+
+
+def fit_or_explain(record, model, **options):
+    """:func:`identify.fitting.lsq.fit_least_squares`, with a failure turned into a :class:`FitFailedError`.
+
+    Parameters
+    ----------
+    record, model
+        As for :func:`identify.fitting.lsq.fit_least_squares`.
+    **options
+        Passed on (noise, n_starts, rng, verbose, ...).
+
+    Returns
+    -------
+    identify.fitting.lsq.FitResult
+        The fit.
+
+    Raises
+    ------
+    FitFailedError
+        The fit raised a ValueError (e.g. no start with a finite model output); the message
+        names the model and the record and suggests options that change the starts.
+    """
+    from ..fitting import lsq
+
+    try:
+        return lsq.fit_least_squares(record, model, **options)
+    except ValueError as exc:
+        raise FitFailedError(
+            f"least squares of {model!r} on {record.source} failed: {exc}. Try: the paper's "
+            "12 operators (--n-operators 12) or fewer, more starts (--n-starts), another --seed, "
+            "or fewer --effects"
+        ) from exc
+
+
+def print_record_notes(record, file=None) -> None:
+    """What was assumed while loading ``record`` (its ``notes``), one ``note:`` line each: logged
+    (INFO, :func:`say`), or printed to ``file`` when one is given."""
+    for note in getattr(record, "notes", ()):
+        if file is None:
+            say(f"note: {note}")
+        else:
+            print(f"note: {note}", file=file)
+
+
+def format_fit_table(fit, record=None) -> str:
+    """Human summary: parameter, value, stderr, unit, Table 1; then RMS vs noise, max error, chi2."""
+    from model import TABLE1, THETA_NAMES
+
+    from ..fitting.lsq import parameter_units
+
+    units = parameter_units(fit.model, record)
+    lines = [f"{'parameter':<24} {'value':>13} {'stderr':>11}  {'unit':<8} {'Table 1':>10}", "-" * 72]
+    for i, name in enumerate(fit.model.names):
+        stderr = "pinned" if not fit.vary[i] else f"{fit.stderr[i]:11.4g}"
+        table1 = f"{TABLE1[THETA_NAMES.index(name)]:10.4f}" if name in THETA_NAMES else ""
+        lines.append(f"{name:<24} {fit.theta[i]:13.6g} {stderr:>11}  {units[i]:<8} {table1:>10}")
+    out_unit = getattr(record, "output_unit", "um") if record is not None else "um"
+    noise = fit.noise
+    sigma_note = {"quiet_segment": f"from {noise.n_quiet} quiet samples", "user": "user-given", "free": "estimated (free)"}[noise.source]
+    ratio = fit.rms / noise.sigma if noise.sigma > 0 else math.nan
+    lines += [
+        "-" * 72,
+        f"noise: sigma = {noise.sigma:.4g} {out_unit} ({sigma_note}), {noise.kind}"
+        + (f", lag-1 rho = {noise.rho:.3f}" if noise.kind == "ar1" else ""),
+        f"residual RMS (energised part) = {fit.rms:.4g} {out_unit} = {ratio:.3f} x noise sigma",
+        f"max |error| = {fit.max_error_pct:.3f} % of the displacement range",
+        f"reduced chi-square = {fit.reduced_chi2:.4f}",
+        f"starts: {fit.n_agree} of {fit.n_starts} agree (chi-square within 1 of the best); "
+        f"solver: {'converged' if fit.success else 'NOT converged'} ({fit.message}); {fit.seconds:.1f} s",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,227 @@
+"""The package's layout: imports only downward through the stages, no cycle, no private name
+borrowed from another module.
+
+Every import of every module of ``identify`` is read from its source (those inside
+functions too: an import moved into a function still ties the two modules). A module may
+import from its own stage or from a stage below it (:data:`LAYERS`, bottom first), never
+from one above; the modules, with all their imports, form no cycle; and no module takes a
+name beginning with ``_`` from another module (``from x import _y`` or ``x._y``).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "identify"
+MODEL = PACKAGE.parent / "model"
+
+#: The stages, bottom first: a module imports only from its own stage and the ones before it.
+#: ``identify`` itself is the Python API (its face, on top); ``model`` is below all of them.
+#: ``identify.logs`` (the ``identify`` logger and ``-v/-q``, standard library only) is in
+#: the base layer because every stage logs through it, from the record loader to the CLI.
+LAYERS = (
+    ("identify.version", "identify.defaults", "identify.commands", "identify.logs"),
+    ("identify.data",),
+    ("identify.fitting",),
+    ("identify.diagnosis",),
+    ("identify.output",),
+    ("identify.workflows",),
+    ("identify.bench",),
+    ("identify.cli",),
+    ("identify.__main__", "identify"),
+)
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+MODULES = {module_name(p): p for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def layer(module: str) -> int:
+    best, best_len = None, -1
+    for index, prefixes in enumerate(LAYERS):
+        for prefix in prefixes:
+            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best_len:
+                best, best_len = index, len(prefix)
+    if best is None:
+        raise AssertionError(f"{module} is in no layer of LAYERS: add its stage there")
+    return best
+
+
+def _absolute(module: str, is_package: bool, level: int, target: str | None) -> str:
+    if level == 0:
+        return target or ""
+    base = module.split(".")
+    base = base if is_package else base[:-1]
+    base = base[: len(base) - (level - 1)]
+    return ".".join(base + ([target] if target else []))
+
+
+def imports_of(module: str) -> list[tuple[str, str | None, int]]:
+    """``(imported module, name taken from it or None, line)`` for every import in ``module``."""
+    path = MODULES[module]
+    tree = ast.parse(path.read_text(), str(path))
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, None, node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            source = _absolute(module, path.name == "__init__.py", node.level, node.module)
+            for alias in node.names:
+                submodule = f"{source}.{alias.name}"
+                if submodule in MODULES:
+                    found.append((submodule, None, node.lineno))
+                else:
+                    found.append((source, alias.name, node.lineno))
+    return found
+
+
+def _inside(module: str) -> bool:
+    return module == "identify" or module.startswith("identify.")
+
+
+def graph() -> dict[str, set[str]]:
+    edges = {}
+    for module in MODULES:
+        edges[module] = set()
+        for target, _, _ in imports_of(module):
+            while target and target not in MODULES and _inside(target):
+                target = target.rpartition(".")[0]  # an attribute path: its module
+            if target in MODULES and target != module:
+                edges[module].add(target)
+    return edges
+
+
+def test_every_module_is_in_a_layer():
+    for module in MODULES:
+        layer(module)
+
+
+def test_no_module_imports_from_a_layer_above_it():
+    upward = []
+    for module in MODULES:
+        for target, name, line in imports_of(module):
+            if not _inside(target):
+                continue
+            if layer(target) > layer(module):
+                upward.append(f"{MODULES[module].relative_to(PACKAGE.parent)}:{line} imports {target}"
+                              + (f".{name}" if name else ""))  # fmt: skip
+    assert not upward, "imports from a higher stage:\n" + "\n".join(upward)
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(node):
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in sorted(edges.get(node, ())):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                top = stack.pop()
+                on_stack.discard(top)
+                component.append(top)
+                if top == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(edges):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycle():
+    cycles = _cycles(graph())
+    assert not cycles, "import cycles (imports inside functions count):\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def _private(name: str | None) -> bool:
+    return bool(name) and name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def test_no_private_name_is_taken_from_another_module():
+    borrowed = []
+    for module in MODULES:
+        path = MODULES[module]
+        for target, name, line in imports_of(module):
+            if _inside(target) and target != module and _private(name):
+                borrowed.append(f"{path.relative_to(PACKAGE.parent)}:{line} from {target} import {name}")
+        # `from . import plots` ... `plots._figure`: an attribute of an imported module
+        tree = ast.parse(path.read_text())
+        aliases = {}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                source = _absolute(module, path.name == "__init__.py", node.level, node.module)
+                for alias in node.names:
+                    if f"{source}.{alias.name}" in MODULES:
+                        aliases[alias.asname or alias.name] = f"{source}.{alias.name}"
+            elif isinstance(node, ast.Import):
+                for alias in node.names:
+                    if _inside(alias.name) and alias.asname:
+                        aliases[alias.asname] = alias.name
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                    and node.value.id in aliases and _private(node.attr)):  # fmt: skip
+                borrowed.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {aliases[node.value.id]}.{node.attr}")
+    assert not borrowed, "private names used outside their module:\n" + "\n".join(borrowed)
+
+
+def test_model_does_not_import_identify():
+    for path in sorted(MODEL.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
+                [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])  # fmt: skip
+            assert not any(_inside(n) for n in names), f"{path}: model imports identify"
+
+
+@pytest.mark.parametrize("bad", ["identify.data.records imports identify.cli", "cycle"])
+def test_the_checks_can_fail(bad, monkeypatch):
+    """The checks see a planted upward import and a planted cycle."""
+    if bad == "cycle":
+        edges = graph()
+        edges["identify.fitting.noise"].add("identify.fitting.lsq")  # lsq imports noise
+        assert _cycles(edges)
+    else:
+        real = imports_of
+
+        def planted(module):
+            extra = [("identify.cli", "main", 1)] if module == "identify.data.records" else []
+            return real(module) + extra
+
+        monkeypatch.setitem(globals(), "imports_of", planted)
+        with pytest.raises(AssertionError, match="identify.data.records|data/records"):
+            test_no_module_imports_from_a_layer_above_it()
+
+
+def test_the_names_the_help_shows_are_the_models():
+    """identify.defaults holds the effect and reading names for --help (no model import): the model's."""
+    import model
+    from identify import defaults
+
+    assert defaults.EFFECT_NAMES == tuple(model.EFFECTS)
+    assert set(defaults.READINGS) == set(model.READINGS)
+    assert defaults.INPUT_READINGS == tuple(model.INPUT_READINGS)
