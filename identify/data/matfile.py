@@ -19,8 +19,8 @@ with the variables, as a :class:`identify.data.records.RecordError` naming the f
 variable and what is wrong (a missing variable lists those present and close matches; a
 value that is not finite names the 1-based sample).
 
-This module knows nothing of records (it imports no other module of the package), so
-:mod:`identify.data.records` can import it.
+This module knows nothing of records (of the package it imports only
+:mod:`identify.data.hdf5`), so :mod:`identify.data.records` can import it.
 """
 
 from __future__ import annotations
@@ -96,8 +96,10 @@ def _read_v73(path: Path, wanted) -> tuple[dict, str]:
     """As :func:`_read_v5` for a v7.3 (HDF5) file."""
     import h5py
 
+    from .hdf5 import open_hdf5
+
     try:
-        with h5py.File(path, "r") as f:
+        with open_hdf5(path, "r") as f:
             datasets = {k: f[k] for k in f.keys() if isinstance(f[k], h5py.Dataset)}
             if all(name in datasets for name in wanted):
                 return {k: np.asarray(datasets[k][()]) for k in wanted}, "variables (v7.3)"

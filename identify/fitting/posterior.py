@@ -81,6 +81,7 @@ import scipy.fft
 
 from model import Model
 
+from ..data.hdf5 import LOCK_WAIT_SECONDS, open_hdf5
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 from .threads import fastest_thread_count
 from .noise import NoiseModel, log_likelihood_of_rows
@@ -100,6 +101,7 @@ __all__ = [
     "sample_posterior",
     "posterior_from_backend",
     "BACKEND_GROUP",
+    "ChainBackend",
     "BufferedHDFBackend",
     "BENCH_COVERAGE",
     "DEFAULT_MAX_STEPS",
@@ -115,7 +117,30 @@ __all__ = [
 BACKEND_GROUP = "mcmc"
 
 
-class BufferedHDFBackend(emcee.backends.HDFBackend):
+class ChainBackend(emcee.backends.HDFBackend):
+    """emcee's HDF5 backend opening the file through :func:`identify.data.hdf5.open_hdf5`:
+    reading takes no HDF5 file lock (a reader never blocks the study writing the chain),
+    and a write waits, with a short back-off, for a lock another process holds (a person
+    reading ``chain.h5`` while the study runs) instead of failing. Same file format;
+    ``ChainBackend(path, name, read_only=True)`` is the package's reader of a chain."""
+
+    #: Longest wait [s] for another process's lock on the file before a write fails
+    #: (:data:`identify.data.hdf5.LOCK_WAIT_SECONDS`).
+    lock_wait = LOCK_WAIT_SECONDS
+
+    def open(self, mode="r"):
+        if self.read_only and mode != "r":
+            raise RuntimeError("The backend has been loaded in read-only mode. Set `read_only = False` to make changes.")
+        f = open_hdf5(self.filename, mode, wait=self.lock_wait)
+        if not self.dtype_set and self.name in f:
+            g = f[self.name]
+            if "chain" in g:
+                self.dtype = g["chain"].dtype
+                self.dtype_set = True
+        return f
+
+
+class BufferedHDFBackend(ChainBackend):
     """emcee's HDF5 backend, writing steps in batches instead of opening the file per step.
 
     The stock :class:`emcee.backends.HDFBackend` opens, writes and closes the file for
@@ -144,11 +169,14 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
             self.flush()
 
     def flush(self) -> None:
-        """Write the buffered steps (one file open); a no-op when nothing is pending."""
+        """Write the buffered steps (one file open); a no-op when nothing is pending.
+
+        The open waits for a lock held by another process's reader (:class:`ChainBackend`);
+        the steps leave the buffer only once written."""
         self._last_flush = _time.monotonic()
         if not self._pending:
             return
-        pending, self._pending = self._pending, []
+        pending = self._pending
         n = len(pending)
         with self.open("a") as f:
             g = f[self.name]
@@ -162,6 +190,7 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
             for i, value in enumerate(pending[-1][3]):
                 g.attrs[f"random_state_{i}"] = value
             g.attrs["iteration"] = start + n
+        self._pending = []
 
     def grow(self, ngrow, blobs):
         self.flush()
@@ -184,13 +213,11 @@ def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
     ChainFileError
         The file cannot be opened or read, or lacks what emcee's backend writes.
     """
-    import h5py
-
     path = os.fspath(path)
     if not os.path.exists(path):
         return None
     try:
-        with h5py.File(path, "r") as f:
+        with open_hdf5(path, "r") as f:
             if BACKEND_GROUP not in f:
                 raise ChainFileError(f"{path} is damaged (no group {BACKEND_GROUP!r}: not a chain written by study)")
             g = f[BACKEND_GROUP]
@@ -778,7 +805,7 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
     chain; ``tau_cache`` (chain length -> tau) reuses autocorrelation times already
     computed.
     """
-    backend = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP, read_only=True)
+    backend = ChainBackend(str(path), name=BACKEND_GROUP, read_only=True)
     chain = backend.get_chain()
     log_prob_chain = backend.get_log_prob()
     n_steps, n_walkers, ndim = chain.shape

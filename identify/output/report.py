@@ -59,7 +59,7 @@ from .page import CSS, embedded_figure, html_table, number_cell, number_text, pn
 
 from . import results
 from ..fitting.noise import energised_mask
-from ..fitting.posterior import BENCH_COVERAGE
+from ..fitting.posterior import BENCH_COVERAGE, ChainBackend
 
 __all__ = [
     "write_report",
@@ -271,7 +271,7 @@ def read_chain(data: ReportData, max_rows: int = MAX_CHAIN_ROWS) -> ChainSample:
     path = data.directory / results.FILES["chain"]
     if not path.exists():
         raise ResultsError(f"{path}: missing (the posterior chain written by `study`)")
-    backend = emcee.backends.HDFBackend(str(path), name="mcmc", read_only=True)
+    backend = ChainBackend(str(path), name="mcmc", read_only=True)  # takes no file lock: a running study is not disturbed
     try:
         n_steps = int(backend.iteration)
     except (KeyError, OSError) as exc:

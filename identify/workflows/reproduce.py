@@ -529,8 +529,10 @@ def compare_arrays(file: str, name: str, a, b) -> ArrayComparison:
 def _h5_datasets(path: Path) -> dict:
     import h5py
 
+    from ..data.hdf5 import open_hdf5
+
     out = {}
-    with h5py.File(path, "r") as f:
+    with open_hdf5(path, "r") as f:
 
         def visit(name, obj):
             if isinstance(obj, h5py.Dataset):
