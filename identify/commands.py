@@ -22,3 +22,14 @@ COMMANDS = {
 
 #: Set by a batch for the commands it runs: their PID is to end (SIGTERM) when the batch does.
 PARENT_VARIABLE = "IDENTIFY_PARENT_PID"
+
+
+def add_command_arguments(parser, module) -> None:
+    """The options of command ``module`` (its ``add_arguments``) and the shared ``-v/-q``
+    (:func:`identify.logs.add_verbosity_arguments`): the command line's parser of a command,
+    also used by :mod:`identify.workflows.batch` and :mod:`identify.workflows.reproduce` to
+    check a command line."""
+    from .logs import add_verbosity_arguments
+
+    module.add_arguments(parser)
+    add_verbosity_arguments(parser)

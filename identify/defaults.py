@@ -24,3 +24,14 @@ INPUT_READINGS = ("literal", "centred")
 DEFAULT_NOISE_SIGMA = 0.5
 #: Default sampling rate of the simulated bench [Hz] (7001 samples over the paper's 70 s).
 DEFAULT_FS = 100.0
+
+#: Exit codes of every command (the meanings: :data:`identify.cli.app.EXIT_CODES`, docs/reproducibility.md).
+EXIT_OK = 0
+#: Done, but with a finding the user must look at: a study whose chain did NOT CONVERGE, a
+#: fit whose solver did not converge, a batch with a failed or unconverged run, a rerun
+#: that differs (``reproduce``); also an unexpected failure (one error line).
+EXIT_FINDING = 1
+#: Bad input or usage (an invalid option, an unreadable record or priors file, ...).
+EXIT_INPUT = 2
+#: Interrupted by Ctrl-C or SIGTERM; completed work is kept.
+EXIT_INTERRUPTED = 130

@@ -137,8 +137,9 @@ _DESCRIPTIONS = {
 # Broad default bounds: the support of the identification prior. Envelope amplitudes
 # and slopes are positive (a0 tanh(a1 v + a2) = (-a0) tanh(-a1 v - a2) is an exact
 # sign symmetry, removed by this choice, and increasing envelopes make the operator
-# rate independent). The envelope units assume the input is in A; other records
-# rescale them (see identify.data.records).
+# rate independent). The envelope units assume the input is in A and the output in
+# um; they are not rescaled for records in other units (a priors file sets bounds in the
+# record's units: identify.fitting.priors, docs/method.md).
 _BOUNDS = {
     # Either sign: alpha < 0 is the paper's (Table 1) reading, alpha > 0 the classical PI's
     # positive thresholds, which thin loop tips (e.g. piezo actuators) need. The

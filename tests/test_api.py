@@ -56,7 +56,9 @@ def test_study_from_python_is_the_command_lines_study(small_csv, tmp_path, capsy
     assert result.summary == json.loads(result.paths["summary"].read_text())
     assert result.identifiability is not None
 
-    assert main(["study", str(small_csv), "--out", str(tmp_path / "cli"), "--seed", "3", "--no-report", *SHORT_ARGS]) == 0
+    # 40 steps: NOT CONVERGED, a result with a finding; the command line's exit code says so
+    assert result.status == "not converged" and not result.converged and result.exit_code == 1
+    assert main(["study", str(small_csv), "--out", str(tmp_path / "cli"), "--seed", "3", "--no-report", *SHORT_ARGS]) == 1
     assert np.array_equal(chain_of(tmp_path / "api"), chain_of(tmp_path / "cli"))
     cli_summary = json.loads((tmp_path / "cli" / "summary.json").read_text())
     def untimed(section):
@@ -69,6 +71,7 @@ def test_study_from_python_is_the_command_lines_study(small_csv, tmp_path, capsy
     capsys.readouterr()
     again = study(str(small_csv), out=tmp_path / "api", seed=3, report=False, quiet=True, **SHORT)
     assert again.status == "finished before" and again.posterior is None
+    assert not again.converged and again.exit_code == 1  # the stored verdict
     assert again.summary == result.summary
     assert capsys.readouterr() == ("", "")
 
@@ -77,3 +80,16 @@ def test_study_refuses_bad_walkers_before_writing(small_csv, tmp_path):
     with pytest.raises(ValueError, match="walkers 5: needs an even number"):
         study(small_csv, out=tmp_path / "w", walkers=5, **SHORT)
     assert not (tmp_path / "w").exists() or not any((tmp_path / "w").iterdir())
+
+
+def test_study_refuses_a_bad_priors_file_before_writing(small_csv, tmp_path):
+    """study(priors=) is study --priors: a file that cannot be used raises PriorsError (exit code 2
+    from the command line) before anything is written."""
+    from identify.fitting.priors import PriorsError
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[no_such_parameter]\ndistribution = 'uniform'\nlower = 0.0\nupper = 1.0\n")
+    with pytest.raises(PriorsError, match="no_such_parameter"):
+        study(small_csv, out=tmp_path / "p", priors=bad, **SHORT)
+    assert not (tmp_path / "p").exists() or not any((tmp_path / "p").iterdir())
+    assert main(["study", str(small_csv), "--out", str(tmp_path / "q"), "--priors", str(bad), *SHORT_ARGS]) == 2

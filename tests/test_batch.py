@@ -334,3 +334,32 @@ def test_example_configs_are_valid(path):
     jobs = B.expand_jobs(config)
     assert len(jobs) == len(config.records) * len(config.variants) >= 2
     assert all(Path(j.record_path).is_file() for j in jobs), "example records must exist in the repository"
+
+
+def test_priors_key_is_resolved_against_the_config(tmp_path):
+    """A ``priors`` option names a file relative to the config; the study jobs get its absolute path."""
+    simulated_record(tmp_path / "good.csv", 11)
+    (tmp_path / "priors").mkdir()
+    (tmp_path / "priors" / "c0.toml").write_text("[c0]\ndistribution = 'normal'\nmu = 1.5\nsigma = 0.2\n")
+    text = 'task = "study"\nout = "runs"\n[options]\npriors = "priors/c0.toml"\n[[records]]\npath = "good.csv"\n'
+    jobs = B.expand_jobs(B.load_config(write_config(tmp_path, text)))
+    argv = jobs[0].argv
+    assert argv[argv.index("--priors") + 1] == str((tmp_path / "priors" / "c0.toml").resolve())
+    with pytest.raises(B.BatchConfigError, match=r"batch\.toml: options\.priors: no such priors file .*nowhere\.toml"):
+        B.load_config(write_config(tmp_path, text.replace("priors/c0.toml", "nowhere.toml")))
+
+
+def test_a_run_that_did_not_converge_makes_the_batch_exit_1(tmp_path, capsys):
+    """A study job whose chain stops at its cap exits 1 (a finding): the batch reports it as
+    finished but NOT converged (not as failed) and exits 1; an exit 1 with an error line is a failure."""
+    simulated_record(tmp_path / "good.csv", 11)
+    text = ('task = "study"\nout = "runs"\nworkers = 1\n[options]\nn_starts = 1\nmax_steps = 40\ncheck_every = 20\n'
+            'no_report = true\n[[records]]\npath = "good.csv"\n')  # fmt: skip
+    assert cli.main(["batch", str(write_config(tmp_path, text)), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "NOT CONVERGED good__default: posterior NOT converged" in err
+    row = read_summary(tmp_path / "runs")["good__default"]
+    assert row["status"] == "ok" and row["verdict"] == "posterior NOT converged"
+    assert "1 of the finished NOT converged" in (tmp_path / "runs" / "summary.md").read_text()
+    assert B._is_finding("step 40: ...\nexit code 1: the chain did NOT CONVERGE (raise --max-steps to extend it)\n")
+    assert not B._is_finding("exit code 1: the chain did NOT CONVERGE\nerror: unexpected OSError: disk full\n")

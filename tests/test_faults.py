@@ -36,6 +36,16 @@ STUDY = ["--n-starts", "1", "--progress", "off", "--no-report"]
 #: Result values that are not expected to survive an interruption (being removed from
 #: the summary by another change: it counts only the last process's proposals).
 NOT_RESUMABLE = {"outside_domain_fraction"}
+#: Exit code of a study whose chain stopped at its cap, NOT CONVERGED (a finding to look at).
+NOT_CONVERGED = 1
+
+
+def verdict_code(folder: Path) -> int:
+    """The exit code a finished study in ``folder`` must end with: 0 when summary.json says
+    its chain converged, 1 (NOT CONVERGED) otherwise."""
+    converged = json.loads((Path(folder) / "summary.json").read_text())["posterior"]["converged"]
+    assert isinstance(converged, bool)
+    return 0 if converged else NOT_CONVERGED
 
 
 # -- helpers ---------------------------------------------------------------------------------
@@ -219,7 +229,8 @@ FINISHED = ["--seed", "2", "--max-steps", "300", "--check-every", "100", *STUDY]
 def finished(base) -> Path:
     """A finished 300-step study of rec.csv (not converged, at its cap)."""
     completed = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=base)
-    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert completed.returncode == NOT_CONVERGED, completed.stderr[-3000:]
+    assert "exit code 1: the chain did NOT CONVERGE" in completed.stderr
     return base / "finished"
 
 
@@ -236,7 +247,7 @@ RESUMABLE = ["--seed", "3", "--max-steps", "1500", "--check-every", "500", *STUD
 @pytest.fixture(scope="module")
 def uninterrupted(base) -> Path:
     completed = cli("study", "rec.csv", "--out", "whole", *RESUMABLE, cwd=base)
-    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert completed.returncode == verdict_code(base / "whole"), completed.stderr[-3000:]
     return base / "whole"
 
 
@@ -251,7 +262,7 @@ def test_two_studies_on_one_folder_one_runs_the_other_refuses_at_once(base, tmp_
     assert first.poll() is None, "the second command waited for the first one"
     one_error(second, "is in use by process", str(first.pid))
     out, err = first.communicate(timeout=600)
-    assert first.returncode == 0 and "Traceback" not in err, err[-3000:]
+    assert first.returncode == verdict_code(tmp_path / "run") and "Traceback" not in err, err[-3000:]
     # the one that ran is exactly the run made alone
     assert_same_results(tmp_path / "run", uninterrupted)
     assert not (tmp_path / "run" / ".identify.lock").exists(), "the lock is released"
@@ -286,7 +297,7 @@ def test_an_interrupted_study_resumes_to_every_figure_of_the_uninterrupted_one(s
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert manifest["runs"][-1]["status"] == "interrupted"
     again = cli("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path)
-    assert again.returncode == 0 and "resuming" in again.stderr, again.stderr[-3000:]
+    assert again.returncode == verdict_code(uninterrupted) and "resuming" in again.stderr, again.stderr[-3000:]
     assert_same_results(tmp_path / "run", uninterrupted)
 
 
@@ -294,7 +305,7 @@ def test_a_finished_study_rerun_leaves_every_byte_unchanged(finished, tmp_path):
     run = copy_of(finished, tmp_path)
     before = digests(run)
     completed = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
-    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert completed.returncode == NOT_CONVERGED, completed.stderr[-3000:]  # still the finding it was
     assert "already holds this study, finished" in completed.stderr
     assert digests(run) == before
 
@@ -324,7 +335,7 @@ def test_extending_a_finished_chain_never_damages_it_even_under_kill_9(finished,
     proc.communicate(timeout=60)
     assert {k: v for k, v in digests(run).items() if not k.startswith(".")} == before
     again = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
-    assert again.returncode == 0 and "already holds this study, finished" in again.stderr, again.stderr[-3000:]
+    assert again.returncode == NOT_CONVERGED and "already holds this study, finished" in again.stderr, again.stderr[-3000:]
     assert digests(run) == before and not (run / ".chain.h5.extending").exists()
     proc = start("study", "rec.csv", "--out", "finished", *longer, cwd=tmp_path)
     wait_for(lambda: _extending_steps(run) > 400, proc, "steps of the extension")
@@ -402,7 +413,7 @@ def test_a_damaged_file_is_one_error_and_damages_nothing_else(finished, tmp_path
     if name == "chain.h5":  # following the advice: the chain is recomputed, equal to the original
         path.unlink()
         completed = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
-        assert completed.returncode == 0, completed.stderr[-3000:]
+        assert completed.returncode == NOT_CONVERGED, completed.stderr[-3000:]
         assert "least squares: reusing" in completed.stderr
         assert_same_results(run, finished)
 
@@ -475,7 +486,7 @@ def test_a_failed_study_leaves_nothing_that_blocks_the_corrected_one(base, tmp_p
     one_error(completed, "--noise-sigma VALUE")
     assert list((tmp_path / "run").iterdir()) == []
     completed = cli("study", "busy.csv", "--out", "run", "--noise-sigma", "0.5", *FINISHED, cwd=tmp_path)
-    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert completed.returncode == NOT_CONVERGED, completed.stderr[-3000:]
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["posterior"]["n_steps"] == 300
 
 
@@ -591,6 +602,14 @@ def summary_rows(out: Path) -> dict:
         return {row["key"]: row for row in csv.DictReader(fh)}
 
 
+def batch_code(out: Path) -> int:
+    """The exit code a finished batch of studies must end with: 1 when some run's chain did
+    NOT converge (its row says so), else 0; every run finished (ok or skipped)."""
+    rows = summary_rows(out).values()
+    assert rows and all(r["status"] in ("ok", "skipped") for r in rows), rows
+    return 1 if any("NOT converged" in r["verdict"] for r in rows) else 0
+
+
 def test_ctrl_c_stops_a_batch_its_commands_and_its_queue(tmp_path):
     """One worker, three study jobs: Ctrl-C while the first samples stops it between two
     steps (its steps kept), cancels the other two, marks all three interrupted, exits 130
@@ -625,7 +644,7 @@ def whole_batch(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("batch")
     whole = batch_config(folder, out="whole")
     completed = cli("batch", whole.name, "--no-progress", cwd=folder)
-    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert completed.returncode == batch_code(folder / "whole"), completed.stderr[-3000:]
     return folder / "whole"
 
 
@@ -661,7 +680,7 @@ def test_a_batch_killed_and_rerun_equals_an_uninterrupted_batch(tmp_path, whole_
         assert "Traceback" not in log.read_text()
 
     completed = cli("batch", config.name, "--no-progress", cwd=tmp_path)
-    assert completed.returncode == 0, completed.stderr[-3000:]
+    assert completed.returncode == batch_code(tmp_path / "runs"), completed.stderr[-3000:]
     if signum == signal.SIGKILL:
         assert "took over the lock of process" in completed.stderr
     resumed, reference = summary_rows(tmp_path / "runs"), summary_rows(whole_batch)

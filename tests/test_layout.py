@@ -20,8 +20,10 @@ MODEL = PACKAGE.parent / "model"
 
 #: The stages, bottom first: a module imports only from its own stage and the ones before it.
 #: ``identify`` itself is the Python API (its face, on top); ``model`` is below all of them.
+#: ``identify.logs`` (the ``identify`` logger and ``-v/-q``, standard library only) is in
+#: the base layer because every stage logs through it, from the record loader to the CLI.
 LAYERS = (
-    ("identify.version", "identify.defaults", "identify.commands"),
+    ("identify.version", "identify.defaults", "identify.commands", "identify.logs"),
     ("identify.data",),
     ("identify.fitting",),
     ("identify.diagnosis",),

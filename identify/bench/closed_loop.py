@@ -204,7 +204,8 @@ def closed_loop(
     package_root = str(Path(__file__).resolve().parent.parent)
     env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     completed = subprocess.run([sys.executable, "-m", "identify", *argv], env=env, capture_output=True, text=True)
-    if completed.returncode != 0:
+    not_converged = completed.returncode == 1 and "NOT CONVERGE" in completed.stderr  # a result all the same
+    if completed.returncode != 0 and not not_converged:
         raise RuntimeError(f"study exited with {completed.returncode}:\n{completed.stdout}{completed.stderr}")
     seconds["study"] = _time.perf_counter() - clock
     study = load_study(study_dir)

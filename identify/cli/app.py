@@ -19,15 +19,18 @@ import signal
 import sys
 import threading
 
-from ..commands import COMMANDS, PARENT_VARIABLE
+from ..commands import COMMANDS, PARENT_VARIABLE, add_command_arguments
 
-#: Exit code -> meaning (printed by ``--help``; docs/reliability.md).
+#: Exit code -> meaning (printed by ``--help``; docs/reproducibility.md). The numbers are
+#: :mod:`identify.defaults`' ``EXIT_*``.
 EXIT_CODES = {
-    0: "done (a study whose chain did not converge is done too; it says NOT CONVERGED)",
-    1: "batch: some run failed; reproduce: the rerun differs; any command: an unexpected failure "
-    "(one error line; IDENTIFY_DEBUG=1 shows the traceback)",
-    2: "bad input or usage: an invalid option (named), an unreadable or invalid record (file, line, column), "
-    "a damaged results file, a folder in use by another process, a folder holding a run with other settings",
+    0: "done (a study: its chain converged; a fit: its solver converged; a batch: every run did)",
+    1: "done with a finding to look at: study's chain NOT CONVERGED (raise --max-steps), fit's solver did not "
+    "converge, batch: a run failed or did not converge, reproduce: the rerun differs; also an unexpected "
+    "failure (one error line; IDENTIFY_DEBUG=1 shows the traceback)",
+    2: "bad input or usage: an invalid option (named), an unreadable or invalid record (file, line, column) or "
+    "priors file (file, parameter), a damaged results file, a folder in use by another process, a folder "
+    "holding a run with other settings",
     130: "interrupted by Ctrl-C or SIGTERM: completed work is kept; rerun the same command to resume",
 }
 
@@ -72,7 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )  # fmt: skip
         p.set_defaults(_module=module)
-        mod.add_arguments(p)
+        add_command_arguments(p, mod)
     return parser
 
 
@@ -81,9 +84,10 @@ def input_errors() -> tuple:
     from ..data.locks import FolderBusyError
     from .options import OptionError
     from ..data.records import RecordError
+    from ..fitting.priors import PriorsError
     from ..output.results import DamagedResultsError, RunMismatchError
 
-    return (FolderBusyError, OptionError, RecordError, DamagedResultsError, RunMismatchError)
+    return (FolderBusyError, OptionError, PriorsError, RecordError, DamagedResultsError, RunMismatchError)
 
 
 def _die_with_parent() -> None:
@@ -133,6 +137,9 @@ def _main(argv) -> int:
         if not getattr(args, "command", None):
             parser.print_help()
             return 2
+        from ..logs import configure
+
+        configure(getattr(args, "verbose", 0), getattr(args, "quiet", 0))
         module = importlib.import_module(args._module)
         return int(module.run(args) or 0)
     except SystemExit:  # --help, --version and usage errors: before the clauses below import anything

@@ -28,7 +28,8 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    """Run the batch; exit code 0 when every job succeeded, 1 when some failed, 2 for a bad config
+    """Run the batch; exit code 0 when every job succeeded, 1 when some failed or did not converge
+    (solver or chain), 2 for a bad config
     (or a batch folder in use), 130 when stopped by Ctrl-C or SIGTERM (rerun it to resume)."""
     from dataclasses import replace
 
@@ -57,18 +58,22 @@ def run(args) -> int:
         f"batch: {len(jobs)} run(s) ({len(config.records)} record(s) x {len(config.variants)} variant(s)) of "
         f"'{config.task}' -> {config.out}, executor {config.executor}, {config.workers} worker(s)"
     )
-    result = run_batch(config, progress=not args.no_progress, rerun=args.rerun)
+    # -q (identify.logs) hides the bar too; --no-progress is kept as the bar-only switch
+    result = run_batch(config, progress=not (args.no_progress or args.quiet), rerun=args.rerun)
     n_skipped = sum(r.status == "skipped" for r in result.results)
     interrupted = f", {result.n_interrupted} interrupted" if result.n_interrupted else ""
     print(
-        f"batch: {result.n_ok} ok ({n_skipped} finished earlier, skipped), {result.n_failed} failed{interrupted}, "
+        f"batch: {result.n_ok} ok ({n_skipped} finished earlier, skipped; {result.n_not_converged} of them NOT "
+        f"converged), {result.n_failed} failed{interrupted}, "
         f"{result.seconds:.1f} s. Summary: {config.out / 'summary.md'}, {config.out / 'index.html'}"
     )
     for r in result.results:
         if r.status == "failed":
             print(f"  FAILED {r.key}: {r.error}", file=sys.stderr)
+        elif r.not_converged:
+            print(f"  NOT CONVERGED {r.key}: {r.verdict}", file=sys.stderr)
     if result.n_interrupted:
         print(f"interrupted: {result.n_interrupted} run(s) stopped or cancelled, their completed work kept; "
               f"rerun 'python -m identify batch {args.config}' to resume them", file=sys.stderr)  # fmt: skip
         return 130
-    return 1 if result.n_failed else 0
+    return 1 if result.n_failed or result.n_not_converged else 0

@@ -23,7 +23,7 @@ __all__ = [
 #: Files above this size [bytes] get progress lines while loading.
 BIG_FILE = 20 * 2**20
 #: Options that are not settings of the computation (not compared, not all recorded).
-NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet")
+NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet", "verbose")
 
 
 def add_record_arguments(parser: argparse.ArgumentParser) -> None:
@@ -143,4 +143,8 @@ def settings_from_args(args) -> dict:
             continue
         settings[key] = value
     settings["data"] = str(args.data)
+    if getattr(args, "priors", None):  # the file's content counts, not only its name
+        from ..workflows.study import priors_settings
+
+        settings.update(priors_settings(args.priors))
     return settings

@@ -27,6 +27,7 @@ import argparse
 import sys
 
 from . import options
+from ..logs import say
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -43,7 +44,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--draws", type=options.integer(2, None, "an integer >= 2"), default=200, help="posterior draws inverted and driven (default 200)")
     parser.add_argument("--seed", type=options.seed, default=0, help="seed choosing the draws (default 0)")
-    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
 
 
 def run(args) -> int:
@@ -57,9 +57,8 @@ def run(args) -> int:
 
     started = time.perf_counter()
 
-    def progress(message):
-        if not args.quiet:
-            print(f"[{time.perf_counter() - started:6.1f} s] {message}", file=sys.stderr)
+    def progress(message):  # INFO: hidden by -q (the old --quiet)
+        say(f"[{time.perf_counter() - started:6.1f} s] {message}")
 
     try:
         limits = parse_span(args.current_range, "--current-range") if args.current_range else None

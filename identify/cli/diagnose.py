@@ -23,6 +23,7 @@ import argparse
 import sys
 
 from . import options
+from ..logs import say
 
 __all__ = ["HELP", "add_arguments", "parse_window", "run", "write_outputs"]
 
@@ -42,7 +43,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out", default=None, type=options.folder_path, metavar="DIR",
         help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png (DIR is locked while they are written)",
     )  # fmt: skip
-    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     parser.add_argument(
         "--drop-window", default=None, metavar="START:STOP",
         help="leave the samples with START <= time < STOP [s] out (e.g. a switch-on ringing no rate-independent "
@@ -140,9 +140,8 @@ def _run(args) -> int:
         return 2
     started = time.perf_counter()
 
-    def progress(message):
-        if not args.quiet:
-            print(f"[{time.perf_counter() - started:6.1f} s] {message}", file=sys.stderr)
+    def progress(message):  # INFO: hidden by -q (the old --quiet)
+        say(f"[{time.perf_counter() - started:6.1f} s] {message}")
 
     progress(f"diagnosing {model!r} on {record.source} ({len(record.time)} samples)")
     try:

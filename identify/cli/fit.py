@@ -36,7 +36,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "thread counts), as study writes them; reproducible with 'python -m identify reproduce DIR'",
     )
     parser.add_argument("--force", action="store_true", help="with --out: replace a different run already in DIR")
-    parser.add_argument("--verbose", action="store_true", help="one line per least-squares start")
 
 
 def _fit_settings(args) -> dict:
@@ -46,8 +45,23 @@ def _fit_settings(args) -> dict:
     return settings
 
 
+def _fit_exit_code(fit) -> int:
+    """0 when the solver converged; 1 (:data:`identify.defaults.EXIT_FINDING`, a warning line
+    says so) when it stopped without converging: the parameters are then not a minimum."""
+    import logging
+
+    from ..defaults import EXIT_FINDING
+
+    if fit.success:
+        return 0
+    say(f"exit code {EXIT_FINDING}: the least-squares solver did NOT converge ({fit.message}); "
+        "try more --n-starts or another --seed", logging.WARNING)  # fmt: skip
+    return EXIT_FINDING
+
+
 def run(args) -> int:
-    """Fit; exit code 0 done, 2 bad input (one ``error:`` line), 130 interrupted."""
+    """Fit; exit code 0 done (solver converged), 1 the solver did not converge, 2 bad input
+    (one ``error:`` line), 130 interrupted."""
     import time as _time
     from pathlib import Path
 
@@ -74,7 +88,8 @@ def run(args) -> int:
             if out is not None:
                 manifest = build_manifest(seed=args.seed, record=record, settings=_fit_settings(args), started=started, task="fit")
                 if not args.force:
-                    old = check_resumable(out, manifest)
+                    # 'verbose' was a setting of fit before -v/-q (identify.logs): not compared
+                    old = check_resumable(out, manifest, ignore=("verbose",))
                     if old is not None and last_status(old) == "done" and (out / FILES["fit"]).exists():
                         fit = load_fit(out)
                         print(format_fit_table(fit, record))
@@ -83,7 +98,7 @@ def run(args) -> int:
                         if args.json:
                             Path(args.json).parent.mkdir(parents=True, exist_ok=True)
                             write_json(args.json, fit.to_dict())
-                        return 0
+                        return _fit_exit_code(fit)
             rng = np.random.default_rng(args.seed)
             say(f"fitting {model!r} to {record.source} ({len(record.time)} samples) ...")
             verbose = args.verbose or len(record) >= LONG_RECORD_SAMPLES
@@ -108,7 +123,7 @@ def run(args) -> int:
             )  # fmt: skip
             write_json(out / FILES["manifest"], manifest)
             say(f"wrote {out / FILES['fit']} and {out / FILES['manifest']}")
-        return 0
+        return _fit_exit_code(fit)
     finally:
         if lock is not None:
             lock.release()

@@ -24,6 +24,7 @@ import argparse
 import sys
 
 from . import options
+from ..logs import say
 
 __all__ = ["HELP", "add_arguments", "run", "parse_span"]
 
@@ -46,7 +47,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("record columns and units (default: the study's)")
     for option in ("time-column", "input-column", "output-column", "input-unit", "output-unit"):
         group.add_argument(f"--{option}", default=None)
-    parser.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
 
 
 def parse_span(text: str, option: str) -> tuple[float, float]:
@@ -71,9 +71,8 @@ def run(args) -> int:
 
     started = time.perf_counter()
 
-    def progress(message):
-        if not args.quiet:
-            print(f"[{time.perf_counter() - started:6.1f} s] {message}", file=sys.stderr)
+    def progress(message):  # INFO: hidden by -q (the old --quiet)
+        say(f"[{time.perf_counter() - started:6.1f} s] {message}")
 
     try:
         window = parse_span(args.window, "--window") if args.window else None

@@ -9,10 +9,11 @@ loaded, then the study runs.
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
 
-from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
+from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, EXIT_FINDING
 from . import options
 from .common import add_model_arguments, add_record_arguments, model_from_args, record_from_args, settings_from_args
 
@@ -40,16 +41,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--check-every", type=options.positive_int, default=DEFAULT_CHECK_EVERY,
         help=f"convergence check interval in steps, >= 1 (default {DEFAULT_CHECK_EVERY})"
     )
+    parser.add_argument(
+        "--priors", default=None, type=options.existing_file, metavar="FILE.toml",
+        help="priors of some parameters (distribution and bounds, TOML; docs/method.md 'Priors file'); "
+        "the others keep the defaults",
+    )  # fmt: skip
     parser.add_argument("--moves", default="de", choices=("de", "stretch"), help="emcee moves (default de: differential evolution)")
     parser.add_argument("--force", action="store_true", help="discard a different (or damaged) run already in DIR")
     parser.add_argument("--no-report", action="store_true", help="skip the report (report.html); write it later with 'report DIR'")
     parser.add_argument(
-        "--progress", choices=("auto", "on", "off"), default="auto", help="progress bar (default: when stderr is a terminal)"
-    )
+        "--progress", choices=("auto", "on", "off"), default="auto",
+        help="the chain's progress: auto (default) = a bar with the projected steps (50 tau) in a terminal, "
+        "else a log line every 10 s (IDENTIFY_PROGRESS_SECONDS); on = the bar; off = neither (-q implies off)",
+    )  # fmt: skip
 
 
 def run(args) -> int:
-    """The study; exit code 0 done (converged or not), 2 bad input, 130 interrupted."""
+    """The study; exit code 0 done and converged, 1 done but the chain did NOT CONVERGE, 2 bad input,
+    130 interrupted (:data:`identify.cli.app.EXIT_CODES`)."""
     from ..fitting.noise import NoQuietSegmentError
     from ..workflows.fit import FitFailedError
     from .app import input_errors
@@ -62,10 +71,11 @@ def run(args) -> int:
 
 
 def run_study(args) -> int:
-    """The study of the parsed options; returns the exit code (0 = done, converged or not)."""
+    """The study of the parsed options; returns the exit code (0 converged, 1 NOT CONVERGED,
+    :attr:`identify.workflows.study.StudyResult.exit_code`)."""
     from ..data.locks import FolderLock
     from ..workflows.fit import print_record_notes, say
-    from ..workflows.study import check_walkers, study
+    from ..workflows.study import check_priors, check_walkers, study
 
     out = Path(args.out)
     lock = FolderLock(out, command=f"python -m identify study {args.data} --out {args.out}")
@@ -78,14 +88,20 @@ def run_study(args) -> int:
             check_walkers(args.walkers, model, args.noise_sigma, flag="--walkers")
         except ValueError as exc:
             raise options.OptionError(str(exc)) from None
+        check_priors(args.priors, model)  # before the record is read and anything written (exit code 2)
         record = record_from_args(args)
         print_record_notes(record)
-        study(
+        progress = {"auto": None, "on": True, "off": False}[args.progress]
+        if progress is None and getattr(args, "quiet", 0):
+            progress = False  # -q: no bar and no progress lines
+        result = study(
             record, model, out=out, seed=args.seed, noise_sigma=args.noise_sigma, n_starts=args.n_starts,
             walkers=args.walkers, max_steps=args.max_steps, check_every=args.check_every, moves=args.moves,
-            force=args.force, report=not args.no_report, progress={"auto": None, "on": True, "off": False}[args.progress],
+            priors=args.priors, force=args.force, report=not args.no_report, progress=progress,
             settings=settings_from_args(args), lock=False,
         )  # fmt: skip
-        return 0
+        if not result.converged:  # a warning: -q keeps it
+            say(f"exit code {EXIT_FINDING}: the chain did NOT CONVERGE (raise --max-steps to extend it)", logging.WARNING)
+        return result.exit_code
     finally:
         lock.release()

@@ -34,11 +34,12 @@ from typing import Mapping
 import numpy as np
 
 from .fileio import atomic_write_bytes
+from .matfile import MAT_SUFFIX, MatFileError, read_mat_variables
 from .reversals import find_reversals
 
 __all__ = [
     "Record", "RecordError", "load_record", "write_record", "sidecar_path", "keep_every", "thinning_indices",
-    "suggest_every", "DEFAULT_COLUMNS", "MAX_ABS_VALUE", "MAX_ABS_TIME",
+    "suggest_every", "load_mat_record", "DEFAULT_COLUMNS", "MAX_ABS_VALUE", "MAX_ABS_TIME",
 ]  # fmt: skip
 
 #: The default header: time [s], drive [A], output [um].
@@ -145,6 +146,12 @@ def _suggest(wanted: str, present: list[str]) -> str:
     return f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
 
 
+def _decimal_comma_float(text: str) -> float:
+    """``"-0,25"`` -> -0.25 (a decimal comma; ``"0.25"`` reads too). ValueError for anything else,
+    e.g. ``"1.234,5"`` (a thousands separator is not read)."""
+    return float(text.replace(",", "."))
+
+
 def _looks_numeric(text: str) -> bool:
     try:
         float(text)
@@ -222,7 +229,11 @@ def load_record(
     ----------
     path : str or path-like
         The CSV file. A JSON file with the same stem beside it is read into
-        :attr:`Record.sidecar`.
+        :attr:`Record.sidecar`. Columns are separated by ``,``, ``;`` or a tab (the first
+        of them in the header); with ``;`` or a tab, a comma in a number is a decimal
+        comma (``0,25``, as European MATLAB/Excel exports write; a note says so). A file
+        ending in ``.mat`` is a MATLAB file, read by :func:`load_mat_record`
+        (column names are then variable names).
     time_column : str or None, default "time"
         Header name of the time column [s]. ``None``: the file has no time column (any
         column named like one is ignored); the time axis becomes the sample index
@@ -253,6 +264,9 @@ def load_record(
     from array import array
 
     path = Path(path)
+    if path.suffix.lower() == MAT_SUFFIX:  # a MATLAB file: the same checks, by variable (identify.data.matfile)
+        return load_mat_record(path, time_column=time_column, input_column=input_column, output_column=output_column,
+                               input_unit=input_unit, output_unit=output_unit, min_samples=min_samples)  # fmt: skip
     wanted = [c for c in (time_column, input_column, output_column) if c is not None]
     if len(set(wanted)) != len(wanted):
         raise ValueError(f"time/input/output column names must differ, got {wanted}")
@@ -282,6 +296,8 @@ def load_record(
         delimiter = next((d for d in _DELIMITERS if d in header_text), ",")
         if delimiter != ",":
             notes.append(f"columns are separated by {delimiter!r} rather than commas")
+        # with ';' or tab between columns a comma is a decimal comma (European MATLAB/Excel exports)
+        parse_number = float if delimiter == "," else _decimal_comma_float
         header = [h.strip() for h in header_text.split(delimiter)]
         if all(_looks_numeric(h) for h in header if h):
             raise _fail(
@@ -335,13 +351,14 @@ def load_record(
         report_every = max(1, size // 10) if (progress is not None and size > _PROGRESS_BYTES) else 0
         next_report = report_every
         read_bytes = 0
+        decimal_comma = False
         for number, line in enumerate(fh, start=header_line + 1):
             cells = line.split(delimiter)
             try:
                 if len(cells) != n_columns:
                     raise ValueError
                 for j, append in appends:
-                    append(float(cells[j]))
+                    append(parse_number(cells[j]))
             except ValueError:
                 stripped = line.strip()
                 if not stripped or stripped.startswith("#"):
@@ -358,9 +375,11 @@ def load_record(
                     cell = cells[j].strip()
                     if not cell:
                         raise _fail(path, number, f"column {name!r} is empty") from None
-                    if not _looks_numeric(cell):
+                    if not _looks_numeric(cell.replace(",", ".") if delimiter != "," else cell):
                         raise _fail(path, number, f"column {name!r}: {cell[:40]!r} is not a number") from None
                 raise  # pragma: no cover - every cell parsed after all
+            if not decimal_comma and parse_number is not float and "," in line:
+                decimal_comma = True
             if report_every:
                 read_bytes += len(line)
                 if read_bytes >= next_report:
@@ -369,6 +388,8 @@ def load_record(
         n_samples = len(columns[0][2])
     if n_skipped:
         notes.append(f"skipped {n_skipped} blank or comment ('#') line(s)")
+    if decimal_comma:
+        notes.append("decimal commas read as decimal points (e.g. 0,25 = 0.25)")
 
     def line_of(k: int) -> int:
         """File line (1-based) of data row ``k`` (0-based)."""
@@ -453,6 +474,130 @@ def load_record(
         sidecar=sidecar,
         time_name=time_column if time_column is not None else "time",
     )
+
+
+# -- MATLAB .mat records (the file format: identify.data.matfile) -----------------------------
+
+
+def _file_sha256(path: Path) -> str:
+    """SHA-256 of a (binary) file's bytes, in 1 MB chunks."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(_CHUNK), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _mat_vector(path, name, value, limit) -> np.ndarray:
+    """``value`` as a checked float vector, or a RecordError naming variable ``name``."""
+    if value is None:
+        raise _fail(path, None, f"variable {name!r} is not a numeric array")
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "biuf":
+        kind = "complex" if arr.dtype.kind == "c" else f"of type {arr.dtype}"
+        raise _fail(path, None, f"variable {name!r} is {kind}; expected a real numeric vector")
+    if arr.ndim > 2 or (arr.ndim == 2 and min(arr.shape) != 1):
+        raise _fail(path, None, f"variable {name!r} has shape {arr.shape}; expected a vector (1 x T or T x 1)")
+    arr = arr.astype(float).ravel()
+    bad = ~(np.abs(arr) <= limit)
+    if bad.any():
+        k = int(np.argmax(bad))
+        value = float(arr[k])
+        if not np.isfinite(value):
+            raise _fail(path, None, f"variable {name!r}, sample {k + 1}: {value!r} is not a finite number (NaN or infinity)")
+        raise _fail(path, None, f"variable {name!r}, sample {k + 1}: {value:.6g} is beyond any physical range "
+                    f"(|value| > {limit:.0e} in any unit); a corrupted value?")  # fmt: skip
+    return arr
+
+
+def load_mat_record(
+    path,
+    *,
+    time_column="time",
+    input_column="current",
+    output_column="displacement",
+    input_unit="A",
+    output_unit="um",
+    min_samples=200,
+) -> Record:
+    """Load a MATLAB ``.mat`` record, checking everything; raise RecordError on any problem.
+
+    The file is read by :func:`identify.data.matfile.read_mat_variables` (the format: top-level
+    variables or one struct's fields, v4-v7.3); the checks are the CSV loader's.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The ``.mat`` file (v4-v7 through scipy, v7.3 through h5py).
+    time_column : str or None, default "time"
+        Variable holding the sample times [s], shape (T,). None: no time variable; time
+        is the sample index 0, 1, 2, ... and a note says so.
+    input_column, output_column : str, default "current", "displacement"
+        Variables holding the drive and the output, shape (T,) each.
+    input_unit, output_unit : str, default "A", "um"
+        Their units, stored on the record.
+    min_samples : int, default 200
+        Fewest samples accepted.
+
+    Returns
+    -------
+    Record
+        ``sha256`` of the file's bytes; :attr:`Record.notes` says where the variables came from.
+
+    Raises
+    ------
+    RecordError
+        Missing file, not a MATLAB file, a missing variable (listing those present and
+        close matches), a variable that is not a real numeric vector, vectors of different
+        lengths, a NaN, infinite or absurd value (naming variable and sample), times that
+        do not strictly increase, or fewer than ``min_samples`` samples.
+    """
+    path = Path(path)
+    wanted = [c for c in (time_column, input_column, output_column) if c is not None]
+    if len(set(wanted)) != len(wanted):
+        raise ValueError(f"time/input/output variable names must differ, got {wanted}")
+    if not path.exists():
+        raise _fail(path, None, "no such file")
+    if path.is_dir():
+        raise _fail(path, None, "is a folder, not a record file")
+    digest = _file_sha256(path)
+    try:
+        variables, where = read_mat_variables(path, wanted)
+    except MatFileError as exc:
+        raise _fail(path, None, str(exc)) from None
+    missing = [name for name in wanted if name not in variables]
+    if missing:
+        present = sorted(variables)
+        hints = "; ".join(f"{m!r}{_suggest(m, present)}" for m in missing)
+        raise _fail(path, None, f"missing variable(s) {hints}. Variables present: {', '.join(map(repr, present)) or 'none'}. "
+                    "Pass the names (--time-column/--input-column/--output-column; 'none' for no time).")  # fmt: skip
+    arrays = {
+        name: _mat_vector(path, name, variables[name], MAX_ABS_TIME if name == time_column else MAX_ABS_VALUE) for name in wanted
+    }
+    lengths = {name: arr.size for name, arr in arrays.items()}
+    if len(set(lengths.values())) != 1:
+        raise _fail(path, None, "the variables have different lengths: " + ", ".join(f"{k} {v}" for k, v in lengths.items()))
+    n = next(iter(lengths.values()))
+    if n < min_samples:
+        raise _fail(path, None, f"only {n} samples, fewer than the {min_samples} required (a record needs a quiet start and several cycles)")
+    notes = [f"read {', '.join(wanted)} from the MATLAB file's {where}"]
+    if time_column is None:
+        time = np.arange(n, dtype=float)
+        notes.append("the file has no time variable: time is the sample index 0, 1, 2, ... (time constants in samples)")
+    else:
+        time = arrays[time_column]
+        steps = np.diff(time)
+        bad = np.flatnonzero(steps <= 0)
+        if bad.size:
+            k = int(bad[0])
+            kind = "repeats" if steps[k] == 0 else "is smaller than"
+            raise _fail(path, None, f"variable {time_column!r}, sample {k + 2}: time {time[k + 1]!r} {kind} the previous "
+                        f"time {time[k]!r}; times must strictly increase")  # fmt: skip
+    return Record(
+        time=time, current=arrays[input_column], displacement=arrays[output_column], source=str(path), sha256=digest,
+        input_name=input_column, input_unit=input_unit, output_name=output_column, output_unit=output_unit,
+        notes=tuple(notes), time_name=time_column if time_column is not None else "time",
+    )  # fmt: skip
 
 
 def _csv_bytes(columns, arrays) -> bytes:

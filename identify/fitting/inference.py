@@ -55,11 +55,10 @@ def sampled_units(log_post, record) -> list[str]:
 
 def write_chain_attributes(path, names, units) -> None:
     """Parameter names and units as attributes of ``chain.h5``'s emcee group."""
-    import h5py
-
+    from ..data.hdf5 import open_hdf5
     from .posterior import BACKEND_GROUP
 
-    with h5py.File(os.fspath(path), "a") as f:
+    with open_hdf5(os.fspath(path), "a") as f:  # waits for a reader's lock instead of failing
         g = f[BACKEND_GROUP]
         # fixed-length UTF-8 bytes (decode when reading): plain arrays, compared bit for bit by reproduce
         g.attrs["parameter_names"] = np.array([str(n).encode() for n in names], dtype=bytes)
@@ -84,13 +83,11 @@ def pointwise_log_likelihood(residual, noise, sigma=None) -> np.ndarray:
 
 def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Path:
     """Write ``DIR/posterior.nc`` (module docstring) and return its path."""
-    import emcee
-
-    from .posterior import BACKEND_GROUP, import_arviz
+    from .posterior import BACKEND_GROUP, ChainBackend, import_arviz
 
     az = import_arviz()
     out_dir = Path(out_dir)
-    backend = emcee.backends.HDFBackend(str(out_dir / "chain.h5"), name=BACKEND_GROUP, read_only=True)
+    backend = ChainBackend(str(out_dir / "chain.h5"), name=BACKEND_GROUP, read_only=True)
     chain = backend.get_chain()[posterior.discard :: posterior.thin]  # (draw, walker, D)
     lp = backend.get_log_prob()[posterior.discard :: posterior.thin]
     draws = np.moveaxis(chain, 1, 0)  # (walker, draw, D)

@@ -79,8 +79,8 @@ columns are zero, their standard errors NaN). With a free sigma, sigma is estima
 
 from __future__ import annotations
 
+import logging
 import math
-import sys
 import time as _time
 from dataclasses import dataclass, field
 
@@ -92,6 +92,8 @@ from model import GPI_PARAMETERS, THETA_NAMES, Model, ParameterSet
 from .noise import NoiseModel, energised_mask, estimate_noise, whiten
 from .parametrisation import gpi_scaling, with_threshold_sign
 from .threads import fastest_thread_count, single_threaded_blas
+
+_log = logging.getLogger(__name__)  # a child of the "identify" logger (identify.logs)
 
 __all__ = [
     "FitResult",
@@ -789,7 +791,7 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
     rng : numpy.random.Generator, optional
         For the perturbed starts; default ``numpy.random.default_rng(0)``.
     verbose : bool, default False
-        Print one line per start to stderr.
+        One line per start logged at INFO (``identify.fitting.lsq``); at DEBUG when False (shown by ``-v``).
     n_polish : int, default :data:`N_POLISH`
         How many of the best screened starts are run to convergence.
 
@@ -825,8 +827,7 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
                 sol = _solve(residuals, x0, SCREEN_EVALUATIONS)
                 screened.append((label, sol, residuals.n_evaluations - before))
                 origins.append(x0)
-                if verbose:
-                    print(f"  screen {label:<14} chi2 = {2 * sol.cost:.6g}", file=sys.stderr)
+                _log.log(logging.INFO if verbose else logging.DEBUG, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g}")
             # Phase 2: run the most promising starts to convergence.
             order = sorted(range(len(screened)), key=lambda k: screened[k][1].cost)
             polish = set(order[:n_polish])
@@ -836,8 +837,7 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
             def keep(label, end, n_eval):
                 nonlocal best
                 outcomes.append(StartOutcome(label, end.chi2, n_eval, end.success, end.message))
-                if verbose:
-                    print(f"  polish {label:<14} chi2 = {end.chi2:.6g}  ({end.message})", file=sys.stderr)
+                _log.log(logging.INFO if verbose else logging.DEBUG, f"  polish {label:<14} chi2 = {end.chi2:.6g}  ({end.message})")
                 if best is None or end.chi2 < best.chi2:
                     best = end
 

@@ -71,7 +71,6 @@ import contextlib
 import math
 import os
 import signal
-import sys
 import threading
 import time as _time
 from dataclasses import dataclass, field
@@ -82,6 +81,7 @@ import scipy.fft
 
 from model import Model
 
+from ..data.hdf5 import LOCK_WAIT_SECONDS, open_hdf5
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
 from .threads import fastest_thread_count
@@ -102,6 +102,7 @@ __all__ = [
     "sample_posterior",
     "posterior_from_backend",
     "BACKEND_GROUP",
+    "ChainBackend",
     "BufferedHDFBackend",
     "BENCH_COVERAGE",
     "DEFAULT_MAX_STEPS",
@@ -123,7 +124,30 @@ CHAIN_CHUNK_STEPS = 256
 CHAIN_GZIP_LEVEL = 4
 
 
-class BufferedHDFBackend(emcee.backends.HDFBackend):
+class ChainBackend(emcee.backends.HDFBackend):
+    """emcee's HDF5 backend opening the file through :func:`identify.data.hdf5.open_hdf5`:
+    reading takes no HDF5 file lock (a reader never blocks the study writing the chain),
+    and a write waits, with a short back-off, for a lock another process holds (a person
+    reading ``chain.h5`` while the study runs) instead of failing. Same file format;
+    ``ChainBackend(path, name, read_only=True)`` is the package's reader of a chain."""
+
+    #: Longest wait [s] for another process's lock on the file before a write fails
+    #: (:data:`identify.data.hdf5.LOCK_WAIT_SECONDS`).
+    lock_wait = LOCK_WAIT_SECONDS
+
+    def open(self, mode="r"):
+        if self.read_only and mode != "r":
+            raise RuntimeError("The backend has been loaded in read-only mode. Set `read_only = False` to make changes.")
+        f = open_hdf5(self.filename, mode, wait=self.lock_wait)
+        if not self.dtype_set and self.name in f:
+            g = f[self.name]
+            if "chain" in g:
+                self.dtype = g["chain"].dtype
+                self.dtype_set = True
+        return f
+
+
+class BufferedHDFBackend(ChainBackend):
     """emcee's HDF5 backend, writing steps in batches instead of opening the file per step.
 
     The stock :class:`emcee.backends.HDFBackend` opens, writes and closes the file for
@@ -181,11 +205,14 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
             self.flush()
 
     def flush(self) -> None:
-        """Write the buffered steps (one file open); a no-op when nothing is pending."""
+        """Write the buffered steps (one file open); a no-op when nothing is pending.
+
+        The open waits for a lock held by another process's reader (:class:`ChainBackend`);
+        the steps leave the buffer only once written."""
         self._last_flush = _time.monotonic()
         if not self._pending:
             return
-        pending, self._pending = self._pending, []
+        pending = self._pending
         n = len(pending)
         with self.open("a") as f:
             g = f[self.name]
@@ -199,6 +226,7 @@ class BufferedHDFBackend(emcee.backends.HDFBackend):
             for i, value in enumerate(pending[-1][3]):
                 g.attrs[f"random_state_{i}"] = value
             g.attrs["iteration"] = start + n
+        self._pending = []
 
     def grow(self, ngrow, blobs):
         self.flush()
@@ -221,13 +249,11 @@ def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
     ChainFileError
         The file cannot be opened or read, or lacks what emcee's backend writes.
     """
-    import h5py
-
     path = os.fspath(path)
     if not os.path.exists(path):
         return None
     try:
-        with h5py.File(path, "r") as f:
+        with open_hdf5(path, "r") as f:
             if BACKEND_GROUP not in f:
                 raise ChainFileError(f"{path} is damaged (no group {BACKEND_GROUP!r}: not a chain written by study)")
             g = f[BACKEND_GROUP]
@@ -343,7 +369,9 @@ class LogPosterior:
         A free sigma (``source="free"``) adds the coordinate ``noise_log_sigma``.
     priors : dict, optional
         ``{name: prior name or callable f(x, lower, upper)}``; missing names use
-        :func:`default_priors`.
+        :func:`default_priors`. The support is the model's bounds; a priors file
+        (:mod:`identify.fitting.priors`) gives :class:`identify.fitting.priors.Prior` objects and a model
+        with its bounds.
 
     Attributes
     ----------
@@ -368,6 +396,8 @@ class LogPosterior:
         upper = list(model.parameters.upper[self.free])
         kinds = default_priors(model)
         kinds.update(priors or {})
+        #: the priors given (``{name: name or callable}``, e.g. :class:`identify.fitting.priors.Prior`); the rest are defaults
+        self.priors_used = dict(priors or {})
         unknown = set(priors or {}) - set(model.names) - {"noise_log_sigma"}
         if unknown:
             raise ValueError(f"priors given for unknown parameters {sorted(unknown)}")
@@ -820,7 +850,7 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
     chain; ``tau_cache`` (chain length -> tau) reuses autocorrelation times already
     computed.
     """
-    backend = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP, read_only=True)
+    backend = ChainBackend(str(path), name=BACKEND_GROUP, read_only=True)
     chain = backend.get_chain()
     log_prob_chain = backend.get_log_prob()
     n_steps, n_walkers, ndim = chain.shape
@@ -894,7 +924,11 @@ def sample_posterior(
         log-posterior and the priors stay in the parameters whatever the choice; only
         the mixing changes.
     progress : bool, optional
-        tqdm bar on stderr; default: when stderr is a terminal.
+        True: a tqdm bar on stderr whose total is the projected chain length
+        ``tau_factor x tau_max``, re-estimated at each check (:mod:`identify.fitting.progress`);
+        False: none; None (default): the bar when stderr is a terminal, else a log line
+        (``identify.posterior`` logger, INFO) every 10 s with the step, steps/s, tau_max and
+        the projected length.
     log : callable, optional
         ``log(str)`` for one line per check.
 
@@ -942,13 +976,9 @@ def sample_posterior(
             raise ValueError(f"initial walkers must have shape ({n_walkers}, {ndim}), got {coords.shape}")
         state = emcee.State(coords, random_state=np.random.RandomState(emcee_seed).get_state())
 
-    if progress is None:
-        progress = sys.stderr.isatty()
-    bar = None
-    if progress:
-        from tqdm import tqdm
+    from .progress import ChainProgress, progress_mode
 
-        bar = tqdm(total=max_steps, initial=backend.iteration, desc="emcee", unit="step", file=sys.stderr)
+    bar = ChainProgress(done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress))
     import numba
 
     threads_before = numba.get_num_threads()
@@ -968,8 +998,12 @@ def sample_posterior(
                 raise RuntimeError(f"in-memory chain has {stored} steps, the backend {done}")
             chain = chain_buffer[:done]
             on_check = done > 0 and done % check_every == 0
-            if done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache):
+            due = done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache)
+            if on_check and tau_cache and not due:  # the anchor's tau: the projection of a skipped check
+                bar.estimate(np.max(tau_cache[max(tau_cache)]))
+            if due:
                 ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
+                bar.estimate(np.max(tau))
                 log(f"step {done}: {msg}")
                 diag_msg = ""
                 if ok:  # tau says converged: R-hat and bulk ESS must agree (computed only then)
@@ -993,8 +1027,7 @@ def sample_posterior(
                 positions = []
                 for state in chunk:
                     positions.append(np.array(state.coords))
-                    if bar is not None:
-                        bar.update(1)
+                    bar.update(1)
                     if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
                         backend.flush()
                         raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
@@ -1010,8 +1043,7 @@ def sample_posterior(
     finally:
         numba.set_num_threads(threads_before)
         backend.flush()  # also on Ctrl-C: no completed step is lost
-        if bar is not None:
-            bar.close()
+        bar.close()
     return posterior_from_backend(
         path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
         tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,

@@ -59,7 +59,7 @@ from .page import CSS, embedded_figure, html_table, number_cell, number_text, pn
 
 from . import results
 from ..fitting.noise import energised_mask
-from ..fitting.posterior import BENCH_COVERAGE
+from ..fitting.posterior import BENCH_COVERAGE, ChainBackend
 
 __all__ = [
     "write_report",
@@ -271,7 +271,7 @@ def read_chain(data: ReportData, max_rows: int = MAX_CHAIN_ROWS) -> ChainSample:
     path = data.directory / results.FILES["chain"]
     if not path.exists():
         raise ResultsError(f"{path}: missing (the posterior chain written by `study`)")
-    backend = emcee.backends.HDFBackend(str(path), name="mcmc", read_only=True)
+    backend = ChainBackend(str(path), name="mcmc", read_only=True)  # takes no file lock: a running study is not disturbed
     try:
         n_steps = int(backend.iteration)
     except (KeyError, OSError) as exc:
@@ -943,6 +943,7 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
             row_classes=classes,
         )
     )  # fmt: skip
+    parts.append(_priors_html(summary.get("priors"), summary["parameters"]))
     parts.append(
         '<p class="note" id="interval-calibration">How far to trust the intervals: on the virtual bench '
         f"({BENCH_COVERAGE['n_records']} seeded records, truth known; docs/method.md) the posterior 95 % "
@@ -970,6 +971,29 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
     parts.append(figures_html)
     parts.append(_identifiability_html(summary.get("identifiability")))
     return "\n".join(parts)
+
+
+def _priors_html(priors, parameters) -> str:
+    """The priors the posterior used (``summary.json`` ``priors``: defaults and a priors file's)."""
+    if not priors:  # a study from before the priors were recorded
+        return '<p class="note" id="priors">Priors: not recorded in summary.json (the defaults of docs/method.md).</p>'
+    units = {p["name"]: p.get("unit") or "" for p in parameters}
+    rows, classes = [], {}
+    for i, prior in enumerate(priors):
+        given = prior.get("source") != "default"
+        rows.append([
+            text_cell(prior["name"]), text_cell(plots.unit_label(units.get(prior["name"], ""))), text_cell(prior["distribution"]),
+            number_cell(prior.get("lower")), number_cell(prior.get("upper")), number_cell(prior.get("mu")), number_cell(prior.get("sigma")),
+            text_cell(prior.get("source", "")),
+        ])  # fmt: skip
+        if given:
+            classes[i] = "given-prior"
+    return html_table(
+        "priors", ["parameter", "unit", "distribution", "lower", "upper", "μ", "σ", "source"], rows,
+        caption="Priors of the sampled parameters: the defaults (uniform, or log-uniform for positive scale "
+        "parameters spanning two decades) and those of a priors file (study --priors), on the bounds shown",
+        row_classes=classes,
+    )  # fmt: skip
 
 
 def _identifiability_html(identifiability) -> str:

@@ -689,14 +689,12 @@ class StudyResults:
         names : tuple of str
             The sampled coordinates (free parameters, then ``noise_log_sigma`` if free).
         """
-        import emcee
-
-        from ..fitting.posterior import BACKEND_GROUP
+        from ..fitting.posterior import BACKEND_GROUP, ChainBackend
 
         post = self.summary.get("posterior")
         if post is None:
             raise ValueError(f"{self.path}: no posterior yet (the study has not finished sampling)")
-        backend = emcee.backends.HDFBackend(str(self.chain_path), name=BACKEND_GROUP, read_only=True)
+        backend = ChainBackend(str(self.chain_path), name=BACKEND_GROUP, read_only=True)
         samples = backend.get_chain(discard=int(post["discard"]), thin=int(post["thin"]), flat=True)
         names = [p["name"] for p in self.summary["parameters"] if p["vary"]]
         if self.summary["noise"].get("source") == "free":

@@ -306,6 +306,12 @@ class JobResult:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    @property
+    def not_converged(self) -> bool:
+        """A finished run (ok or skipped) whose solver or chain did not converge (its verdict
+        says ``not converged``): a finding, exit code 1 of the batch."""
+        return self.status in ("ok", "skipped") and "not converged" in self.verdict.lower()
+
     @classmethod
     def from_dict(cls, d: dict) -> "JobResult":
         known = {f for f in cls.__dataclass_fields__}
@@ -341,6 +347,11 @@ class BatchResult:
     @property
     def n_interrupted(self) -> int:
         return sum(r.status == "interrupted" for r in self.results)
+
+    @property
+    def n_not_converged(self) -> int:
+        """Finished runs whose solver or chain did not converge (:attr:`JobResult.not_converged`)."""
+        return sum(r.not_converged for r in self.results)
 
 
 # -- configuration ------------------------------------------------------------------------
@@ -404,6 +415,11 @@ def _check_options(table: dict, where: str, source: Path) -> dict:
             raise BatchConfigError(f"{source}: {where}.{key}: a list option may hold only plain values")
         if isinstance(value, float) and not math.isfinite(value):
             raise BatchConfigError(f"{source}: {where}.{key}: {value} is not a finite number")
+        if key.replace("-", "_") == "priors" and isinstance(value, str):  # a priors file, relative to this config
+            priors = (source.parent if source.suffix else Path.cwd()) / value
+            if not priors.is_file():
+                raise BatchConfigError(f"{source}: {where}.{key}: no such priors file {str(priors)!r}")
+            value = str(priors.resolve())
         options[key.replace("-", "_")] = value
     return options
 
@@ -568,11 +584,11 @@ class _RaisingParser(argparse.ArgumentParser):
 def _command_parser(task: str) -> argparse.ArgumentParser:
     import importlib
 
-    from ..commands import COMMANDS
+    from ..commands import COMMANDS, add_command_arguments
 
     module = importlib.import_module(COMMANDS[task])
     parser = _RaisingParser(prog=f"python -m identify {task}", add_help=False)
-    module.add_arguments(parser)
+    add_command_arguments(parser, module)
     return parser
 
 
@@ -842,6 +858,15 @@ def _error_from_log(log_text: str, returncode: int) -> str:
     return f"exit code {returncode}: {tail}"
 
 
+def _is_finding(log_text: str) -> bool:
+    """Whether a command's exit code 1 is a finding (its solver or chain did NOT converge,
+    :data:`identify.defaults.EXIT_FINDING`) rather than a failure (an ``error:`` line)."""
+    lines = [ln.strip() for ln in log_text.splitlines()]
+    return any("NOT CONVERGE" in ln.upper() and ln.startswith("exit code 1") for ln in lines) and not any(
+        ln.lower().startswith("error") for ln in lines
+    )
+
+
 def _job_environment(threads: int) -> dict:
     env = dict(os.environ)
     for name in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -972,7 +997,7 @@ def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
             **base, status="interrupted", seconds=seconds,
             error="interrupted (its completed work is kept); rerun the batch to resume it",
         )  # fmt: skip
-    elif returncode not in (0, None):
+    elif returncode not in (0, None) and not (returncode == 1 and _is_finding(log_text)):
         error = _error_from_log(log_text, returncode)
     result = None
     if not error:
@@ -1168,6 +1193,9 @@ def _status_counts(results) -> str:
     )  # fmt: skip
     parts = [f"{sum(r.status == key for r in results)} {label}" for key, label in labels]
     parts = [p for p in parts if not p.startswith("0 ")] or ["none"]
+    n_not_converged = sum(r.not_converged for r in results)
+    if n_not_converged:
+        parts.append(f"{n_not_converged} of the finished NOT converged")
     return f"{len(results)} runs: {', '.join(parts)}."
 
 

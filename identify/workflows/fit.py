@@ -7,8 +7,10 @@ model and noise these functions take.
 
 from __future__ import annotations
 
+import logging
 import math
-import sys
+
+from ..logs import say as _log_line
 
 __all__ = [
     "LONG_RECORD_SAMPLES",
@@ -24,9 +26,11 @@ __all__ = [
 LONG_RECORD_SAMPLES = 100_000
 
 
-def say(message: str) -> None:
-    """One progress or note line on stderr (flushed at once)."""
-    print(message, file=sys.stderr, flush=True)
+def say(message: str, level: int = logging.INFO) -> None:
+    """One progress or note line, logged (INFO by default) through the ``identify`` logger
+    (:mod:`identify.logs`: on stderr from the command line, hidden by ``-q``; a program
+    shows them by configuring :mod:`logging`, e.g. ``logging.basicConfig(level=logging.INFO)``)."""
+    _log_line(message, level)
 
 
 def parse_effects(text) -> list[str]:
@@ -84,9 +88,13 @@ def fit_or_explain(record, model, **options):
 
 
 def print_record_notes(record, file=None) -> None:
-    """Print what was assumed while loading ``record`` (its ``notes``), one ``note:`` line each."""
+    """What was assumed while loading ``record`` (its ``notes``), one ``note:`` line each: logged
+    (INFO, :func:`say`), or printed to ``file`` when one is given."""
     for note in getattr(record, "notes", ()):
-        print(f"note: {note}", file=sys.stderr if file is None else file)
+        if file is None:
+            say(f"note: {note}")
+        else:
+            print(f"note: {note}", file=file)
 
 
 def format_fit_table(fit, record=None) -> str:

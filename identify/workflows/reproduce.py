@@ -184,6 +184,10 @@ class ReproductionReport:
     threads : int or None
         The numba/BLAS thread count the rerun was given (from the batch that ran the
         original, ``DIR/batch_job.json``); None: the current environment's.
+    expected_returncode : int, default 0
+        The exit code the original run had (:func:`original_returncode`): 1 for a study
+        whose chain did not converge or a fit whose solver did not; the rerun must end the
+        same way.
     """
 
     original: str
@@ -197,6 +201,7 @@ class ReproductionReport:
     version_differences: dict = field(default_factory=dict)
     commit_difference: list | None = None
     threads: int | None = None
+    expected_returncode: int = 0
 
     @property
     def chain_identical(self) -> bool | None:
@@ -216,13 +221,15 @@ class ReproductionReport:
         Text metadata arrays (e.g. the data file's name in ``data.npz`` after ``--data``)
         are listed when they differ but do not count.
         """
-        return self.returncode == 0 and all(a.identical for a in self.arrays if a.numeric) and not self.numbers
+        return (self.returncode == self.expected_returncode and all(a.identical for a in self.arrays if a.numeric)
+                and not self.numbers)  # fmt: skip
 
     def describe(self) -> str:
         """Plain-words verdict: what matched, what differs and by how much, and likely causes."""
         lines = [f"reproduce {self.original} -> {self.rerun}", f"  data {self.data_file}: SHA-256 matches the manifest"]
-        if self.returncode != 0:
-            lines.append(f"  the rerun FAILED with exit code {self.returncode} (see {self.rerun}/reproduce.log)")
+        if self.returncode != self.expected_returncode:
+            lines.append(f"  the rerun FAILED with exit code {self.returncode}, the original's was {self.expected_returncode} "
+                         f"(see {self.rerun}/reproduce.log)")  # fmt: skip
         metadata = [a for a in self.arrays if not a.numeric and not a.identical]
         if self.identical:
             what = "chain.h5 bit-identical, " if self.chain_identical else ""
@@ -374,7 +381,7 @@ def locate_data(manifest: dict, directory, data=None) -> DataLocation:
 
 
 def _command_name(manifest: dict) -> str:
-    from ..commands import COMMANDS
+    from ..commands import COMMANDS, add_command_arguments
 
     name = manifest.get("settings", {}).get("command") or manifest.get("task")
     if isinstance(name, str) and name in COMMANDS:
@@ -396,7 +403,7 @@ def _command_name(manifest: dict) -> str:
         except ImportError:
             continue
         parser = argparse.ArgumentParser(add_help=False)
-        module.add_arguments(parser)
+        add_command_arguments(parser, module)
         if settings <= {a.dest for a in parser._actions}:
             matches.append(name)
     if len(matches) == 1:
@@ -424,12 +431,12 @@ def rerun_arguments(manifest: dict, data_file, out) -> list[str]:
     import argparse
     import importlib
 
-    from ..commands import COMMANDS
+    from ..commands import COMMANDS, add_command_arguments
 
     name = _command_name(manifest)
     module = importlib.import_module(COMMANDS[name])
     parser = argparse.ArgumentParser(prog=f"python -m identify {name}", add_help=False)
-    module.add_arguments(parser)
+    add_command_arguments(parser, module)
     settings = dict(manifest["settings"])
     if manifest.get("seed") is not None:
         settings["seed"] = manifest["seed"]
@@ -471,6 +478,24 @@ def rerun_arguments(manifest: dict, data_file, out) -> list[str]:
     return args
 
 
+def original_returncode(directory) -> int:
+    """The exit code the run in ``directory`` ended with, from its results: 1 (a finding) for a
+    study whose chain did NOT CONVERGE (``summary.json``) or a fit whose solver did not
+    converge (``fit.json`` without a posterior), else 0."""
+    from ..defaults import EXIT_FINDING
+
+    directory = Path(directory)
+    for name, verdict in (("summary.json", lambda d: (d.get("posterior") or {}).get("converged")),
+                          ("fit.json", lambda d: d.get("success"))):  # fmt: skip
+        try:
+            data = json.loads((directory / name).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if isinstance(data, dict):  # a study's summary.json decides alone (its fit.json is not the verdict)
+            return EXIT_FINDING if verdict(data) is False else 0
+    return 0
+
+
 # -- comparisons -----------------------------------------------------------------------------------
 
 
@@ -504,8 +529,10 @@ def compare_arrays(file: str, name: str, a, b) -> ArrayComparison:
 def _h5_datasets(path: Path) -> dict:
     import h5py
 
+    from ..data.hdf5 import open_hdf5
+
     out = {}
-    with h5py.File(path, "r") as f:
+    with open_hdf5(path, "r") as f:
 
         def visit(name, obj):
             if isinstance(obj, h5py.Dataset):
@@ -744,6 +771,7 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
             version_differences=versions,
             commit_difference=commit,
             threads=threads,
+            expected_returncode=original_returncode(directory),
         )
         from ..output.results import jsonable
 

@@ -17,7 +17,9 @@ state is read (:func:`identify.output.results.inspect_run`): a damaged ``manifes
 with other data, seed or settings is refused unless ``force`` (which deletes that run's
 files first). Only ``max_steps`` (to extend a chain that did not converge, never below the
 steps the chain holds), ``report`` and the path of the data file (the data are compared
-by SHA-256) may change between runs. A fresh run that fails before its first result
+by SHA-256) may change between runs. A priors file (``priors``, :mod:`identify.fitting.priors`)
+is checked before anything is written too; it changes the posterior only (its content is a
+setting, compared by SHA-256). A fresh run that fails before its first result
 leaves nothing behind; one that fails later is marked ``failed`` in the manifest and is
 replaced by the next run with other settings. See docs/reliability.md.
 
@@ -31,16 +33,17 @@ Example
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import shutil
 import time as _time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, DEFAULT_N_STARTS
+from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, DEFAULT_N_STARTS, EXIT_FINDING, EXIT_OK
 from .fit import LONG_RECORD_SAMPLES, fit_or_explain, format_fit_table, say
 
-__all__ = ["study", "StudyResult", "RESUMABLE_SETTINGS", "check_walkers", "sampled_dimension"]
+__all__ = ["study", "StudyResult", "RESUMABLE_SETTINGS", "check_walkers", "check_priors", "priors_settings", "sampled_dimension"]
 
 #: Settings that may differ when a run is resumed (``max_steps`` is checked against the
 #: stored chain instead, :func:`identify.output.results.check_resumable`).
@@ -72,6 +75,9 @@ class StudyResult:
         The weak directions at the fit; None when the study had finished before.
     paths : dict of str to pathlib.Path
         The files of the folder by role (:data:`identify.output.results.FILES`) that exist.
+
+    A chain that did not converge is a complete result with a finding, not an error:
+    :attr:`converged` is False and :attr:`exit_code` 1, the command line's exit code.
     """
 
     out: Path
@@ -82,6 +88,20 @@ class StudyResult:
     posterior: object = None
     identifiability: object = None
     paths: dict = field(default_factory=dict)
+
+    @property
+    def converged(self) -> bool:
+        """Whether the chain converged (for ``"finished before"``: the stored summary's verdict)."""
+        if self.posterior is not None:
+            return bool(self.posterior.converged)
+        return bool((self.summary.get("posterior") or {}).get("converged"))
+
+    @property
+    def exit_code(self) -> int:
+        """The command line's exit code for this result: 0 converged, 1
+        (:data:`identify.defaults.EXIT_FINDING`) the chain did NOT CONVERGE (a finding:
+        raise ``max_steps`` to extend it)."""
+        return EXIT_OK if self.converged else EXIT_FINDING
 
 
 def sampled_dimension(model, noise_sigma) -> int:
@@ -104,6 +124,31 @@ def check_walkers(walkers, model, noise_sigma, flag="walkers") -> None:
         )
 
 
+def check_priors(priors, model):
+    """Raise a :class:`identify.fitting.priors.PriorsError` unless the priors file ``priors``
+    (None: none) suits ``model`` (names, distributions, bounds around the defaults)."""
+    if priors is None:
+        return
+    from ..fitting.priors import apply_priors
+
+    apply_priors(model, priors)
+
+
+def priors_settings(priors) -> dict:
+    """The manifest's settings of a priors file: its path and the SHA-256 of its content (a
+    file edited between runs is another study)."""
+    if priors is None:
+        return {"priors": None}
+    import hashlib
+
+    settings = {"priors": str(priors)}
+    try:
+        settings["priors_sha256"] = hashlib.sha256(Path(priors).read_bytes()).hexdigest()
+    except OSError:
+        pass  # reported by the priors check with the file's name
+    return settings
+
+
 def _default_model(model):
     """The study's model: the paper's GPI by default; alpha pinned (the normalisation) unless it is."""
     from model import Model
@@ -116,9 +161,10 @@ def _default_model(model):
     return normalised_model(model) if alpha_free else model
 
 
-def _api_settings(record, model, *, seed, noise_sigma, n_starts, walkers, max_steps, check_every, moves, report):
+def _api_settings(record, model, *, seed, noise_sigma, n_starts, walkers, max_steps, check_every, moves, report, priors):
     """The manifest's settings for a call from Python, with the keys the command line records."""
     return {
+        **priors_settings(priors),
         "check_every": check_every,
         "effects": ",".join(model.effect_names),
         "every": 1,
@@ -152,6 +198,7 @@ def study(
     max_steps: int = DEFAULT_MAX_STEPS,
     check_every: int = DEFAULT_CHECK_EVERY,
     moves: str = "de",
+    priors=None,
     force: bool = False,
     report: bool = True,
     progress: bool | None = None,
@@ -181,14 +228,23 @@ def study(
         Least-squares starts; emcee walkers (None: 2 x dimension, even, >= 32); cap on
         the chain length; convergence check interval; ``"de"`` or ``"stretch"`` moves.
         The defaults are the command line's (:mod:`identify.defaults`).
+    priors : str or os.PathLike, optional
+        A TOML priors file (:mod:`identify.fitting.priors`, ``study --priors``): the
+        distribution and bounds of some parameters for the posterior; the others keep the
+        defaults. Checked before anything is written. The priors used are in the summary's
+        ``priors``.
     force : bool, default False
         Discard a different (or damaged) run already in ``out``.
     report : bool, default True
         Write ``report.html`` at the end.
     progress : bool or None
-        Progress bar; None: when stderr is a terminal.
+        The chain's progress (:mod:`identify.fitting.progress`): True a bar whose total is
+        the projected chain length (50 tau); False none; None (default) the bar when stderr
+        is a terminal, else a log line every 10 s (none when ``quiet``).
     quiet : bool, default False
-        No progress lines (stderr) and no tables (stdout).
+        No progress lines and no tables (stdout). The lines are logged through the
+        ``identify`` logger (:mod:`identify.logs`) at INFO: configure :mod:`logging` (e.g.
+        ``logging.basicConfig(level=logging.INFO)``) to see them.
     settings : dict, optional
         The manifest's settings (the command line passes its options); default: these
         arguments with the command line's keys.
@@ -198,6 +254,8 @@ def study(
     Returns
     -------
     StudyResult
+        Also when the chain did NOT CONVERGE (``status == "not converged"``,
+        :attr:`StudyResult.exit_code` 1): a result with a finding, not an error.
 
     Raises
     ------
@@ -207,8 +265,14 @@ def study(
         ``out`` holds another run or damaged files (and ``force`` is not set).
     identify.data.locks.FolderBusyError
         Another process holds ``out``.
+    identify.fitting.priors.PriorsError
+        A priors file that cannot be used (the message names the file and the parameter).
     ValueError
         Invalid ``walkers``, or no quiet segment to estimate the noise from.
+
+    Every exception is raised before anything is written, except an interruption or a
+    failure of the computation itself; the command line maps them to exit code 2 (bad
+    input) and 130 (interrupted).
     """
     from ..data.locks import FolderLock
     from ..data.records import Record, load_record
@@ -217,12 +281,16 @@ def study(
         record = load_record(record)
     model = _default_model(model)
     check_walkers(walkers, model, noise_sigma)
+    check_priors(priors, model)
     if settings is None:
         settings = _api_settings(record, model, seed=seed, noise_sigma=noise_sigma, n_starts=n_starts, walkers=walkers,
-                                 max_steps=max_steps, check_every=check_every, moves=moves, report=report)  # fmt: skip
+                                 max_steps=max_steps, check_every=check_every, moves=moves, report=report,
+                                 priors=priors)  # fmt: skip
+    if quiet and progress is None:
+        progress = False  # quiet: no bar and no progress lines
     run = _Run(Path(out), record, model, settings, seed=seed, noise_sigma=noise_sigma, n_starts=n_starts,
-               walkers=walkers, max_steps=max_steps, check_every=check_every, moves=moves, force=force,
-               report=report, progress=progress, quiet=quiet)  # fmt: skip
+               walkers=walkers, max_steps=max_steps, check_every=check_every, moves=moves, priors=priors,
+               force=force, report=report, progress=progress, quiet=quiet)  # fmt: skip
     if not lock:
         return run.execute()
     with FolderLock(run.out, command=f"identify.study({str(record.source)!r}, out={str(out)!r})") as held:
@@ -283,7 +351,7 @@ class _Run:
     def __init__(self, out, record, model, settings, *, quiet, **options):
         self.out, self.record, self.model, self.settings = out, record, model, settings
         self.options = options
-        self.log = (lambda message: None) if quiet else say
+        self.log = (lambda message, level=logging.INFO: None) if quiet else say
         self.show = (lambda text: None) if quiet else print
         self.phases: dict[str, float] = {}
         self._clock = _time.perf_counter()
@@ -452,10 +520,18 @@ class _Run:
 
         from ..fitting.inference import sampled_units, write_chain_attributes, write_inference_data
         from ..fitting.posterior import LogPosterior, default_n_walkers, initial_walkers, sample_posterior
+        from ..fitting.priors import prior_table
         from ..output.results import FILES, build_summary, write_summary
 
         out, record, opts = self.out, self.record, self.options
-        log_post = LogPosterior(record, fit.model, fit.noise)
+        post_model, priors = fit.model, None
+        if opts["priors"] is not None:
+            from ..fitting.priors import apply_priors
+
+            post_model, priors = apply_priors(fit.model, opts["priors"], start=fit.theta,
+                                              start_name="least-squares estimate")  # fmt: skip
+            self.log(f"priors: {', '.join(f'{n} {p.distribution}' for n, p in priors.items())} from {opts['priors']}")
+        log_post = LogPosterior(record, post_model, fit.noise, priors=priors)
         free = log_post.free
         mean = fit.theta[free]
         cov = fit.covariance[np.ix_(free, free)]
@@ -474,6 +550,7 @@ class _Run:
                 moves=opts["moves"], progress=opts["progress"], log=self.log,
             )  # fmt: skip
         summary = build_summary(record, fit, ident, posterior)
+        summary["priors"] = prior_table(log_post)
         write_summary(out, summary)
         write_chain_attributes(out / FILES["chain"], log_post.names, sampled_units(log_post, record))
         write_inference_data(out, record, log_post, posterior, seed=opts["seed"])
