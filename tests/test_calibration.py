@@ -5,6 +5,7 @@ tests/test_posterior.py; here the arithmetic is checked on hand-made records."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -88,3 +89,15 @@ def test_records_written_before_the_wall_was_removed_still_load():
     old["outside_domain_fraction"] = 0.01
     back = RecordCoverage.from_dict(old)
     assert back.bound_overlap is None and CoverageResult([back]).n_crossing == 0
+
+
+def test_the_likelihood_ratio_check_averages_the_records_that_have_it():
+    truth = [0.0, 0.0, 0.0]
+    old = record(0, truth, [-1] * 3, [1] * 3, truth, [1] * 3)  # written before delta_chi2 was kept
+    assert CoverageResult([old]).likelihood_ratio() is None
+    assert "chi-square of the truth" not in CoverageResult([old]).summary()
+    a, b = (dataclasses.replace(record(s, truth, [-1] * 3, [1] * 3, truth, [1] * 3), delta_chi2=d) for s, d in ((1, 2.0), (2, 4.0)))
+    mean, se, dof = CoverageResult([old, a, b]).likelihood_ratio()
+    assert (mean, dof) == (3.0, 3)
+    assert se == pytest.approx(np.std([2.0, 4.0], ddof=1) / np.sqrt(2))
+    assert "mean 3.0 +- 1.0 (chi-square with 3 degrees of freedom: 3)" in CoverageResult([a, b]).summary()

@@ -110,6 +110,12 @@ class RecordCoverage:
         Wall time for this record (fit and sampling) [s].
     posterior_sd : list of float
         Posterior standard deviations, shape (P,) (None in records written before it was kept).
+    delta_chi2 : float or None
+        Chi-square of the truth minus that of the least-squares optimum on the record
+        (whitened residuals, the fit's noise model). For a correct likelihood it follows
+        a chi-square distribution with P degrees of freedom (Wilks), whatever the
+        curvature of the posterior: the check of the likelihood itself, beside the
+        intervals' coverage. (None in records written before it was kept.)
     """
 
     seed: int
@@ -124,6 +130,7 @@ class RecordCoverage:
     seconds: float
     posterior_sd: list | None = None
     bound_overlap: float | None = None
+    delta_chi2: float | None = None
 
     @property
     def posterior_inside(self) -> np.ndarray:
@@ -209,6 +216,14 @@ class CoverageResult:
         """Records whose truth has crossing operator bounds on its input (known ones only)."""
         return sum(1 for r in self.records if r.bound_overlap is not None and r.bound_overlap > 0)
 
+    def likelihood_ratio(self) -> tuple[float, float, int] | None:
+        """Mean of :attr:`RecordCoverage.delta_chi2` over the records that have it, its
+        standard error, and the degrees of freedom it should equal (None if no record has it)."""
+        values = [r.delta_chi2 for r in self.records if r.delta_chi2 is not None]
+        if not values:
+            return None
+        return float(np.mean(values)), float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else math.nan, len(self.names)
+
     def misses(self, kind: str = "posterior") -> list[str]:
         """``"name@seed"`` for every interval that missed the truth."""
         attr = "posterior_inside" if kind == "posterior" else "least_squares_inside"
@@ -225,7 +240,14 @@ class CoverageResult:
             f"standard error across records): posterior {post:.3f} +- {post_se:.3f}, least squares {lsq:.3f} +- "
             f"{lsq_se:.3f}\n{self.n_converged}/{len(self.records)} chains converged ({min(steps)}-{max(steps)} steps, "
             f"tau {min(taus):.0f}-{max(taus):.0f}); {self.n_crossing} truths with crossing operator bounds"
-        )  # fmt: skip
+        ) + self._likelihood_ratio_line()  # fmt: skip
+
+    def _likelihood_ratio_line(self) -> str:
+        lr = self.likelihood_ratio()
+        if lr is None:
+            return ""
+        mean, se, dof = lr
+        return f"\nchi-square of the truth minus the optimum's: mean {mean:.1f} +- {se:.1f} (chi-square with {dof} degrees of freedom: {dof})"
 
 
 @dataclass(frozen=True)
@@ -271,6 +293,7 @@ def calibration_problem(seed: int, truth_raw, *, fs: float = 50.0, noise_sigma: 
 def _record_coverage(seed, truth_raw, truth_free, fs, noise_sigma, chain_path, max_steps, check_every, progress):
     from model import bound_overlap
 
+    from ..fitting.lsq import WhitenedResiduals
     from ..fitting.posterior import initial_walkers, sample_posterior
 
     start = _time.perf_counter()
@@ -288,6 +311,8 @@ def _record_coverage(seed, truth_raw, truth_free, fs, noise_sigma, chain_path, m
         progress=progress,
     )
     lo, hi = result.quantiles((0.025, 0.975))
+    residuals = WhitenedResiduals(problem.record, log_post.model, fit.noise)
+    chi2_truth, chi2_fit = (float(np.sum(residuals(x) ** 2)) for x in (truth_free, fit.theta[free]))
     return RecordCoverage(
         seed=int(seed),
         names=tuple(log_post.names),
@@ -301,6 +326,7 @@ def _record_coverage(seed, truth_raw, truth_free, fs, noise_sigma, chain_path, m
         seconds=_time.perf_counter() - start,
         posterior_sd=np.std(result.samples, axis=0).tolist(),
         bound_overlap=float(bound_overlap(truth_raw, problem.record.current)),
+        delta_chi2=chi2_truth - chi2_fit,
     )
 
 
