@@ -128,3 +128,42 @@ def test_without_the_jacobian_the_same_move_samples_the_wrong_distribution():
     z = (draws.mean(axis=0) - x) / sd
     ratio = draws.std(axis=0) / sd
     assert np.abs(z).max() > 0.3 or ratio.min() < 0.85 or ratio.max() > 1.15
+
+
+def _thermal_coords():
+    from model import Model
+
+    kw, x = GPICoordinates.get_test_parameters()
+    model = Model(["thermal"])
+    thermal = {"thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0,
+               "thermal_tau_core": 300.0, "thermal_sensitivity_core": 0.01, "thermal_expansion_core": -0.5}  # fmt: skip
+    names = list(kw["names"]) + list(thermal)
+    lower = np.concatenate([kw["lower"], [model.parameters[n].lower for n in thermal]])
+    coords = GPICoordinates(**{**kw, "names": names, "lower": lower}, duration=70.0)
+    return coords, np.concatenate([x, list(thermal.values())])
+
+
+def test_thermal_nodes_are_blocks_round_trip_and_jacobian():
+    coords, x = _thermal_coords()
+    assert coords.blocks[-2:] == ("thermal", "thermal_core")
+    rng = np.random.default_rng(6)
+    xs = _spread(x, rng, 100, rel=0.3)
+    xs[:, -6] = np.abs(xs[:, -6])
+    xs[:, -3] = np.exp(rng.uniform(0, np.log(5000), 100))  # node-2 time constants from 1 s to 5000 s
+    np.testing.assert_allclose(coords.inverse(coords.forward(xs)), xs, rtol=1e-12, atol=1e-12)
+    x0 = xs[0]
+    h = 1e-6 * np.maximum(np.abs(x0), 1e-3)
+    jac = np.empty((x0.size, x0.size))
+    for k in range(x0.size):
+        up, down = x0.copy(), x0.copy()
+        up[k] += h[k]
+        down[k] -= h[k]
+        jac[:, k] = (coords.forward(up)[0] - coords.forward(down)[0]) / (2 * h[k])
+    assert coords.log_det(x0[None, :])[0] == pytest.approx(np.linalg.slogdet(jac)[1], abs=1e-5)
+
+
+def test_no_thermal_blocks_without_the_record_duration():
+    _, x = _thermal_coords()
+    kw, _ = GPICoordinates.get_test_parameters()
+    coords, _ = _thermal_coords()
+    assert "thermal" not in GPICoordinates(**{**kw, "names": coords.names, "lower": np.zeros(len(coords.names)) + 1e-3}).blocks

@@ -21,7 +21,10 @@ parameters                sampler coordinates
                           ``a1`` and centre :math:`-a_2/a_1`; the same for ``b``
 ``c1, c2`` (``d1, d2``)   :math:`\log c_1` and the centre :math:`-c_2/c_1` (amplitude and
                           offset unchanged)
-everything else           unchanged (effects, the noise scale)
+thermal node (tau, S, E)  :math:`\log\tau`, :math:`S g`, :math:`E g` with ``g`` the node's
+                          rise at the record's end under a constant heating
+                          (:math:`1 - e^{-T/\tau_T}`; node 2: times :math:`1 - e^{-T/\tau_2}`)
+everything else           unchanged (other effects, the noise scale)
 ========================  =====================================================================
 
 with :math:`v_1, v_2` at 10 % and 90 % of the record's input range. Measured on a
@@ -66,6 +69,12 @@ __all__ = ["GPICoordinates", "IdentityCoordinates", "CoordinateMove", "COORDINAT
 
 #: Fractions of the record's input range where the envelopes' values are coordinates.
 POINT_FRACTIONS = (0.1, 0.9)
+#: Thermal nodes (:class:`model.effects.Thermal`): block name -> (time constant, gains).
+_THERMAL_NODES = {
+    "thermal": ("thermal_tau", "thermal_sensitivity", "thermal_expansion"),
+    "thermal_core": ("thermal_tau_core", "thermal_sensitivity_core", "thermal_expansion_core"),
+}
+_THERMAL = tuple(n for names in _THERMAL_NODES.values() for n in names)
 #: Most safeguarded Newton steps for ``tau`` in the inverse map (typically 4-6 are used).
 MAX_NEWTON_STEPS = 100
 
@@ -105,9 +114,14 @@ class GPICoordinates:
         when theirs is positive).
     tau_bounds : (float, float)
         Bracket for ``tau`` in the inverse map (the parameter's bounds).
+    duration : float, optional
+        The record's duration [s]; needed for the thermal blocks (none without it).
+    pinned : dict, optional
+        Values of pinned thermal time constants ``{name: value}`` [s] (a free node-2 block
+        with node 1's time constant pinned reads it here).
     """
 
-    def __init__(self, names, template, n_operators, input_range, lower, tau_bounds):
+    def __init__(self, names, template, n_operators, input_range, lower, tau_bounds, duration=None, pinned=None):
         self.names = tuple(names)
         idx = {n: i for i, n in enumerate(self.names)}
         template = np.asarray(template, dtype=float)
@@ -119,6 +133,8 @@ class GPICoordinates:
         if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
             raise ValueError(f"input_range must be finite and increasing, got {input_range!r}")
         self.points = tuple(lo + f * (hi - lo) for f in POINT_FRACTIONS)
+        self.duration = None if duration is None else float(duration)
+        self._pinned.update(pinned or {})
         self.idx = idx
         lower = np.asarray(lower, dtype=float)
         blocks = []
@@ -130,6 +146,10 @@ class GPICoordinates:
         for p in "cd":
             if {p + "1", p + "2"} <= idx.keys() and lower[idx[p + "1"]] > 0:
                 blocks.append("omega_" + p)
+        if self.duration is not None and self.duration > 0:
+            for node, (tau_name, *gains) in _THERMAL_NODES.items():
+                if {tau_name, *gains} <= idx.keys() and lower[idx[tau_name]] > 0:
+                    blocks.append(node)
         self.blocks = tuple(blocks)
 
     @classmethod
@@ -148,6 +168,8 @@ class GPICoordinates:
             (float(np.min(log_post.current)), float(np.max(log_post.current))),
             log_post.lower,
             (tau.lower, tau.upper),
+            duration=float(np.ptp(log_post.time)) if np.size(log_post.time) > 1 else None,
+            pinned={n: float(model.parameters[n].value) for n in _THERMAL if n in model.names},
         )
 
     # -- the weight block ------------------------------------------------------------
@@ -163,6 +185,14 @@ class GPICoordinates:
         if name in self.idx:
             return x[:, self.idx[name]]
         return np.full(x.shape[0], self._pinned[name])
+
+    def _thermal_scales(self, x):
+        """``(g1, g2)`` (W,): a node's rise at the end of the record under a constant unit
+        heating, ``g(tau) = 1 - exp(-duration / tau)``, node 2 (heated through node 1)
+        ``g(tau_1) g(tau_2)``; the gains' coordinates are the gains times these (what the
+        record pins when a time constant is longer than the record is gain / tau)."""
+        g1 = -np.expm1(-self.duration / self._gpi(x, "thermal_tau"))
+        return g1, g1 * -np.expm1(-self.duration / self._gpi(x, "thermal_tau_core"))
 
     def _total_weight(self, x):
         rho, tau = self._gpi(x, "rho"), self._gpi(x, "tau")
@@ -226,6 +256,14 @@ class GPICoordinates:
                 with np.errstate(invalid="ignore", divide="ignore"):
                     u[:, i[p + "1"]] = np.log(k1)
                 u[:, i[p + "2"]] = -k2 / k1
+        if "thermal" in self.blocks or "thermal_core" in self.blocks:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                scales = dict(zip(("thermal", "thermal_core"), self._thermal_scales(x)))
+                for node, (tau_name, *gains) in _THERMAL_NODES.items():
+                    if node in self.blocks:
+                        u[:, i[tau_name]] = np.log(x[:, i[tau_name]])
+                        for name in gains:
+                            u[:, i[name]] = x[:, i[name]] * scales[node]
         return u
 
     def inverse(self, u) -> np.ndarray:
@@ -257,6 +295,16 @@ class GPICoordinates:
                     k0 = (e1 - e2) / (t1 - t2)
                     x[:, i[p + "0"]], x[:, i[p + "2"]], x[:, i[p + "3"]] = k0, k2, e1 - k0 * t1
                     bad |= ~(k1 != 0) | ~(t1 != t2)
+            if "thermal" in self.blocks or "thermal_core" in self.blocks:
+                for node, (tau_name, *_gains) in _THERMAL_NODES.items():
+                    if node in self.blocks:
+                        x[:, i[tau_name]] = np.exp(u[:, i[tau_name]])
+                scales = dict(zip(("thermal", "thermal_core"), self._thermal_scales(x)))
+                for node, (_tau, *gains) in _THERMAL_NODES.items():
+                    if node in self.blocks:
+                        for name in gains:
+                            x[:, i[name]] = u[:, i[name]] / scales[node]
+                        bad |= ~(scales[node] > 0)
         bad |= ~np.isfinite(x).all(axis=1)
         x[bad] = np.nan
         return x
@@ -271,7 +319,10 @@ class GPICoordinates:
           with :math:`s_k = \sum_j r_j^k e^{-\tau r_j}`;
         * envelope ``a`` (``b``): :math:`S^2 |t_1 - t_2| / |a_1|` with
           :math:`t_k = \tanh(a_1 v_k + a_2)`;
-        * Omega ``c`` (``d``): :math:`1 / c_1^2`.
+        * Omega ``c`` (``d``): :math:`1 / c_1^2`;
+        * a thermal node: :math:`g^2 / \tau` (two gains scaled by ``g``, the log of the
+          time constant); node 2's ``g`` depends on node 1's time constant, which comes
+          before it, so the blocks stay triangular.
         """
         x = np.atleast_2d(np.asarray(x, dtype=float))
         i = self.idx
@@ -290,6 +341,11 @@ class GPICoordinates:
             for p in "cd":
                 if "omega_" + p in self.blocks:
                     out -= 2 * np.log(np.abs(x[:, i[p + "1"]]))
+            if "thermal" in self.blocks or "thermal_core" in self.blocks:
+                scales = dict(zip(("thermal", "thermal_core"), self._thermal_scales(x)))
+                for node, (tau_name, *gains) in _THERMAL_NODES.items():
+                    if node in self.blocks:
+                        out += len(gains) * np.log(np.abs(scales[node])) - np.log(np.abs(x[:, i[tau_name]]))
         return out
 
     @staticmethod
