@@ -138,8 +138,8 @@ _DESCRIPTIONS = {
 # and slopes are positive (a0 tanh(a1 v + a2) = (-a0) tanh(-a1 v - a2) is an exact
 # sign symmetry, removed by this choice, and increasing envelopes make the operator
 # rate independent). The envelope units assume the input is in A and the output in
-# um; they are not rescaled for records in other units (a priors file sets bounds in the
-# record's units: identify.fitting.priors, docs/method.md).
+# um; records in other unit prefixes (mA, nm, ...) get them widened to their scale by
+# identify.fitting.parametrisation.in_record_units (docs/method.md).
 _BOUNDS = {
     # Either sign: alpha < 0 is the paper's (Table 1) reading, alpha > 0 the classical PI's
     # positive thresholds, which thin loop tips (e.g. piezo actuators) need. The

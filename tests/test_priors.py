@@ -138,10 +138,10 @@ def test_study_with_a_bad_priors_file_exits_2_before_writing(bench, tmp_path, ca
     assert exited.value.code == 2 and "argument --priors:" in capsys.readouterr().err
 
 
-def test_default_bounds_are_the_models_whatever_the_record_units(tmp_path, model):
-    """Documented behaviour (docs/method.md, 'Priors file'): the default bounds are sized for a
-    drive in A and an output in um and are NOT rescaled for a record in other units (the units
-    are labels); a priors file gives bounds in the record's units."""
+def test_default_bounds_follow_the_record_unit_prefixes_and_a_priors_file_wins(tmp_path, model):
+    """docs/method.md, 'Units and default bounds': a record in V (within a factor 30 of the
+    paper's 5 A) keeps the input-side bounds; one in mm instead of um gets the output-side
+    bounds widened 1000-fold downwards; a priors file's bounds are kept as given."""
     from identify.fitting.noise import estimate_noise
     from identify.fitting.posterior import LogPosterior
     from identify.data.records import Record
@@ -152,8 +152,13 @@ def test_default_bounds_are_the_models_whatever_the_record_units(tmp_path, model
                    output_unit="mm")  # fmt: skip
     noise = estimate_noise(amps)
     a, v = LogPosterior(amps, model, noise), LogPosterior(volts, model, noise)
-    np.testing.assert_array_equal(a.lower, v.lower)
-    np.testing.assert_array_equal(a.upper, v.upper)
+    for name in ("a1", "b1", "c1", "d1", "a0", "tau"):  # input side: V within a factor 30 of A
+        j = a.names.index(name)
+        assert (a.lower[j], a.upper[j]) == (v.lower[j], v.upper[j])
+    j = a.names.index("c0")  # output side: mm is 1/1000 of um
+    assert v.lower[j] == a.lower[j] and v.upper[j] == a.upper[j]  # +-1e3 already holds the mm-scaled +-1
+    j = a.names.index("rho")
+    assert v.lower[j] == pytest.approx(a.lower[j] * 1e-3) and v.upper[j] == a.upper[j]  # widened downwards
     path = tmp_path / "mm.toml"
     path.write_text("[c0]\ndistribution = 'uniform'\nlower = -1.0\nupper = 5.0\n")  # mm-sized bounds
     changed, priors = apply_priors(model, path)

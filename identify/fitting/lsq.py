@@ -90,7 +90,7 @@ from scipy.optimize import least_squares
 from model import GPI_PARAMETERS, THETA_NAMES, Model, ParameterSet
 
 from .noise import NoiseModel, energised_mask, estimate_noise, whiten
-from .parametrisation import gpi_scaling, with_threshold_sign
+from .parametrisation import gpi_scaling, in_record_units, record_unit_factors, with_threshold_sign
 from .threads import fastest_thread_count, single_threaded_blas
 
 _log = logging.getLogger(__name__)  # a child of the "identify" logger (identify.logs)
@@ -519,7 +519,8 @@ def _data_scaled_theta(record, model: Model) -> np.ndarray | None:
     peak = float(np.max(np.abs(record.current)))
     if not peak > 0:
         return None
-    input_scale = peak / PAPER_PEAK_INPUT
+    # the model's default slopes are already per the record's input unit prefix (in_record_units)
+    input_scale = peak / PAPER_PEAK_INPUT / record_unit_factors(record)[0]
     for n in _SLOPES:
         i = names.index(n)
         if model.parameters[i].vary:
@@ -799,6 +800,7 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
     -------
     FitResult
     """
+    model = in_record_units(model, record)  # default bounds in the record's unit prefixes
     t0 = _time.perf_counter()
     noise = estimate_noise(record) if noise is None else noise
     if not isinstance(noise, NoiseModel):

@@ -52,6 +52,11 @@ __all__ = [
     "with_threshold_sign",
     "pin_gpi_parameters",
     "parameter_scales",
+    "in_record_units",
+    "record_unit_factors",
+    "prefix_factor",
+    "PAPER_INPUT_PEAK",
+    "PAPER_OUTPUT_SPAN",
 ]
 
 #: The parameters moved by the exact degeneracy, and the power of ``k`` each scales with.
@@ -183,3 +188,82 @@ def with_threshold_sign(model: Model, sign: int) -> Model:
 def parameter_scales(theta) -> np.ndarray:
     """``max(|theta_j|, 0.01)``: the scale of relative parameter changes, shape (P,)."""
     return np.maximum(np.abs(np.asarray(theta, dtype=float)), 0.01)
+
+
+#: The paper's drive peak [A] and output span [um] (Table 1 on the paper's input): the
+#: scale the default bounds are sized for.
+PAPER_INPUT_PEAK = 5.0
+PAPER_OUTPUT_SPAN = 300.0
+#: GPI parameters per input unit (slopes), and per output unit, under the normalisation.
+_PER_INPUT = ("a1", "b1", "c1", "d1")
+_OUTPUT = ("rho", "c0", "c3", "d0", "d3")
+#: With alpha free the thresholds are in the input unit too (see identify.fitting.lsq.parameter_units).
+_INPUT_IF_FREE = ("alpha", "a0", "a3", "b0", "b3")
+_PER_INPUT_IF_FREE = ("tau",)
+#: Effect parameter units -> (power of the input factor, power of the output factor).
+_UNIT_POWERS = {"um": (0, 1), "A": (1, 0), "1/A": (-1, 0), "um/A": (-1, 1)}
+
+
+def prefix_factor(ratio) -> float:
+    """``ratio`` rounded to a whole SI prefix step: ``10**(3 round(log10(ratio) / 3))``
+    (1 for ratios within about 0.03-30, 1000 for a record in mA or nm instead of A or um)."""
+    ratio = float(ratio)
+    if not (np.isfinite(ratio) and ratio > 0):
+        return 1.0
+    return float(10.0 ** (3 * round(np.log10(ratio) / 3)))
+
+
+def record_unit_factors(record) -> tuple[float, float]:
+    """``(f_in, f_out)``: how many of the record's input and output units make the paper's
+    scale (:data:`PAPER_INPUT_PEAK` A, :data:`PAPER_OUTPUT_SPAN` um), rounded to whole SI
+    prefix steps (:func:`prefix_factor`)."""
+    peak = float(np.max(np.abs(record.current)))
+    span = float(np.ptp(record.displacement))
+    return prefix_factor(peak / PAPER_INPUT_PEAK), prefix_factor(span / PAPER_OUTPUT_SPAN)
+
+
+def in_record_units(model: Model, record) -> Model:
+    """``model`` with the default bounds of its parameters widened, and their default
+    values rescaled, to the record's units.
+
+    The default bounds are sized for a drive in A (peak 5 A) and an output in um (span
+    300 um) and span three or more decades, so records in V or mm within a factor ~30 of
+    that scale keep them (:func:`record_unit_factors` is 1). A record in other unit
+    prefixes (mA, nm, ...) gets each default value multiplied, and each default bound
+    range extended to include the multiplied range (never narrowed, so nothing the
+    defaults allowed is excluded), by the input factor ``f_in`` and the output factor
+    ``f_out`` as the parameter's dimension says: under the normalisation
+    (alpha pinned, thresholds in fixed units) the slopes ``a1, b1, c1, d1`` are per
+    input unit and ``rho, c0, c3, d0, d3`` in output units; with alpha free also
+    ``alpha, a0, a3, b0, b3`` in input units and ``tau`` per input unit; effect
+    parameters by their declared unit (um, A, 1/A). Only bounds still at their declared
+    defaults are changed (a priors file's bounds are the user's), so the function is
+    idempotent, and with both factors 1 it returns ``model`` itself.
+    """
+    f_in, f_out = record_unit_factors(record)
+    if f_in == 1.0 and f_out == 1.0:
+        return model
+    defaults = Model(list(model.effect_names), model.n_operators, model.reading).parameters
+    normalised = normalised_model(Model(list(model.effect_names), model.n_operators, model.reading)).parameters
+    alpha_free = bool(model.parameters["alpha"].vary)
+    parameters = model.parameters
+    for p in model.parameters:
+        declared = {(defaults[p.name].lower, defaults[p.name].upper), (normalised[p.name].lower, normalised[p.name].upper)}
+        if (p.lower, p.upper) not in declared:
+            continue
+        if p.name in THETA_NAMES:
+            power_in = -1 if p.name in _PER_INPUT else 0
+            power_out = 1 if p.name in _OUTPUT else 0
+            if alpha_free:
+                power_in += 1 if p.name in _INPUT_IF_FREE else (-1 if p.name in _PER_INPUT_IF_FREE or p.name == "rho" else 0)
+        else:
+            power_in, power_out = _UNIT_POWERS.get(p.unit, (0, 0))
+        factor = f_in**power_in * f_out**power_out
+        if factor != 1.0:
+            lower, upper = min(p.lower, p.lower * factor), max(p.upper, p.upper * factor)
+            parameters = parameters.replace(p.name, lower=lower, upper=upper, value=p.value * factor)
+    import copy
+
+    out = copy.copy(model)
+    out.parameters = parameters
+    return out

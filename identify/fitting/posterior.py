@@ -84,6 +84,7 @@ from model import Model
 from ..data.hdf5 import LOCK_WAIT_SECONDS, open_hdf5
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
+from .parametrisation import in_record_units
 from .threads import fastest_thread_count
 from .noise import NoiseModel, log_likelihood_of_rows
 
@@ -384,6 +385,7 @@ class LogPosterior:
     """
 
     def __init__(self, record, model: Model, noise: NoiseModel, *, priors=None):
+        model = in_record_units(model, record)  # default bounds in the record's unit prefixes
         self.time = np.asarray(record.time, dtype=float)
         self.current = np.asarray(record.current, dtype=float)
         self.data = np.asarray(record.displacement, dtype=float)
