@@ -788,14 +788,20 @@ def _collect_fit(folder: Path) -> dict:
     if not isinstance(fit, dict):
         raise RuntimeError("the command finished but wrote no readable fit.json")
     success = fit.get("success")
+    return _fit_columns(folder, fit, "" if success is None else ("converged" if success else "not converged"), fit)
+
+
+def _fit_columns(folder: Path, fit: dict, verdict: str, source: dict) -> dict:
+    """A summary row of a fit's numbers (``fit``: rms, max_error_pct, reduced_chi2), the
+    ``verdict``, the output unit and the notes of ``source`` and the manifest."""
     return dict(
         rms=_number(fit.get("rms")),
         max_error_pct=_number(fit.get("max_error_pct")),
         statistic_name="reduced_chi2",
         statistic=_number(fit.get("reduced_chi2")),
-        verdict="" if success is None else ("converged" if success else "not converged"),
+        verdict=verdict,
         output_unit=_output_unit(folder),
-        notes=_notes_from(fit, _read_json(folder / "manifest.json")),
+        notes=_notes_from(source, _read_json(folder / "manifest.json")),
     )
 
 
@@ -806,15 +812,8 @@ def _collect_study(folder: Path) -> dict:
     fit = summary.get("fit") or {}
     posterior = summary.get("posterior") or {}
     converged = posterior.get("converged")
-    return dict(
-        rms=_number(fit.get("rms")),
-        max_error_pct=_number(fit.get("max_error_pct")),
-        statistic_name="reduced_chi2",
-        statistic=_number(fit.get("reduced_chi2")),
-        verdict="" if converged is None else ("posterior converged" if converged else "posterior NOT converged"),
-        output_unit=_output_unit(folder),
-        notes=_notes_from(summary, _read_json(folder / "manifest.json")),
-    )
+    verdict = "" if converged is None else ("posterior converged" if converged else "posterior NOT converged")
+    return _fit_columns(folder, fit, verdict, summary)
 
 
 def _collect_diagnose(folder: Path) -> dict:
