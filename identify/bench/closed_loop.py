@@ -159,20 +159,47 @@ def closed_loop(
     n_draws : int
     study_options : sequence of str
         Extra ``study`` options (e.g. ``("--max-steps", "20000")``).
-    """
-    import os
-    import subprocess
-    import sys
 
-    from .synthetic import sensor_noise, simulate
-    from ..diagnosis.diagnose import diagnose
-    from ..data.records import load_record, write_record
-    from ..workflows.use import compensate, load_study, write_compensation
+    The steps: the record and its truth (:func:`_bench_record`), the diagnosis
+    (:func:`_diagnosed`), the study of the named effect (:func:`_run_study`), and one
+    compensation per target driven through the truth (:func:`_closed_loop_case`).
+    """
+    from ..workflows.use import load_study
 
     say = progress or (lambda message: None)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}
+    record, data = _bench_record(out, record, effects, seed)
+    truth = _truth(data.sidecar)
+    clock = _time.perf_counter()
+    status, named = _diagnosed(out, record, data, seed, say)
+    seconds["diagnosis"] = _time.perf_counter() - clock
+    clock = _time.perf_counter()
+    study_dir = _run_study(out, record, [named] if named else [], seed, study_options, say)
+    seconds["study"] = _time.perf_counter() - clock
+    study = load_study(study_dir)
+    noise = data.sidecar.get("noise", {})
+    sigma, rho = float(noise.get("sigma", 0.5)), float(noise.get("rho", 0.0))
+    start_line = np.polyfit(data.displacement, data.current, 1)
+    cases = [
+        _closed_loop_case(out, name, target, study, truth, seed, n_draws, (sigma, rho), start_line, say)
+        for name, target in (targets or bench_targets()).items()
+    ]
+    result = ClosedLoopResult(
+        record=str(record), seed=seed, diagnosis_status=status, named=named, effects=list(study.model.effect_names),
+        study=str(study_dir), converged=study.converged, cases=cases, seconds=seconds,
+    )  # fmt: skip
+    (out / "closed_loop.json").write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+    return result
+
+
+def _bench_record(out: Path, record, effects: str, seed: int):
+    """``(path, Record)`` of the bench record (simulated into ``out/record.csv`` when none is
+    given), refused without the truth in its JSON sidecar."""
+    from .synthetic import simulate
+    from ..data.records import load_record, write_record
+
     if record is None:
         record = out / "record.csv"
         if not record.exists():
@@ -181,22 +208,32 @@ def closed_loop(
     data = load_record(record)
     if not data.sidecar or "theta" not in data.sidecar:
         raise ValueError(f"{record}: a closed loop needs the bench's truth in the JSON sidecar")
-    truth_model, truth_theta = _truth(data.sidecar)
+    return record, data
 
-    clock = _time.perf_counter()
+
+def _diagnosed(out: Path, record: Path, data, seed: int, say) -> tuple[str, str | None]:
+    """``(status, named effect)`` of the plain GPI's diagnosis, kept in ``out/diagnosis.json`` (reused when there)."""
+    from ..diagnosis.diagnose import diagnose
+
     diagnosis_path = out / "diagnosis.json"
     if diagnosis_path.exists():
         found = json.loads(diagnosis_path.read_text())
-        status, named = found["status"], found["missing"]
-    else:
-        say(f"diagnosing the plain GPI on {record}")
-        result = diagnose(data, rng=np.random.default_rng(seed))
-        status, named = result.status, result.missing
-        diagnosis_path.write_text(json.dumps({"status": status, "missing": named, "rms": result.rms}, indent=2) + "\n")
-    seconds["diagnosis"] = _time.perf_counter() - clock
-    chosen = [named] if named else []
+        return found["status"], found["missing"]
+    say(f"diagnosing the plain GPI on {record}")
+    result = diagnose(data, rng=np.random.default_rng(seed))
+    status, named = result.status, result.missing
+    diagnosis_path.write_text(json.dumps({"status": status, "missing": named, "rms": result.rms}, indent=2) + "\n")
+    return status, named
+
+
+def _run_study(out: Path, record: Path, chosen: list, seed: int, study_options, say) -> Path:
+    """``out/study``: the study of the GPI with the ``chosen`` effects, run as ``python -m
+    identify study`` in a subprocess (resumable); a chain not converged is a result all the same."""
+    import os
+    import subprocess
+    import sys
+
     study_dir = out / "study"
-    clock = _time.perf_counter()
     say(f"study with effects {chosen or 'none'} into {study_dir}")
     argv = ["study", str(record), "--out", str(study_dir), "--seed", str(seed), "--progress", "off", "--no-report",
             "--effects", ",".join(chosen) or "none", *study_options]  # fmt: skip
@@ -207,44 +244,43 @@ def closed_loop(
     not_converged = completed.returncode == 1 and "NOT CONVERGE" in completed.stderr  # a result all the same
     if completed.returncode != 0 and not not_converged:
         raise RuntimeError(f"study exited with {completed.returncode}:\n{completed.stdout}{completed.stderr}")
-    seconds["study"] = _time.perf_counter() - clock
-    study = load_study(study_dir)
-    noise = data.sidecar.get("noise", {})
-    sigma, rho = float(noise.get("sigma", 0.5)), float(noise.get("rho", 0.0))
-    start_line = np.polyfit(data.displacement, data.current, 1)
-    cases = []
-    for name, target in (targets or bench_targets()).items():
-        clock = _time.perf_counter()
-        say(f"compensating {name}")
-        c = compensate(study, target, n_draws=n_draws, rng=np.random.default_rng(seed))
-        write_compensation(c, out / f"compensate-{name}")
-        t, y = target.time, target.displacement
-        span = float(np.ptp(y))
+    return study_dir
 
-        def response(current):
-            return truth_model(truth_theta, t, current)
 
-        realised = response(c.current) - y
-        measured = realised + sensor_noise(np.random.default_rng(seed + 1000), t.size, sigma, rho)
-        a, b, linear = best_linear_drive(response, t, y, c.current_range, start_line)
-        te = c.summary["tracking_error"]
-        cases.append(ClosedLoopCase(
-            target=name,
-            rms_pct=100 * float(np.sqrt(np.mean(realised**2))) / span,
-            max_pct=100 * float(np.abs(realised).max()) / span,
-            linear_rms_pct=100 * float(np.sqrt(np.mean(linear**2))) / span,
-            linear_max_pct=100 * float(np.abs(linear).max()) / span,
-            linear_gain=a, linear_offset=b,
-            credible_coverage=float(np.mean((realised >= c.error_lo) & (realised <= c.error_hi))),
-            predictive_coverage=float(np.mean((measured >= c.predictive_lo) & (measured <= c.predictive_hi))),
-            predicted_rms_pct=te["rms_pct"], predicted_max_pct=te["max_abs_pct"],
-            model_samples=c.summary["model_tracking"]["samples"],
-            current_min=float(c.current.min()), current_max=float(c.current.max()),
-            seconds=_time.perf_counter() - clock,
-        ))  # fmt: skip
-    result = ClosedLoopResult(
-        record=str(record), seed=seed, diagnosis_status=status, named=named, effects=list(study.model.effect_names),
-        study=str(study_dir), converged=study.converged, cases=cases, seconds=seconds,
+def _closed_loop_case(out: Path, name: str, target, study, truth, seed: int, n_draws: int, noise: tuple, start_line,
+                      say) -> ClosedLoopCase:  # fmt: skip
+    """One target: the compensation (written to ``out/compensate-<name>``) driven through the
+    truth, beside the best linear drive, with the coverage of the predicted bands."""
+    from .synthetic import sensor_noise
+    from ..workflows.use import compensate, write_compensation
+
+    truth_model, truth_theta = truth
+    sigma, rho = noise
+    clock = _time.perf_counter()
+    say(f"compensating {name}")
+    c = compensate(study, target, n_draws=n_draws, rng=np.random.default_rng(seed))
+    write_compensation(c, out / f"compensate-{name}")
+    t, y = target.time, target.displacement
+    span = float(np.ptp(y))
+
+    def response(current):
+        return truth_model(truth_theta, t, current)
+
+    realised = response(c.current) - y
+    measured = realised + sensor_noise(np.random.default_rng(seed + 1000), t.size, sigma, rho)
+    a, b, linear = best_linear_drive(response, t, y, c.current_range, start_line)
+    te = c.summary["tracking_error"]
+    return ClosedLoopCase(
+        target=name,
+        rms_pct=100 * float(np.sqrt(np.mean(realised**2))) / span,
+        max_pct=100 * float(np.abs(realised).max()) / span,
+        linear_rms_pct=100 * float(np.sqrt(np.mean(linear**2))) / span,
+        linear_max_pct=100 * float(np.abs(linear).max()) / span,
+        linear_gain=a, linear_offset=b,
+        credible_coverage=float(np.mean((realised >= c.error_lo) & (realised <= c.error_hi))),
+        predictive_coverage=float(np.mean((measured >= c.predictive_lo) & (measured <= c.predictive_hi))),
+        predicted_rms_pct=te["rms_pct"], predicted_max_pct=te["max_abs_pct"],
+        model_samples=c.summary["model_tracking"]["samples"],
+        current_min=float(c.current.min()), current_max=float(c.current.max()),
+        seconds=_time.perf_counter() - clock,
     )  # fmt: skip
-    (out / "closed_loop.json").write_text(json.dumps(result.to_dict(), indent=2) + "\n")
-    return result

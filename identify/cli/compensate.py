@@ -48,30 +48,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     import time
-    from pathlib import Path
 
     import numpy as np
 
-    from .predict import parse_span
-    from ..workflows.use import UseError, compensate, load_study, load_target, write_compensation
+    from .predict import compute_and_write, parse_span, timed_progress
+    from ..workflows.use import compensate, load_study, load_target, write_compensation
 
-    started = time.perf_counter()
+    started, progress = timed_progress()
 
-    def progress(message):  # INFO: hidden by -q (the old --quiet)
-        say(f"[{time.perf_counter() - started:6.1f} s] {message}")
-
-    try:
+    def compute():
         limits = parse_span(args.current_range, "--current-range") if args.current_range else None
         study = load_study(args.dir)
         target = load_target(args.target, output_column=study.record.output_name)
         progress(f"inverting the model of {study.path} for {target.source} ({target.time.size} samples)")
-        result = compensate(study, target, current_range=limits, n_draws=args.draws,
-                            rng=np.random.default_rng(args.seed), progress=progress)  # fmt: skip
-        out = Path(args.out) if args.out else Path(args.dir) / f"compensate-{Path(args.target).stem}"
-        write_compensation(result, out)
-    except (UseError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        return compensate(study, target, current_range=limits, n_draws=args.draws,
+                          rng=np.random.default_rng(args.seed), progress=progress)  # fmt: skip
+
+    done = compute_and_write(args, args.target, "compensate", compute, write_compensation)
+    if done is None:
         return 2
+    result, out = done
     s = result.summary
     te, unit = s["tracking_error"], s["unit"]
     print(f"feedforward current {s['current']['min']:.4g} to {s['current']['max']:.4g} {s['input_unit']} "

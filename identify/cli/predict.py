@@ -26,7 +26,7 @@ import sys
 from . import options
 from ..logs import say
 
-__all__ = ["HELP", "add_arguments", "run", "parse_span"]
+__all__ = ["HELP", "add_arguments", "run", "parse_span", "timed_progress", "compute_and_write"]
 
 HELP = "apply a finished study's model to another record (validation, no refit): report, bands, verdict"
 
@@ -61,20 +61,50 @@ def parse_span(text: str, option: str) -> tuple[float, float]:
     return a, b
 
 
-def run(args) -> int:
+def timed_progress():
+    """``(started, progress)``: the start time and a ``progress(message)`` that says the message
+    with the seconds since then (INFO: hidden by -q, the old --quiet)."""
     import time
-    from pathlib import Path
-
-    import numpy as np
-
-    from ..workflows.use import UseError, load_record_for_study, load_study, predict, write_prediction
 
     started = time.perf_counter()
 
-    def progress(message):  # INFO: hidden by -q (the old --quiet)
+    def progress(message):
         say(f"[{time.perf_counter() - started:6.1f} s] {message}")
 
+    return started, progress
+
+
+def compute_and_write(args, data_path, prefix: str, compute, write):
+    """The frame ``predict`` and ``compensate`` share: ``result = compute()``, written by
+    ``write(result, out)`` into ``--out`` (default ``DIR/<prefix>-<stem of data_path>``).
+
+    Returns ``(result, out)``, or None after one ``error:`` line for a
+    :class:`identify.workflows.use.UseError` or ValueError (nothing written).
+    """
+    from pathlib import Path
+
+    from ..workflows.use import UseError
+
     try:
+        result = compute()
+        out = Path(args.out) if args.out else Path(args.dir) / f"{prefix}-{Path(data_path).stem}"
+        write(result, out)
+    except (UseError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return None
+    return result, out
+
+
+def run(args) -> int:
+    import time
+
+    import numpy as np
+
+    from ..workflows.use import load_record_for_study, load_study, predict, write_prediction
+
+    started, progress = timed_progress()
+
+    def compute():
         window = parse_span(args.window, "--window") if args.window else None
         study = load_study(args.dir)
         record = load_record_for_study(
@@ -82,14 +112,14 @@ def run(args) -> int:
             output_column=args.output_column, input_unit=args.input_unit, output_unit=args.output_unit,
         )  # fmt: skip
         progress(f"predicting {record.source} ({len(record)} samples) with the study {study.path}")
-        prediction = predict(study, record, window=window, n_draws=args.draws, rng=np.random.default_rng(args.seed),
-                             diagnosis=args.diagnosis, n_starts=args.n_starts, progress=progress)  # fmt: skip
-        out = Path(args.out) if args.out else Path(args.dir) / f"predict-{Path(args.data).stem}"
-        write_prediction(prediction, out)
-    except (UseError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        return predict(study, record, window=window, n_draws=args.draws, rng=np.random.default_rng(args.seed),
+                       diagnosis=args.diagnosis, n_starts=args.n_starts, progress=progress)  # fmt: skip
+
+    done = compute_and_write(args, args.data, "predict", compute, write_prediction)
+    if done is None:
         return 2
-    unit = record.output_unit
+    prediction, out = done
+    unit = prediction.record.output_unit
     t = prediction.training
     print(f"validation: RMS {prediction.rms:.4g} {unit} = {prediction.rms / prediction.noise_sigma:.3f} sigma "
           f"(training {t['rms']:.4g} {unit}), max error {prediction.max_error_pct:.3g} % of the range "

@@ -12,14 +12,13 @@ software version and git commit). The same options and seed give the same CSV by
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 from pathlib import Path
 
 from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA, EFFECT_NAMES, INPUT_READINGS
 from . import options
 
-__all__ = ["HELP", "add_arguments", "run", "git_commit"]
+__all__ = ["HELP", "add_arguments", "run"]
 
 HELP = "simulate a bench measurement (paper input, Table 1 transducer, hidden effects, sensor noise)"
 
@@ -56,23 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=options.seed, default=0, metavar="N", help="seed of the noise generator, >= 0 (default 0)")
 
 
-def git_commit(path=None) -> str | None:
-    """The git commit of the source tree holding ``path`` (this package by default), or None."""
-    folder = Path(path) if path is not None else Path(__file__).resolve().parent
-    try:
-        result = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=folder, capture_output=True, text=True, timeout=10, check=False
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    commit = result.stdout.strip()
-    return commit if result.returncode == 0 and len(commit) == 40 else None
-
-
 def run(args) -> int:
     """Simulate and write the record and its sidecar; 0 on success, 2 on a bad option."""
     from ..bench.synthetic import simulate
     from ..data.records import write_record
+    from ..output.results import git_head
 
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
@@ -91,7 +78,7 @@ def run(args) -> int:
         print(f"simulate: error: {exc}", file=sys.stderr)
         return 2
     truth = dict(simulation.truth)
-    truth["software"] = {**truth["software"], "git_commit": git_commit()}
+    truth["software"] = {**truth["software"], "git_commit": git_head()}
     truth["command"] = _command_line(args)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_record(out, simulation.record, sidecar=truth)

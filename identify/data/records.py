@@ -223,7 +223,10 @@ def load_record(
 
     The file is read as a stream (memory about 50 bytes per sample whatever the line
     length: no copy of the text is held), after a first pass that computes its SHA-256
-    and checks it is UTF-8.
+    and checks it is UTF-8. The stages: the options and the text check, the header
+    (:func:`_read_header`: format detection, :func:`_header_columns`: column checks), the
+    rows (:func:`_parse_rows`), the values (:func:`_checked_arrays`, :func:`_time_axis`)
+    and the sidecar (:func:`_read_sidecar`); each stage adds its notes.
 
     Parameters
     ----------
@@ -261,8 +264,6 @@ def load_record(
         not strictly increase, fewer than ``min_samples`` samples, or a malformed
         sidecar. The message names the file, the line and, for a value, the column.
     """
-    from array import array
-
     path = Path(path)
     if path.suffix.lower() == MAT_SUFFIX:  # a MATLAB file: the same checks, by variable (identify.data.matfile)
         return load_mat_record(path, time_column=time_column, input_column=input_column, output_column=output_column,
@@ -277,119 +278,199 @@ def load_record(
         raise _fail(path, None, "the file is empty; expected a header line such as 'time,current,displacement' and data rows")
 
     notes: list[str] = []
-    n_skipped = 0
-    skipped_lines: list[int] = []  # blank/comment lines after the header, to map rows to lines
     with open(path, encoding="utf-8-sig", newline=None) as fh:
-        header_line = None
-        header_text = ""
-        number = 0
-        for number, line in enumerate(fh, start=1):
-            stripped = line.strip()
-            if not stripped or stripped.startswith("#"):
-                n_skipped += 1
-                continue
-            header_line, header_text = number, line.rstrip("\n")
-            break
-        if header_line is None:
-            raise _fail(path, None, "the file holds only comments or blank lines; expected a header and data rows")
-
-        delimiter = next((d for d in _DELIMITERS if d in header_text), ",")
-        if delimiter != ",":
-            notes.append(f"columns are separated by {delimiter!r} rather than commas")
-        # with ';' or tab between columns a comma is a decimal comma (European MATLAB/Excel exports)
-        parse_number = float if delimiter == "," else _decimal_comma_float
-        header = [h.strip() for h in header_text.split(delimiter)]
-        if all(_looks_numeric(h) for h in header if h):
-            raise _fail(
-                path,
-                header_line,
-                f"no header line: the first line is numbers ({header_text.strip()[:60]!r}); "
-                f"expected column names {','.join(wanted)}",
-            )
-        seen = {}
-        for j, h in enumerate(header):
-            if not h:
-                raise _fail(path, header_line, f"column {j + 1} of the header has no name")
-            if h in seen:
-                raise _fail(path, header_line, f"column name {h!r} appears twice (columns {seen[h] + 1} and {j + 1})")
-            seen[h] = j
-
-        def find(name):
-            if name in seen:
-                return seen[name]
-            folded = [h for h in header if h.casefold() == name.casefold()]
-            if len(folded) == 1:
-                notes.append(f"column {folded[0]!r} taken as {name!r} (letter case differs)")
-                return seen[folded[0]]
-            return None
-
-        indices = {}
-        missing = []
-        for name in wanted:
-            j = find(name)
-            if j is None:
-                missing.append(name)
-            else:
-                indices[name] = j
-        if missing:
-            hints = "; ".join(f"{m!r}{_suggest(m, header)}" for m in missing)
-            raise _fail(
-                path,
-                header_line,
-                f"missing column(s) {hints}. Columns present: {', '.join(repr(h) for h in header)}. "
-                "Rename the header or pass the column names (time_column/input_column/output_column).",
-            )
-        extra = [h for j, h in enumerate(header) if j not in indices.values()]
-        if time_column is None and any(h.casefold() in ("time", "t", "t_s", "time_s") for h in extra):
-            notes.append("the file's time-like column was ignored because time_column=None")
-        if extra:
-            notes.append(f"ignored column(s): {', '.join(extra)}")
-
-        n_columns = len(header)
-        columns = [(name, indices[name], array("d")) for name in wanted]
-        appends = [(j, values.append) for _name, j, values in columns]
-        report_every = max(1, size // 10) if (progress is not None and size > _PROGRESS_BYTES) else 0
-        next_report = report_every
-        read_bytes = 0
-        decimal_comma = False
-        for number, line in enumerate(fh, start=header_line + 1):
-            cells = line.split(delimiter)
-            try:
-                if len(cells) != n_columns:
-                    raise ValueError
-                for j, append in appends:
-                    append(parse_number(cells[j]))
-            except ValueError:
-                stripped = line.strip()
-                if not stripped or stripped.startswith("#"):
-                    # undo a partial row (a comment line with the right number of cells)
-                    n_done = len(columns[-1][2])
-                    for _name, _j, values in columns:
-                        del values[n_done:]
-                    n_skipped += 1
-                    skipped_lines.append(number)
-                    continue
-                if len(cells) != n_columns:
-                    raise _fail(path, number, f"{len(cells)} cells, but the header has {n_columns} columns ({','.join(header)})") from None
-                for name, j, _values in columns:
-                    cell = cells[j].strip()
-                    if not cell:
-                        raise _fail(path, number, f"column {name!r} is empty") from None
-                    if not _looks_numeric(cell.replace(",", ".") if delimiter != "," else cell):
-                        raise _fail(path, number, f"column {name!r}: {cell[:40]!r} is not a number") from None
-                raise  # pragma: no cover - every cell parsed after all
-            if not decimal_comma and parse_number is not float and "," in line:
-                decimal_comma = True
-            if report_every:
-                read_bytes += len(line)
-                if read_bytes >= next_report:
-                    progress(f"reading {path.name}: {min(100, 100 * read_bytes // size)} % ({len(columns[0][2])} rows)")
-                    next_report += report_every
-        n_samples = len(columns[0][2])
+        layout = _read_header(fh, path, wanted, notes)
+        layout.indices = _header_columns(path, layout, wanted, time_column, notes)
+        columns, skipped_lines, decimal_comma = _parse_rows(fh, path, layout, wanted, size, progress)
+    n_skipped = layout.n_skipped + len(skipped_lines)
     if n_skipped:
         notes.append(f"skipped {n_skipped} blank or comment ('#') line(s)")
     if decimal_comma:
         notes.append("decimal commas read as decimal points (e.g. 0,25 = 0.25)")
+    line_of = _row_lines(layout.line, skipped_lines)
+    n_samples = len(columns[0][2])
+    if n_samples < min_samples:
+        raise _fail(
+            path,
+            None,
+            f"only {n_samples} data row(s), fewer than the {min_samples} samples required "
+            "(a record needs a quiet start and several cycles)",
+        )
+    arrays = _checked_arrays(path, columns, time_column, line_of)
+    time = _time_axis(path, arrays, time_column, n_samples, line_of, notes)
+    sidecar = _read_sidecar(path, notes)
+    return Record(
+        time=time,
+        current=arrays[input_column],
+        displacement=arrays[output_column],
+        source=str(path),
+        sha256=digest,
+        input_name=input_column,
+        input_unit=input_unit,
+        output_name=output_column,
+        output_unit=output_unit,
+        notes=tuple(notes),
+        sidecar=sidecar,
+        time_name=time_column if time_column is not None else "time",
+    )
+
+
+@dataclass
+class _Layout:
+    """The CSV header as :func:`load_record` read it: its 1-based ``line`` and ``text``, the
+    ``n_skipped`` blank or comment lines before it, the ``delimiter``, the number parser,
+    the column ``names`` and (after :func:`_header_columns`) ``{wanted column: index}``."""
+
+    line: int
+    text: str
+    n_skipped: int
+    delimiter: str
+    parse_number: object
+    names: list
+    indices: dict = field(default_factory=dict)
+
+
+def _read_header(fh, path: Path, wanted: list, notes: list) -> _Layout:
+    """Format detection: the first line that is neither blank nor a comment is the header;
+    its first ``,``, ``;`` or tab is the delimiter (with ``;`` or tab, numbers may carry a
+    decimal comma). Refuses a file of comments only, a header of numbers, an unnamed or a
+    repeated column name."""
+    header_line, header_text, n_skipped = None, "", 0
+    for number, line in enumerate(fh, start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            n_skipped += 1
+            continue
+        header_line, header_text = number, line.rstrip("\n")
+        break
+    if header_line is None:
+        raise _fail(path, None, "the file holds only comments or blank lines; expected a header and data rows")
+
+    delimiter = next((d for d in _DELIMITERS if d in header_text), ",")
+    if delimiter != ",":
+        notes.append(f"columns are separated by {delimiter!r} rather than commas")
+    # with ';' or tab between columns a comma is a decimal comma (European MATLAB/Excel exports)
+    parse_number = float if delimiter == "," else _decimal_comma_float
+    header = [h.strip() for h in header_text.split(delimiter)]
+    if all(_looks_numeric(h) for h in header if h):
+        raise _fail(
+            path,
+            header_line,
+            f"no header line: the first line is numbers ({header_text.strip()[:60]!r}); "
+            f"expected column names {','.join(wanted)}",
+        )
+    seen = {}
+    for j, h in enumerate(header):
+        if not h:
+            raise _fail(path, header_line, f"column {j + 1} of the header has no name")
+        if h in seen:
+            raise _fail(path, header_line, f"column name {h!r} appears twice (columns {seen[h] + 1} and {j + 1})")
+        seen[h] = j
+    return _Layout(header_line, header_text, n_skipped, delimiter, parse_number, header)
+
+
+def _header_columns(path: Path, layout: _Layout, wanted: list, time_column, notes: list) -> dict:
+    """Column checks: ``{wanted column: index}``, a name matching in letter case only taken
+    with a note; a missing column refused with the columns present and close matches; the
+    other columns ignored with a note."""
+    header = layout.names
+    seen = {h: j for j, h in enumerate(header)}
+
+    def find(name):
+        if name in seen:
+            return seen[name]
+        folded = [h for h in header if h.casefold() == name.casefold()]
+        if len(folded) == 1:
+            notes.append(f"column {folded[0]!r} taken as {name!r} (letter case differs)")
+            return seen[folded[0]]
+        return None
+
+    indices = {}
+    missing = []
+    for name in wanted:
+        j = find(name)
+        if j is None:
+            missing.append(name)
+        else:
+            indices[name] = j
+    if missing:
+        hints = "; ".join(f"{m!r}{_suggest(m, header)}" for m in missing)
+        raise _fail(
+            path,
+            layout.line,
+            f"missing column(s) {hints}. Columns present: {', '.join(repr(h) for h in header)}. "
+            "Rename the header or pass the column names (time_column/input_column/output_column).",
+        )
+    extra = [h for j, h in enumerate(header) if j not in indices.values()]
+    if time_column is None and any(h.casefold() in ("time", "t", "t_s", "time_s") for h in extra):
+        notes.append("the file's time-like column was ignored because time_column=None")
+    if extra:
+        notes.append(f"ignored column(s): {', '.join(extra)}")
+    return indices
+
+
+def _parse_rows(fh, path: Path, layout: _Layout, wanted: list, size: int, progress) -> tuple[list, list, bool]:
+    """Parsing: the data rows after the header, streamed into one ``array('d')`` per wanted
+    column. Returns ``([(name, index, values)], the 1-based lines of the blank or comment
+    lines skipped, whether a decimal comma was read)``; a bad row raises (:func:`_row_error`)."""
+    from array import array
+
+    n_columns = len(layout.names)
+    parse_number = layout.parse_number
+    columns = [(name, layout.indices[name], array("d")) for name in wanted]
+    appends = [(j, values.append) for _name, j, values in columns]
+    report_every = max(1, size // 10) if (progress is not None and size > _PROGRESS_BYTES) else 0
+    next_report = report_every
+    read_bytes = 0
+    decimal_comma = False
+    skipped_lines: list[int] = []  # blank/comment lines after the header, to map rows to lines
+    for number, line in enumerate(fh, start=layout.line + 1):
+        cells = line.split(layout.delimiter)
+        try:
+            if len(cells) != n_columns:
+                raise ValueError
+            for j, append in appends:
+                append(parse_number(cells[j]))
+        except ValueError:
+            stripped = line.strip()
+            if not stripped or stripped.startswith("#"):
+                # undo a partial row (a comment line with the right number of cells)
+                n_done = len(columns[-1][2])
+                for _name, _j, values in columns:
+                    del values[n_done:]
+                skipped_lines.append(number)
+                continue
+            error = _row_error(path, number, cells, layout, columns)
+            if error is not None:
+                raise error from None
+            raise  # pragma: no cover - every cell parsed after all
+        if not decimal_comma and parse_number is not float and "," in line:
+            decimal_comma = True
+        if report_every:
+            read_bytes += len(line)
+            if read_bytes >= next_report:
+                progress(f"reading {path.name}: {min(100, 100 * read_bytes // size)} % ({len(columns[0][2])} rows)")
+                next_report += report_every
+    return columns, skipped_lines, decimal_comma
+
+
+def _row_error(path: Path, number: int, cells: list, layout: _Layout, columns: list) -> RecordError | None:
+    """The error of a data row that did not parse: wrong number of cells, an empty cell, or
+    not a number (None if every cell parses after all)."""
+    n_columns = len(layout.names)
+    if len(cells) != n_columns:
+        return _fail(path, number, f"{len(cells)} cells, but the header has {n_columns} columns ({','.join(layout.names)})")
+    for name, j, _values in columns:
+        cell = cells[j].strip()
+        if not cell:
+            return _fail(path, number, f"column {name!r} is empty")
+        if not _looks_numeric(cell.replace(",", ".") if layout.delimiter != "," else cell):
+            return _fail(path, number, f"column {name!r}: {cell[:40]!r} is not a number")
+    return None  # pragma: no cover
+
+
+def _row_lines(header_line: int, skipped_lines: list):
+    """``line_of(k)``: the file line (1-based) of data row ``k`` (0-based)."""
 
     def line_of(k: int) -> int:
         """File line (1-based) of data row ``k`` (0-based)."""
@@ -401,13 +482,11 @@ def load_record(
                 break
         return line
 
-    if n_samples < min_samples:
-        raise _fail(
-            path,
-            None,
-            f"only {n_samples} data row(s), fewer than the {min_samples} samples required "
-            "(a record needs a quiet start and several cycles)",
-        )
+    return line_of
+
+
+def _checked_arrays(path: Path, columns: list, time_column, line_of) -> dict:
+    """``{name: float array}``, refusing NaN, infinity and values beyond any physical range."""
     arrays = {}
     for name, j, values in columns:
         arr = np.frombuffer(values, dtype=float)
@@ -425,55 +504,47 @@ def load_record(
                 "a corrupted value? Correct or remove that line",
             )  # fmt: skip
         arrays[name] = arr
+    return arrays
 
+
+def _time_axis(path: Path, arrays: dict, time_column, n_samples: int, line_of, notes: list) -> np.ndarray:
+    """The time column, refused unless strictly increasing; the sample index (with a note) without one."""
     if time_column is None:
-        time = np.arange(n_samples, dtype=float)
         notes.append(
             "the file has no time column: time is the sample index 0, 1, 2, ... (unit steps, "
             "in samples rather than seconds); time constants come out in samples"
         )
-    else:
-        time = arrays[time_column]
-        steps = np.diff(time)
-        bad = np.flatnonzero(steps <= 0)
-        if bad.size:
-            k = int(bad[0])
-            kind = "repeats" if steps[k] == 0 else "is smaller than"
-            raise _fail(
-                path,
-                line_of(k + 1),
-                f"time {time[k + 1]!r} {kind} the previous time {time[k]!r} (line {line_of(k)}); "
-                "times must strictly increase",
-            )
-        del steps
+        return np.arange(n_samples, dtype=float)
+    time = arrays[time_column]
+    steps = np.diff(time)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        k = int(bad[0])
+        kind = "repeats" if steps[k] == 0 else "is smaller than"
+        raise _fail(
+            path,
+            line_of(k + 1),
+            f"time {time[k + 1]!r} {kind} the previous time {time[k]!r} (line {line_of(k)}); "
+            "times must strictly increase",
+        )
+    return time
 
-    sidecar = None
+
+def _read_sidecar(path: Path, notes: list) -> dict | None:
+    """The JSON sidecar beside ``path`` (an object), or None when there is none."""
     side = sidecar_path(path)
-    if side.is_file() and side != path:
-        try:
-            sidecar = json.loads(side.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise _fail(side, exc.lineno, f"malformed JSON sidecar: {exc.msg} (column {exc.colno})") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise _fail(side, None, f"cannot read the JSON sidecar ({exc})") from None
-        if not isinstance(sidecar, dict):
-            raise _fail(side, 1, f"the JSON sidecar must be an object ({{...}}), got {type(sidecar).__name__}")
-        notes.append(f"read the sidecar {side.name}")
-
-    return Record(
-        time=time,
-        current=arrays[input_column],
-        displacement=arrays[output_column],
-        source=str(path),
-        sha256=digest,
-        input_name=input_column,
-        input_unit=input_unit,
-        output_name=output_column,
-        output_unit=output_unit,
-        notes=tuple(notes),
-        sidecar=sidecar,
-        time_name=time_column if time_column is not None else "time",
-    )
+    if not (side.is_file() and side != path):
+        return None
+    try:
+        sidecar = json.loads(side.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise _fail(side, exc.lineno, f"malformed JSON sidecar: {exc.msg} (column {exc.colno})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise _fail(side, None, f"cannot read the JSON sidecar ({exc})") from None
+    if not isinstance(sidecar, dict):
+        raise _fail(side, 1, f"the JSON sidecar must be an object ({{...}}), got {type(sidecar).__name__}")
+    notes.append(f"read the sidecar {side.name}")
+    return sidecar
 
 
 # -- MATLAB .mat records (the file format: identify.data.matfile) -----------------------------

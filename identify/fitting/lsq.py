@@ -776,6 +776,10 @@ def fit_least_squares(
 def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=N_POLISH) -> FitResult:
     """Least-squares fit of ``model`` as given (its pinned parameters, alpha's sign included).
 
+    The steps: the checks (:func:`_checked_residuals`), the starts
+    (:func:`candidate_starts`), the search from them (:func:`_run_starts`: screen, polish,
+    the alternate method at a bound) and the fit's statistics (:func:`_fit_result`).
+
     Parameters
     ----------
     record : identify.data.records.Record
@@ -802,6 +806,14 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
     """
     model = in_record_units(model, record)  # default bounds in the record's unit prefixes
     t0 = _time.perf_counter()
+    noise, residuals = _checked_residuals(record, model, noise)
+    starts = candidate_starts(record, model, n_starts=n_starts, rng=rng, start=start)
+    best, outcomes = _run_starts(residuals, starts, n_polish, verbose)
+    return _fit_result(record, model, residuals, noise, best, outcomes, len(starts), t0)
+
+
+def _checked_residuals(record, model: Model, noise) -> tuple[NoiseModel, WhitenedResiduals]:
+    """``(noise, whitened residuals)``, refusing a fit with nothing free or too few samples."""
     noise = estimate_noise(record) if noise is None else noise
     if not isinstance(noise, NoiseModel):
         raise ValueError(f"noise must be a NoiseModel, got {type(noise).__name__}")
@@ -812,13 +824,39 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
     n_samples = residuals.data.size
     if n_samples <= free.size:
         raise ValueError(f"{n_samples} samples cannot determine {free.size} free parameters")
-    starts = candidate_starts(record, model, n_starts=n_starts, rng=rng, start=start)
+    return noise, residuals
 
+
+class _StartLog:
+    """The outcome of every start, in order, and the best polished end so far."""
+
+    def __init__(self, verbose: bool):
+        self.level = logging.INFO if verbose else logging.DEBUG
+        self.outcomes: list[StartOutcome] = []
+        self.best = None
+
+    def screened_out(self, label, sol, n_eval):
+        message = f"screened out after {SCREEN_EVALUATIONS} evaluations (not run to convergence)"
+        self.outcomes.append(StartOutcome(label, 2.0 * float(sol.cost), n_eval, bool(sol.success), message))
+
+    def keep(self, label, end: _PolishedStart, n_eval):
+        self.outcomes.append(StartOutcome(label, end.chi2, n_eval, end.success, end.message))
+        _log.log(self.level, f"  polish {label:<14} chi2 = {end.chi2:.6g}  ({end.message})")
+        if self.best is None or end.chi2 < self.best.chi2:
+            self.best = end
+
+
+def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_PolishedStart, list]:
+    """``(best end, outcomes)`` of the search from ``starts``, with numba's fastest thread count
+    and single-threaded BLAS: phase 1 screens every start with a few solver steps, phase 2
+    runs the ``n_polish`` most promising to convergence, phase 3 (:func:`_polish_at_bound`)."""
     import numba
 
+    free = residuals.free
     threads_before = numba.get_num_threads()
     x_probe = np.repeat(np.clip(starts[0][1][free], residuals.lower, residuals.upper)[None, :], free.size + 1, axis=0)
     fastest_thread_count(residuals.batch, x_probe)
+    log = _StartLog(verbose)
     try:
         with single_threaded_blas():
             # Phase 1: screen every start with a few solver steps.
@@ -829,43 +867,46 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
                 sol = _solve(residuals, x0, SCREEN_EVALUATIONS)
                 screened.append((label, sol, residuals.n_evaluations - before))
                 origins.append(x0)
-                _log.log(logging.INFO if verbose else logging.DEBUG, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g}")
+                _log.log(log.level, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g}")
             # Phase 2: run the most promising starts to convergence.
             order = sorted(range(len(screened)), key=lambda k: screened[k][1].cost)
             polish = set(order[:n_polish])
-            outcomes: list[StartOutcome] = []
-            best = None
-
-            def keep(label, end, n_eval):
-                nonlocal best
-                outcomes.append(StartOutcome(label, end.chi2, n_eval, end.success, end.message))
-                _log.log(logging.INFO if verbose else logging.DEBUG, f"  polish {label:<14} chi2 = {end.chi2:.6g}  ({end.message})")
-                if best is None or end.chi2 < best.chi2:
-                    best = end
-
             for k, (label, sol, n_eval) in enumerate(screened):
                 if k not in polish:
-                    message = f"screened out after {SCREEN_EVALUATIONS} evaluations (not run to convergence)"
-                    outcomes.append(StartOutcome(label, 2.0 * float(sol.cost), n_eval, bool(sol.success), message))
+                    log.screened_out(label, sol, n_eval)
                     continue
                 before = residuals.n_evaluations
                 end = _converged(residuals, sol)
-                keep(label, end, n_eval + residuals.n_evaluations - before)
-            # Phase 3: an optimum with a GPI parameter on its box bound is a degenerate limit
-            # (e.g. an Omega branch whose tanh is stretched into a line: c0 at -1000, c1 -> 0),
-            # into which dogbox's large steps can fall; the same starts are then polished from
-            # their origin with the interior, reflective method (trf) too, finished by dogbox.
-            gpi_at_bound = _gpi_at_bound(residuals, best.x)
-            if gpi_at_bound:
-                note = (f" ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum "
-                        f"had {', '.join(gpi_at_bound)} on a bound)")  # fmt: skip
-                for k in sorted(polish):
-                    before = residuals.n_evaluations
-                    sol = _solve(residuals, origins[k], POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
-                    end = _converged(residuals, sol, note)
-                    keep(f"{screened[k][0]} ({ALTERNATE_METHOD})", end, residuals.n_evaluations - before)
+                log.keep(label, end, n_eval + residuals.n_evaluations - before)
+            _polish_at_bound(residuals, screened, origins, polish, log)
     finally:
         numba.set_num_threads(threads_before)
+    return log.best, log.outcomes
+
+
+def _polish_at_bound(residuals, screened, origins, polish, log: _StartLog) -> None:
+    """Phase 3: an optimum with a GPI parameter on its box bound is a degenerate limit (e.g.
+    an Omega branch whose tanh is stretched into a line: c0 at -1000, c1 -> 0), into which
+    dogbox's large steps can fall; the same starts are then polished from their origin with
+    the interior, reflective method (trf) too, finished by dogbox."""
+    gpi_at_bound = _gpi_at_bound(residuals, log.best.x)
+    if not gpi_at_bound:
+        return
+    note = (f" ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum "
+            f"had {', '.join(gpi_at_bound)} on a bound)")  # fmt: skip
+    for k in sorted(polish):
+        before = residuals.n_evaluations
+        sol = _solve(residuals, origins[k], POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
+        end = _converged(residuals, sol, note)
+        log.keep(f"{screened[k][0]} ({ALTERNATE_METHOD})", end, residuals.n_evaluations - before)
+
+
+def _fit_result(record, model: Model, residuals, noise: NoiseModel, best: _PolishedStart, outcomes, n_starts: int,
+                t0: float) -> FitResult:  # fmt: skip
+    """The :class:`FitResult` at ``best``: a free sigma estimated from the chi-square, the
+    covariance from the central Jacobian, the residual, RMS and maximum error on the energised part."""
+    free = residuals.free
+    n_samples = residuals.data.size
     x_best = best.x
     w = residuals(x_best)
     chi2 = float(w @ w)
@@ -905,7 +946,7 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
         max_error_pct=max_error_pct,
         reduced_chi2=float(reduced_chi2),
         noise=noise,
-        n_starts=len(starts),
+        n_starts=n_starts,
         success=bool(best.success),
         message=str(best.message),
         seconds=_time.perf_counter() - t0,

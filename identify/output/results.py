@@ -60,6 +60,7 @@ __all__ = [
     "package_versions",
     "thread_counts",
     "git_commit",
+    "git_head",
     "load_results",
     "now_iso",
 ]
@@ -383,20 +384,38 @@ def thread_counts() -> dict:
     return counts
 
 
-def git_commit(path=None) -> dict:
-    """``{"commit": sha or None, "dirty": bool or None}`` of the project's git work tree."""
+def git_head(path=None) -> str | None:
+    """The commit (HEAD) of the git work tree holding ``path`` (this package by default), or None.
+
+    None when git is missing, ``path`` is not in a work tree, or git answers anything but a
+    40-character commit (the one home of this look-up: :func:`git_commit` and the bench's
+    truth, :mod:`identify.cli.simulate`, use it).
+    """
     root = Path(path) if path is not None else Path(__file__).resolve().parent.parent
     try:
-        sha = subprocess.run(
-            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
-        ).stdout.strip()
+        result = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=False
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    commit = result.stdout.strip()
+    return commit if result.returncode == 0 and len(commit) == 40 else None
+
+
+def git_commit(path=None) -> dict:
+    """``{"commit": sha or None, "dirty": bool or None}`` of the project's git work tree (:func:`git_head`)."""
+    root = Path(path) if path is not None else Path(__file__).resolve().parent.parent
+    sha = git_head(root)
+    if sha is None:
+        return {"commit": None, "dirty": None}
+    try:
         status = subprocess.run(
             ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
             capture_output=True, text=True, timeout=10, check=True,
         ).stdout  # fmt: skip
-        return {"commit": sha, "dirty": bool(status.strip())}
     except (OSError, subprocess.SubprocessError):
         return {"commit": None, "dirty": None}
+    return {"commit": sha, "dirty": bool(status.strip())}
 
 
 def build_manifest(*, seed, record, settings: dict, started=None, command=None, task=None) -> dict:

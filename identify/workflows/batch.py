@@ -445,6 +445,10 @@ def parse_config(data: dict, source="<config>") -> BatchConfig:
         An unknown key, a missing or mistyped value, a glob matching nothing, duplicate
         record or variant names, an unknown task or executor. The message names the
         file and the key (e.g. ``records[2].glob``).
+
+    The keys are checked in order: the top-level keys, the task, the output folder and
+    the execution settings (:func:`_execution`), the options, the records
+    (:func:`_records`) and the variants (:func:`_variants`).
     """
     source = Path(source)
     base = source.parent if source.suffix else Path.cwd()
@@ -455,7 +459,34 @@ def parse_config(data: dict, source="<config>") -> BatchConfig:
         raise BatchConfigError(
             f"{source}: unknown key(s) {', '.join(unknown)}; known top-level keys: {', '.join(sorted(_TOP_KEYS))}"
         )
+    task = _task(data, source)
+    out = data.get("out")
+    if not isinstance(out, str) or not out.strip():
+        raise BatchConfigError(f"{source}: out must be a folder path (string), got {out!r}")
+    out_path = (base / out).resolve()
+    workers, executor, executor_options, timeout = _execution(data, source)
+    options_table = data.get("options", {})
+    if not isinstance(options_table, dict):
+        raise BatchConfigError(f"{source}: options must be a table ([options])")
+    options = _check_options(options_table, "options", source)
+    records = _records(data, source, base)
+    variants = _variants(data, source)
+    return BatchConfig(
+        source=source,
+        task=task,
+        out=out_path,
+        workers=workers,
+        executor=executor,
+        executor_options=dict(executor_options),
+        timeout=None if timeout is None else float(timeout),
+        options=options,
+        records=tuple(records),
+        variants=tuple(variants),
+    )
 
+
+def _task(data: dict, source: Path) -> str:
+    """The ``task``: one of :data:`TASKS` and a registered command."""
     task = data.get("task")
     if task not in TASKS:
         raise BatchConfigError(f"{source}: task must be one of {', '.join(TASKS)}, got {task!r}")
@@ -465,12 +496,11 @@ def parse_config(data: dict, source="<config>") -> BatchConfig:
         raise BatchConfigError(
             f"{source}: task {task!r} is not available: 'python -m identify {task}' is not a registered command"
         )
+    return task
 
-    out = data.get("out")
-    if not isinstance(out, str) or not out.strip():
-        raise BatchConfigError(f"{source}: out must be a folder path (string), got {out!r}")
-    out_path = (base / out).resolve()
 
+def _execution(data: dict, source: Path) -> tuple:
+    """``(workers, executor, executor_options, timeout)``: workers default to the CPU count."""
     cores = os.cpu_count() or 1
     workers = data.get("workers", cores)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -488,12 +518,11 @@ def parse_config(data: dict, source="<config>") -> BatchConfig:
         isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (math.isfinite(timeout) and timeout > 0)
     ):
         raise BatchConfigError(f"{source}: timeout must be a positive number of seconds, got {timeout!r}")
+    return workers, executor, executor_options, timeout
 
-    options_table = data.get("options", {})
-    if not isinstance(options_table, dict):
-        raise BatchConfigError(f"{source}: options must be a table ([options])")
-    options = _check_options(options_table, "options", source)
 
+def _records(data: dict, source: Path, base: Path) -> list:
+    """The :class:`RecordSpec` of every ``[[records]]`` entry (a path, or the files of a glob), names unique."""
     records_table = data.get("records")
     if not isinstance(records_table, list) or not records_table:
         raise BatchConfigError(f"{source}: records must be a non-empty array of tables ([[records]])")
@@ -506,18 +535,7 @@ def parse_config(data: dict, source="<config>") -> BatchConfig:
         if has_path == has_glob:
             raise BatchConfigError(f"{source}: {where} needs exactly one of 'path' or 'glob'")
         record_options = _check_options({k: v for k, v in entry.items() if k not in _RECORD_KEYS}, where, source)
-        if has_path:
-            if not isinstance(entry["path"], str) or not entry["path"].strip():
-                raise BatchConfigError(f"{source}: {where}.path must be a file path (string)")
-            paths = [(base / entry["path"]).resolve()]
-        else:
-            pattern = entry["glob"]
-            if not isinstance(pattern, str) or not pattern.strip():
-                raise BatchConfigError(f"{source}: {where}.glob must be a glob pattern (string)")
-            paths = [Path(p).resolve() for p in sorted(_glob.glob(str(base / pattern), recursive=True))]
-            paths = [p for p in paths if p.is_file()]
-            if not paths:
-                raise BatchConfigError(f"{source}: {where}.glob {pattern!r} matches no file (relative to {base})")
+        paths = _record_paths(entry, where, source, base, has_path)
         name = entry.get("name")
         if name is not None and (not isinstance(name, str) or not name.strip()):
             raise BatchConfigError(f"{source}: {where}.name must be a non-empty string")
@@ -526,7 +544,27 @@ def parse_config(data: dict, source="<config>") -> BatchConfig:
         for p in paths:
             records.append(RecordSpec(_slug(name if name else p.stem), p, record_options))
     _check_unique([r.name for r in records], "record", source, "give the records a 'name'")
+    return records
 
+
+def _record_paths(entry: dict, where: str, source: Path, base: Path, has_path: bool) -> list:
+    """The files of one ``[[records]]`` entry: its ``path``, or the files its ``glob`` matches (at least one)."""
+    if has_path:
+        if not isinstance(entry["path"], str) or not entry["path"].strip():
+            raise BatchConfigError(f"{source}: {where}.path must be a file path (string)")
+        return [(base / entry["path"]).resolve()]
+    pattern = entry["glob"]
+    if not isinstance(pattern, str) or not pattern.strip():
+        raise BatchConfigError(f"{source}: {where}.glob must be a glob pattern (string)")
+    paths = [Path(p).resolve() for p in sorted(_glob.glob(str(base / pattern), recursive=True))]
+    paths = [p for p in paths if p.is_file()]
+    if not paths:
+        raise BatchConfigError(f"{source}: {where}.glob {pattern!r} matches no file (relative to {base})")
+    return paths
+
+
+def _variants(data: dict, source: Path) -> list:
+    """The :class:`VariantSpec` of every ``[[variants]]`` entry (default one named ``default``), names unique."""
     variants_table = data.get("variants", [{"name": "default"}])
     if not isinstance(variants_table, list) or not variants_table:
         raise BatchConfigError(f"{source}: variants must be a non-empty array of tables ([[variants]])")
@@ -541,19 +579,7 @@ def parse_config(data: dict, source="<config>") -> BatchConfig:
         variant_options = _check_options({k: v for k, v in entry.items() if k not in _VARIANT_KEYS}, where, source)
         variants.append(VariantSpec(_slug(name), variant_options))
     _check_unique([v.name for v in variants], "variant", source, "rename them")
-
-    return BatchConfig(
-        source=source,
-        task=task,
-        out=out_path,
-        workers=workers,
-        executor=executor,
-        executor_options=dict(executor_options),
-        timeout=None if timeout is None else float(timeout),
-        options=options,
-        records=tuple(records),
-        variants=tuple(variants),
-    )
+    return variants
 
 
 def _check_unique(names, what, source, hint):
@@ -762,14 +788,20 @@ def _collect_fit(folder: Path) -> dict:
     if not isinstance(fit, dict):
         raise RuntimeError("the command finished but wrote no readable fit.json")
     success = fit.get("success")
+    return _fit_columns(folder, fit, "" if success is None else ("converged" if success else "not converged"), fit)
+
+
+def _fit_columns(folder: Path, fit: dict, verdict: str, source: dict) -> dict:
+    """A summary row of a fit's numbers (``fit``: rms, max_error_pct, reduced_chi2), the
+    ``verdict``, the output unit and the notes of ``source`` and the manifest."""
     return dict(
         rms=_number(fit.get("rms")),
         max_error_pct=_number(fit.get("max_error_pct")),
         statistic_name="reduced_chi2",
         statistic=_number(fit.get("reduced_chi2")),
-        verdict="" if success is None else ("converged" if success else "not converged"),
+        verdict=verdict,
         output_unit=_output_unit(folder),
-        notes=_notes_from(fit, _read_json(folder / "manifest.json")),
+        notes=_notes_from(source, _read_json(folder / "manifest.json")),
     )
 
 
@@ -780,15 +812,8 @@ def _collect_study(folder: Path) -> dict:
     fit = summary.get("fit") or {}
     posterior = summary.get("posterior") or {}
     converged = posterior.get("converged")
-    return dict(
-        rms=_number(fit.get("rms")),
-        max_error_pct=_number(fit.get("max_error_pct")),
-        statistic_name="reduced_chi2",
-        statistic=_number(fit.get("reduced_chi2")),
-        verdict="" if converged is None else ("posterior converged" if converged else "posterior NOT converged"),
-        output_unit=_output_unit(folder),
-        notes=_notes_from(summary, _read_json(folder / "manifest.json")),
-    )
+    verdict = "" if converged is None else ("posterior converged" if converged else "posterior NOT converged")
+    return _fit_columns(folder, fit, verdict, summary)
 
 
 def _collect_diagnose(folder: Path) -> dict:

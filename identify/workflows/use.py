@@ -475,6 +475,12 @@ def predict(
 ) -> Prediction:
     """Apply a finished study's posterior and least-squares fit to another record (no refit).
 
+    The steps: the common preamble (:func:`_prepared`), the notes (:func:`_prediction_notes`),
+    the bands on the record (:func:`_validation`), the training figures with the same draws
+    (:func:`_training_figures`), the noise test of the validation residual
+    (:func:`_residual_check`) and, when it is not noise, the diagnosis
+    (:func:`_diagnose_window`).
+
     Parameters
     ----------
     study : Study or path
@@ -512,22 +518,15 @@ def predict(
         Not a finished study, a record in other units, an empty window, a model outside
         its domain on this record.
     """
-    from ..diagnosis.diagnose import assess_adequacy, diagnose
-    from ..diagnosis.residuals import ARNoise, fit_ar_noise, residual_profile
-
-    say = progress or (lambda message: None)
-    seconds: dict[str, float] = {}
+    say, seconds = _say(progress), {}
     clock = _time.perf_counter()
-    if not isinstance(study, Study):
-        study = load_study(study)
-    if not isinstance(record, Record):
-        record = load_record_for_study(record, study)
-    check_units(record, study)
-    if diagnosis not in ("auto", "adequacy"):
-        raise ValueError(f"diagnosis must be 'auto' or 'adequacy', got {diagnosis!r}")
-    if isinstance(n_draws, bool) or not isinstance(n_draws, (int, np.integer)) or n_draws < 2:
-        raise ValueError(f"n_draws must be an integer >= 2, got {n_draws!r}")
-    rng = np.random.default_rng(0) if rng is None else rng
+
+    def check(record, study):
+        check_units(record, study)
+        if diagnosis not in ("auto", "adequacy"):
+            raise ValueError(f"diagnosis must be 'auto' or 'adequacy', got {diagnosis!r}")
+
+    study, record, rng = _prepared(study, record, Record, load_record_for_study, n_draws, rng, check)
     start, stop, window = _window_indices(record, window)
     quiet = quiet_segment(record.current)
     energised_all = np.ones(len(record), dtype=bool)
@@ -536,6 +535,62 @@ def predict(
     if not energised.any():
         raise UseError(f"{record.source}: the window {window[0]:g}:{window[1]:g} s holds no energised sample (the drive is zero)")
     noise = _noise_for(record, study)
+    notes = _prediction_notes(study, record, noise, start, stop)
+    v = _validation(study, record, noise, start, stop, energised, n_draws, rng, notes, say)
+    seconds["bands"] = _time.perf_counter() - clock
+    clock = _time.perf_counter()
+    training = _training_figures(study, v.draws, v.draw_sigma)
+    seconds["training"] = _time.perf_counter() - clock
+    clock = _time.perf_counter()
+    profile, adequacy = _residual_check(v, noise, quiet, start)
+    seconds["profile"] = _time.perf_counter() - clock
+    found = None
+    if adequacy.adequate:
+        verdict, missing = "adequate", None
+    elif diagnosis == "adequacy":
+        verdict, missing = "not_adequate", None
+    else:
+        clock = _time.perf_counter()
+        found, verdict, missing = _diagnose_window(study, record, v, noise, start, window, n_starts, rng, notes, say)
+        seconds["diagnosis"] = _time.perf_counter() - clock
+    time, post, lsq = v.time, v.post, v.lsq
+    return Prediction(
+        study=study, record=record, window=window, start=start, stop=stop, time=time, current=v.current,
+        measured=v.measured, energised=energised, bands=v.bands, rms=post["rms"], max_error_pct=post["max_error_pct"],
+        max_abs_error=post["max_abs_error"], time_of_max=float(time[post["worst"]]), rms_lsq=lsq["rms"],
+        max_error_pct_lsq=lsq["max_error_pct"], inside_predictive_band=float(v.inside[energised].mean()), noise=noise,
+        training=training, profile=profile, adequacy=adequacy, diagnosis=found, verdict=verdict, missing=missing,
+        notes=notes, seconds=seconds,
+    )  # fmt: skip
+
+
+def _say(progress):
+    """``progress``, or a function that says nothing."""
+    return progress or (lambda message: None)
+
+
+def _prepared(study, item, item_type, load_item, n_draws, rng, check=None):
+    """The preamble :func:`predict` and :func:`compensate` share: ``(study, item, rng)``.
+
+    A path of a study is loaded (:func:`load_study`), a path of the item (the record, the
+    target) read with ``load_item(item, study)``; ``check(item, study)`` runs next, then
+    ``n_draws`` is checked and the generator defaults to ``default_rng(0)``.
+    """
+    if not isinstance(study, Study):
+        study = load_study(study)
+    if not isinstance(item, item_type):
+        item = load_item(item, study)
+    if check is not None:
+        check(item, study)
+    if isinstance(n_draws, bool) or not isinstance(n_draws, (int, np.integer)) or n_draws < 2:
+        raise ValueError(f"n_draws must be an integer >= 2, got {n_draws!r}")
+    rng = np.random.default_rng(0) if rng is None else rng
+    return study, item, rng
+
+
+def _prediction_notes(study: Study, record: Record, noise: NoiseModel, start: int, stop: int) -> list[str]:
+    """The notes of a prediction known before the model runs: an unconverged study, a drive
+    beyond the training range, a window after the start, per-record effects, the study's noise."""
     notes: list[str] = []
     if not study.converged:
         message = str(study.summary["posterior"].get("message") or "").removeprefix("NOT CONVERGED:").strip()
@@ -559,8 +614,29 @@ def predict(
     if noise.source == "user":
         notes.append(f"no quiet start of {MIN_QUIET_SAMPLES}+ samples in this record: the study's noise sigma "
                      f"{noise.sigma:.4g} {record.output_unit} is used")  # fmt: skip
+    return notes
 
-    # model curves (history included)
+
+@dataclass(frozen=True, eq=False)
+class _Validation:
+    """The model on the new record: the draws, the bands and errors on the scored window."""
+
+    draws: np.ndarray
+    draw_sigma: float | None
+    bands: Bands
+    time: np.ndarray
+    current: np.ndarray
+    measured: np.ndarray
+    output_range: float
+    post: dict
+    lsq: dict
+    inside: np.ndarray
+
+
+def _validation(study: Study, record: Record, noise: NoiseModel, start: int, stop: int, energised, n_draws, rng, notes,
+                say) -> _Validation:  # fmt: skip
+    """Posterior draws and the least-squares vector through the model from the record's first
+    sample (history included), scored on the window ``start:stop``."""
     draws, draw_sigma = study.draws(n_draws, rng)
     sigma = draw_sigma if draw_sigma is not None else noise.sigma
     say(f"pushing {draws.shape[0]} posterior draws through the model ({stop} samples)")
@@ -578,10 +654,11 @@ def predict(
     post = _errors(measured, bands.median, energised, output_range)
     lsq = _errors(measured, bands.lsq, energised, output_range)
     inside = (measured >= bands.predictive_lo) & (measured <= bands.predictive_hi)
-    seconds["bands"] = _time.perf_counter() - clock
+    return _Validation(draws, draw_sigma, bands, time, current, measured, output_range, post, lsq, inside)
 
-    # the training figures, same draws
-    clock = _time.perf_counter()
+
+def _training_figures(study: Study, draws, draw_sigma) -> dict:
+    """The training record's figures with the same draws, beside the validation's."""
     train = study.record
     train_energised = np.ones(len(train), dtype=bool)
     train_energised[quiet_segment(train.current)] = False
@@ -591,7 +668,7 @@ def predict(
     train_post = _errors(train.displacement, train_bands.median, train_energised, train_range)
     train_inside = (train.displacement >= train_bands.predictive_lo) & (train.displacement <= train_bands.predictive_hi)
     fit_summary = study.summary["fit"]
-    training = {
+    return {
         "rms_lsq": fit_summary.get("rms"),
         "max_error_pct_lsq": fit_summary.get("max_error_pct"),
         "reduced_chi2": fit_summary.get("reduced_chi2"),
@@ -602,54 +679,52 @@ def predict(
         "n_samples": len(train),
         "file": study.manifest.get("data", {}).get("file"),
     }
-    seconds["training"] = _time.perf_counter() - clock
 
-    # where it fails, and is it noise (least-squares residual, as the diagnosis)
-    clock = _time.perf_counter()
-    residual_lsq = measured - bands.lsq
+
+def _residual_check(v: _Validation, noise: NoiseModel, quiet: slice, start: int):
+    """``(profile, adequacy)`` of the least-squares residual on the window: where it fails,
+    and is it noise (as the diagnosis: the quiet start's AR noise, else white noise of sigma)."""
+    from ..diagnosis.diagnose import assess_adequacy
+    from ..diagnosis.residuals import ARNoise, fit_ar_noise, residual_profile
+
+    residual_lsq = v.measured - v.bands.lsq
     quiet_w = None
     if start == 0 and quiet.stop >= 20:
         quiet_w = quiet
         noise_ref = fit_ar_noise(residual_lsq[: quiet.stop])
     else:
         noise_ref = ARNoise(np.zeros(0), float(noise.sigma), float(noise.sigma), 10**9)
-    profile = residual_profile(time, current, residual_lsq, quiet_w, output_range=float(np.ptp(measured)), noise=noise_ref)
-    adequacy = assess_adequacy(profile)
-    seconds["profile"] = _time.perf_counter() - clock
-    found = None
-    if adequacy.adequate:
-        verdict, missing = "adequate", None
-    elif diagnosis == "adequacy":
-        verdict, missing = "not_adequate", None
-    else:
-        clock = _time.perf_counter()
-        window_record = replace(record, time=time, current=current, displacement=measured,
-                                notes=(*record.notes, f"window {window[0]:g}:{window[1]:g} s"))  # fmt: skip
-        diag_noise = noise if (noise.quiet is not None and start == 0) else NoiseModel(
-            sigma=float(noise.sigma), rho=0.0, kind="white", source="user")  # fmt: skip
-        own = study.model(study.fit.theta, time, current)  # the diagnosis runs the model on the window alone
-        baseline = _baseline_fit(study.fit, window_record, own, diag_noise)
-        say("the validation residual is not noise: diagnosing which effect the record reveals")
-        try:
-            found = diagnose(window_record, study.model, fit=baseline, n_starts=n_starts, rng=rng, progress=say)
-        except ValueError as exc:
-            raise UseError(f"{record.source}: the diagnosis cannot run on this window ({exc})") from None
-        verdict, missing = found.status, found.missing
-        if verdict == "adequate" and not np.array_equal(found.fit.theta, study.fit.theta):
-            verdict = "parameters_differ"
-            notes.append(
-                f"the diagnosis refitted the model's parameters on this window and found it adequate there (RMS "
-                f"{found.rms:.4g} {record.output_unit}): no effect is missing, but the study's parameters do not carry over"
-            )
-        seconds["diagnosis"] = _time.perf_counter() - clock
-    return Prediction(
-        study=study, record=record, window=window, start=start, stop=stop, time=time, current=current,
-        measured=measured, energised=energised, bands=bands, rms=post["rms"], max_error_pct=post["max_error_pct"],
-        max_abs_error=post["max_abs_error"], time_of_max=float(time[post["worst"]]), rms_lsq=lsq["rms"],
-        max_error_pct_lsq=lsq["max_error_pct"], inside_predictive_band=float(inside[energised].mean()), noise=noise,
-        training=training, profile=profile, adequacy=adequacy, diagnosis=found, verdict=verdict, missing=missing,
-        notes=notes, seconds=seconds,
-    )  # fmt: skip
+    profile = residual_profile(v.time, v.current, residual_lsq, quiet_w, output_range=float(np.ptp(v.measured)), noise=noise_ref)
+    return profile, assess_adequacy(profile)
+
+
+def _diagnose_window(study: Study, record: Record, v: _Validation, noise: NoiseModel, start: int, window, n_starts, rng,
+                     notes, say):  # fmt: skip
+    """``(diagnosis, verdict, missing)``: which effect the window reveals, the study's
+    least-squares vector as the baseline; ``parameters_differ`` when a refitted baseline is
+    adequate there."""
+    from ..diagnosis.diagnose import diagnose
+
+    time, current, measured = v.time, v.current, v.measured
+    window_record = replace(record, time=time, current=current, displacement=measured,
+                            notes=(*record.notes, f"window {window[0]:g}:{window[1]:g} s"))  # fmt: skip
+    diag_noise = noise if (noise.quiet is not None and start == 0) else NoiseModel(
+        sigma=float(noise.sigma), rho=0.0, kind="white", source="user")  # fmt: skip
+    own = study.model(study.fit.theta, time, current)  # the diagnosis runs the model on the window alone
+    baseline = _baseline_fit(study.fit, window_record, own, diag_noise)
+    say("the validation residual is not noise: diagnosing which effect the record reveals")
+    try:
+        found = diagnose(window_record, study.model, fit=baseline, n_starts=n_starts, rng=rng, progress=say)
+    except ValueError as exc:
+        raise UseError(f"{record.source}: the diagnosis cannot run on this window ({exc})") from None
+    verdict, missing = found.status, found.missing
+    if verdict == "adequate" and not np.array_equal(found.fit.theta, study.fit.theta):
+        verdict = "parameters_differ"
+        notes.append(
+            f"the diagnosis refitted the model's parameters on this window and found it adequate there (RMS "
+            f"{found.rms:.4g} {record.output_unit}): no effect is missing, but the study's parameters do not carry over"
+        )
+    return found, verdict, missing
 
 
 def _baseline_fit(fit, record: Record, model_output, noise: NoiseModel):
@@ -865,6 +940,10 @@ def compensate(
 ) -> Compensation:
     """The drive current that makes the identified model follow ``target`` (the inverse; no refit).
 
+    The steps: the common preamble (:func:`_prepared`), the notes
+    (:func:`_compensation_notes`), the median's inverse (:func:`_invert_median`), the draws'
+    inverses and tracking (:func:`_tracking`) and the summary (:func:`_compensation_summary`).
+
     Method (details in :mod:`model.inverse`): the posterior-median parameter vector is
     inverted exactly, sample by sample, within ``current_range``; that current is the
     feedforward (``compensation.csv``). Each of ``n_draws`` posterior draws is inverted too
@@ -899,22 +978,40 @@ def compensate(
         the first such sample, what it asks and how many samples); an effect the inverse
         does not know.
     """
-    say = progress or (lambda message: None)
-    seconds: dict[str, float] = {}
-    if not isinstance(study, Study):
-        study = load_study(study)
-    if not isinstance(target, Target):
-        target = load_target(target, output_column=study.record.output_name)
-    if isinstance(n_draws, bool) or not isinstance(n_draws, (int, np.integer)) or n_draws < 2:
-        raise ValueError(f"n_draws must be an integer >= 2, got {n_draws!r}")
-    rng = np.random.default_rng(0) if rng is None else rng
+    say, seconds = _say(progress), {}
+    study, target, rng = _prepared(
+        study, target, Target, lambda path, study: load_target(path, output_column=study.record.output_name), n_draws, rng
+    )
     lo, hi = default_current_range(study) if current_range is None else (float(x) for x in current_range)
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise UseError(f"--current-range {lo}:{hi}: needs LO < HI")
+    y_target = target.displacement
+    notes = _compensation_notes(study)
+    med = _invert_median(study, target, (lo, hi), seconds)
+    t = _tracking(study, target, med, (lo, hi), n_draws, rng, seconds, say)
+    summary = _compensation_summary(study, target, med, t)
+    counts = summary["model_tracking"]["samples"]
+    if counts["branch"] or counts["saturated"]:
+        notes.append(
+            f"the median model misses the target at {counts['branch'] + counts['saturated']} samples (Omega switch gaps "
+            f"{counts['branch']}, current limit {counts['saturated']}; max {np.abs(med.error).max():.3g} "
+            f"{study.record.output_unit})"
+        )
+    current_lo, current_median, current_hi = np.quantile(t.each.current, [0.025, 0.5, 0.975], axis=0)
+    bands = t.bands
+    return Compensation(
+        study=study, target=target, current=med.current, status=med.status, model_output=med.output,
+        current_lo=current_lo, current_hi=current_hi, current_median=current_median, error_median=t.error_median,
+        error_lo=bands.credible_lo - y_target, error_hi=bands.credible_hi - y_target,
+        predictive_lo=bands.predictive_lo - y_target, predictive_hi=bands.predictive_hi - y_target,
+        lsq_error=bands.lsq - y_target, summary=summary, current_range=(lo, hi), notes=notes, seconds=seconds,
+    )  # fmt: skip
+
+
+def _compensation_notes(study: Study) -> list[str]:
+    """The notes of a compensation known before the inverse runs: an unconverged study, and
+    how each of the model's effects enters the inverse."""
     model = study.model
-    unit, in_unit = study.record.output_unit, study.record.input_unit
-    time, y_target = target.time, target.displacement
-    span = float(np.ptp(y_target))
     notes: list[str] = []
     if not study.converged:
         notes.append("the study's posterior is NOT CONVERGED: the bands are provisional")
@@ -927,7 +1024,17 @@ def compensate(
     if "lag" in model.effect_names:
         notes.append("lag: the current leads the drive; at an Omega switch the drive must cross a dead zone at once, "
                      "which a lag cannot: the current saturates for a few samples there (flagged)")  # fmt: skip
+    return notes
 
+
+def _invert_median(study: Study, target: Target, limits: tuple[float, float], seconds: dict):
+    """The posterior median's exact inverse within ``limits``; a target beyond what the model
+    reaches there (:func:`reachable_range`) is refused with the first such sample."""
+    model = study.model
+    lo, hi = limits
+    unit, in_unit = study.record.output_unit, study.record.input_unit
+    time, y_target = target.time, target.displacement
+    span = float(np.ptp(y_target))
     median_theta = _compensation_theta(model, study.median)
     clock = _time.perf_counter()
     try:
@@ -949,12 +1056,30 @@ def compensate(
             f"{'upper' if med.current[k] >= hi else 'lower'} limit ({int(unreachable.sum())} such samples; the target spans "
             f"{y_target.min():.6g} to {y_target.max():.6g} {unit}). Shrink the target or widen --current-range"
         )
-    # posterior draws: their own inverses (the band of the feedforward) and the median's current through them
+    return med
+
+
+@dataclass(frozen=True, eq=False)
+class _Tracking:
+    """The posterior draws on the compensation: their own inverses and the median's current through them."""
+
+    n_draws: int
+    each: object
+    bands: Bands
+    errors: np.ndarray
+    error_median: np.ndarray
+
+
+def _tracking(study: Study, target: Target, med, limits, n_draws, rng, seconds: dict, say) -> _Tracking:
+    """Posterior draws: their own inverses (the band of the feedforward) and the median's
+    current through them (the predicted tracking error)."""
+    model = study.model
+    time, y_target = target.time, target.displacement
     draws, draw_sigma = study.draws(n_draws, rng)
     draws = _compensation_theta(model, draws)
     say(f"inverting {draws.shape[0]} posterior draws ({time.size} samples)")
     clock = _time.perf_counter()
-    each = invert(model, draws, time, y_target, current_range=(lo, hi))
+    each = invert(model, draws, time, y_target, current_range=limits)
     seconds["inverse_draws"] = _time.perf_counter() - clock
     clock = _time.perf_counter()
     sigma = draw_sigma if draw_sigma is not None else study.noise.sigma
@@ -963,7 +1088,15 @@ def compensate(
                      what=f"the compensation current of {target.source}", curves_out=kept)  # fmt: skip
     errors = kept[0] - y_target[None, :]
     seconds["tracking"] = _time.perf_counter() - clock
-    error_median = bands.median - y_target
+    return _Tracking(int(draws.shape[0]), each, bands, errors, bands.median - y_target)
+
+
+def _compensation_summary(study: Study, target: Target, med, t: _Tracking) -> dict:
+    """``compensation.json``'s summary: tracking error over the draws, the median model's own
+    tracking, the current and its band, the inverse's statistics."""
+    time, y_target = target.time, target.displacement
+    span = float(np.ptp(y_target))
+    errors, each, bands = t.errors, t.each, t.bands
     rms_d = np.sqrt(np.mean(errors**2, axis=1))
     max_d = np.abs(errors).max(axis=1)
     self_error = med.error
@@ -971,7 +1104,7 @@ def compensate(
     draw_counts = {STATUS_NAMES[s]: int((each.status == s).sum()) for s in (STATUS_EXACT, STATUS_SATURATED, STATUS_BRANCH)}
     pct = 100.0 / span if span > 0 else math.nan
     lsq_error = bands.lsq - y_target
-    summary = {
+    return {
         "tracking_error": {
             "what": "posterior draws driven by the median's feedforward current, model minus target; RMS and max |error| "
                     "per draw, their median and 95 % interval",
@@ -979,7 +1112,7 @@ def compensate(
             "max_abs": _interval(max_d),
             "rms_pct": _interval(rms_d * pct),
             "max_abs_pct": _interval(max_d * pct),
-            "pointwise_median_rms": float(np.sqrt(np.mean(error_median**2))),
+            "pointwise_median_rms": float(np.sqrt(np.mean(t.error_median**2))),
             "lsq_rms": float(np.sqrt(np.mean(lsq_error**2))),
             "lsq_max_abs": float(np.abs(lsq_error).max()),
         },
@@ -998,25 +1131,12 @@ def compensate(
         },
         "target_range": span,
         "noise_sigma": float(study.noise.sigma),
-        "n_draws": int(draws.shape[0]),
+        "n_draws": t.n_draws,
         "n_outside": int(bands.n_outside),
-        "unit": unit,
-        "input_unit": in_unit,
+        "unit": study.record.output_unit,
+        "input_unit": study.record.input_unit,
         "inverse": {"ytol": med.ytol, "evaluations_per_sample": float(med.evaluations[0]) / time.size},
     }
-    if counts["branch"] or counts["saturated"]:
-        notes.append(
-            f"the median model misses the target at {counts['branch'] + counts['saturated']} samples (Omega switch gaps "
-            f"{counts['branch']}, current limit {counts['saturated']}; max {np.abs(self_error).max():.3g} {unit})"
-        )
-    current_lo, current_median, current_hi = np.quantile(each.current, [0.025, 0.5, 0.975], axis=0)
-    return Compensation(
-        study=study, target=target, current=med.current, status=med.status, model_output=med.output,
-        current_lo=current_lo, current_hi=current_hi, current_median=current_median, error_median=error_median,
-        error_lo=bands.credible_lo - y_target, error_hi=bands.credible_hi - y_target,
-        predictive_lo=bands.predictive_lo - y_target, predictive_hi=bands.predictive_hi - y_target, lsq_error=lsq_error,
-        summary=summary, current_range=(lo, hi), notes=notes, seconds=seconds,
-    )  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------
