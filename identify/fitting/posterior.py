@@ -944,13 +944,55 @@ def sample_posterior(
         raise ValueError(f"max_steps and check_every must be >= 1, got {max_steps!r}, {check_every!r}")
     max_steps, check_every = int(max_steps), int(check_every)
     log = log or (lambda _msg: None)
-    ndim = log_post.ndim
     path = os.fspath(backend_path)
-    backend = BufferedHDFBackend(path, name=BACKEND_GROUP)
     # The emcee seed and the walker-start generator are drawn first, so they do not
     # depend on whether this call starts or resumes.
     emcee_seed = int(rng.integers(2**32))
     start_rng = rng.spawn(1)[0]
+    backend, n_walkers, resuming = _open_chain(path, log_post.ndim, n_walkers)
+    sampler = emcee.EnsembleSampler(
+        n_walkers, log_post.ndim, log_post, vectorize=True, backend=backend,
+        moves=_moves_in(MOVES[moves](), coordinates_for(coordinates, log_post)),
+    )  # fmt: skip
+    state = _start_state(sampler, initial, resuming, start_rng, emcee_seed, log)
+
+    from .progress import ChainProgress, progress_mode
+
+    bar = ChainProgress(done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress))
+    import numba
+
+    threads_before = numba.get_num_threads()
+    tau_cache: dict[int, np.ndarray] = {}
+    chain = _ChainInMemory(backend.get_chain() if resuming else np.empty((0, n_walkers, log_post.ndim)), max_steps)
+    t0 = _time.perf_counter()
+    try:
+        while True:
+            done = backend.iteration
+            if chain.n_steps != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
+                raise RuntimeError(f"in-memory chain has {chain.n_steps} steps, the backend {done}")
+            stop, converged, message = _check(chain.view(), max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, log)
+            if stop:
+                break
+            fastest_thread_count(log_post, np.asarray(state.coords))
+            steps = min(check_every - done % check_every, max_steps - done)
+            state, block = _run_chunk(sampler, state, steps, backend, bar)
+            chain.append(block)
+            backend.flush()
+    finally:
+        numba.set_num_threads(threads_before)
+        backend.flush()  # also on Ctrl-C: no completed step is lost
+        bar.close()
+    return posterior_from_backend(
+        path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
+        tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
+        n_errors=log_post.n_errors, tau_cache=tau_cache,
+    )  # fmt: skip
+
+
+def _open_chain(path, ndim, n_walkers):
+    """The backend of ``path``, the number of walkers, and whether it holds steps to resume
+    (a stored chain of another shape is refused; an empty one is reset)."""
+    backend = BufferedHDFBackend(path, name=BACKEND_GROUP)
     resuming = backend.initialized and backend.iteration > 0
     if resuming:
         stored_walkers, stored_dim = backend.shape
@@ -965,92 +1007,90 @@ def sample_posterior(
         raise ValueError(f"n_walkers must be even and >= 2 x {ndim} (the dimension), got {n_walkers}")
     if backend.initialized and backend.iteration == 0:
         backend.reset(n_walkers, ndim)
-    sampler = emcee.EnsembleSampler(
-        n_walkers, ndim, log_post, vectorize=True, backend=backend,
-        moves=_moves_in(MOVES[moves](), coordinates_for(coordinates, log_post)),
-    )  # fmt: skip
+    return backend, n_walkers, resuming
+
+
+def _start_state(sampler, initial, resuming, start_rng, emcee_seed, log):
+    """The walkers to continue from: the stored last step (with its random state) when
+    resuming, else ``initial`` with emcee's generator seeded from ``emcee_seed``."""
     if resuming:
-        state = sampler.get_last_sample()  # carries the stored random state
-        log(f"resuming the chain in {path} at step {backend.iteration}")
-    else:
-        coords = initial(n_walkers, start_rng) if callable(initial) else np.asarray(initial, dtype=float)
-        if coords.shape != (n_walkers, ndim):
-            raise ValueError(f"initial walkers must have shape ({n_walkers}, {ndim}), got {coords.shape}")
-        state = emcee.State(coords, random_state=np.random.RandomState(emcee_seed).get_state())
+        log(f"resuming the chain in {sampler.backend.filename} at step {sampler.backend.iteration}")
+        return sampler.get_last_sample()  # carries the stored random state
+    n_walkers, ndim = sampler.nwalkers, sampler.ndim
+    coords = initial(n_walkers, start_rng) if callable(initial) else np.asarray(initial, dtype=float)
+    if coords.shape != (n_walkers, ndim):
+        raise ValueError(f"initial walkers must have shape ({n_walkers}, {ndim}), got {coords.shape}")
+    return emcee.State(coords, random_state=np.random.RandomState(emcee_seed).get_state())
 
-    from .progress import ChainProgress, progress_mode
 
-    bar = ChainProgress(done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress))
-    import numba
+class _ChainInMemory:
+    """The chain in memory for the convergence checks: read from the file once (a resumed
+    run), then extended in place with each chunk's steps (capacity doubling, so a check
+    reads a view and never copies the chain); re-reading the whole HDF5 chain at every
+    check cost seconds per check late in a 50000-step run."""
 
-    threads_before = numba.get_num_threads()
-    tau_cache: dict[int, np.ndarray] = {}
-    # The chain in memory for the convergence checks: read from the file once (a resumed
-    # run), then extended in place with each chunk's steps (capacity doubling, so a check
-    # reads a view and never copies the chain); re-reading the whole HDF5 chain at every
-    # check cost seconds per check late in a 50000-step run.
-    chain_buffer = backend.get_chain() if resuming else np.empty((0, n_walkers, ndim))
-    stored = chain_buffer.shape[0]
-    t0 = _time.perf_counter()
-    converged, message = False, ""
-    try:
-        while True:
-            done = backend.iteration
-            if stored != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
-                raise RuntimeError(f"in-memory chain has {stored} steps, the backend {done}")
-            chain = chain_buffer[:done]
-            on_check = done > 0 and done % check_every == 0
-            due = done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache)
-            if on_check and tau_cache and not due:  # the anchor's tau: the projection of a skipped check
-                bar.estimate(np.max(tau_cache[max(tau_cache)]))
-            if due:
-                ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
-                bar.estimate(np.max(tau))
-                log(f"step {done}: {msg}")
-                diag_msg = ""
-                if ok:  # tau says converged: R-hat and bulk ESS must agree (computed only then)
-                    discard, thin = _burn_in(tau, done)
-                    diag_ok, diag_msg = _diagnostics_verdict(chain_diagnostics(chain[discard::thin]))
-                    log(f"step {done}: {diag_msg}")
-                    if diag_ok:
-                        converged, message = True, "converged: " + msg + "; " + diag_msg
-                        break
-                if done >= max_steps:
-                    message = f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg + (
-                        "; " + diag_msg if diag_msg else "")
-                    break
-            steps = min(check_every - done % check_every, max_steps - done)
-            fastest_thread_count(log_post, np.asarray(state.coords))
-            with _stop_between_steps() as stop:
-                # emcee's linear-independence check is for a start we made; walkers the
-                # sampler itself moved (a later chunk, a resumed run) may lie along a
-                # near-exact degeneracy of the posterior and must not stop the run
-                chunk = sampler.sample(state, iterations=steps, store=True, progress=False, skip_initial_state_check=done > 0)
-                positions = []
-                for state in chunk:
-                    positions.append(np.array(state.coords))
-                    bar.update(1)
-                    if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
-                        backend.flush()
-                        raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
-                block = np.stack(positions)
-                if stored + len(block) > chain_buffer.shape[0]:
-                    capacity = max(stored + len(block), min(max_steps, 2 * chain_buffer.shape[0]))
-                    grown = np.empty((capacity, n_walkers, ndim))
-                    grown[:stored] = chain_buffer[:stored]
-                    chain_buffer = grown
-                chain_buffer[stored : stored + len(block)] = block
-                stored += len(block)
-            backend.flush()
-    finally:
-        numba.set_num_threads(threads_before)
-        backend.flush()  # also on Ctrl-C: no completed step is lost
-        bar.close()
-    return posterior_from_backend(
-        path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
-        tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
-        n_errors=log_post.n_errors, tau_cache=tau_cache,
-    )  # fmt: skip
+    def __init__(self, chain, max_steps):
+        self._buffer = chain
+        self.n_steps = chain.shape[0]
+        self._max_steps = max_steps
+
+    def view(self):
+        return self._buffer[: self.n_steps]
+
+    def append(self, block):
+        stored, buffer = self.n_steps, self._buffer
+        if stored + len(block) > buffer.shape[0]:
+            capacity = max(stored + len(block), min(self._max_steps, 2 * buffer.shape[0]))
+            grown = np.empty((capacity,) + buffer.shape[1:])
+            grown[:stored] = buffer[:stored]
+            self._buffer = buffer = grown
+        buffer[stored : stored + len(block)] = block
+        self.n_steps = stored + len(block)
+
+
+def _check(chain, max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, log):
+    """The convergence check at the chain's current length: ``(stop, converged, message)``
+    (a check runs at multiples of ``check_every`` when due, and at ``max_steps``)."""
+    done = chain.shape[0]
+    on_check = done > 0 and done % check_every == 0
+    due = done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache)
+    if on_check and tau_cache and not due:  # the anchor's tau: the projection of a skipped check
+        bar.estimate(np.max(tau_cache[max(tau_cache)]))
+    if not due:
+        return False, False, ""
+    ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
+    bar.estimate(np.max(tau))
+    log(f"step {done}: {msg}")
+    diag_msg = ""
+    if ok:  # tau says converged: R-hat and bulk ESS must agree (computed only then)
+        discard, thin = _burn_in(tau, done)
+        diag_ok, diag_msg = _diagnostics_verdict(chain_diagnostics(chain[discard::thin]))
+        log(f"step {done}: {diag_msg}")
+        if diag_ok:
+            return True, True, "converged: " + msg + "; " + diag_msg
+    if done >= max_steps:
+        return True, False, f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg + (
+            "; " + diag_msg if diag_msg else "")  # fmt: skip
+    return False, False, ""
+
+
+def _run_chunk(sampler, state, steps, backend, bar):
+    """``steps`` emcee steps from ``state``: the last state and the positions ``(steps, W, D)``.
+    Ctrl-C / SIGTERM stop between two steps, with every completed step written."""
+    done = backend.iteration
+    with _stop_between_steps() as stop:
+        # emcee's linear-independence check is for a start we made; walkers the
+        # sampler itself moved (a later chunk, a resumed run) may lie along a
+        # near-exact degeneracy of the posterior and must not stop the run
+        chunk = sampler.sample(state, iterations=steps, store=True, progress=False, skip_initial_state_check=done > 0)
+        positions = []
+        for state in chunk:
+            positions.append(np.array(state.coords))
+            bar.update(1)
+            if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
+                backend.flush()
+                raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
+    return state, np.stack(positions)
 
 
 class _StopRequest:
