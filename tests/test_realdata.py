@@ -469,3 +469,15 @@ def test_diagnose_baseline_beats_a_straight_line(tmp_path, name, factor):
     print(f"{name}: GPI RMS {diagnosis['rms']:.4f} um, straight line {line:.4f} um; verdict {diagnosis['status']} {diagnosis['missing']}")
     assert diagnosis["rms"] < factor * line
     assert diagnosis["status"] in ("adequate", "missing_effect", "unexplained")
+
+
+def test_the_shared_folder_is_beside_the_project(monkeypatch):
+    """<project>/../shared/realdata, wherever the module sits in the package (a layout change
+    once pointed it inside the project, and every real-data test skipped)."""
+    from pathlib import Path
+
+    import identify
+
+    monkeypatch.delenv("MSMA_SHARED_REALDATA", raising=False)
+    project = Path(identify.__file__).resolve().parents[1]
+    assert shared_realdata_dir() == project.parent / "shared" / "realdata"

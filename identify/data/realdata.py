@@ -103,7 +103,8 @@ def shared_realdata_dir() -> Path:
     env = os.environ.get("MSMA_SHARED_REALDATA")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[1].parent / "shared" / "realdata"
+    project = Path(__file__).resolve().parents[2]  # identify/data/realdata.py -> the project
+    return project.parent / "shared" / "realdata"
 
 
 @dataclass(frozen=True)

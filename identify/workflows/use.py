@@ -39,6 +39,7 @@ from model import Model
 from model.inverse import DEFAULT_CURRENT_RANGE, STATUS_BRANCH, STATUS_EXACT, STATUS_NAMES, STATUS_SATURATED, invert
 
 from ..output import results
+from ..output.report import ModelBands
 from ..fitting.noise import MIN_QUIET_SAMPLES, NoiseModel, estimate_noise, quiet_segment
 from ..data.records import Record, RecordError, load_record
 
@@ -243,24 +244,9 @@ def check_units(record: Record, study: Study) -> None:
 # --------------------------------------------------------------------------------------
 # bands
 # --------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class Bands:
-    """Pointwise summaries of model curves, all ``(T,)`` [output unit].
-
-    ``median``, ``credible_lo``/``credible_hi`` (95 % of the draws), ``predictive_lo``/
-    ``predictive_hi`` (95 % of the draws plus N(0, sigma^2) noise), ``lsq`` (the least-squares
-    curve); ``n_draws`` used, ``n_outside`` dropped because the model flagged them (outside
-    its domain, or a non-finite output).
-    """
-
-    median: np.ndarray
-    credible_lo: np.ndarray
-    credible_hi: np.ndarray
-    predictive_lo: np.ndarray
-    predictive_hi: np.ndarray
-    lsq: np.ndarray
-    n_draws: int
-    n_outside: int
+#: Pointwise summaries of model curves (median, credible and predictive bands, the
+#: least-squares curve, draws used and dropped): the report's type, one definition.
+Bands = ModelBands
 
 
 def bands_of(model: Model, draws, lsq_theta, time, drive, sigma, *, level=0.95, what="the record", curves_out=None) -> Bands:
