@@ -151,6 +151,9 @@ class GPICoordinates:
                 if {tau_name, *gains} <= idx.keys() and lower[idx[tau_name]] > 0:
                     blocks.append(node)
         self.blocks = tuple(blocks)
+        #: The thermal blocks in use: (index into ``_thermal_scales``, time constant, gains).
+        self._thermal = [(k, tau_name, gains) for k, (node, (tau_name, *gains)) in enumerate(_THERMAL_NODES.items())
+                         if node in self.blocks]  # fmt: skip
 
     @classmethod
     def from_log_posterior(cls, log_post):
@@ -239,10 +242,9 @@ class GPICoordinates:
         x = np.atleast_2d(np.asarray(x, dtype=float))
         u = x.copy()
         i = self.idx
-        S = self._total_weight(x)
+        S, R, _, _ = self._moments(self._gpi(x, "rho"), self._gpi(x, "tau"))
         if "weights" in self.blocks:
-            S_, R, _, _ = self._moments(x[:, i["rho"]], x[:, i["tau"]])
-            u[:, i["rho"]], u[:, i["tau"]] = S_, R
+            u[:, i["rho"]], u[:, i["tau"]] = S, R
         for p in "ab":
             if "envelope_" + p in self.blocks:
                 k0, k1, k2, k3 = (x[:, i[p + str(n)]] for n in range(4))
@@ -256,14 +258,13 @@ class GPICoordinates:
                 with np.errstate(invalid="ignore", divide="ignore"):
                     u[:, i[p + "1"]] = np.log(k1)
                 u[:, i[p + "2"]] = -k2 / k1
-        if "thermal" in self.blocks or "thermal_core" in self.blocks:
+        if self._thermal:
             with np.errstate(invalid="ignore", divide="ignore"):
-                scales = dict(zip(("thermal", "thermal_core"), self._thermal_scales(x)))
-                for node, (tau_name, *gains) in _THERMAL_NODES.items():
-                    if node in self.blocks:
-                        u[:, i[tau_name]] = np.log(x[:, i[tau_name]])
-                        for name in gains:
-                            u[:, i[name]] = x[:, i[name]] * scales[node]
+                scales = self._thermal_scales(x)
+                for k, tau_name, gains in self._thermal:
+                    u[:, i[tau_name]] = np.log(x[:, i[tau_name]])
+                    for name in gains:
+                        u[:, i[name]] = x[:, i[name]] * scales[k]
         return u
 
     def inverse(self, u) -> np.ndarray:
@@ -295,16 +296,14 @@ class GPICoordinates:
                     k0 = (e1 - e2) / (t1 - t2)
                     x[:, i[p + "0"]], x[:, i[p + "2"]], x[:, i[p + "3"]] = k0, k2, e1 - k0 * t1
                     bad |= ~(k1 != 0) | ~(t1 != t2)
-            if "thermal" in self.blocks or "thermal_core" in self.blocks:
-                for node, (tau_name, *_gains) in _THERMAL_NODES.items():
-                    if node in self.blocks:
-                        x[:, i[tau_name]] = np.exp(u[:, i[tau_name]])
-                scales = dict(zip(("thermal", "thermal_core"), self._thermal_scales(x)))
-                for node, (_tau, *gains) in _THERMAL_NODES.items():
-                    if node in self.blocks:
-                        for name in gains:
-                            x[:, i[name]] = u[:, i[name]] / scales[node]
-                        bad |= ~(scales[node] > 0)
+            if self._thermal:
+                for _k, tau_name, _gains in self._thermal:  # both time constants before the scales
+                    x[:, i[tau_name]] = np.exp(u[:, i[tau_name]])
+                scales = self._thermal_scales(x)
+                for k, _tau, gains in self._thermal:
+                    for name in gains:
+                        x[:, i[name]] = u[:, i[name]] / scales[k]
+                    bad |= ~(scales[k] > 0)
         bad |= ~np.isfinite(x).all(axis=1)
         x[bad] = np.nan
         return x
@@ -341,11 +340,10 @@ class GPICoordinates:
             for p in "cd":
                 if "omega_" + p in self.blocks:
                     out -= 2 * np.log(np.abs(x[:, i[p + "1"]]))
-            if "thermal" in self.blocks or "thermal_core" in self.blocks:
-                scales = dict(zip(("thermal", "thermal_core"), self._thermal_scales(x)))
-                for node, (tau_name, *gains) in _THERMAL_NODES.items():
-                    if node in self.blocks:
-                        out += len(gains) * np.log(np.abs(scales[node])) - np.log(np.abs(x[:, i[tau_name]]))
+            if self._thermal:
+                scales = self._thermal_scales(x)
+                for k, tau_name, gains in self._thermal:
+                    out += len(gains) * np.log(np.abs(scales[k])) - np.log(np.abs(x[:, i[tau_name]]))
         return out
 
     @staticmethod

@@ -53,6 +53,7 @@ __all__ = [
     "pin_gpi_parameters",
     "parameter_scales",
     "in_record_units",
+    "with_parameters",
     "record_unit_factors",
     "prefix_factor",
     "PAPER_INPUT_PEAK",
@@ -262,6 +263,12 @@ def in_record_units(model: Model, record) -> Model:
         if factor != 1.0:
             lower, upper = min(p.lower, p.lower * factor), max(p.upper, p.upper * factor)
             parameters = parameters.replace(p.name, lower=lower, upper=upper, value=p.value * factor)
+    return with_parameters(model, parameters)
+
+
+def with_parameters(model: Model, parameters: ParameterSet) -> Model:
+    """A shallow copy of ``model`` with other parameter bounds/values (the forward model does
+    not read the bounds; the effects and the GPI settings are shared)."""
     import copy
 
     out = copy.copy(model)

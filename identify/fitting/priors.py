@@ -51,6 +51,8 @@ from pathlib import Path
 import numpy as np
 from scipy.special import log_ndtr
 
+from .parametrisation import with_parameters
+
 __all__ = ["Prior", "PriorsError", "DISTRIBUTIONS", "read_priors_file", "apply_priors", "prior_table"]
 
 #: distribution name -> keys it needs (beside ``distribution``); ``lower``/``upper`` are optional for ``normal``.
@@ -220,16 +222,7 @@ def apply_priors(model, path, start=None, start_name="starting value"):
             raise PriorsError(f"{path}: parameter {name!r}: mu {table['mu']:g} lies outside the bounds [{lower:g}, {upper:g}]")
         parameters = parameters.replace(name, lower=lower, upper=upper)
         priors[name] = Prior(table["distribution"], table.get("mu"), table.get("sigma"), source=str(path))
-    return _with_parameters(model, parameters), priors
-
-
-def _with_parameters(model, parameters):
-    """A shallow copy of ``model`` with other bounds (the forward model does not read them)."""
-    import copy
-
-    out = copy.copy(model)
-    out.parameters = parameters
-    return out
+    return with_parameters(model, parameters), priors
 
 
 def prior_table(log_post) -> list[dict]:
