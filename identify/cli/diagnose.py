@@ -52,14 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def parse_window(text: str) -> tuple[float, float]:
     """``"START:STOP"`` -> ``(start, stop)`` [s]; ValueError naming the option when malformed."""
-    parts = str(text).split(":")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        start, stop = float(parts[0]), float(parts[1])
-    except ValueError:
-        raise ValueError(f"--drop-window must be START:STOP in seconds (e.g. 3.2572:3.2772), got {text!r}") from None
-    return start, stop
+    return options.number_pair(text, "--drop-window", form="START:STOP in seconds", example="3.2572:3.2772")
 
 
 def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[str]:

@@ -30,6 +30,7 @@ __all__ = [
     "existing_folder",
     "file_path",
     "existing_file",
+    "number_pair",
     "MAX_OPERATORS",
 ]
 
@@ -122,43 +123,68 @@ def _nearest_parent_is_a_folder(text, path: Path) -> None:
             break
 
 
-def folder_path(text) -> str:
-    """A folder to write into: it may exist, but not as a file."""
+def _path_for_writing(text, *, kind: str) -> Path:
+    """``text`` as a path a ``kind`` (``"folder"`` or ``"file"``) can be written at; fails naming the problem."""
     path = Path(text)
     if not str(text).strip():
-        _fail("expected a folder path, got ''")
-    if path.exists() and not path.is_dir():
+        _fail(f"expected a {kind} path, got ''")
+    if kind == "folder" and path.exists() and not path.is_dir():
         _fail(f"{text} exists and is not a folder")
+    if kind == "file" and (path.is_dir() or str(text).endswith(("/", "\\"))):
+        _fail(f"{text} is a folder; give a file name")
     _nearest_parent_is_a_folder(text, path)
+    return path
+
+
+def _existing(text, *, kind: str) -> Path:
+    """``text`` as the path of an existing ``kind`` (``"folder"`` or ``"file"``); fails naming the problem."""
+    path = Path(text)
+    if not path.exists():
+        _fail(f"{text}: no such {kind}")
+    if kind == "folder" and not path.is_dir():
+        _fail(f"{text} is not a folder")
+    if kind == "file" and path.is_dir():
+        _fail(f"{text} is a folder, not a file")
+    return path
+
+
+def folder_path(text) -> str:
+    """A folder to write into: it may exist, but not as a file."""
+    _path_for_writing(text, kind="folder")
     return text
 
 
 def existing_folder(text) -> str:
     """A folder that exists."""
-    path = Path(text)
-    if not path.exists():
-        _fail(f"{text}: no such folder")
-    if not path.is_dir():
-        _fail(f"{text} is not a folder")
+    _existing(text, kind="folder")
     return text
 
 
 def file_path(text) -> str:
     """A file to write: it may exist, but not as a folder (its folder is created)."""
-    path = Path(text)
-    if not str(text).strip():
-        _fail("expected a file path, got ''")
-    if path.is_dir() or str(text).endswith(("/", "\\")):
-        _fail(f"{text} is a folder; give a file name")
-    _nearest_parent_is_a_folder(text, path)
+    _path_for_writing(text, kind="file")
     return text
 
 
 def existing_file(text) -> str:
     """A file that exists."""
-    path = Path(text)
-    if not path.exists():
-        _fail(f"{text}: no such file")
-    if path.is_dir():
-        _fail(f"{text} is a folder, not a file")
+    _existing(text, kind="file")
     return text
+
+
+def number_pair(text, option: str, *, form: str = "A:B with two numbers", example: str = "0:5") -> tuple[float, float]:
+    """``"A:B"`` -> ``(A, B)`` floats, for options checked at run time.
+
+    Raises
+    ------
+    ValueError
+        Naming ``option``, the ``form`` it takes and an ``example`` when ``text`` is not two numbers.
+    """
+    parts = str(text).split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a, b = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ValueError(f"{option} must be {form} (e.g. {example}), got {text!r}") from None
+    return a, b

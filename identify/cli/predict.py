@@ -51,14 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def parse_span(text: str, option: str) -> tuple[float, float]:
     """``"A:B"`` -> ``(A, B)`` floats; ValueError naming ``option`` when malformed."""
-    parts = str(text).split(":")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        a, b = float(parts[0]), float(parts[1])
-    except ValueError:
-        raise ValueError(f"{option} must be A:B with two numbers (e.g. 0:5), got {text!r}") from None
-    return a, b
+    return options.number_pair(text, option)
 
 
 def timed_progress():
