@@ -20,6 +20,7 @@ import model
 from identify.workflows import batch as B
 from identify import cli
 from identify.data.records import write_record
+from identify.data.fileio import toml_module
 
 NOISE_SIGMA = 0.3  # um, the simulated sensor noise
 
@@ -327,7 +328,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 @pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.toml")), ids=lambda p: p.name)
 def test_example_configs_are_valid(path):
     """Every shipped example config validates against the commands' real option parsers."""
-    data = B._toml_module().loads(path.read_text())
+    data = toml_module().loads(path.read_text())
     if data.get("task") not in cli.COMMANDS:
         pytest.skip(f"{path.name}: task {data.get('task')!r} is not registered yet")
     config = B.load_config(path)

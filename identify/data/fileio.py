@@ -19,7 +19,7 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "temporary_files"]
+__all__ = ["atomic_write", "atomic_write_bytes", "atomic_write_text", "temporary_files", "toml_module"]
 
 #: Glob of the temporary files :func:`atomic_write` creates (and removes).
 TEMPORARY_GLOB = ".*.tmp"
@@ -99,3 +99,12 @@ def atomic_write_text(path, text: str) -> None:
 def temporary_files(folder) -> list[Path]:
     """Temporary files of :func:`atomic_write` left in ``folder`` (only a hard kill leaves any)."""
     return sorted(Path(folder).glob(TEMPORARY_GLOB))
+
+
+def toml_module():
+    """The TOML reader: :mod:`tomllib` (Python >= 3.11) or its backport ``tomli`` (3.10)."""
+    try:
+        import tomllib  # Python >= 3.11
+    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    return tomllib

@@ -51,9 +51,15 @@ from pathlib import Path
 import numpy as np
 from scipy.special import log_ndtr
 
+from ..data.fileio import toml_module
 from .parametrisation import with_parameters
 
 __all__ = ["Prior", "PriorsError", "DISTRIBUTIONS", "read_priors_file", "apply_priors", "prior_table"]
+
+
+class PriorsError(ValueError):
+    """A priors file that cannot be used; the message names the file, the parameter and the problem."""
+
 
 #: distribution name -> keys it needs (beside ``distribution``); ``lower``/``upper`` are optional for ``normal``.
 DISTRIBUTIONS = {
@@ -63,10 +69,6 @@ DISTRIBUTIONS = {
     "truncated_normal": ("mu", "sigma", "lower", "upper"),
 }
 _KEYS = {"distribution", "lower", "upper", "mu", "sigma"}
-
-
-class PriorsError(ValueError):
-    """A priors file that cannot be used; the message names the file, the parameter and the problem."""
 
 
 @dataclass(frozen=True)
@@ -130,8 +132,7 @@ def read_priors_file(path) -> dict[str, dict]:
         unknown distribution or key, a missing or non-numeric value, ``sigma <= 0`` or
         ``lower >= upper``.
     """
-    import tomllib
-
+    tomllib = toml_module()
     path = Path(path)
     try:
         data = tomllib.loads(path.read_bytes().decode("utf-8"))

@@ -92,7 +92,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ..data.fileio import atomic_write
+from ..data.fileio import atomic_write, toml_module
 
 __all__ = [
     "TASKS",
@@ -357,14 +357,6 @@ class BatchResult:
 # -- configuration ------------------------------------------------------------------------
 
 
-def _toml_module():
-    try:
-        import tomllib  # Python >= 3.11
-    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
-    return tomllib
-
-
 def load_config(path) -> BatchConfig:
     """Read and validate a batch TOML file.
 
@@ -389,7 +381,7 @@ def load_config(path) -> BatchConfig:
         raise BatchConfigError(f"{path}: no such batch config file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise BatchConfigError(f"{path}: cannot read the batch config ({exc})") from None
-    tomllib = _toml_module()
+    tomllib = toml_module()
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -523,14 +515,8 @@ def _execution(data: dict, source: Path) -> tuple:
 
 def _records(data: dict, source: Path, base: Path) -> list:
     """The :class:`RecordSpec` of every ``[[records]]`` entry (a path, or the files of a glob), names unique."""
-    records_table = data.get("records")
-    if not isinstance(records_table, list) or not records_table:
-        raise BatchConfigError(f"{source}: records must be a non-empty array of tables ([[records]])")
     records = []
-    for i, entry in enumerate(records_table):
-        where = f"records[{i}]"
-        if not isinstance(entry, dict):
-            raise BatchConfigError(f"{source}: {where} must be a table")
+    for where, entry in _array_of_tables(data, "records", source):
         has_path, has_glob = "path" in entry, "glob" in entry
         if has_path == has_glob:
             raise BatchConfigError(f"{source}: {where} needs exactly one of 'path' or 'glob'")
@@ -565,14 +551,8 @@ def _record_paths(entry: dict, where: str, source: Path, base: Path, has_path: b
 
 def _variants(data: dict, source: Path) -> list:
     """The :class:`VariantSpec` of every ``[[variants]]`` entry (default one named ``default``), names unique."""
-    variants_table = data.get("variants", [{"name": "default"}])
-    if not isinstance(variants_table, list) or not variants_table:
-        raise BatchConfigError(f"{source}: variants must be a non-empty array of tables ([[variants]])")
     variants = []
-    for i, entry in enumerate(variants_table):
-        where = f"variants[{i}]"
-        if not isinstance(entry, dict):
-            raise BatchConfigError(f"{source}: {where} must be a table")
+    for where, entry in _array_of_tables(data, "variants", source, default=[{"name": "default"}]):
         name = entry.get("name")
         if not isinstance(name, str) or not name.strip():
             raise BatchConfigError(f"{source}: {where}.name is required (a short string naming the variant)")
@@ -580,6 +560,20 @@ def _variants(data: dict, source: Path) -> list:
         variants.append(VariantSpec(_slug(name), variant_options))
     _check_unique([v.name for v in variants], "variant", source, "rename them")
     return variants
+
+
+def _array_of_tables(data: dict, key: str, source: Path, default=None) -> list:
+    """``(where, entry)`` of each table of the config's ``[[key]]`` array (``default`` when absent), checked."""
+    table = data.get(key, default)
+    if not isinstance(table, list) or not table:
+        raise BatchConfigError(f"{source}: {key} must be a non-empty array of tables ([[{key}]])")
+    entries = []
+    for i, entry in enumerate(table):
+        where = f"{key}[{i}]"
+        if not isinstance(entry, dict):
+            raise BatchConfigError(f"{source}: {where} must be a table")
+        entries.append((where, entry))
+    return entries
 
 
 def _check_unique(names, what, source, hint):
