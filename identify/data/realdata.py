@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .fileio import atomic_write
+from .fileio import atomic_write, toml_module
 
 __all__ = [
     "shared_realdata_dir",
@@ -133,50 +133,25 @@ class RealRecord:
     assumptions: tuple[str, ...]
 
 
-#: The known real records, by name.
-REAL_RECORDS = {
-    "piezo_smarthysteresis": RealRecord(
-        name="piezo_smarthysteresis",
-        licence="MIT",
-        shipped="data/piezo_smarthysteresis.csv",
-        load_options=dict(
-            time_column="time", input_column="voltage", output_column="displacement", input_unit="V", output_unit="um"
-        ),
-        assumptions=(
-            "drive is the commanded voltage [V] (the ideal sine, not a measurement); output is displacement [um]",
-            "the unenergised start 0-3.2570 s (v = 0) gives the sensor noise",
-            "the switch-on step at 3.2572 s rings for ~12 ms: real dynamics a rate-independent model cannot fit",
-        ),
-    ),
-    "piezo_micromanipulator_dbo": RealRecord(
-        name="piezo_micromanipulator_dbo",
-        licence="MIT",
-        shipped="data/piezo_micromanipulator.csv",
-        load_options=dict(
-            time_column="time", input_column="voltage", output_column="displacement", input_unit="V", output_unit="um"
-        ),
-        assumptions=(
-            "time is synthesised as row / 200 Hz (the file has no time column; Fs = 200 Hz per the authors' scripts)",
-            "output is the capacitive-sensor reading taken as um with an arbitrary offset (about -96 um); "
-            "the calibration is an inference, not stated by the authors",
-            "no unenergised segment: the noise sigma comes from the energised hold at 1.830 V (rows 3881-5071)",
-            "the sensor output lags the input by one sample (5 ms) per the authors' scripts; not shifted here",
-        ),
-    ),
-    "sma_morphing_wing_ga": RealRecord(
-        name="sma_morphing_wing_ga",
-        licence="none",
-        shipped=None,
-        load_options=dict(
-            time_column=None, input_column="v_input", output_column="y_output", input_unit="V", output_unit="unknown"
-        ),
-        assumptions=(
-            "no time base: time is the sample index (quasi-static, point-by-point data)",
-            "no quiet segment: the noise sigma is not measurable and is left free (or given by the user)",
-            "units not confirmed: input most likely the SMA drive voltage [V]; output in unknown units",
-        ),
-    ),
-}
+#: The columns and units of the CSV files the converters below write (``time,voltage,displacement``).
+CONVERTED_COLUMNS = dict(
+    time_column="time", input_column="voltage", output_column="displacement", input_unit="V", output_unit="um"
+)
+
+
+def _read_registry(path: Path) -> dict:
+    """The :class:`RealRecord` of each table of ``real_records.toml`` (TOML has no null: a
+    ``false`` column is None, e.g. no time column)."""
+    records = {}
+    for name, entry in toml_module().loads(path.read_text(encoding="utf-8")).items():
+        columns = entry["columns"]
+        load_options = dict(CONVERTED_COLUMNS) if columns == "converted" else {k: (v or None) for k, v in columns.items()}
+        records[name] = RealRecord(name, entry["licence"], entry.get("shipped"), load_options, tuple(entry["assumptions"]))
+    return records
+
+
+#: The known real records, by name (read from ``real_records.toml`` beside this module).
+REAL_RECORDS = _read_registry(Path(__file__).with_name("real_records.toml"))
 
 
 @dataclass(frozen=True)
