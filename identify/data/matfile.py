@@ -1,10 +1,9 @@
 """MATLAB ``.mat`` files (the lab in the paper records with MATLAB/dSPACE): the file format.
 
 :func:`read_mat_variables` reads the named variables of a ``.mat`` file;
-:func:`identify.data.records.load_mat_record` turns them into a
-:class:`identify.data.records.Record` with the same strict checks as the CSV loader, and
-:func:`identify.data.records.load_record` calls it for any file ending in ``.mat``, so
-every command takes a ``.mat`` record where it takes a CSV::
+:func:`identify.data.records.load_record` turns them into a
+:class:`identify.data.records.Record` with the same strict checks as the CSV loader for
+any file ending in ``.mat``, so every command takes a ``.mat`` record where it takes a CSV::
 
     python -m identify fit run7.mat --input-column i_coil --output-column x_laser
 

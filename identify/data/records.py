@@ -39,7 +39,7 @@ from .reversals import find_reversals
 
 __all__ = [
     "Record", "RecordError", "load_record", "write_record", "sidecar_path", "keep_every", "thinning_indices",
-    "suggest_every", "load_mat_record", "DEFAULT_COLUMNS", "MAX_ABS_VALUE", "MAX_ABS_TIME",
+    "suggest_every", "DEFAULT_COLUMNS", "MAX_ABS_VALUE", "MAX_ABS_TIME",
 ]  # fmt: skip
 
 #: The default header: time [s], drive [A], output [um].
@@ -235,7 +235,7 @@ def load_record(
         :attr:`Record.sidecar`. Columns are separated by ``,``, ``;`` or a tab (the first
         of them in the header); with ``;`` or a tab, a comma in a number is a decimal
         comma (``0,25``, as European MATLAB/Excel exports write; a note says so). A file
-        ending in ``.mat`` is a MATLAB file, read by :func:`load_mat_record`
+        ending in ``.mat`` is a MATLAB file, read by :func:`identify.data.matfile.read_mat_variables`
         (column names are then variable names).
     time_column : str or None, default "time"
         Header name of the time column [s]. ``None``: the file has no time column (any
@@ -266,8 +266,7 @@ def load_record(
     """
     path = Path(path)
     if path.suffix.lower() == MAT_SUFFIX:  # a MATLAB file: the same checks, by variable (identify.data.matfile)
-        return load_mat_record(path, time_column=time_column, input_column=input_column, output_column=output_column,
-                               input_unit=input_unit, output_unit=output_unit, min_samples=min_samples)  # fmt: skip
+        return _load_mat_record(path, time_column, input_column, output_column, input_unit, output_unit, min_samples)
     wanted = [c for c in (time_column, input_column, output_column) if c is not None]
     if len(set(wanted)) != len(wanted):
         raise ValueError(f"time/input/output column names must differ, got {wanted}")
@@ -581,47 +580,14 @@ def _mat_vector(path, name, value, limit) -> np.ndarray:
     return arr
 
 
-def load_mat_record(
-    path,
-    *,
-    time_column="time",
-    input_column="current",
-    output_column="displacement",
-    input_unit="A",
-    output_unit="um",
-    min_samples=200,
-) -> Record:
-    """Load a MATLAB ``.mat`` record, checking everything; raise RecordError on any problem.
+def _load_mat_record(path: Path, time_column, input_column, output_column, input_unit, output_unit, min_samples) -> Record:
+    """The ``.mat`` branch of :func:`load_record`: the same arguments and checks, by variable.
 
-    The file is read by :func:`identify.data.matfile.read_mat_variables` (the format: top-level
-    variables or one struct's fields, v4-v7.3); the checks are the CSV loader's.
-
-    Parameters
-    ----------
-    path : str or path-like
-        The ``.mat`` file (v4-v7 through scipy, v7.3 through h5py).
-    time_column : str or None, default "time"
-        Variable holding the sample times [s], shape (T,). None: no time variable; time
-        is the sample index 0, 1, 2, ... and a note says so.
-    input_column, output_column : str, default "current", "displacement"
-        Variables holding the drive and the output, shape (T,) each.
-    input_unit, output_unit : str, default "A", "um"
-        Their units, stored on the record.
-    min_samples : int, default 200
-        Fewest samples accepted.
-
-    Returns
-    -------
-    Record
-        ``sha256`` of the file's bytes; :attr:`Record.notes` says where the variables came from.
-
-    Raises
-    ------
-    RecordError
-        Missing file, not a MATLAB file, a missing variable (listing those present and
-        close matches), a variable that is not a real numeric vector, vectors of different
-        lengths, a NaN, infinite or absurd value (naming variable and sample), times that
-        do not strictly increase, or fewer than ``min_samples`` samples.
+    The file is read by :func:`identify.data.matfile.read_mat_variables` (top-level
+    variables or one struct's fields, v4-v7 through scipy, v7.3 through h5py). The
+    RecordError names a missing variable (listing those present and close matches), a
+    variable that is not a real numeric vector, vectors of different lengths, or a bad
+    value by variable and sample; :attr:`Record.notes` says where the variables came from.
     """
     path = Path(path)
     wanted = [c for c in (time_column, input_column, output_column) if c is not None]
