@@ -22,6 +22,7 @@ from scipy.stats import norm
 import model
 from identify.output import plots
 from identify.output import report
+from identify.data.reversals import default_min_swing, find_reversals
 from identify.cli import main as identify_main
 from report_fixture import FixtureSettings, build_results_folder
 
@@ -123,33 +124,42 @@ def folder_copy(misfit_folder, tmp_path):
 # pure pieces
 # --------------------------------------------------------------------------------------
 def test_reversals_of_the_paper_input_are_its_peaks_and_troughs():
-    # Eq. (15)-(16), literal reading: troughs exactly 0 A at t = 20, 30, ..., 60 s; peaks of the
+    # Eq. (15)-(16), literal reading: the quiet start ends in a trough at t = 10 s (where the
+    # drive starts to move), troughs exactly 0 A at t = 20, 30, ..., 60 s; peaks of the
     # decaying sine near t = 15, 25, ..., 65 s (the decay shifts them by < 0.1 s).
     time, current = model.paper_current(fs=10.0)
-    reversals = report.input_reversals(current)
+    reversals = find_reversals(current).index
     troughs = reversals[current[reversals] < 1.0]
     peaks = reversals[current[reversals] > 1.0]
-    np.testing.assert_allclose(time[troughs], [20, 30, 40, 50, 60], atol=1e-9)
+    np.testing.assert_allclose(time[troughs], [10, 20, 30, 40, 50, 60], atol=1e-9)
     np.testing.assert_allclose(time[peaks], [15, 25, 35, 45, 55, 65], atol=0.15)
-    # noise on the input (0.5 % of its range) must not add reversals
+    # noise on the input (0.5 % of its range, a read-back current) must not add reversals:
+    # the default swing grows with the input's own noise
     noisy = current + 0.025 * np.random.default_rng(3).standard_normal(current.size)
-    noisy_reversals = report.input_reversals(noisy)
+    assert default_min_swing(noisy) > 2 * default_min_swing(current)
+    noisy_reversals = find_reversals(noisy).index
     assert noisy_reversals.size == reversals.size
-    assert np.max(np.abs(time[noisy_reversals] - time[reversals])) < 1.0
+    # the first trough is the noisy plateau's lowest sample: anywhere in the quiet start
+    assert time[noisy_reversals[0]] <= 10.0
+    assert np.max(np.abs(time[noisy_reversals[1:]] - time[reversals[1:]])) < 1.0
+    # with the noiseless drive's swing (2 % of the range) the same noise splits branches
+    assert find_reversals(noisy, default_min_swing(current)).index.size > reversals.size
 
 
 def test_reversals_of_monotone_and_constant_inputs():
-    assert report.input_reversals(np.linspace(0, 1, 50)).size == 0
-    assert report.input_reversals(np.zeros(50)).size == 0
-    # fall first, then rise: the trough is the only reversal
-    assert report.input_reversals(np.r_[np.linspace(1, 0, 20), np.linspace(0, 1, 20)[1:]]).tolist() == [19]
+    # a monotone input turns only at its first sample (a branch of its own: none is split)
+    assert find_reversals(np.linspace(0, 1, 50)).index.tolist() == [0]
+    assert len(report.branches(50, find_reversals(np.linspace(0, 1, 50)))) == 1
+    assert find_reversals(np.zeros(50)).index.size == 0
+    # fall first, then rise: the start is a peak and the trough the one interior reversal
+    assert find_reversals(np.r_[np.linspace(1, 0, 20), np.linspace(0, 1, 20)[1:]]).index.tolist() == [0, 19]
     with pytest.raises(ValueError, match="1-D"):
-        report.input_reversals(np.zeros((3, 3)))
+        find_reversals(np.zeros((3, 3)))
 
 
 def test_branches_cover_the_record_and_are_monotone():
     _, current = model.paper_current(fs=10.0)
-    branch_list = report.branches(current, report.input_reversals(current))
+    branch_list = report.branches(current.size, find_reversals(current))
     assert branch_list[0].start == 0 and branch_list[-1].stop == current.size - 1
     for before, after in zip(branch_list[:-1], branch_list[1:]):
         assert before.stop == after.start  # consecutive branches share the reversal sample
@@ -162,7 +172,7 @@ def test_branches_cover_the_record_and_are_monotone():
 def test_cycle_errors_split_at_the_input_minima():
     time, current = model.paper_current(fs=10.0)
     energised = time >= 10.0
-    branch_list = report.branches(current, report.input_reversals(current))
+    branch_list = report.branches(current.size, find_reversals(current))
     # an error that is constant within each 10 s cycle: level k in cycle k
     error = np.floor((time - 10.0) / 10.0) + 1.0
     error[~energised] = 0.0
@@ -204,7 +214,7 @@ def test_loop_bands_are_polygons_over_each_branch_own_samples():
     time, current = model.paper_current(fs=10.0)
     median = model.Model()(model.TABLE1, time, current)
     lo, hi = median - 1.0, median + 1.0
-    branch_list = report.branches(current, report.input_reversals(current))
+    branch_list = report.branches(current.size, find_reversals(current))
     segments = [(b.start, b.stop) for b in branch_list]
     fig = plots.loops_figure(
         current, median, median, lo, hi, segments=segments, rising=[b.rising for b in branch_list],

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["as_1d", "Reversals", "find_reversals", "branch_direction", "time_since_reversal", "input_rate"]
+__all__ = ["as_1d", "Reversals", "default_min_swing", "find_reversals", "branch_direction", "time_since_reversal", "input_rate"]
 
 
 def as_1d(name, values, size=None) -> np.ndarray:
@@ -64,6 +64,27 @@ class Reversals:
         return self.index[self.kind < 0]
 
 
+#: A reversal is confirmed once the input has moved back by this fraction of its range ...
+SWING_FRACTION = 0.02
+#: ... and by this many times the input's own noise sd (the range of 1000 noise samples stays below it).
+SWING_NOISE_MULTIPLE = 10.0
+
+
+def default_min_swing(current) -> float:
+    """The swing [input units] that confirms a reversal: the larger of :data:`SWING_FRACTION`
+    times the input's range and :data:`SWING_NOISE_MULTIPLE` times its noise sd.
+
+    The noise sd is estimated robustly from the second differences (``1.4826 MAD / sqrt(6)``;
+    a sampled drive's curvature is negligible against its noise at the rates used), so a
+    noiseless drive gets 2 % of its range.
+    """
+    v = np.asarray(current, dtype=float)
+    span = float(v.max() - v.min()) if v.size else 0.0
+    second = np.diff(v, 2)
+    noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / np.sqrt(6.0) if second.size else 0.0
+    return max(SWING_FRACTION * span, SWING_NOISE_MULTIPLE * noise)
+
+
 def find_reversals(current, min_swing=None) -> Reversals:
     """Peaks and troughs of the drive by a zig-zag rule.
 
@@ -77,7 +98,9 @@ def find_reversals(current, min_swing=None) -> Reversals:
     current : array_like, shape (T,)
         Drive [A].
     min_swing : float, optional
-        Minimum confirming swing [A]; default 2 % of the input's range.
+        Minimum confirming swing [A]; default :func:`default_min_swing`: 2 % of the
+        input's range, or ten times the input's own noise sd where that is larger (a
+        read-back current), so noise never splits a branch.
 
     Returns
     -------
@@ -87,7 +110,7 @@ def find_reversals(current, min_swing=None) -> Reversals:
     v = as_1d("current", current)
     span = float(v.max() - v.min()) if v.size else 0.0
     if min_swing is None:
-        min_swing = 0.02 * span
+        min_swing = default_min_swing(v)
     if not (np.isfinite(min_swing) and min_swing >= 0):
         raise ValueError(f"min_swing must be a finite number >= 0, got {min_swing!r}")
     if span == 0.0 or v.size < 3:

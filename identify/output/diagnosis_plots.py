@@ -161,9 +161,7 @@ def cycles_figure(profile, *, output_unit="um"):
     ax.axhspan(-2 * profile.noise.sigma / np.sqrt(5), 2 * profile.noise.sigma / np.sqrt(5), color=NOISE_COLOUR,
                alpha=0.25, label="±2σ/√5 (5-sample mean)")  # fmt: skip
     ax.axhline(0.0, color="0.3", lw=0.8)
-    ax.set_xlabel(axis_label("time", "s"))
-    ax.set_ylabel(axis_label("residual", output_unit))
-    ax.set_title("Residual at the reversals, cycle by cycle")
+    ax.set(xlabel=axis_label("time", "s"), ylabel=axis_label("residual", output_unit), title="Residual at the reversals, cycle by cycle")
     ax.legend(loc="best", fontsize=9)
     return fig
 

@@ -19,7 +19,7 @@ What the page shows
   pointwise 2.5/97.5 % quantile of the mixture of N(model draw, sigma^2)), and a zoom
   on the worst region; model error vs time with the ±2 sigma noise band; hysteresis
   loops with the credible band drawn along each branch (the record is split at the
-  input reversals, :func:`input_reversals`; each branch's band is a polygon over its
+  input reversals, :func:`identify.data.reversals.find_reversals`; each branch's band is a polygon over its
   own current samples, never a sorted current grid).
 * **2. Fit quality**: residual RMS vs sigma, reduced chi-square, max error %, the share
   of samples inside the predictive band, per-cycle errors (cycles split at the input's
@@ -52,6 +52,7 @@ import emcee
 import numpy as np
 
 from ..data.fileio import atomic_write_bytes
+from ..data.reversals import Reversals, find_reversals
 
 from . import plots
 from .bands import mixture_quantile
@@ -67,7 +68,6 @@ __all__ = [
     "read_chain",
     "posterior_draws",
     "model_bands",
-    "input_reversals",
     "branches",
     "cycle_errors",
     "zoom_samples",
@@ -104,10 +104,6 @@ MAX_CHAIN_ROWS = 4000
 MAX_TRACE_ROWS = 800
 #: At most this many samples go into the corner plot.
 MAX_CORNER_SAMPLES = 6000
-#: An input reversal counts once the input has moved back by this fraction of its range.
-REVERSAL_TOLERANCE = 0.01
-#: ... and by this many times the input's own noise sd (the range of 1000 noise samples stays below it).
-REVERSAL_NOISE_MULTIPLE = 10.0
 #: The zoom window is wide enough for the output to move this many predictive half-widths.
 ZOOM_BAND_MULTIPLE = 15.0
 #: PNG resolution [dots per inch]; the corner plot is larger in inches, so lower.
@@ -381,58 +377,6 @@ def model_bands(data: ReportData, draws: PosteriorDraws, *, level: float = 0.95)
     return ModelBands(median, lo, hi, predictive_lo, predictive_hi, curves[-1], int(inside.sum()), int((~inside).sum()))
 
 
-def input_reversals(current, tolerance: float | None = None) -> np.ndarray:
-    """Sample indices where the input turns (its local extrema), robust to small wiggles.
-
-    A peak (trough) is recorded once the input has fallen (risen) by more than
-    ``tolerance`` from it, so measurement noise on the input does not split a branch.
-
-    Parameters
-    ----------
-    current : array_like, shape (T,)
-    tolerance : float, optional
-        In input units; default the larger of :data:`REVERSAL_TOLERANCE` times the input's
-        range and :data:`REVERSAL_NOISE_MULTIPLE` times the input's own noise sd,
-        estimated robustly from its second differences (``1.4826 MAD / sqrt(6)``; the
-        signal's curvature is negligible against noise at the sampling rates used).
-
-    Returns
-    -------
-    ndarray of int, increasing
-        Indices of the turning samples (first sample of a flat extremum); never 0 or T-1.
-    """
-    current = np.asarray(current, dtype=float)
-    if current.ndim != 1:
-        raise ValueError(f"current must be 1-D, got shape {current.shape}")
-    span = float(np.ptp(current)) if current.size else 0.0
-    if tolerance is None:
-        second = np.diff(current, 2)
-        input_noise = 1.4826 * float(np.median(np.abs(second - np.median(second)))) / math.sqrt(6.0) if second.size else 0.0
-        tolerance = max(REVERSAL_TOLERANCE * span, REVERSAL_NOISE_MULTIPLE * input_noise)
-    if span == 0.0:
-        return np.zeros(0, dtype=int)
-    reversals = []
-    direction = 0  # +1 rising, -1 falling, 0 not yet known
-    high = low = 0  # indices of the running max / min since the last reversal
-    for k in range(1, current.size):
-        v = current[k]
-        if v > current[high]:
-            high = k
-        if v < current[low]:
-            low = k
-        # The first confirmed move only sets the direction: what came before it moved
-        # by less than the tolerance, so its extremum is no reversal.
-        if direction >= 0 and current[high] - v > tolerance:
-            if direction == 1:
-                reversals.append(high)
-            direction, low = -1, k
-        elif direction <= 0 and v - current[low] > tolerance:
-            if direction == -1:
-                reversals.append(low)
-            direction, high = 1, k
-    return np.array(sorted({r for r in reversals if 0 < r < current.size - 1}), dtype=int)
-
-
 @dataclass(frozen=True)
 class Branch:
     """A monotone stretch of the input between two reversals (inclusive sample range)."""
@@ -442,17 +386,20 @@ class Branch:
     rising: bool
 
 
-def branches(current, reversals) -> list[Branch]:
+def branches(n_samples: int, reversals: Reversals) -> list[Branch]:
     """Split the record at the reversals into branches sharing their end samples.
+
+    A branch ending at a peak rises, one ending at a trough falls (a flat quiet start before
+    the first rise counts as falling); the last branch turns away from the last reversal.
 
     Returns
     -------
     list of Branch
-        Covering samples ``0 .. T-1``; ``rising`` when the input ends higher than it starts.
+        Covering samples ``0 .. n_samples-1``, rising and falling in turn.
     """
-    current = np.asarray(current, dtype=float)
-    edges = [0] + [int(r) for r in reversals] + [current.size - 1]
-    return [Branch(a, b, bool(current[b] >= current[a])) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    edges = [0] + [int(r) for r in reversals.index] + [int(n_samples) - 1]
+    ends_rising = [bool(k > 0) for k in reversals.kind] + [bool(reversals.kind[-1] < 0) if len(reversals) else True]
+    return [Branch(a, b, rising) for a, b, rising in zip(edges[:-1], edges[1:], ends_rising) if b > a]
 
 
 @dataclass(frozen=True)
@@ -641,8 +588,8 @@ def _analyse(data: ReportData, n_draws: int, rng: np.random.Generator) -> _Analy
     displacement_range = float(np.ptp(measured[energised]))
     worst = int(np.flatnonzero(energised)[np.argmax(np.abs(error[energised]))])
     inside = (measured >= bands.predictive_lo) & (measured <= bands.predictive_hi)
-    reversals = input_reversals(current)
-    branch_list = branches(current, reversals)
+    reversals = find_reversals(current)
+    branch_list = branches(current.size, reversals)
     band_half_width = 0.5 * float(np.median((bands.predictive_hi - bands.predictive_lo)[energised]))
     zoom = zoom_samples(bands.median, worst, band_half_width)
     return _Analysis(
@@ -653,7 +600,7 @@ def _analyse(data: ReportData, n_draws: int, rng: np.random.Generator) -> _Analy
         max_error_pct=100.0 * abs(error[worst]) / displacement_range,
         displacement_range=displacement_range,
         inside_predictive_pct=100.0 * float(inside[energised].mean()),
-        reversals=reversals,
+        reversals=reversals.index,
         branch_list=branch_list,
         cycles=cycle_errors(time, current, error, energised, branch_list, displacement_range),
         band_half_width=band_half_width,

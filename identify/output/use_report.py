@@ -31,11 +31,11 @@ from .plots import axis_label, new_figure, styled, unit_label
 from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
 from .report import (
     branches,
-    input_reversals,
     loop_zoom_box,
     zoom_samples,
 )
 from .results import jsonable, now_iso
+from ..data.reversals import find_reversals
 
 __all__ = [
     "prediction_files",
@@ -116,8 +116,9 @@ def _prediction_figures(p):
     scored = np.flatnonzero(p.energised)
     worst = int(scored[np.argmax(np.abs(error[scored]))])
     band_arrays = (b.median, b.credible_lo, b.credible_hi, b.predictive_lo, b.predictive_hi)
-    reversals = input_reversals(current)
-    branch_list = branches(current, reversals)
+    turns = find_reversals(current)
+    branch_list = branches(current.size, turns)
+    reversals = turns.index
     half = 0.5 * float(np.median((b.predictive_hi - b.predictive_lo)[p.energised]))
     zoom = zoom_samples(b.median, worst, half)
     yield "input", plots.input_figure(time, current, reversals=reversals, **x_names), (
@@ -357,9 +358,8 @@ def compensation_error_figure(time, median, lo, hi, predictive_lo, predictive_hi
     ax.plot(time, median, color=plots.MODEL_COLOUR, lw=0.9, label="posterior median")
     ax.plot(time, self_error, color="black", lw=0.8, label="median model on its own inverse")
     ax.axhline(0.0, color="grey", lw=0.8)
-    ax.set_xlabel(axis_label("time", "s"))
-    ax.set_ylabel(axis_label("tracking error (model − target)", output_unit))
-    ax.set_title("Predicted tracking error of the feedforward current")
+    ax.set(xlabel=axis_label("time", "s"), ylabel=axis_label("tracking error (model − target)", output_unit),
+           title="Predicted tracking error of the feedforward current")  # fmt: skip
     ax.legend(loc="best", fontsize=9)
     return fig
 

@@ -137,36 +137,40 @@ def _save_figure(figure, path: Path) -> None:
     atomic_write(path, lambda fh: figure.savefig(fh, format="png", dpi=110))
 
 
+def _single_curve_figure(figsize, x, y, *, xlabel, ylabel, title, label=None, legend_loc=None, **style):
+    """One curve on one grid-lined axes, labelled; returns ``(figure, axes)`` (Agg canvas, no pyplot)."""
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=figsize, layout="constrained")
+    axes = figure.add_subplot()
+    axes.plot(x, y, label=label, **style)
+    axes.set(xlabel=xlabel, ylabel=ylabel, title=title)
+    if legend_loc is not None:
+        axes.legend(loc=legend_loc)
+    axes.grid(alpha=0.3)
+    return figure, axes
+
+
 def _make_figures(time, current, chosen, other, input_reading):
     """The four figures as ``{key: matplotlib.figure.Figure}`` (Agg canvas, no pyplot)."""
     from matplotlib.figure import Figure
 
     model_label = f"GPI, Table 1 ({chosen.reading} reading)"
     figures = {}
-
-    figure = Figure(figsize=(8, 3.6), layout="constrained")
-    axes = figure.add_subplot()
-    axes.plot(time, current, color="black", lw=1.0)
-    axes.set(xlabel="time [s]", ylabel="current [A]", title=f"Fig. 5: input signal, eqs. (14)-(17) ({input_reading} reading of eq. (16))")
+    figures["input"], axes = _single_curve_figure(
+        (8, 3.6), time, current, color="black", lw=1.0, xlabel="time [s]", ylabel="current [A]",
+        title=f"Fig. 5: input signal, eqs. (14)-(17) ({input_reading} reading of eq. (16))",
+    )  # fmt: skip
     axes.axvline(QUIET_SECONDS, color="grey", lw=0.8, ls=":")
-    axes.grid(alpha=0.3)
-    figures["input"] = figure
-
-    figure = Figure(figsize=(8, 3.6), layout="constrained")
-    axes = figure.add_subplot()
-    axes.plot(time, chosen.displacement, color="red", lw=1.0, label=model_label)
-    axes.set(xlabel="time [s]", ylabel="displacement [µm]", title="Fig. 6: displacement vs time (simulation; the measurement is not published)")
-    axes.legend(loc="upper right")
-    axes.grid(alpha=0.3)
-    figures["displacement"] = figure
-
-    figure = Figure(figsize=(6, 4.8), layout="constrained")
-    axes = figure.add_subplot()
-    axes.plot(current, chosen.displacement, color="red", lw=0.8, label=model_label)
-    axes.set(xlabel="current [A]", ylabel="displacement [µm]", title="Fig. 8: displacement vs current")
-    axes.legend(loc="upper left")
-    axes.grid(alpha=0.3)
-    figures["loops"] = figure
+    figures["displacement"], _ = _single_curve_figure(
+        (8, 3.6), time, chosen.displacement, color="red", lw=1.0, label=model_label, legend_loc="upper right",
+        xlabel="time [s]", ylabel="displacement [µm]",
+        title="Fig. 6: displacement vs time (simulation; the measurement is not published)",
+    )  # fmt: skip
+    figures["loops"], _ = _single_curve_figure(
+        (6, 4.8), current, chosen.displacement, color="red", lw=0.8, label=model_label, legend_loc="upper left",
+        xlabel="current [A]", ylabel="displacement [µm]", title="Fig. 8: displacement vs current",
+    )  # fmt: skip
 
     figure = Figure(figsize=(11, 4.2), layout="constrained")
     over_time, over_current = figure.subplots(1, 2)
