@@ -119,11 +119,11 @@ class RecordCoverage:
     """
 
     seed: int
-    names: tuple
-    truth: list
-    posterior_interval: list
-    least_squares: list
-    stderr: list
+    names: tuple[str, ...]
+    truth: list[float]
+    posterior_interval: list[list[float]]
+    least_squares: list[float]
+    stderr: list[float]
     converged: bool
     n_steps: int
     tau_max: float

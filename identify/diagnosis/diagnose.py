@@ -627,10 +627,10 @@ class ScreeningResult:
     chi2_drop: float
     chi2_after: float
     start: np.ndarray
-    grid_point: dict
+    grid_point: dict[str, float]
     n_grid: int
-    starts: list = field(default_factory=list)
-    grid: list = field(default_factory=list)
+    starts: list[np.ndarray] = field(default_factory=list)
+    grid: list[dict[str, float]] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {

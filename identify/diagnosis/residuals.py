@@ -45,6 +45,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 from scipy import stats
 
 from ..data.reversals import Reversals, as_1d, branch_direction, find_reversals, input_rate, time_since_reversal
@@ -100,7 +101,7 @@ class BinnedResidual:
 
     edges: np.ndarray
     centres: np.ndarray
-    count: np.ndarray
+    count: npt.NDArray[np.integer]
     mean: np.ndarray
     rms: np.ndarray
     sem: np.ndarray
@@ -252,9 +253,9 @@ class ExtremumLevels:
         Mean residual over ``index - half_window .. index + half_window``.
     """
 
-    index: np.ndarray
+    index: npt.NDArray[np.integer]
     time: np.ndarray
-    kind: np.ndarray
+    kind: npt.NDArray[np.integer]
     current: np.ndarray
     residual: np.ndarray
 

@@ -231,7 +231,7 @@ class FitResult:
     message: str
     seconds: float
     n_agree: int = 1
-    starts: list = field(default_factory=list)
+    starts: list[StartOutcome] = field(default_factory=list)
 
     @property
     def names(self) -> tuple[str, ...]:
