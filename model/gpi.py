@@ -90,6 +90,7 @@ __all__ = [
     "bound_overlap",
     "classical_pi",
     "envelope",
+    "operator_thresholds_and_weights",
 ]
 
 #: Table 1's order of the 19 GPI parameters.
@@ -255,6 +256,17 @@ def _weighted_sum(weights, memory):
     return (s0 + s1) + (s2 + s3)
 
 
+@njit(cache=True, inline="always")
+def operator_thresholds_and_weights(alpha, rho, tau, n_operators):
+    """Thresholds ``r_j = alpha j`` and weights ``p_j = rho exp(-tau r_j)``, ``j = 1..N`` (eqs. (8)-(9))."""
+    thresholds = np.empty(n_operators)
+    weights = np.empty(n_operators)
+    for j in range(n_operators):
+        thresholds[j] = alpha * (j + 1)
+        weights[j] = rho * np.exp(-tau * thresholds[j])
+    return thresholds, weights
+
+
 @njit(cache=True, error_model="numpy")
 def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1, c2, c3, d0, d1, d2, d3, env, omega):
     """Per sample ``k >= 1``: ``env[k]``, the envelope the input moves along (rising if
@@ -305,12 +317,8 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
         c0, c1, c2, c3 = th[11], th[12], th[13], th[14]
         d0, d1, d2, d3 = th[15], th[16], th[17], th[18]
 
-        thresholds = np.empty(n_operators)
-        weights = np.empty(n_operators)
+        thresholds, weights = operator_thresholds_and_weights(alpha, rho, tau, n_operators)
         memory = np.empty(n_operators)
-        for j in range(n_operators):
-            thresholds[j] = alpha * (j + 1)
-            weights[j] = rho * np.exp(-tau * thresholds[j])
 
         env = np.empty(n_samples)
         omega = np.empty(n_samples)

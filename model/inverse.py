@@ -90,7 +90,7 @@ from numba import njit, prange
 
 from .composite import Model
 from .effects import CREEP_MODES, REFERENCE_CURRENT, creep_time_constants
-from .gpi import READINGS, THETA_NAMES
+from .gpi import READINGS, THETA_NAMES, operator_thresholds_and_weights
 
 __all__ = [
     "invert",
@@ -503,11 +503,7 @@ def _inverse_kernel(
                 g[4 + q] = th_[3 + q]
         for q in range(8):
             g[8 + q] = th_[11 + q]
-        thresholds = np.empty(n_ops)
-        weights = np.empty(n_ops)
-        for j in range(n_ops):
-            thresholds[j] = alpha * (j + 1)
-            weights[j] = rho * np.exp(-tau * thresholds[j])
+        thresholds, weights = operator_thresholds_and_weights(alpha, rho, tau, n_ops)
         memory = np.empty(n_ops)
         modes = np.empty(n_modes)
         creep_gain = np.empty(n_modes)
