@@ -156,24 +156,48 @@ class GPICoordinates:
                          if node in self.blocks]  # fmt: skip
 
     @classmethod
+    def for_model(cls, model, time, current, names=None, lower=None):
+        """The coordinates of ``model``'s free parameters on a record.
+
+        Parameters
+        ----------
+        model : model.Model
+        time, current : array_like, shape (T,)
+            The record's times [s] and input: its input range and duration.
+        names, lower : sequence, optional
+            The coordinates and their lower bounds, when they are not the model's free
+            parameters (e.g. a log-posterior's, with a noise coordinate).
+
+        Returns
+        -------
+        GPICoordinates, or IdentityCoordinates for a model without the GPI's weights.
+        """
+        if model is None or not {"alpha", "tau"} <= set(getattr(model, "names", ())):
+            return IdentityCoordinates()
+        free = model.parameters.vary
+        names = [n for n, v in zip(model.names, free) if v] if names is None else names
+        lower = model.parameters.lower[free] if lower is None else lower
+        tau = model.parameters["tau"]
+        return cls(
+            names,
+            model.parameters.values,
+            model.n_operators,
+            (float(np.min(current)), float(np.max(current))),
+            lower,
+            (tau.lower, tau.upper),
+            duration=float(np.ptp(time)) if np.size(time) > 1 else None,
+            pinned={n: float(model.parameters[n].value) for n in _THERMAL if n in model.names},
+        )
+
+    @classmethod
     def from_log_posterior(cls, log_post):
         """The coordinates for a :class:`identify.posterior.LogPosterior` (its names,
         model, bounds and record input); :class:`IdentityCoordinates` for a log-posterior
         without a GPI model (e.g. a test density)."""
         model = getattr(log_post, "model", None)
-        if model is None or not {"alpha", "tau"} <= set(getattr(model, "names", ())):
+        if model is None:
             return IdentityCoordinates()
-        tau = model.parameters["tau"]
-        return cls(
-            log_post.names,
-            model.parameters.values,
-            model.n_operators,
-            (float(np.min(log_post.current)), float(np.max(log_post.current))),
-            log_post.lower,
-            (tau.lower, tau.upper),
-            duration=float(np.ptp(log_post.time)) if np.size(log_post.time) > 1 else None,
-            pinned={n: float(model.parameters[n].value) for n in _THERMAL if n in model.names},
-        )
+        return cls.for_model(model, log_post.time, log_post.current, log_post.names, log_post.lower)
 
     # -- the weight block ------------------------------------------------------------
     def _moments(self, rho, tau):
