@@ -147,24 +147,102 @@ def _lowpass_coefficients(step, tau):
     return decay, gain
 
 
+#: Most distinct sample steps for which the filters tabulate their coefficients
+#: (:func:`_distinct_steps`); a record with more computes them at every sample.
+MAX_DISTINCT_STEPS = 64
+
+
+@njit(cache=True)
+def _distinct_steps(time, max_distinct):
+    """``(steps, index)``: the distinct values of ``time[k] - time[k-1]`` (first
+    occurrence order) and, for ``k >= 1``, ``index[k]`` with ``steps[index[k]]`` that
+    step (exactly: equal floats); ``index[0] = 0``. Empty ``steps`` when there are more
+    than ``max_distinct`` (then no table pays)."""
+    n_samples = time.shape[0]
+    steps = np.empty(max_distinct)
+    index = np.zeros(n_samples, dtype=np.int64)
+    n_distinct = 0
+    last = 0
+    for k in range(1, n_samples):
+        step = time[k] - time[k - 1]
+        if n_distinct > 0 and steps[last] == step:  # the common case: the step of the previous sample
+            index[k] = last
+            continue
+        found = -1
+        for m in range(n_distinct):
+            if steps[m] == step:
+                found = m
+                break
+        if found < 0:
+            if n_distinct == max_distinct:
+                return steps[:0], index
+            steps[n_distinct] = step
+            found = n_distinct
+            n_distinct += 1
+        index[k] = found
+        last = found
+    return steps[:n_distinct], index
+
+
+@njit(cache=True, inline="always")
+def _lowpass_table(steps, tau, decay, gain):
+    """Fill ``decay[m], gain[m]`` with :func:`_lowpass_step`'s coefficients for ``steps[m]``
+    (``tau > 0``): the same operations, so a tabulated step equals the direct one bit for bit."""
+    for m in range(steps.shape[0]):
+        ratio = steps[m] / tau
+        a = math.exp(-ratio)
+        decay[m] = a
+        if ratio > 1e-3:
+            gain[m] = (1.0 - a) / ratio
+        else:
+            gain[m] = 1.0 - ratio * (0.5 - ratio * (1.0 / 6.0 - ratio * (1.0 / 24.0 - ratio / 120.0)))
+
+
 @njit(parallel=True, cache=True)
 def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2, displacement, out):
     """Two-node thermal network: ``rise`` (node 1) low-passes ``heating``, ``rise2`` (node 2)
     low-passes ``rise`` (both from 0); ``out = displacement (1 - S rise - S2 rise2) + E rise + E2 rise2``.
-    Node 2 is skipped (exactly the one-node form) where both of its gains are 0."""
+    Node 2 is skipped (exactly the one-node form) where both of its gains are 0.
+
+    With at most :data:`MAX_DISTINCT_STEPS` distinct sample steps (uniform sampling has a
+    handful, differing in the last bits) each node's filter coefficients are computed
+    once per distinct step and parameter set (:func:`_distinct_steps`) instead of one
+    ``exp`` per sample, bit-identical to :func:`_lowpass_step` at every sample."""
     n_sets = displacement.shape[0]
     n_samples = displacement.shape[1]
+    steps, index = _distinct_steps(time, MAX_DISTINCT_STEPS)
+    tabulated = steps.shape[0] > 0
+    n_steps = steps.shape[0]
     for w in prange(n_sets):
         second = sensitivity2[w] != 0.0 or expansion2[w] != 0.0
+        table1 = tabulated and tau[w] > 0.0
+        table2 = tabulated and tau2[w] > 0.0
+        decay1 = np.empty(n_steps)
+        gain1 = np.empty(n_steps)
+        decay2 = np.empty(n_steps)
+        gain2 = np.empty(n_steps)
+        if table1:
+            _lowpass_table(steps, tau[w], decay1, gain1)
+        if table2 and second:
+            _lowpass_table(steps, tau2[w], decay2, gain2)
         rise = 0.0
         rise2 = 0.0
         out[w, 0] = displacement[w, 0] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
         for k in range(1, n_samples):
-            step = time[k] - time[k - 1]
             previous = rise
-            rise = _lowpass_step(rise, heating[k - 1], heating[k], step, tau[w])
+            x_prev = heating[k - 1]
+            x_now = heating[k]
+            if table1:
+                m = index[k]
+                rise = x_now - (x_now - x_prev) * gain1[m] + decay1[m] * (rise - x_prev)
+            else:
+                rise = _lowpass_step(rise, x_prev, x_now, time[k] - time[k - 1], tau[w])
             if second:
-                rise2 = _lowpass_step(rise2, previous, rise, step, tau2[w])
+                if table2:
+                    m = index[k]
+                    rise2 = rise - (rise - previous) * gain2[m] + decay2[m] * (rise2 - previous)
+                else:
+                    rise2 = _lowpass_step(rise2, previous, rise, time[k] - time[k - 1], tau2[w])
                 out[w, k] = (
                     displacement[w, k] * (1.0 - sensitivity[w] * rise - sensitivity2[w] * rise2)
                     + expansion[w] * rise + expansion2[w] * rise2
