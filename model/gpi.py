@@ -332,7 +332,8 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
         for j in range(n_operators):
             thresholds[j] = alpha * (j + 1)
             weights[j] = rho * np.exp(-tau * thresholds[j])
-        n4 = n_operators - n_operators % 4  # operators summed four at a time (set here: hoisted out of the prange loop it cost 25 %)
+        # operators summed four at a time (set here: hoisted out of the prange loop it cost 25 %)
+        n4 = n_operators - n_operators % 4
 
         env = np.empty(n_samples)
         omega = np.empty(n_samples)
