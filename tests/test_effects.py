@@ -568,9 +568,10 @@ def test_add_and_refusals():
 
 
 def test_thermal_tabulated_steps_equal_the_per_sample_filter():
-    """The thermal kernel tabulates the filter coefficients per distinct sample step: bit
-    for bit the per-sample computation (a step jittered in its last bits is another entry),
-    also with more distinct steps than the table holds (then computed at every sample)."""
+    """The thermal kernel tabulates the filter coefficients per distinct sample step and runs
+    four parameter sets in lockstep: bit for bit the per-sample computation of each set
+    alone (a step jittered in its last bits is another entry), also with more distinct
+    steps than the table holds (then computed at every sample)."""
     from model.effects import MAX_DISTINCT_STEPS, _distinct_steps, _lowpass_step
 
     rng = np.random.default_rng(3)
@@ -579,8 +580,11 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
     assert 0 < _distinct_steps(uniform, MAX_DISTINCT_STEPS)[0].size <= MAX_DISTINCT_STEPS
     assert _distinct_steps(jittered, MAX_DISTINCT_STEPS)[0].size == 0
     current = 5.0 * np.abs(np.sin(uniform))
+    # four sets with both nodes on (run in lockstep), then the other cases one by one
     params = np.array([[20.0, 0.08, 3.0, 300.0, -0.3, 2.0], [1e6, 0.1, 1.0, 1e-4, 0.2, 1.0],
-                       [0.0, 0.1, 1.0, 5.0, 0.0, 0.0], [7.0, 0.1, 1.0, 0.0, 0.1, 0.5]])  # fmt: skip
+                       [5.0, 0.05, 1.0, 50.0, 0.1, 0.3], [0.5, 0.2, 2.0, 3000.0, 0.05, 0.4],
+                       [0.0, 0.1, 1.0, 5.0, 0.0, 0.0], [7.0, 0.1, 1.0, 0.0, 0.1, 0.5],
+                       [3.0, 0.1, 1.0, 10.0, 0.0, 0.0]])  # fmt: skip
     y_g = rng.normal(size=(params.shape[0], uniform.size)).cumsum(axis=1)
     thermal = EFFECTS["thermal"]()
     for time in (uniform, jittered):
