@@ -199,3 +199,16 @@ def test_whiten_rows_is_whiten_bit_for_bit(rho):
     np.testing.assert_array_equal(w, whiten(data[None, :] - rows, noise, 0.07))
     np.testing.assert_array_equal(finite, np.isfinite(w).all(axis=1))
     assert finite.tolist() == [True, True, False, False, False]
+
+
+def test_log_likelihood_of_rows_in_lockstep_equals_each_row_alone():
+    """Rows are summed four at a time in lockstep: each row's value is the one it has alone."""
+    from identify.fitting.noise import log_likelihood_of_rows
+
+    rng = np.random.default_rng(6)
+    data = rng.normal(size=300)
+    rows = data + rng.normal(scale=0.1, size=(11, 300))
+    noise = NoiseModel(sigma=0.1, rho=0.4, kind="ar1", source="user")
+    together = log_likelihood_of_rows(data, rows, np.arange(11), noise)
+    alone = [log_likelihood_of_rows(data, rows[k : k + 1], np.arange(1), noise)[0] for k in range(11)]
+    np.testing.assert_array_equal(together, alone)
