@@ -80,8 +80,9 @@ def main(argv=None) -> int:
                 print(f"{tree.name:<28} {seed:>4} FAILED exit {row['exit']}: {row['error']}")
                 continue
             phases = ", ".join(f"{k} {v:.1f}" for k, v in row["phases"].items() if v >= 0.05)
-            print(f"{tree.name:<28} {seed:>4} {row['wall']:7.1f} {row['load_before']:5.2f}-{row['load_after']:<5.2f} "
-                  f"{row['steps']:>6} {row['tau_max']:6.1f} {str(row['converged']):>5}  {phases}", flush=True)  # fmt: skip
+            load = f"{row['load_before']:5.2f}-{row['load_after']:<5.2f}"
+            print(f"{tree.name:<28} {seed:>4} {row['wall']:7.1f} {load} {row['steps']:>6} {row['tau_max']:6.1f} "
+                  f"{str(row['converged']):>5}  {phases}", flush=True)  # fmt: skip
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

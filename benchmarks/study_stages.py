@@ -154,8 +154,9 @@ def main(argv=None) -> int:
     if not args.skip_startup:
         print(f"start-up: python -m identify --help {cli_startup:.2f} s; import {import_seconds:.2f} s; "
               f"first model call (cached kernels) {first_call:.2f} s")  # fmt: skip
-    print(f"study() {wall:.1f} s: {post['n_steps']} steps x {post['n_walkers']} walkers, tau_max {post['tau_max']:.1f}, "
-          f"{'converged' if post['converged'] else 'NOT converged'}")  # fmt: skip
+    verdict = "converged" if post["converged"] else "NOT converged"
+    print(f"study() {wall:.1f} s: {post['n_steps']} steps x {post['n_walkers']} walkers, "
+          f"tau_max {post['tau_max']:.1f}, {verdict}")  # fmt: skip
     for name, seconds in phases.items():
         print(f"  phase {name:<22} {seconds:8.2f} s")
     steps = max(int(post["n_steps"]), 1)
@@ -171,7 +172,8 @@ def main(argv=None) -> int:
         "posterior: final summary (reads chain.h5)", "posterior: initial walkers"))  # fmt: skip
     print(f"  posterior: moves less log-posterior and map          {moves - log_post - map_seconds:8.2f} s "
           f"({1e3 * (moves - log_post - map_seconds) / steps:.3f} ms/step)")  # fmt: skip
-    print(f"  posterior: emcee's loop outside the moves            {outside:8.2f} s ({1e3 * outside / steps:.3f} ms/step)")
+    print(f"  posterior: emcee's loop outside the moves            {outside:8.2f} s "
+          f"({1e3 * outside / steps:.3f} ms/step)")  # fmt: skip
     if args.save:
         from identify.fitting.posterior import BACKEND_GROUP, ChainBackend
 

@@ -975,8 +975,8 @@ def sample_posterior(
             done = backend.iteration
             if chain.n_steps != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
                 raise RuntimeError(f"in-memory chain has {chain.n_steps} steps, the backend {done}")
-            stop, converged, message = _check(chain.view(), max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, log,
-                                              diagnostics_cache)  # fmt: skip
+            stop, converged, message = _check(chain.view(), max_steps, check_every, tau_factor, tau_rtol, tau_cache,
+                                              bar, log, diagnostics_cache)  # fmt: skip
             if stop:
                 break
             fastest_thread_count(log_post, np.asarray(state.coords))
