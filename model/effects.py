@@ -147,30 +147,185 @@ def _lowpass_coefficients(step, tau):
     return decay, gain
 
 
+#: Most distinct sample steps for which the filters tabulate their coefficients
+#: (:func:`_distinct_steps`); a record with more computes them at every sample.
+MAX_DISTINCT_STEPS = 64
+
+
+@njit(cache=True)
+def _distinct_steps(time, max_distinct):
+    """``(steps, index)``: the distinct values of ``time[k] - time[k-1]`` (first
+    occurrence order) and, for ``k >= 1``, ``index[k]`` with ``steps[index[k]]`` that
+    step (exactly: equal floats); ``index[0] = 0``. Empty ``steps`` when there are more
+    than ``max_distinct`` (then no table pays)."""
+    n_samples = time.shape[0]
+    steps = np.empty(max_distinct)
+    index = np.zeros(n_samples, dtype=np.int64)
+    n_distinct = 0
+    last = 0
+    for k in range(1, n_samples):
+        step = time[k] - time[k - 1]
+        if n_distinct > 0 and steps[last] == step:  # the common case: the step of the previous sample
+            index[k] = last
+            continue
+        found = -1
+        for m in range(n_distinct):
+            if steps[m] == step:
+                found = m
+                break
+        if found < 0:
+            if n_distinct == max_distinct:
+                return steps[:0], index
+            steps[n_distinct] = step
+            found = n_distinct
+            n_distinct += 1
+        index[k] = found
+        last = found
+    return steps[:n_distinct], index
+
+
+@njit(cache=True, inline="always")
+def _lowpass_table(steps, tau, decay, gain):
+    """Fill ``decay[m], gain[m]`` with :func:`_lowpass_step`'s coefficients for ``steps[m]``
+    (``tau > 0``): the same operations, so a tabulated step equals the direct one bit for bit."""
+    for m in range(steps.shape[0]):
+        ratio = steps[m] / tau
+        a = math.exp(-ratio)
+        decay[m] = a
+        if ratio > 1e-3:
+            gain[m] = (1.0 - a) / ratio
+        else:
+            gain[m] = 1.0 - ratio * (0.5 - ratio * (1.0 / 6.0 - ratio * (1.0 / 24.0 - ratio / 120.0)))
+
+
+@njit(cache=True, inline="always")
+def _thermal_lane(rise, rise2, x_prev, x_now, gain1, decay1, gain2, decay2, y, s, e, s2, e2):
+    """One sample of one parameter set of :func:`_thermal_kernel` (both nodes, tabulated
+    coefficients): ``(rise, rise2, output)``, the kernel's operations in its order."""
+    previous = rise
+    rise = x_now - (x_now - x_prev) * gain1 + decay1 * (rise - x_prev)
+    rise2 = rise - (rise - previous) * gain2 + decay2 * (rise2 - previous)
+    return rise, rise2, y * (1.0 - s * rise - s2 * rise2) + e * rise + e2 * rise2
+
+
+@njit(cache=True)
+def _thermal_four(w0, index, steps, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2,
+                  displacement, out):  # fmt: skip
+    """Parameter sets ``w0 .. w0 + 3`` of :func:`_thermal_kernel` in lockstep (both nodes,
+    tabulated): four independent recursions interleaved, so one's latency hides behind the
+    others'; each set's operations are those of :func:`_thermal_one`, bit for bit."""
+    n_samples = displacement.shape[1]
+    n_steps = steps.shape[0]
+    a1 = np.empty((4, n_steps))
+    g1 = np.empty((4, n_steps))
+    a2 = np.empty((4, n_steps))
+    g2 = np.empty((4, n_steps))
+    for lane in range(4):
+        _lowpass_table(steps, tau[w0 + lane], a1[lane], g1[lane])
+        _lowpass_table(steps, tau2[w0 + lane], a2[lane], g2[lane])
+    w1, w2, w3 = w0 + 1, w0 + 2, w0 + 3
+    s0, s1, s2, s3 = sensitivity[w0], sensitivity[w1], sensitivity[w2], sensitivity[w3]
+    e0, e1, e2, e3 = expansion[w0], expansion[w1], expansion[w2], expansion[w3]
+    t0, t1, t2, t3 = sensitivity2[w0], sensitivity2[w1], sensitivity2[w2], sensitivity2[w3]
+    f0, f1, f2, f3 = expansion2[w0], expansion2[w1], expansion2[w2], expansion2[w3]
+    for lane in range(4):
+        w = w0 + lane
+        out[w, 0] = displacement[w, 0] * (1.0 - sensitivity[w] * 0.0) + expansion[w] * 0.0
+    r0 = r1 = r2 = r3 = 0.0
+    q0 = q1 = q2 = q3 = 0.0
+    for k in range(1, n_samples):
+        m = index[k]
+        x_prev = heating[k - 1]
+        x_now = heating[k]
+        r0, q0, y0 = _thermal_lane(r0, q0, x_prev, x_now, g1[0, m], a1[0, m], g2[0, m], a2[0, m], displacement[w0, k],
+                                   s0, e0, t0, f0)  # fmt: skip
+        r1, q1, y1 = _thermal_lane(r1, q1, x_prev, x_now, g1[1, m], a1[1, m], g2[1, m], a2[1, m], displacement[w1, k],
+                                   s1, e1, t1, f1)  # fmt: skip
+        r2, q2, y2 = _thermal_lane(r2, q2, x_prev, x_now, g1[2, m], a1[2, m], g2[2, m], a2[2, m], displacement[w2, k],
+                                   s2, e2, t2, f2)  # fmt: skip
+        r3, q3, y3 = _thermal_lane(r3, q3, x_prev, x_now, g1[3, m], a1[3, m], g2[3, m], a2[3, m], displacement[w3, k],
+                                   s3, e3, t3, f3)  # fmt: skip
+        out[w0, k] = y0
+        out[w1, k] = y1
+        out[w2, k] = y2
+        out[w3, k] = y3
+
+
+@njit(cache=True)
+def _thermal_one(w, time, steps, index, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2,
+                 displacement, out):  # fmt: skip
+    """Parameter set ``w`` of :func:`_thermal_kernel`, alone (any case)."""
+    n_samples = displacement.shape[1]
+    n_steps = steps.shape[0]
+    tabulated = n_steps > 0
+    second = sensitivity2[w] != 0.0 or expansion2[w] != 0.0
+    table1 = tabulated and tau[w] > 0.0
+    table2 = tabulated and tau2[w] > 0.0
+    decay1 = np.empty(n_steps)
+    gain1 = np.empty(n_steps)
+    decay2 = np.empty(n_steps)
+    gain2 = np.empty(n_steps)
+    if table1:
+        _lowpass_table(steps, tau[w], decay1, gain1)
+    if table2 and second:
+        _lowpass_table(steps, tau2[w], decay2, gain2)
+    rise = 0.0
+    rise2 = 0.0
+    out[w, 0] = displacement[w, 0] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
+    for k in range(1, n_samples):
+        previous = rise
+        x_prev = heating[k - 1]
+        x_now = heating[k]
+        if table1:
+            m = index[k]
+            rise = x_now - (x_now - x_prev) * gain1[m] + decay1[m] * (rise - x_prev)
+        else:
+            rise = _lowpass_step(rise, x_prev, x_now, time[k] - time[k - 1], tau[w])
+        if second:
+            if table2:
+                m = index[k]
+                rise2 = rise - (rise - previous) * gain2[m] + decay2[m] * (rise2 - previous)
+            else:
+                rise2 = _lowpass_step(rise2, previous, rise, time[k] - time[k - 1], tau2[w])
+            out[w, k] = (
+                displacement[w, k] * (1.0 - sensitivity[w] * rise - sensitivity2[w] * rise2)
+                + expansion[w] * rise + expansion2[w] * rise2
+            )
+        else:
+            out[w, k] = displacement[w, k] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
+
+
 @njit(parallel=True, cache=True)
 def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2, displacement, out):
     """Two-node thermal network: ``rise`` (node 1) low-passes ``heating``, ``rise2`` (node 2)
     low-passes ``rise`` (both from 0); ``out = displacement (1 - S rise - S2 rise2) + E rise + E2 rise2``.
-    Node 2 is skipped (exactly the one-node form) where both of its gains are 0."""
+    Node 2 is skipped (exactly the one-node form) where both of its gains are 0.
+
+    With at most :data:`MAX_DISTINCT_STEPS` distinct sample steps (uniform sampling has a
+    handful, differing in the last bits) each node's filter coefficients are computed
+    once per distinct step and parameter set (:func:`_distinct_steps`) instead of one
+    ``exp`` per sample, bit-identical to :func:`_lowpass_step` at every sample. Groups of
+    four parameter sets with both nodes on and tabulated run in lockstep
+    (:func:`_thermal_four`: the recursion is latency-bound), the rest one by one
+    (:func:`_thermal_one`); the values are the same either way."""
     n_sets = displacement.shape[0]
-    n_samples = displacement.shape[1]
-    for w in prange(n_sets):
-        second = sensitivity2[w] != 0.0 or expansion2[w] != 0.0
-        rise = 0.0
-        rise2 = 0.0
-        out[w, 0] = displacement[w, 0] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
-        for k in range(1, n_samples):
-            step = time[k] - time[k - 1]
-            previous = rise
-            rise = _lowpass_step(rise, heating[k - 1], heating[k], step, tau[w])
-            if second:
-                rise2 = _lowpass_step(rise2, previous, rise, step, tau2[w])
-                out[w, k] = (
-                    displacement[w, k] * (1.0 - sensitivity[w] * rise - sensitivity2[w] * rise2)
-                    + expansion[w] * rise + expansion2[w] * rise2
-                )
-            else:
-                out[w, k] = displacement[w, k] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
+    steps, index = _distinct_steps(time, MAX_DISTINCT_STEPS)
+    tabulated = steps.shape[0] > 0
+    n_groups = (n_sets + 3) // 4
+    for g in prange(n_groups):
+        w0 = 4 * g
+        w_end = min(w0 + 4, n_sets)
+        lockstep = tabulated and w_end - w0 == 4
+        for w in range(w0, w_end):
+            if not (tau[w] > 0.0 and tau2[w] > 0.0 and (sensitivity2[w] != 0.0 or expansion2[w] != 0.0)):
+                lockstep = False
+        if lockstep:
+            _thermal_four(w0, index, steps, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2,
+                          displacement, out)  # fmt: skip
+        else:
+            for w in range(w0, w_end):
+                _thermal_one(w, time, steps, index, heating, tau, sensitivity, expansion, tau2, sensitivity2,
+                             expansion2, displacement, out)  # fmt: skip
 
 
 @njit(parallel=True, cache=True)

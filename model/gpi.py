@@ -289,6 +289,20 @@ def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1,
                              c3 if on_rising else d3, v)  # fmt: skip
 
 
+@njit(cache=True)
+def _directions(current):
+    """``(R, T)`` int8: +1 where ``current[r, k] > current[r, k-1]``, -1 where below, 0 where
+    equal (and at ``k = 0``): the branch each sample takes, shared by every parameter set
+    that reads row ``r``."""
+    n_rows, n_samples = current.shape
+    direction = np.zeros((n_rows, n_samples), dtype=np.int8)
+    for r in range(n_rows):
+        for k in range(1, n_samples):
+            dv = current[r, k] - current[r, k - 1]
+            direction[r, k] = 1 if dv > 0.0 else (-1 if dv < 0.0 else 0)
+    return direction
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
     """Fill ``out[w, :]`` with the GPI response of ``theta[w]``, eq. (5) for every parameter set.
@@ -298,10 +312,17 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
     recursion then updates the ``N`` memories and sums them. A sample equal to its
     predecessor after a rising-branch sample repeats the previous output (memory and
     Omega are unchanged), exactly.
+
+    The recursion reads each sample's direction from :func:`_directions` (computed once
+    per input row) and updates each memory and adds its weighted value in the same loop,
+    four operators at a time into the four partial sums of :func:`_weighted_sum` (the
+    same additions in the same order: the output is that of a separate update and sum,
+    bit for bit, at about half the cost).
     """
     n_sets = theta.shape[0]
     n_samples = current.shape[1]
     row_step = 0 if current.shape[0] == 1 else 1  # a 1-row input is shared by all sets
+    directions = _directions(current)
     for w in prange(n_sets):
         row = w * row_step
         th = theta[w]
@@ -319,6 +340,8 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
 
         thresholds, weights = operator_thresholds_and_weights(alpha, rho, tau, n_operators)
         memory = np.empty(n_operators)
+        # operators summed four at a time (set here: hoisted out of the prange loop it cost 25 %)
+        n4 = n_operators - n_operators % 4
 
         env = np.empty(n_samples)
         omega = np.empty(n_samples)
@@ -336,20 +359,58 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
         last_was_rising_branch = True  # Omega branch used at the previous sample
 
         for k in range(1, n_samples):
-            dv = current[row, k] - current[row, k - 1]
-            if dv > 0.0:
-                moving_env = env[k]
-                for j in range(n_operators):
-                    memory[j] = max(memory[j], moving_env - thresholds[j])
-            elif dv < 0.0:
-                moving_env = env[k]
-                for j in range(n_operators):
-                    memory[j] = min(memory[j], moving_env + thresholds[j])
-            elif last_was_rising_branch:
-                out[w, k] = out[w, k - 1]
+            d = directions[row, k]
+            if d == 0:
+                if last_was_rising_branch:
+                    out[w, k] = out[w, k - 1]
+                    continue
+                out[w, k] = omega[k] + _weighted_sum(weights, memory)
+                last_was_rising_branch = True
                 continue
-            out[w, k] = omega[k] + _weighted_sum(weights, memory)
-            last_was_rising_branch = dv >= 0.0
+            moving_env = env[k]
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            s3 = 0.0
+            if d > 0:
+                for j in range(0, n4, 4):
+                    m0 = max(memory[j], moving_env - thresholds[j])
+                    m1 = max(memory[j + 1], moving_env - thresholds[j + 1])
+                    m2 = max(memory[j + 2], moving_env - thresholds[j + 2])
+                    m3 = max(memory[j + 3], moving_env - thresholds[j + 3])
+                    memory[j] = m0
+                    memory[j + 1] = m1
+                    memory[j + 2] = m2
+                    memory[j + 3] = m3
+                    s0 += weights[j] * m0
+                    s1 += weights[j + 1] * m1
+                    s2 += weights[j + 2] * m2
+                    s3 += weights[j + 3] * m3
+                for j in range(n4, n_operators):
+                    m0 = max(memory[j], moving_env - thresholds[j])
+                    memory[j] = m0
+                    s0 += weights[j] * m0
+                last_was_rising_branch = True
+            else:
+                for j in range(0, n4, 4):
+                    m0 = min(memory[j], moving_env + thresholds[j])
+                    m1 = min(memory[j + 1], moving_env + thresholds[j + 1])
+                    m2 = min(memory[j + 2], moving_env + thresholds[j + 2])
+                    m3 = min(memory[j + 3], moving_env + thresholds[j + 3])
+                    memory[j] = m0
+                    memory[j + 1] = m1
+                    memory[j + 2] = m2
+                    memory[j + 3] = m3
+                    s0 += weights[j] * m0
+                    s1 += weights[j + 1] * m1
+                    s2 += weights[j + 2] * m2
+                    s3 += weights[j + 3] * m3
+                for j in range(n4, n_operators):
+                    m0 = min(memory[j], moving_env + thresholds[j])
+                    memory[j] = m0
+                    s0 += weights[j] * m0
+                last_was_rising_branch = False
+            out[w, k] = omega[k] + ((s0 + s1) + (s2 + s3))
 
 
 def _prepare(theta, current, n_operators, reading, initial_memory):

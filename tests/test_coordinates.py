@@ -164,3 +164,29 @@ def test_no_thermal_blocks_without_the_record_duration():
     kw, _ = GPICoordinates.get_test_parameters()
     coords, _ = _thermal_coords()
     assert "thermal" not in GPICoordinates(**{**kw, "names": coords.names, "lower": np.zeros(len(coords.names)) + 1e-3}).blocks
+
+
+def test_the_move_gives_emcees_stock_chain_bit_for_bit():
+    """CoordinateMove.propose keeps the ensemble's coordinates between calls and accepts in
+    one vectorised test: the chain is the one emcee's own RedBlueMove.propose gives."""
+
+    class Stock(CoordinateMove):
+        def propose(self, model, state):
+            return emcee.moves.RedBlueMove.propose(self, model, state)
+
+    coords, x = _coords()
+    sd = 0.15 * np.abs(x)
+
+    def log_prob(xs):
+        return -0.5 * (((xs - x) / sd) ** 2).sum(axis=1)
+
+    chains = []
+    for kind in (CoordinateMove, Stock):
+        moves = [(kind(emcee.moves.DEMove(), coords), 0.8), (kind(SnookerMove(), coords), 0.2)]
+        sampler = emcee.EnsembleSampler(40, x.size, log_prob, vectorize=True, moves=moves)
+        sampler.random_state = np.random.RandomState(7).get_state()
+        start = x + 0.1 * sd * np.random.default_rng(7).standard_normal((40, x.size))
+        sampler.run_mcmc(start, 300, progress=False)
+        chains.append((sampler.get_chain(), sampler.get_log_prob(), sampler.acceptance_fraction))
+    for new, stock in zip(*chains):
+        np.testing.assert_array_equal(new, stock)

@@ -565,3 +565,40 @@ def test_add_and_refusals():
     with pytest.raises(ValueError, match="already registered"):
         model.register_effect(type("OtherLag", (EFFECTS["lag"],), {}))
     assert EFFECTS == before
+
+
+def test_thermal_tabulated_steps_equal_the_per_sample_filter():
+    """The thermal kernel tabulates the filter coefficients per distinct sample step and runs
+    four parameter sets in lockstep: bit for bit the per-sample computation of each set
+    alone (a step jittered in its last bits is another entry), also with more distinct
+    steps than the table holds (then computed at every sample)."""
+    from model.effects import MAX_DISTINCT_STEPS, _distinct_steps, _lowpass_step
+
+    rng = np.random.default_rng(3)
+    uniform = np.arange(3000) * 0.01  # a handful of distinct float steps
+    jittered = np.cumsum(np.r_[0.0, rng.uniform(0.005, 0.015, 2999)])  # all steps distinct
+    assert 0 < _distinct_steps(uniform, MAX_DISTINCT_STEPS)[0].size <= MAX_DISTINCT_STEPS
+    assert _distinct_steps(jittered, MAX_DISTINCT_STEPS)[0].size == 0
+    current = 5.0 * np.abs(np.sin(uniform))
+    # four sets with both nodes on (run in lockstep), then the other cases one by one
+    params = np.array([[20.0, 0.08, 3.0, 300.0, -0.3, 2.0], [1e6, 0.1, 1.0, 1e-4, 0.2, 1.0],
+                       [5.0, 0.05, 1.0, 50.0, 0.1, 0.3], [0.5, 0.2, 2.0, 3000.0, 0.05, 0.4],
+                       [0.0, 0.1, 1.0, 5.0, 0.0, 0.0], [7.0, 0.1, 1.0, 0.0, 0.1, 0.5],
+                       [3.0, 0.1, 1.0, 10.0, 0.0, 0.0]])  # fmt: skip
+    y_g = rng.normal(size=(params.shape[0], uniform.size)).cumsum(axis=1)
+    thermal = EFFECTS["thermal"]()
+    for time in (uniform, jittered):
+        y = thermal.output(params, time, current, y_g)
+        heating = (current / REFERENCE_CURRENT) ** 2
+        for w, (tau, s, e, tau2, s2, e2) in enumerate(params):
+            rise = rise2 = 0.0
+            expected = [y_g[w, 0]]
+            for k in range(1, time.size):
+                step, previous = time[k] - time[k - 1], rise
+                rise = _lowpass_step.py_func(rise, heating[k - 1], heating[k], step, tau)
+                if s2 != 0.0 or e2 != 0.0:
+                    rise2 = _lowpass_step.py_func(rise2, previous, rise, step, tau2)
+                    expected.append(y_g[w, k] * (1.0 - s * rise - s2 * rise2) + e * rise + e2 * rise2)
+                else:
+                    expected.append(y_g[w, k] * (1.0 - s * rise) + e * rise)
+            np.testing.assert_array_equal(y[w], expected)

@@ -183,3 +183,32 @@ def test_fused_row_likelihood_equals_the_reference_formula(rho):
     assert np.allclose(log_likelihood_of_rows(data, model_rows, rows, noise, sigma), expected, rtol=1e-12, atol=0)
     with pytest.raises(ValueError, match="sigma"):
         log_likelihood_of_rows(data, model_rows, rows, noise, np.array([0.2, -1.0, 0.3]))
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.6])
+def test_whiten_rows_is_whiten_bit_for_bit(rho):
+    """The least squares' fused whitening: the values of whiten(data - rows), and which rows are finite."""
+    from identify.fitting.noise import whiten_rows
+
+    rng = np.random.default_rng(2)
+    data = rng.normal(size=500)
+    rows = data + rng.normal(scale=0.1, size=(5, 500))
+    rows[2, 17], rows[3, 0], rows[4, 499] = np.nan, np.inf, -np.inf
+    noise = NoiseModel(sigma=0.07, rho=rho, kind="ar1" if rho else "white", source="user")
+    w, finite = whiten_rows(data, rows, noise, 0.07)
+    np.testing.assert_array_equal(w, whiten(data[None, :] - rows, noise, 0.07))
+    np.testing.assert_array_equal(finite, np.isfinite(w).all(axis=1))
+    assert finite.tolist() == [True, True, False, False, False]
+
+
+def test_log_likelihood_of_rows_in_lockstep_equals_each_row_alone():
+    """Rows are summed four at a time in lockstep: each row's value is the one it has alone."""
+    from identify.fitting.noise import log_likelihood_of_rows
+
+    rng = np.random.default_rng(6)
+    data = rng.normal(size=300)
+    rows = data + rng.normal(scale=0.1, size=(11, 300))
+    noise = NoiseModel(sigma=0.1, rho=0.4, kind="ar1", source="user")
+    together = log_likelihood_of_rows(data, rows, np.arange(11), noise)
+    alone = [log_likelihood_of_rows(data, rows[k : k + 1], np.arange(1), noise)[0] for k in range(11)]
+    np.testing.assert_array_equal(together, alone)

@@ -127,6 +127,8 @@ class GPICoordinates:
         template = np.asarray(template, dtype=float)
         self.alpha = float(template[THETA_NAMES.index("alpha")])
         self.r = self.alpha * np.arange(1, int(n_operators) + 1)
+        self._r2 = self.r**2
+        self._at_bounds = None  # (mean at the tau bounds, mean and variance at tau = 0): _solve_tau
         self._pinned = {n: float(template[THETA_NAMES.index(n)]) for n in ("rho", "tau")}
         self.tau_bounds = (float(tau_bounds[0]), float(tau_bounds[1]))
         lo, hi = float(input_range[0]), float(input_range[1])
@@ -225,6 +227,16 @@ class GPICoordinates:
         rho, tau = self._gpi(x, "rho"), self._gpi(x, "tau")
         return self._moments(rho, tau)[0]
 
+    def _mean_and_var(self, t):
+        """Mean and variance of the thresholds under the weights ``e^{-t r}`` (W,); the
+        exponent's maximum is at the first or the last threshold (``-t r_j`` is monotone in
+        ``j``), so it is taken from those two."""
+        z = -t[:, None] * self.r[None, :]
+        e = np.exp(z - np.maximum(z[:, :1], z[:, -1:]))
+        s0 = e.sum(axis=1)
+        m = (e * self.r).sum(axis=1) / s0
+        return m, (e * self._r2).sum(axis=1) / s0 - m**2
+
     def _solve_tau(self, mean):
         """``tau`` with weighted mean threshold ``sum r e^{-tau r} / sum e^{-tau r} = mean``;
         NaN where ``mean`` is outside the range ``tau_bounds`` gives.
@@ -235,16 +247,14 @@ class GPICoordinates:
         """
         lo = np.full(mean.shape, self.tau_bounds[0])
         hi = np.full(mean.shape, self.tau_bounds[1])
-
-        def mean_and_var(t):
-            z = -t[:, None] * self.r[None, :]
-            e = np.exp(z - z.max(axis=1, keepdims=True))
-            s0 = e.sum(axis=1)
-            m = (e * self.r).sum(axis=1) / s0
-            return m, (e * self.r**2).sum(axis=1) / s0 - m**2
-
-        inside = (mean <= mean_and_var(lo)[0]) & (mean >= mean_and_var(hi)[0]) & np.isfinite(mean)
-        m0, v0 = mean_and_var(np.zeros(mean.shape))
+        mean_and_var = self._mean_and_var
+        if self._at_bounds is None:  # the same for every row: computed once, on one row
+            (mean_lo,), _ = mean_and_var(np.array([self.tau_bounds[0]]))
+            (mean_hi,), _ = mean_and_var(np.array([self.tau_bounds[1]]))
+            (m0,), (v0,) = mean_and_var(np.zeros(1))
+            self._at_bounds = (mean_lo, mean_hi, m0, v0)
+        mean_lo, mean_hi, m0, v0 = self._at_bounds
+        inside = (mean <= mean_lo) & (mean >= mean_hi) & np.isfinite(mean)
         with np.errstate(invalid="ignore", divide="ignore"):
             t = np.clip(np.where(inside, (m0 - mean) / v0, 0.0), lo, hi)
             for _ in range(MAX_NEWTON_STEPS):
@@ -412,12 +422,23 @@ class CoordinateMove(emcee.moves.RedBlueMove):
     coordinates : object
         ``forward(x) -> u``, ``inverse(u) -> x`` (NaN rows outside the range) and
         ``log_det(x) -> log|det du/dx|``, all ``(W, D)``.
+
+    :meth:`propose` is emcee's :meth:`emcee.moves.RedBlueMove.propose` (emcee 3.1: the
+    same random draws in the same order, the same acceptance rule) with two savings that
+    change no number: the ensemble's sampler coordinates and log-determinants are kept
+    from one call to the next (the map is computed for the accepted proposals only, not
+    again for every walker in every split: both are row by row, so a row's value does
+    not depend on the rows computed with it), and the acceptance test is one vectorised
+    comparison with the uniform draws taken as one array (``rand(n)`` gives the numbers
+    of ``n`` calls of ``rand()``). ``tests/test_coordinates.py`` checks the chain is
+    emcee's stock one bit for bit.
     """
 
     def __init__(self, move, coordinates):
         super().__init__(nsplits=move.nsplits, randomize_split=move.randomize_split, live_dangerously=move.live_dangerously)
         self.move = move
         self.coordinates = coordinates
+        self._x = self._u = self._log_det = None  # the ensemble, its coordinates and log-determinants
 
     def setup(self, coords):
         self.move.setup(self.coordinates.forward(coords))
@@ -425,12 +446,63 @@ class CoordinateMove(emcee.moves.RedBlueMove):
     def get_proposal(self, s, c, random):
         cs = self.coordinates
         q_u, factors = self.move.get_proposal(cs.forward(s), [cs.forward(ci) for ci in c], random)
+        return self._back(s, q_u, factors, cs.log_det(s))[:2]
+
+    def _back(self, s, q_u, factors, log_det_s):
+        """The proposals in the parameters, their log factors (Jacobian ratio added; -inf
+        outside the map's range) and, where finite, the proposals' log-determinants."""
+        cs = self.coordinates
         q = cs.inverse(q_u)
         ok = np.isfinite(q).all(axis=1)
         factors = np.array(factors, dtype=float)
+        log_det_q = np.full(q.shape[0], np.nan)
         with np.errstate(invalid="ignore"):
-            factors[ok] += cs.log_det(s[ok]) - cs.log_det(q[ok])
+            log_det_q[ok] = cs.log_det(q[ok])
+            factors[ok] += log_det_s[ok] - log_det_q[ok]
         ok &= np.isfinite(factors)
         q[~ok] = s[~ok]  # emcee refuses non-finite positions: stay, and reject below
         factors[~ok] = -np.inf
-        return q, factors
+        return q, factors, log_det_q
+
+    def _ensemble(self, coords):
+        """Sampler coordinates and log-determinants of the walkers ``coords``: kept from the
+        previous call when the walkers are those it left, else computed."""
+        if self._x is None or self._x.shape != coords.shape or not np.array_equal(self._x, coords):
+            self._x = np.array(coords, dtype=float)
+            self._u = self.coordinates.forward(self._x)
+            self._log_det = self.coordinates.log_det(self._x)
+        return self._u, self._log_det
+
+    def propose(self, model, state):
+        """emcee's red-blue update (see the class docstring): ``(state, accepted)``."""
+        nwalkers, ndim = state.coords.shape
+        if nwalkers < 2 * ndim and not self.live_dangerously:
+            raise RuntimeError(
+                "It is unadvisable to use a red-blue move with fewer walkers than twice the number of dimensions."
+            )
+        u, log_det = self._ensemble(state.coords)
+        self.move.setup(u)
+        accepted = np.zeros(nwalkers, dtype=bool)
+        all_inds = np.arange(nwalkers)
+        inds = all_inds % self.nsplits
+        if self.randomize_split:
+            model.random.shuffle(inds)
+        for split in range(self.nsplits):
+            S1 = inds == split
+            s = state.coords[S1]
+            c_u = [u[inds == j] for j in range(self.nsplits) if j != split]
+            q_u, factors = self.move.get_proposal(u[S1], c_u, model.random)
+            q, factors, log_det_q = self._back(s, q_u, factors, log_det[S1])
+            new_log_probs, new_blobs = model.compute_log_prob_fn(q)
+            members = all_inds[S1]
+            draws = model.random.rand(members.size)  # the draws of emcee's per-walker loop, in its order
+            take = factors + new_log_probs - state.log_prob[members] > np.log(draws)
+            accepted[members[take]] = True
+            new_state = emcee.State(q, log_prob=new_log_probs, blobs=new_blobs)
+            state = self.update(state, new_state, accepted, S1)
+            moved = members[take]
+            if moved.size:
+                u[moved] = self.coordinates.forward(q[take])
+                log_det[moved] = log_det_q[take]
+        self._x = np.array(state.coords, dtype=float)
+        return state, accepted

@@ -90,7 +90,7 @@ from scipy.optimize import least_squares
 from model import GPI_PARAMETERS, THETA_NAMES, Model, ParameterSet
 
 from .coordinates import GPICoordinates
-from .noise import NoiseModel, energised_mask, estimate_noise, whiten
+from .noise import NoiseModel, energised_mask, estimate_noise, whiten_rows
 from .parametrisation import gpi_scaling, in_record_units, record_unit_factors, with_threshold_sign
 from .threads import fastest_thread_count, single_threaded_blas
 
@@ -408,8 +408,8 @@ class WhitenedResiduals:
         thetas = self.full(np.atleast_2d(x_rows))
         y, valid = self.model.evaluate(thetas, self.time, self.current)
         self.n_evaluations += thetas.shape[0]
-        w = whiten(self.data[None, :] - y, self.noise, self.sigma)
-        valid = valid & np.isfinite(w).all(axis=1)
+        w, finite = whiten_rows(self.data, y, self.noise, self.sigma)
+        valid = valid & finite
         return w, valid
 
     def __call__(self, x) -> np.ndarray:

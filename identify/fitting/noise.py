@@ -77,6 +77,7 @@ __all__ = [
     "energised_mask",
     "quiet_segment",
     "whiten",
+    "whiten_rows",
     "log_likelihood",
     "log_likelihood_of_rows",
     "MIN_QUIET_SAMPLES",
@@ -354,6 +355,46 @@ def whiten(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
     return w / sig
 
 
+@njit(cache=True)
+def _whitened_rows(data, model_rows, rho, scale, sigma, out, finite):
+    """``out[r] = whiten(data - model_rows[r])`` (scalar ``sigma``; AR(1) with ``rho``, ``scale
+    = sqrt(1 - rho^2)``) with the same operations in the same order, and ``finite[r]``
+    whether every value is finite: one pass, no temporaries."""
+    n_samples = data.shape[0]
+    for r in range(model_rows.shape[0]):
+        previous = data[0] - model_rows[r, 0]
+        w = previous / sigma
+        out[r, 0] = w
+        check = w - w  # NaN once any value is not finite
+        if rho == 0.0:
+            for k in range(1, n_samples):
+                w = (data[k] - model_rows[r, k]) / sigma
+                out[r, k] = w
+                check += w - w
+        else:
+            for k in range(1, n_samples):
+                e = data[k] - model_rows[r, k]
+                w = ((e - rho * previous) / scale) / sigma
+                previous = e
+                out[r, k] = w
+                check += w - w
+        finite[r] = check == 0.0
+
+
+def whiten_rows(data, model_rows, noise: NoiseModel, sigma) -> tuple[np.ndarray, np.ndarray]:
+    """``(whiten(data - model_rows, noise, sigma), finite)`` for rows ``(W, T)`` and a scalar
+    ``sigma``: the same values bit for bit, in one pass (the least squares' hot path),
+    with ``finite`` ``(W,)`` whether each row is finite throughout."""
+    sig = float(_checked_sigma(noise, sigma, "whiten_rows"))
+    data = np.ascontiguousarray(data, dtype=np.float64)
+    model_rows = np.ascontiguousarray(np.atleast_2d(model_rows), dtype=np.float64)
+    out = np.empty(model_rows.shape)
+    finite = np.empty(model_rows.shape[0], dtype=np.bool_)
+    rho = float(noise.rho)
+    _whitened_rows(data, model_rows, rho, math.sqrt(1.0 - rho * rho), sig, out, finite)
+    return out, finite
+
+
 def log_likelihood(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
     """Gaussian log-likelihood of residuals under the noise model (formula in the module docstring).
 
@@ -374,20 +415,51 @@ def log_likelihood(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
     return _gaussian_log_likelihood(np.sum(w * w, axis=-1), e.shape[-1], sig, noise.rho)
 
 
+@njit(cache=True, inline="always")
+def _innovation_term(data_k, model_k, previous, rho, scale):
+    """One sample's ``(e, w^2)`` of :func:`_whitened_sum_of_squares`."""
+    e = data_k - model_k
+    innovation = e - rho * previous
+    return e, innovation * innovation * scale
+
+
 @njit(cache=True)
 def _whitened_sum_of_squares(data, model_rows, rows, rho, out):
     """``out[i] = sum_k w_k^2`` for the residual ``data - model_rows[rows[i]]`` whitened with
-    unit sigma (AR(1) with ``rho``; white for 0), in one pass and without temporaries."""
+    unit sigma (AR(1) with ``rho``; white for 0), in one pass and without temporaries.
+
+    Each sum is a sequential chain of additions (latency-bound), so four rows are summed in
+    lockstep, each in its own chain in sample order: the same value per row as alone."""
     scale = 1.0 / (1.0 - rho * rho)
-    for i in range(rows.shape[0]):
+    n_samples = data.shape[0]
+    n_rows = rows.shape[0]
+    i = 0
+    while i + 4 <= n_rows:
+        r0, r1, r2, r3 = rows[i], rows[i + 1], rows[i + 2], rows[i + 3]
+        p0 = data[0] - model_rows[r0, 0]
+        p1 = data[0] - model_rows[r1, 0]
+        p2 = data[0] - model_rows[r2, 0]
+        p3 = data[0] - model_rows[r3, 0]
+        t0, t1, t2, t3 = p0 * p0, p1 * p1, p2 * p2, p3 * p3
+        for k in range(1, n_samples):
+            d = data[k]
+            p0, q0 = _innovation_term(d, model_rows[r0, k], p0, rho, scale)
+            p1, q1 = _innovation_term(d, model_rows[r1, k], p1, rho, scale)
+            p2, q2 = _innovation_term(d, model_rows[r2, k], p2, rho, scale)
+            p3, q3 = _innovation_term(d, model_rows[r3, k], p3, rho, scale)
+            t0 += q0
+            t1 += q1
+            t2 += q2
+            t3 += q3
+        out[i], out[i + 1], out[i + 2], out[i + 3] = t0, t1, t2, t3
+        i += 4
+    for i in range(i, n_rows):
         r = rows[i]
         previous = data[0] - model_rows[r, 0]
         total = previous * previous
-        for k in range(1, data.shape[0]):
-            e = data[k] - model_rows[r, k]
-            innovation = e - rho * previous
-            total += innovation * innovation * scale
-            previous = e
+        for k in range(1, n_samples):
+            previous, term = _innovation_term(data[k], model_rows[r, k], previous, rho, scale)
+            total += term
         out[i] = total
 
 

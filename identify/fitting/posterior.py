@@ -845,12 +845,14 @@ def _check_due(chain, check_every, tau_factor, cache) -> bool:
 
 
 def posterior_from_backend(path, names, *, converged=None, message="", tau_factor=50.0, tau_rtol=0.05,
-                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None) -> PosteriorResult:
+                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None,
+                           diagnostics_cache=None) -> PosteriorResult:
     """Summarise the chain stored in ``path`` (HDF5 backend, group :data:`BACKEND_GROUP`).
 
     ``converged``/``message`` default to the convergence rule applied to the stored
     chain; ``tau_cache`` (chain length -> tau) reuses autocorrelation times already
-    computed.
+    computed, ``diagnostics_cache`` (``(steps, discard, thin)`` -> :func:`chain_diagnostics`)
+    the R-hat/ESS of the check that stopped the chain.
     """
     backend = ChainBackend(str(path), name=BACKEND_GROUP, read_only=True)
     chain = backend.get_chain()
@@ -861,7 +863,9 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
     check_every = check_every or max(1, n_steps // 2)
     ok, tau, _change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
     discard, thin = _burn_in(tau, n_steps)
-    diag = chain_diagnostics(chain[discard::thin])
+    diag = (diagnostics_cache or {}).get((n_steps, discard, thin))
+    if diag is None:
+        diag = chain_diagnostics(chain[discard::thin])
     diag_ok, diag_msg = _diagnostics_verdict(diag)
     if converged is None:
         converged = ok and diag_ok
@@ -963,6 +967,7 @@ def sample_posterior(
 
     threads_before = numba.get_num_threads()
     tau_cache: dict[int, np.ndarray] = {}
+    diagnostics_cache: dict[tuple, dict] = {}  # (steps, discard, thin) -> chain_diagnostics of the check
     chain = _ChainInMemory(backend.get_chain() if resuming else np.empty((0, n_walkers, log_post.ndim)), max_steps)
     t0 = _time.perf_counter()
     try:
@@ -970,7 +975,8 @@ def sample_posterior(
             done = backend.iteration
             if chain.n_steps != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
                 raise RuntimeError(f"in-memory chain has {chain.n_steps} steps, the backend {done}")
-            stop, converged, message = _check(chain.view(), max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, log)
+            stop, converged, message = _check(chain.view(), max_steps, check_every, tau_factor, tau_rtol, tau_cache,
+                                              bar, log, diagnostics_cache)  # fmt: skip
             if stop:
                 break
             fastest_thread_count(log_post, np.asarray(state.coords))
@@ -985,7 +991,7 @@ def sample_posterior(
     return posterior_from_backend(
         path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
         tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
-        n_errors=log_post.n_errors, tau_cache=tau_cache,
+        n_errors=log_post.n_errors, tau_cache=tau_cache, diagnostics_cache=diagnostics_cache,
     )  # fmt: skip
 
 
@@ -1048,9 +1054,11 @@ class _ChainInMemory:
         self.n_steps = stored + len(block)
 
 
-def _check(chain, max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, log):
+def _check(chain, max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, log, diagnostics_cache=None):
     """The convergence check at the chain's current length: ``(stop, converged, message)``
-    (a check runs at multiples of ``check_every`` when due, and at ``max_steps``)."""
+    (a check runs at multiples of ``check_every`` when due, and at ``max_steps``). The
+    R-hat/ESS it computes is kept in ``diagnostics_cache`` under ``(steps, discard, thin)``
+    for the final summary (:func:`posterior_from_backend`), which reads the same chain."""
     done = chain.shape[0]
     on_check = done > 0 and done % check_every == 0
     due = done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache)
@@ -1064,7 +1072,10 @@ def _check(chain, max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, 
     diag_msg = ""
     if ok:  # tau says converged: R-hat and bulk ESS must agree (computed only then)
         discard, thin = _burn_in(tau, done)
-        diag_ok, diag_msg = _diagnostics_verdict(chain_diagnostics(chain[discard::thin]))
+        diag = chain_diagnostics(chain[discard::thin])
+        if diagnostics_cache is not None:
+            diagnostics_cache[(done, discard, thin)] = diag
+        diag_ok, diag_msg = _diagnostics_verdict(diag)
         log(f"step {done}: {diag_msg}")
         if diag_ok:
             return True, True, "converged: " + msg + "; " + diag_msg

@@ -1,0 +1,92 @@
+"""Wall time of ``python -m identify study`` over seeds, optionally A/B against other source trees.
+
+For every seed, runs the command line as a user does (a subprocess, report included) once
+per source tree, alternating the trees so that a change in the machine's load hits both,
+and prints one line per run: wall time [s], the 1-minute load average before and after
+(a shared 2-core machine), steps, tau_max, whether the chain converged, and the phases
+from the manifest (least squares, posterior, report).
+
+Usage::
+
+    python benchmarks/study_seeds.py data/bench_clean.csv --seeds 0-4
+    python benchmarks/study_seeds.py data/bench_default.csv --effects thermal --seeds 0 \\
+        --tree /path/to/baseline-worktree --tree .
+
+A tree is a checkout of this repository: its ``identify`` and ``model`` are imported
+(PYTHONPATH and working directory set to it). Default: this checkout only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _seeds(text):
+    seeds = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        seeds.extend(range(int(lo), int(hi or lo) + 1))
+    return seeds
+
+
+def run_one(tree: Path, data: Path, effects: str, seed: int, out: Path) -> dict:
+    command = [sys.executable, "-m", "identify", "study", str(data), "--out", str(out), "--seed", str(seed),
+               "--force", "--progress", "off"] + (["--effects", effects] if effects else [])  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    load_before = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    done = subprocess.run(command, cwd=tree, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    row = {"tree": str(tree), "seed": seed, "wall": wall, "load_before": load_before, "load_after": os.getloadavg()[0],
+           "exit": done.returncode}  # fmt: skip
+    if done.returncode not in (0, 1):
+        row["error"] = done.stderr[-500:]
+        return row
+    post = json.loads((out / "summary.json").read_text())["posterior"]
+    manifest = json.loads((out / "manifest.json").read_text())
+    phases = (manifest.get("runs") or [{}])[-1].get("phases", {})
+    row.update(steps=post["n_steps"], tau_max=post["tau_max"], converged=post["converged"], phases=phases)
+    return row
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data")
+    parser.add_argument("--effects", default="")
+    parser.add_argument("--seeds", default="0", help="e.g. 0-4 or 0,2")
+    parser.add_argument("--tree", action="append", help="source tree (repeat for A/B); default: this checkout")
+    parser.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    args = parser.parse_args(argv)
+    trees = [Path(t).resolve() for t in (args.tree or [ROOT])]
+    data = Path(args.data).resolve()
+    rows = []
+    print(f"{os.cpu_count()} cores; {data.name} effects '{args.effects or 'none'}'")
+    print(f"{'tree':<28} {'seed':>4} {'wall s':>7} {'load':>11} {'steps':>6} {'tau':>6} {'conv':>5}  phases [s]")
+    for seed in _seeds(args.seeds):
+        for tree in trees:
+            with tempfile.TemporaryDirectory(prefix="study-seeds-") as tmp:
+                row = run_one(tree, data, args.effects, seed, Path(tmp) / "out")
+            rows.append(row)
+            if "error" in row:
+                print(f"{tree.name:<28} {seed:>4} FAILED exit {row['exit']}: {row['error']}")
+                continue
+            phases = ", ".join(f"{k} {v:.1f}" for k, v in row["phases"].items() if v >= 0.05)
+            load = f"{row['load_before']:5.2f}-{row['load_after']:<5.2f}"
+            print(f"{tree.name:<28} {seed:>4} {row['wall']:7.1f} {load} {row['steps']:>6} {row['tau_max']:6.1f} "
+                  f"{str(row['converged']):>5}  {phases}", flush=True)  # fmt: skip
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
