@@ -1273,8 +1273,7 @@ def fit_baseline(
     The sign of the thresholds (when ``alpha`` is pinned, swapped reading) is chosen after
     the whole baseline (least squares and polish) for each sign: the polish can overturn
     the unpolished ranking. Records longer than :data:`SCREENING_SAMPLES` are fitted on
-    the decimated working copy and polished on the whole record, and the whole record's
-    own multi-start (from that winner and the standard starts) replaces it when lower.
+    the decimated working copy and polished on the whole record.
 
     Parameters
     ----------
@@ -1309,12 +1308,6 @@ def fit_baseline(
             small_fit = fit_least_squares(work.record, sign_model, noise=work.noise, n_starts=n_starts, rng=rng, **options)
             say(f"polishing on the whole record ({len(record)} samples)")
             one = _finish(record, small_fit.model, noise, small_fit.theta[small_fit.vary], rng)
-            # The working copy weighs the record differently (every k-th sample, its own noise
-            # model), so its best basin need not be the whole record's: the standard starts
-            # are run on the whole record too, beside the working copy's winner.
-            whole = fit_least_squares(record, sign_model, noise=noise, start=one.theta, n_starts=n_starts, rng=rng, **options)
-            if whole.chi2 < one.chi2 - 0.1:
-                one = _finish(record, whole.model, noise, whole.theta[whole.vary], rng, fit=whole)
         baselines.append(one)
     return min(baselines, key=lambda f: float(np.sum(_whitened(record, f) ** 2)))
 
