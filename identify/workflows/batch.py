@@ -991,8 +991,10 @@ def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
             deadline = None if job.timeout is None else started + job.timeout
             kill_at = math.inf
             while returncode is None:
+                # poll every 0.2 s, and wake at the deadline itself (a short timeout is kept to ~10 ms)
+                poll = 0.2 if deadline is None or stopped else min(0.2, max(0.01, deadline - time.perf_counter()))
                 try:
-                    returncode = proc.wait(timeout=0.2)
+                    returncode = proc.wait(timeout=poll)
                     continue
                 except subprocess.TimeoutExpired:
                     pass
