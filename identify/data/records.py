@@ -515,11 +515,9 @@ def _time_axis(path: Path, arrays: dict, time_column, n_samples: int, line_of, n
         )
         return np.arange(n_samples, dtype=float)
     time = arrays[time_column]
-    steps = np.diff(time)
-    bad = np.flatnonzero(steps <= 0)
-    if bad.size:
-        k = int(bad[0])
-        kind = "repeats" if steps[k] == 0 else "is smaller than"
+    step = _first_step_back(time)
+    if step is not None:
+        k, kind = step
         raise _fail(
             path,
             line_of(k + 1),
@@ -527,6 +525,17 @@ def _time_axis(path: Path, arrays: dict, time_column, n_samples: int, line_of, n
             "times must strictly increase",
         )
     return time
+
+
+def _first_step_back(time) -> tuple[int, str] | None:
+    """``(k, how)`` for the first sample ``k + 1`` whose time does not exceed sample ``k``'s
+    (``how``: "repeats" or "is smaller than"); None when the times strictly increase."""
+    steps = np.diff(time)
+    bad = np.flatnonzero(steps <= 0)
+    if not bad.size:
+        return None
+    k = int(bad[0])
+    return k, "repeats" if steps[k] == 0 else "is smaller than"
 
 
 def _read_sidecar(path: Path, notes: list) -> dict | None:
@@ -623,11 +632,9 @@ def _load_mat_record(path: Path, time_column, input_column, output_column, input
         notes.append("the file has no time variable: time is the sample index 0, 1, 2, ... (time constants in samples)")
     else:
         time = arrays[time_column]
-        steps = np.diff(time)
-        bad = np.flatnonzero(steps <= 0)
-        if bad.size:
-            k = int(bad[0])
-            kind = "repeats" if steps[k] == 0 else "is smaller than"
+        step = _first_step_back(time)
+        if step is not None:
+            k, kind = step
             raise _fail(path, None, f"variable {time_column!r}, sample {k + 2}: time {time[k + 1]!r} {kind} the previous "
                         f"time {time[k]!r}; times must strictly increase")  # fmt: skip
     return Record(
