@@ -200,6 +200,7 @@ def test_decreasing_time(tmp_path):
     lines[30] = "0.001,0.0,0.0"
     message = _load_error(_write_text(tmp_path, "\n".join(lines)))
     assert "line 31" in message and "smaller than" in message and "strictly increase" in message
+    assert "time 0.001 is smaller than" in message and "np.float64" not in message  # plain numbers
 
 
 def test_too_few_samples(tmp_path):

@@ -521,7 +521,7 @@ def _time_axis(path: Path, arrays: dict, time_column, n_samples: int, line_of, n
         raise _fail(
             path,
             line_of(k + 1),
-            f"time {time[k + 1]!r} {kind} the previous time {time[k]!r} (line {line_of(k)}); "
+            f"time {float(time[k + 1])!r} {kind} the previous time {float(time[k])!r} (line {line_of(k)}); "
             "times must strictly increase",
         )
     return time
@@ -635,8 +635,8 @@ def _load_mat_record(path: Path, time_column, input_column, output_column, input
         step = _first_step_back(time)
         if step is not None:
             k, kind = step
-            raise _fail(path, None, f"variable {time_column!r}, sample {k + 2}: time {time[k + 1]!r} {kind} the previous "
-                        f"time {time[k]!r}; times must strictly increase")  # fmt: skip
+            raise _fail(path, None, f"variable {time_column!r}, sample {k + 2}: time {float(time[k + 1])!r} {kind} the previous "
+                        f"time {float(time[k])!r}; times must strictly increase")  # fmt: skip
     return Record(
         time=time, current=arrays[input_column], displacement=arrays[output_column], source=str(path), sha256=digest,
         input_name=input_column, input_unit=input_unit, output_name=output_column, output_unit=output_unit,
