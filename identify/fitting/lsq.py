@@ -973,7 +973,7 @@ def _polish_in_coordinates(residuals: WhitenedResiduals, log: _StartLog) -> None
         x, inside = in_u.parameters(sol.x)
         if not inside[0]:
             continue
-        chi2 = float(np.sum(residuals(x[0]) ** 2))
+        chi2 = 2.0 * float(sol.cost)  # the residual at sol.x is the parameters' (inside the box), as in _converged
         if chi2 < end.chi2:
             polished = _PolishedStart(x[0], chi2, bool(sol.success), f"{sol.message} (again in the sampler coordinates)")
             log.keep(f"{label} (coordinates)", polished, residuals.n_evaluations - before)
