@@ -145,7 +145,7 @@ def _read_registry(path: Path) -> dict:
     records = {}
     for name, entry in toml_module().loads(path.read_text(encoding="utf-8")).items():
         columns = entry["columns"]
-        load_options = dict(CONVERTED_COLUMNS) if columns == "converted" else {k: (v or None) for k, v in columns.items()}
+        load_options = dict(CONVERTED_COLUMNS) if columns == "converted" else {k: (None if v is False else v) for k, v in columns.items()}
         records[name] = RealRecord(name, entry["licence"], entry.get("shipped"), load_options, tuple(entry["assumptions"]))
     return records
 
