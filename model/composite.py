@@ -186,7 +186,28 @@ class Model:
             extra = list(effect)
         else:
             extra = [effect]
-        return Model(list(self.effects) + extra, self.n_operators, self.reading, self.parameters[: len(THETA_NAMES)])
+        out = Model(list(self.effects) + extra, self.n_operators, self.reading, self.parameters[: len(THETA_NAMES)])
+        kept = {p.name: p for p in self.parameters}  # the effects already here keep their settings (pins, bounds)
+        return out.with_parameters(ParameterSet(kept.get(p.name, p) for p in out.parameters))
+
+    def with_parameters(self, parameters) -> "Model":
+        """A copy with other parameter settings (values, bounds, pins): ``parameters`` must
+        hold this model's parameters, in its order. The effects and the GPI settings are shared
+        (the forward model does not read the settings)."""
+        import copy
+
+        parameters = ParameterSet(parameters)
+        if parameters.names != self.names:
+            raise ValueError(f"parameters {list(parameters.names)} are not those of {self!r}: {list(self.names)}")
+        out = copy.copy(self)
+        out.parameters = parameters
+        return out
+
+    def with_gpi_parameters(self, gpi_parameters) -> "Model":
+        """A copy whose 19 GPI parameters have the settings ``gpi_parameters`` (Table 1 order);
+        the effects' parameters keep theirs."""
+        gpi_parameters = ParameterSet(gpi_parameters)
+        return self.with_parameters(list(gpi_parameters) + list(self.parameters[len(THETA_NAMES):]))
 
     def to_dict(self) -> dict:
         """JSON-ready description (effects, operators, reading)."""

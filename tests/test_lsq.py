@@ -77,6 +77,30 @@ def test_fit_result_round_trips_through_json(clean_fit):
     assert back.noise == fit.noise and back.n_agree == fit.n_agree
 
 
+def test_effect_pins_survive_normalisation_sign_composition_and_json():
+    """A pinned effect parameter (vary=False) stays pinned through every model rebuild of the
+    fitting layer and through fit.json; before, only the GPI's pins were carried."""
+    from identify.fitting.parametrisation import with_threshold_sign
+
+    base = Model(["thermal"])
+    pinned = base.with_parameters(
+        base.parameters.replace("thermal_tau_core", value=250.0, vary=False).replace("thermal_expansion_core", vary=False)
+    )
+    for model in (normalised_model(pinned), with_threshold_sign(normalised_model(pinned), 1), pinned + "lag"):
+        assert not model.parameters["thermal_tau_core"].vary and model.parameters["thermal_tau_core"].value == 250.0
+        assert not model.parameters["thermal_expansion_core"].vary
+        assert model.parameters["thermal_tau"].vary
+    with pytest.raises(ValueError, match="are not those of"):
+        base.with_parameters(Model().parameters)
+    rec = simulated_record(fs=10.0, seed=1)
+    model = normalised_model(pinned)
+    fit = fit_least_squares(rec, model, noise=estimate_noise(rec), n_starts=1)
+    back = FitResult.from_dict(json.loads(json.dumps(fit.to_dict(), allow_nan=False)))
+    assert back.model == fit.model
+    assert not back.model.parameters["thermal_tau_core"].vary
+    assert back.theta[model.names.index("thermal_tau_core")] == 250.0
+
+
 def test_jacobian_is_one_batched_model_call_and_matches_central_differences():
     rec = simulated_record(fs=10.0, seed=1)
     model = normalised_model(Model())

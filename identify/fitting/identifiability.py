@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from model import THETA_NAMES, Model, ParameterSet
+from model import THETA_NAMES, ParameterSet
 
 from .lsq import WhitenedResiduals
 from .parametrisation import NORMALISATION, SIGN_CONSTRAINTS, parameter_scales
@@ -244,7 +244,7 @@ def analyse_fit(fit, record, **kwargs) -> IdentifiabilityResult:
         released_params = ParameterSet(model.parameters[: len(THETA_NAMES)])
         for name in NORMALISATION:
             released_params = released_params.replace(name, vary=True)
-        released = Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=released_params)
+        released = model.with_gpi_parameters(released_params)
         released_res = WhitenedResiduals(record, released, fit.noise)
         theta_released = released_res.template.copy()
         theta_released[:] = fit.theta

@@ -87,7 +87,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from model import GPI_PARAMETERS, THETA_NAMES, Model, ParameterSet
+from model import GPI_PARAMETERS, THETA_NAMES, Model
 
 from .coordinates import GPICoordinates
 from .noise import NoiseModel, energised_mask, estimate_noise, whiten_rows
@@ -285,12 +285,11 @@ class FitResult:
             raise ValueError(f"fit names {d['names']} do not match the model {base!r}")
         lower = _array(d["lower"]) if "lower" in d else base.parameters.lower
         upper = _array(d["upper"]) if "upper" in d else base.parameters.upper
-        gpi_params = ParameterSet(base.parameters[: len(THETA_NAMES)])
-        for i, name in enumerate(THETA_NAMES):
-            p = gpi_params[i]
+        settings = []  # every parameter's pin and bounds as stored (GPI and effects alike)
+        for i, p in enumerate(base.parameters):
             value = float(theta[i]) if not vary[i] else min(max(p.value, lower[i]), upper[i])
-            gpi_params = gpi_params.replace(name, value=value, vary=bool(vary[i]), lower=float(lower[i]), upper=float(upper[i]))
-        model = Model(list(base.effect_names), base.n_operators, base.reading, gpi_parameters=gpi_params)
+            settings.append(p.with_(value=value, vary=bool(vary[i]), lower=float(lower[i]), upper=float(upper[i])))
+        model = base.with_parameters(settings)
         starts = [
             StartOutcome(s["label"], _unfloat(s["chi2"], math.inf), int(s["n_evaluations"]), bool(s["success"]), s["message"])
             for s in d.get("starts", [])

@@ -154,7 +154,7 @@ def pin_gpi_parameters(model: Model, values: dict) -> Model:
         raise ValueError(f"only GPI parameters can be pinned; not GPI parameters: {sorted(unknown)}")
     for name, value in values.items():
         gpi_params = gpi_params.replace(name, value=float(value), vary=False)
-    return Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=gpi_params)
+    return model.with_gpi_parameters(gpi_params)
 
 
 def normalised_model(model: Model, alpha=None) -> Model:
@@ -166,7 +166,7 @@ def normalised_model(model: Model, alpha=None) -> Model:
     for name, lower in SIGN_CONSTRAINTS.items():
         p = gpi_params[name]
         gpi_params = gpi_params.replace(name, lower=max(p.lower, lower), value=max(p.value, lower))
-    return Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=gpi_params)
+    return model.with_gpi_parameters(gpi_params)
 
 
 def with_threshold_sign(model: Model, sign: int) -> Model:
@@ -183,7 +183,7 @@ def with_threshold_sign(model: Model, sign: int) -> Model:
     if alpha.vary:
         raise ValueError("alpha is free in this model: apply the normalisation first (normalised_model)")
     gpi_params = ParameterSet(model.parameters[: len(THETA_NAMES)]).replace("alpha", value=sign * abs(alpha.value))
-    return Model(list(model.effect_names), model.n_operators, model.reading, gpi_parameters=gpi_params)
+    return model.with_gpi_parameters(gpi_params)
 
 
 def parameter_scales(theta) -> np.ndarray:
@@ -267,10 +267,5 @@ def in_record_units(model: Model, record) -> Model:
 
 
 def with_parameters(model: Model, parameters: ParameterSet) -> Model:
-    """A shallow copy of ``model`` with other parameter bounds/values (the forward model does
-    not read the bounds; the effects and the GPI settings are shared)."""
-    import copy
-
-    out = copy.copy(model)
-    out.parameters = parameters
-    return out
+    """A shallow copy of ``model`` with other parameter bounds/values (:meth:`model.Model.with_parameters`)."""
+    return model.with_parameters(parameters)
