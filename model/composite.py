@@ -57,6 +57,11 @@ def register_effect(cls):
     missing = set(cls.parameters.names) ^ set(cls.off)
     if missing:
         raise ValueError(f"effect {cls.name!r}: 'off' must give exactly one value per parameter (mismatch: {sorted(missing)})")
+    in_terms = [n for names in cls.terms.values() for n in names]
+    if not set(in_terms) <= set(cls.parameters.names) or len(in_terms) != len(set(in_terms)):
+        raise ValueError(f"effect {cls.name!r}: 'terms' must name its own parameters, each in one term at most")
+    if cls.terms and len(in_terms) == len(cls.parameters):
+        raise ValueError(f"effect {cls.name!r}: 'terms' must leave part of the effect outside every optional term")
     EFFECTS[cls.name] = cls
     return cls
 
@@ -87,6 +92,12 @@ class Effect:
     off: ClassVar[dict[str, float]] = {}
     #: one line: what physics this represents, with its equation
     summary: ClassVar[str] = ""
+    #: optional parts of the physics, ``{term: parameter names}``: a term is off when its
+    #: parameters are at :attr:`off`, and while its gains are 0 its other parameters (a time
+    #: constant, an onset) have no effect at all, so a record without that part leaves them
+    #: unidentified. A fit may pin such a term off where the record does not support it
+    #: (``identify.fitting.terms``). Every effect keeps at least one term that is not listed.
+    terms: ClassVar[dict[str, tuple[str, ...]]] = {}
 
     def drive(self, params, time, current):  # pragma: no cover - protocol
         """Stage ``"input"``: drive seen by the hysteresis, shape ``(W, T)`` [A]."""
@@ -104,6 +115,14 @@ class Effect:
     def get_test_parameters(cls) -> dict[str, float]:
         """A typical "on" setting, within bounds, that visibly changes the output."""
         raise NotImplementedError(f"effect {cls.name!r} must define get_test_parameters()")
+
+    @classmethod
+    def reduced_starts(cls, values: dict[str, float], term: str) -> list[dict[str, float]]:
+        """Starting values of this effect's parameters with ``term`` off, from ``values`` of
+        a fit with every term free: by default ``values`` with the term's parameters at
+        :attr:`off`. An effect whose other terms can take over what ``term`` did (e.g. two
+        thermal nodes that can exchange roles) adds a start for that."""
+        return [{**values, **{name: cls.off[name] for name in cls.terms[term]}}]
 
     def __repr__(self):
         return f"{type(self).__name__}()"

@@ -1084,6 +1084,7 @@ class Creep(Effect):
     )  # fmt: skip
     off = {"creep_amplitude": 0.0, "creep_tau": 1.0, "creep_decades": 1.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1}
     summary = "creep: saturating log-spaced modes, y_g - A (y_g - mean s_m), plus logarithmic creep gamma per decade after each change"
+    terms = {"logarithmic": ("creep_log_rate", "creep_log_onset")}
 
     @classmethod
     def get_test_parameters(cls):
@@ -1184,6 +1185,20 @@ class Thermal(Effect):
         "thermal_tau_core": 300.0, "thermal_sensitivity_core": 0.0, "thermal_expansion_core": 0.0,
     }  # fmt: skip
     summary = "Joule heating through coil and core: tau th1' = (i/5 A)^2 - th1, tau2 th2' = th1 - th2, y = y_g (1 - S th1 - S2 th2) + E th1 + E2 th2"
+    terms = {"core": ("thermal_tau_core", "thermal_sensitivity_core", "thermal_expansion_core")}
+
+    @classmethod
+    def reduced_starts(cls, values, term):
+        """The one-node form from a two-node fit: node 2 off, and also node 1 taking node 2's
+        time constant and gains. A one-pole heating is fitted equally well by node 1 alone and
+        by a fast node 1 without gains feeding node 2, so a two-node fit may have put it on
+        either node."""
+        starts = super().reduced_starts(values, term)
+        moved = {"thermal_tau": values["thermal_tau_core"], "thermal_sensitivity": values["thermal_sensitivity_core"],
+                 "thermal_expansion": values["thermal_expansion_core"]}  # fmt: skip
+        lo, hi = cls.parameters["thermal_tau"].lower, cls.parameters["thermal_tau"].upper
+        moved["thermal_tau"] = min(max(moved["thermal_tau"], lo), hi)
+        return starts + [{**starts[0], **moved}]
 
     @classmethod
     def get_test_parameters(cls):
@@ -1248,6 +1263,7 @@ class SensorDrift(Effect):
         "sensor_drift_settling": 0.0, "sensor_drift_settling_tau": 10.0,
     }  # fmt: skip
     summary = "sensor drift: y = y_g + D1 s + D2 s^2 + Dw (1 - exp(-t/tau_w)), s = normalised record time"
+    terms = {"settling": ("sensor_drift_settling", "sensor_drift_settling_tau")}
 
     @classmethod
     def get_test_parameters(cls):

@@ -141,6 +141,8 @@ def settings_from_args(args) -> dict:
     for key, value in sorted(vars(args).items()):
         if key in NOT_SETTINGS or key.startswith("_"):
             continue
+        if key == "all_terms" and not value:
+            continue  # recorded when set, as from Python: runs before the option had every term
         settings[key] = value
     settings["data"] = str(args.data)
     if getattr(args, "priors", None):  # the file's content counts, not only its name

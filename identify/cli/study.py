@@ -46,6 +46,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="priors of some parameters (distribution and bounds, TOML; docs/method.md 'Priors file'); "
         "the others keep the defaults",
     )  # fmt: skip
+    parser.add_argument(
+        "--all-terms", action="store_true",
+        help="sample every optional effect term (default: pin off, after the least squares, those the record "
+        "does not support by BIC, e.g. a two-node thermal's second node; docs/effects.md 'Optional terms')",
+    )  # fmt: skip
     parser.add_argument("--moves", default="de", choices=("de", "stretch"), help="emcee moves (default de: differential evolution)")
     parser.add_argument("--force", action="store_true", help="discard a different (or damaged) run already in DIR")
     parser.add_argument("--no-report", action="store_true", help="skip the report (report.html); write it later with 'report DIR'")
@@ -97,7 +102,7 @@ def run_study(args) -> int:
         result = study(
             record, model, out=out, seed=args.seed, noise_sigma=args.noise_sigma, n_starts=args.n_starts,
             walkers=args.walkers, max_steps=args.max_steps, check_every=args.check_every, moves=args.moves,
-            priors=args.priors, force=args.force, report=not args.no_report, progress=progress,
+            priors=args.priors, select_terms=not args.all_terms, force=args.force, report=not args.no_report, progress=progress,
             settings=settings_from_args(args), lock=False,
         )  # fmt: skip
         if not result.converged:  # a warning: -q keeps it

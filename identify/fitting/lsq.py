@@ -215,6 +215,10 @@ class FitResult:
     n_agree : int
         Starts within chi-square 1 of the best.
     starts : list of StartOutcome
+    terms : list of dict
+        The optional effect terms tested by :func:`identify.fitting.terms.select_terms`
+        (effect, term, parameters, chi-square change, BIC penalty, whether pinned off);
+        empty when none was tested.
     """
 
     model: Model
@@ -233,6 +237,7 @@ class FitResult:
     seconds: float
     n_agree: int = 1
     starts: list[StartOutcome] = field(default_factory=list)
+    terms: list[dict] = field(default_factory=list)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -273,6 +278,7 @@ class FitResult:
                  "success": s.success, "message": s.message}
                 for s in self.starts
             ],
+            "terms": [dict(t) for t in self.terms],
         }  # fmt: skip
 
     @classmethod
@@ -311,6 +317,7 @@ class FitResult:
             seconds=float(d["seconds"]),
             n_agree=int(d.get("n_agree", 1)),
             starts=starts,
+            terms=[dict(t) for t in d.get("terms", [])],
         )
 
 

@@ -855,7 +855,13 @@ _DIAGNOSTIC_COLUMNS = ("rhat", "ess_bulk", "ess_tail", "mcse_mean")
 def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -> str:
     summary, posterior = data.summary, data.summary["posterior"]
     rows, classes = [], {}
+    terms_off = {n: t for t in summary["fit"].get("terms", []) if t.get("pinned") for n in t["parameters"]}
     for i, p in enumerate(summary["parameters"]):
+        status = "varies" if p.get("vary") else "pinned by normalisation"
+        if p["name"] in terms_off:
+            t = terms_off[p["name"]]
+            status = (f"pinned off: {t['effect']} term '{t['term']}' not supported by the record "
+                      f"(chi-square {t['delta_chi2']:+.1f} <= BIC {t['penalty']:.1f})")  # fmt: skip
         key = f"parameters.{p['name']}"
         rows.append([
             text_cell(p["name"]), text_cell(plots.unit_label(p.get("unit") or "")), number_cell(p.get("table1"), f"{key}.table1"),
@@ -863,7 +869,7 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
             number_cell(p.get("median"), f"{key}.median"), number_cell(p.get("lo95"), f"{key}.lo95"), number_cell(p.get("hi95"), f"{key}.hi95"),
             number_cell(p.get("tau"), f"{key}.tau"), number_cell(p.get("ess"), f"{key}.ess"),
             *[number_cell(p.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS],
-            text_cell("varies" if p.get("vary") else "pinned by normalisation"),
+            text_cell(status),
         ])  # fmt: skip
         if not p.get("vary"):
             classes[i] = "pinned"

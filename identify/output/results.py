@@ -328,6 +328,7 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
                 "n_starts": fit.n_starts,
                 "n_agree": fit.n_agree,
                 "success": fit.success,
+                "terms": [dict(t) for t in getattr(fit, "terms", [])],
             },
             "identifiability": ident,
             "posterior": None if posterior is None else posterior.to_dict(),

@@ -161,9 +161,11 @@ def _default_model(model):
     return normalised_model(model) if alpha_free else model
 
 
-def _api_settings(record, model, *, seed, noise_sigma, n_starts, walkers, max_steps, check_every, moves, report, priors):
+def _api_settings(record, model, *, seed, noise_sigma, n_starts, walkers, max_steps, check_every, moves, report, priors,
+                  select_terms=True):
     """The manifest's settings for a call from Python, with the keys the command line records."""
     return {
+        **({} if select_terms else {"all_terms": True}),  # recorded when set (runs before it had every term)
         **priors_settings(priors),
         "check_every": check_every,
         "effects": ",".join(model.effect_names),
@@ -199,6 +201,7 @@ def study(
     check_every: int = DEFAULT_CHECK_EVERY,
     moves: str = "de",
     priors=None,
+    select_terms: bool = True,
     force: bool = False,
     report: bool = True,
     progress: bool | None = None,
@@ -233,6 +236,12 @@ def study(
         distribution and bounds of some parameters for the posterior; the others keep the
         defaults. Checked before anything is written. The priors used are in the summary's
         ``priors``.
+    select_terms : bool, default True
+        Pin off the optional effect terms the record does not support (BIC, after the
+        least squares: :func:`identify.fitting.terms.select_terms`; e.g. the second node
+        of a two-node ``thermal`` on a record whose heating is one-pole, which would
+        otherwise leave the posterior three unidentified directions). False
+        (``--all-terms``) samples every term.
     force : bool, default False
         Discard a different (or damaged) run already in ``out``.
     report : bool, default True
@@ -285,12 +294,12 @@ def study(
     if settings is None:
         settings = _api_settings(record, model, seed=seed, noise_sigma=noise_sigma, n_starts=n_starts, walkers=walkers,
                                  max_steps=max_steps, check_every=check_every, moves=moves, report=report,
-                                 priors=priors)  # fmt: skip
+                                 priors=priors, select_terms=select_terms)  # fmt: skip
     if quiet and progress is None:
         progress = False  # quiet: no bar and no progress lines
     run = _Run(Path(out), record, model, settings, seed=seed, noise_sigma=noise_sigma, n_starts=n_starts,
                walkers=walkers, max_steps=max_steps, check_every=check_every, moves=moves, priors=priors,
-               force=force, report=report, progress=progress, quiet=quiet)  # fmt: skip
+               select_terms=select_terms, force=force, report=report, progress=progress, quiet=quiet)  # fmt: skip
     if not lock:
         return run.execute()
     with FolderLock(run.out, command=f"identify.study({str(record.source)!r}, out={str(out)!r})") as held:
@@ -491,6 +500,10 @@ class _Run:
             verbose = len(record) >= LONG_RECORD_SAMPLES
             fit = fit_or_explain(record, model, noise=self.noise, n_starts=self.options["n_starts"], rng=lsq_rng,
                                  verbose=verbose)  # fmt: skip
+            if self.options["select_terms"]:
+                from ..fitting.terms import select_terms
+
+                fit = select_terms(record, fit, rng=lsq_rng, log=self.log)
         # the first writes: the record, the manifest (the run is in progress), the fit
         if not state.has_data:
             write_data(out, record)

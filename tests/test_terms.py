@@ -1,0 +1,96 @@
+"""Optional effect terms: their declarations across the library, and pinning off what a record does not support."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from identify.bench.synthetic import simulate
+from identify.fitting.lsq import FitResult, fit_least_squares
+from identify.fitting.noise import estimate_noise
+from identify.fitting.parametrisation import normalised_model
+from identify.fitting.terms import optional_terms, select_terms
+from model import EFFECTS, Effect, Model, ParameterSet, Parameter, register_effect
+
+ONE_POLE = {"thermal": {"thermal_tau": 25.0, "thermal_sensitivity": 0.08, "thermal_expansion": 2.0}}
+TWO_NODES = {"thermal": {"thermal_tau": 3.0, "thermal_sensitivity": 0.03, "thermal_expansion": -3.0,
+                         "thermal_tau_core": 60.0, "thermal_sensitivity_core": 0.1, "thermal_expansion_core": 4.0}}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
+def test_every_declared_term_switches_off_at_the_effects_off_values(name):
+    cls = EFFECTS[name]
+    values = cls.get_test_parameters()
+    for term, names in cls.terms.items():
+        assert set(names) < set(cls.parameters.names)
+        starts = cls.reduced_starts(values, term)
+        assert starts and all(set(s) == set(cls.parameters.names) for s in starts)
+        for s in starts:
+            assert all(s[n] == cls.off[n] for n in names)
+
+
+def test_thermal_offers_node_two_moved_onto_node_one():
+    values = {**Model(["thermal"]).theta_dict(Model(["thermal"]).default_theta()), **TWO_NODES["thermal"]}
+    starts = EFFECTS["thermal"].reduced_starts({k: v for k, v in values.items() if k.startswith("thermal")}, "core")
+    assert len(starts) == 2
+    assert starts[1]["thermal_tau"] == 60.0 and starts[1]["thermal_sensitivity"] == 0.1
+    assert starts[1]["thermal_expansion"] == 4.0 and starts[1]["thermal_sensitivity_core"] == 0.0
+
+
+def test_a_term_must_name_own_parameters_and_leave_a_core():
+    def effect(terms):
+        return type("Toy", (Effect,), {
+            "name": "toy", "stage": "output", "terms": terms, "off": {"toy_a": 0.0, "toy_b": 1.0},
+            "parameters": ParameterSet([Parameter("toy_a", 0.0, -1, 1), Parameter("toy_b", 1.0, 0.5, 2)]),
+        })  # fmt: skip
+
+    with pytest.raises(ValueError, match="own parameters"):
+        register_effect(effect({"x": ("lag_tau",)}))
+    with pytest.raises(ValueError, match="outside every optional term"):
+        register_effect(effect({"x": ("toy_a", "toy_b")}))
+    assert "toy" not in EFFECTS
+
+
+def _fit(effects, seed=3):
+    record = simulate(effects, fs=20.0, seed=seed).record
+    fit = fit_least_squares(record, normalised_model(Model(["thermal"])), noise=estimate_noise(record), n_starts=2,
+                            rng=np.random.default_rng(0))  # fmt: skip
+    return record, fit
+
+
+def test_one_pole_heating_pins_the_second_node_off_and_two_nodes_keep_it():
+    record, fit = _fit(ONE_POLE)
+    assert [t[1] for t in optional_terms(fit.model)] == ["core"]
+    selected = select_terms(record, fit, rng=np.random.default_rng(0))
+    (decision,) = selected.terms
+    assert decision["pinned"] and decision["delta_chi2"] <= decision["penalty"]
+    assert not selected.model.parameters["thermal_tau_core"].vary
+    assert selected.theta_dict()["thermal_sensitivity_core"] == 0.0
+    assert abs(selected.theta_dict()["thermal_tau"] - 25.0) < 5.0  # the one pole is on node 1 now
+    assert optional_terms(selected.model) == []
+    back = FitResult.from_dict(json.loads(json.dumps(selected.to_dict(), allow_nan=False)))
+    assert back.terms == selected.terms and back.model == selected.model
+
+    record, fit = _fit(TWO_NODES)
+    kept = select_terms(record, fit, rng=np.random.default_rng(0))
+    (decision,) = kept.terms
+    assert not decision["pinned"] and decision["delta_chi2"] > decision["penalty"]
+    assert kept.model.parameters["thermal_tau_core"].vary and np.array_equal(kept.theta, fit.theta)
+
+
+def test_a_model_without_optional_terms_is_returned_as_it_is():
+    record = simulate(None, fs=10.0, seed=1).record
+    fit = fit_least_squares(record, normalised_model(Model(["lag"])), noise=estimate_noise(record), n_starts=1)
+    assert select_terms(record, fit) is fit
+
+
+def test_all_terms_is_a_setting_only_when_set():
+    from identify.workflows.study import _api_settings
+
+    record = simulate(None, fs=10.0, seed=1).record
+    common = dict(seed=0, noise_sigma=None, n_starts=1, walkers=None, max_steps=10, check_every=5, moves="de",
+                  report=False, priors=None)  # fmt: skip
+    assert "all_terms" not in _api_settings(record, Model(), **common)
+    assert _api_settings(record, Model(), **common, select_terms=False)["all_terms"] is True
