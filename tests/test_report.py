@@ -460,3 +460,14 @@ def test_no_domain_wall_note_even_for_a_summary_that_still_counts_proposals(fold
     data = report.load_report_data(folder_copy)
     section = report._glance_html(data, report._analyse(data, 20, np.random.default_rng(0)))
     assert "domain-wall" not in section and "% of the proposals" not in section
+
+
+def test_the_calibration_note_says_calibrated_only_when_the_bench_coverage_is_near_nominal():
+    from identify.fitting.posterior import BENCH_COVERAGE
+    from identify.output.report import _calibration_reading
+
+    good = {**BENCH_COVERAGE, "posterior": 0.948, "least_squares": 0.951}
+    assert _calibration_reading(good).startswith("Both are calibrated there")
+    short = _calibration_reading({**BENCH_COVERAGE, "posterior": 0.91, "least_squares": 0.951})
+    assert "less than nominal" in short and "posterior 95 % interval holds the truth about 91%" in short
+    assert "least-squares" not in short
