@@ -117,6 +117,18 @@ class Effect:
         raise NotImplementedError(f"effect {cls.name!r} must define get_test_parameters()")
 
     @classmethod
+    def canonical(cls, values: dict[str, float]) -> dict[str, float]:
+        """The representative of ``values`` (the effect's parameters by name) in the effect's
+        canonical domain: an effect whose form has an exact discrete symmetry (two labellings
+        that give the same output) maps the other labelling here. Default: ``values``."""
+        return values
+
+    @classmethod
+    def in_canonical_domain(cls, params) -> np.ndarray:
+        """Boolean ``(W,)`` of parameter rows ``(W, k)``: in the canonical domain (default: all)."""
+        return np.ones(np.atleast_2d(params).shape[0], dtype=bool)
+
+    @classmethod
     def reduced_starts(cls, values: dict[str, float], term: str) -> list[dict[str, float]]:
         """Starting values of this effect's parameters with ``term`` off, from ``values`` of
         a fit with every term free: by default ``values`` with the term's parameters at
@@ -269,6 +281,33 @@ class Model:
         for k, v in values.items():
             theta[self.parameters.index(k)] = float(v)
         return theta
+
+    def _symmetric_effects(self):
+        """The effects whose parameters all vary: only there does a labelling symmetry matter."""
+        vary = dict(zip(self.names, self.parameters.vary))
+        return [e for e in self.effects if all(vary[n] for n in e.parameters.names)]
+
+    def canonical_theta(self, theta) -> np.ndarray:
+        """``theta`` (shape ``(P,)``) with every fully free effect mapped to its canonical
+        labelling (:meth:`Effect.canonical`): the same output, and kept only when the mapped
+        values are within the bounds."""
+        theta = np.array(theta, dtype=float)
+        for e in self._symmetric_effects():
+            sl = self._slices[e.name]
+            values = dict(zip(e.parameters.names, theta[sl]))
+            mapped = np.array([e.canonical(values)[n] for n in e.parameters.names], dtype=float)
+            lower, upper = self.parameters.lower[sl], self.parameters.upper[sl]
+            if np.all((mapped >= lower) & (mapped <= upper)):
+                theta[sl] = mapped
+        return theta
+
+    def in_canonical_domain(self, theta) -> np.ndarray:
+        """Boolean ``(W,)``: every fully free effect in its canonical domain (:meth:`Effect.in_canonical_domain`)."""
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        ok = np.ones(theta.shape[0], dtype=bool)
+        for e in self._symmetric_effects():
+            ok &= e.in_canonical_domain(theta[:, self._slices[e.name]])
+        return ok
 
     def in_bounds(self, theta) -> np.ndarray:
         """Boolean ``(W,)``: every parameter finite and within its bounds."""

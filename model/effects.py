@@ -1138,12 +1138,22 @@ class Thermal(Effect):
     taken as linear between samples in node 2's step (error of order
     :math:`(h/\tau)^2` of a step, below 1e-6 of the rise for :math:`\tau \ge 1` s at 100 Hz).
 
+    Symmetry: the network's output depends on the two time constants only through the
+    pair :math:`\{\tau_T, \tau_2\}`: by partial fractions :math:`\vartheta_2 =
+    (\tau_T \vartheta_1 - \tau_2 \vartheta_1')/(\tau_T - \tau_2)` with
+    :math:`\vartheta_1'` the one-pole rise through :math:`\tau_2`, so swapping the time
+    constants and mapping each gain pair :math:`(G_1, G_2) \to (G_1 \tau_2/\tau_T,\;
+    G_2 + G_1 (1 - \tau_2/\tau_T))` (for :math:`G = S` and :math:`G = E`) gives the same
+    output exactly (:meth:`swap_nodes`). The canonical labelling, the physical one, has
+    the coil faster than the core, :math:`\tau_T \le \tau_2`; the least squares maps
+    its result there and the posterior's support is that half (when all six parameters
+    vary), so the posterior has one mode, not two mirror images.
+
     Trade-offs: the gains of a node trade off with its time constant where the record is
     much shorter than it (a rise that is still linear in time fixes only the product
-    gain/tau); node 2's gains and node 1's are nearly interchangeable when
-    :math:`\tau_2 \ll \tau_T` (then :math:`\vartheta_2 \approx \vartheta_1`: an exact
-    degeneracy only in the limit :math:`\tau_2 \to 0`, excluded by its lower bound of
-    1 s); the sensitivities scale the GPI's output, but with a rise that changes over the
+    gain/tau); when node 2's gains are 0 its time constant does nothing, and a one-pole
+    heating is then also node 2 behind a fast node 1 without gains (the study pins the
+    core node off where the record does not support it: :attr:`terms`); the sensitivities scale the GPI's output, but with a rise that changes over the
     record, so they are not a reparametrisation of its gain (``rho``). Measured Jacobian
     rank with the GPI on the paper's input: ``docs/effects.md``.
 
@@ -1186,6 +1196,29 @@ class Thermal(Effect):
     }  # fmt: skip
     summary = "Joule heating through coil and core: tau th1' = (i/5 A)^2 - th1, tau2 th2' = th1 - th2, y = y_g (1 - S th1 - S2 th2) + E th1 + E2 th2"
     terms = {"core": ("thermal_tau_core", "thermal_sensitivity_core", "thermal_expansion_core")}
+
+    @staticmethod
+    def swap_nodes(values: dict[str, float]) -> dict[str, float]:
+        """The other labelling of the same output: time constants swapped, gains mapped
+        (class docstring, "Symmetry"). Its own inverse; needs distinct time constants."""
+        tau1, tau2 = values["thermal_tau"], values["thermal_tau_core"]
+        ratio = tau2 / tau1
+        out = dict(values)
+        out["thermal_tau"], out["thermal_tau_core"] = tau2, tau1
+        for g1, g2 in (("thermal_sensitivity", "thermal_sensitivity_core"), ("thermal_expansion", "thermal_expansion_core")):
+            out[g1] = values[g1] * ratio
+            out[g2] = values[g2] + values[g1] * (1.0 - ratio)
+        return out
+
+    @classmethod
+    def canonical(cls, values):
+        """Node 1 (the coil) the faster: :meth:`swap_nodes` when ``thermal_tau > thermal_tau_core``."""
+        return cls.swap_nodes(values) if values["thermal_tau"] > values["thermal_tau_core"] else values
+
+    @classmethod
+    def in_canonical_domain(cls, params):
+        params = np.atleast_2d(params)
+        return params[:, 0] <= params[:, 3]
 
     @classmethod
     def reduced_starts(cls, values, term):

@@ -602,3 +602,43 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
                 else:
                     expected.append(y_g[w, k] * (1.0 - s * rise) + e * rise)
             np.testing.assert_array_equal(y[w], expected)
+
+
+TWO_NODE_SWAPPED = {"thermal_tau": 53.73, "thermal_sensitivity": 0.374, "thermal_expansion": -31.78,
+                    "thermal_tau_core": 3.924, "thermal_sensitivity_core": -0.255, "thermal_expansion_core": 31.787}  # fmt: skip
+
+
+def test_thermal_nodes_swapped_give_the_same_output_and_the_canonical_labelling_puts_the_coil_first():
+    """The two-node network's exact mirror symmetry (docstring, "Symmetry"): swapping the time
+    constants with the mapped gains changes the output only by the discretisation's O(h^2)."""
+    from model.effects import Thermal
+
+    time, current = paper_current(fs=100.0)
+    m = Model(["thermal"])
+    values = {**m.theta_dict(m.default_theta()), **TWO_NODE_SWAPPED}
+    a = m.theta_from_dict(values)
+    b = m.canonical_theta(a)
+    swapped = m.theta_dict(b)
+    assert swapped["thermal_tau"] == 3.924 and swapped["thermal_tau_core"] == 53.73
+    assert np.max(np.abs(m(a, time, current) - m(b, time, current))) < 1e-4  # um, of a ~300 um output
+    back = Thermal.swap_nodes(Thermal.swap_nodes(TWO_NODE_SWAPPED))
+    assert all(math.isclose(back[k], v, rel_tol=1e-12) for k, v in TWO_NODE_SWAPPED.items())
+    assert list(m.in_canonical_domain(np.vstack([a, b]))) == [False, True]
+    # a pinned node is no labelling to choose: left as it is, and in the domain
+    pinned = m.with_parameters(m.parameters.replace("thermal_tau_core", vary=False))
+    assert np.array_equal(pinned.canonical_theta(a), a) and pinned.in_canonical_domain(a)[0]
+
+
+def test_the_posterior_samples_only_the_canonical_half():
+    from identify.bench.synthetic import simulate
+    from identify.fitting.noise import estimate_noise
+    from identify.fitting.posterior import LogPosterior
+
+    record = simulate(None, fs=10.0, seed=1).record
+    m = Model(["thermal"])
+    log_post = LogPosterior(record, m, estimate_noise(record))
+    a = m.theta_from_dict({**m.theta_dict(m.default_theta()), **TWO_NODE_SWAPPED})
+    x = np.vstack([a, m.canonical_theta(a)])[:, log_post.free]
+    assert list(log_post.in_support(x)) == [False, True]
+    lp = log_post(x)
+    assert lp[0] == -np.inf and np.isfinite(lp[1])

@@ -78,6 +78,9 @@ def test_one_pole_heating_pins_the_second_node_off_and_two_nodes_keep_it():
     (decision,) = kept.terms
     assert not decision["pinned"] and decision["delta_chi2"] > decision["penalty"]
     assert kept.model.parameters["thermal_tau_core"].vary and np.array_equal(kept.theta, fit.theta)
+    values = kept.theta_dict()  # the canonical labelling: the coil (node 1) the faster node
+    assert values["thermal_tau"] <= values["thermal_tau_core"]
+    assert abs(values["thermal_tau"] - 3.0) < 1.5 and abs(values["thermal_tau_core"] - 60.0) < 20.0
 
 
 def test_a_model_without_optional_terms_is_returned_as_it_is():

@@ -985,13 +985,25 @@ def _polish_in_coordinates(residuals: WhitenedResiduals, log: _StartLog) -> None
             log.keep(f"{label} (coordinates)", polished, residuals.n_evaluations - before)
 
 
+def _canonical(residuals: "WhitenedResiduals", x) -> np.ndarray:
+    """Free vector ``x`` in the model's canonical labelling (:meth:`model.Model.canonical_theta`,
+    e.g. a two-node ``thermal`` with the faster node first): the same output, so the same
+    optimum, in the half of the parameter space the posterior samples."""
+    theta = residuals.full(x)
+    canonical = residuals.model.canonical_theta(theta)
+    if np.array_equal(canonical, theta):
+        return x
+    mapped = canonical[residuals.free]
+    return mapped if np.isfinite(residuals(mapped)).all() else x
+
+
 def _fit_result(record, model: Model, residuals, noise: NoiseModel, best: _PolishedStart, outcomes, n_starts: int,
                 t0: float) -> FitResult:  # fmt: skip
     """The :class:`FitResult` at ``best``: a free sigma estimated from the chi-square, the
     covariance from the central Jacobian, the residual, RMS and maximum error on the energised part."""
     free = residuals.free
     n_samples = residuals.data.size
-    x_best = best.x
+    x_best = _canonical(residuals, best.x)
     w = residuals(x_best)
     chi2 = float(w @ w)
     dof = n_samples - free.size

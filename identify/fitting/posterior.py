@@ -454,9 +454,14 @@ class LogPosterior:
         return theta
 
     def in_support(self, x) -> np.ndarray:
-        """Boolean ``(W,)``: finite and within the bounds."""
+        """Boolean ``(W,)``: finite, within the bounds and in the model's canonical labelling
+        (:meth:`model.Model.in_canonical_domain`: e.g. a two-node ``thermal``'s faster node
+        first, so that the mirror image of every point is not sampled too)."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
-        return np.isfinite(x).all(axis=1) & (x >= self.lower).all(axis=1) & (x <= self.upper).all(axis=1)
+        ok = np.isfinite(x).all(axis=1) & (x >= self.lower).all(axis=1) & (x <= self.upper).all(axis=1)
+        if ok.any():
+            ok[ok] = self.model.in_canonical_domain(self.full_theta(x[ok]))
+        return ok
 
     def log_prior(self, x) -> np.ndarray:
         """Log prior density ``(W,)``; ``-inf`` outside the support."""
