@@ -677,18 +677,18 @@ class PosteriorResult:
 
 
 #: Measured 95 % interval coverage on the virtual bench (``benchmarks/interval_coverage.py
-#: --records 30``, 2026-11-24: clean 50 Hz records whose truths are Table 1 with ``b3``
+#: --records 100``, 2026-11-24: clean 50 Hz records whose truths are Table 1 with ``b3``
 #: within +-0.25 A, on both sides of where the operator bounds start to cross): least squares
 #: +-1.96 stderr vs posterior equal-tailed intervals, mean of the per-record fractions and
 #: its standard error across records. Quoted by the report (docs/method.md, docs/benchmarks.md).
 BENCH_COVERAGE = {
-    "least_squares": 0.893,
-    "least_squares_se": 0.030,
-    "posterior": 0.913,
-    "posterior_se": 0.026,
+    "least_squares": 0.926,
+    "least_squares_se": 0.012,
+    "posterior": 0.933,
+    "posterior_se": 0.011,
     "nominal": 0.95,
-    "n_records": 30,
-    "n_intervals": 540,
+    "n_records": 100,
+    "n_intervals": 1800,
 }
 
 #: The convergence verdict's thresholds beside tau (docs/method.md, "Convergence"): every

@@ -860,8 +860,7 @@ def _calibration_reading(coverage: dict) -> str:
         return "Both are calibrated there; the posterior also carries the non-Gaussian shape and the correlations."
     reading = "; ".join(f"a {name} 95 % interval holds the truth about {value:.0%} of the time" for name, value in short)
     return (
-        f"That is less than nominal: {reading} (most misses in the curved block rho, tau, a0-a3, where the truth lies "
-        "about 1.25 posterior sds from the median on average; docs/benchmarks.md)."
+        f"That is less than nominal: {reading} (most misses in the curved block rho, tau, a0-a3; docs/benchmarks.md)."
     )
 
 
