@@ -92,6 +92,9 @@ class Effect:
     off: ClassVar[dict[str, float]] = {}
     #: one line: what physics this represents, with its equation
     summary: ClassVar[str] = ""
+    #: what tells this effect apart from the others in a record (completes "it ..."): shown
+    #: when the diagnosis cannot choose between two effects that fit a record equally well
+    signature: ClassVar[str] = ""
     #: optional parts of the physics, ``{term: parameter names}``: a term is off when its
     #: parameters are at :attr:`off`, and while its gains are 0 its other parameters (a time
     #: constant, an onset) have no effect at all, so a record without that part leaves them

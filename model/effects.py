@@ -714,6 +714,7 @@ class Lag(Effect):
     )
     off = {"lag_tau": 0.0, "lag_delay": 0.0}
     summary = "coil/eddy-current lag plus dead time: tau dv/dt = i - v, the hysteresis sees u(t) = v(t - d)"
+    signature = "the output lags the input by the same time at every cycle and amplitude, so a drive of another frequency changes the loop's width in proportion"
 
     @classmethod
     def get_test_parameters(cls):
@@ -818,6 +819,7 @@ class Training(Effect):
     )  # fmt: skip
     off = {"training_deficit": 0.0, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0}
     summary = "first-cycle training: excursion soft-thresholded by F f and scaled by 1 - g f, f = exp(-(V/V0)^p)"
+    signature = "only the first loading cycles differ (the virgin material needs more field), fading with the travel and not coming back"
 
     @classmethod
     def get_test_parameters(cls):
@@ -890,6 +892,7 @@ class InitialState(Effect):
     )  # fmt: skip
     off = {"initial_state_memory": 0.0}
     summary = "first-cycle state: initial operator memory clamped from z0 (0 = paper, -inf = virgin)"
+    signature = "only the first rising branch, before the first reversal, differs from the later ones"
 
     @classmethod
     def get_test_parameters(cls):
@@ -979,6 +982,7 @@ class IncompleteReset(Effect):
     )  # fmt: skip
     off = {"incomplete_reset_strain": 0.0, "incomplete_reset_retained": 0.5, "incomplete_reset_fade": 0.0}
     summary = "first-cycle strain: extra strain A on the virgin loading, fraction R kept after unloading (fading with travel)"
+    signature = "the first loading reaches further than the later ones and part of it stays after unloading; the later cycles ride on that raised level"
 
     @classmethod
     def get_test_parameters(cls):
@@ -1084,6 +1088,7 @@ class Creep(Effect):
     )  # fmt: skip
     off = {"creep_amplitude": 0.0, "creep_tau": 1.0, "creep_decades": 1.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1}
     summary = "creep: saturating log-spaced modes, y_g - A (y_g - mean s_m), plus logarithmic creep gamma per decade after each change"
+    signature = "follows the strain: after each reversal the output keeps moving the way it last changed, also while the input is held, and stops when the strain does not change"
     terms = {"logarithmic": ("creep_log_rate", "creep_log_onset")}
 
     @classmethod
@@ -1195,6 +1200,7 @@ class Thermal(Effect):
         "thermal_tau_core": 300.0, "thermal_sensitivity_core": 0.0, "thermal_expansion_core": 0.0,
     }  # fmt: skip
     summary = "Joule heating through coil and core: tau th1' = (i/5 A)^2 - th1, tau2 th2' = th1 - th2, y = y_g (1 - S th1 - S2 th2) + E th1 + E2 th2"
+    signature = "follows the drive's power, not the strain: builds up while current flows and decays with its time constants once the drive stops (a record that ends with the drive off for a few time constants shows it)"
     terms = {"core": ("thermal_tau_core", "thermal_sensitivity_core", "thermal_expansion_core")}
 
     @staticmethod
@@ -1296,6 +1302,7 @@ class SensorDrift(Effect):
         "sensor_drift_settling": 0.0, "sensor_drift_settling_tau": 10.0,
     }  # fmt: skip
     summary = "sensor drift: y = y_g + D1 s + D2 s^2 + Dw (1 - exp(-t/tau_w)), s = normalised record time"
+    signature = "is there while the coils are off too (the quiet start, a quiet end), whatever the drive does"
     terms = {"settling": ("sensor_drift_settling", "sensor_drift_settling_tau")}
 
     @classmethod

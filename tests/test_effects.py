@@ -642,3 +642,16 @@ def test_the_posterior_samples_only_the_canonical_half():
     assert list(log_post.in_support(x)) == [False, True]
     lp = log_post(x)
     assert lp[0] == -np.inf and np.isfinite(lp[1])
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
+def test_every_effect_says_what_tells_it_apart(name):
+    """The diagnosis quotes it when two effects fit a record equally well."""
+    from identify.diagnosis.diagnose import _telling_apart
+
+    signature = EFFECTS[name].signature
+    assert len(signature) > 30 and not signature.endswith(".")
+    other = next(n for n in EFFECTS if n != name)
+    text = _telling_apart(name, other)
+    assert f"'{name}' {signature}" in text and f"'{other}' {EFFECTS[other].signature}" in text
+    assert _telling_apart(name, f"{other}+{name}") == ""  # a pair is no single effect to describe

@@ -1854,13 +1854,24 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
             f"{adequacy.size_ratio:.2f} sigma), and two candidates explain it about equally well: "
             f"'{best.effect}' (delta BIC {best.delta_bic:.0f}) and '{rival.effect}' ({rival.delta_bic:.0f}), "
             f"less than {thresholds.bic_significant:g} apart, which is no strong evidence for either, so "
-            f"neither is named. Candidates: {candidates_text}. {where}"
+            f"neither is named.{_telling_apart(best.effect, rival.effect)} Candidates: {candidates_text}. {where}"
         )
     return (
         f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
         f"{adequacy.size_ratio:.2f} sigma) and no library effect, alone or with another, leaves a residual "
         f"consistent with the noise, so none is named. Candidates: {candidates_text}. {where}"
     )
+
+
+def _telling_apart(*names: str) -> str:
+    """What would tell effects ``names`` apart in another record (their :attr:`model.Effect.signature`),
+    as one sentence; empty for a name that is not a single library effect (a pair)."""
+    from model import EFFECTS
+
+    parts = [f"'{n}' {EFFECTS[n].signature}" for n in names if n in EFFECTS and EFFECTS[n].signature]
+    if len(parts) < 2:
+        return ""
+    return " What would tell them apart: " + "; ".join(parts) + "."
 
 
 def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
