@@ -446,8 +446,10 @@ def test_report_command_rewrites_the_page(misfit_folder, capsys):
     assert str(page) in capsys.readouterr().out
     assert page.stat().st_mtime_ns > before
     assert parse_page(page).values["posterior.n_walkers"] == "40"
-    assert identify_main(["report", str(misfit_folder / "nowhere")]) == 2
-    assert "error:" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exited:  # a folder that does not exist is an option error: argparse's exit 2
+        identify_main(["report", str(misfit_folder / "nowhere")])
+    assert exited.value.code == 2
+    assert "no such folder" in capsys.readouterr().err
 
 
 def test_no_domain_wall_note_even_for_a_summary_that_still_counts_proposals(folder_copy):
