@@ -473,3 +473,18 @@ def test_the_calibration_note_says_calibrated_only_when_the_bench_coverage_is_ne
     short = _calibration_reading({**BENCH_COVERAGE, "posterior": 0.91, "least_squares": 0.951})
     assert "less than nominal" in short and "posterior 95 % interval holds the truth about 91%" in short
     assert "least-squares" not in short
+
+
+def test_a_term_pinned_off_is_named_in_the_parameter_table(folder_copy):
+    """``fit.terms`` (identify.fitting.terms) marks the parameters of a term the record did not
+    support; the table says so instead of 'pinned by normalisation'."""
+    path = folder_copy / "summary.json"
+    summary = json.loads(path.read_text())
+    summary["fit"]["terms"] = [{"effect": "thermal", "term": "core", "parameters": ["d3"], "delta_chi2": 0.6,
+                                "penalty": 26.6, "pinned": True}]  # fmt: skip
+    entry = next(p for p in summary["parameters"] if p["name"] == "d3")
+    entry["vary"] = False
+    path.write_text(json.dumps(summary))
+    data = report.load_report_data(folder_copy)
+    html = report._parameters_html(data, report._analyse(data, 20, np.random.default_rng(0)), "")
+    assert "<td>pinned off: thermal term &#x27;core&#x27; not supported by the record (chi-square +0.6 &lt;= BIC 26.6)</td>" in html
