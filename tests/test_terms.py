@@ -97,3 +97,32 @@ def test_all_terms_is_a_setting_only_when_set():
                   report=False, priors=None)  # fmt: skip
     assert "all_terms" not in _api_settings(record, Model(), **common)
     assert _api_settings(record, Model(), **common, select_terms=False)["all_terms"] is True
+
+
+def test_the_study_pins_an_unsupported_term_and_all_terms_keeps_it(tmp_path):
+    from identify import study
+    from identify.cli import main as identify_main
+    from identify.data.records import write_record
+    from identify.output.results import load_fit, read_json
+
+    record = simulate(ONE_POLE, fs=10.0, seed=3).record
+    short = dict(seed=0, n_starts=1, max_steps=40, check_every=20, report=False, quiet=True)
+    result = study(record, Model(["thermal"]), out=tmp_path / "selected", **short)
+    (decision,) = result.fit.terms
+    assert decision["term"] == "core" and decision["pinned"]
+    stored = load_fit(tmp_path / "selected")
+    assert stored.terms == result.fit.terms and not stored.model.parameters["thermal_tau_core"].vary
+    assert read_json(tmp_path / "selected" / "summary.json")["fit"]["terms"] == result.fit.terms
+    assert "thermal_tau_core" not in result.posterior.names
+    assert "all_terms" not in read_json(tmp_path / "selected" / "manifest.json")["settings"]
+
+    write_record(tmp_path / "rec.csv", (record.time, record.current, record.displacement))
+    code = identify_main(["study", str(tmp_path / "rec.csv"), "--out", str(tmp_path / "all"), "--effects", "thermal",
+                          "--all-terms", "--n-starts", "1", "--max-steps", "40", "--check-every", "20", "--no-report",
+                          "-q"])  # fmt: skip
+    assert code in (0, 1)  # 40 steps: converged or not, a result either way
+    assert load_fit(tmp_path / "all").terms == []
+    assert read_json(tmp_path / "all" / "manifest.json")["settings"]["all_terms"] is True
+    assert load_fit(tmp_path / "all").model.parameters["thermal_tau_core"].vary
+    varying = [p["name"] for p in read_json(tmp_path / "all" / "summary.json")["parameters"] if p["vary"]]
+    assert "thermal_tau_core" in varying
