@@ -67,6 +67,13 @@ def test_pinned_parameter_stays_and_has_no_stderr(clean_fit):
     assert np.allclose(np.sqrt(np.diag(fit.covariance))[free], fit.stderr[free])
 
 
+def test_agreeing_starts_are_counted_once_however_often_polished(clean_fit):
+    _rec, fit = clean_fit
+    assert 1 <= fit.n_agree <= fit.n_starts
+    bases = {s.label.split(" (")[0] for s in fit.starts}
+    assert len(bases) == fit.n_starts  # every outcome is one of the starts, polished once or more
+
+
 def test_fit_result_round_trips_through_json(clean_fit):
     _rec, fit = clean_fit
     back = FitResult.from_dict(json.loads(json.dumps(fit.to_dict(), allow_nan=False)))

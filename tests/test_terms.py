@@ -70,6 +70,8 @@ def test_one_pole_heating_pins_the_second_node_off_and_two_nodes_keep_it():
     assert selected.theta_dict()["thermal_sensitivity_core"] == 0.0
     assert abs(selected.theta_dict()["thermal_tau"] - 25.0) < 5.0  # the one pole is on node 1 now
     assert optional_terms(selected.model) == []
+    assert (selected.n_starts, selected.starts, selected.n_agree) == (fit.n_starts, fit.starts, fit.n_agree)
+    assert selected.seconds >= fit.seconds
     back = FitResult.from_dict(json.loads(json.dumps(selected.to_dict(), allow_nan=False)))
     assert back.terms == selected.terms and back.model == selected.model
 

@@ -1030,7 +1030,8 @@ def _fit_result(record, model: Model, residuals, noise: NoiseModel, best: _Polis
     rms = float(np.sqrt(np.mean(residual[energised] ** 2)))
     max_error_pct = float(100.0 * np.max(np.abs(residual[energised])) / span) if span > 0 else math.inf
     reduced_chi2 = chi2 / scale2 / dof
-    n_agree = sum(1 for o in outcomes if (o.chi2 - best.chi2) / scale2 <= AGREE_CHI2)
+    # a start polished again (phases 3 and 4 label it "<start> (<how>)") is still one start
+    n_agree = len({o.label.split(" (")[0] for o in outcomes if (o.chi2 - best.chi2) / scale2 <= AGREE_CHI2})
     return FitResult(
         model=model,
         theta=theta,
