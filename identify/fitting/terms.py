@@ -60,7 +60,7 @@ def _reduced_fit(record, fit, effect_name, term, names, rng):
     reduced = model.with_parameters(parameters)
     values = fit.theta_dict()
     block = {n: values[n] for n in effect.parameters.names}
-    best = None
+    best, best_chi2 = None, np.inf
     for start_values in type(effect).reduced_starts(block, term):
         start = fit.theta.copy()
         for n, v in start_values.items():
@@ -70,8 +70,9 @@ def _reduced_fit(record, fit, effect_name, term, names, rng):
             candidate = fit_least_squares(record, reduced, noise=fit.noise, start=start, n_starts=1, rng=rng)
         except ValueError:
             continue  # a start outside the model's reach: the other starts decide
-        if best is None or candidate.chi2 < best.chi2:
-            best = candidate
+        chi2 = _whitened_chi2(candidate.residual, fit.noise)  # one noise model for every comparison (a free sigma is re-estimated per fit)
+        if chi2 < best_chi2:
+            best, best_chi2 = candidate, chi2
     return best
 
 
