@@ -286,9 +286,20 @@ class Model:
         return theta
 
     def _symmetric_effects(self):
-        """The effects whose parameters all vary: only there does a labelling symmetry matter."""
+        """The effects whose parameters all vary and whose form has a labelling symmetry (their
+        own :meth:`Effect.in_canonical_domain`): only there does the labelling matter."""
         vary = dict(zip(self.names, self.parameters.vary))
-        return [e for e in self.effects if all(vary[n] for n in e.parameters.names)]
+        return [
+            e for e in self.effects
+            if type(e).in_canonical_domain.__func__ is not Effect.in_canonical_domain.__func__
+            and all(vary[n] for n in e.parameters.names)
+        ]  # fmt: skip
+
+    @property
+    def has_canonical_domain(self) -> bool:
+        """Whether :meth:`in_canonical_domain` can exclude anything (a fully free effect with a
+        labelling symmetry): a sampler asks once instead of at every evaluation."""
+        return bool(self._symmetric_effects())
 
     def canonical_theta(self, theta) -> np.ndarray:
         """``theta`` (shape ``(P,)``) with every fully free effect mapped to its canonical
@@ -297,8 +308,8 @@ class Model:
         theta = np.array(theta, dtype=float)
         for e in self._symmetric_effects():
             sl = self._slices[e.name]
-            values = dict(zip(e.parameters.names, theta[sl]))
-            mapped = np.array([e.canonical(values)[n] for n in e.parameters.names], dtype=float)
+            canonical = e.canonical(dict(zip(e.parameters.names, theta[sl])))
+            mapped = np.array([canonical[n] for n in e.parameters.names], dtype=float)
             lower, upper = self.parameters.lower[sl], self.parameters.upper[sl]
             if np.all((mapped >= lower) & (mapped <= upper)):
                 theta[sl] = mapped

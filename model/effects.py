@@ -1158,9 +1158,10 @@ class Thermal(Effect):
     much shorter than it (a rise that is still linear in time fixes only the product
     gain/tau); when node 2's gains are 0 its time constant does nothing, and a one-pole
     heating is then also node 2 behind a fast node 1 without gains (the study pins the
-    core node off where the record does not support it: :attr:`terms`); the sensitivities scale the GPI's output, but with a rise that changes over the
-    record, so they are not a reparametrisation of its gain (``rho``). Measured Jacobian
-    rank with the GPI on the paper's input: ``docs/effects.md``.
+    core node off where the record does not support it: :attr:`terms`); the sensitivities
+    scale the GPI's output, but with a rise that changes over the record, so they are not
+    a reparametrisation of its gain (``rho``). Measured Jacobian rank with the GPI on the
+    paper's input: ``docs/effects.md``.
 
     Parameters: ``thermal_tau`` [s] (1-2000), ``thermal_sensitivity`` (-0.5-0.5),
     ``thermal_expansion`` [um] (-50-50) for node 1 (the coil); ``thermal_tau_core`` [s]
@@ -1235,9 +1236,7 @@ class Thermal(Effect):
         starts = super().reduced_starts(values, term)
         moved = {"thermal_tau": values["thermal_tau_core"], "thermal_sensitivity": values["thermal_sensitivity_core"],
                  "thermal_expansion": values["thermal_expansion_core"]}  # fmt: skip
-        lo, hi = cls.parameters["thermal_tau"].lower, cls.parameters["thermal_tau"].upper
-        moved["thermal_tau"] = min(max(moved["thermal_tau"], lo), hi)
-        return starts + [{**starts[0], **moved}]
+        return starts + [{**starts[0], **moved}]  # the caller clips a start to the model's bounds
 
     @classmethod
     def get_test_parameters(cls):

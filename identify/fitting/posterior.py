@@ -393,6 +393,7 @@ class LogPosterior:
         self.noise = noise
         self.free = np.flatnonzero(model.parameters.vary)
         self.template = model.parameters.values.copy()
+        self._labelled = model.has_canonical_domain  # a labelling to keep (e.g. two thermal nodes): checked per call
         names = [model.names[i] for i in self.free]
         lower = list(model.parameters.lower[self.free])
         upper = list(model.parameters.upper[self.free])
@@ -459,7 +460,7 @@ class LogPosterior:
         first, so that the mirror image of every point is not sampled too)."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
         ok = np.isfinite(x).all(axis=1) & (x >= self.lower).all(axis=1) & (x <= self.upper).all(axis=1)
-        if ok.any():
+        if self._labelled and ok.any():
             ok[ok] = self.model.in_canonical_domain(self.full_theta(x[ok]))
         return ok
 

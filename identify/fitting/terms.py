@@ -49,7 +49,9 @@ def _whitened_chi2(residual, noise) -> float:
 
 
 def _reduced_fit(record, fit, effect_name, term, names, rng):
-    """The best least-squares fit of ``fit.model`` with ``term`` pinned off, from the effect's reduced starts."""
+    """``(fit, chi2)``: the best least-squares fit of ``fit.model`` with ``term`` pinned off,
+    from the effect's reduced starts, and its chi-square under ``fit``'s noise model; None
+    when no start could be fitted."""
     from .lsq import fit_least_squares
 
     model = fit.model
@@ -70,10 +72,11 @@ def _reduced_fit(record, fit, effect_name, term, names, rng):
             candidate = fit_least_squares(record, reduced, noise=fit.noise, start=start, n_starts=1, rng=rng)
         except ValueError:
             continue  # a start outside the model's reach: the other starts decide
-        chi2 = _whitened_chi2(candidate.residual, fit.noise)  # one noise model for every comparison (a free sigma is re-estimated per fit)
+        # one noise model for every comparison (a free sigma is re-estimated per fit)
+        chi2 = _whitened_chi2(candidate.residual, fit.noise)
         if chi2 < best_chi2:
             best, best_chi2 = candidate, chi2
-    return best
+    return None if best is None else (best, best_chi2)
 
 
 def term_decision(effect, term, names, delta_chi2, n_samples, pinned) -> dict:
@@ -118,31 +121,29 @@ def select_terms(record, fit, *, rng=None, log=None):
     decisions = list(fit.terms)
     current = fit
     while True:
-        tried = []
+        tried = []  # (decision, reduced fit, its chi-square)
         for effect, term, names in optional_terms(current.model):
             if any(d["effect"] == effect and d["term"] == term for d in decisions):
                 continue  # tested before and kept: the rest of the model has not lost anything it could use
-            reduced = _reduced_fit(record, current, effect, term, names, rng)
-            if reduced is None:
-                continue
-            delta = _whitened_chi2(reduced.residual, fit.noise) - chi2_ref
-            tried.append((delta, effect, term, names, reduced))
+            refit = _reduced_fit(record, current, effect, term, names, rng)
+            if refit is not None:
+                reduced, chi2 = refit
+                tried.append((term_decision(effect, term, names, chi2 - chi2_ref, n_samples, False), reduced, chi2))
         if not tried:
             break
-        tried.sort(key=lambda t: t[0])
-        delta, effect, term, names, reduced = tried[0]
-        penalty = len(names) * math.log(n_samples)
-        if delta > penalty:  # the cheapest removal costs more than its parameters: every term stays
-            for d, e, t, ns, _ in tried:
-                decisions.append(term_decision(e, t, ns, d, n_samples, False))
-                say(f"{e} term '{t}' kept: pinning it off raises chi-square by {d:.1f} > BIC penalty "
-                    f"{len(ns) * math.log(n_samples):.1f} ({len(ns)} parameters)")  # fmt: skip
+        tried.sort(key=lambda t: t[0]["delta_chi2"])
+        cheapest, reduced, chi2 = tried[0]
+        if cheapest["delta_chi2"] > cheapest["penalty"]:  # the cheapest removal costs more than its parameters
+            for d, _, _ in tried:
+                decisions.append(d)
+                say(f"{d['effect']} term '{d['term']}' kept: pinning it off raises chi-square by {d['delta_chi2']:.1f} "
+                    f"> BIC penalty {d['penalty']:.1f} ({len(d['parameters'])} parameters)")  # fmt: skip
             break
-        decisions.append(term_decision(effect, term, names, delta, n_samples, True))
-        say(f"{effect} term '{term}' pinned off ({', '.join(names)}): the record does not support it "
-            f"(chi-square {delta:+.1f} <= BIC penalty {penalty:.1f} for {len(names)} parameters)")  # fmt: skip
-        current = reduced
-        chi2_ref = _whitened_chi2(reduced.residual, fit.noise)
+        decisions.append({**cheapest, "pinned": True})
+        say(f"{cheapest['effect']} term '{cheapest['term']}' pinned off ({', '.join(cheapest['parameters'])}): the "
+            f"record does not support it (chi-square {cheapest['delta_chi2']:+.1f} <= BIC penalty "
+            f"{cheapest['penalty']:.1f} for {len(cheapest['parameters'])} parameters)")  # fmt: skip
+        current, chi2_ref = reduced, chi2
     if current is fit and decisions == list(fit.terms):
         return fit
     # the refits polish the multistart's end: its starts are still the search that found it
