@@ -13,6 +13,10 @@ at one of three stages:
     transforms the displacement after the hysteresis (e.g. ``creep``, ``thermal``,
     ``sensor_drift``): :meth:`Effect.output` returns shape ``(W, T)``.
 
+An input- or state-stage effect whose physics also acts on the strain sets
+:attr:`Effect.acts_on_output` and implements :meth:`Effect.output` too (``training``: the
+virgin material's strain amplitude); its output part runs before the output-stage effects.
+
 Effects register themselves by name in :data:`EFFECTS` (see :mod:`model.effects`).
 A :class:`Model` applies its effects in the library's canonical order (input stage,
 then state, then output, each in registration order), so ``thermal,creep`` and
@@ -101,6 +105,9 @@ class Effect:
     #: unidentified. A fit may pin such a term off where the record does not support it
     #: (``identify.fitting.terms``). Every effect keeps at least one term that is not listed.
     terms: ClassVar[dict[str, tuple[str, ...]]] = {}
+    #: an input- or state-stage effect that also transforms the displacement after the
+    #: hysteresis (:meth:`output`, applied before the output-stage effects)
+    acts_on_output: ClassVar[bool] = False
 
     def drive(self, params, time, current):  # pragma: no cover - protocol
         """Stage ``"input"``: drive seen by the hysteresis, shape ``(W, T)`` [A]."""
@@ -389,7 +396,7 @@ class Model:
         if y.ndim == 1:
             y = y[None, :]
         for e in self.effects:
-            if e.stage == "output":
+            if e.stage == "output" or e.acts_on_output:
                 y = e.output(theta2[:, self._slices[e.name]], time, current, y)
         valid = np.isfinite(y).all(axis=1)
         return y, valid

@@ -9,7 +9,7 @@ bit for bit) and a typical "on" setting (:meth:`get_test_parameters`).
 name                  stage    equation (one line)
 ====================  =======  ================================================================
 ``lag``               input    :math:`\tau_L \dot v = i - v`, the GPI sees :math:`u(t) = v(t - d)` (first order plus dead time)
-``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`, :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
+``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`; strain excursion times :math:`1 + s f`; :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
 ``initial_state``     state    operators' initial memory clamped from :math:`z^0` instead of 0
 ``incomplete_reset``  output   :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading with travel
 ``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change
@@ -730,24 +730,29 @@ class Lag(Effect):
 
 @register_effect
 class Training(Effect):
-    r"""First-cycle (training) effect: the virgin material needs more field, less once cycled.
+    r"""First-cycle (training) effect: the virgin material responds differently until cycling trains it.
 
     .. math::
 
         f_k = e^{-(V_k / V_0)^p}, \qquad V_k = \sum_{m=1}^{k} |i_m - i_{m-1}|, \qquad
         \Delta_k = i_k - i_0,
 
-        u_k = i_0 + \operatorname{sign}(\Delta_k)\,\max(|\Delta_k| - F f_k,\ 0)\,(1 - g f_k)
+        u_k = i_0 + \operatorname{sign}(\Delta_k)\,\max(|\Delta_k| - F f_k,\ 0)\,(1 - g f_k),
+        \qquad y_k = y_{g,k} + s f_k\,(y_{g,k} - y_{g,0})
 
-    and the GPI sees the drive :math:`u` (after ``lag``'s, when both are present: then
-    :math:`i` is the lagged drive). :math:`V` is the drive's accumulated travel since the
-    record's start [A] (:func:`accumulated_travel`), so the difference fades with the
-    cycling the material has done, not with time (a pause does not train it);
-    :math:`f` (:func:`training_fade`) is 1 on the virgin material and falls to :math:`1/e`
-    after :math:`V_0` of travel. :math:`i_0` is the drive at the first sample (0 A on the
-    paper's record): the excursion from it is reduced by the extra threshold :math:`F f`
-    (a soft threshold: nothing moves until the drive exceeds it) and scaled by
-    :math:`1 - g f`. The unenergised start (:math:`\Delta = 0`) is untouched.
+    The GPI sees the drive :math:`u` (after ``lag``'s, when both are present: then
+    :math:`i` is the lagged drive), and its output :math:`y_g` is scaled about its first
+    value (before the output-stage effects). :math:`V` is the drive's accumulated travel
+    since the record's start [A] (:func:`accumulated_travel`; the strain part counts the
+    commanded current's travel), so the difference fades with the cycling the material has
+    done, not with time (a pause does not train it); :math:`f` (:func:`training_fade`) is
+    1 on the virgin material and falls to :math:`1/e` after :math:`V_0` of travel. The GPI
+    describes the trained material (:math:`f = 0`); the virgin one differs in three ways:
+    :math:`i_0` is the drive at the first sample (0 A on the paper's record) and the
+    excursion from it is reduced by the extra threshold :math:`F f` (a soft threshold:
+    nothing moves until the drive exceeds it) and scaled by :math:`1 - g f`; and the
+    strain excursion is :math:`1 + s f` times the trained one. The unenergised start
+    (:math:`\Delta = 0`, :math:`y = y_{g,0}`) is untouched.
 
     Physics: in the virgin (untrained) state the twin boundaries of the MSM crystal must
     first be nucleated or activated, so the first field-induced reorientation needs a
@@ -755,31 +760,42 @@ class Training(Effect):
     already there; cycling trains the crystal and the difference fades (training lowers
     the twinning stress of Ni-Mn-Ga: e.g. Chmielus et al., "Effects of surface roughness
     and training on the twinning stress of Ni-Mn-Ga single crystals", Acta Mater. 58,
-    2010). The paper (sec. "Magnetic shape memory materials") reports a first cycle that
-    differs from the later ones: the return spring "is not sufficiently large to provide
-    crystal lattice reorientation ... thus that after first cycle maximum strain is
-    reduced". :math:`F > 0`: an extra field threshold; :math:`g > 0`: the virgin material
-    lacks the fraction :math:`g` of the drive (the first rising branch is delayed and
-    stretched); :math:`g < 0`: the first cycle sees more drive and reaches a larger strain
-    than the later ones. The fade's shape :math:`p` makes the general form absorb other
-    laws of the same physics: 1 is exponential in the travel, about 2.4 close to a linear
-    fade to 0 after about :math:`1.6 V_0` (fitted to a linear fade over 20 A on the bench:
-    :math:`V_0` = 12.4-13.1 A, :math:`p` = 2.3-2.4), 8 nearly a step at :math:`V_0` (e.g. at
-    the first reversal).
+    2010). Cycling also changes how much of the crystal reorients per cycle (the twin
+    structure coarsens or refines, some variants stop taking part), so the strain
+    amplitude drifts from the virgin to the trained value over the first cycles. The paper
+    (sec. "Magnetic shape memory materials") reports a first cycle that differs from the
+    later ones: the return spring "is not sufficiently large to provide crystal lattice
+    reorientation ... thus that after first cycle maximum strain is reduced".
+    :math:`F > 0`: an extra field threshold; :math:`g > 0`: the virgin material lacks the
+    fraction :math:`g` of the drive (the first rising branch is delayed and stretched);
+    :math:`g < 0`: the first cycle sees more drive; :math:`s > 0`: the virgin material's
+    strain excursion is larger by the fraction :math:`s` and shrinks toward the trained one
+    with cycling (the paper's "maximum strain is reduced"), :math:`s < 0`: it grows. The
+    fade's shape :math:`p` makes the general form absorb other laws of the same physics: 1
+    is exponential in the travel, about 2.4 close to a linear fade to 0 after about
+    :math:`1.6 V_0` (fitted to a linear fade over 20 A on the bench: :math:`V_0` =
+    12.4-13.1 A, :math:`p` = 2.3-2.4), 8 nearly a step at :math:`V_0` (e.g. at the first
+    reversal). :math:`V_0` reaches 50 A, about the paper record's whole travel (47.5 A):
+    a training that goes on over several cycles is then seen as a difference that is
+    still fading at the record's end.
 
     What the GPI cannot do: its first (virgin) branch is tied to all later branches by the
-    same parameters. A *constant* drive scale or shift, however, is an exact
-    reparametrisation of the GPI (absorbed by the tanh slopes a1, b1, c1, d1 and arguments
-    a2, b2, c2, d2), so as :math:`V_0 \to \infty` the effect stops being identifiable; the
-    bounds keep the transient fading within a record (the paper's input has 47.5 A of total
-    travel over 70 s, 10 A per early cycle: at :math:`V_0 = 15` A and :math:`p \ge 1` at
-    most :math:`e^{-3.17} = 4\,\%` of it is left at the end). Neither the GPI's return-point
-    memory nor ``initial_state`` (an exact reparametrisation, wiped out by the first full
-    excursion) represents it. Measured on the virtual bench (paper input, Table 1,
-    :math:`g = 0.08`, :math:`V_0 = 2` A, :math:`p = 1`: 1.94 noise sigmas RMS against the
-    plain GPI at the same parameters, sigma = 0.5 um, seed 0), the best plain-GPI refit leaves
-    1.42 sigma RMS over the energised part (a larger share than lag, creep, thermal or drift
-    leave of theirs: the GPI cannot bend its first branch away from the later ones).
+    same parameters, and its amplitude is the same on every cycle. Trade-offs: a
+    *constant* drive scale or shift, or a constant strain scale, is an exact
+    reparametrisation of the GPI (absorbed by the tanh slopes a1, b1, c1, d1, arguments
+    a2, b2, c2, d2 and the weights :math:`\rho`, :math:`c_0`, :math:`d_0`), so the effect
+    is identified only through its fading: as :math:`V_0 \to 0` (trained at once) and as
+    :math:`V_0 \to \infty` (never trained) it stops being identifiable. Within the
+    record's travel the fade is seen, and the bounds keep :math:`V_0` there. The strain
+    scale :math:`s` and the drive scale :math:`g` trade off partly (both change the
+    virgin loops' amplitude; only :math:`g` moves the branches along the current axis).
+    Neither the GPI's return-point memory nor ``initial_state`` (an exact
+    reparametrisation, wiped out by the first full excursion) represents the effect.
+    Measured on the virtual bench (paper input, Table 1, :math:`g = 0.08`,
+    :math:`V_0 = 2` A, :math:`p = 1`: 1.94 noise sigmas RMS against the plain GPI at the
+    same parameters, sigma = 0.5 um, seed 0), the best plain-GPI refit leaves 1.42 sigma RMS
+    over the energised part (a larger share than lag, creep, thermal or drift leave of
+    theirs: the GPI cannot bend its first branch away from the later ones).
 
     Why not the plain drive shift :math:`u = i - F e^{-V/V_0}` (measured first): it moves
     the unenergised start, where :math:`V = 0` and the whole shift acts (F = 0.3 A moved
@@ -791,12 +807,15 @@ class Training(Effect):
 
     Parameters: ``training_deficit`` :math:`g` (dimensionless), ``-0.5 <= g <= 0.5``;
     ``training_threshold`` :math:`F` [A], ``0 <= F <= 2``; ``training_travel`` :math:`V_0`
-    [A], ``0.5 <= V_0 <= 15``; ``training_shape`` :math:`p`, ``0.5 <= p <= 8``. Off:
-    ``g = F = 0`` (the drive is the current itself, bit for bit, whatever :math:`V_0`, :math:`p`).
+    [A], ``0.5 <= V_0 <= 50``; ``training_shape`` :math:`p`, ``0.5 <= p <= 8``;
+    ``training_gain`` :math:`s` (dimensionless), ``-0.5 <= s <= 0.5``. Off:
+    ``g = F = s = 0`` (the drive is the current and the output the GPI's, bit for bit,
+    whatever :math:`V_0`, :math:`p`).
     """
 
     name = "training"
     stage = "input"
+    acts_on_output = True
     parameters = ParameterSet(
         [
             Parameter(
@@ -808,34 +827,56 @@ class Training(Effect):
                 description="extra drive the virgin material needs before it responds at all",
             ),
             Parameter(
-                "training_travel", 2.0, 0.5, 15.0, unit="A",
+                "training_travel", 2.0, 0.5, 50.0, unit="A",
                 description="accumulated drive travel over which the first-cycle difference fades by 1/e",
             ),
             Parameter(
                 "training_shape", 1.0, 0.5, 8.0, unit="",
                 description="exponent of the fade exp(-(V/V0)^p): 1 exponential, large a step at V0",
             ),
+            Parameter(
+                "training_gain", 0.0, -0.5, 0.5, unit="",
+                description="fraction by which the virgin strain excursion exceeds the trained one (negative: falls short)",
+            ),
         ]
     )  # fmt: skip
-    off = {"training_deficit": 0.0, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0}
-    summary = "first-cycle training: excursion soft-thresholded by F f and scaled by 1 - g f, f = exp(-(V/V0)^p)"
-    signature = "only the first loading cycles differ (the virgin material needs more field), fading with the travel and not coming back"
+    off = {
+        "training_deficit": 0.0, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0,
+        "training_gain": 0.0,
+    }  # fmt: skip
+    summary = (
+        "first-cycle training: excursion soft-thresholded by F f and scaled by 1 - g f, strain excursion "
+        "scaled by 1 + s f, f = exp(-(V/V0)^p)"
+    )
+    signature = (
+        "the response changes with the cycling the material has done (the drive's accumulated travel), "
+        "not with time or power, and never comes back"
+    )
 
     @classmethod
     def get_test_parameters(cls):
-        return {"training_deficit": 0.2, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0}
+        return {
+            "training_deficit": 0.2, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0,
+            "training_gain": 0.0,
+        }  # fmt: skip
 
-    def drive(self, params, time, current):
-        """Drive with the fading first-cycle difference, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
+    @staticmethod
+    def _check(params):
         params = np.asarray(params, dtype=float)
-        deficit, threshold, travel_scale, shape = (params[:, c : c + 1] for c in range(4))
-        bad = ~(np.isfinite(params).all(axis=1) & (travel_scale[:, 0] > 0) & (shape[:, 0] > 0) & (threshold[:, 0] >= 0))
+        threshold, travel_scale, shape = params[:, 1], params[:, 2], params[:, 3]
+        bad = ~(np.isfinite(params).all(axis=1) & (travel_scale > 0) & (shape > 0) & (threshold >= 0))
         if bad.any():
             raise ValueError(
                 "training: the parameters must be finite, training_threshold >= 0 and training_travel, "
                 f"training_shape > 0; parameter set(s) {np.flatnonzero(bad)[:5].tolist()} are not "
                 f"({params[bad][:3].tolist()})"
             )
+        return params
+
+    def drive(self, params, time, current):
+        """Drive with the fading first-cycle difference, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
+        params = self._check(params)
+        deficit, threshold, travel_scale, shape = (params[:, c : c + 1] for c in range(4))
         drive = np.atleast_2d(np.asarray(current, dtype=float))
         if drive.shape[0] not in (1, params.shape[0]):
             raise ValueError(f"training: the drive has {drive.shape[0]} rows for {params.shape[0]} parameter sets")
@@ -845,6 +886,16 @@ class Training(Effect):
         kept = np.sign(excursion) * np.maximum(np.abs(excursion) - threshold * fade, 0.0)
         # u = i - (excursion - kept (1 - g f)); every term 0 when g = F = 0, so u == i bit for bit
         return drive - (excursion - kept * (1.0 - deficit * fade))
+
+    def output(self, params, time, current, displacement):
+        """The GPI's output with the virgin strain excursion scaled by ``1 + s f``, shape ``(W, T)`` [um]."""
+        params = self._check(params)
+        y = np.atleast_2d(np.asarray(displacement, dtype=float))
+        gain = params[:, 4:5]
+        if not gain.any():  # off: the displacement itself, bit for bit
+            return y
+        fade = training_fade(accumulated_travel(np.atleast_2d(np.asarray(current, dtype=float))), params[:, 2:3], params[:, 3:4])
+        return y + gain * fade * (y - y[:, 0:1])
 
 
 @register_effect

@@ -83,7 +83,7 @@ def test_screening_grid_classifies_parameters_by_what_they_do():
         ("lag", {"lag_tau"}, set()),  # acts while "off" at 0 and nonlinearly: a value grid
         ("initial_state", {"initial_state_memory"}, set()),
         # its own grid (SCREENING_GRIDS): amplitudes off, the fade's travel scale and shape gridded
-        ("training", {"training_travel", "training_shape"}, {"training_deficit", "training_threshold"}),
+        ("training", {"training_travel", "training_shape"}, {"training_deficit", "training_threshold", "training_gain"}),
     ):
         model_e = base_model + name
         grid = screening_grid(model_e, name, model_e.default_theta(), sim.record)
@@ -271,19 +271,19 @@ def test_diagnose_drop_window_option(clean_csv, tmp_path, capsys):
 
 
 def test_training_screening_grid_spans_the_records_travel():
-    """The fade's travel scale is log-spaced over 1/50-1/4 of the record's total drive travel
-    (47.5 A on the paper's record: 0.95-11.9 A), times three fade shapes, after the off point."""
+    """The fade's travel scale is log-spaced over 1/50 to the whole of the record's total drive
+    travel (47.5 A on the paper's record: 0.95-47.5 A), times three fade shapes, after the off point."""
     sim = simulate(None, seed=0)
     model_e = normalised_model(Model()) + "training"
     grid = SCREENING_GRIDS["training"](model_e, sim.record)
     off = EFFECTS["training"].off
-    assert grid[0] == off and len(grid) == 13
+    assert grid[0] == off and len(grid) == 16
     total = float(np.sum(np.abs(np.diff(sim.record.current))))
     np.testing.assert_allclose(total, 47.5175, rtol=1e-4)
     travels = sorted({g["training_travel"] for g in grid[1:]})
-    np.testing.assert_allclose(travels, np.geomspace(total / 50, total / 4, 4), rtol=1e-12)
+    np.testing.assert_allclose(travels, np.geomspace(total / 50, total, 5), rtol=1e-12)
     assert {g["training_shape"] for g in grid[1:]} == {1.0, 3.0, 8.0}
-    assert all(g["training_deficit"] == 0.0 and g["training_threshold"] == 0.0 for g in grid)
+    assert all(g["training_deficit"] == g["training_threshold"] == g["training_gain"] == 0.0 for g in grid)
     # a short record's travel is clipped to the parameter's bounds
     short = simulate(None, seed=0, duration=12.0).record
     for g in SCREENING_GRIDS["training"](model_e, short):

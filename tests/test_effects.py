@@ -447,6 +447,38 @@ def signature_log_creep(paper_input, plain_gpi):
     np.testing.assert_allclose(both - saturating, y - y_g[0], rtol=1e-9, atol=1e-9)
 
 
+def signature_training_strain_gain(paper_input, plain_gpi):
+    """The strain part of training: the GPI's excursion from its first value times 1 + s f,
+    with f the same fade of the drive's travel; the quiet start untouched, a trained record's
+    end the plain GPI's; s combines with the drive part (the GPI of the changed drive, then
+    scaled)."""
+    time, current = paper_input
+    m = Model(["training"])
+    travel = accumulated_travel(current)[0]
+    for gain, scale, shape in ((0.1, 5.0, 1.0), (-0.05, 30.0, 2.0), (0.02, 50.0, 0.5)):
+        values = {"training_gain": gain, "training_travel": scale, "training_shape": shape}
+        y = m(_theta(m, values), time, current)
+        fade = np.exp(-((travel / scale) ** shape))
+        expected = plain_gpi + gain * fade * (plain_gpi - plain_gpi[0])
+        np.testing.assert_allclose(y, expected, rtol=1e-13, atol=1e-12)
+        assert np.array_equal(y[time < 10.0], plain_gpi[time < 10.0])
+        # the first peak's strain excursion is 1 + s f(5 A) times the plain one
+        peak = int(np.argmax(np.where(time < 20.0, plain_gpi, -np.inf)))
+        ratio = (y[peak] - y[0]) / (plain_gpi[peak] - plain_gpi[0])
+        np.testing.assert_allclose(ratio, 1.0 + gain * math.exp(-((travel[peak] / scale) ** shape)), rtol=1e-12)
+    # trained within the record (V0 = 1 A): the end is the plain GPI's to round-off
+    y = m(_theta(m, {"training_gain": 0.2, "training_travel": 1.0, "training_shape": 1.0}), time, current)
+    late = time > 40.0
+    np.testing.assert_allclose(y[late], plain_gpi[late], rtol=0, atol=1e-9)
+    # with the drive part: the GPI of the changed drive, scaled about its first value
+    both = {"training_deficit": 0.1, "training_gain": 0.1, "training_travel": 5.0, "training_shape": 1.0}
+    drive = m.effects[0].drive(np.array([[0.1, 0.0, 5.0, 1.0, 0.1]]), time, current)[0]
+    y_drive = gpi(TABLE1, drive)
+    fade = np.exp(-travel / 5.0)
+    np.testing.assert_allclose(m(_theta(m, both), time, current), y_drive + 0.1 * fade * (y_drive - y_drive[0]),
+                               rtol=1e-13, atol=1e-12)
+
+
 def signature_settling_drift(paper_input, plain_gpi):
     """The warm-up term settles: D_w (1 - exp(-t / tau_w)), on top of the polynomial."""
     time, current = paper_input
@@ -468,6 +500,7 @@ SIGNATURES = {
 #: the general forms' other parts (each effect's extra terms beyond its test parameters)
 GENERAL_FORMS = {
     "lag dead time": signature_lag_dead_time,
+    "training strain gain": signature_training_strain_gain,
     "thermal two nodes": signature_thermal_two_nodes,
     "logarithmic creep": signature_log_creep,
     "settling drift": signature_settling_drift,

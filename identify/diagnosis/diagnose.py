@@ -462,15 +462,16 @@ def exact_reparametrisation(record, model: Model, theta, effect_name: str, rtol:
 def _training_grid(model_e: Model, record) -> list[dict]:
     """Screening grid of ``training``: its amplitudes off, its fade on a grid.
 
-    The deficit ``g`` and threshold ``F`` stay off and enter through their Jacobian
-    columns (the drive, hence the output, changes smoothly with them near 0; the
-    screening's bounded fit takes the sign of ``g`` and keeps ``F >= 0``). The fade's
-    travel scale ``V0`` and shape ``p`` do nothing while ``g = F = 0``, and the generic
-    rule would spread them over a product grid thinned to a few points; here ``V0`` is
-    log-spaced over 1/50 to 1/4 of the record's total drive travel (clipped to the bounds:
-    on the paper's 47.5 A, 0.95-10 A) and ``p`` takes 1 (exponential), 3 and 8 (nearly a
-    step at ``V0``), 12 points: differently shaped fades (a linear one, a step at the first
-    reversal) start near their best fit.
+    The deficit ``g``, threshold ``F`` and strain gain ``s`` stay off and enter through
+    their Jacobian columns (the drive and the output change smoothly with them near 0; the
+    screening's bounded fit takes the signs of ``g`` and ``s`` and keeps ``F >= 0``). The
+    fade's travel scale ``V0`` and shape ``p`` do nothing while the amplitudes are 0, and
+    the generic rule would spread them over a product grid thinned to a few points; here
+    ``V0`` is log-spaced over 1/50 of the record's total drive travel to the whole of it
+    (clipped to the bounds: on the paper's 47.5 A, 0.95-47.5 A) and ``p`` takes 1
+    (exponential), 3 and 8 (nearly a step at ``V0``), 15 points: differently shaped fades
+    (a linear one, a step at the first reversal, one still going on at the record's end)
+    start near their best fit.
     """
     effect = get_effect("training")
     names = effect.parameters.names
@@ -478,10 +479,10 @@ def _training_grid(model_e: Model, record) -> list[dict]:
     total = float(np.sum(np.abs(np.diff(record.current))))
     scale = params["training_travel"]
     low = min(max(scale.lower, total / 50.0), scale.upper)
-    high = max(min(scale.upper, total / 4.0), low)
+    high = max(min(scale.upper, total), low)
     off = {n: float(effect.off[n]) for n in names}
     points = [off]
-    for travel in np.geomspace(low, high, 4) if high > low else [low]:
+    for travel in np.geomspace(low, high, 5) if high > low else [low]:
         for shape in (1.0, 3.0, 8.0):
             shape = min(max(shape, params["training_shape"].lower), params["training_shape"].upper)
             point = off | {"training_travel": float(travel), "training_shape": float(shape)}
