@@ -65,16 +65,19 @@ whether that is an error (``python -m identify compensate`` refuses such targets
 
 Effects with dynamics
 ---------------------
-``lag``, ``creep`` and ``thermal`` are inverted exactly, each with its own state in the
-per-sample step: the current found at sample ``k`` is the one whose *filtered* drive
-(lag) and whose heating (thermal) give the target; creep's modes are advanced with the
-GPI output found. A lag is inverted exactly too, which means the current leads the drive
+``lag``, ``creep`` and ``thermal`` are inverted exactly in their general forms, each with
+its own state in the per-sample step: the current found at sample ``k`` is the one whose
+*filtered* drive (lag) and whose heating (thermal, both nodes) give the target; creep's
+modes (the saturating spectrum and the logarithmic ones) are advanced with the strain
+found. A lag's dead time (``lag_delay`` not 0) is refused: the current at a sample acts on
+the output only a dead time later, which no per-sample step can reach. A lag is inverted exactly too, which means the current leads the drive
 (:math:`i \approx u + \tau_L \dot u`) and steps where the drive has a kink; the exact step
 of a first-order filter with an input linear between samples has a zero near -1 in the
 sample domain, so a step in :math:`u` makes :math:`i` ring with alternating sign, decaying as
-:math:`(-1 + h/3\tau_L)^k`: real, but the current limits may bind. ``training`` and
+:math:`(-1 + h/3\tau_L)^k`: real, but the current limits may bind. ``training`` (its drive and strain parts) and
 ``initial_state`` are inverted as identified (the compensation starts from the model's
-initial, virgin state). ``sensor_drift`` is supported here (an offset per sample), but it is
+initial, virgin state). ``sensor_drift`` is supported here (an offset per sample, whatever
+its form: the effect's own output on a zero displacement), but it is
 a property of the sensor, not of the transducer (the workflows leave it out of a
 compensation). An effect without an inverse step here raises a :class:`ValueError`
 naming it.
@@ -89,7 +92,7 @@ import numpy as np
 from numba import njit, prange
 
 from .composite import Model
-from .effects import CREEP_MODES, REFERENCE_CURRENT, creep_time_constants
+from .effects import CREEP_MODES, LOG_CREEP_MODE_WEIGHT, REFERENCE_CURRENT, creep_time_constants, log_creep_time_constants
 from .gpi import READINGS, THETA_NAMES, operator_thresholds_and_weights
 
 __all__ = [
@@ -189,15 +192,21 @@ def _env(k0, k1, k2, k3, v):
 
 @njit(cache=True)
 def _evaluate(
-    i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_amp, modes,
+    i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, cp, modes,
     creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
 ):
     """Model output at the present sample for current ``i``, from the committed state.
 
     ``g``: the 16 envelope/Omega coefficients (rising env 0-3, falling env 4-7, Omega c
-    8-11, Omega d 12-15). ``st``: scalar state (see :func:`_state_layout` in the kernel).
-    Returns ``(y, y_gpi, u1, u, travel, side)``; ``side`` +1 on Omega's c branch
-    (``du >= 0``), -1 on d.
+    8-11, Omega d 12-15). ``st``: scalar state (see the kernel). ``tr``: training's five
+    parameters. ``cp``: creep's saturating amplitude, number of saturating modes, logarithmic
+    rate, number of logarithmic modes (``modes`` holds the saturating modes, then the
+    logarithmic ones). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
+    reference current, node 2's time constant, sensitivity, expansion; ``thermal_c`` the
+    two nodes' step coefficients. ``drift``: the sensor drift at this sample.
+    Returns ``(y, y_gpi, u1, u, travel, side, y_strain)``; ``side`` +1 on Omega's c branch
+    (``du >= 0``), -1 on d; ``y_strain`` the strain after training's strain part (the
+    output stage's input).
     """
     # input stage: lag, then training
     if first:
@@ -250,32 +259,49 @@ def _evaluate(
                 for j in range(n_ops):
                     s += weights[j] * memory[j]
                 y_gpi = _env(g[8], g[9], g[10], g[11], u) + s
-    # output stage: creep, thermal, drift
-    y = y_gpi
+    # training's strain part (the commanded current's travel), then creep, thermal, drift
+    y_strain = y_gpi
+    if has_training and tr[4] != 0.0 and not first:
+        travel_i = st[10] + abs(i - st[0])
+        y_strain = y_gpi + tr[4] * math.exp(-((travel_i / tr[2]) ** tr[3])) * (y_gpi - st[11])
+    y = y_strain
     if creep_on and not first:
-        total = 0.0
-        for m in range(modes.shape[0]):
-            total += _filter_step(modes[m], st[6], y_gpi, creep_gain[m], creep_decay[m], creep_active[m])
-        y = y_gpi - creep_amp * (y_gpi - total / modes.shape[0])
+        n_sat = int(cp[1])
+        n_log = int(cp[3])
+        if cp[0] != 0.0:
+            total = 0.0
+            for m in range(n_sat):
+                total += _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
+            y = y - cp[0] * (y_strain - total / n_sat)
+        if cp[2] != 0.0 and n_log > 0:
+            grown = 0.0
+            for m in range(n_sat, n_sat + n_log):
+                grown += _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m]) - st[11]
+            y = y + cp[2] * LOG_CREEP_MODE_WEIGHT * grown
     if thermal_on:
         if first:
             rise = 0.0
+            rise2 = 0.0
         else:
             heating = (i / th[3]) ** 2
             rise = _filter_step(st[7], st[9], heating, thermal_c[0], thermal_c[1], thermal_c[2] > 0.5)
-        y = y * (1.0 - th[1] * rise) + th[2] * rise
+            rise2 = _filter_step(st[13], st[7], rise, thermal_c[3], thermal_c[4], thermal_c[5] > 0.5)
+        if th[5] != 0.0 or th[6] != 0.0:
+            y = y * (1.0 - th[1] * rise - th[5] * rise2) + th[2] * rise + th[6] * rise2
+        else:
+            y = y * (1.0 - th[1] * rise) + th[2] * rise
     y = y + drift
-    return y, y_gpi, u1, u, travel, side
+    return y, y_gpi, u1, u, travel, side, y_strain
 
 
 @njit(cache=True)
 def _commit(
-    i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_amp, modes,
+    i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, cp, modes,
     creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
 ):
     """Advance the state with the chosen current ``i``; returns the output."""
-    y, y_gpi, u1, u, travel, side = _evaluate(
-        i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_amp, modes,
+    y, y_gpi, u1, u, travel, side, y_strain = _evaluate(
+        i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, cp, modes,
         creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
     )
     if first:
@@ -286,7 +312,10 @@ def _commit(
         for m in range(modes.shape[0]):
             modes[m] = y_gpi
         st[7] = 0.0
+        st[13] = 0.0
         st[5] = 1.0
+        st[10] = 0.0
+        st[11] = y_gpi
     else:
         dv = u - st[4]
         if dv > 0.0:
@@ -298,12 +327,15 @@ def _commit(
             for j in range(n_ops):
                 memory[j] = min(memory[j], env + thresholds[j])
         if creep_on:
-            for m in range(modes.shape[0]):
-                modes[m] = _filter_step(modes[m], st[6], y_gpi, creep_gain[m], creep_decay[m], creep_active[m])
+            for m in range(int(cp[1]) + int(cp[3])):
+                modes[m] = _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
         if thermal_on:
             heating = (i / th[3]) ** 2
+            previous = st[7]
             st[7] = _filter_step(st[7], st[9], heating, thermal_c[0], thermal_c[1], thermal_c[2] > 0.5)
+            st[13] = _filter_step(st[13], previous, st[7], thermal_c[3], thermal_c[4], thermal_c[5] > 0.5)
         st[5] = 1.0 if dv >= 0.0 else 0.0
+        st[10] = st[10] + abs(i - st[0])
     if first:
         st[2] = u1  # training's reference drive i_0
     st[0] = i
@@ -311,6 +343,7 @@ def _commit(
     st[3] = travel
     st[4] = u
     st[6] = y_gpi
+    st[12] = y_strain
     if thermal_on:
         st[9] = (i / th[3]) ** 2
     return y
@@ -318,12 +351,12 @@ def _commit(
 
 @njit(cache=True)
 def _objective(
-    x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_amp,
+    x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_params,
     modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
 ):
     """``s (y(s x) - target)`` on side ``s``, ``-inf`` off it (search coordinate ``x = s i``)."""
-    y, _, _, _, _, side = _evaluate(
-        s * x, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_amp,
+    y, _, _, _, _, side, _ = _evaluate(
+        s * x, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_params,
         modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
     )
     if not first and side != s:
@@ -339,7 +372,7 @@ def _magnitude(f):
 @njit(cache=True)
 def _search(
     s, start, step0, lo, hi, target, htol, rtol, xtol, first, n_ops, g, thresholds, weights, memory, st, lag_c,
-    has_training, tr, creep_on, creep_amp, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
+    has_training, tr, creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
     thermal_c, drift,
 ):
     """The current on side ``s`` whose output meets the target, nearest ``start`` (``F`` = :func:`_objective`).
@@ -367,7 +400,7 @@ def _search(
     x0 = min(max(s * start, x_min), x_max)
     n_eval = 1
     f0 = _objective(x0, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr,
-                    creep_on, creep_amp, modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift)  # fmt: skip
+                    creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift)  # fmt: skip
     if abs(f0) <= htol:
         return s * x0, f0, n_eval
     down_done = x0 <= x_min
@@ -382,7 +415,7 @@ def _search(
             x = min(x0 + step, x_max)
             step *= 4.0
             f = _objective(x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training,
-                           tr, creep_on, creep_amp, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
+                           tr, creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
                            thermal_c, drift)  # fmt: skip
             n_eval += 1
         if f == -np.inf:
@@ -393,7 +426,7 @@ def _search(
                 break
             x = 0.5 * (off + on)
             f = _objective(x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training,
-                           tr, creep_on, creep_amp, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
+                           tr, creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
                            thermal_c, drift)  # fmt: skip
             n_eval += 1
             if f == -np.inf:
@@ -423,7 +456,7 @@ def _search(
             x = min(xp + step, x_max) if direction > 0 else max(xp - step, x_min)
             step *= 4.0
             f = _objective(x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr,
-                           creep_on, creep_amp, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
+                           creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
                            thermal_c, drift)  # fmt: skip
             n_eval += 1
             if (f < 0.0) != (fp < 0.0):
@@ -455,7 +488,7 @@ def _search(
         else:
             x = 0.5 * (xl + xr)
         f = _objective(x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr,
-                       creep_on, creep_amp, modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c,
+                       creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c,
                        drift)  # fmt: skip
         n_eval += 1
         if (f < 0.0) == (fl < 0.0):
@@ -475,14 +508,12 @@ def _search(
 
 @njit(parallel=True, cache=True)
 def _inverse_kernel(
-    gpi_theta, n_ops, rising_is_a, z0, lag_tau, has_training, training, creep_on, creep_amp, creep_taus,
-    thermal_on, thermal, drift_on, drift, time, target, lo, hi, ytol, current_out, output_out, status_out,
-    evaluations,
+    gpi_theta, n_ops, rising_is_a, z0, lag_tau, has_training, training, creep_on, creep_params, creep_taus,
+    thermal_on, thermal, drift, time, target, lo, hi, ytol, current_out, output_out, status_out, evaluations,
 ):
     n_sets = gpi_theta.shape[0]
     n_samples = time.shape[0]
     n_modes = creep_taus.shape[1]
-    t_span = time[n_samples - 1] - time[0]
     xtol = 1e-15 * (hi - lo)
     scale = 1.0
     for k in range(n_samples):
@@ -511,17 +542,22 @@ def _inverse_kernel(
         creep_active = np.empty(n_modes, dtype=np.bool_)
         # scalar state: 0 i_prev, 1 u1_prev (lag output), 2 training's i_0, 3 travel,
         # 4 u_prev (GPI drive), 5 previous sample on Omega's c branch, 6 GPI output prev,
-        # 7 temperature rise, 8 initial memory level z0, 9 heating prev
-        st = np.zeros(10)
+        # 7 temperature rise (node 1), 8 initial memory level z0, 9 heating prev,
+        # 10 the current's travel, 11 the GPI output at the first sample, 12 the strain
+        # (after training's strain part) prev, 13 temperature rise of node 2
+        st = np.zeros(14)
         st[8] = z0[w]
         lag_c = np.zeros(3)
-        thermal_c = np.zeros(3)
+        thermal_c = np.zeros(6)
         tr = training[w]
-        th = np.empty(4)
+        th = np.empty(7)
         th[0] = thermal[w, 0]
         th[1] = thermal[w, 1]
         th[2] = thermal[w, 2]
         th[3] = REFERENCE_CURRENT
+        th[4] = thermal[w, 3]
+        th[5] = thermal[w, 4]
+        th[6] = thermal[w, 5]
         n_eval_total = 0
         previous_step = 0.1 * (hi - lo)
         for k in range(n_samples):
@@ -537,10 +573,9 @@ def _inverse_kernel(
                 if thermal_on:
                     gain, decay, active = _filter_coefficients(h, th[0])
                     thermal_c[0], thermal_c[1], thermal_c[2] = gain, decay, 1.0 if active else 0.0
-            d = 0.0
-            if drift_on:
-                sn = (time[k] - time[0]) / t_span if t_span > 0 else 0.0
-                d = drift[w, 0] * sn + drift[w, 1] * sn**2
+                    gain, decay, active = _filter_coefficients(h, th[4])
+                    thermal_c[3], thermal_c[4], thermal_c[5] = gain, decay, 1.0 if active else 0.0
+            d = drift[w, k]
             tk = target[k]
             if first:
                 pref = 1
@@ -552,14 +587,14 @@ def _inverse_kernel(
                 step0 = max(2.0 * previous_step, 1e-4 * (hi - lo))
             i_best, f_best, n_eval = _search(
                 pref, start, step0, lo, hi, tk, htol, rtol, xtol, first, n_ops, g, thresholds, weights, memory, st,
-                lag_c, has_training, tr, creep_on, creep_amp[w], modes, creep_gain, creep_decay, creep_active,
+                lag_c, has_training, tr, creep_on, creep_params[w], modes, creep_gain, creep_decay, creep_active,
                 thermal_on, th, thermal_c, d,
             )
             n_eval_total += n_eval
             if abs(f_best) > htol and not first:
                 i_other, f_other, n_eval = _search(
                     -pref, start, step0, lo, hi, tk, htol, rtol, xtol, first, n_ops, g, thresholds, weights, memory,
-                    st, lag_c, has_training, tr, creep_on, creep_amp[w], modes, creep_gain, creep_decay,
+                    st, lag_c, has_training, tr, creep_on, creep_params[w], modes, creep_gain, creep_decay,
                     creep_active, thermal_on, th, thermal_c, d,
                 )
                 n_eval_total += n_eval
@@ -585,7 +620,7 @@ def _inverse_kernel(
                 previous_step = abs(i_best - st[0])
             y = _commit(
                 i_best, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on,
-                creep_amp[w], modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, d,
+                creep_params[w], modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, d,
             )
             current_out[w, k] = i_best
             output_out[w, k] = y
@@ -671,21 +706,43 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
     n_sets = theta2.shape[0]
     gpi_theta = np.ascontiguousarray(theta2[:, : len(THETA_NAMES)])
     z0 = np.ascontiguousarray(_effect_columns(model, theta2, "initial_state", 1, [0.0])[:, 0])
-    lag_tau = np.ascontiguousarray(_effect_columns(model, theta2, "lag", 1, [0.0])[:, 0])
+    lag = _effect_columns(model, theta2, "lag", 2, [0.0, 0.0])
+    if np.any(lag[:, 1] != 0.0):
+        rows = np.flatnonzero(lag[:, 1] != 0.0)
+        raise ValueError(
+            f"no inverse for lag's dead time (lag_delay = {lag[rows[0], 1]:.4g} s in parameter set {int(rows[0])}): "
+            "the current at a sample acts on the output only a dead time later, which a per-sample inverse "
+            "cannot reach; model.inverse inverts the first-order lag (lag_tau) alone"
+        )
+    lag_tau = np.ascontiguousarray(lag[:, 0])
     has_training = "training" in model.effect_names
-    training = _effect_columns(model, theta2, "training", 4, [0.0, 0.0, 2.0, 1.0])
+    training = _effect_columns(model, theta2, "training", 5, [0.0, 0.0, 2.0, 1.0, 0.0])
     if has_training and not ((training[:, 2] > 0).all() and (training[:, 3] > 0).all() and (training[:, 1] >= 0).all()):
         raise ValueError("training: training_threshold >= 0 and training_travel, training_shape > 0 are required")
     creep_on = "creep" in model.effect_names
-    creep = _effect_columns(model, theta2, "creep", 3, [0.0, 1.0, 1.0])
-    creep_taus = np.ascontiguousarray(creep_time_constants(creep[:, 1], creep[:, 2]) if creep_on else np.ones((n_sets, 1)))
-    if creep_on and creep_taus.shape[1] != CREEP_MODES:  # pragma: no cover - consistency
-        raise ValueError("creep modes mismatch")
-    creep_amp = np.ascontiguousarray(creep[:, 0])
+    creep = _effect_columns(model, theta2, "creep", 5, [0.0, 1.0, 1.0, 0.0, 0.1])
+    if creep_on:
+        saturating = creep_time_constants(creep[:, 1], creep[:, 2])
+        if saturating.shape[1] != CREEP_MODES:  # pragma: no cover - consistency
+            raise ValueError("creep modes mismatch")
+        log_taus, n_log = log_creep_time_constants(creep[:, 4], float(time[-1] - time[0]))
+        log_taus = np.where(np.arange(log_taus.shape[1])[None, :] < n_log[:, None], log_taus, 1.0)
+        creep_taus = np.ascontiguousarray(np.hstack([saturating, log_taus]))
+        creep_params = np.ascontiguousarray(
+            np.column_stack([creep[:, 0], np.full(n_sets, float(saturating.shape[1])), creep[:, 3], n_log.astype(float)])
+        )
+    else:
+        creep_taus = np.ones((n_sets, 1))
+        creep_params = np.zeros((n_sets, 4))
     thermal_on = "thermal" in model.effect_names
-    thermal = _effect_columns(model, theta2, "thermal", 3, [30.0, 0.0, 0.0])
-    drift_on = "sensor_drift" in model.effect_names
-    drift = _effect_columns(model, theta2, "sensor_drift", 2, [0.0, 0.0])
+    thermal = _effect_columns(model, theta2, "thermal", 6, [30.0, 0.0, 0.0, 300.0, 0.0, 0.0])
+    # the sensor drift is an offset per sample whatever its form: the effect's own output on 0
+    drift = np.zeros((n_sets, time.size))
+    if "sensor_drift" in model.effect_names:
+        effect = model.effects[model.effect_names.index("sensor_drift")]
+        drift = np.ascontiguousarray(
+            effect.output(theta2[:, model.effect_slice("sensor_drift")], time, np.zeros_like(time), drift), dtype=float
+        )
 
     current = np.empty((n_sets, time.size))
     output = np.empty((n_sets, time.size))
@@ -693,8 +750,8 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
     evaluations = np.zeros(n_sets, dtype=np.int64)
     _inverse_kernel(
         gpi_theta, int(model.n_operators), READINGS[model.reading], z0, lag_tau, has_training, training, creep_on,
-        creep_amp, creep_taus, thermal_on, thermal, drift_on, drift, time, target, lo, hi, ytol, current, output,
-        status, evaluations,
+        creep_params, creep_taus, thermal_on, thermal, drift, time, target, lo, hi, ytol, current, output, status,
+        evaluations,
     )
     if single:
         current, output, status = current[0], output[0], status[0]

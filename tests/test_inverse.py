@@ -138,6 +138,56 @@ def test_a_lag_is_inverted_and_saturates_only_where_the_drive_must_step():
     assert (result.status[not_exact] == STATUS_SATURATED).all()
 
 
+#: every extra term of each general form on (beyond the test parameters, the simpler forms)
+GENERAL_FORMS = {
+    "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 6.0, "training_shape": 1.5,
+                 "training_gain": 0.06},
+    "creep": {"creep_amplitude": 0.03, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.004,
+              "creep_log_onset": 0.2},
+    "thermal": {"thermal_tau": 8.0, "thermal_sensitivity": 0.02, "thermal_expansion": 1.5, "thermal_tau_core": 120.0,
+                "thermal_sensitivity_core": 0.03, "thermal_expansion_core": -2.0},
+    "sensor_drift": {"sensor_drift_linear": 1.0, "sensor_drift_quadratic": -0.5, "sensor_drift_settling": 2.0,
+                     "sensor_drift_settling_tau": 12.0},
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("effects", [["training"], ["creep"], ["thermal"], ["sensor_drift"], ["training", "creep", "thermal", "sensor_drift"]])
+def test_the_general_forms_are_inverted_exactly(effects):
+    """Each supported effect with every term of its general form on (training's strain part,
+    creep's logarithmic part, thermal's second node, the settling drift): the model on the
+    inverse's drive gives the target back to rounding, and the kernel's own output is the
+    Model's (an inverse that left a term out would report 'exact' for a drive that misses)."""
+    model = Model(effects)
+    values = {}
+    for effect in effects:
+        values.update(GENERAL_FORMS[effect])
+    theta = _theta(model, **values)
+    time, current = paper_current(fs=100)
+    current = 0.5 + 0.8 * current  # inside the limits, so every sample can be reached
+    target = model(theta, time, current)
+    result = invert(model, theta, time, target)
+    assert (result.status == STATUS_EXACT).all()
+    again = model(theta, time, result.current)
+    scale = np.abs(target).max()
+    assert np.abs(again - target).max() < 1e-12 * scale
+    assert np.abs(result.output - again).max() < 1e-12 * scale
+    # each general term matters on this target: without it the model misses by far more
+    for effect in effects:
+        simple = dict(values)
+        simple.update({k: v for k, v in EFFECTS[effect].get_test_parameters().items() if k in GENERAL_FORMS[effect]})
+        assert np.abs(model(_theta(model, **simple), time, result.current) - target).max() > 1e-3 * scale
+
+
+def test_a_dead_time_is_refused_with_its_reason():
+    model = Model(["lag"])
+    time, current = paper_current(fs=100)
+    theta = _theta(model, lag_tau=0.02, lag_delay=0.0)
+    target = model(theta, time, 0.5 + 0.8 * current)
+    invert(model, theta, time, target)  # a first-order lag alone is inverted
+    with pytest.raises(ValueError, match=r"lag's dead time \(lag_delay = 0.03 s in parameter set 0\)"):
+        invert(model, _theta(model, lag_tau=0.02, lag_delay=0.03), time, target)
+
+
 def test_an_effect_without_an_inverse_step_is_named():
     class Backlash(Effect):
         name = "backlash_test"
