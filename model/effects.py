@@ -700,6 +700,10 @@ class Lag(Effect):
     no GPI parameter moves a branch in time). Measured Jacobian rank on the paper's
     input (``docs/effects.md``).
 
+    The dead time is an optional term (:attr:`Effect.terms` ``dead_time``): a study pins it
+    at 0 where the record does not support it (a compensation cannot invert a dead time,
+    :mod:`model.inverse`).
+
     Parameters: ``lag_tau`` [s], ``0 <= lag_tau <= 5``; ``lag_delay`` [s],
     ``0 <= lag_delay <= 0.5``. Off: both 0 (the drive is the current itself).
     """
@@ -714,6 +718,7 @@ class Lag(Effect):
     )
     off = {"lag_tau": 0.0, "lag_delay": 0.0}
     summary = "coil/eddy-current lag plus dead time: tau dv/dt = i - v, the hysteresis sees u(t) = v(t - d)"
+    terms = {"dead_time": ("lag_delay",)}
     signature = "the output lags the input by the same time at every cycle and amplitude, so a drive of another frequency changes the loop's width in proportion"
 
     @classmethod

@@ -87,7 +87,7 @@ def test_one_pole_heating_pins_the_second_node_off_and_two_nodes_keep_it():
 
 def test_a_model_without_optional_terms_is_returned_as_it_is():
     record = simulate(None, fs=10.0, seed=1).record
-    fit = fit_least_squares(record, normalised_model(Model(["lag"])), noise=estimate_noise(record), n_starts=1)
+    fit = fit_least_squares(record, normalised_model(Model(["training"])), noise=estimate_noise(record), n_starts=1)
     assert select_terms(record, fit) is fit
 
 
@@ -128,3 +128,17 @@ def test_the_study_pins_an_unsupported_term_and_all_terms_keeps_it(tmp_path):
     assert load_fit(tmp_path / "all").model.parameters["thermal_tau_core"].vary
     varying = [p["name"] for p in read_json(tmp_path / "all" / "summary.json")["parameters"] if p["vary"]]
     assert "thermal_tau_core" in varying
+
+
+def test_a_first_order_lag_pins_the_dead_time_off_and_a_dead_time_is_kept():
+    """lag's dead time is an optional term: a record made without one does not keep a spurious
+    one (a compensation could not invert it); a record with one keeps it."""
+    decisions = {}
+    for label, values in (("first order", {"lag_tau": 0.05, "lag_delay": 0.0}), ("dead time", {"lag_tau": 0.02, "lag_delay": 0.06})):
+        record = simulate({"lag": values}, seed=5, fs=50.0).record
+        fit = fit_least_squares(record, normalised_model(Model(["lag"])), n_starts=1, rng=np.random.default_rng(0))
+        (decisions[label],) = select_terms(record, fit, rng=np.random.default_rng(0)).terms
+    assert decisions["first order"]["term"] == "dead_time" and decisions["first order"]["pinned"]
+    assert decisions["first order"]["delta_chi2"] <= decisions["first order"]["penalty"]
+    assert not decisions["dead time"]["pinned"]
+    assert decisions["dead time"]["delta_chi2"] > 3 * decisions["dead time"]["penalty"]
