@@ -421,31 +421,40 @@ def _delay_kernel(time, signal, lagged, tau, delay, out):
 
 
 @njit(parallel=True, cache=True)
-def _incomplete_reset_kernel(current, strain, retained, fade, scale, out_extra):
-    """Extra strain of :class:`IncompleteReset` per row (see its docstring), shape ``(W, T)``."""
+def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_extra):
+    """Extra strain of :class:`IncompleteReset` per row (see its docstring), shape ``(W, T)``:
+    ``excursion[w]`` is row ``w``'s strain excursion from its first value, ``current`` the
+    drive whose travel fades the retained part."""
     n_sets = out_extra.shape[0]
     n_samples = out_extra.shape[1]
+    row_step = 0 if excursion.shape[0] == 1 else 1
     for w in prange(n_sets):
-        i0 = current[0]
-        reached = 0.0  # largest excursion |i - i0| so far (the virgin territory)
+        row = w * row_step
+        scale = 0.0
+        for k in range(n_samples):
+            scale = max(scale, excursion[row, k])
+        out_extra[w, 0] = 0.0
+        if not scale > 0.0:
+            for k in range(1, n_samples):
+                out_extra[w, k] = 0.0
+            continue
+        reached = 0.0  # largest excursion so far (the virgin territory)
         unreset = 0.0  # virgin extra strain the spring can still reset (normalised)
         kept = 0.0  # retained part (normalised)
-        previous = 0.0
-        out_extra[w, 0] = 0.0
+        previous = excursion[row, 0]
         for k in range(1, n_samples):
-            excursion = abs(current[k] - i0)
-            change = excursion - previous
+            e = excursion[row, k]
+            change = e - previous
             if kept != 0.0 and fade[w] > 0.0:
-                kept *= math.exp(-fade[w] * abs(change))
-            if excursion > reached:
-                grown = (excursion - reached) / scale
-                reached = excursion
-                unreset += grown
+                kept *= math.exp(-fade[w] * abs(current[k] - current[k - 1]))
+            if e > reached:
+                unreset += (e - reached) / scale
+                reached = e
             elif change < 0.0:
                 moved = min(unreset, -change / scale)
                 unreset -= moved
                 kept += retained[w] * moved
-            previous = excursion
+            previous = e
             out_extra[w, k] = strain[w] * (unreset + kept)
 
 
@@ -963,9 +972,9 @@ class InitialState(Effect):
 class IncompleteReset(Effect):
     r"""First-cycle strain: extra strain on the virgin loading, partly kept after unloading.
 
-    With :math:`e_k = |i_k - i_0|` the drive's excursion from its first value,
-    :math:`E = \max_k e_k` the record's largest, and two states (normalised by :math:`E`)
-    updated at every sample:
+    With :math:`e_k = |y_{g,k} - y_{g,0}|` the strain's excursion from its first value (the
+    GPI's output: the reorientation the field has done), :math:`E = \max_k e_k` the
+    record's largest, and two states (normalised by :math:`E`) updated at every sample:
 
     .. math::
 
@@ -976,11 +985,12 @@ class IncompleteReset(Effect):
             \delta = \min\Big(n, \frac{e_{k-1} - e_k}{E}\Big),\quad n \leftarrow n - \delta,\quad
             q \leftarrow q + R\,\delta
 
-        q \leftarrow q\, e^{-\lambda |e_k - e_{k-1}|}, \qquad y = y_g + A\,(n + q)
+        q \leftarrow q\, e^{-\lambda |i_k - i_{k-1}|}, \qquad y = y_g + A\,(n + q)
 
     (:math:`n, q = 0` at the start). So the virgin loading adds the extra strain
-    :math:`A` (at the record's largest excursion, proportionally before it) to the GPI's
-    response; unloading resets it, proportionally to how far the drive comes back, except
+    :math:`A` (at the record's largest excursion, in proportion to the strain before it:
+    the extra reorientation goes with the reorientation) to the GPI's response; unloading
+    resets it, in proportion to how far the strain comes back, except
     the fraction :math:`R`, which stays (:math:`q`); later cycles within the excursion
     already reached add no extra strain and ride on the retained :math:`R A`, fixed
     (:math:`\lambda = 0`) or fading with the drive's further travel (:math:`\lambda > 0`
@@ -1048,17 +1058,22 @@ class IncompleteReset(Effect):
         """Displacement plus the first-cycle extra strain, shape ``(W, T)`` [um]."""
         params = np.asarray(params, dtype=float)
         displacement = np.atleast_2d(np.asarray(displacement, dtype=float))
-        extra = incomplete_reset_strain(current, params[:, 0], params[:, 1], params[:, 2])
+        if not params[:, 0].any():  # off: the displacement itself, bit for bit
+            return displacement
+        extra = incomplete_reset_strain(current, displacement, params[:, 0], params[:, 1], params[:, 2])
         return displacement + extra
 
 
-def incomplete_reset_strain(current, strain, retained, fade):
+def incomplete_reset_strain(current, displacement, strain, retained, fade):
     """The extra strain :math:`A (n + q)` of :class:`IncompleteReset`, shape ``(W, T)`` [um].
 
     Parameters
     ----------
     current : array_like, shape (T,)
-        Drive [A].
+        Drive [A] (its travel fades the retained part).
+    displacement : array_like, shape (T,) or (W, T)
+        The strain the effect acts on [um] (the GPI's output): its excursion from its first
+        value is the reorientation that adds the virgin extra strain.
     strain, retained, fade : array_like, shape (W,)
         :math:`A` [um], :math:`R`, :math:`\\lambda` [1/A].
     """
@@ -1066,10 +1081,13 @@ def incomplete_reset_strain(current, strain, retained, fade):
     strain = np.ascontiguousarray(np.atleast_1d(strain), dtype=float)
     retained = np.ascontiguousarray(np.broadcast_to(np.asarray(retained, dtype=float), strain.shape))
     fade = np.ascontiguousarray(np.broadcast_to(np.asarray(fade, dtype=float), strain.shape))
-    scale = float(np.max(np.abs(current - current[0]))) if current.size else 0.0
+    y = np.atleast_2d(np.asarray(displacement, dtype=float))
+    if y.shape[0] not in (1, strain.size) or y.shape[1] != current.size:
+        raise ValueError(f"incomplete_reset: the displacement has shape {y.shape} for {strain.size} parameter sets and {current.size} samples")
+    excursion = np.ascontiguousarray(np.abs(y - y[:, :1]))
     out = np.zeros((strain.size, current.size))
-    if scale > 0:
-        _incomplete_reset_kernel(current, strain, retained, fade, scale, out)
+    if current.size:
+        _incomplete_reset_kernel(current, excursion, strain, retained, fade, out)
     return out
 
 

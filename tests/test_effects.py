@@ -357,39 +357,70 @@ def signature_lag_dead_time(paper_input, plain_gpi):
     assert np.array_equal(both[0], lagged)
 
 
+def _incomplete_reset_reference(current, y_g, A, R, fade):
+    """The recursion of IncompleteReset's docstring, written out sample by sample."""
+    e = np.abs(y_g - y_g[0])
+    E = e.max()
+    n = q = reached = 0.0
+    out = np.zeros_like(y_g)
+    for k in range(1, y_g.size):
+        q *= math.exp(-fade * abs(current[k] - current[k - 1]))
+        if e[k] > reached:
+            n += (e[k] - reached) / E
+            reached = e[k]
+        elif e[k] < e[k - 1]:
+            moved = min(n, (e[k - 1] - e[k]) / E)
+            n -= moved
+            q += R * moved
+        out[k] = A * (n + q)
+    return out
+
+
 def signature_incomplete_reset(paper_input, plain_gpi):
     """On the paper's input (0 A, a first peak of 5 A at 15 s = the largest excursion, then
-    smaller peaks): the extra strain grows with the current to A at the first peak, falls
-    to R A at the first trough (20 s), stays there (no fade) or fades with the travel, and is 0
-    in the quiet start."""
+    smaller peaks): the extra strain grows with the GPI's strain excursion to A at the first
+    peak, falls toward R A as the strain comes back (proportionally), stays or fades with the
+    drive's travel, and is 0 in the quiet start; the whole record follows the recursion."""
     time, current = paper_input
     m = Model(["incomplete_reset"])
     A, R = 6.0, 0.4
     change = m(m.theta_from_dict({"incomplete_reset_strain": A, "incomplete_reset_retained": R}), time, current) - plain_gpi
     np.testing.assert_allclose(change[time < 10.0], 0.0, atol=1e-12)
-    first_rise = (time >= 10.0) & (time <= 15.0)
-    first_fall = (time > 15.0) & (time <= 20.0)
-    np.testing.assert_allclose(change[first_rise], A * current[first_rise] / 5.0, rtol=1e-12, atol=1e-12)
-    # unloading resets the share (1 - R) proportionally: A (i / 5) + R A (1 - i / 5)
-    expected = A * current[first_fall] / 5.0 + R * A * (1.0 - current[first_fall] / 5.0)
-    np.testing.assert_allclose(change[first_fall], expected, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(change[time > 20.0], R * A, rtol=1e-12)  # fixed afterwards
-    # fading with the travel: q = R A exp(-lambda V') with V' the travel after the first peak
-    fade = 0.05
-    faded = incomplete_reset_strain(current, [A], [R], [fade])[0]
-    assert faded[-1] < R * A * math.exp(-fade * 30.0) and faded[-1] > 0
-    assert np.all(np.diff(faded[time > 20.0]) <= 1e-15)
-    # R = 1: nothing is reset; R = 0: only the virgin loading differs
-    full = incomplete_reset_strain(current, [A], [1.0], [0.0])[0]
-    np.testing.assert_allclose(full[time >= 15.0], A, rtol=1e-12)
-    none = incomplete_reset_strain(current, [A], [0.0], [0.0])[0]
-    np.testing.assert_allclose(none[time >= 20.0], 0.0, atol=1e-12)
-    # an excursion beyond the largest so far (an increasing-amplitude input) adds extra strain again
-    t2 = np.linspace(0, 4, 401)
-    i2 = np.concatenate([np.linspace(0, 2, 101), np.linspace(2, 0, 100)[1:], np.linspace(0, 4, 201)[1:], [4.0]])[: t2.size]
-    extra = incomplete_reset_strain(i2, [A], [0.0], [0.0])[0]
+    excursion = np.abs(plain_gpi - plain_gpi[0])
+    E = excursion.max()
+    peak = int(np.argmax(excursion))  # just after the first reversal at 15 s (Omega's branch switch)
+    assert 15.0 <= time[peak] <= 15.1
+    first_rise = np.arange(np.searchsorted(time, 10.0), peak + 1)
+    assert np.all(np.diff(excursion[first_rise]) >= 0)  # all new (virgin) territory
+    # the virgin loading: the extra strain is A times the strain's share of the largest excursion
+    np.testing.assert_allclose(change[first_rise], A * excursion[first_rise] / E, rtol=1e-12, atol=1e-12)
+    # while the strain comes back monotonically after the peak, the share (1 - R) of what
+    # it gives back is reset: A (e / E) + R A (1 - e / E)
+    falling = np.arange(peak + 1, peak + 400)
+    back = falling[np.cumsum(np.diff(excursion[peak : falling[-1] + 1]) > 0) == 0]
+    assert back.size > 100
+    e_back = excursion[back]
+    np.testing.assert_allclose(change[back], A * e_back / E + R * A * (1.0 - e_back / E), rtol=1e-11, atol=1e-11)
+    np.testing.assert_allclose(change, _incomplete_reset_reference(current, plain_gpi, A, R, 0.0), rtol=1e-9, atol=1e-9)
+    for a, r, fade in ((A, R, 0.0), (A, R, 0.05), (A, 1.0, 0.0), (-3.0, 0.0, 0.0)):
+        got = incomplete_reset_strain(current, plain_gpi, [a], [r], [fade])[0]
+        np.testing.assert_allclose(got, _incomplete_reset_reference(current, plain_gpi, a, r, fade), rtol=1e-11, atol=1e-11)
+    # R = 1: nothing is reset (A from the peak on); a fade lets the retained part decay with the travel
+    full = incomplete_reset_strain(current, plain_gpi, [A], [1.0], [0.0])[0]
+    np.testing.assert_allclose(full[peak:], A, rtol=1e-12)
+    faded = incomplete_reset_strain(current, plain_gpi, [A], [1.0], [0.05])[0]
+    assert 0 < faded[-1] < A * math.exp(-0.05 * 30.0)
+    # an excursion beyond the largest so far (an increasing-amplitude strain) adds extra strain again
+    i2 = np.concatenate([np.linspace(0, 2, 101), np.linspace(2, 0, 100)[1:], np.linspace(0, 4, 201)[1:], [4.0]])
+    y2 = 10.0 * i2  # a strain proportional to the drive
+    extra = incomplete_reset_strain(i2, y2, [A], [0.0], [0.0])[0]
     assert extra[100] == pytest.approx(A * 0.5) and abs(extra[199]) < 1e-12
     assert extra[-1] == pytest.approx(A * 0.5, rel=1e-9)  # only the new 2 A of virgin territory
+    # a batch of displacements: row by row
+    both = incomplete_reset_strain(current, np.vstack([plain_gpi, 2.0 * plain_gpi]), [A, A], [R, R], [0.0, 0.0])
+    np.testing.assert_allclose(both[0], both[1], rtol=1e-12, atol=1e-12)  # the shares, not the sizes, matter
+    with pytest.raises(ValueError, match="incomplete_reset: the displacement has shape"):
+        incomplete_reset_strain(current, plain_gpi[:-1], [A], [R], [0.0])
 
 
 def signature_thermal_two_nodes(paper_input, plain_gpi):
