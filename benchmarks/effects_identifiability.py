@@ -34,7 +34,7 @@ from model import TABLE1, Model, paper_current
 #: typical "on" settings of the general forms (every term of the general form on)
 SETTINGS = {
     "lag": {"lag_tau": 0.02, "lag_delay": 0.03},
-    "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 2.0, "training_shape": 1.5, "training_gain": 0.05},
+    "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 2.0, "training_shape": 1.5, "training_gain": 0.05, "training_width": 0.2},
     "initial_state": {"initial_state_memory": -0.5},
     "incomplete_reset": {"incomplete_reset_strain": 5.0, "incomplete_reset_retained": 0.5, "incomplete_reset_fade": 0.05},
     "creep": {"creep_amplitude": 0.02, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.005, "creep_log_onset": 0.1},

@@ -16,6 +16,8 @@ at one of three stages:
 An input- or state-stage effect whose physics also acts on the strain sets
 :attr:`Effect.acts_on_output` and implements :meth:`Effect.output` too (``training``: the
 virgin material's strain amplitude); its output part runs before the output-stage effects.
+An input-stage effect may also change the play width over the record
+(:meth:`Effect.threshold_scale`: ``training``'s virgin width).
 
 Effects register themselves by name in :data:`EFFECTS` (see :mod:`model.effects`).
 A :class:`Model` applies its effects in the library's canonical order (input stage,
@@ -112,6 +114,12 @@ class Effect:
     def drive(self, params, time, current):  # pragma: no cover - protocol
         """Stage ``"input"``: drive seen by the hysteresis, shape ``(W, T)`` [A]."""
         raise NotImplementedError
+
+    def threshold_scale(self, params, time, drive):
+        """Stage ``"input"``, optional: a factor on every play threshold at each sample, shape
+        ``(W, T)``, or None (the default: the thresholds of the GPI). ``drive`` is the drive
+        this effect receives (after the input effects before it)."""
+        return None
 
     def initial_memory(self, params):  # pragma: no cover - protocol
         """Stage ``"state"``: the operators' initial memory level, shape ``(W,)``."""
@@ -382,9 +390,13 @@ class Model:
         n_sets = theta2.shape[0]
         drive = current
         z0 = 0.0
+        width = None
         for e in self.effects:
             params = theta2[:, self._slices[e.name]]
             if e.stage == "input":
+                scale = e.threshold_scale(params, time, drive)
+                if scale is not None:
+                    width = scale if width is None else width * scale
                 drive = np.asarray(e.drive(params, time, drive), dtype=float)
             elif e.stage == "state":
                 z0 = np.asarray(e.initial_memory(params), dtype=float)
@@ -392,7 +404,7 @@ class Model:
             raise ValueError(f"an input-stage effect returned {drive.shape[0]} rows for {n_sets} parameter sets")
         if not np.isfinite(drive).all():
             raise ValueError("an input-stage effect produced a non-finite drive")
-        y = gpi(theta2[:, : len(THETA_NAMES)], drive, self.n_operators, self.reading, z0)
+        y = gpi(theta2[:, : len(THETA_NAMES)], drive, self.n_operators, self.reading, z0, width)
         if y.ndim == 1:
             y = y[None, :]
         for e in self.effects:

@@ -9,7 +9,7 @@ bit for bit) and a typical "on" setting (:meth:`get_test_parameters`).
 name                  stage    equation (one line)
 ====================  =======  ================================================================
 ``lag``               input    :math:`\tau_L \dot v = i - v`, the GPI sees :math:`u(t) = v(t - d)` (first order plus dead time)
-``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`; strain excursion times :math:`1 + s f`; :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
+``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`; thresholds times :math:`1 + w f`; strain excursion times :math:`1 + s f`; :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
 ``initial_state``     state    operators' initial memory clamped from :math:`z^0` instead of 0
 ``incomplete_reset``  output   :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading with travel
 ``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change
@@ -752,20 +752,22 @@ class Training(Effect):
         \Delta_k = i_k - i_0,
 
         u_k = i_0 + \operatorname{sign}(\Delta_k)\,\max(|\Delta_k| - F f_k,\ 0)\,(1 - g f_k),
-        \qquad y_k = y_{g,k} + s f_k\,(y_{g,k} - y_{g,0})
+        \qquad r_{j,k} = r_j (1 + w f_k), \qquad y_k = y_{g,k} + s f_k\,(y_{g,k} - y_{g,0})
 
     The GPI sees the drive :math:`u` (after ``lag``'s, when both are present: then
-    :math:`i` is the lagged drive), and its output :math:`y_g` is scaled about its first
-    value (before the output-stage effects). :math:`V` is the drive's accumulated travel
+    :math:`i` is the lagged drive) with its play thresholds :math:`r_j` widened by
+    :math:`1 + w f` (the weights stay those of eq. (8)), and its output :math:`y_g` is
+    scaled about its first value (before the output-stage effects). :math:`V` is the drive's accumulated travel
     since the record's start [A] (:func:`accumulated_travel`; the strain part counts the
     commanded current's travel), so the difference fades with the cycling the material has
     done, not with time (a pause does not train it); :math:`f` (:func:`training_fade`) is
     1 on the virgin material and falls to :math:`1/e` after :math:`V_0` of travel. The GPI
-    describes the trained material (:math:`f = 0`); the virgin one differs in three ways:
+    describes the trained material (:math:`f = 0`); the virgin one differs in four ways:
     :math:`i_0` is the drive at the first sample (0 A on the paper's record) and the
     excursion from it is reduced by the extra threshold :math:`F f` (a soft threshold:
-    nothing moves until the drive exceeds it) and scaled by :math:`1 - g f`; and the
-    strain excursion is :math:`1 + s f` times the trained one. The unenergised start
+    nothing moves until the drive exceeds it) and scaled by :math:`1 - g f`; its hysteresis
+    is wider (every play threshold :math:`1 + w f` times the trained one); and the strain
+    excursion is :math:`1 + s f` times the trained one. The unenergised start
     (:math:`\Delta = 0`, :math:`y = y_{g,0}`) is untouched.
 
     Physics: in the virgin (untrained) state the twin boundaries of the MSM crystal must
@@ -774,7 +776,8 @@ class Training(Effect):
     already there; cycling trains the crystal and the difference fades (training lowers
     the twinning stress of Ni-Mn-Ga: e.g. Chmielus et al., "Effects of surface roughness
     and training on the twinning stress of Ni-Mn-Ga single crystals", Acta Mater. 58,
-    2010). Cycling also changes how much of the crystal reorients per cycle (the twin
+    2010); a lower twinning stress is a narrower hysteresis, so the loops narrow as the
+    material trains. Cycling also changes how much of the crystal reorients per cycle (the twin
     structure coarsens or refines, some variants stop taking part), so the strain
     amplitude drifts from the virgin to the trained value over the first cycles. The paper
     (sec. "Magnetic shape memory materials") reports a first cycle that differs from the
@@ -782,7 +785,8 @@ class Training(Effect):
     reorientation ... thus that after first cycle maximum strain is reduced".
     :math:`F > 0`: an extra field threshold; :math:`g > 0`: the virgin material lacks the
     fraction :math:`g` of the drive (the first rising branch is delayed and stretched);
-    :math:`g < 0`: the first cycle sees more drive; :math:`s > 0`: the virgin material's
+    :math:`g < 0`: the first cycle sees more drive; :math:`w > 0`: the virgin loops are
+    wider and narrow with cycling; :math:`s > 0`: the virgin material's
     strain excursion is larger by the fraction :math:`s` and shrinks toward the trained one
     with cycling (the paper's "maximum strain is reduced"), :math:`s < 0`: it grows. The
     fade's shape :math:`p` makes the general form absorb other laws of the same physics: 1
@@ -802,7 +806,12 @@ class Training(Effect):
     :math:`V_0 \to \infty` (never trained) it stops being identifiable. Within the
     record's travel the fade is seen, and the bounds keep :math:`V_0` there. The strain
     scale :math:`s` and the drive scale :math:`g` trade off partly (both change the
-    virgin loops' amplitude; only :math:`g` moves the branches along the current axis).
+    virgin loops' amplitude; only :math:`g` moves the branches along the current axis);
+    the width :math:`w` and the threshold :math:`F` both delay the virgin rising branch,
+    but only :math:`w` also advances the falling one. A constant width is an exact
+    reparametrisation of the GPI (:math:`\alpha` and :math:`\tau` of eq. (8) take it, or,
+    with :math:`\alpha` pinned, the envelopes and weights), so :math:`w` too is identified
+    only through its fading.
     Neither the GPI's return-point memory nor ``initial_state`` (an exact
     reparametrisation, wiped out by the first full excursion) represents the effect.
     Measured on the virtual bench (paper input, Table 1, :math:`g = 0.08`,
@@ -822,8 +831,9 @@ class Training(Effect):
     Parameters: ``training_deficit`` :math:`g` (dimensionless), ``-0.5 <= g <= 0.5``;
     ``training_threshold`` :math:`F` [A], ``0 <= F <= 2``; ``training_travel`` :math:`V_0`
     [A], ``0.5 <= V_0 <= 50``; ``training_shape`` :math:`p`, ``0.5 <= p <= 8``;
-    ``training_gain`` :math:`s` (dimensionless), ``-0.5 <= s <= 0.5``. Off:
-    ``g = F = s = 0`` (the drive is the current and the output the GPI's, bit for bit,
+    ``training_gain`` :math:`s` (dimensionless), ``-0.5 <= s <= 0.5``; ``training_width``
+    :math:`w` (dimensionless), ``-0.5 <= w <= 1``. Off: ``g = F = s = w = 0`` (the drive is
+    the current, the thresholds those of eq. (8) and the output the GPI's, bit for bit,
     whatever :math:`V_0`, :math:`p`).
     """
 
@@ -852,15 +862,19 @@ class Training(Effect):
                 "training_gain", 0.0, -0.5, 0.5, unit="",
                 description="fraction by which the virgin strain excursion exceeds the trained one (negative: falls short)",
             ),
+            Parameter(
+                "training_width", 0.0, -0.5, 1.0, unit="",
+                description="fraction by which the virgin play width (every threshold) exceeds the trained one",
+            ),
         ]
     )  # fmt: skip
     off = {
         "training_deficit": 0.0, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0,
-        "training_gain": 0.0,
+        "training_gain": 0.0, "training_width": 0.0,
     }  # fmt: skip
     summary = (
-        "first-cycle training: excursion soft-thresholded by F f and scaled by 1 - g f, strain excursion "
-        "scaled by 1 + s f, f = exp(-(V/V0)^p)"
+        "first-cycle training: excursion soft-thresholded by F f and scaled by 1 - g f, play width "
+        "1 + w f, strain excursion scaled by 1 + s f, f = exp(-(V/V0)^p)"
     )
     signature = (
         "the response changes with the cycling the material has done (the drive's accumulated travel), "
@@ -871,7 +885,7 @@ class Training(Effect):
     def get_test_parameters(cls):
         return {
             "training_deficit": 0.2, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0,
-            "training_gain": 0.0,
+            "training_gain": 0.0, "training_width": 0.0,
         }  # fmt: skip
 
     @staticmethod
@@ -900,6 +914,15 @@ class Training(Effect):
         kept = np.sign(excursion) * np.maximum(np.abs(excursion) - threshold * fade, 0.0)
         # u = i - (excursion - kept (1 - g f)); every term 0 when g = F = 0, so u == i bit for bit
         return drive - (excursion - kept * (1.0 - deficit * fade))
+
+    def threshold_scale(self, params, time, drive):
+        """The play width in force, ``1 + w f`` on every threshold, shape ``(W, T)``; None where ``w = 0``."""
+        params = self._check(params)
+        width = params[:, 5:6]
+        if not width.any():
+            return None
+        drive = np.atleast_2d(np.asarray(drive, dtype=float))
+        return 1.0 + width * training_fade(accumulated_travel(drive), params[:, 2:3], params[:, 3:4])
 
     def output(self, params, time, current, displacement):
         """The GPI's output with the virgin strain excursion scaled by ``1 + s f``, shape ``(W, T)`` [um]."""

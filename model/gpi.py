@@ -304,7 +304,7 @@ def _directions(current):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
+def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, threshold_scale, out):
     """Fill ``out[w, :]`` with the GPI response of ``theta[w]``, eq. (5) for every parameter set.
 
     Two passes per parameter set: :func:`_branch_values` evaluates, for every sample, the
@@ -318,10 +318,17 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
     four operators at a time into the four partial sums of :func:`_weighted_sum` (the
     same additions in the same order: the output is that of a separate update and sum,
     bit for bit, at about half the cost).
+
+    ``threshold_scale`` of shape ``(1, 1)`` leaves the thresholds as they are; of shape
+    ``(1, T)`` or ``(W, T)`` it scales every threshold at each sample (a time-varying play
+    width: the thresholds used by the update at sample ``k >= 1`` are ``r_j s_k``; the
+    initial memory is clamped with those of eq. (8)).
     """
     n_sets = theta.shape[0]
     n_samples = current.shape[1]
     row_step = 0 if current.shape[0] == 1 else 1  # a 1-row input is shared by all sets
+    scaled = threshold_scale.shape[1] > 1
+    scale_step = 0 if threshold_scale.shape[0] == 1 else 1
     directions = _directions(current)
     for w in prange(n_sets):
         row = w * row_step
@@ -338,7 +345,9 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
         c0, c1, c2, c3 = th[11], th[12], th[13], th[14]
         d0, d1, d2, d3 = th[15], th[16], th[17], th[18]
 
-        thresholds, weights = operator_thresholds_and_weights(alpha, rho, tau, n_operators)
+        base_thresholds, weights = operator_thresholds_and_weights(alpha, rho, tau, n_operators)
+        thresholds = base_thresholds.copy()  # those in force at the present sample
+        scale_row = w * scale_step
         memory = np.empty(n_operators)
         # operators summed four at a time (set here: hoisted out of the prange loop it cost 25 %)
         n4 = n_operators - n_operators % 4
@@ -368,6 +377,9 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, out):
                 last_was_rising_branch = True
                 continue
             moving_env = env[k]
+            if scaled:
+                for j in range(n_operators):
+                    thresholds[j] = base_thresholds[j] * threshold_scale[scale_row, k]
             s0 = 0.0
             s1 = 0.0
             s2 = 0.0
@@ -464,7 +476,25 @@ def _prepare(theta, current, n_operators, reading, initial_memory):
     return theta2, current2, int(n_operators), READINGS[reading], z0, single
 
 
-def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
+def _threshold_scale(threshold_scale, n_sets, n_samples):
+    """``threshold_scale`` as the kernel takes it: ``(1, 1)`` for none, else ``(1 or W, T)``."""
+    if threshold_scale is None:
+        return np.ones((1, 1))
+    scale = np.asarray(threshold_scale, dtype=float)
+    scale2 = np.atleast_2d(scale)
+    if scale.ndim not in (1, 2) or scale2.shape[1] != n_samples or scale2.shape[0] not in (1, n_sets):
+        raise ValueError(
+            f"threshold_scale must have shape ({n_samples},) or ({n_sets}, {n_samples}) (a factor per sample), "
+            f"got shape {scale.shape}"
+        )
+    if not (np.isfinite(scale2).all() and (scale2 > 0).all()):
+        raise ValueError("threshold_scale must be finite and > 0")
+    if n_samples == 1:  # pragma: no cover - gpi needs 2 samples
+        return np.ones((1, 1))
+    return np.ascontiguousarray(scale2)
+
+
+def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, threshold_scale=None):
     """Generalized Prandtl-Ishlinskii response, eqs. (5)-(13), for one or many parameter sets.
 
     Defined for every finite parameter set (see "The whole domain" in the module
@@ -485,6 +515,12 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
     initial_memory : float or array_like of shape (W,), default 0.0
         The level :math:`z^0` each operator's memory starts from at ``t_0``;
         0 is the paper's state. Used by the ``initial_state`` effect.
+    threshold_scale : array_like of shape (T,) or (W, T), optional
+        A factor > 0 on every threshold at each sample: the play width in force there
+        (``training``'s virgin width fading with the travel). The initial memory is
+        clamped with the thresholds of eq. (8) (the state the record starts from is
+        ``initial_memory``'s, not re-clamped by the width; the first factor is not used).
+        None: the thresholds of eq. (8) throughout.
 
     Returns
     -------
@@ -500,8 +536,11 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0):
     theta2, current2, n_operators, rising_is_a, z0, single = _prepare(
         theta, current, n_operators, reading, initial_memory
     )
+    scale = _threshold_scale(threshold_scale, theta2.shape[0], current2.shape[1])
+    if scale.shape[0] > 1:
+        single = False
     out = np.empty((theta2.shape[0], current2.shape[1]))
-    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, out)
+    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, scale, out)
     return out[0] if single else out
 
 

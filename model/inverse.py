@@ -74,7 +74,7 @@ the output only a dead time later, which no per-sample step can reach. A lag is 
 (:math:`i \approx u + \tau_L \dot u`) and steps where the drive has a kink; the exact step
 of a first-order filter with an input linear between samples has a zero near -1 in the
 sample domain, so a step in :math:`u` makes :math:`i` ring with alternating sign, decaying as
-:math:`(-1 + h/3\tau_L)^k`: real, but the current limits may bind. ``training`` (its drive and strain parts) and
+:math:`(-1 + h/3\tau_L)^k`: real, but the current limits may bind. ``training`` (its drive, width and strain parts) and
 ``initial_state`` are inverted as identified (the compensation starts from the model's
 initial, virgin state). ``sensor_drift`` is supported here (an offset per sample, whatever
 its form: the effect's own output on a zero displacement), but it is
@@ -198,15 +198,15 @@ def _evaluate(
     """Model output at the present sample for current ``i``, from the committed state.
 
     ``g``: the 16 envelope/Omega coefficients (rising env 0-3, falling env 4-7, Omega c
-    8-11, Omega d 12-15). ``st``: scalar state (see the kernel). ``tr``: training's five
+    8-11, Omega d 12-15). ``st``: scalar state (see the kernel). ``tr``: training's six
     parameters. ``cp``: creep's saturating amplitude, number of saturating modes, logarithmic
     rate, number of logarithmic modes (``modes`` holds the saturating modes, then the
     logarithmic ones). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
     reference current, node 2's time constant, sensitivity, expansion; ``thermal_c`` the
     two nodes' step coefficients. ``drift``: the sensor drift at this sample.
-    Returns ``(y, y_gpi, u1, u, travel, side, y_strain)``; ``side`` +1 on Omega's c branch
-    (``du >= 0``), -1 on d; ``y_strain`` the strain after training's strain part (the
-    output stage's input).
+    Returns ``(y, y_gpi, u1, u, travel, side, y_strain, width)``; ``side`` +1 on Omega's c
+    branch (``du >= 0``), -1 on d; ``y_strain`` the strain after training's strain part (the
+    output stage's input); ``width`` the factor on the thresholds in force.
     """
     # input stage: lag, then training
     if first:
@@ -224,6 +224,10 @@ def _evaluate(
         excursion = 0.0 if first else u1 - st[2]
         kept = np.sign(excursion) * max(abs(excursion) - tr[1] * fade, 0.0)
         u = u1 - (excursion - kept * (1.0 - tr[0] * fade))
+    # the play width in force (training's virgin width)
+    width = 1.0
+    if has_training and tr[5] != 0.0:
+        width = 1.0 + tr[5] * math.exp(-((travel / tr[2]) ** tr[3]))
     # hysteresis
     if first:
         z0 = st[8]
@@ -240,14 +244,14 @@ def _evaluate(
             env = _env(g[0], g[1], g[2], g[3], u)
             s = 0.0
             for j in range(n_ops):
-                s += weights[j] * max(memory[j], env - thresholds[j])
+                s += weights[j] * max(memory[j], env - thresholds[j] * width)
             y_gpi = _env(g[8], g[9], g[10], g[11], u) + s
             side = 1
         elif dv < 0.0:
             env = _env(g[4], g[5], g[6], g[7], u)
             s = 0.0
             for j in range(n_ops):
-                s += weights[j] * min(memory[j], env + thresholds[j])
+                s += weights[j] * min(memory[j], env + thresholds[j] * width)
             y_gpi = _env(g[12], g[13], g[14], g[15], u) + s
             side = -1
         else:
@@ -291,7 +295,7 @@ def _evaluate(
         else:
             y = y * (1.0 - th[1] * rise) + th[2] * rise
     y = y + drift
-    return y, y_gpi, u1, u, travel, side, y_strain
+    return y, y_gpi, u1, u, travel, side, y_strain, width
 
 
 @njit(cache=True)
@@ -300,7 +304,7 @@ def _commit(
     creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
 ):
     """Advance the state with the chosen current ``i``; returns the output."""
-    y, y_gpi, u1, u, travel, side, y_strain = _evaluate(
+    y, y_gpi, u1, u, travel, side, y_strain, width = _evaluate(
         i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, cp, modes,
         creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
     )
@@ -321,11 +325,11 @@ def _commit(
         if dv > 0.0:
             env = _env(g[0], g[1], g[2], g[3], u)
             for j in range(n_ops):
-                memory[j] = max(memory[j], env - thresholds[j])
+                memory[j] = max(memory[j], env - thresholds[j] * width)
         elif dv < 0.0:
             env = _env(g[4], g[5], g[6], g[7], u)
             for j in range(n_ops):
-                memory[j] = min(memory[j], env + thresholds[j])
+                memory[j] = min(memory[j], env + thresholds[j] * width)
         if creep_on:
             for m in range(int(cp[1]) + int(cp[3])):
                 modes[m] = _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
@@ -355,7 +359,7 @@ def _objective(
     modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
 ):
     """``s (y(s x) - target)`` on side ``s``, ``-inf`` off it (search coordinate ``x = s i``)."""
-    y, _, _, _, _, side, _ = _evaluate(
+    y, _, _, _, _, side, _, _ = _evaluate(
         s * x, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_params,
         modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
     )
@@ -716,7 +720,7 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
         )
     lag_tau = np.ascontiguousarray(lag[:, 0])
     has_training = "training" in model.effect_names
-    training = _effect_columns(model, theta2, "training", 5, [0.0, 0.0, 2.0, 1.0, 0.0])
+    training = _effect_columns(model, theta2, "training", 6, [0.0, 0.0, 2.0, 1.0, 0.0, 0.0])
     if has_training and not ((training[:, 2] > 0).all() and (training[:, 3] > 0).all() and (training[:, 1] >= 0).all()):
         raise ValueError("training: training_threshold >= 0 and training_travel, training_shape > 0 are required")
     creep_on = "creep" in model.effect_names

@@ -64,7 +64,8 @@ def _tanh_form(k0, k1, k2, k3, v):
     return k0 * math.tanh(k1 * v + k2) + k3
 
 
-def gpi_reference(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, law="piecewise"):
+def gpi_reference(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, law="piecewise",
+                  threshold_scale=None):
     """The GPI response of one parameter set, computed the slow and plain way.
 
     Parameters
@@ -78,6 +79,9 @@ def gpi_reference(theta, current, n_operators=12, reading="swapped", initial_mem
     initial_memory : float, default 0.0
         ``z0``, clamped into ``[L_j(v_0), U_j(v_0)]``.
     law : {"piecewise", "clamp"}, default "piecewise"
+    threshold_scale : sequence of float, length T, optional
+        Factor on every threshold at each sample after the first (the initial memory is
+        clamped with the thresholds of eq. (8); the weights stay those of eq. (8)).
 
     Returns
     -------
@@ -108,8 +112,9 @@ def gpi_reference(theta, current, n_operators=12, reading="swapped", initial_mem
     for k, v in enumerate(current):
         rising = _tanh_form(*rising_coefficients, v)
         falling = _tanh_form(*falling_coefficients, v)
-        lower_k = [rising - r for r in thresholds]
-        upper_k = [falling + r for r in thresholds]
+        factor = 1.0 if threshold_scale is None or k == 0 else float(threshold_scale[k])
+        lower_k = [rising - r * factor for r in thresholds]
+        upper_k = [falling + r * factor for r in thresholds]
         for j in range(n_operators):
             if lower_k[j] > upper_k[j]:
                 bounds_cross = True

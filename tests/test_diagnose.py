@@ -83,7 +83,7 @@ def test_screening_grid_classifies_parameters_by_what_they_do():
         ("lag", {"lag_tau"}, set()),  # acts while "off" at 0 and nonlinearly: a value grid
         ("initial_state", {"initial_state_memory"}, set()),
         # its own grid (SCREENING_GRIDS): amplitudes off, the fade's travel scale and shape gridded
-        ("training", {"training_travel", "training_shape"}, {"training_deficit", "training_threshold", "training_gain"}),
+        ("training", {"training_travel", "training_shape"}, {"training_deficit", "training_threshold", "training_gain", "training_width"}),
     ):
         model_e = base_model + name
         grid = screening_grid(model_e, name, model_e.default_theta(), sim.record)
@@ -283,7 +283,7 @@ def test_training_screening_grid_spans_the_records_travel():
     travels = sorted({g["training_travel"] for g in grid[1:]})
     np.testing.assert_allclose(travels, np.geomspace(total / 50, total, 5), rtol=1e-12)
     assert {g["training_shape"] for g in grid[1:]} == {1.0, 3.0, 8.0}
-    assert all(g["training_deficit"] == g["training_threshold"] == g["training_gain"] == 0.0 for g in grid)
+    assert all(g["training_deficit"] == g["training_threshold"] == g["training_gain"] == g["training_width"] == 0.0 for g in grid)
     # a short record's travel is clipped to the parameter's bounds
     short = simulate(None, seed=0, duration=12.0).record
     for g in SCREENING_GRIDS["training"](model_e, short):

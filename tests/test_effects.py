@@ -510,6 +510,27 @@ def signature_training_strain_gain(paper_input, plain_gpi):
                                rtol=1e-13, atol=1e-12)
 
 
+def signature_training_width(paper_input, plain_gpi):
+    """The width part of training: every play threshold times 1 + w f with f the fade of the
+    drive's travel, the weights of eq. (8) unchanged; the quiet start untouched (the initial
+    memory is clamped with the trained thresholds); the virgin loops differ; trained within
+    the record, the end is the plain GPI's."""
+    time, current = paper_input
+    m = Model(["training"])
+    travel = accumulated_travel(current)[0]
+    for width, scale, shape in ((0.3, 5.0, 1.0), (-0.2, 30.0, 2.0)):
+        values = {"training_width": width, "training_travel": scale, "training_shape": shape}
+        y = m(_theta(m, values), time, current)
+        expected = gpi(TABLE1, current, threshold_scale=1.0 + width * np.exp(-((travel / scale) ** shape)))
+        assert np.array_equal(y, expected)
+        assert np.array_equal(y[time < 10.0], plain_gpi[time < 10.0])
+    first_rise = (time > 10.5) & (time <= 15.0)
+    wider = m(_theta(m, {"training_width": 0.3, "training_travel": 5.0}), time, current)
+    assert np.max(np.abs(plain_gpi[first_rise] - wider[first_rise])) > 1.0
+    trained = m(_theta(m, {"training_width": 0.5, "training_travel": 1.0}), time, current)
+    np.testing.assert_allclose(trained[time > 40.0], plain_gpi[time > 40.0], rtol=0, atol=1e-9)
+
+
 def signature_settling_drift(paper_input, plain_gpi):
     """The warm-up term settles: D_w (1 - exp(-t / tau_w)), on top of the polynomial."""
     time, current = paper_input
@@ -532,6 +553,7 @@ SIGNATURES = {
 GENERAL_FORMS = {
     "lag dead time": signature_lag_dead_time,
     "training strain gain": signature_training_strain_gain,
+    "training play width": signature_training_width,
     "thermal two nodes": signature_thermal_two_nodes,
     "logarithmic creep": signature_log_creep,
     "settling drift": signature_settling_drift,

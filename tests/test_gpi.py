@@ -45,8 +45,12 @@ def assert_matches_oracle(theta, current, **options):
     theta2 = np.atleast_2d(theta)
     current2 = np.atleast_2d(current)
     initial = np.broadcast_to(np.asarray(options.pop("initial_memory", 0.0), float), (theta2.shape[0],))
+    scale = options.pop("threshold_scale", None)
+    scale2 = None if scale is None else np.atleast_2d(scale)
     for w in range(theta2.shape[0]):
         row = current2[w if current2.shape[0] > 1 else 0]
+        if scale2 is not None:
+            options["threshold_scale"] = scale2[w if scale2.shape[0] > 1 else 0]
         reference = gpi_reference(theta2[w], row, initial_memory=initial[w], **options)
         np.testing.assert_allclose(fast[w], reference.output, rtol=0, atol=1e-9 * oracle_scale(reference))
 
@@ -183,6 +187,23 @@ def test_initial_memory_matches_oracle(reading, paper_input):
         assert np.ptp(out[:, 0]) > 1.0
     else:  # crossing bounds: max(L, min(U, z0)) = L whatever z0 is
         assert np.ptp(out[:, 0]) == 0.0
+
+
+@pytest.mark.parametrize("reading", ["swapped", "literal"])
+def test_time_varying_thresholds_match_oracle(reading, paper_input):
+    """A play width that changes over the record (thresholds r_j s_k, weights of eq. (8)):
+    as the oracle, row by row; a factor 1 everywhere is the plain GPI bit for bit."""
+    current = paper_input[::10]
+    travel = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(current)))])
+    narrowing = 1.0 + 0.4 * np.exp(-travel / 8.0)  # wider on the virgin cycles
+    widening = 0.7 + 0.3 * travel / travel[-1]
+    assert_matches_oracle(TABLE1, current, reading=reading, threshold_scale=narrowing)
+    thetas = np.stack([TABLE1, np.array(TABLE1) * 1.03])
+    assert_matches_oracle(thetas, current, reading=reading, threshold_scale=np.stack([narrowing, widening]))
+    assert_matches_oracle(thetas, current, reading=reading, threshold_scale=widening)  # one row shared
+    assert np.array_equal(gpi(TABLE1, current, reading=reading, threshold_scale=np.ones_like(current)),
+                          gpi(TABLE1, current, reading=reading))
+    assert np.abs(gpi(TABLE1, current, reading=reading, threshold_scale=narrowing) - gpi(TABLE1, current, reading=reading)).max() > 1.0
 
 
 def test_kernel_tanh_is_within_a_few_ulp_odd_and_monotone():
@@ -466,6 +487,8 @@ def _with(index, value, theta=TABLE1):
         (TABLE1, CURRENT, {"reading": "mirrored"}, r"reading must be one of \['literal', 'swapped'\], got 'mirrored'"),
         (TABLE1, CURRENT, {"initial_memory": np.nan}, r"initial_memory must be finite"),
         (np.stack([TABLE1] * 3), CURRENT, {"initial_memory": [0.0, 1.0]}, r"initial_memory must be a scalar or have shape \(3,\)"),
+        (TABLE1, CURRENT, {"threshold_scale": np.ones(19)}, r"threshold_scale must have shape \(20,\) or \(1, 20\).*got shape \(19,\)"),
+        (TABLE1, CURRENT, {"threshold_scale": np.zeros(20)}, r"threshold_scale must be finite and > 0"),
     ],
 )
 def test_bad_input_raises_clear_value_error(theta, current, options, message):

@@ -141,7 +141,7 @@ def test_a_lag_is_inverted_and_saturates_only_where_the_drive_must_step():
 #: every extra term of each general form on (beyond the test parameters, the simpler forms)
 GENERAL_FORMS = {
     "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 6.0, "training_shape": 1.5,
-                 "training_gain": 0.06},
+                 "training_gain": 0.06, "training_width": 0.3},
     "creep": {"creep_amplitude": 0.03, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.004,
               "creep_log_onset": 0.2},
     "thermal": {"thermal_tau": 8.0, "thermal_sensitivity": 0.02, "thermal_expansion": 1.5, "thermal_tau_core": 120.0,

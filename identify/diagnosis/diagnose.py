@@ -462,9 +462,10 @@ def exact_reparametrisation(record, model: Model, theta, effect_name: str, rtol:
 def _training_grid(model_e: Model, record) -> list[dict]:
     """Screening grid of ``training``: its amplitudes off, its fade on a grid.
 
-    The deficit ``g``, threshold ``F`` and strain gain ``s`` stay off and enter through
-    their Jacobian columns (the drive and the output change smoothly with them near 0; the
-    screening's bounded fit takes the signs of ``g`` and ``s`` and keeps ``F >= 0``). The
+    The deficit ``g``, threshold ``F``, width ``w`` and strain gain ``s`` stay off and enter
+    through their Jacobian columns (the drive, the thresholds and the output change smoothly
+    with them near 0; the screening's bounded fit takes the signs of ``g``, ``w`` and ``s``
+    and keeps ``F >= 0``). The
     fade's travel scale ``V0`` and shape ``p`` do nothing while the amplitudes are 0, and
     the generic rule would spread them over a product grid thinned to a few points; here
     ``V0`` is log-spaced over 1/50 of the record's total drive travel to the whole of it
