@@ -344,6 +344,34 @@ def test_a_targeted_finding_needs_a_practical_size():
         Thresholds(practical_rms_change=-0.1)
 
 
+def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail():
+    """The same practical size rules a candidate that the omnibus tests call for: the repaired
+    first-cycle record of the independent bench (1 kHz) failed the low-frequency test with
+    0.1 sigma of structure, and 'thermal' would have lowered the RMS from 1.012 to 1.009 sigma
+    (0.3 %, 0.08 sigma): no finding, the residual is at the noise level for every practical
+    purpose. A candidate of practical size is still named."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import Adequacy, _inadequate_verdict, _tests_text
+
+    adequacy = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 7.9}, 0.5, 0.5,
+                        0.5, "low_frequency", 0.12)  # fmt: skip
+    fit = SimpleNamespace(rms=1.012, noise=SimpleNamespace(sigma=1.0))
+
+    def verdict(rms_after):
+        best = SimpleNamespace(effect="thermal", delta_bic=362.0, adequate_after=True, explained=0.74, refitted=True,
+                               rms_after=rms_after)  # fmt: skip
+        rnd = SimpleNamespace(fit=fit, refitted=[best], adequacy=adequacy, profile=None)
+        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds()), rnd, _tests_text(adequacy, Thresholds()))
+
+    small = verdict(1.009)
+    assert small.status == "adequate" and small.missing is None
+    assert "'thermal' (delta BIC 362)" in small.reason and "0.30 %" in small.reason and "not a finding" in small.reason
+    assert "low_frequency z 7.9" in small.reason
+    named = verdict(0.99)
+    assert named.status == "missing_effect" and named.missing == "thermal"
+
+
 def test_a_rival_within_the_bic_threshold_blocks_a_name():
     """Two refitted candidates whose delta BICs are less than 10 apart: no strong evidence for
     either, so the best cannot be named (the issue's 'never a wrong name')."""
