@@ -344,6 +344,23 @@ def test_a_targeted_finding_needs_a_practical_size():
         Thresholds(practical_rms_change=-0.1)
 
 
+def test_a_targeted_finding_needs_an_excess_over_the_noise():
+    """A residual already below the noise sigma holds nothing to explain: the independent
+    bench's repaired training record (0.982 sigma) got 'incomplete_reset' from the targeted
+    check (RMS -1.5 %, 0.17 sigma 'explained', down to 0.967 sigma). Creep next to a fitted
+    thermal effect (1.022 sigma) still has 0.21 sigma of excess to explain."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import _excess_over_noise
+
+    below = SimpleNamespace(rms=0.6035, noise=SimpleNamespace(sigma=0.6035 / 0.982))
+    assert _excess_over_noise(below) == 0.0
+    above = SimpleNamespace(rms=1.022, noise=SimpleNamespace(sigma=1.0))
+    assert _excess_over_noise(above) == pytest.approx(0.2109, abs=1e-4)
+    assert _excess_over_noise(above) >= Thresholds().structure_floor
+    assert _excess_over_noise(SimpleNamespace(rms=1.004, noise=SimpleNamespace(sigma=1.0))) < Thresholds().structure_floor
+
+
 def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail():
     """The same practical size rules a candidate that the omnibus tests call for: the repaired
     first-cycle record of the independent bench (1 kHz) failed the low-frequency test with

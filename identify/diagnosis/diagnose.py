@@ -212,7 +212,8 @@ class Thresholds:
         A targeted finding (one that overrides passing noise tests) must matter against
         the noise, not only be detectable: it must lower the residual RMS by at least
         this fraction *and* explain structure of at least ``structure_floor`` sigma RMS,
-        ``sqrt(RMS0^2 - RMS1^2) >= structure_floor sigma``. The floor is the adequacy
+        ``sqrt(RMS0^2 - RMS1^2) >= structure_floor sigma``, out of a residual that holds
+        at least as much in excess of the noise, ``sqrt(RMS0^2 - sigma^2)``. The floor is the adequacy
         rule's own (a misfit below it is negligible when an omnibus test sees it; the
         same holds when a targeted test does); at the noise level it corresponds to an
         RMS change of 0.5 %, and the RMS change asked for is twice that: 1 % is about
@@ -1717,7 +1718,7 @@ def _targeted_check(s: _Setting, rnd: _Round, others: list, ranking: list) -> tu
         top = confirmed[0]
         if (
             top.delta_bic > thresholds.bic_significant and top.adequate_after and _practical(fit, top, thresholds)
-            and _rival(top, confirmed, thresholds) is None
+            and _excess_over_noise(fit) >= thresholds.structure_floor and _rival(top, confirmed, thresholds) is None
         ):
             targeted = top
     return ranking, targeted
@@ -1744,13 +1745,22 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
     small = [c for c in ranking if c.refitted and c.delta_bic > thresholds.bic_significant]
     if small:
         change, size = _practical_size(rnd.fit, small[0])
-        reason += (
-            f" The targeted refit of '{small[0].effect}' (delta BIC {small[0].delta_bic:.0f}) changes the RMS by "
-            f"{100 * change:.2f} % and explains {size:.2f} sigma of structure: below the practical size "
-            f"({100 * thresholds.practical_rms_change:g} % and {thresholds.structure_floor:g} sigma)"
-            + ("" if small[0].adequate_after else ", and it leaves structure")
-            + ", so it is not a finding."
-        )
+        excess = _excess_over_noise(rnd.fit)
+        if _practical(rnd.fit, small[0], thresholds) and excess < thresholds.structure_floor:
+            reason += (
+                f" The targeted refit of '{small[0].effect}' (delta BIC {small[0].delta_bic:.0f}) changes the RMS by "
+                f"{100 * change:.2f} %, but the residual's RMS ({rnd.fit.rms / rnd.fit.noise.sigma:.3f} sigma) holds "
+                f"{excess:.2f} sigma in excess of the noise, below the {thresholds.structure_floor:g} sigma floor: "
+                f"there is nothing to explain, so it is not a finding."
+            )
+        else:
+            reason += (
+                f" The targeted refit of '{small[0].effect}' (delta BIC {small[0].delta_bic:.0f}) changes the RMS by "
+                f"{100 * change:.2f} % and explains {size:.2f} sigma of structure: below the practical size "
+                f"({100 * thresholds.practical_rms_change:g} % and {thresholds.structure_floor:g} sigma)"
+                + ("" if small[0].adequate_after else ", and it leaves structure")
+                + ", so it is not a finding."
+            )
     return _Verdict("adequate", None, reason)
 
 
@@ -2042,6 +2052,14 @@ def _practical_size(fit: FitResult, candidate: CandidateResult) -> tuple[float, 
     change = (rms0 - rms1) / rms0 if rms0 > 0 else 0.0
     size = math.sqrt(max(rms0 * rms0 - rms1 * rms1, 0.0)) / float(fit.noise.sigma)
     return change, size
+
+
+def _excess_over_noise(fit: FitResult) -> float:
+    """The residual's RMS in excess of the noise, ``sqrt(max(RMS^2 - sigma^2, 0)) / sigma``: a
+    targeted finding must explain structure that is there (a residual at or below the noise
+    sigma holds none; a candidate that lowers it further fits the noise)."""
+    rms, sigma = float(fit.rms), float(fit.noise.sigma)
+    return math.sqrt(max(rms * rms - sigma * sigma, 0.0)) / sigma
 
 
 def _practical(fit: FitResult, candidate: CandidateResult, thresholds: Thresholds) -> bool:
