@@ -901,14 +901,19 @@ class Training(Effect):
             )
         return params
 
+    @staticmethod
+    def _fade(params, drive):
+        """The fade ``f`` of the travel of ``drive`` (shape ``(T,)`` or ``(W, T)``), shape ``(W, T)``."""
+        return training_fade(accumulated_travel(drive), params[:, 2:3], params[:, 3:4])
+
     def drive(self, params, time, current):
         """Drive with the fading first-cycle difference, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
         params = self._check(params)
-        deficit, threshold, travel_scale, shape = (params[:, c : c + 1] for c in range(4))
+        deficit, threshold = params[:, 0:1], params[:, 1:2]
         drive = np.atleast_2d(np.asarray(current, dtype=float))
         if drive.shape[0] not in (1, params.shape[0]):
             raise ValueError(f"training: the drive has {drive.shape[0]} rows for {params.shape[0]} parameter sets")
-        fade = training_fade(accumulated_travel(drive), travel_scale, shape)
+        fade = self._fade(params, drive)
         excursion = drive - drive[:, 0:1]
         # soft threshold: the excursion less F f toward the start (0 inside the threshold)
         kept = np.sign(excursion) * np.maximum(np.abs(excursion) - threshold * fade, 0.0)
@@ -921,8 +926,7 @@ class Training(Effect):
         width = params[:, 5:6]
         if not width.any():
             return None
-        drive = np.atleast_2d(np.asarray(drive, dtype=float))
-        return 1.0 + width * training_fade(accumulated_travel(drive), params[:, 2:3], params[:, 3:4])
+        return 1.0 + width * self._fade(params, drive)
 
     def output(self, params, time, current, displacement):
         """The GPI's output with the virgin strain excursion scaled by ``1 + s f``, shape ``(W, T)`` [um]."""
@@ -931,8 +935,7 @@ class Training(Effect):
         gain = params[:, 4:5]
         if not gain.any():  # off: the displacement itself, bit for bit
             return y
-        fade = training_fade(accumulated_travel(np.atleast_2d(np.asarray(current, dtype=float))), params[:, 2:3], params[:, 3:4])
-        return y + gain * fade * (y - y[:, 0:1])
+        return y + gain * self._fade(params, current) * (y - y[:, 0:1])
 
 
 @register_effect
