@@ -1899,22 +1899,21 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
     best = refitted[0] if refitted else None
     significant = best is not None and best.delta_bic > thresholds.bic_significant
     rival = _rival(best, refitted, thresholds) if best is not None else None
-    if significant and best.adequate_after and rival is None and not _practical(rnd.fit, best, thresholds):
-        # the residual is at the noise level but for a small structure: the best candidate
-        # absorbs it, yet what it explains does not matter against the noise
-        change, size = _practical_size(rnd.fit, best)
-        verdict = _Verdict("adequate", None, (
-            f"The residual is at the noise level up to a small misfit ({tests_text[0].lower()}{tests_text[1:]}); "
-            f"the best candidate, '{best.effect}' (delta BIC {best.delta_bic:.0f}), would change the RMS by "
-            f"{100 * change:.2f} % and explain {size:.2f} sigma of structure: below the practical size "
-            f"({100 * thresholds.practical_rms_change:g} % and {thresholds.structure_floor:g} sigma), so it is not "
-            f"a finding and nothing is named."
-        ))  # fmt: skip
-    elif significant and best.adequate_after and rival is None:
-        verdict = _Verdict("missing_effect", best.effect, (
-            f"Adding '{best.effect}' explains {100 * best.explained:.0f} % of the misfit "
-            f"(delta BIC {best.delta_bic:.0f}) and leaves a residual consistent with the noise."
-        ))  # fmt: skip
+    if significant and best.adequate_after and rival is None:
+        if _practical(rnd.fit, best, thresholds):
+            verdict = _Verdict("missing_effect", best.effect, (
+                f"Adding '{best.effect}' explains {100 * best.explained:.0f} % of the misfit "
+                f"(delta BIC {best.delta_bic:.0f}) and leaves a residual consistent with the noise."
+            ))  # fmt: skip
+        else:  # the best candidate absorbs a small structure that does not matter against the noise
+            change, size = _practical_size(rnd.fit, best)
+            verdict = _Verdict("adequate", None, (
+                f"The residual is at the noise level up to a small misfit ({tests_text[0].lower()}{tests_text[1:]}); "
+                f"the best candidate, '{best.effect}' (delta BIC {best.delta_bic:.0f}), would change the RMS by "
+                f"{100 * change:.2f} % and explain {size:.2f} sigma of structure: below the practical size "
+                f"({100 * thresholds.practical_rms_change:g} % and {thresholds.structure_floor:g} sigma), so it is "
+                f"not a finding and nothing is named."
+            ))  # fmt: skip
     elif significant and thresholds.try_pairs and best.explained >= thresholds.explained_minor:
         # No single candidate leaves the noise (or two do about equally well), so the best one
         # alone cannot be trusted: pairs are tried
