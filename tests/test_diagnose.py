@@ -404,3 +404,56 @@ def test_a_rival_within_the_bic_threshold_blocks_a_name():
     close = cand("thermal", 3705.0)
     assert _rival(best, [best, close], Thresholds()) is close
     assert _rival(best, [best, cand("thermal", 3705.0, refitted=False)], Thresholds()) is None  # screening numbers
+
+
+def test_pair_pool_takes_every_candidate_with_a_significant_gain():
+    """Pairs are tried among every candidate whose short refit gains a significant delta BIC
+    on the working copy (not only the best three): a wrong effect can absorb more of two
+    hidden ones alone than either of them."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import _pair_pool, _Round
+    from model import get_effect
+
+    base = normalised_model(Model())
+    n_eff, chi2_0 = 4000.0, 8000.0
+    thresholds = Thresholds()
+
+    def chi2_for(bic, name):  # the short chi-square that gives this working-copy delta BIC
+        k = len(get_effect(name).parameters)
+        return chi2_0 / np.exp((bic + k * np.log(n_eff)) / n_eff)
+
+    gains = {"creep": 900.0, "thermal": 700.0, "training": 500.0, "lag": 40.0, "sensor_drift": 2.0}
+    short = {name: (chi2_for(bic, name), (base + name).default_theta()) for name, bic in gains.items()}
+    rnd = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), chi2_0, n_eff, short=short)
+    pool = _pair_pool(SimpleNamespace(model=base), rnd, thresholds)
+    assert [p[0] for p in pool] == ["creep", "thermal", "training", "lag"]  # sensor_drift: 2 < bic_significant
+    assert all(p[1].names == (base + p[0]).names for p in pool)
+
+
+def test_a_better_baseline_keeps_the_candidates_basins():
+    """What a round reached with each candidate (short refit, whole-record refit) is a start of
+    the same candidate's short refit in the next round, against the better baseline."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import _carried_starts, _carry, _Round
+
+    base = normalised_model(Model())
+    model_lag = base + "lag"
+    theta = model_lag.default_theta()
+    theta[model_lag.names.index("lag_tau")] = 0.02
+    refit_theta = theta.copy()
+    refit_theta[model_lag.names.index("lag_tau")] = 0.03
+    refitted = SimpleNamespace(effect="lag", fit=SimpleNamespace(model=model_lag, theta=refit_theta))
+    first = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), 1.0, 1.0,
+                   short={"lag": (1.0, theta)}, refitted=[refitted])  # fmt: skip
+    carried = _carry(first)
+    second = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), 1.0, 1.0, carried=carried)
+    starts = _carried_starts(second, base + "lag", "lag")
+    assert [s[model_lag.names.index("lag_tau")] for s in starts] == [0.02, 0.03]
+    # a round after that keeps them too, and another candidate's model gets none of them
+    assert len(_carry(second)["lag"]) == 2
+    assert _carried_starts(second, base + "creep", "creep") == []
+    # a start of another threshold sign is not one of this model's
+    other_sign = with_threshold_sign(model_lag, 1 if model_lag.parameters["alpha"].value < 0 else -1)
+    assert _carried_starts(second, other_sign, "lag") == []
