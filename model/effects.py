@@ -1139,7 +1139,11 @@ class Creep(Effect):
     value is the GPI's), so it does not trade off with the GPI's scale. ``d = 0`` is a
     single exponential, a wide spectrum (2-4 decades) is logarithmic *within* its span.
     This is the linear creep operator of Krejci and Kuhnen (IEE Proc. Control Theory
-    Appl., 2001), with the weights tied to one amplitude and a width.
+    Appl., 2001), with the weights tied to one amplitude and a width. :math:`A` is signed,
+    like :math:`\gamma`: :math:`A < 0` is the relaxation of the other sign, an output that
+    moves :math:`(1 + |A|)\Delta` at once and relaxes back by :math:`|A|\Delta` over the
+    spectrum (anelastic recovery: the spring and the sample's elastic part give back some
+    of a fast change); as with :math:`A > 0` the final value is the GPI's.
 
     **Logarithmic creep** (:math:`\gamma`, :math:`t_0`): after a step :math:`\Delta` the
     output keeps growing by :math:`\gamma\Delta` per decade of elapsed time,
@@ -1156,13 +1160,16 @@ class Creep(Effect):
     until the twinning stress balances them; thermally activated boundary motion gives
     the logarithmic law.
 
+    Trade-offs with the other effects: a fast saturating creep (:math:`\tau` of a few
+    sample steps) acts like a lag of the output (:math:`A > 0`) or a lead (:math:`A < 0`).
     Trade-offs within the effect: :math:`\tau` with :math:`d` (a wide spectrum with a
     shorter centre resembles a narrower one with a longer centre over a record), and
     :math:`A` with :math:`\gamma` where the saturating spectrum is wide (both logarithmic
     within the span). Measured Jacobian rank with the GPI on the paper's input:
     ``docs/effects.md``.
 
-    Parameters: ``creep_amplitude`` (fraction of a step that creeps, 0-0.5),
+    Parameters: ``creep_amplitude`` (fraction of a step that creeps, -0.5-0.5; < 0
+    relaxes back),
     ``creep_tau`` [s] (central time constant, 0.01-100), ``creep_decades`` (spectrum
     width, 0-4), ``creep_log_rate`` :math:`\gamma` (fraction of a step per decade of time,
     -0.1-0.1), ``creep_log_onset`` :math:`t_0` [s] (0.001-10). Off: ``creep_amplitude = 0``
@@ -1173,7 +1180,10 @@ class Creep(Effect):
     stage = "output"
     parameters = ParameterSet(
         [
-            Parameter("creep_amplitude", 0.0, 0.0, 0.5, unit="", description="fraction of a displacement step that creeps"),
+            Parameter(
+                "creep_amplitude", 0.0, -0.5, 0.5, unit="",
+                description="fraction of a displacement step that creeps (< 0: that relaxes back after an overshoot)",
+            ),
             Parameter("creep_tau", 1.0, 0.01, 100.0, unit="s", description="central creep time constant (geometric mean)"),
             Parameter("creep_decades", 1.0, 0.0, 4.0, unit="decades", description="width of the log-spaced creep spectrum"),
             Parameter(

@@ -118,7 +118,7 @@ def test_spec_parsing():
     [
         ("heat", "unknown effect or missing '=value'.*thermal \\(thermal_tau"),
         ("thermal_speed=3", "unknown parameter 'thermal_speed'.*sensor_drift"),
-        ("creep_amplitude=2", "creep_amplitude=2.0 is outside its bounds \\[0.0, 0.5\\]"),
+        ("creep_amplitude=2", "creep_amplitude=2.0 is outside its bounds \\[-0.5, 0.5\\]"),
         ("lag_tau=fast", "value of 'lag_tau' must be a number"),
         ("lag_tau=nan", "outside its bounds"),
         ("thermal,,lag", "item 2 is empty"),

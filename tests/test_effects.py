@@ -175,6 +175,12 @@ def signature_creep(paper_input, plain_gpi):
     assert 0.8 * amplitude * step < still_to_creep <= amplitude * step
     assert abs(y[-1] - y[i_stop]) > 0.5 * still_to_creep  # most of it happens within the record
     assert np.all(np.diff(y[i_stop:]) > 0)  # monotone approach
+    # A signed amplitude: A < 0 overshoots by |A| times what is still to creep and relaxes back,
+    # the same modes with the other sign (the deviation from y_g is exactly antisymmetric in A)
+    y_back = creep.output(np.array([[-amplitude, tau, decades, 0.0, 0.1]]), time, np.zeros_like(time), y_g[None, :])[0]
+    np.testing.assert_allclose(y_back - y_g, -(y - y_g), rtol=1e-12, atol=1e-11)
+    assert y_back[i_stop] > step and np.all(np.diff(y_back[i_stop:]) < 0)  # beyond the step, then back
+    assert abs(y_back[-1] - step) < abs(y_back[i_stop] - step)
     # The time constants: log-spaced, geometric mean tau, span 10**decades; decades=0 -> single.
     assert taus.size == CREEP_MODES
     np.testing.assert_allclose(np.exp(np.mean(np.log(taus))), tau, rtol=1e-12)
