@@ -53,7 +53,9 @@ Method
    from each refitted candidate's GPI parameters, and when that beats the baseline the
    whole candidate stage is repeated from the better baseline (a candidate must not be
    credited with the baseline's own unfinished optimisation; e.g. a virgin initial
-   state on the paper's input is exactly absorbed by a re-parametrised plain GPI).
+   state on the paper's input is exactly absorbed by a re-parametrised plain GPI); each
+   candidate's short refit then also starts from what the earlier round reached with it
+   (:func:`_carry`).
    When the best refitted candidate still leaves structure, it is
    also fitted from scratch with the other sign of the pinned thresholds (a misspecified
    plain GPI can settle on the other sign, a different model, and refits from its basin
