@@ -288,8 +288,7 @@ _ABSORBED = (
 
 
 @pytest.mark.parametrize("hidden", [
-    pytest.param(("lag", "sensor_drift"), marks=pytest.mark.xfail(
-        strict=True, reason=f"{_ABSORBED}: creep (fast modes and slow growth) takes lag + drift and is named first")),
+    ("lag", "sensor_drift"),
     ("thermal", "lag"),
     pytest.param(("creep", "thermal"), marks=pytest.mark.xfail(
         strict=True, reason=f"{_ABSORBED}: with the first effect added the record is adequate, the second is not found")),
