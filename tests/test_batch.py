@@ -364,3 +364,14 @@ def test_a_run_that_did_not_converge_makes_the_batch_exit_1(tmp_path, capsys):
     assert "1 of the finished NOT converged" in (tmp_path / "runs" / "summary.md").read_text()
     assert B._is_finding("step 40: ...\nexit code 1: the chain did NOT CONVERGE (raise --max-steps to extend it)\n")
     assert not B._is_finding("exit code 1: the chain did NOT CONVERGE\nerror: unexpected OSError: disk full\n")
+
+
+def test_a_job_imports_this_very_package():
+    """A job's PYTHONPATH starts with the folder that holds the ``identify`` and ``model``
+    packages (so a batch runs this checkout's code even where the package is not installed)."""
+    import os
+
+    from identify.workflows.batch import _job_environment
+
+    first = Path(_job_environment(1)["PYTHONPATH"].split(os.pathsep)[0])
+    assert (first / "identify" / "__init__.py").is_file() and (first / "model" / "__init__.py").is_file()

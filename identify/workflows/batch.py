@@ -892,7 +892,7 @@ def _job_environment(threads: int) -> dict:
         env[name] = str(threads)
     env["PYTHONUNBUFFERED"] = "1"
     # the job must import this very package, wherever the batch was started from
-    package_root = str(Path(__file__).resolve().parents[1])
+    package_root = str(Path(__file__).resolve().parents[2])  # the folder holding identify/ (and model/)
     env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
 

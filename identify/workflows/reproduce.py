@@ -360,7 +360,7 @@ def locate_data(manifest: dict, directory, data=None) -> DataLocation:
         bases = [Path.cwd()]
         if manifest.get("cwd"):
             bases.append(Path(manifest["cwd"]))
-        bases += [Path(__file__).resolve().parents[1], Path(directory).resolve().parent]
+        bases += [Path(__file__).resolve().parents[2], Path(directory).resolve().parent]
         candidates = [(p, None)] if p.is_absolute() else [(b / p, b) for b in bases]
     found = next(((c, b) for c, b in candidates if c.is_file()), None)
     if found is None:
@@ -732,7 +732,7 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     if threads is not None:
         for name in _THREAD_VARIABLES:
             env[name] = str(threads)
-    package_root = str(Path(__file__).resolve().parents[1])
+    package_root = str(Path(__file__).resolve().parents[2])  # the folder holding identify/ (and model/)
     env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     import contextlib
 
