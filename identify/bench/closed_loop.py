@@ -238,7 +238,7 @@ def _run_study(out: Path, record: Path, chosen: list, seed: int, study_options, 
     argv = ["study", str(record), "--out", str(study_dir), "--seed", str(seed), "--progress", "off", "--no-report",
             "--effects", ",".join(chosen) or "none", *study_options]  # fmt: skip
     env = dict(os.environ)
-    package_root = str(Path(__file__).resolve().parent.parent)
+    package_root = str(Path(__file__).resolve().parents[2])  # the folder holding identify/ (and model/)
     env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     completed = subprocess.run([sys.executable, "-m", "identify", *argv], env=env, capture_output=True, text=True)
     not_converged = completed.returncode == 1 and "NOT CONVERGE" in completed.stderr  # a result all the same
