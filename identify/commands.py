@@ -24,6 +24,26 @@ COMMANDS = {
 PARENT_VARIABLE = "IDENTIFY_PARENT_PID"
 
 
+def package_root():
+    """The folder that holds this package (``identify/`` and ``model/``: a checkout's root), a
+    :class:`pathlib.Path`."""
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[1]
+
+
+def package_environment(env=None) -> dict:
+    """A copy of ``env`` (default :data:`os.environ`) whose ``PYTHONPATH`` starts with
+    :func:`package_root`, so that a subprocess ``python -m identify ...`` runs this very code,
+    installed or not, wherever it is started."""
+    import os
+
+    env = dict(os.environ if env is None else env)
+    root = str(package_root())
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
+
+
 def add_command_arguments(parser, module) -> None:
     """The options of command ``module`` (its ``add_arguments``) and the shared ``-v/-q``
     (:func:`identify.logs.add_verbosity_arguments`): the command line's parser of a command,

@@ -229,18 +229,17 @@ def _diagnosed(out: Path, record: Path, data, seed: int, say) -> tuple[str, str 
 def _run_study(out: Path, record: Path, chosen: list, seed: int, study_options, say) -> Path:
     """``out/study``: the study of the GPI with the ``chosen`` effects, run as ``python -m
     identify study`` in a subprocess (resumable); a chain not converged is a result all the same."""
-    import os
     import subprocess
     import sys
+
+    from ..commands import package_environment
 
     study_dir = out / "study"
     say(f"study with effects {chosen or 'none'} into {study_dir}")
     argv = ["study", str(record), "--out", str(study_dir), "--seed", str(seed), "--progress", "off", "--no-report",
             "--effects", ",".join(chosen) or "none", *study_options]  # fmt: skip
-    env = dict(os.environ)
-    package_root = str(Path(__file__).resolve().parents[2])  # the folder holding identify/ (and model/)
-    env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    completed = subprocess.run([sys.executable, "-m", "identify", *argv], env=env, capture_output=True, text=True)
+    completed = subprocess.run([sys.executable, "-m", "identify", *argv], env=package_environment(), capture_output=True,
+                               text=True)  # fmt: skip
     not_converged = completed.returncode == 1 and "NOT CONVERGE" in completed.stderr  # a result all the same
     if completed.returncode != 0 and not not_converged:
         raise RuntimeError(f"study exited with {completed.returncode}:\n{completed.stdout}{completed.stderr}")

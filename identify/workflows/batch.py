@@ -887,13 +887,12 @@ def _is_finding(log_text: str) -> bool:
 
 
 def _job_environment(threads: int) -> dict:
-    env = dict(os.environ)
+    from ..commands import package_environment
+
+    env = package_environment()  # the job must import this very package, wherever the batch was started from
     for name in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         env[name] = str(threads)
     env["PYTHONUNBUFFERED"] = "1"
-    # the job must import this very package, wherever the batch was started from
-    package_root = str(Path(__file__).resolve().parents[2])  # the folder holding identify/ (and model/)
-    env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
 
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import subprocess
 import sys
 from dataclasses import asdict, dataclass, field
@@ -40,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..commands import package_environment, package_root
 from ..data.fileio import atomic_write
 
 __all__ = [
@@ -360,7 +360,7 @@ def locate_data(manifest: dict, directory, data=None) -> DataLocation:
         bases = [Path.cwd()]
         if manifest.get("cwd"):
             bases.append(Path(manifest["cwd"]))
-        bases += [Path(__file__).resolve().parents[2], Path(directory).resolve().parent]
+        bases += [package_root(), Path(directory).resolve().parent]
         candidates = [(p, None)] if p.is_absolute() else [(b / p, b) for b in bases]
     found = next(((c, b) for c, b in candidates if c.is_file()), None)
     if found is None:
@@ -727,13 +727,11 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
             "Remove it, or pass --out NEWDIR"
         )
     args = rerun_arguments(manifest, location.argument, out)
-    env = dict(os.environ)
+    env = package_environment()
     threads = _recorded_threads(directory)
     if threads is not None:
         for name in _THREAD_VARIABLES:
             env[name] = str(threads)
-    package_root = str(Path(__file__).resolve().parents[2])  # the folder holding identify/ (and model/)
-    env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     import contextlib
 
     with contextlib.ExitStack() as stack:
