@@ -426,7 +426,7 @@ def test_pair_pool_takes_every_candidate_with_a_significant_gain():
     gains = {"creep": 900.0, "thermal": 700.0, "training": 500.0, "lag": 40.0, "sensor_drift": 2.0}
     short = {name: (chi2_for(bic, name), (base + name).default_theta()) for name, bic in gains.items()}
     rnd = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), chi2_0, n_eff, short=short)
-    pool = _pair_pool(SimpleNamespace(model=base), rnd, thresholds)
+    pool = _pair_pool(rnd, thresholds)
     assert [p[0] for p in pool] == ["creep", "thermal", "training", "lag"]  # sensor_drift: 2 < bic_significant
     assert all(p[1].names == (base + p[0]).names for p in pool)
 

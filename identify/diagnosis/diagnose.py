@@ -1676,6 +1676,14 @@ def _diagnosis_rounds(s: _Setting, fit: FitResult) -> _Round:
     return rnd
 
 
+def _working_copy_delta_bic(rnd: _Round, chi2: float, k: int) -> float:
+    """Delta BIC on the working copy of a model with ``k`` more free parameters than the
+    baseline reaching chi-square ``chi2`` there: ``n ln(chi2_0 / chi2) - k ln n``, ``n`` the
+    baseline's effective sample count on the working copy."""
+    n_eff = rnd.n_eff_small
+    return n_eff * math.log(rnd.chi2_0_small / max(chi2, 1e-300)) - k * math.log(n_eff)
+
+
 def _unrefitted_candidates(rnd: _Round) -> list:
     """Ranking entries of the candidates not refitted (nor failed), by falling delta BIC: their
     numbers come from the working copy (the short refit, or the screening when the baseline
@@ -1694,7 +1702,7 @@ def _unrefitted_candidates(rnd: _Round) -> list:
         others.append(
             CandidateResult(
                 s.effect, s, False, fit.rms * math.sqrt(chi2_after / chi2_0_small), None,
-                float(n_eff_small * math.log(chi2_0_small / chi2_after) - k * math.log(n_eff_small)), float(n_eff_small),
+                float(_working_copy_delta_bic(rnd, chi2_after, k)), float(n_eff_small),
                 _explained(excess_small, excess_small - (chi2_0_small - chi2_after)) if excess_small > 0 else 0.0,
                 None, {}, {n: float(theta_after[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names},
             )
@@ -1812,7 +1820,7 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     common to all of them can be named.
     """
     work, fit, thresholds = s.work, rnd.fit, s.thresholds
-    pool = _pair_pool(fit, rnd, thresholds)
+    pool = _pair_pool(rnd, thresholds)
     shorts = []
     for one, other in itertools.combinations(pool, 2):
         s.say(f"short refit with '{one[0]}' and '{other[0]}' together")
@@ -1822,11 +1830,10 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     pairs_tried, common, ambiguous_pairs = [], None, []
     if not shorts:
         return pairs_tried, common, ambiguous_pairs
-    n_eff_small, chi2_0_small = rnd.n_eff_small, rnd.chi2_0_small
 
     def short_bic(item):
         k = sum(len(get_effect(n).parameters) for n in (item[3][0], item[4][0]))
-        return n_eff_small * math.log(chi2_0_small / max(item[0], 1e-300)) - k * math.log(n_eff_small)
+        return _working_copy_delta_bic(rnd, item[0], k)
 
     top_bic = max(short_bic(item) for item in shorts)
     competitive = [item for item in shorts if short_bic(item) >= top_bic - thresholds.bic_significant]
@@ -2143,23 +2150,21 @@ def _candidates_text(refitted, pairs) -> str:
 PAIR_POOL = None
 
 
-def _pair_pool(fit, rnd: _Round, thresholds) -> list:
+def _pair_pool(rnd: _Round, thresholds) -> list:
     """The most promising candidates (at most :data:`PAIR_POOL`) as ``(name, model_e, theta_e)``:
     the refitted ones by delta BIC (the baseline's threshold sign only), then the short refits
     by chi-square; each with a significant gain (delta BIC on the whole record, or on the
     working copy for a short refit)."""
-    pool, seen = [], set()
+    fit, pool, seen = rnd.fit, [], set()
     for c in rnd.refitted:
         if c.delta_bic > thresholds.bic_significant and c.fit is not None and c.effect not in seen:
             model_e = fit.model + c.effect
             pool.append((c.effect, model_e, _embed(c.fit.model, c.fit.theta, model_e)))
             seen.add(c.effect)
-    n_eff, chi2_0 = rnd.n_eff_small, rnd.chi2_0_small
     for name in sorted(rnd.short, key=lambda n: rnd.short[n][0]):
-        chi2 = max(rnd.short[name][0], 1e-300)
-        short_bic = n_eff * math.log(chi2_0 / chi2) - len(get_effect(name).parameters) * math.log(n_eff)
-        if name not in seen and short_bic > thresholds.bic_significant:
-            pool.append((name, fit.model + name, rnd.short[name][1]))
+        chi2, theta = rnd.short[name]
+        if name not in seen and _working_copy_delta_bic(rnd, chi2, len(get_effect(name).parameters)) > thresholds.bic_significant:
+            pool.append((name, fit.model + name, theta))
             seen.add(name)
     return pool if PAIR_POOL is None else pool[:PAIR_POOL]
 
