@@ -145,3 +145,56 @@ def test_omega_sign_flip_is_exact_and_removed_by_the_normalisation():
     normalised = normalised_model(model)
     assert not normalised.in_bounds(flipped)[0] and normalised.in_bounds(theta)[0]
     assert normalised.parameters["c1"].lower > 0 and normalised.parameters["d1"].lower > 0
+
+
+#: A least-squares optimum of the plain GPI on ``simulate(fs=5.0, seed=4)`` (operator bounds
+#: crossing by 0.05 A), full precision: the optimum sits on a kink of the output, and the
+#: central-difference Jacobian straddles it at some sample.
+ON_A_KINK = [-0.1993, 5.368413917504415, 0.08811572446321304, 8.48501838879839, 0.510738605759516,
+             -0.07050528754995748, -6.027167517446105, 3.3591999552580685, 1.4119062624186147,
+             -0.9102081263168071, 3.713911057355315, 2.1045031244118095, 3.855273550938752,
+             -6.712651859418651, 24.820831651958677, 2.616140718884239, 4.486055891429685,
+             -5.657917151568709, 27.25770393811432]  # fmt: skip
+
+
+def _kink_problem():
+    from identify.bench.synthetic import simulate
+
+    rec = simulate(fs=5.0, seed=4).record
+    model = Model()
+    theta = np.array(ON_A_KINK)
+    residuals = WhitenedResiduals(rec, model, NoiseModel(sigma=0.5))
+    return residuals, theta, residuals.central_jacobian(theta), model.names
+
+
+def test_the_scaling_is_exact_at_an_optimum_on_a_kink():
+    """The eigenvalues alone miss the scaling there (ratio ~1e-9, not ~1e-16); the finite
+    invariance check lists it, with eigenvalue 0, and finds nothing else exact."""
+    from identify.fitting.identifiability import _exact_directions
+
+    residuals, theta, jac, names = _kink_problem()
+    by_eigenvalues = analyse_identifiability(jac, theta, names)
+    assert by_eigenvalues.eigenvalues[0] / by_eigenvalues.eigenvalues[-1] > 1e3 * EXACT_RATIO
+    assert by_eigenvalues.exact == []
+    exact = _exact_directions(residuals, theta, jac, names, 8)
+    assert len(exact) == 1
+    assert set(exact[0].combination) == set(SCALING_PARAMETERS) and exact[0].eigenvalue == 0.0
+    assert abs(exact[0].vector @ scaling_direction(theta, names)) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_the_scaling_is_not_listed_when_the_output_is_not_invariant(monkeypatch):
+    """The listing rests on the finite check: with a scaling that is not a symmetry (alpha
+    alone scaled) the check fails and only the eigenvalues decide."""
+    import identify.fitting.identifiability as ident
+
+    residuals, theta, jac, names = _kink_problem()
+    assert ident._invariant_under_scaling(residuals, theta)
+
+    def alpha_only(theta, k):
+        out = np.array(theta, dtype=float)
+        out[0] *= k
+        return out
+
+    monkeypatch.setattr(ident, "gpi_scaling", alpha_only)
+    assert not ident._invariant_under_scaling(residuals, theta)
+    assert ident._exact_directions(residuals, theta, jac, names, 8) == []
