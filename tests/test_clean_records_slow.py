@@ -22,15 +22,19 @@ sys.path.insert(0, str(ROOT / "benchmarks" / "independent"))
 
 #: Records of the subset: the first of the suite (index 4 is at 1 kHz, 70001 samples).
 SUBSET = 6
+#: Records of the 100 where the baseline least squares once ended in a local optimum
+#: (docs/benchmarks.md): 54 (1 kHz, negative thresholds; every start's dogbox screen ranked
+#: the start that trf takes to the global optimum last) and 57.
+ONCE_FAILED = (54, 57)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("index", range(SUBSET))
+@pytest.mark.parametrize("index", [*range(SUBSET), *ONCE_FAILED])
 def test_clean_record_fits_to_the_truth_and_is_adequate(index, tmp_path):
     import generator
     from clean_records import RMS_TOLERANCE, score_record
 
-    spec = generator.clean_records(SUBSET, 0)[index]
+    spec = generator.clean_records(max(SUBSET, index + 1), 0)[index]
     generator.write_record(spec, str(tmp_path))
     figures = score_record(tmp_path / f"{spec['stem']}.csv", tmp_path / f"{spec['stem']}.npz")
     print(figures)
