@@ -47,12 +47,13 @@ Starts
 
 Every start first gets :data:`SCREEN_EVALUATIONS` solver evaluations of each method
 (:data:`SOLVER_METHOD` and :data:`ALTERNATE_METHOD`) and is ranked by the lower end; the
-``n_polish`` best then run to convergence with that method (at most
-:data:`POLISH_EVALUATIONS` evaluations, tolerances :data:`TOLERANCE`) and the best of those
-wins. Both methods, because dogbox's large first steps can throw a start that lies in the
-global optimum's basin into a degenerate region, where it ranks last (an independent clean
-record at 1 kHz: the Table-1 start, screened by dogbox, ranked last; trf took it to the
-global optimum).
+``n_polish`` best then run on from that end to convergence with :data:`SOLVER_METHOD` (at
+most :data:`POLISH_EVALUATIONS` evaluations, tolerances :data:`TOLERANCE`) and the best of
+those wins. Both methods, because dogbox's large first steps can throw a start that lies in
+the global optimum's basin into a degenerate region, where it ranks last (an independent
+clean record at 1 kHz: the Table-1 start, screened by dogbox, ranked last; after trf's
+screening it reached the global optimum). The polish stays dogbox: trf, run on to
+convergence, crawled to its evaluation cap on the bundled record (6.7 x the model rows).
 
 Table-1-shaped starts (``table1``, ``data_scaled``, ``classical``) are made for Table 1's
 12 operators; for ``N`` operators they are rescaled so the operators keep the same
@@ -697,11 +698,11 @@ def _screen(residuals: "WhitenedResiduals", x0):
     return min(ends, key=lambda end: end[0].cost)
 
 
-def _converged(residuals: "WhitenedResiduals", sol, note: str = "", method: str = SOLVER_METHOD) -> "_PolishedStart":
-    """``sol`` run on to convergence with ``method`` when it stopped at its evaluation cap
-    (status 0), as a :class:`_PolishedStart` (``note`` appended to the message)."""
+def _converged(residuals: "WhitenedResiduals", sol, note: str = "") -> "_PolishedStart":
+    """``sol`` run on to convergence with :data:`SOLVER_METHOD` when it stopped at its
+    evaluation cap (status 0), as a :class:`_PolishedStart` (``note`` appended to the message)."""
     if sol.status == 0:
-        sol = _solve(residuals, sol.x, POLISH_EVALUATIONS, method=method)
+        sol = _solve(residuals, sol.x, POLISH_EVALUATIONS)
     return _PolishedStart(np.asarray(sol.x, dtype=float), 2.0 * float(sol.cost), bool(sol.success), f"{sol.message}{note}")
 
 
@@ -892,7 +893,7 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
                 screened.append((label, sol, residuals.n_evaluations - before, method))
                 origins.append(x0)
                 _log.log(log.level, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g} ({method})")
-            # Phase 2: run the most promising starts to convergence, each with its better method.
+            # Phase 2: run the most promising starts on from their better screening to convergence.
             order = sorted(range(len(screened)), key=lambda k: screened[k][1].cost)
             polish = set(order[:n_polish])
             for k, (label, sol, n_eval, method) in enumerate(screened):
@@ -900,8 +901,8 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
                     log.screened_out(label, sol, n_eval)
                     continue
                 before = residuals.n_evaluations
-                note = "" if method == SOLVER_METHOD else f" ({method}: its screening ended lower than {SOLVER_METHOD}'s)"
-                end = _converged(residuals, sol, note, method)
+                note = "" if method == SOLVER_METHOD else f" ({method}'s screening ended lower than {SOLVER_METHOD}'s)"
+                end = _converged(residuals, sol, note)
                 log.keep(label, end, n_eval + residuals.n_evaluations - before)
             _polish_at_bound(residuals, screened, origins, polish, log)
             _polish_in_coordinates(residuals, log)
@@ -914,16 +915,13 @@ def _polish_at_bound(residuals, screened, origins, polish, log: _StartLog) -> No
     """Phase 3: an optimum with a GPI parameter on its box bound is a degenerate limit (e.g.
     an Omega branch whose tanh is stretched into a line: c0 at -1000, c1 -> 0), into which
     dogbox's large steps can fall; the same starts are then polished from their origin with
-    the interior, reflective method (trf) too, finished by dogbox (a start polished with trf
-    already, after its screening, is not run again)."""
+    the interior, reflective method (trf) too, finished by dogbox."""
     gpi_at_bound = _gpi_at_bound(residuals, log.best.x)
     if not gpi_at_bound:
         return
     note = (f" ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum "
             f"had {', '.join(gpi_at_bound)} on a bound)")  # fmt: skip
     for k in sorted(polish):
-        if screened[k][3] == ALTERNATE_METHOD:
-            continue
         before = residuals.n_evaluations
         sol = _solve(residuals, origins[k], POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
         end = _converged(residuals, sol, note)
