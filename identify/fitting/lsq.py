@@ -46,14 +46,11 @@ Starts
     at their off value plus 1 % of their range times ``z``.
 
 Every start first gets :data:`SCREEN_EVALUATIONS` solver evaluations of each method
-(:data:`SOLVER_METHOD` and :data:`ALTERNATE_METHOD`) and is ranked by the lower end; the
-``n_polish`` best then run on from that end to convergence with :data:`SOLVER_METHOD` (at
-most :data:`POLISH_EVALUATIONS` evaluations, tolerances :data:`TOLERANCE`) and the best of
-those wins. Both methods, because dogbox's large first steps can throw a start that lies in
-the global optimum's basin into a degenerate region, where it ranks last (an independent
-clean record at 1 kHz: the Table-1 start, screened by dogbox, ranked last; after trf's
-screening it reached the global optimum). The polish stays dogbox: trf, run on to
-convergence, crawled to its evaluation cap on the bundled record (6.7 x the model rows).
+(:data:`SOLVER_METHOD` and :data:`ALTERNATE_METHOD`); the ``n_polish`` best after dogbox's
+screening, and the :data:`N_POLISH_ALTERNATE` best after trf's, then run on
+from there to convergence with :data:`SOLVER_METHOD` (at most :data:`POLISH_EVALUATIONS`
+evaluations, tolerances :data:`TOLERANCE`) and the best of those wins. The polished set
+contains dogbox's alone, so the search only adds ends to what dogbox's ranking polishes.
 
 Table-1-shaped starts (``table1``, ``data_scaled``, ``classical``) are made for Table 1's
 12 operators; for ``N`` operators they are rescaled so the operators keep the same
@@ -133,6 +130,12 @@ SCREEN_EVALUATIONS = 20
 #: best, 3431 with four), and on the SMA record 1 of 5 seeds missed the best basin with 2
 #: polished starts and none with 4.
 N_POLISH = 4
+#: How many of the best starts after a screening with :data:`ALTERNATE_METHOD` are run to
+#: convergence too (from that screening's end, with :data:`SOLVER_METHOD`; a start among
+#: dogbox's best as well is then polished from both ends). Dogbox's large first steps can throw a start that lies in the global
+#: optimum's basin into a degenerate region, where it ranks last: on an independent clean
+#: record at 1 kHz the Table-1 start did, and from trf's screening it reached the global optimum.
+N_POLISH_ALTERNATE = 2
 #: :func:`scipy.optimize.least_squares` method. "dogbox" rather than "trf": on the bundled
 #: record (plain GPI fitted to data with a hidden thermal effect, a curved valley) dogbox
 #: reached the optimum in 44 evaluations (0.7 s) where trf crawled for 750 evaluations
@@ -689,15 +692,6 @@ def _solve(residuals: "WhitenedResiduals", x0, max_nfev, method=SOLVER_METHOD):
     )
 
 
-def _screen(residuals: "WhitenedResiduals", x0):
-    """``(sol, method)``: :data:`SCREEN_EVALUATIONS` of each method from ``x0``, the one that
-    ended lower. From a start near the optimum, dogbox's large first steps can land in a
-    degenerate region (a tanh stretched into a line) and the start then ranks last, while
-    trf, which stays inside the box, heads for the optimum."""
-    ends = [(_solve(residuals, x0, SCREEN_EVALUATIONS, method=m), m) for m in (SOLVER_METHOD, ALTERNATE_METHOD)]
-    return min(ends, key=lambda end: end[0].cost)
-
-
 def _converged(residuals: "WhitenedResiduals", sol, note: str = "") -> "_PolishedStart":
     """``sol`` run on to convergence with :data:`SOLVER_METHOD` when it stopped at its
     evaluation cap (status 0), as a :class:`_PolishedStart` (``note`` appended to the message)."""
@@ -872,8 +866,8 @@ class _StartLog:
 
 def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_PolishedStart, list]:
     """``(best end, outcomes)`` of the search from ``starts``, with numba's fastest thread count
-    and single-threaded BLAS: phase 1 screens every start with a few solver steps, phase 2
-    runs the ``n_polish`` most promising to convergence, phase 3 (:func:`_polish_at_bound`),
+    and single-threaded BLAS: phase 1 screens every start with a few steps of each solver
+    method, phase 2 runs the most promising to convergence (module docstring), phase 3 (:func:`_polish_at_bound`),
     phase 4 (:func:`_polish_in_coordinates`)."""
     import numba
 
@@ -885,25 +879,35 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
     try:
         with single_threaded_blas():
             # Phase 1: screen every start with a few steps of each method.
-            screened, origins = [], []
+            screened, origins, alternate = [], [], []
             for label, theta0 in starts:
                 x0 = np.clip(theta0[free], residuals.lower, residuals.upper)
                 before = residuals.n_evaluations
-                sol, method = _screen(residuals, x0)
-                screened.append((label, sol, residuals.n_evaluations - before, method))
+                sol = _solve(residuals, x0, SCREEN_EVALUATIONS)
+                sol_alternate = _solve(residuals, x0, SCREEN_EVALUATIONS, method=ALTERNATE_METHOD)
+                screened.append((label, sol, residuals.n_evaluations - before))
+                alternate.append(sol_alternate)
                 origins.append(x0)
-                _log.log(log.level, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g} ({method})")
-            # Phase 2: run the most promising starts on from their better screening to convergence.
+                _log.log(log.level, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g} ({SOLVER_METHOD}), "
+                                    f"{2 * sol_alternate.cost:.6g} ({ALTERNATE_METHOD})")  # fmt: skip
+            # Phase 2: run the most promising ends to convergence: the n_polish best after
+            # dogbox's screening, and the N_POLISH_ALTERNATE best after trf's.
             order = sorted(range(len(screened)), key=lambda k: screened[k][1].cost)
             polish = set(order[:n_polish])
-            for k, (label, sol, n_eval, method) in enumerate(screened):
-                if k not in polish:
+            order_alternate = sorted(range(len(screened)), key=lambda k: alternate[k].cost)
+            polish_alternate = set(order_alternate[:N_POLISH_ALTERNATE]) if n_polish > 0 else set()
+            for k, (label, sol, n_eval) in enumerate(screened):
+                if k not in polish | polish_alternate:
                     log.screened_out(label, sol, n_eval)
                     continue
-                before = residuals.n_evaluations
-                note = "" if method == SOLVER_METHOD else f" ({method}'s screening ended lower than {SOLVER_METHOD}'s)"
-                end = _converged(residuals, sol, note)
-                log.keep(label, end, n_eval + residuals.n_evaluations - before)
+                if k in polish:
+                    before = residuals.n_evaluations
+                    end = _converged(residuals, sol)
+                    log.keep(label, end, n_eval + residuals.n_evaluations - before)
+                if k in polish_alternate:
+                    before = residuals.n_evaluations
+                    end = _converged(residuals, alternate[k], f" (run on from {ALTERNATE_METHOD}'s screening)")
+                    log.keep(f"{label} ({ALTERNATE_METHOD} screening)", end, residuals.n_evaluations - before)
             _polish_at_bound(residuals, screened, origins, polish, log)
             _polish_in_coordinates(residuals, log)
     finally:
