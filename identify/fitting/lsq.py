@@ -132,9 +132,10 @@ SCREEN_EVALUATIONS = 20
 N_POLISH = 4
 #: How many of the best starts after a screening with :data:`ALTERNATE_METHOD` are run to
 #: convergence too (from that screening's end, with :data:`SOLVER_METHOD`; a start among
-#: dogbox's best as well is then polished from both ends). Dogbox's large first steps can throw a start that lies in the global
-#: optimum's basin into a degenerate region, where it ranks last: on an independent clean
-#: record at 1 kHz the Table-1 start did, and from trf's screening it reached the global optimum.
+#: dogbox's best as well is then polished from both ends). Dogbox's large first steps can
+#: throw a start that lies in the global optimum's basin into a degenerate region, where it
+#: ranks last: on an independent clean record at 1 kHz the Table-1 start did, and from trf's
+#: screening it reached the global optimum.
 N_POLISH_ALTERNATE = 2
 #: :func:`scipy.optimize.least_squares` method. "dogbox" rather than "trf": on the bundled
 #: record (plain GPI fitted to data with a hidden thermal effect, a curved valley) dogbox
@@ -867,8 +868,8 @@ class _StartLog:
 def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_PolishedStart, list]:
     """``(best end, outcomes)`` of the search from ``starts``, with numba's fastest thread count
     and single-threaded BLAS: phase 1 screens every start with a few steps of each solver
-    method, phase 2 runs the most promising to convergence (module docstring), phase 3 (:func:`_polish_at_bound`),
-    phase 4 (:func:`_polish_in_coordinates`)."""
+    method, phase 2 runs the most promising to convergence (module docstring), phase 3
+    (:func:`_polish_at_bound`), phase 4 (:func:`_polish_in_coordinates`)."""
     import numba
 
     free = residuals.free
@@ -907,7 +908,8 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
                 if k in polish_alternate:
                     before = residuals.n_evaluations
                     end = _converged(residuals, alternate[k], f" (run on from {ALTERNATE_METHOD}'s screening)")
-                    log.keep(f"{label} ({ALTERNATE_METHOD} screening)", end, residuals.n_evaluations - before)
+                    screening = 0 if k in polish else n_eval  # the screening's evaluations, counted once
+                    log.keep(f"{label} ({ALTERNATE_METHOD} screening)", end, screening + residuals.n_evaluations - before)
             _polish_at_bound(residuals, screened, origins, polish, log)
             _polish_in_coordinates(residuals, log)
     finally:
