@@ -165,6 +165,14 @@ def _direction(value, lam_max, vector, names, max_terms) -> Direction:
     return Direction(float(value), float(ratio), float(rel_std), combination, vector.copy())
 
 
+def _scaled_fisher(jacobian, theta) -> tuple[np.ndarray, np.ndarray]:
+    """``(scales, F)``: :func:`parameter_scales` of ``theta`` ``(P,)`` and the Fisher information
+    ``F = J_s^T J_s`` ``(P, P)`` of the Jacobian ``(T, P)`` in relative parameter changes."""
+    scales = parameter_scales(theta)
+    scaled = np.asarray(jacobian, dtype=float) * scales[None, :]
+    return scales, scaled.T @ scaled
+
+
 def analyse_identifiability(
     jacobian, theta, names, *, normalisation=None, max_terms=8, max_near=6
 ) -> IdentifiabilityResult:
@@ -190,9 +198,7 @@ def analyse_identifiability(
     names = tuple(names)
     if jac.ndim != 2 or jac.shape[1] != len(names) or theta.shape != (len(names),):
         raise ValueError(f"jacobian (T, P) and theta (P,) must match {len(names)} names; got {jac.shape}, {theta.shape}")
-    scales = parameter_scales(theta)
-    scaled = jac * scales[None, :]
-    fisher = scaled.T @ scaled
+    scales, fisher = _scaled_fisher(jac, theta)
     eigenvalues, eigenvectors = np.linalg.eigh(fisher)
     lam_max = float(eigenvalues[-1])
     lam_min = float(eigenvalues[0])
@@ -244,9 +250,7 @@ def _exact_directions(residuals: WhitenedResiduals, theta, jacobian, names, max_
     at some sample puts the scaling's eigenvalue at ~1e-9 of the largest (a 5 Hz record, bounds
     crossing by 0.05 A), far above the round-off that :data:`EXACT_RATIO` allows.
     """
-    x = theta[residuals.free]
-    scaled = np.asarray(jacobian, dtype=float) * parameter_scales(x)[None, :]
-    fisher = scaled.T @ scaled
+    _, fisher = _scaled_fisher(jacobian, theta[residuals.free])
     lam_max = float(np.linalg.eigvalsh(fisher)[-1])
     exact, basis = [], np.eye(len(names))
     direction = scaling_direction(theta, names)
@@ -294,8 +298,7 @@ def analyse_fit(fit, record, **kwargs) -> IdentifiabilityResult:
         theta_released[:] = fit.theta
         jac_released = released_res.central_jacobian(theta_released[released_res.free])
         names_released = [released.names[i] for i in released_res.free]
-        exact = _exact_directions(released_res, theta_released, jac_released, names_released,
-                                  kwargs.get("max_terms", 8))  # fmt: skip
+        exact = _exact_directions(released_res, theta_released, jac_released, names_released, result.max_terms)
     return IdentifiabilityResult(
         names=result.names,
         scales=result.scales,
