@@ -13,7 +13,11 @@ prints:
 Each finished record is kept in ``--out`` (default ``benchmarks/out/coverage``), so an
 interrupted run continues where it stopped. About 50 s per record on a 2-core machine.
 
-Usage: ``python benchmarks/interval_coverage.py [--records 30] [--out DIR] [--truth off-wall]``
+Usage: ``python benchmarks/interval_coverage.py [--records 30] [--first 0] [--out DIR] [--truth off-wall]``
+(``--first``: the first seed, so that two processes can share a calibration: ``--first 0
+--records 50`` and ``--first 50 --records 50`` into the same ``--out``; each prints
+the summary of its own seeds; a run over all of them, ``--first 0 --records 100``, then
+reads every finished record back and prints the pooled summary without recomputing)
 (``off-wall``: the earlier bench's single truth, Table 1 with b3 + 0.5 A, scaled by k = 1.3).
 """
 
@@ -33,6 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--records", type=int, default=30, help="number of seeded records (default 30)")
+    parser.add_argument("--first", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "coverage")
     parser.add_argument(
         "--truth", choices=("both-sides", "off-wall"), default="both-sides",
@@ -54,7 +59,7 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     print(f"load average {os.getloadavg()[0]:.2f}; results in {args.out}", flush=True)
     result = interval_coverage(
-        truths, range(args.records), args.out, log=lambda line: print(line, flush=True)
+        truths, range(args.first, args.first + args.records), args.out, log=lambda line: print(line, flush=True)
     )
     print(result.summary())
     post = result.per_parameter("posterior")
