@@ -678,18 +678,18 @@ class PosteriorResult:
 
 
 #: Measured 95 % interval coverage on the virtual bench (``benchmarks/interval_coverage.py
-#: --records 100``, 2026-11-24: clean 50 Hz records whose truths are Table 1 with ``b3``
+#: --records 200``, 2026-11-24: clean 50 Hz records whose truths are Table 1 with ``b3``
 #: within +-0.25 A, on both sides of where the operator bounds start to cross): least squares
 #: +-1.96 stderr vs posterior equal-tailed intervals, mean of the per-record fractions and
 #: its standard error across records. Quoted by the report (docs/method.md, docs/benchmarks.md).
 BENCH_COVERAGE = {
-    "least_squares": 0.927,
-    "least_squares_se": 0.012,
+    "least_squares": 0.934,
+    "least_squares_se": 0.007,
     "posterior": 0.933,
-    "posterior_se": 0.011,
+    "posterior_se": 0.008,
     "nominal": 0.95,
-    "n_records": 100,
-    "n_intervals": 1800,
+    "n_records": 200,
+    "n_intervals": 3600,
 }
 
 #: The convergence verdict's thresholds beside tau (docs/method.md, "Convergence"): every
