@@ -361,7 +361,7 @@ def test_a_targeted_finding_needs_an_excess_over_the_noise():
     assert _excess_over_noise(SimpleNamespace(rms=1.004, noise=SimpleNamespace(sigma=1.0))) < Thresholds().structure_floor
 
 
-def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail():
+def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail(monkeypatch):
     """The same practical size rules a candidate that the omnibus tests call for: the repaired
     first-cycle record of the independent bench (1 kHz) failed the low-frequency test with
     0.1 sigma of structure, and 'thermal' would have lowered the RMS from 1.012 to 1.009 sigma
@@ -369,8 +369,10 @@ def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail():
     purpose. A candidate of practical size is still named."""
     from types import SimpleNamespace
 
+    from identify.diagnosis import diagnose as diagnosis
     from identify.diagnosis.diagnose import Adequacy, _inadequate_verdict, _tests_text
 
+    monkeypatch.setattr(diagnosis, "_try_pairs", lambda s, rnd: ([], None, []))  # no pair beats it
     adequacy = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 7.9}, 0.5, 0.5,
                         0.5, "low_frequency", 0.12)  # fmt: skip
     fit = SimpleNamespace(rms=1.012, noise=SimpleNamespace(sigma=1.0))
@@ -387,6 +389,46 @@ def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail():
     assert "low_frequency z 7.9" in small.reason
     named = verdict(0.99)
     assert named.status == "missing_effect" and named.missing == "thermal"
+
+
+def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
+    """A general form can reach the noise on a record that hides two other effects (own
+    bench, seed 31: lag + sensor drift; creep alone adequate at delta BIC 3785, the true pair
+    4157): the pairs are tried even then, and a pair that would be named and gains more than
+    bic_significant beyond the single decides, naming its member that is stronger alone. A
+    pair within the threshold leaves the single's verdict (with the pair listed)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+    from identify.diagnosis.diagnose import Adequacy, _inadequate_verdict, _tests_text
+
+    adequacy = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 9.0}, 0.5, 0.5,
+                        0.5, "low_frequency", 0.5)  # fmt: skip
+    fit = SimpleNamespace(rms=1.4, noise=SimpleNamespace(sigma=1.0))
+
+    def cand(effect, bic, adequate, explained, rms_after):
+        return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, explained=explained,
+                               refitted=True, rms_after=rms_after, fit=None)  # fmt: skip
+
+    refitted = [cand("creep", 3785.0, True, 1.0, 1.01), cand("sensor_drift", 2693.0, False, 0.88, 1.06),
+                cand("lag", 1470.0, False, 0.66, 1.15)]  # fmt: skip
+
+    def verdict(pair_bic):
+        pair = cand("lag+sensor_drift", pair_bic, True, 1.0, 0.99)
+        monkeypatch.setattr(diagnosis, "_try_pairs", lambda s, rnd: ([pair], {"lag", "sensor_drift"}, [pair.effect]))
+        rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None, short={}, screened=[],
+                              chi2_0_small=1.0, n_eff_small=1.0)  # fmt: skip
+        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds()), rnd, _tests_text(adequacy, Thresholds()))
+
+    won = verdict(4157.0)
+    assert won.status == "missing_effect" and won.missing == "sensor_drift", won.reason
+    assert won.pair.effect == "lag+sensor_drift" and "'creep' alone also leaves" in won.reason
+    close = verdict(3790.0)  # within bic_significant of the single: no strong evidence for the pair
+    assert close.status == "missing_effect" and close.missing == "creep", close.reason
+    assert close.pairs_tried[0].effect == "lag+sensor_drift"
+    off = Thresholds(try_pairs=False)
+    rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None)
+    assert _inadequate_verdict(SimpleNamespace(thresholds=off), rnd, _tests_text(adequacy, off)).missing == "creep"
 
 
 def test_a_rival_within_the_bic_threshold_blocks_a_name():
