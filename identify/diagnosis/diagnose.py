@@ -216,7 +216,9 @@ class Thresholds:
         3144), and a name is given only against every candidate that could rival it.
         (The targeted check of an adequate baseline refits at most this many.)
     try_pairs : bool, default True
-        Refit the best two candidates together when no single one suffices.
+        Refit pairs of the candidates with a significant gain together (step 8): when no
+        single one suffices, and also beside a single one that leaves the noise, where a
+        pair that would be named and gains more than ``bic_significant`` beyond it decides.
     targeted_refits : bool, default True
         When the residual passes the noise tests, still refit the candidates whose
         screening promises ``delta BIC > bic_significant`` and name one whose refit
