@@ -1830,8 +1830,9 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
 
 
 def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
-    """Step 8 (no single candidate leaves the noise): ``(pairs tried, effects common to the
-    competitive pairs or None, names of the competitive pairs)``.
+    """Step 8 (no single candidate leaves the noise, or one does and a pair may still beat
+    it): ``(pairs tried, effects common to the competitive pairs or None, names of the
+    competitive pairs)``.
 
     A wrong effect can absorb part of two hidden ones (e.g. a drift the slow part of
     heating, next to a lag). Pairs of the candidates with a significant gain
