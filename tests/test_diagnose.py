@@ -431,6 +431,43 @@ def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
     assert _inadequate_verdict(SimpleNamespace(thresholds=off), rnd, _tests_text(adequacy, off)).missing == "creep"
 
 
+def test_a_refit_that_ends_above_its_baseline_is_finished_again_from_the_nested_start(monkeypatch):
+    """A candidate's refit can stop in a worse basin than the baseline it contains (lag on
+    the SmartHysteresis record, ringing left out, seed 2: chi-square 88,773 against the
+    baseline's 87,370); it is then finished again from the baseline with the effect off,
+    and the lower end kept. A refit that ends at or below the baseline is not repeated."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    base_model = normalised_model(Model())
+    model_e = base_model + "lag"
+    base = SimpleNamespace(model=base_model, theta=base_model.default_theta(), noise=None)
+    nested = diagnosis._embed(base_model, base.theta, model_e)
+    start = nested.copy()
+    start[model_e.names.index("lag_tau")] = 0.3  # the candidate's own start
+    free = np.ones(len(model_e.names), dtype=bool)
+    calls = []
+
+    def finish(record, model, noise, x, rng):
+        calls.append(np.array(x))
+        return SimpleNamespace(chi2=ends[len(calls) - 1])
+
+    monkeypatch.setattr(diagnosis, "_finish", finish)
+    monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: np.array([np.sqrt(fit.chi2)]))
+    ends = [88773.0, 87154.0]
+    fit, w, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, model_e, start, free, None)
+    assert chi2 == pytest.approx(87154.0) and fit.chi2 == 87154.0
+    assert len(calls) == 2 and np.array_equal(calls[0], start) and np.array_equal(calls[1], nested)
+    calls.clear()
+    ends = [88773.0, 89000.0]  # the nested start ends higher still: the first end is kept
+    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, model_e, start, free, None)[2] == pytest.approx(88773.0)
+    calls.clear()
+    ends = [87000.0]
+    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, model_e, start, free, None)[2] == pytest.approx(87000.0)
+    assert len(calls) == 1
+
+
 def test_a_rival_within_the_bic_threshold_blocks_a_name():
     """Two refitted candidates whose delta BICs are less than 10 apart: no strong evidence for
     either, so the best cannot be named (the issue's 'never a wrong name')."""
