@@ -115,9 +115,10 @@ def test_fit_whose_solver_did_not_converge_exits_1(small_csv, monkeypatch, capsy
 def test_progress_lines_outside_a_terminal(small_csv, tmp_path):
     """stderr is a pipe (as under nohup or in a batch log): the sampler writes a progress line
     every IDENTIFY_PROGRESS_SECONDS with step, speed and, after the first check, tau and the
-    projected steps (50 tau) instead of the cap."""
+    projected steps (50 tau) instead of the cap. The interval is tiny (5 ms) so that a line comes
+    before the first check at step 200 even on a machine running 1000s of steps per second."""
     done = _cli("study", small_csv, "--out", "run", "--max-steps", "600", "--check-every", "200", "--n-starts", "1",
-                "--no-report", cwd=tmp_path, extra_env={"IDENTIFY_PROGRESS_SECONDS": "0.2"})  # fmt: skip
+                "--no-report", cwd=tmp_path, extra_env={"IDENTIFY_PROGRESS_SECONDS": "0.005"})  # fmt: skip
     assert done.returncode == 1, done.stderr[-3000:]
     lines = [ln for ln in done.stderr.splitlines() if ln.startswith("emcee: step ")]
     assert len(lines) >= 3, done.stderr[-3000:]
