@@ -431,6 +431,49 @@ def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
     assert _inadequate_verdict(SimpleNamespace(thresholds=off), rnd, _tests_text(adequacy, off)).missing == "creep"
 
 
+def test_pairs_that_beat_an_adequate_single_but_disagree_name_nothing(monkeypatch):
+    """Independent bench, creep + a linear drift: thermal alone is adequate (3103), thermal +
+    incomplete_reset reaches 3135 and creep + sensor_drift 3128. Pairs fit clearly better
+    than the single, and the two best pairs (within bic_significant of each other) share no
+    effect: the data do not say what is missing, so nothing is named. When the pairs that
+    beat the single share an effect, that one is named; pairs within bic_significant of the
+    single leave it named."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+    from identify.diagnosis.diagnose import Adequacy, _inadequate_verdict, _tests_text
+
+    monkeypatch.setattr(diagnosis, "_where_summary", lambda profile: "(where)")
+    adequacy = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 9.0}, 0.5, 0.5,
+                        0.5, "low_frequency", 0.5)  # fmt: skip
+    fit = SimpleNamespace(rms=1.32, noise=SimpleNamespace(sigma=1.0))
+
+    def cand(effect, bic, adequate=True, explained=0.96, rms_after=1.02):
+        return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, explained=explained,
+                               refitted=True, rms_after=rms_after, fit=None)  # fmt: skip
+
+    refitted = [cand("thermal", 3103.0, explained=0.97), cand("creep", 3044.0, False), cand("sensor_drift", 2992.0, False),
+                cand("incomplete_reset", 1579.0, False)]  # fmt: skip
+
+    def verdict(pairs):
+        top = max(p.delta_bic for p in pairs)
+        competitive = [p for p in pairs if p.delta_bic >= top - 10.0]
+        common = set.intersection(*(set(p.effect.split("+")) for p in competitive))
+        monkeypatch.setattr(diagnosis, "_try_pairs", lambda s, rnd: (pairs, common, [p.effect for p in competitive]))
+        rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None, short={}, screened=[],
+                              chi2_0_small=1.0, n_eff_small=1.0)  # fmt: skip
+        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds()), rnd, _tests_text(adequacy, Thresholds()))
+
+    split = verdict([cand("thermal+incomplete_reset", 3135.0, rms_after=1.0), cand("creep+sensor_drift", 3128.0, rms_after=1.0)])
+    assert split.status == "unexplained" and split.missing is None, split.reason
+    assert "'thermal' alone leaves a residual consistent with the noise" in split.reason
+    assert "thermal+incomplete_reset 3135, creep+sensor_drift 3128" in split.reason and "(where)" in split.reason
+    shared = verdict([cand("creep+sensor_drift", 3150.0, rms_after=1.0), cand("creep+training", 3145.0, rms_after=1.0)])
+    assert shared.status == "missing_effect" and shared.missing == "creep", shared.reason
+    near = verdict([cand("thermal+incomplete_reset", 3110.0, rms_after=1.0), cand("creep+sensor_drift", 3108.0, rms_after=1.0)])
+    assert near.status == "missing_effect" and near.missing == "thermal", near.reason
+
+
 def test_a_refit_that_ends_above_its_baseline_is_finished_again_from_the_nested_start(monkeypatch):
     """A candidate's refit can stop in a worse basin than the baseline it contains (lag on
     the SmartHysteresis record, ringing left out, seed 2: chi-square 88,773 against the
@@ -483,6 +526,49 @@ def test_a_rival_within_the_bic_threshold_blocks_a_name():
     close = cand("thermal", 3705.0)
     assert _rival(best, [best, close], Thresholds()) is close
     assert _rival(best, [best, cand("thermal", 3705.0, refitted=False)], Thresholds()) is None  # screening numbers
+
+
+def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monkeypatch):
+    """A short refit on the working copy is a lower bound on what a pair explains: the best
+    ``max_refits`` pairs by their short refits (and any other within bic_significant of the
+    best) are refitted on the whole record, and the whole-record delta BIC ranks them
+    (independent bench, creep + a linear drift: the short refits put creep + incomplete_reset
+    first, and only that pair was refitted). The pairs within bic_significant of the best
+    full refit decide which effects are common."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    names = ["creep", "incomplete_reset", "sensor_drift", "training"]
+    pool = [(n, None, None) for n in names]
+    monkeypatch.setattr(diagnosis, "_pair_pool", lambda rnd, thresholds: pool)
+    short = {("creep", "incomplete_reset"): 100.0, ("creep", "sensor_drift"): 102.0, ("creep", "training"): 105.0,
+             ("incomplete_reset", "sensor_drift"): 140.0, ("incomplete_reset", "training"): 300.0,
+             ("sensor_drift", "training"): 108.0}  # fmt: skip
+    monkeypatch.setattr(diagnosis, "_short_pair", lambda work, fit, one, other: (short[(one[0], other[0])], None, None))
+    monkeypatch.setattr(diagnosis, "_working_copy_delta_bic", lambda rnd, chi2, k: 1000.0 - chi2)
+    full = {"creep+incomplete_reset": 3064.0, "creep+sensor_drift": 3150.0, "creep+training": 3145.0,
+            "sensor_drift+training": 3000.0}  # fmt: skip
+    refitted = []
+
+    def evaluate(record, fit, chi2_0, adequacy, name, *rest):
+        refitted.append(name)
+        return SimpleNamespace(effect=name, delta_bic=full[name])
+
+    monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
+    s = SimpleNamespace(work=None, thresholds=Thresholds(), say=lambda m: None, record=None, quiet=None,
+                        noise_ref=None, rng=None)  # fmt: skip
+    rnd = SimpleNamespace(fit=None, chi2_0=1.0, adequacy=None)
+    tried, common, ambiguous = diagnosis._try_pairs(s, rnd)
+    # by short refits: creep+incomplete_reset (900), creep+sensor_drift (898), creep+training (895),
+    # then sensor_drift+training (892: fourth, but within 10 of the best, so refitted too); the
+    # other two pairs (860, 700) are not
+    assert refitted == ["creep+incomplete_reset", "creep+sensor_drift", "creep+training", "sensor_drift+training"]
+    assert [p.effect for p in tried] == ["creep+sensor_drift", "creep+training", "creep+incomplete_reset",
+                                         "sensor_drift+training"]  # fmt: skip
+    assert ambiguous == ["creep+sensor_drift", "creep+training"] and common == {"creep"}
+    tried, _, _ = diagnosis._try_pairs(SimpleNamespace(**{**vars(s), "thresholds": Thresholds(max_refits=1, bic_significant=1.0)}), rnd)
+    assert [p.effect for p in tried] == ["creep+incomplete_reset"]
 
 
 def test_pair_pool_takes_every_candidate_with_a_significant_gain():
