@@ -214,7 +214,9 @@ class Thresholds:
         be the best (measured on the independent bench: creep + a linear drift, where
         creep's short refit gained 624 and its full refit 3185, above the named thermal's
         3144), and a name is given only against every candidate that could rival it.
-        (The targeted check of an adequate baseline refits at most this many.)
+        (The targeted check of an adequate baseline refits at most this many.) Pairs
+        (step 8): the best this many by their short refits are refitted in full, with
+        any other within ``bic_significant`` of the best on the working copy.
     try_pairs : bool, default True
         Refit pairs of the candidates with a significant gain together (step 8): when no
         single one suffices, and also beside a single one that leaves the noise, where a
