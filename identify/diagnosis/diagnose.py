@@ -2024,7 +2024,7 @@ def _pair_beats_adequate_single(s: _Setting, rnd: _Round, best: CandidateResult,
             f"(delta BIC {best.delta_bic:.0f}), but pairs of candidates fit clearly better (more than "
             f"{thresholds.bic_significant:g} above it), and the pairs that fit about equally well have no effect in "
             f"common ({', '.join(f'{p.effect} {p.delta_bic:.0f}' for p in competitive)}: within "
-            f"{thresholds.bic_significant:g} of delta BIC of the best), so the data do not say which effects are "
+            f"{thresholds.bic_significant:g} in delta BIC of the best pair), so the data do not say which effects are "
             f"missing and none is named. Candidates: {_candidates_text(rnd.refitted, pairs_tried)}. "
             f"{_where_summary(rnd.profile)}"
         )
