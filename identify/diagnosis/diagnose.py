@@ -1955,6 +1955,17 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
     candidates_text = _candidates_text(rnd.refitted, pairs_tried)
     if best is None:
         return f"The residual is not noise ({tests_text}), and no candidate effect helps. {where}"
+    if common is not None and not common and len(ambiguous_pairs) > 1 and best.adequate_after and rival is None:
+        # step 8 beside an adequate single (:func:`_pair_beats_adequate_single`)
+        competitive = ", ".join(f"{p.effect} {p.delta_bic:.0f}" for p in pairs_tried if p.effect in ambiguous_pairs)
+        return (
+            f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
+            f"{adequacy.size_ratio:.2f} sigma). '{best.effect}' alone leaves a residual consistent with the noise "
+            f"(delta BIC {best.delta_bic:.0f}), but pairs of candidates fit clearly better (more than "
+            f"{thresholds.bic_significant:g} above it), and the pairs that fit about equally well have no effect in "
+            f"common ({competitive}: within {thresholds.bic_significant:g} in delta BIC of the best pair), so the data "
+            f"do not say which effects are missing and none is named. Candidates: {candidates_text}. {where}"
+        )
     if common is not None and not common and len(ambiguous_pairs) > 1:
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
@@ -1988,7 +1999,9 @@ def _telling_apart(*names: str) -> str:
     return " What would tell them apart: " + "; ".join(parts) + "."
 
 
-def _pair_beats_adequate_single(s: _Setting, rnd: _Round, best: CandidateResult, single: _Verdict) -> _Verdict:
+def _pair_beats_adequate_single(
+    s: _Setting, rnd: _Round, best: CandidateResult, single: _Verdict
+) -> tuple[_Verdict, set | None, list]:
     """Step 8 for a best single candidate that already leaves the noise: the pairs are tried
     too, and a pair that the pair verdict names and whose delta BIC exceeds the single's by
     more than :attr:`Thresholds.bic_significant` decides; otherwise ``single`` stands (with
@@ -2003,7 +2016,11 @@ def _pair_beats_adequate_single(s: _Setting, rnd: _Round, best: CandidateResult,
     best one have no effect in common, nothing is named: the models that fit best disagree on
     what is missing, and the single is not among them (measured on the independent bench:
     creep + a linear drift, where thermal alone was adequate at 3103 and thermal +
-    incomplete_reset reached 3135, creep + sensor_drift 3128)."""
+    incomplete_reset reached 3135, creep + sensor_drift 3128); :func:`_unexplained_reason`
+    says so.
+
+    Returns ``(verdict, effects common to the competitive pairs or None, names of the
+    competitive pairs)``, as :func:`_try_pairs`."""
     thresholds = s.thresholds
     pairs_tried, common, ambiguous_pairs = _try_pairs(s, rnd)
     paired = _pair_verdict(rnd, best, None, pairs_tried, common, thresholds)
@@ -2014,23 +2031,11 @@ def _pair_beats_adequate_single(s: _Setting, rnd: _Round, best: CandidateResult,
             f" ('{best.effect}' alone also leaves a residual consistent with the noise, but the pair gains "
             f"{pair.delta_bic - best.delta_bic:.0f} more in delta BIC, which pays for its extra parameters.)"
         )
-        return paired
+        return paired, common, ambiguous_pairs
     if beaten and common is not None and not common:
-        competitive = [p for p in pairs_tried if p.effect in ambiguous_pairs]
-        adequacy = rnd.adequacy
-        paired.reason = (
-            f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
-            f"{adequacy.size_ratio:.2f} sigma). '{best.effect}' alone leaves a residual consistent with the noise "
-            f"(delta BIC {best.delta_bic:.0f}), but pairs of candidates fit clearly better (more than "
-            f"{thresholds.bic_significant:g} above it), and the pairs that fit about equally well have no effect in "
-            f"common ({', '.join(f'{p.effect} {p.delta_bic:.0f}' for p in competitive)}: within "
-            f"{thresholds.bic_significant:g} in delta BIC of the best pair), so the data do not say which effects are "
-            f"missing and none is named. Candidates: {_candidates_text(rnd.refitted, pairs_tried)}. "
-            f"{_where_summary(rnd.profile)}"
-        )
-        return paired
+        return paired, common, ambiguous_pairs  # unexplained: the best pairs disagree
     single.pair, single.pairs_tried = pair, pairs_tried
-    return single
+    return single, common, ambiguous_pairs
 
 
 def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
@@ -2049,7 +2054,7 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
                 f"(delta BIC {best.delta_bic:.0f}) and leaves a residual consistent with the noise."
             ))  # fmt: skip
             if thresholds.try_pairs:
-                verdict = _pair_beats_adequate_single(s, rnd, best, verdict)
+                verdict, common, ambiguous_pairs = _pair_beats_adequate_single(s, rnd, best, verdict)
         else:  # the best candidate absorbs a small structure that does not matter against the noise
             change, size = _practical_size(rnd.fit, best)
             verdict = _Verdict("adequate", None, (
@@ -2064,7 +2069,7 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
         # alone cannot be trusted: pairs are tried
         pairs_tried, common, ambiguous_pairs = _try_pairs(s, rnd)
         verdict = _pair_verdict(rnd, best, rival, pairs_tried, common, thresholds)
-    if verdict.status == "unexplained" and not verdict.reason:
+    if verdict.status == "unexplained":
         verdict.reason = _unexplained_reason(
             rnd, best, rival, significant, common, ambiguous_pairs, verdict.pairs_tried, tests_text, thresholds
         )
