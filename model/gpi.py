@@ -304,7 +304,7 @@ def _directions(current):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, threshold_scale, out):
+def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initial_excursion, threshold_scale, out):
     """Fill ``out[w, :]`` with the GPI response of ``theta[w]``, eq. (5) for every parameter set.
 
     Two passes per parameter set: :func:`_branch_values` evaluates, for every sample, the
@@ -323,6 +323,12 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, thresh
     ``(1, T)`` or ``(W, T)`` it scales every threshold at each sample (a time-varying play
     width: the thresholds used by the update at sample ``k >= 1`` are ``r_j s_k``; the
     initial memory is clamped with those of eq. (8)).
+
+    ``initial_excursion[w]`` (:math:`e`, 0: none) is the last reversal before ``t_0``: the
+    clamped memory is carried along the input path :math:`v_0 \to v_0 + e \to v_0` by
+    the play law (one rising then one falling update for :math:`e > 0`, the mirror for
+    :math:`e < 0`; exact for the monotone tanh envelopes, whose extreme on the path lies
+    at an end).
     """
     n_sets = theta.shape[0]
     n_samples = current.shape[1]
@@ -364,6 +370,15 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, thresh
             upper = falling_env + thresholds[j]
             lower = rising_env - thresholds[j]
             memory[j] = max(lower, min(upper, z0))
+        excursion = initial_excursion[w]
+        if excursion > 0.0:
+            peak_env = _tanh_env(ru0, ru1, ru2, ru3, v + excursion)
+            for j in range(n_operators):
+                memory[j] = min(max(memory[j], peak_env - thresholds[j]), falling_env + thresholds[j])
+        elif excursion < 0.0:
+            trough_env = _tanh_env(rd0, rd1, rd2, rd3, v + excursion)
+            for j in range(n_operators):
+                memory[j] = max(min(memory[j], trough_env + thresholds[j]), rising_env - thresholds[j])
         out[w, 0] = omega[0] + _weighted_sum(weights, memory)
         last_was_rising_branch = True  # Omega branch used at the previous sample
 
@@ -425,6 +440,16 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, thresh
             out[w, k] = omega[k] + ((s0 + s1) + (s2 + s3))
 
 
+def _per_set(values, n_sets, name):
+    """A scalar or one value per parameter set, as a contiguous ``(W,)`` array."""
+    array = np.asarray(values, dtype=float)
+    if array.shape not in ((), (1,), (n_sets,)):
+        raise ValueError(f"{name} must be a scalar or have shape ({n_sets},) (one value per parameter set), got shape {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name} must be finite")
+    return np.ascontiguousarray(np.broadcast_to(array, (n_sets,)))
+
+
 def _prepare(theta, current, n_operators, reading, initial_memory):
     """Validate and normalise inputs; return 2-D contiguous arrays and flags."""
     if reading not in READINGS:
@@ -463,16 +488,7 @@ def _prepare(theta, current, n_operators, reading, initial_memory):
         where = f"current[{k}]" if current.ndim == 1 else f"current[{r}, {k}]"
         raise ValueError(f"current has a non-finite value at {where} ({current2[r, k]})")
 
-    z0 = np.asarray(initial_memory, dtype=float)
-    if z0.shape not in ((), (1,), (theta2.shape[0],)):
-        raise ValueError(
-            f"initial_memory must be a scalar or have shape ({theta2.shape[0]},) (one level per parameter set), "
-            f"got shape {z0.shape}"
-        )
-    z0 = np.broadcast_to(z0, (theta2.shape[0],))
-    if not np.isfinite(z0).all():
-        raise ValueError("initial_memory must be finite")
-    z0 = np.ascontiguousarray(z0)
+    z0 = _per_set(initial_memory, theta2.shape[0], "initial_memory")
     return theta2, current2, int(n_operators), READINGS[reading], z0, single
 
 
@@ -494,7 +510,8 @@ def _threshold_scale(threshold_scale, n_sets, n_samples):
     return np.ascontiguousarray(scale2)
 
 
-def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, threshold_scale=None):
+def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, threshold_scale=None,
+        initial_excursion=0.0):
     """Generalized Prandtl-Ishlinskii response, eqs. (5)-(13), for one or many parameter sets.
 
     Defined for every finite parameter set (see "The whole domain" in the module
@@ -521,6 +538,12 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, t
         clamped with the thresholds of eq. (8) (the state the record starts from is
         ``initial_memory``'s, not re-clamped by the width; the first factor is not used).
         None: the thresholds of eq. (8) throughout.
+    initial_excursion : float or array_like of shape (W,), default 0.0
+        The last reversal before ``t_0`` [A, drive units]: before the record the drive went
+        from :math:`v_0` to :math:`v_0 + e` and back, and the memory clamped from
+        ``initial_memory`` followed it (the operators narrower than about half the
+        excursion keep its trace). 0: no excursion (the memory is the clamped level).
+        Used by the ``initial_state`` effect.
 
     Returns
     -------
@@ -531,16 +554,17 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, t
     ------
     ValueError
         Malformed input only: non-finite or wrongly shaped ``theta``/``current``/
-        ``initial_memory``, fewer than 2 samples, ``n_operators < 1``, an unknown reading.
+        ``initial_memory``/``initial_excursion``, fewer than 2 samples, ``n_operators < 1``, an unknown reading.
     """
     theta2, current2, n_operators, rising_is_a, z0, single = _prepare(
         theta, current, n_operators, reading, initial_memory
     )
+    excursion = _per_set(initial_excursion, theta2.shape[0], "initial_excursion")
     scale = _threshold_scale(threshold_scale, theta2.shape[0], current2.shape[1])
     if scale.shape[0] > 1:
         single = False
     out = np.empty((theta2.shape[0], current2.shape[1]))
-    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, scale, out)
+    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, excursion, scale, out)
     return out[0] if single else out
 
 

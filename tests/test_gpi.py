@@ -167,6 +167,32 @@ def test_batch_with_per_row_current_matches_oracle():
         np.testing.assert_array_equal(out[w], gpi(thetas[w], currents[w]))
 
 
+@pytest.mark.parametrize("reading", ["swapped", "literal"])
+def test_initial_excursion_is_the_memory_of_a_prior_path(reading, paper_input):
+    """``initial_excursion = e`` starts the record from the memory the oracle reaches along the
+    path v0 -> v0 + e -> v0 (prepended to the input); from the second sample on the outputs
+    agree (the first sample's Omega branch is the record's convention, rising)."""
+    current = paper_input[::10]
+    v0 = float(current[0])
+    thetas = np.tile(TABLE1, (5, 1))
+    thetas[3, 0] = -0.3  # negative thresholds: bounds cross
+    excursions = np.array([2.0, -1.5, 0.4, 3.0, -4.0])
+    levels = np.array([0.0, 3.0, -40.0, 0.0, 10.0])
+    fast = gpi(thetas, current, reading=reading, initial_memory=levels, initial_excursion=excursions)
+    for w in range(len(thetas)):
+        path = np.r_[v0, v0 + excursions[w], current]
+        reference = gpi_reference(thetas[w], path, reading=reading, initial_memory=levels[w])
+        np.testing.assert_allclose(fast[w, 1:], reference.output[3:], rtol=0, atol=1e-9 * oracle_scale(reference))
+        assert np.array_equal(fast[w], gpi(thetas[w], current, reading=reading, initial_memory=levels[w],
+                                           initial_excursion=excursions[w]))  # fmt: skip
+    # the excursion is seen: the raised trace persists in the wide operators
+    plain = gpi(thetas[0], current, reading=reading)
+    assert np.max(np.abs(fast[0] - plain)) > 1e-3 * np.ptp(plain)
+    # 0 is exactly no excursion
+    assert np.array_equal(gpi(thetas, current, reading=reading, initial_memory=levels, initial_excursion=0.0),
+                          gpi(thetas, current, reading=reading, initial_memory=levels))  # fmt: skip
+
+
 def test_single_theta_with_2d_current_returns_2d():
     current = np.linspace(0.0, 5.0, 50)[None, :]
     out = gpi(TABLE1, current)
@@ -487,6 +513,7 @@ def _with(index, value, theta=TABLE1):
         (TABLE1, CURRENT, {"reading": "mirrored"}, r"reading must be one of \['literal', 'swapped'\], got 'mirrored'"),
         (TABLE1, CURRENT, {"initial_memory": np.nan}, r"initial_memory must be finite"),
         (np.stack([TABLE1] * 3), CURRENT, {"initial_memory": [0.0, 1.0]}, r"initial_memory must be a scalar or have shape \(3,\)"),
+        (TABLE1, CURRENT, {"initial_excursion": np.inf}, r"initial_excursion must be finite"),
         (TABLE1, CURRENT, {"threshold_scale": np.ones(19)}, r"threshold_scale must have shape \(20,\) or \(1, 20\).*got shape \(19,\)"),
         (TABLE1, CURRENT, {"threshold_scale": np.zeros(20)}, r"threshold_scale must be finite and > 0"),
     ],
