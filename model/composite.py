@@ -8,7 +8,8 @@ at one of three stages:
     :meth:`Effect.drive` returns the per-parameter-set drive, shape ``(W, T)``.
 ``"state"``
     sets the operators' initial memory (e.g. ``initial_state``):
-    :meth:`Effect.initial_memory` returns shape ``(W,)``.
+    :meth:`Effect.initial_memory` returns shape ``(W,)``, and optionally
+    :meth:`Effect.initial_excursion` the last reversal before the record, shape ``(W,)``.
 ``"output"``
     transforms the displacement after the hysteresis (e.g. ``creep``, ``thermal``,
     ``sensor_drift``): :meth:`Effect.output` returns shape ``(W, T)``.
@@ -124,6 +125,11 @@ class Effect:
     def initial_memory(self, params):  # pragma: no cover - protocol
         """Stage ``"state"``: the operators' initial memory level, shape ``(W,)``."""
         raise NotImplementedError
+
+    def initial_excursion(self, params):
+        """Stage ``"state"``, optional: the last reversal before the record, shape ``(W,)`` [A]
+        (:func:`model.gpi.gpi`'s ``initial_excursion``), or None (the default: none)."""
+        return None
 
     def output(self, params, time, current, displacement):  # pragma: no cover - protocol
         """Stage ``"output"``: displacement after the effect, shape ``(W, T)`` [um]."""
@@ -390,6 +396,7 @@ class Model:
         n_sets = theta2.shape[0]
         drive = current
         z0 = 0.0
+        excursion = 0.0
         width = None
         for e in self.effects:
             params = theta2[:, self._slices[e.name]]
@@ -400,11 +407,14 @@ class Model:
                 drive = np.asarray(e.drive(params, time, drive), dtype=float)
             elif e.stage == "state":
                 z0 = np.asarray(e.initial_memory(params), dtype=float)
+                reversal = e.initial_excursion(params)
+                if reversal is not None:
+                    excursion = np.asarray(reversal, dtype=float)
         if drive.ndim == 2 and drive.shape[0] != n_sets:
             raise ValueError(f"an input-stage effect returned {drive.shape[0]} rows for {n_sets} parameter sets")
         if not np.isfinite(drive).all():
             raise ValueError("an input-stage effect produced a non-finite drive")
-        y = gpi(theta2[:, : len(THETA_NAMES)], drive, self.n_operators, self.reading, z0, width)
+        y = gpi(theta2[:, : len(THETA_NAMES)], drive, self.n_operators, self.reading, z0, width, excursion)
         if y.ndim == 1:
             y = y[None, :]
         for e in self.effects:

@@ -10,7 +10,7 @@ name                  stage    equation (one line)
 ====================  =======  ================================================================
 ``lag``               input    :math:`\tau_L \dot v = i - v`, the GPI sees :math:`u(t) = v(t - d)` (first order plus dead time)
 ``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`; thresholds times :math:`1 + w f`; strain excursion times :math:`1 + s f`; :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
-``initial_state``     state    operators' initial memory clamped from :math:`z^0` instead of 0
+``initial_state``     state    operators' initial memory from a level :math:`z^0` and a prior excursion
 ``incomplete_reset``  output   :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading with travel
 ``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change
 ``thermal``           output   two nodes :math:`\tau_T \dot\vartheta_1 = (i/i_\mathrm{ref})^2 - \vartheta_1`, :math:`\tau_2 \dot\vartheta_2 = \vartheta_1 - \vartheta_2`, :math:`y = y_g (1 - S\vartheta_1 - S_2\vartheta_2) + E\vartheta_1 + E_2\vartheta_2`
@@ -940,35 +940,56 @@ class Training(Effect):
 
 @register_effect
 class InitialState(Effect):
-    r"""First-cycle (training) effect: the memory the record starts from.
+    r"""First-cycle state: the memory the record starts from, left by the sample's history.
 
-    Every operator's initial memory is clamped from the level :math:`z^0` instead of 0:
+    Before the record the sample was driven (a previous test, the mounting, a magnet
+    nearby): its operators start with the memory that history left. A PI model's memory is
+    a staircase of the past extremes the later motion has not wiped out; the record's own
+    first large excursion wipes the narrow operators, so what can outlast it is the *last
+    reversal before the record*. This effect is that history in its two parts:
 
-    .. math::  z_j(t_0) = \max\big(\gamma_\uparrow(v_0) - r_j,\ \min(\gamma_\downarrow(v_0) + r_j,\ z^0)\big)
+    * a **level** :math:`z^0` every operator's memory is clamped from (the state before
+      any excursion):
 
-    (:func:`model.gpi.gpi`'s ``initial_memory``). The paper: the pre-tensioned return
-    spring "is not sufficiently large to provide crystal lattice reorientation ... thus
-    that after first cycle maximum strain is reduced", i.e. the virgin first loading
-    differs from later cycles. :math:`z^0 \to -\infty` resets every operator to its
-    lower bound (fully virgin: all variants reset); 0 is the paper's state; a positive
-    value leaves operators raised (variants left over from earlier excitation). The
-    first large excursion wipes the memory out, as the physics demands.
+      .. math::  z_j^c = \max\big(\gamma_\uparrow(v_0) - r_j,\ \min(\gamma_\downarrow(v_0) + r_j,\ z^0)\big);
 
-    **Not identifiable next to a GPI with free offsets** (any input, any size). Shifting
-    both envelope offsets (``a3``, ``b3``) by :math:`s` shifts every operator bound and
-    memory by :math:`s`; lowering both :math:`\Omega` offsets (``c3``, ``d3``) by
-    :math:`s \sum_j p_j` restores the output; with :math:`s = -z^0` (clipped to the
-    bounds' range) the plain GPI's initial level 0 gives exactly this effect's output.
-    So the plain GPI already has a free initial state (where 0 lies between its bounds),
-    and this effect adds nothing to it (:data:`identify.diagnosis.diagnose.GPI_EQUIVALENTS`; measured
-    on the virtual bench: z0 = -20, 293 noise sigmas RMS against the plain GPI at the same
-    parameters, is fitted by a plain GPI to ~1e-13 sigma, round-off). The effect matters only where
-    those offsets are pinned or carry another parametrisation (e.g. a peer's fit, whose
-    operators start above their upper bounds). The paper's training effect, a maximum
+    * a **prior excursion** :math:`e`: the drive went from :math:`v_0` to :math:`v_0 + e`
+      and back before :math:`t_0`, and the play law carried the memory along (for
+      :math:`e > 0`):
+
+      .. math::  z_j(t_0) = \min\big(\gamma_\downarrow(v_0) + r_j,\ \max(z_j^c,\ \gamma_\uparrow(v_0 + e) - r_j)\big),
+
+      and the mirror image for :math:`e < 0` (:func:`model.gpi.gpi`'s
+      ``initial_memory`` and ``initial_excursion``). The narrow operators end on the
+      return branch, the middle ones keep the excursion's peak, the widest keep the level:
+      a memory profile over the widths that no level alone gives.
+
+    The paper: the pre-tensioned return spring "is not sufficiently large to provide
+    crystal lattice reorientation ... thus that after first cycle maximum strain is
+    reduced", i.e. the first loading of a sample differs from later ones; what the first
+    cycle starts from is the history before it. :math:`z^0 \to -\infty`, :math:`e = 0`
+    resets every operator to its lower bound (fully virgin); ``0, 0`` is the paper's state.
+
+    **Identifiability.** The level alone is *not identifiable next to a GPI with free
+    offsets* (any input, any size): shifting both envelope offsets (``a3``, ``b3``) by
+    :math:`s` shifts every bound and memory by :math:`s`; lowering both :math:`\Omega`
+    offsets (``c3``, ``d3``) by :math:`s \sum_j p_j` restores the output; with
+    :math:`s = -z^0` (clipped to the bounds' range) the plain GPI's level 0 gives exactly
+    the same output (:data:`identify.diagnosis.diagnose.GPI_EQUIVALENTS`; measured: z0 = -20,
+    293 noise sigmas against the plain GPI at the same parameters, is fitted by a plain GPI
+    to ~1e-13 sigma). So ``initial_state_memory`` is **pinned by default**
+    (``vary=False``); free it (``Model.with_parameters``) only where those offsets are
+    pinned or carry another parametrisation (e.g. a peer's fit, whose operators start above
+    their upper bounds). The excursion is not such a shift (it moves some operators and not
+    others); it trades off with the thresholds' scale (which operators the excursion
+    reaches) and, at small sizes, with the first cycle's shape (``training``,
+    ``incomplete_reset``), and it saturates where the envelopes do (beyond the record's
+    drive range larger :math:`|e|` changes nothing). The paper's training effect, a maximum
     strain reduced *after* the first cycle, is a ratchet on the largest excursion so far,
-    which no initial memory of a GPI represents (the first full excursion wipes it).
+    which no initial memory represents.
 
-    Parameters: ``initial_state_memory`` [A, envelope units], ``-20 <= z0 <= 20``; off: 0.
+    Parameters: ``initial_state_memory`` [A, envelope units], ``-20 <= z0 <= 20``, pinned;
+    ``initial_state_excursion`` [A, drive units], ``-20 <= e <= 20``; off: both 0.
     """
 
     name = "initial_state"
@@ -976,14 +997,19 @@ class InitialState(Effect):
     parameters = ParameterSet(
         [
             Parameter(
-                "initial_state_memory", 0.0, -20.0, 20.0, unit="A",
-                description="level the operators' initial memory is clamped from (0: paper; very negative: virgin)",
-            )
+                "initial_state_memory", 0.0, -20.0, 20.0, unit="A", vary=False,
+                description="level the operators' initial memory is clamped from (0: paper; very negative: virgin); "
+                "pinned: an exact reparametrisation next to free GPI offsets",
+            ),
+            Parameter(
+                "initial_state_excursion", 0.0, -20.0, 20.0, unit="A",
+                description="the last reversal before the record: the drive went to v0 + e and back (0: none)",
+            ),
         ]
     )  # fmt: skip
-    off = {"initial_state_memory": 0.0}
-    summary = "first-cycle state: initial operator memory clamped from z0 (0 = paper, -inf = virgin)"
-    signature = "only the first rising branch, before the first reversal, differs from the later ones"
+    off = {"initial_state_memory": 0.0, "initial_state_excursion": 0.0}
+    summary = "first-cycle state: initial operator memory from a level z0 and a prior excursion to v0 + e (0, 0 = paper)"
+    signature = "only the first cycles differ from the later ones, as if the sample had been driven before the record"
 
     @classmethod
     def get_test_parameters(cls):
@@ -992,6 +1018,10 @@ class InitialState(Effect):
     def initial_memory(self, params):
         """The level :math:`z^0`, shape ``(W,)`` [A]."""
         return _column(params, 0)
+
+    def initial_excursion(self, params):
+        """The prior excursion :math:`e`, shape ``(W,)`` [A]."""
+        return _column(params, 1)
 
 
 @register_effect

@@ -75,8 +75,8 @@ the output only a dead time later, which no per-sample step can reach. A lag is 
 of a first-order filter with an input linear between samples has a zero near -1 in the
 sample domain, so a step in :math:`u` makes :math:`i` ring with alternating sign, decaying as
 :math:`(-1 + h/3\tau_L)^k`: real, but the current limits may bind. ``training`` (its drive, width and strain parts) and
-``initial_state`` are inverted as identified (the compensation starts from the model's
-initial, virgin state). ``sensor_drift`` is supported here (an offset per sample, whatever
+``initial_state`` (its level and prior excursion) are inverted as identified (the
+compensation starts from the model's initial state). ``sensor_drift`` is supported here (an offset per sample, whatever
 its form: the effect's own output on a zero displacement), but it is
 a property of the sensor, not of the transducer (the workflows leave it out of a
 compensation). An effect without an inverse step here raises a :class:`ValueError`
@@ -190,6 +190,20 @@ def _env(k0, k1, k2, k3, v):
     return k0 * math.tanh(k1 * v + k2) + k3
 
 
+@njit(cache=True, inline="always")
+def _initial_operator(g, u, threshold, z0, excursion):
+    """One operator's memory at the first sample: clamped from ``z0`` at the drive ``u``,
+    then carried along the prior excursion ``u -> u + excursion -> u`` (``initial_state``)."""
+    lower = _env(g[0], g[1], g[2], g[3], u) - threshold
+    upper = _env(g[4], g[5], g[6], g[7], u) + threshold
+    m = max(lower, min(upper, z0))
+    if excursion > 0.0:
+        m = min(max(m, _env(g[0], g[1], g[2], g[3], u + excursion) - threshold), upper)
+    elif excursion < 0.0:
+        m = max(min(m, _env(g[4], g[5], g[6], g[7], u + excursion) + threshold), lower)
+    return m
+
+
 @njit(cache=True)
 def _evaluate(
     i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, cp, modes,
@@ -230,12 +244,9 @@ def _evaluate(
         width = 1.0 + tr[5] * math.exp(-((travel / tr[2]) ** tr[3]))
     # hysteresis
     if first:
-        z0 = st[8]
-        lower_env = _env(g[0], g[1], g[2], g[3], u)
-        upper_env = _env(g[4], g[5], g[6], g[7], u)
         s = 0.0
         for j in range(n_ops):
-            s += weights[j] * max(lower_env - thresholds[j], min(upper_env + thresholds[j], z0))
+            s += weights[j] * _initial_operator(g, u, thresholds[j], st[8], st[14])
         y_gpi = _env(g[8], g[9], g[10], g[11], u) + s
         side = 1
     else:
@@ -309,10 +320,8 @@ def _commit(
         creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
     )
     if first:
-        lower_env = _env(g[0], g[1], g[2], g[3], u)
-        upper_env = _env(g[4], g[5], g[6], g[7], u)
         for j in range(n_ops):
-            memory[j] = max(lower_env - thresholds[j], min(upper_env + thresholds[j], st[8]))
+            memory[j] = _initial_operator(g, u, thresholds[j], st[8], st[14])
         for m in range(modes.shape[0]):
             modes[m] = y_gpi
         st[7] = 0.0
@@ -548,9 +557,11 @@ def _inverse_kernel(
         # 4 u_prev (GPI drive), 5 previous sample on Omega's c branch, 6 GPI output prev,
         # 7 temperature rise (node 1), 8 initial memory level z0, 9 heating prev,
         # 10 the current's travel, 11 the GPI output at the first sample, 12 the strain
-        # (after training's strain part) prev, 13 temperature rise of node 2
-        st = np.zeros(14)
-        st[8] = z0[w]
+        # (after training's strain part) prev, 13 temperature rise of node 2, 14 initial
+        # excursion
+        st = np.zeros(15)
+        st[8] = z0[w, 0]
+        st[14] = z0[w, 1]
         lag_c = np.zeros(3)
         thermal_c = np.zeros(6)
         tr = training[w]
@@ -709,7 +720,7 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
 
     n_sets = theta2.shape[0]
     gpi_theta = np.ascontiguousarray(theta2[:, : len(THETA_NAMES)])
-    z0 = np.ascontiguousarray(_effect_columns(model, theta2, "initial_state", 1, [0.0])[:, 0])
+    z0 = _effect_columns(model, theta2, "initial_state", 2, [0.0, 0.0])  # level, excursion
     lag = _effect_columns(model, theta2, "lag", 2, [0.0, 0.0])
     if np.any(lag[:, 1] != 0.0):
         rows = np.flatnonzero(lag[:, 1] != 0.0)

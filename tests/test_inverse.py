@@ -53,6 +53,19 @@ def test_a_target_made_by_the_model_is_reproduced_to_rounding(effects):
     assert result.current.min() >= 0.0 and result.current.max() <= 5.0
 
 
+@pytest.mark.parametrize("excursion", [-3.0, 2.0, 8.0])
+def test_a_prior_excursion_is_inverted_to_rounding(excursion):
+    """``initial_state``'s prior excursion (the memory the record starts from, below, within
+    and beyond the record's range) is part of the inverse's first step."""
+    model = Model(["initial_state", "creep"])
+    theta = _theta(model, initial_state_excursion=excursion)
+    time, current = paper_current(fs=100)
+    target = model(theta, time, current)
+    plain = model(_theta(model), time, current)
+    assert np.abs(target - plain).max() > 0.1  # the excursion is seen
+    _inverted_exactly(model, theta, time, target, 1e-13)
+
+
 @pytest.mark.parametrize("effects", [[], ["thermal"], ["creep"], ["training"], ["thermal", "creep", "training", "initial_state"]])
 @pytest.mark.parametrize("shape", ["triangle", "multisine"])
 def test_user_targets_are_followed_exactly(effects, shape):

@@ -272,7 +272,10 @@ def sma_model(n_operators):
     from identify.fitting.parametrisation import normalised_model
     from model import Model
 
-    return normalised_model(Model(["initial_state"], n_operators=n_operators))
+    model = normalised_model(Model(["initial_state"], n_operators=n_operators))
+    # the peer's operators start above their upper bounds: its initial level is a free parameter
+    # (pinned by default, an exact reparametrisation where the GPI's offsets are free)
+    return model.with_parameters(model.parameters.replace("initial_state_memory", vary=True))
 
 
 def full_rms(fit) -> float:
