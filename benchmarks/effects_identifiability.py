@@ -14,7 +14,7 @@ computed, and printed:
   (the GPI has near-degenerate directions of its own: 1e-7 or so);
 * the effect's columns projected out of the GPI's column span: the smallest singular value
   of that projection relative to the effect columns' own size (``indep``). An exact
-  reparametrisation of the GPI (``initial_state``, the positive control) gives round-off
+  reparametrisation of the GPI (``initial_state``'s level, freed here: the positive control) gives round-off
   (1e-8 or less); an effect the GPI cannot imitate in any direction gives a value of order
   1e-3 to 1; the smallest says which combination of the effect is least separable from the
   GPI, and the "worst direction" lists its largest parameter loadings;
@@ -35,7 +35,7 @@ from model import TABLE1, Model, paper_current
 SETTINGS = {
     "lag": {"lag_tau": 0.02, "lag_delay": 0.03},
     "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 2.0, "training_shape": 1.5, "training_gain": 0.05, "training_width": 0.2},
-    "initial_state": {"initial_state_memory": -0.5},
+    "initial_state": {"initial_state_memory": -0.5, "initial_state_excursion": 2.0},
     "incomplete_reset": {"incomplete_reset_strain": 5.0, "incomplete_reset_retained": 0.5, "incomplete_reset_fade": 0.05},
     "creep": {"creep_amplitude": 0.02, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.005, "creep_log_onset": 0.1},
     "thermal": {"thermal_tau": 10.0, "thermal_sensitivity": 0.03, "thermal_expansion": 1.0, "thermal_tau_core": 200.0,
@@ -85,6 +85,10 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|")
     for name, values in SETTINGS.items():
         model = plain + name
+        parameters = model.parameters
+        for parameter in values:  # freed where pinned by default (initial_state's level: the positive control)
+            parameters = parameters.replace(parameter, vary=True)
+        model = model.with_parameters(parameters)
         theta = model.theta_from_dict(dict(zip(plain.names, theta0)) | values)
         free = np.flatnonzero(model.parameters.vary)
         jac = jacobian(model, theta, time, current, free)

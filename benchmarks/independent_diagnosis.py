@@ -21,8 +21,10 @@ Run from the repository root (resumable: rerun the same command after an interru
 
 What counts as right (issue 16): a single library physics is named first and, with it
 added, the record ends ``adequate`` with RMS within 10 % of sigma; a pair has one of its
-two named first and both found one after the other; ``initial_state`` (an exact
-reparametrisation of the GPI) and clean records end ``adequate`` with nothing named;
+two named first and both found one after the other; clean records end ``adequate`` with
+nothing named; ``initial_state`` (whose level is an exact reparametrisation of the GPI and
+whose prior excursion the GPI may absorb) ends ``adequate`` with nothing named or with
+``initial_state`` named, and a record that has it beside another physics may name it too;
 ``outside`` (physics outside the library) ends ``unexplained`` with nothing named.
 """
 
@@ -41,8 +43,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_GENERATOR = Path("/work/main/benchmarks/independent/generator.py")
 #: the generator's category names -> this library's effect names
 LIBRARY_NAME = {"first_cycle": "incomplete_reset"}
-#: physics the diagnosis cannot and need not name: exact reparametrisations of the GPI
-NOT_NAMEABLE = {"initial_state"}
+#: physics the GPI may absorb (in part an exact reparametrisation): naming it is right, and
+#: so is leaving it unnamed when the record ends adequate
+OPTIONAL = {"initial_state"}
 
 
 def generate(generator: Path, suite: str, out: Path, seed: int, per_form: int | None, n: int | None) -> Path:
@@ -121,7 +124,8 @@ def score(physics: list[str], history: list[dict]) -> dict:
     first = verdict_label(history[0])
     final = history[-1]
     named = [h["missing"] for h in history if h["status"] == "missing_effect"]
-    nameable = [p for p in physics if p not in NOT_NAMEABLE and p != "outside"]
+    nameable = [p for p in physics if p not in OPTIONAL and p != "outside"]
+    optional = [p for p in physics if p in OPTIONAL]
     final_rms = final.get("rms_over_sigma", float("nan"))
     if "outside" in physics:
         kind = "outside"
@@ -129,13 +133,14 @@ def score(physics: list[str], history: list[dict]) -> dict:
         final_ok = final["status"] == "unexplained" and not named
     elif not nameable:
         kind = "clean" if not physics else "initial_state"
-        first_ok = first == "adequate"
-        final_ok = final["status"] == "adequate" and not named
+        first_ok = first == "adequate" or first in optional
+        final_ok = final["status"] == "adequate" and set(named) <= set(optional)
     else:
         kind = "single" if len(nameable) == 1 else "pair"
-        first_ok = first in nameable
-        final_ok = (final["status"] == "adequate" and set(named) == set(nameable) and abs(final_rms - 1.0) <= 0.10)
-    wrong_first = history[0]["status"] == "missing_effect" and first not in nameable
+        first_ok = first in nameable or first in optional
+        final_ok = (final["status"] == "adequate" and set(nameable) <= set(named) <= set(nameable) | set(optional)
+                    and abs(final_rms - 1.0) <= 0.10)  # fmt: skip
+    wrong_first = history[0]["status"] == "missing_effect" and first not in nameable + optional
     return {"kind": kind, "first": first, "first_ok": first_ok, "final_ok": final_ok, "wrong_first": wrong_first,
             "named": named, "final": verdict_label(final), "final_rms_over_sigma": final_rms}  # fmt: skip
 
@@ -165,7 +170,7 @@ def summarise(results: dict) -> str:
         "single": ("named first and repaired to adequate (RMS within 10 % of sigma)", ">= 90 %", "final_ok"),
         "pair": ("both found one after the other, then adequate", ">= 80 %", "final_ok"),
         "clean": ("adequate, nothing named", ">= 99 %", "final_ok"),
-        "initial_state": ("adequate, nothing named (exact reparametrisation)", "-", "final_ok"),
+        "initial_state": ("adequate, nothing named or initial_state named", "-", "final_ok"),
         "outside": ("unexplained, nothing named", "all", "final_ok"),
     }
     for kind, (what, target, key) in targets.items():

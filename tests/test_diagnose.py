@@ -166,9 +166,10 @@ def test_diagnose_command_writes_the_contract(clean_csv, tmp_path, capsys):
     assert {r["effect"] for r in content["ranking"]} == {"lag", "training", "initial_state", "incomplete_reset", "creep", "thermal", "sensor_drift"}
     for entry in content["ranking"]:
         assert {"effect", "rms_after", "delta_bic", "explained_fraction", "parameters"} <= set(entry)
-    # initial_state is an exact reparametrisation of the GPI: listed, marked, never credited
+    # initial_state is a candidate through its prior excursion (its level is pinned: an exact
+    # reparametrisation): screened like any effect, not credited on a clean record
     entry = next(r for r in content["ranking"] if r["effect"] == "initial_state")
-    assert "not identifiable" in entry["note"] and entry["delta_bic"] < 0 and not entry["refitted"]
+    assert "not identifiable" not in (entry.get("note") or "") and "initial_state_excursion" in entry["parameters"]
     assert json.loads((out_dir / "diagnosis.json").read_text()) == content
     pngs = sorted(p.name for p in (out_dir / "diagnosis").glob("*.png"))
     assert pngs == [f"{stem}.png" for stem in ("1_residual_vs_time", "2_residual_vs_current", "3_residual_vs_rate",
@@ -216,7 +217,7 @@ def _increasing_amplitude_input(fs=50.0):
 
 
 @pytest.mark.parametrize("effects", [(), ("lag", "thermal")])
-def test_initial_state_is_an_exact_reparametrisation_of_the_gpi(effects):
+def test_initial_states_level_is_an_exact_reparametrisation_of_the_gpi_and_its_excursion_is_not(effects):
     """A constant initial memory level equals shifted envelope and Omega offsets, on any input.
 
     Checked on the paper's input and on an increasing-amplitude input (where the early
@@ -239,7 +240,13 @@ def test_initial_state_is_an_exact_reparametrisation_of_the_gpi(effects):
             assert np.max(np.abs(y_effect - y_plain)) <= 1e-9 * np.ptp(y_effect)
             # and the effect did change the output (the check is not vacuous)
             assert np.max(np.abs(y_effect - model_e(base, time, current))) > 1.0
-    assert exact_reparametrisation(sim.record, model, model.default_theta(), "initial_state")
+    assert not model_e.parameters["initial_state_memory"].vary  # pinned by default
+    # the prior excursion moves some operators and not others: no offset does that
+    theta_e = base.copy()
+    theta_e[model_e.names.index("initial_state_excursion")] = 2.0
+    with pytest.raises(ValueError, match="not a shift of the offsets"):
+        GPI_EQUIVALENTS["initial_state"](model_e, theta_e, sim.record.time, sim.record.current)
+    assert not exact_reparametrisation(sim.record, model, model.default_theta(), "initial_state")
     for other in ("creep", "sensor_drift") + (() if effects else ("lag", "thermal")):
         assert not exact_reparametrisation(sim.record, model, model.default_theta(), other)
 

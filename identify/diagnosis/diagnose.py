@@ -117,12 +117,14 @@ Method
    misfit's size against the floor).
 
 6. **Exact reparametrisations** (:data:`GPI_EQUIVALENTS`, :func:`exact_reparametrisation`):
-   an effect whose every setting is reproduced exactly by the model's own parameters
-   (``initial_state``: a constant initial memory level is a shift of the envelope and
-   :math:`\Omega` offsets) can explain nothing; after a numerical check on the record it is
-   listed in the ranking as not identifiable (``note``), never refitted or named. Its extra
-   direction still serves the baseline: a short refit through it, mapped back exactly, is
-   one of the challenger starts.
+   an effect whose every setting is reproduced exactly by the model's own parameters can
+   explain nothing; after a numerical check on the record it is listed in the ranking as
+   not identifiable (``note``), never refitted or named. ``initial_state``'s level is such a
+   part (a constant initial memory level is a shift of the envelope and :math:`\Omega`
+   offsets; pinned by default), its prior excursion is not, so ``initial_state`` is a
+   candidate through its excursion. The reparametrising direction still serves the
+   baseline: a short refit through it alone (:data:`REPARAMETRISED_PARAMETERS`), mapped
+   back exactly, is one of the challenger starts.
 
 Why these choices: the verdict rests on refits (what adding the effect really does),
 not on the linearisation, because the GPI re-adjusts nonlinearly to a new effect; on
@@ -173,6 +175,7 @@ __all__ = [
     "fit_baseline",
     "SCREENING_GRIDS",
     "GPI_EQUIVALENTS",
+    "REPARAMETRISED_PARAMETERS",
     "exact_reparametrisation",
 ]
 
@@ -365,7 +368,10 @@ def assess_adequacy(profile: ResidualProfile, thresholds: Thresholds = Threshold
 
 
 def _initial_state_as_envelope_offset(model_e: Model, theta_e, time, current) -> np.ndarray:
-    r"""``initial_state`` folded into the GPI's offsets: the same output with the effect off.
+    r"""``initial_state``'s level folded into the GPI's offsets: the same output with the effect off.
+
+    Only the level: the prior excursion must be off (it moves some operators and not
+    others, which no offset does).
 
     The operators' initial memory :math:`z_j(t_0) = \max(L_j, \min(U_j, z^0))`, with
     :math:`L_j = \gamma_\uparrow(v_0) - r_j`, :math:`U_j = \gamma_\downarrow(v_0) + r_j`, and
@@ -394,6 +400,12 @@ def _initial_state_as_envelope_offset(model_e: Model, theta_e, time, current) ->
     """
     theta = np.array(theta_e, dtype=float)
     names = model_e.names
+    excursion = float(theta[names.index("initial_state_excursion")])
+    if excursion != 0.0:
+        raise ValueError(
+            f"initial_state_excursion = {excursion:.4g} A: a prior excursion is not a shift of the offsets; "
+            "only the level (initial_state_memory) folds into them"
+        )
     drive = np.asarray(current, dtype=float)
     for effect in model_e.effects:
         if effect.stage == "input":
@@ -420,10 +432,28 @@ def _initial_state_as_envelope_offset(model_e: Model, theta_e, time, current) ->
 
 
 #: effect name -> callable(model_e, theta_e, time, current) returning a full vector of
-#: ``model_e`` with the effect off and the same output: effects that are exact
+#: ``model_e`` with the effect off and the same output, for the effect's parameters in
+#: :data:`REPARAMETRISED_PARAMETERS` (its others off): the parts of effects that are exact
 #: reparametrisations of the GPI (:func:`exact_reparametrisation` checks the claim
 #: numerically on the record before the diagnosis relies on it).
 GPI_EQUIVALENTS: dict[str, Callable] = {"initial_state": _initial_state_as_envelope_offset}
+#: effect name -> the parameters :data:`GPI_EQUIVALENTS` folds into the GPI (``initial_state``:
+#: the level, pinned by default; its prior excursion is a candidate like any effect)
+REPARAMETRISED_PARAMETERS: dict[str, tuple[str, ...]] = {"initial_state": ("initial_state_memory",)}
+
+
+def _through_reparametrisation(model: Model, effect_name: str) -> Model:
+    """``model + effect_name`` with only the parameters :data:`GPI_EQUIVALENTS` folds away
+    free, the effect's other parameters pinned off (the path of :func:`_reparametrisation_paths`)."""
+    model_e = model + effect_name
+    effect = get_effect(effect_name)
+    parameters = model_e.parameters
+    for parameter in effect.parameters:
+        if parameter.name in REPARAMETRISED_PARAMETERS[effect_name]:
+            parameters = parameters.replace(parameter.name, vary=True)
+        else:
+            parameters = parameters.replace(parameter.name, value=float(effect.off[parameter.name]), vary=False)
+    return model_e.with_parameters(parameters)
 
 
 def exact_reparametrisation(record, model: Model, theta, effect_name: str, rtol: float = 1e-9) -> bool:
@@ -468,7 +498,10 @@ def exact_reparametrisation(record, model: Model, theta, effect_name: str, rtol:
             theta_e = base.copy()
             theta_e[model_e.names.index(parameter.name)] = value
             rows.append(theta_e)
-            mapped.append(GPI_EQUIVALENTS[effect_name](model_e, theta_e, record.time, record.current))
+            try:
+                mapped.append(GPI_EQUIVALENTS[effect_name](model_e, theta_e, record.time, record.current))
+            except ValueError:  # a setting the map does not cover (initial_state's excursion)
+                return False
     rows, mapped = np.array(rows), np.array(mapped)
     if not (model_e.in_bounds(rows).all() and model_e.in_bounds(mapped).all()):
         return False
@@ -1634,15 +1667,16 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
 def _reparametrisation_paths(s: _Setting, rnd: _Round) -> list:
     """Step 5 (inadequate baseline): baseline starts found through the exact reparametrisations.
 
-    An exact reparametrisation is no candidate, but its extra direction is a path for the
+    An exact reparametrisation explains nothing, but its extra direction is a path for the
     baseline's optimiser (e.g. a virgin start: the plain GPI must move four offsets
-    together; through the initial level it moves one): short refit, mapped back.
+    together; through the initial level it moves one): short refit through the effect's
+    reparametrising parameters alone (:data:`REPARAMETRISED_PARAMETERS`), mapped back.
     """
     fit, work = rnd.fit, s.work
     reparametrised = []
-    for name in s.redundant:
-        s.say(f"short refit through '{name}' (an exact reparametrisation: a path for the baseline)")
-        model_e = fit.model + name
+    for name in [n for n in GPI_EQUIVALENTS if n in s.candidates or n in s.redundant]:
+        s.say(f"short refit through '{name}' (its exact reparametrisation: a path for the baseline)")
+        model_e = _through_reparametrisation(fit.model, name)
         grid = screening_grid(model_e, name, _embed(fit.model, fit.theta, model_e), work.record)
         result = _attempt(lambda: _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, fit, model_e, grid)),
                           s.say, "not possible")  # fmt: skip
