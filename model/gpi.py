@@ -303,6 +303,25 @@ def _directions(current):
     return direction
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def initial_operator_memory(level, threshold, rising_env, falling_env, excursion, excursion_env):
+    """One operator's memory at ``t_0``: clamped from ``level`` between its bounds at ``v_0``
+    (eq. (8)), then carried along a prior excursion ``v_0 -> v_0 + e -> v_0`` by the play law.
+
+    ``rising_env``, ``falling_env``: the envelopes at ``v_0``; ``excursion_env``: the rising
+    envelope at ``v_0 + e`` for ``e > 0``, the falling one for ``e < 0`` (not read at 0).
+    Shared by the forward kernel and :mod:`model.inverse`'s first step.
+    """
+    lower = rising_env - threshold
+    upper = falling_env + threshold
+    memory = max(lower, min(upper, level))
+    if excursion > 0.0:
+        memory = min(max(memory, excursion_env - threshold), upper)
+    elif excursion < 0.0:
+        memory = max(min(memory, excursion_env + threshold), lower)
+    return memory
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initial_excursion, threshold_scale, out):
     """Fill ``out[w, :]`` with the GPI response of ``theta[w]``, eq. (5) for every parameter set.
@@ -365,20 +384,16 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initia
         v = current[row, 0]
         rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
         falling_env = _tanh_env(rd0, rd1, rd2, rd3, v)
-        z0 = initial_memory[w]
-        for j in range(n_operators):
-            upper = falling_env + thresholds[j]
-            lower = rising_env - thresholds[j]
-            memory[j] = max(lower, min(upper, z0))
         excursion = initial_excursion[w]
+        excursion_env = 0.0
         if excursion > 0.0:
-            peak_env = _tanh_env(ru0, ru1, ru2, ru3, v + excursion)
-            for j in range(n_operators):
-                memory[j] = min(max(memory[j], peak_env - thresholds[j]), falling_env + thresholds[j])
+            excursion_env = _tanh_env(ru0, ru1, ru2, ru3, v + excursion)
         elif excursion < 0.0:
-            trough_env = _tanh_env(rd0, rd1, rd2, rd3, v + excursion)
-            for j in range(n_operators):
-                memory[j] = max(min(memory[j], trough_env + thresholds[j]), rising_env - thresholds[j])
+            excursion_env = _tanh_env(rd0, rd1, rd2, rd3, v + excursion)
+        for j in range(n_operators):
+            memory[j] = initial_operator_memory(
+                initial_memory[w], thresholds[j], rising_env, falling_env, excursion, excursion_env
+            )
         out[w, 0] = omega[0] + _weighted_sum(weights, memory)
         last_was_rising_branch = True  # Omega branch used at the previous sample
 

@@ -93,7 +93,7 @@ from numba import njit, prange
 
 from .composite import Model
 from .effects import CREEP_MODES, LOG_CREEP_MODE_WEIGHT, REFERENCE_CURRENT, creep_time_constants, log_creep_time_constants
-from .gpi import READINGS, THETA_NAMES, operator_thresholds_and_weights
+from .gpi import READINGS, THETA_NAMES, initial_operator_memory, operator_thresholds_and_weights
 
 __all__ = [
     "invert",
@@ -191,17 +191,15 @@ def _env(k0, k1, k2, k3, v):
 
 
 @njit(cache=True, inline="always")
-def _initial_operator(g, u, threshold, z0, excursion):
-    """One operator's memory at the first sample: clamped from ``z0`` at the drive ``u``,
-    then carried along the prior excursion ``u -> u + excursion -> u`` (``initial_state``)."""
-    lower = _env(g[0], g[1], g[2], g[3], u) - threshold
-    upper = _env(g[4], g[5], g[6], g[7], u) + threshold
-    m = max(lower, min(upper, z0))
+def _initial_envelopes(g, u, excursion):
+    """The envelopes :func:`model.gpi.initial_operator_memory` reads at the first drive ``u``:
+    ``(rising at u, falling at u, the one the prior excursion moves along at u + excursion)``."""
+    excursion_env = 0.0
     if excursion > 0.0:
-        m = min(max(m, _env(g[0], g[1], g[2], g[3], u + excursion) - threshold), upper)
+        excursion_env = _env(g[0], g[1], g[2], g[3], u + excursion)
     elif excursion < 0.0:
-        m = max(min(m, _env(g[4], g[5], g[6], g[7], u + excursion) + threshold), lower)
-    return m
+        excursion_env = _env(g[4], g[5], g[6], g[7], u + excursion)
+    return _env(g[0], g[1], g[2], g[3], u), _env(g[4], g[5], g[6], g[7], u), excursion_env
 
 
 @njit(cache=True)
@@ -244,9 +242,10 @@ def _evaluate(
         width = 1.0 + tr[5] * math.exp(-((travel / tr[2]) ** tr[3]))
     # hysteresis
     if first:
+        rising_env, falling_env, excursion_env = _initial_envelopes(g, u, st[14])
         s = 0.0
         for j in range(n_ops):
-            s += weights[j] * _initial_operator(g, u, thresholds[j], st[8], st[14])
+            s += weights[j] * initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env)
         y_gpi = _env(g[8], g[9], g[10], g[11], u) + s
         side = 1
     else:
@@ -320,8 +319,9 @@ def _commit(
         creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
     )
     if first:
+        rising_env, falling_env, excursion_env = _initial_envelopes(g, u, st[14])
         for j in range(n_ops):
-            memory[j] = _initial_operator(g, u, thresholds[j], st[8], st[14])
+            memory[j] = initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env)
         for m in range(modes.shape[0]):
             modes[m] = y_gpi
         st[7] = 0.0
