@@ -96,9 +96,9 @@ Method
      its member with the larger single :math:`\Delta\mathrm{BIC}` (add it, diagnose again,
      the second follows), if that member is common to every pair whose short refit comes
      within :attr:`Thresholds.bic_significant` of the best pair's BIC (on the working copy):
-     two pairs without a common effect that fit about equally well name nothing; the single candidate, when no pair beats it, is named if it
-     explains :attr:`Thresholds.explained_major` (its general form absorbs most of a
-     differently shaped version of its physics);
+     two pairs without a common effect that fit about equally well name nothing; a single
+     candidate that leaves structure, when no pair beats it, is named only if
+     :attr:`Thresholds.explained_major` is set and it explains that much (default: never);
    * otherwise ``unexplained``: significant structure remains that no candidate (or
      pair) explains; the reason lists the candidates and pairs with what each explains.
 
@@ -201,9 +201,12 @@ class Thresholds:
     bic_significant : float, default 10.0
         :math:`\\Delta\\mathrm{BIC}` above which adding an effect is "very strong"
         evidence (Kass and Raftery, 1995).
-    explained_major : float, default 0.75
-        Fraction of the excess a candidate (or pair) must explain to be named without
-        leaving an adequate residual.
+    explained_major : float or None, default None
+        Fraction of the excess the best single candidate, when no pair beats it, must
+        explain to be named without leaving an adequate residual; None: never (a candidate
+        that leaves structure is not trusted, like a pair that does: on the independent
+        bench an outside effect, a loop width that grows with the input's rate, was 80 %
+        explained by ``thermal`` alone, and 0.75 named it).
     explained_minor : float, default 0.25
         Fraction the best single candidate must explain for a pair verdict to name it.
     max_refits : int, default 3
@@ -249,7 +252,7 @@ class Thresholds:
     z_critical: float = 5.0
     structure_floor: float = 0.1
     bic_significant: float = 10.0
-    explained_major: float = 0.75
+    explained_major: float | None = None
     explained_minor: float = 0.25
     max_refits: int = 3
     try_pairs: bool = True
@@ -263,7 +266,9 @@ class Thresholds:
                 raise ValueError(f"Thresholds.{name} must be a finite number >= 0, got {value!r}")
         for name in ("explained_major", "explained_minor"):
             value = getattr(self, name)
-            if not (0.0 <= value <= 1.0):
+            if value is None and name == "explained_major":
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not 0.0 <= value <= 1.0:
                 raise ValueError(f"Thresholds.{name} must lie in [0, 1], got {value!r}")
         if isinstance(self.max_refits, bool) or not isinstance(self.max_refits, (int, np.integer)) or self.max_refits < 0:
             raise ValueError(f"Thresholds.max_refits must be an integer >= 0, got {self.max_refits!r}")
@@ -1995,7 +2000,7 @@ def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, 
     top = pair if pair is not None and pair.delta_bic > best.delta_bic else best
     if top is best and rival is not None:
         pass  # two candidates fit about equally well: the data cannot tell which is missing
-    elif top is best and best.explained >= thresholds.explained_major:
+    elif top is best and thresholds.explained_major is not None and best.explained >= thresholds.explained_major:
         # a differently shaped version of one effect's physics: its general form
         # absorbs most of it, and no second effect adds enough to pay for itself
         verdict.status, verdict.missing = "missing_effect", best.effect

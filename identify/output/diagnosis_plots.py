@@ -274,11 +274,12 @@ def ranking_figure(diagnosis, *, output_unit="um"):
     ax.legend(loc="best", fontsize=9)
     ax = axes[3]
     ax.bar(names[1:], [100 * c.explained for c in ranking], color=colours[1:])
-    ax.axhline(100 * diagnosis.thresholds.explained_major, color="black", ls=":", label="named above")
     ax.set_ylim(0, 105)
     ax.set_ylabel(axis_label("misfit explained", "%"))
     ax.set_title("Explained fraction")
-    ax.legend(loc="best", fontsize=9)
+    if diagnosis.thresholds.explained_major is not None:  # named without an adequate residual above it
+        ax.axhline(100 * diagnosis.thresholds.explained_major, color="black", ls=":", label="named above")
+        ax.legend(loc="best", fontsize=9)
     for ax in axes:
         ax.tick_params(axis="x", rotation=45)
     fig.suptitle(f"Candidates (verdict: {diagnosis.status}" + (f", missing: {diagnosis.missing})" if diagnosis.missing else ")"))
