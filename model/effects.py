@@ -113,28 +113,6 @@ def _lowpass_kernel(time, signal, tau, initial, out):
             out[w, k] = state
 
 
-@njit(parallel=True, cache=True)
-def _creep_kernel(time, displacement, amplitude, taus, out):
-    """Creep of each row of ``displacement`` through ``taus.shape[1]`` equal-weight modes."""
-    n_sets = displacement.shape[0]
-    n_samples = displacement.shape[1]
-    n_modes = taus.shape[1]
-    for w in prange(n_sets):
-        modes = np.empty(n_modes)
-        for m in range(n_modes):
-            modes[m] = displacement[w, 0]  # at rest at the start: every mode at equilibrium
-        out[w, 0] = displacement[w, 0]
-        for k in range(1, n_samples):
-            step = time[k] - time[k - 1]
-            y_prev = displacement[w, k - 1]
-            y_now = displacement[w, k]
-            total = 0.0
-            for m in range(n_modes):
-                modes[m] = _lowpass_step(modes[m], y_prev, y_now, step, taus[w, m])
-                total += modes[m]
-            out[w, k] = y_now - amplitude[w] * (y_now - total / n_modes)
-
-
 @njit(cache=True, inline="always")
 def _lowpass_coefficients(step, tau):
     """``(decay, gain)`` of :func:`_lowpass_step` for one step (``tau > 0``)."""

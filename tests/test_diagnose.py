@@ -641,10 +641,11 @@ def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monke
     assert [p.effect for p in tried] == ["creep+incomplete_reset"]
 
 
-def test_pair_pool_takes_every_candidate_with_a_significant_gain():
-    """Pairs are tried among every candidate whose short refit gains a significant delta BIC
-    on the working copy (not only the best three): a wrong effect can absorb more of two
-    hidden ones alone than either of them."""
+def test_pair_pool_takes_every_candidate_whose_gain_pays_for_its_parameters():
+    """Pairs are tried among every candidate whose short refit gains a positive delta BIC on
+    the working copy, significant alone or not (a lag hidden beside a first-cycle strain
+    gained delta BIC 6 alone and was decisive in the pair); one whose gain does not pay for
+    its parameters is left out."""
     from types import SimpleNamespace
 
     from identify.diagnosis.diagnose import _pair_pool, _Round
@@ -658,11 +659,12 @@ def test_pair_pool_takes_every_candidate_with_a_significant_gain():
         k = len(get_effect(name).parameters)
         return chi2_0 / np.exp((bic + k * np.log(n_eff)) / n_eff)
 
-    gains = {"creep": 900.0, "thermal": 700.0, "training": 500.0, "lag": 40.0, "sensor_drift": 2.0}
+    gains = {"creep": 900.0, "thermal": 700.0, "training": 500.0, "lag": 40.0, "sensor_drift": 2.0,
+             "incomplete_reset": -5.0}  # fmt: skip
     short = {name: (chi2_for(bic, name), (base + name).default_theta()) for name, bic in gains.items()}
     rnd = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), chi2_0, n_eff, short=short)
     pool = _pair_pool(rnd, thresholds)
-    assert [p[0] for p in pool] == ["creep", "thermal", "training", "lag"]  # sensor_drift: 2 < bic_significant
+    assert [p[0] for p in pool] == ["creep", "thermal", "training", "lag", "sensor_drift"]  # not incomplete_reset
     assert all(p[1].names == (base + p[0]).names for p in pool)
 
 
@@ -791,3 +793,53 @@ def test_a_single_candidate_that_leaves_structure_is_named_only_when_asked():
     assert verdict.status == "missing_effect" and verdict.missing == "thermal"
     assert "some structure remains" in verdict.reason
     assert _pair_verdict(rnd, best, None, [pair], {"thermal"}, Thresholds(explained_major=0.9)).status == "unexplained"
+
+
+def test_a_targeted_name_waits_for_the_rivals_its_screening_ranked_low(monkeypatch):
+    """Before the targeted check names an effect, every other candidate whose screening shows
+    any gain is refitted too, and one within bic_significant stops the name (a fresh draw of
+    the independent bench: after a lag, `sensor_drift` refitted gained 16 while creep, the
+    physics that was there, had a screening of 5 and was never refitted). When nothing would
+    be named, the low-ranked candidates are not refitted (no extra cost)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+    from identify.diagnosis.diagnose import _adequate_verdict, _targeted_check
+
+    fit = SimpleNamespace(rms=1.04, noise=SimpleNamespace(sigma=1.0), model=normalised_model(Model(["lag"])))
+    refit_gain = {"sensor_drift": (16.0, 1.02), "creep": (19.0, 1.019), "thermal": (-3.0, 1.039)}
+    refitted = []
+
+    def evaluate(record, base_fit, chi2_0, adequacy, name, *args, **kwargs):
+        refitted.append(name)
+        bic, rms = refit_gain[name]
+        return SimpleNamespace(effect=name, delta_bic=bic, rms_after=rms, adequate_after=True, refitted=True, note="")
+
+    monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
+    monkeypatch.setattr(diagnosis, "_short_refit_from_screening", lambda *a, **k: (0.0, None))
+    monkeypatch.setattr(diagnosis, "_screening_values", lambda *a, **k: {})
+    s = SimpleNamespace(thresholds=Thresholds(), say=lambda m: None, work=None, record=None, quiet=None, noise_ref=None,
+                        rng=None)  # fmt: skip
+    rnd = SimpleNamespace(fit=fit, chi2_0=1.0, adequacy=None)
+
+    def screened(name, bic):
+        return SimpleNamespace(effect=name, delta_bic=bic, note="", screening=None, refitted=False)
+
+    others = [screened("sensor_drift", 20.0), screened("creep", 5.0), screened("thermal", -3.0)]
+    ranking, targeted = _targeted_check(s, rnd, others, list(others))
+    assert refitted == ["sensor_drift", "creep"]  # thermal's screening shows no gain
+    assert targeted is None  # creep (19) within 10 of sensor_drift (16)
+    assert [c.effect for c in ranking[:2]] == ["creep", "sensor_drift"] and all(c.refitted for c in ranking[:2])
+    reason = _adequate_verdict(s, SimpleNamespace(fit=fit), ranking, "The residual passes the noise tests.").reason
+    assert "'creep' (delta BIC 19) and 'sensor_drift' (16) come within 10 of each other" in reason
+    assert "below the practical size" not in reason
+
+    refit_gain["creep"] = (-2.0, 1.04)  # the rival's refit gains nothing: the name stands
+    refitted.clear()
+    _, targeted = _targeted_check(s, rnd, others, list(others))
+    assert targeted is not None and targeted.effect == "sensor_drift" and refitted == ["sensor_drift", "creep"]
+
+    refit_gain["sensor_drift"] = (16.0, 1.038)  # of no practical size: nothing to name, no rival refitted
+    refitted.clear()
+    _, targeted = _targeted_check(s, rnd, others, list(others))
+    assert targeted is None and refitted == ["sensor_drift"]
