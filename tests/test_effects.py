@@ -261,7 +261,8 @@ def signature_initial_state(paper_input, plain_gpi):
 def signature_training(paper_input, plain_gpi):
     """The drive follows the soft threshold and scale of the fading first-cycle difference
     analytically; the quiet start is untouched; the first rising branch is delayed (g, F > 0)
-    or advanced (g < 0); late in the record the output is the plain GPI's; V0 and p set the fade."""
+    or advanced (g < 0: outside the fitting bounds, which keep g >= 0, but the equation holds);
+    late in the record the output is the plain GPI's; V0 and p set the fade."""
     time, current = paper_input
     m = Model(["training"])
     effect = m.effects[0]

@@ -107,7 +107,9 @@ Method
    :math:`\Delta\mathrm{BIC}` > :attr:`Thresholds.bic_significant` are still refitted
    (:attr:`Thresholds.targeted_refits`): a score aimed at one effect's signature has more
    power than the omnibus tests, and a refit that confirms it with an adequate residual
-   *and a practical size* is named: the RMS must fall by at least
+   *and a practical size*, with no other refit within :attr:`Thresholds.bic_significant`
+   (before a name, every candidate whose screening shows any gain is refitted too: a
+   screening is a lower bound), is named: the RMS must fall by at least
    :attr:`Thresholds.practical_rms_change` and the structure it explains,
    :math:`\sqrt{\mathrm{RMS}_0^2 - \mathrm{RMS}_1^2}`, must reach the adequacy rule's
    :attr:`Thresholds.structure_floor` (measured: creep at 2 sigma next to a fitted thermal
@@ -223,18 +225,22 @@ class Thresholds:
         be the best (measured on the independent bench: creep + a linear drift, where
         creep's short refit gained 624 and its full refit 3185, above the named thermal's
         3144), and a name is given only against every candidate that could rival it.
-        (The targeted check of an adequate baseline refits at most this many.) Pairs
+        (The targeted check of an adequate baseline refits at most this many of the
+        candidates that promise a significant gain, then, before naming one, every other
+        candidate with a positive screening.) Pairs
         (step 8): the best this many by their short refits are refitted in full, with
         any other within ``bic_significant`` of the best on the working copy.
     try_pairs : bool, default True
-        Refit pairs of the candidates with a significant gain together (step 8): when no
+        Refit pairs of the candidates whose gain alone pays for its parameters together
+        (step 8, :data:`PAIR_POOL`): when no
         single one suffices, and also beside a single one that leaves the noise, where a
         pair that would be named and gains more than ``bic_significant`` beyond it decides.
     targeted_refits : bool, default True
         When the residual passes the noise tests, still refit the candidates whose
         screening promises ``delta BIC > bic_significant`` and name one whose refit
-        confirms it with an adequate residual and a practical size (a score test aimed
-        at one effect's signature has more power than the omnibus tests).
+        confirms it with an adequate residual, a practical size and no rival refit within
+        ``bic_significant`` (a score test aimed at one effect's signature has more power
+        than the omnibus tests).
     practical_rms_change : float, default 0.01
         A targeted finding (one that overrides passing noise tests) must matter against
         the noise, not only be detectable: it must lower the residual RMS by at least
