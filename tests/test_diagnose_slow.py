@@ -287,7 +287,7 @@ def test_other_first_cycle_forms_point_to_training(kind, capsys):
 
 
 _ABSORBED = (
-    "known failure (issue 16, docs/diagnosis.md 'Independent bench'): the general forms overlap on the paper's "
+    "known failure (issue 16, docs/diagnosis.md 'Limits'): the general forms overlap on the paper's "
     "input, so one effect absorbs the other"
 )
 
