@@ -767,10 +767,11 @@ class Training(Effect):
     higher twinning stress of the virgin material, so they are never negative (``g, F, w
     >= 0``): a virgin material that needed *less* field than the trained one, or had
     narrower loops, would be no training but another physics (an untrained material does
-    not move its twin boundaries more easily; measured on a fresh draw of the independent
-    bench: with ``g, w`` free of sign, training absorbed a raised initial memory, the memory
-    a run before the record left, with ``w = -0.085`` and ``s = -0.07``, and was named for
-    it). :math:`s > 0`: the virgin material's
+    not move its twin boundaries more easily). The signs do not make training
+    identifiable on their own: on an input that starts with its largest excursion, its
+    part of the fit lies almost wholly in the first loading, where a prior state or an
+    output gap looks the same (a raised initial memory is still fitted by training with
+    these bounds; ``docs/diagnosis.md``, Limits). :math:`s > 0`: the virgin material's
     strain excursion is larger by the fraction :math:`s` and shrinks toward the trained one
     with cycling (the paper's "maximum strain is reduced"), :math:`s < 0`: it grows. The
     fade's shape :math:`p` makes the general form absorb other laws of the same physics: 1
