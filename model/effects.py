@@ -402,7 +402,13 @@ def _delay_kernel(time, signal, lagged, tau, delay, out):
 def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_extra):
     """Extra strain of :class:`IncompleteReset` per row (see its docstring), shape ``(W, T)``:
     ``excursion[w]`` is row ``w``'s strain excursion from its first value, ``current`` the
-    drive whose travel fades the retained part."""
+    drive whose travel fades the retained part.
+
+    The excursion levels set on a virgin loading and not reset since are kept as a stack of
+    disjoint intervals ``[low, high]`` (ascending); an unloading to ``e`` resets every set
+    level above ``e`` (it pops or cuts the top intervals), a new largest excursion sets the
+    levels between the previous largest and it. Each level is pushed and popped at most
+    once per new excursion, so the cost is linear in the samples."""
     n_sets = out_extra.shape[0]
     n_samples = out_extra.shape[1]
     row_step = 0 if excursion.shape[0] == 1 else 1
@@ -416,24 +422,38 @@ def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_ext
             for k in range(1, n_samples):
                 out_extra[w, k] = 0.0
             continue
+        low = np.empty(n_samples)
+        high = np.empty(n_samples)
+        count = 0
         reached = 0.0  # largest excursion so far (the virgin territory)
-        unreset = 0.0  # virgin extra strain the spring can still reset (normalised)
+        unreset = 0.0  # measure of the set levels the spring has not reset yet
         kept = 0.0  # retained part (normalised)
         previous = excursion[row, 0]
         for k in range(1, n_samples):
             e = excursion[row, k]
-            change = e - previous
             if kept != 0.0 and fade[w] > 0.0:
                 kept *= math.exp(-fade[w] * abs(current[k] - current[k - 1]))
             if e > reached:
-                unreset += (e - reached) / scale
+                if count > 0 and high[count - 1] == reached:
+                    high[count - 1] = e
+                else:
+                    low[count] = reached
+                    high[count] = e
+                    count += 1
+                unreset += e - reached
                 reached = e
-            elif change < 0.0:
-                moved = min(unreset, -change / scale)
-                unreset -= moved
-                kept += retained[w] * moved
+            elif e < previous:
+                while count > 0 and high[count - 1] > e:
+                    if low[count - 1] >= e:
+                        moved = high[count - 1] - low[count - 1]
+                        count -= 1
+                    else:
+                        moved = high[count - 1] - e
+                        high[count - 1] = e
+                    unreset -= moved
+                    kept += retained[w] * moved / scale
             previous = e
-            out_extra[w, k] = strain[w] * (unreset + kept)
+            out_extra[w, k] = strain[w] * (max(unreset, 0.0) / scale + kept)
 
 
 def first_order_lowpass(time, signal, tau, initial=None):
@@ -1015,28 +1035,35 @@ class IncompleteReset(Effect):
 
     With :math:`e_k = |y_{g,k} - y_{g,0}|` the strain's excursion from its first value (the
     GPI's output: the reorientation the field has done), :math:`E = \max_k e_k` the
-    record's largest, and two states (normalised by :math:`E`) updated at every sample:
+    record's largest, :math:`M_k = \max_{m \le k} e_m` the largest so far, and
+    :math:`S_k` the excursion levels set by the virgin loading and not reset since,
+    updated at every sample (:math:`|\cdot|` the total length of a set of levels):
 
     .. math::
 
-        \text{new excursion } (e_k > \max_{m<k} e_m):\quad
-            n \leftarrow n + \frac{e_k - \max_{m<k} e_m}{E}
+        \text{new excursion } (e_k > M_{k-1}):\quad
+            S \leftarrow S \cup (M_{k-1}, e_k]
 
         \text{unloading } (e_k < e_{k-1}):\quad
-            \delta = \min\Big(n, \frac{e_{k-1} - e_k}{E}\Big),\quad n \leftarrow n - \delta,\quad
+            \delta = \frac{|S \cap (e_k, \infty)|}{E},\quad S \leftarrow S \cap [0, e_k],\quad
             q \leftarrow q + R\,\delta
 
-        q \leftarrow q\, e^{-\lambda |i_k - i_{k-1}|}, \qquad y = y_g + A\,(n + q)
+        q \leftarrow q\, e^{-\lambda |i_k - i_{k-1}|}, \qquad
+        y = y_g + A\,\Big(\frac{|S|}{E} + q\Big)
 
-    (:math:`n, q = 0` at the start). So the virgin loading adds the extra strain
-    :math:`A` (at the record's largest excursion, in proportion to the strain before it:
-    the extra reorientation goes with the reorientation) to the GPI's response; unloading
-    resets it, in proportion to how far the strain comes back, except
-    the fraction :math:`R`, which stays (:math:`q`); later cycles within the excursion
-    already reached add no extra strain and ride on the retained :math:`R A`, fixed
-    (:math:`\lambda = 0`) or fading with the drive's further travel (:math:`\lambda > 0`
-    per unit of drive: cycling and the spring progressively reset the lattice). Only an
-    excursion beyond the largest so far (virgin territory) adds extra strain again.
+    (:math:`S` empty, :math:`q = 0` at the start). So the virgin loading adds the extra
+    strain :math:`A` (at the record's largest excursion, in proportion to the strain
+    before it: the extra reorientation goes with the reorientation) to the GPI's response.
+    Each level of it is reset when the strain comes back below that level (the spring
+    pushes the lattice back that far), except the fraction :math:`R`, which stays
+    (:math:`q`); a level is reset once. The extra strain is thus a function of the
+    strain's state (how far it went, how low it has come back since), not of its travel:
+    later cycles within the range already reached add no extra strain and ride on the
+    retained :math:`R A` (plus the virgin levels below the lowest strain since, which no
+    unloading has reached), fixed (:math:`\lambda = 0`) or fading with the drive's further
+    travel (:math:`\lambda > 0` per unit of drive: cycling and the spring progressively
+    reset the lattice). Only an excursion beyond the largest so far (virgin territory)
+    adds extra strain again.
 
     Physics, the paper's first-cycle effect (sec. "Magnetic shape memory materials"): in
     the spring-returned mode the pretensioned spring must reorient the variants after

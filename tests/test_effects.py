@@ -365,21 +365,23 @@ def signature_lag_dead_time(paper_input, plain_gpi):
 
 
 def _incomplete_reset_reference(current, y_g, A, R, fade):
-    """The recursion of IncompleteReset's docstring, written out sample by sample."""
+    """The recursion of IncompleteReset's docstring, written out sample by sample: the set
+    S of virgin levels not yet reset is a plain list of unit-free level intervals."""
     e = np.abs(y_g - y_g[0])
     E = e.max()
-    n = q = reached = 0.0
+    intervals: list[list[float]] = []
+    q = reached = 0.0
     out = np.zeros_like(y_g)
     for k in range(1, y_g.size):
         q *= math.exp(-fade * abs(current[k] - current[k - 1]))
         if e[k] > reached:
-            n += (e[k] - reached) / E
+            intervals.append([reached, e[k]])
             reached = e[k]
         elif e[k] < e[k - 1]:
-            moved = min(n, (e[k - 1] - e[k]) / E)
-            n -= moved
-            q += R * moved
-        out[k] = A * (n + q)
+            above = sum(max(0.0, hi - max(lo, e[k])) for lo, hi in intervals)
+            intervals = [[lo, min(hi, e[k])] for lo, hi in intervals if lo < e[k]]
+            q += R * above / E
+        out[k] = A * (sum(hi - lo for lo, hi in intervals) / E + q)
     return out
 
 
@@ -423,6 +425,13 @@ def signature_incomplete_reset(paper_input, plain_gpi):
     extra = incomplete_reset_strain(i2, y2, [A], [0.0], [0.0])[0]
     assert extra[100] == pytest.approx(A * 0.5) and abs(extra[199]) < 1e-12
     assert extra[-1] == pytest.approx(A * 0.5, rel=1e-9)  # only the new 2 A of virgin territory
+    # the state, not the travel: a second cycle within the range already unloaded resets
+    # nothing more (no ratchet); coming back lower than before resets the levels in between
+    y3 = np.array([0.0, 5.0, 10.0, 6.0, 3.0, 6.0, 10.0, 6.0, 3.0, 2.0, 1.0])
+    extra3 = incomplete_reset_strain(np.zeros_like(y3), y3, [A], [R], [0.0])[0]
+    after_first = A * (0.3 + R * 0.7)  # levels 0-3 still set, 3-10 reset with R kept
+    np.testing.assert_allclose(extra3[4:9], after_first, rtol=1e-12)
+    np.testing.assert_allclose(extra3[10], A * (0.1 + R * 0.9), rtol=1e-12)
     # a batch of displacements: row by row
     both = incomplete_reset_strain(current, np.vstack([plain_gpi, 2.0 * plain_gpi]), [A, A], [R, R], [0.0, 0.0])
     np.testing.assert_allclose(both[0], both[1], rtol=1e-12, atol=1e-12)  # the shares, not the sizes, matter
