@@ -581,6 +581,40 @@ def test_a_pair_refit_that_ends_above_a_member_alone_is_finished_again_from_that
     assert np.array_equal(calls[1], diagnosis._embed(drift_model, drift_fit.theta, pair))
 
 
+def test_a_pair_is_finished_from_a_member_of_the_other_threshold_sign_in_that_sign(monkeypatch):
+    """A member refitted from scratch with the other sign of the pinned thresholds nests in
+    the pair of that sign, not in the pair of the baseline's sign (there its GPI parameters
+    make a different model: measured, a start 28 % above the member's chi-square, three
+    polishes to the evaluation cap, 37 s of a 92-s diagnosis)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    base_model = with_threshold_sign(normalised_model(Model()), -1)
+    assert not base_model.parameters["alpha"].vary
+    pair = base_model + ["training", "incomplete_reset"]
+    base = SimpleNamespace(model=base_model, theta=base_model.default_theta(), noise=None)
+    other = with_threshold_sign(base_model, 1) + "training"
+    member = SimpleNamespace(model=other, theta=other.default_theta())
+    start = diagnosis._embed(base_model, base.theta, pair)
+    free = np.ones(len(pair.names), dtype=bool)
+    calls = []
+
+    def finish(record, model, noise, x, rng):
+        calls.append(model)
+        return SimpleNamespace(chi2=[86000.0, 79500.0][len(calls) - 1], model=model)
+
+    monkeypatch.setattr(diagnosis, "_finish", finish)
+    white = np.random.default_rng(0).standard_normal(10000)
+    white /= np.linalg.norm(white)
+    monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: white * np.sqrt(fit.chi2))
+    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, [(80000.0, member)])
+    assert chi2 == pytest.approx(79500.0) and len(calls) == 2
+    assert calls[0] is pair  # the pair's own start: the baseline's sign
+    assert calls[1].parameters["alpha"].value > 0 and calls[1].names == pair.names  # the member's sign
+    assert fit.model is calls[1]
+
+
 def test_a_rival_within_the_bic_threshold_blocks_a_name():
     """Two refitted candidates whose delta BICs are less than 10 apart: no strong evidence for
     either, so the best cannot be named (the issue's 'never a wrong name')."""

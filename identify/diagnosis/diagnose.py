@@ -1288,7 +1288,11 @@ def _refit_no_worse_than_nested(record, base_fit, base_chi2, model_e, start, fre
     ``n_eff log(chi2 / chi2_member)``, since most pairs end at their better member's optimum
     with the other effect nearly off, where a smaller one decides nothing). Of the nested
     fits within ``model_e``'s bounds whose shortfall counts, the one of lowest chi-square is
-    the reference.
+    the reference. A member refitted with the other sign of the pinned thresholds
+    (:func:`_retry_other_sign`) nests in ``model_e`` with that sign, so the pair is finished
+    there from it (with the baseline's sign its start is a different model: measured, a
+    start 28 % above the member's chi-square, polished three times to the evaluation cap,
+    37 s of a 92-s diagnosis).
 
     A refit from a candidate's own start can stop in a worse basin than a model it contains
     (measured: lag on the SmartHysteresis record with its ringing left out, seed 2,
@@ -1304,12 +1308,16 @@ def _refit_no_worse_than_nested(record, base_fit, base_chi2, model_e, start, fre
         if 0 < chi2_m < chi2_e and _n_eff(w) * math.log(chi2_e / chi2_m) > MEMBER_SHORTFALL_BIC:
             references.append((chi2_m, fit_m))
     for chi2_ref, fit_ref in sorted(references, key=lambda r: r[0]):
+        # a member refitted with the other threshold sign nests in model_e of that sign
+        target = _plain_of(fit_ref.model, model_e)
+        if not _same_threshold_sign(fit_ref.model, target):
+            continue
         try:
-            nested = _embed(fit_ref.model, fit_ref.theta, model_e)
+            nested = _embed(fit_ref.model, fit_ref.theta, target)
         except ValueError:  # not nested after all
             continue
-        if model_e.in_bounds(nested)[0]:
-            fit_n = _finish(record, model_e, base_fit.noise, nested[free], rng)
+        if target.in_bounds(nested)[0]:
+            fit_n = _finish(record, target, base_fit.noise, nested[free], rng)
             w_n = _whitened(record, fit_n)
             if float(w_n @ w_n) < chi2_e:
                 fit_e, w, chi2_e = fit_n, w_n, float(w_n @ w_n)
