@@ -1308,10 +1308,12 @@ def _refit_no_worse_than_nested(record, base_fit, base_chi2, model_e, start, fre
         if 0 < chi2_m < chi2_e and _n_eff(w) * math.log(chi2_e / chi2_m) > MEMBER_SHORTFALL_BIC:
             references.append((chi2_m, fit_m))
     for chi2_ref, fit_ref in sorted(references, key=lambda r: r[0]):
-        # a member refitted with the other threshold sign nests in model_e of that sign
-        target = _plain_of(fit_ref.model, model_e)
-        if not _same_threshold_sign(fit_ref.model, target):
-            continue
+        target = model_e
+        if not _same_threshold_sign(fit_ref.model, model_e):
+            # a member refitted with the other threshold sign nests in model_e of that sign
+            target = _plain_of(fit_ref.model, model_e)
+            if not _same_threshold_sign(fit_ref.model, target):  # alpha free on one side only
+                continue
         try:
             nested = _embed(fit_ref.model, fit_ref.theta, target)
         except ValueError:  # not nested after all
