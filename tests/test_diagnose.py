@@ -615,6 +615,41 @@ def test_a_pair_is_finished_from_a_member_of_the_other_threshold_sign_in_that_si
     assert fit.model is calls[1]
 
 
+def test_embedding_across_threshold_signs_is_refused_and_the_pair_pool_keeps_the_baselines_sign():
+    """A vector of one pinned threshold sign copied into a model of the other would silently
+    become a different model (the pinned alpha is the model's): ``_embed`` refuses it. So the
+    pair pool takes a candidate refitted with the other sign through its short refit (the
+    baseline's sign), not through that refit."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    negative = with_threshold_sign(normalised_model(Model()), -1)
+    positive = with_threshold_sign(negative, 1)
+    with pytest.raises(ValueError, match="not nested"):
+        diagnosis._embed(positive + "lag", (positive + "lag").default_theta(), negative + "lag")
+    assert np.array_equal(  # the same sign, and a free alpha, embed as before
+        diagnosis._embed(negative, negative.default_theta(), negative + "lag")[: len(negative.names)], negative.default_theta()
+    )
+    free = normalised_model(Model()).with_parameters(normalised_model(Model()).parameters.replace("alpha", vary=True))
+    diagnosis._embed(free, free.default_theta(), free + "lag")
+
+    lag_other = positive + "lag"
+    lag_theta = lag_other.default_theta()
+    creep_model = negative + "creep"
+    refitted = [
+        SimpleNamespace(effect="lag", delta_bic=900.0, fit=SimpleNamespace(model=lag_other, theta=lag_theta)),
+        SimpleNamespace(effect="creep", delta_bic=500.0, fit=SimpleNamespace(model=creep_model, theta=creep_model.default_theta())),
+    ]
+    lag_short = (negative + "lag").default_theta()
+    rnd = SimpleNamespace(fit=SimpleNamespace(model=negative), refitted=refitted, short={"lag": (950.0, lag_short)},
+                          chi2_0_small=1000.0, n_eff_small=4000.0)  # fmt: skip
+    pool = diagnosis._pair_pool(rnd, Thresholds())
+    assert [name for name, _, _ in pool] == ["creep", "lag"]
+    name, model_e, theta_e = pool[1]
+    assert model_e.parameters["alpha"].value < 0 and theta_e is lag_short  # the short refit, the baseline's sign
+
+
 def test_a_rival_within_the_bic_threshold_blocks_a_name():
     """Two refitted candidates whose delta BICs are less than 10 apart: no strong evidence for
     either, so the best cannot be named (the issue's 'never a wrong name')."""

@@ -716,7 +716,18 @@ class ScreeningResult:
 
 def _embed(model_from: Model, theta_from, model_to: Model, drop_extra=False) -> np.ndarray:
     """``theta_from`` copied by name into ``model_to``'s vector (new effects off; with
-    ``drop_extra`` parameters ``model_to`` lacks are dropped, else they are an error)."""
+    ``drop_extra`` parameters ``model_to`` lacks are dropped, else they are an error).
+
+    Both models must pin ``alpha`` with the same sign when both pin it: the pinned value is
+    the model's, not the vector's, so a vector of the other threshold sign would silently
+    become a different model (:func:`_plain_of` gives the model of that sign); that is a
+    ``ValueError`` ("not nested")."""
+    a, b = model_from.parameters["alpha"], model_to.parameters["alpha"]
+    if not a.vary and not b.vary and np.sign(a.value) != np.sign(b.value):
+        raise ValueError(
+            f"not nested: {model_from!r} pins alpha = {a.value:.4g}, {model_to!r} pins alpha = {b.value:.4g} "
+            "(the other threshold sign)"
+        )
     theta = model_to.default_theta()
     for name, value in zip(model_from.names, theta_from):
         if name in model_to.names:
@@ -2464,7 +2475,10 @@ def _pair_pool(rnd: _Round, thresholds) -> list:
     members' gains alone (:func:`_pair_verdict`)."""
     fit, pool, seen = rnd.fit, [], set()
     for c in rnd.refitted:
-        if c.delta_bic > 0.0 and c.fit is not None and c.effect not in seen:
+        # one refitted with the other threshold sign (_retry_other_sign) is not nested in the
+        # pairs of the baseline's sign: its short refit (the baseline's sign) enters below
+        nested = c.fit is not None and _same_threshold_sign(c.fit.model, fit.model)
+        if c.delta_bic > 0.0 and nested and c.effect not in seen:
             model_e = fit.model + c.effect
             pool.append((c.effect, model_e, _embed(c.fit.model, c.fit.theta, model_e)))
             seen.add(c.effect)
