@@ -631,8 +631,9 @@ def test_embedding_across_threshold_signs_is_refused_and_the_pair_pool_keeps_the
     assert np.array_equal(  # the same sign, and a free alpha, embed as before
         diagnosis._embed(negative, negative.default_theta(), negative + "lag")[: len(negative.names)], negative.default_theta()
     )
-    free = normalised_model(Model()).with_parameters(normalised_model(Model()).parameters.replace("alpha", vary=True))
-    diagnosis._embed(free, free.default_theta(), free + "lag")
+    plain = normalised_model(Model())
+    free = plain.with_parameters(plain.parameters.replace("alpha", vary=True))
+    assert np.array_equal(diagnosis._embed(free, free.default_theta(), free + "lag")[: len(free.names)], free.default_theta())
 
     lag_other = positive + "lag"
     lag_theta = lag_other.default_theta()

@@ -723,7 +723,7 @@ def _embed(model_from: Model, theta_from, model_to: Model, drop_extra=False) -> 
     become a different model (:func:`_plain_of` gives the model of that sign); that is a
     ``ValueError`` ("not nested")."""
     a, b = model_from.parameters["alpha"], model_to.parameters["alpha"]
-    if not a.vary and not b.vary and np.sign(a.value) != np.sign(b.value):
+    if not (a.vary or b.vary) and not _same_threshold_sign(model_from, model_to):
         raise ValueError(
             f"not nested: {model_from!r} pins alpha = {a.value:.4g}, {model_to!r} pins alpha = {b.value:.4g} "
             "(the other threshold sign)"
