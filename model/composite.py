@@ -20,6 +20,11 @@ virgin material's strain amplitude); its output part runs before the output-stag
 An input-stage effect may also change the play width over the record
 (:meth:`Effect.threshold_scale`: ``training``'s virgin width).
 
+Every stage acts row by row: a parameter set's result depends on its own parameters and
+its own input only. :meth:`Model.evaluate` relies on it to run each stage once per
+distinct input of a batch (the rows of a finite-difference Jacobian differ in one
+parameter each), which is exact (tested for the whole library).
+
 Effects register themselves by name in :data:`EFFECTS` (see :mod:`model.effects`).
 A :class:`Model` applies its effects in the library's canonical order (input stage,
 then state, then output, each in registration order), so ``thermal,creep`` and
@@ -38,7 +43,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .gpi import GPI_PARAMETERS, READINGS, THETA_NAMES, gpi
+from .gpi import GPI_PARAMETERS, READINGS, THETA_NAMES, distinct_rows, gpi_grouped
 from .parameters import ParameterSet
 
 __all__ = ["Effect", "Model", "EFFECTS", "register_effect", "get_effect", "STAGES"]
@@ -394,32 +399,51 @@ class Model:
         theta, time, current = self._check(theta, time, current)
         theta2 = np.atleast_2d(theta)
         n_sets = theta2.shape[0]
-        drive = current
+        # Each stage runs once per distinct input: ``group[w]`` is the row of ``drive`` (and
+        # of ``width``) set ``w`` sees, and an input effect runs on the first set of each
+        # distinct (group, parameters). In a finite-difference Jacobian most rows differ
+        # from the first in one parameter, so most stages run on one or two rows; the
+        # output is the one of running every set (each stage acts row by row).
+        group = np.zeros(n_sets, dtype=np.int64)
+        drive = None  # the record's current, shared by every set, until an input effect
+        width = None
         z0 = 0.0
         excursion = 0.0
-        width = None
         for e in self.effects:
             params = theta2[:, self._slices[e.name]]
             if e.stage == "input":
-                scale = e.threshold_scale(params, time, drive)
+                first, new_group = distinct_rows(group, params)
+                seen = current if drive is None else drive[group[first]]
+                sub = params[first]
+                scale = e.threshold_scale(sub, time, seen)
+                new_drive = np.atleast_2d(np.asarray(e.drive(sub, time, seen), dtype=float))
+                if new_drive.shape[0] not in (1, first.size):
+                    raise ValueError(f"an input-stage effect returned {new_drive.shape[0]} rows for {first.size} parameter sets")
                 if scale is not None:
-                    width = scale if width is None else width * scale
-                drive = np.asarray(e.drive(params, time, drive), dtype=float)
+                    scale = np.broadcast_to(np.atleast_2d(np.asarray(scale, dtype=float)), (first.size, time.size))
+                    width = scale if width is None else width[group[first]] * scale
+                elif width is not None:
+                    width = width[group[first]]
+                drive = np.ascontiguousarray(np.broadcast_to(new_drive, (first.size, time.size)))
+                group = new_group
             elif e.stage == "state":
                 z0 = np.asarray(e.initial_memory(params), dtype=float)
                 reversal = e.initial_excursion(params)
                 if reversal is not None:
                     excursion = np.asarray(reversal, dtype=float)
-        if drive.ndim == 2 and drive.shape[0] != n_sets:
-            raise ValueError(f"an input-stage effect returned {drive.shape[0]} rows for {n_sets} parameter sets")
-        if not np.isfinite(drive).all():
+        if drive is None:
+            drive = current[None, :]
+        elif not np.isfinite(drive).all():
             raise ValueError("an input-stage effect produced a non-finite drive")
-        y = gpi(theta2[:, : len(THETA_NAMES)], drive, self.n_operators, self.reading, z0, width, excursion)
-        if y.ndim == 1:
-            y = y[None, :]
+        y, y_of = gpi_grouped(theta2[:, : len(THETA_NAMES)], drive, group, self.n_operators, self.reading, z0, width, excursion)
         for e in self.effects:
             if e.stage == "output" or e.acts_on_output:
-                y = e.output(theta2[:, self._slices[e.name]], time, current, y)
+                params = theta2[:, self._slices[e.name]]
+                first, new_y_of = distinct_rows(y_of, params)
+                y = np.atleast_2d(e.output(params[first], time, current, y[y_of[first]]))
+                y_of = new_y_of
+        if y.shape[0] != n_sets:
+            y = y[y_of]
         valid = np.isfinite(y).all(axis=1)
         return y, valid
 

@@ -322,11 +322,37 @@ def initial_operator_memory(level, threshold, rising_env, falling_env, excursion
     return memory
 
 
+@njit(cache=True, error_model="numpy")
+def _omega_values(current, row, c0, c1, c2, c3, d0, d1, d2, d3, omega):
+    """``omega`` of :func:`_branch_values` alone (the same expression, so the same bits):
+    what a parameter set that shares its memories with another still computes."""
+    n_samples = current.shape[1]
+    omega[0] = _tanh_env(c0, c1, c2, c3, current[row, 0])
+    for k in range(1, n_samples):
+        v = current[row, k]
+        on_rising = v - current[row, k - 1] >= 0.0
+        omega[k] = _tanh_env(c0 if on_rising else d0, c1 if on_rising else d1, c2 if on_rising else d2,
+                             c3 if on_rising else d3, v)  # fmt: skip
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
-def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initial_excursion, threshold_scale, out):
+def _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion,
+                threshold_scale, scale_of, leaders, slot, followers, leader_of, sums, out):  # fmt: skip
     """Fill ``out[w, :]`` with the GPI response of ``theta[w]``, eq. (5) for every parameter set.
 
-    Two passes per parameter set: :func:`_branch_values` evaluates, for every sample, the
+    Parameter set ``w`` reads input row ``current[row_of[w]]`` and threshold-scale row
+    ``threshold_scale[scale_of[w]]``.
+
+    The sets split in two (:func:`gpi_rows`): each of ``leaders`` runs the recursion
+    over its memories; each of ``followers`` differs from its leader ``leader_of[w]`` only
+    in Omega's parameters (``c``, ``d``), so its memories are the leader's, sample for
+    sample. A leader with followers stores in ``sums[slot[w]]`` the weighted memory sum it
+    adds to Omega at every sample; a follower evaluates its own Omega and adds that sum:
+    the same additions on the same values, so its output is the one its own recursion
+    would give, bit for bit (tested), at the cost of one tanh per sample instead of two
+    and no recursion. Finite-difference Jacobians perturb each Omega parameter alone.
+
+    Two passes per leader: :func:`_branch_values` evaluates, for every sample, the
     envelope the input moves along and Omega's branch (vectorised over samples); the
     recursion then updates the ``N`` memories and sums them. A sample equal to its
     predecessor after a rising-branch sample repeats the previous output (memory and
@@ -339,7 +365,7 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initia
     bit for bit, at about half the cost).
 
     ``threshold_scale`` of shape ``(1, 1)`` leaves the thresholds as they are; of shape
-    ``(1, T)`` or ``(W, T)`` it scales every threshold at each sample (a time-varying play
+    ``(S, T)`` it scales every threshold at each sample (a time-varying play
     width: the thresholds used by the update at sample ``k >= 1`` are ``r_j s_k``; the
     initial memory is clamped with those of eq. (8)).
 
@@ -349,14 +375,13 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initia
     :math:`e < 0`; exact for the monotone tanh envelopes, whose extreme on the path lies
     at an end).
     """
-    n_sets = theta.shape[0]
     n_samples = current.shape[1]
-    row_step = 0 if current.shape[0] == 1 else 1  # a 1-row input is shared by all sets
     scaled = threshold_scale.shape[1] > 1
-    scale_step = 0 if threshold_scale.shape[0] == 1 else 1
     directions = _directions(current)
-    for w in prange(n_sets):
-        row = w * row_step
+    for i in prange(leaders.shape[0]):
+        w = leaders[i]
+        row = row_of[w]
+        store = slot[w]
         th = theta[w]
         alpha = th[0]
         rho = th[1]
@@ -372,7 +397,7 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initia
 
         base_thresholds, weights = operator_thresholds_and_weights(alpha, rho, tau, n_operators)
         thresholds = base_thresholds.copy()  # those in force at the present sample
-        scale_row = w * scale_step
+        scale_row = scale_of[w]
         memory = np.empty(n_operators)
         # operators summed four at a time (set here: hoisted out of the prange loop it cost 25 %)
         n4 = n_operators - n_operators % 4
@@ -394,7 +419,10 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initia
             memory[j] = initial_operator_memory(
                 initial_memory[w], thresholds[j], rising_env, falling_env, excursion, excursion_env
             )
-        out[w, 0] = omega[0] + _weighted_sum(weights, memory)
+        total = _weighted_sum(weights, memory)
+        if store >= 0:
+            sums[store, 0] = total
+        out[w, 0] = omega[0] + total
         last_was_rising_branch = True  # Omega branch used at the previous sample
 
         for k in range(1, n_samples):
@@ -403,7 +431,10 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initia
                 if last_was_rising_branch:
                     out[w, k] = out[w, k - 1]
                     continue
-                out[w, k] = omega[k] + _weighted_sum(weights, memory)
+                total = _weighted_sum(weights, memory)
+                if store >= 0:
+                    sums[store, k] = total
+                out[w, k] = omega[k] + total
                 last_was_rising_branch = True
                 continue
             moving_env = env[k]
@@ -452,7 +483,27 @@ def _gpi_kernel(theta, current, n_operators, rising_is_a, initial_memory, initia
                     memory[j] = m0
                     s0 += weights[j] * m0
                 last_was_rising_branch = False
-            out[w, k] = omega[k] + ((s0 + s1) + (s2 + s3))
+            total = (s0 + s1) + (s2 + s3)
+            if store >= 0:
+                sums[store, k] = total
+            out[w, k] = omega[k] + total
+
+    for i in range(followers.shape[0]):  # serial: a second parallel region costs a thread wake-up per call
+        w = followers[i]
+        row = row_of[w]
+        source = slot[leader_of[w]]
+        th = theta[w]
+        omega = np.empty(n_samples)
+        _omega_values(current, row, th[11], th[12], th[13], th[14], th[15], th[16], th[17], th[18], omega)
+        out[w, 0] = omega[0] + sums[source, 0]
+        last_was_rising_branch = True
+        for k in range(1, n_samples):
+            d = directions[row, k]
+            if d == 0 and last_was_rising_branch:
+                out[w, k] = out[w, k - 1]
+                continue
+            out[w, k] = omega[k] + sums[source, k]
+            last_was_rising_branch = d >= 0
 
 
 def _per_set(values, n_sets, name):
@@ -578,9 +629,137 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, t
     scale = _threshold_scale(threshold_scale, theta2.shape[0], current2.shape[1])
     if scale.shape[0] > 1:
         single = False
-    out = np.empty((theta2.shape[0], current2.shape[1]))
-    _gpi_kernel(theta2, current2, n_operators, rising_is_a, z0, excursion, scale, out)
-    return out[0] if single else out
+    n_sets = theta2.shape[0]
+    row_of = np.zeros(n_sets, dtype=np.int64) if current2.shape[0] == 1 else np.arange(n_sets, dtype=np.int64)
+    scale_of = np.zeros(n_sets, dtype=np.int64) if scale.shape[0] == 1 else np.arange(n_sets, dtype=np.int64)
+    out, inverse = gpi_rows(theta2, current2, row_of, n_operators, rising_is_a, z0, excursion, scale, scale_of)
+    if single:
+        return out[0]
+    return out if out.shape[0] == n_sets else out[inverse]
+
+
+# the one-set batch's plan (the kernel only reads them; numba types a read-only array apart)
+_ONE_ROW = np.zeros(1, dtype=np.int64)
+_NO_SLOT = np.full(1, -1, dtype=np.int64)
+_NO_ROWS = np.zeros(0, dtype=np.int64)
+_NO_SUMS = np.empty((0, 1))
+
+
+def distinct_rows(*columns):
+    """The distinct rows of a batch, by their values bit for bit.
+
+    Parameters
+    ----------
+    *columns : array_like, each of shape (W,) or (W, k)
+        The batch's columns (cast to float).
+
+    Returns
+    -------
+    first : ndarray of int, shape (U,)
+        The first row of each distinct row, in the order they first appear.
+    group : ndarray of int, shape (W,)
+        Which of them each row is (``first[group[w]]`` holds the same values as ``w``).
+    """
+    n_rows = len(columns[0])
+    if n_rows == 1:
+        return _ONE_ROW, _ONE_ROW
+    table = np.ascontiguousarray(np.column_stack([np.asarray(c, dtype=float) for c in columns]))
+    keys = table.view(np.dtype((np.void, table.dtype.itemsize * table.shape[1]))).ravel().tolist()
+    seen: dict = {}
+    group = np.fromiter((seen.setdefault(key, len(seen)) for key in keys), dtype=np.int64, count=n_rows)
+    first = np.full(len(seen), n_rows, dtype=np.int64)
+    np.minimum.at(first, group, np.arange(n_rows))
+    return first, group
+
+
+def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion,
+             threshold_scale, scale_of):  # fmt: skip
+    """The kernel on a prepared batch: each distinct parameter set once.
+
+    ``theta`` (W, 19), ``initial_memory`` and ``initial_excursion`` (W,) as
+    :func:`gpi` validates them; set ``w`` reads input row ``current[row_of[w]]`` (of an
+    ``(R, T)`` array) and width row ``threshold_scale[scale_of[w]]`` (of an ``(S, T)``
+    array, or ``(1, 1)`` for none).
+
+    Sets that are the same in every input are computed once; sets that differ from
+    another only in Omega's parameters share its memories (:func:`_gpi_kernel`). Both are
+    exact: each row is the one its set gives alone.
+
+    Returns
+    -------
+    out : ndarray, shape (U, T)
+        The response of each distinct set, in the order they first appear.
+    inverse : ndarray of int, shape (W,)
+        The row of ``out`` of each set.
+    """
+    n_samples = current.shape[1]
+    if theta.shape[0] == 1:  # one set: a leader without followers
+        out = np.empty((1, n_samples))
+        _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion, threshold_scale,
+                    scale_of, _ONE_ROW, _NO_SLOT, _NO_ROWS, _ONE_ROW, _NO_SUMS, out)  # fmt: skip
+        return out, _ONE_ROW
+    unique, inverse = distinct_rows(theta, row_of, initial_memory, initial_excursion, scale_of)
+    play_first, play_group = distinct_rows(
+        theta[unique, :11], row_of[unique], initial_memory[unique], initial_excursion[unique], scale_of[unique]
+    )
+    leader_of = play_first[play_group]  # the first distinct set with the same memories
+    is_leader = leader_of == np.arange(unique.size)
+    leaders = np.flatnonzero(is_leader)
+    followers = np.flatnonzero(~is_leader)
+    slot = np.full(unique.size, -1, dtype=np.int64)
+    shared = np.unique(leader_of[followers])
+    slot[shared] = np.arange(shared.size)
+    sums = np.empty((shared.size, n_samples))
+    out = np.empty((unique.size, n_samples))
+    _gpi_kernel(
+        np.ascontiguousarray(theta[unique]), current, np.ascontiguousarray(row_of[unique]), n_operators, rising_is_a,
+        np.ascontiguousarray(initial_memory[unique]), np.ascontiguousarray(initial_excursion[unique]), threshold_scale,
+        np.ascontiguousarray(scale_of[unique]), leaders, slot, followers, leader_of, sums, out,
+    )  # fmt: skip
+    return out, inverse
+
+
+def gpi_grouped(theta, current, row_of, n_operators=12, reading="swapped", initial_memory=0.0,
+                threshold_scale=None, initial_excursion=0.0):  # fmt: skip
+    """:func:`gpi` for a batch whose parameter sets share input rows, without copying them per set.
+
+    Parameters
+    ----------
+    theta : array_like, shape (W, 19)
+    current : array_like, shape (R, T)
+        The distinct drives [A].
+    row_of : array_like of int, shape (W,)
+        The drive (and width) row of each set, in ``0 .. R-1``.
+    n_operators, reading, initial_memory, initial_excursion
+        As :func:`gpi`.
+    threshold_scale : array_like of shape (R, T), optional
+        The width rows, indexed by ``row_of`` too.
+
+    Returns
+    -------
+    out : ndarray, shape (U, T)
+        The response of each distinct parameter set (:func:`gpi_rows`).
+    inverse : ndarray of int, shape (W,)
+        The row of ``out`` of each set: ``out[inverse]`` is :func:`gpi`'s output.
+    """
+    theta2, _, n_operators, rising_is_a, z0, _ = _prepare(theta, np.zeros(2), n_operators, reading, initial_memory)
+    n_sets = theta2.shape[0]
+    current2 = np.ascontiguousarray(np.atleast_2d(np.asarray(current, dtype=float)))
+    row_of = np.asarray(row_of, dtype=np.int64)
+    if current2.ndim != 2 or current2.shape[1] < 2:
+        raise ValueError(f"current must have shape (R, T) with T >= 2, got shape {np.shape(current)}")
+    if row_of.shape != (n_sets,) or (row_of < 0).any() or (row_of >= current2.shape[0]).any():
+        raise ValueError(f"row_of must have shape ({n_sets},) with values in 0..{current2.shape[0] - 1}")
+    if not np.isfinite(current2).all():
+        r, k = np.argwhere(~np.isfinite(current2))[0]
+        raise ValueError(f"current has a non-finite value at current[{r}, {k}] ({current2[r, k]})")
+    excursion = _per_set(initial_excursion, n_sets, "initial_excursion")
+    if threshold_scale is None:
+        scale, scale_of = np.ones((1, 1)), np.zeros(n_sets, dtype=np.int64)
+    else:
+        scale = _threshold_scale(threshold_scale, current2.shape[0], current2.shape[1])
+        scale_of = row_of if scale.shape[0] > 1 else np.zeros(n_sets, dtype=np.int64)
+    return gpi_rows(theta2, current2, row_of, n_operators, rising_is_a, z0, excursion, scale, scale_of)
 
 
 def bound_overlap(theta, current, n_operators=12, reading="swapped"):

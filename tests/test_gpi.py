@@ -18,6 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from model import TABLE1, THETA_NAMES, bound_overlap, classical_pi, envelope, gpi, paper_current
+from model.gpi import distinct_rows, gpi_grouped
 from model.signals import QUIET_SECONDS
 from reference import classical_pi_reference, gpi_reference
 
@@ -191,6 +192,66 @@ def test_initial_excursion_is_the_memory_of_a_prior_path(reading, paper_input):
     # 0 is exactly no excursion
     assert np.array_equal(gpi(thetas, current, reading=reading, initial_memory=levels, initial_excursion=0.0),
                           gpi(thetas, current, reading=reading, initial_memory=levels))  # fmt: skip
+
+
+@pytest.mark.parametrize("reading", ["swapped", "literal"])
+def test_shared_sets_are_each_sets_own_response_bit_for_bit(reading):
+    """A finite-difference-shaped batch: each parameter alone perturbed, exact repeats, and
+    Omega-only changes (computed once, or on a leader's memories) give every row its own
+    single call's output, bit for bit, on an input with flat stretches (repeated samples),
+    with per-set initial states and a per-set width; and they match the oracle."""
+    rng = np.random.default_rng(11)
+    current = current_with_flats(rng, 700)
+    base = perturbed_table1(rng, 0.05, current)
+    rows = np.repeat(base[None, :], 24, axis=0)
+    for k in range(19):
+        rows[k + 1, k] *= 1.0 + 1e-7
+    rows[20] = rows[0]  # an exact repeat
+    rows[21] = rows[12]  # a repeat of an Omega-only change
+    rows[22, C_SLICE] *= 1.2  # both Omega branches changed
+    rows[22, D_SLICE] *= 0.9
+    rows[23, 3] *= 1.01  # a play parameter: a leader of its own
+    levels = np.where(np.arange(24) % 7 == 3, 2.0, 0.0)  # rows 3, 10, 17 start elsewhere: not shared
+    width = 1.0 + 0.2 * np.exp(-np.arange(current.size) / 200.0)
+    widths = np.repeat(width[None, :], 24, axis=0)
+    widths[5] = 1.0  # its own width: not shared
+    for options in ({}, {"initial_memory": levels, "initial_excursion": 0.7}, {"threshold_scale": widths}):
+        batch = gpi(rows, current, reading=reading, **options)
+        for w in range(24):
+            one = {k: (v[w] if isinstance(v, np.ndarray) else v) for k, v in options.items()}
+            assert np.array_equal(batch[w], gpi(rows[w], current, reading=reading, **one)), (options.keys(), w)
+    assert_matches_oracle(rows, current, reading=reading)
+    assert not np.array_equal(batch[22], batch[0])  # the shared rows are not copies of their leader
+    assert np.array_equal(batch[20], batch[0]) and np.array_equal(batch[21], batch[12])
+
+
+def test_distinct_rows_groups_by_value_in_order_of_first_appearance():
+    a = np.array([[1.0, 2.0], [3.0, 4.0], [1.0, 2.0], [1.0, -2.0], [3.0, 4.0]])
+    first, group = distinct_rows(a, np.array([0, 0, 0, 0, 1]))
+    assert first.tolist() == [0, 1, 3, 4] and group.tolist() == [0, 1, 0, 2, 3]
+    first, group = distinct_rows(np.array([0.0, -0.0]))  # bit for bit: -0.0 is its own row
+    assert first.tolist() == [0, 1]
+    assert [x.tolist() for x in distinct_rows(a[:1])] == [[0], [0]]
+
+
+def test_gpi_grouped_equals_gpi_on_the_rows_it_names(paper_input):
+    current = paper_input[::10]
+    drives = np.stack([current, 0.9 * current, current + 0.1])
+    row_of = np.array([2, 0, 0, 1, 2])
+    thetas = np.tile(TABLE1, (5, 1))
+    thetas[2, 12] *= 1.1
+    widths = np.stack([np.ones_like(current), 1.1 * np.ones_like(current), np.linspace(1.0, 1.3, current.size)])
+    out, inverse = gpi_grouped(thetas, drives, row_of, initial_memory=0.5, threshold_scale=widths)
+    expected = gpi(thetas, drives[row_of], initial_memory=0.5, threshold_scale=widths[row_of])
+    assert np.array_equal(out[inverse], expected)
+    assert out.shape[0] == 4 and inverse[4] == inverse[0]  # sets 0 and 4 are the same set on the same drive
+    for bad, message in (({"row_of": [0, 1, 3, 0, 0]}, "row_of"), ({"row_of": [0, 1]}, "row_of")):
+        with pytest.raises(ValueError, match=message):
+            gpi_grouped(thetas, drives, bad["row_of"])
+    broken = drives.copy()
+    broken[1, 4] = np.nan
+    with pytest.raises(ValueError, match=r"current\[1, 4\]"):
+        gpi_grouped(thetas, broken, row_of)
 
 
 def test_single_theta_with_2d_current_returns_2d():
