@@ -451,13 +451,10 @@ class WhitenedResiduals:
         rows[1:][np.arange(n_free), np.arange(n_free)] += steps
         w, valid = self.batch(rows)
         base = w[0] if valid[0] else self(x)
-        jac = np.zeros((self.data.size, n_free))
-        bad = []
-        for j in range(n_free):
-            if valid[j + 1]:
-                jac[:, j] = (w[j + 1] - base) / steps[j]
-            else:
-                bad.append(j)
+        # column j = (w[j + 1] - base) / steps[j], laid out (T, P_free) in C order as a column loop fills it
+        jac = np.ascontiguousarray(((w[1:] - base) / steps[:, None]).T)
+        bad = [j for j in range(n_free) if not valid[j + 1]]
+        jac[:, bad] = 0.0
         if bad and valid[0]:
             # Non-finite output on the forward step: step backward instead, in one more batch.
             back = np.repeat(x[None, :], len(bad), axis=0)
