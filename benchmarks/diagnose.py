@@ -5,6 +5,7 @@ Run from the repository root::
     python benchmarks/diagnose.py                       # both sizes, hidden creep
     python benchmarks/diagnose.py --quick               # 7001 samples only
     python benchmarks/diagnose.py --case unexplained    # the worst case: an effect outside the library
+    python benchmarks/diagnose.py --case unexplained --side-by-side 2   # two at once, both wait policies
 
 Simulates a virtual-bench record (paper input, Table 1, a hidden creep of ~2x the noise
 in RMS, seed 5) at 100 Hz and 1 kHz, runs the diagnosis command in a fresh process
@@ -15,6 +16,9 @@ ratio stays well below 10). The machine is shared: the figure is one run, not a 
 several. ``--case unexplained`` adds to a clean record an offset of 1.5 um (3 sigma) while the
 current exceeds 4 A whose sign flips each 10 s cycle (outside the library: the verdict is
 ``unexplained``, the slowest path: every refit, the other-sign refit and the pairs).
+``--side-by-side N`` runs N diagnoses of the 7001-sample record at once (as a bench or a
+batch on the two cores does), alternating numba's OpenMP threads waiting passively between
+kernel calls (the package's default, :mod:`model`) and actively (libgomp's own default).
 """
 
 from __future__ import annotations
@@ -31,10 +35,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_once(fs: float, workdir: Path, case: str = "creep") -> tuple[float, float, dict]:
-    """Simulate at ``fs`` Hz, diagnose in a subprocess; (wall seconds, CPU seconds, diagnosis JSON)."""
+def make_record(fs: float, workdir: Path, case: str = "creep") -> Path:
+    """Simulate the benchmark's record at ``fs`` Hz (seed 5); the unexplained case adds the flipping offset."""
     csv = workdir / f"{case}_{int(fs)}.csv"
-    out = workdir / f"{case}_{int(fs)}_diagnosis.json"
     effects = "creep_amplitude=0.0153" if case == "creep" else "none"
     subprocess.run(
         [sys.executable, "-m", "identify", "simulate", "--out", str(csv), "--effects", effects,
@@ -50,22 +53,63 @@ def run_once(fs: float, workdir: Path, case: str = "creep") -> tuple[float, floa
         t, i = record.time, record.current
         flip = np.where(i > 4.0, 1.5 * (-1.0) ** np.floor((t - 10.0) / 10.0), 0.0)
         write_record(csv, type(record)(t, i, record.displacement + flip, source=record.source, sha256=""))
+    return csv
+
+
+def _command(csv: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "identify", "diagnose", str(csv), "--json", str(out), "--quiet"]
+
+
+def run_once(fs: float, workdir: Path, case: str = "creep") -> tuple[float, float, dict]:
+    """Simulate at ``fs`` Hz, diagnose in a subprocess; (wall seconds, CPU seconds, diagnosis JSON)."""
+    csv = make_record(fs, workdir, case)
+    out = workdir / f"{case}_{int(fs)}_diagnosis.json"
     started = time.perf_counter()
     before = os.times()
-    subprocess.run(
-        [sys.executable, "-m", "identify", "diagnose", str(csv), "--json", str(out), "--quiet"],
-        check=True, cwd=ROOT, capture_output=True,
-    )  # fmt: skip
+    subprocess.run(_command(csv, out), check=True, cwd=ROOT, capture_output=True)
     after = os.times()
     cpu = (after.children_user - before.children_user) + (after.children_system - before.children_system)
     return time.perf_counter() - started, cpu, json.loads(out.read_text())
+
+
+def run_side_by_side(csv: Path, workdir: Path, copies: int, wait_policy: str) -> tuple[list[float], float]:
+    """``copies`` diagnoses of ``csv`` started together, numba's OpenMP threads waiting with
+    ``wait_policy`` (``OMP_WAIT_POLICY``); (each one's wall seconds, their CPU seconds in all)."""
+    env = dict(os.environ, OMP_WAIT_POLICY=wait_policy)
+    before = os.times()
+    started = time.perf_counter()
+    processes = [
+        subprocess.Popen(_command(csv, workdir / f"side_{wait_policy}_{k}.json"), cwd=ROOT, env=env,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        for k in range(copies)
+    ]
+    walls = []
+    for process in processes:
+        if process.wait() != 0:
+            raise SystemExit(f"a side-by-side diagnosis failed (exit code {process.returncode})")
+        walls.append(time.perf_counter() - started)
+    after = os.times()
+    return walls, (after.children_user - before.children_user) + (after.children_system - before.children_system)
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="7001 samples only")
     parser.add_argument("--case", choices=("creep", "unexplained"), default="creep")
+    parser.add_argument("--side-by-side", type=int, default=0, metavar="N",
+                        help="run N diagnoses of the 7001-sample record at once, with numba's OpenMP threads "
+                             "waiting passively (the package's default) and actively (libgomp's), alternating")  # fmt: skip
     args = parser.parse_args(argv)
+    if args.side_by_side:
+        with tempfile.TemporaryDirectory() as tmp:
+            csv = make_record(100.0, Path(tmp), args.case)
+            for policy in ("PASSIVE", "ACTIVE", "PASSIVE", "ACTIVE"):
+                walls, cpu = run_side_by_side(csv, Path(tmp), args.side_by_side, policy)
+                print(
+                    f"{args.side_by_side} diagnoses ({args.case}, 7001 samples) side by side, OMP_WAIT_POLICY={policy:7s}: "
+                    f"wall {', '.join(f'{w:.1f}' for w in walls)} s, CPU {cpu:.1f} s in all"
+                )
+        return 0
     sizes = [(100.0, 60.0)] if args.quick else [(100.0, 60.0), (1000.0, 300.0)]
     times = {}
     with tempfile.TemporaryDirectory() as tmp:
