@@ -68,6 +68,9 @@ def generate(generator: Path, suite: str, out: Path, seed: int, per_form: int | 
 def diagnose_once(csv: Path, effects: list[str], workdir: Path) -> dict:
     out = workdir / (csv.stem + "." + ("+".join(effects) or "plain") + ".diagnosis.json")
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    # workers run side by side: numba's OpenMP threads wait passively between kernel calls,
+    # or each diagnosis keeps a core spinning (benchmarks/diagnose.py --side-by-side 2)
+    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     command = [sys.executable, "-m", "identify", "diagnose", str(csv), "--json", str(out), "--quiet"]
     if effects:
         command += ["--effects", ",".join(effects)]

@@ -18,11 +18,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+# Benches run side by side on the cores: numba's OpenMP threads then wait passively between
+# kernel calls, or each process keeps a core spinning (two diagnoses at once: about 50 s
+# each instead of about 100 s, benchmarks/diagnose.py --side-by-side 2). Read when the
+# threads start, at the first diagnosis. A value the user set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))

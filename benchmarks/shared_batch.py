@@ -46,9 +46,12 @@ def jacobian_rows(theta: np.ndarray, free: np.ndarray) -> np.ndarray:
 
 
 def distinct_rows_like(rows: np.ndarray) -> np.ndarray:
-    """As many sets, each with its own ``rho`` (a play parameter): no two share anything."""
+    """As many sets, each with its own ``rho`` (a play parameter) and its own value of every
+    effect parameter: no two share a stage, so nothing is computed once for several."""
     out = rows.copy()
-    out[:, 1] *= 1.0 + 1e-6 * np.arange(1, rows.shape[0] + 1)
+    k = np.arange(1, rows.shape[0] + 1)[:, None]
+    out[:, 1] *= 1.0 + 1e-6 * k[:, 0]
+    out[:, 19:] += 1e-9 * k * np.maximum(np.abs(rows[0, 19:]), 1.0)
     return out
 
 
@@ -74,6 +77,8 @@ def main(argv=None) -> int:
                 free = free[free != 0]  # alpha pinned, as in the normalised fits
                 shared = jacobian_rows(theta, free)
                 distinct = distinct_rows_like(shared)
+                if not np.isfinite(m(distinct, time_, current)).all():
+                    raise SystemExit(f"{name}: the distinct batch has a non-finite output")
                 y = m(shared, time_, current)
                 for w in range(shared.shape[0]):
                     if not np.array_equal(y[w], m(shared[w], time_, current)):

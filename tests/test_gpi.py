@@ -724,20 +724,3 @@ def test_paper_current_at_any_rate(fs):
 def test_paper_current_bad_input(kwargs, message):
     with pytest.raises(ValueError, match=message):
         paper_current(**kwargs)
-
-
-@pytest.mark.parametrize("user_value", [None, "ACTIVE"])
-def test_openmp_threads_wait_passively_unless_the_user_says_otherwise(user_value):
-    """Importing the model sets ``OMP_WAIT_POLICY=PASSIVE`` for numba's OpenMP threads (busy
-    waiting costs two diagnoses side by side about 3x their wall time on two cores,
-    ``benchmarks/diagnose.py --side-by-side 2``), and keeps a value the user set."""
-    import os
-    import subprocess
-    import sys
-
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    if user_value is not None:
-        env["OMP_WAIT_POLICY"] = user_value
-    code = "import os, model; print(os.environ['OMP_WAIT_POLICY'])"
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == (user_value or "PASSIVE")
