@@ -78,8 +78,7 @@ def run_side_by_side(csv: Path, workdir: Path, copies: int, wait_policy: str) ->
     """``copies`` diagnoses of ``csv`` started together, numba's OpenMP threads waiting with
     ``wait_policy`` (``OMP_WAIT_POLICY``; an empty value, which libgomp ignores with a
     warning on the discarded stderr, is libgomp's default: spin about 3 ms after a parallel
-    region, then sleep; the package leaves a set variable alone); (each one's wall seconds,
-    their CPU seconds in all)."""
+    region, then sleep); (each one's wall seconds, their CPU seconds in all)."""
     env = dict(os.environ, OMP_WAIT_POLICY=wait_policy)
     before = os.times()
     started = time.perf_counter()

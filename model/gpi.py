@@ -516,6 +516,15 @@ def _per_set(values, n_sets, name):
     return np.ascontiguousarray(np.broadcast_to(array, (n_sets,)))
 
 
+def _refuse_non_finite_current(current2, one_d):
+    """ValueError naming the first non-finite sample of the 2-D ``current2`` (``current[k]``
+    when the caller's input was 1-D, else ``current[r, k]``)."""
+    if not np.isfinite(current2).all():
+        r, k = np.argwhere(~np.isfinite(current2))[0]
+        where = f"current[{k}]" if one_d else f"current[{r}, {k}]"
+        raise ValueError(f"current has a non-finite value at {where} ({current2[r, k]})")
+
+
 def _prepare(theta, current, n_operators, reading, initial_memory):
     """Validate and normalise inputs; return 2-D contiguous arrays and flags."""
     if reading not in READINGS:
@@ -549,10 +558,7 @@ def _prepare(theta, current, n_operators, reading, initial_memory):
         )
     if current.ndim == 2:
         single = False
-    if not np.isfinite(current2).all():
-        r, k = np.argwhere(~np.isfinite(current2))[0]
-        where = f"current[{k}]" if current.ndim == 1 else f"current[{r}, {k}]"
-        raise ValueError(f"current has a non-finite value at {where} ({current2[r, k]})")
+    _refuse_non_finite_current(current2, one_d=current.ndim == 1)
 
     z0 = _per_set(initial_memory, theta2.shape[0], "initial_memory")
     return theta2, current2, int(n_operators), READINGS[reading], z0, single
@@ -638,7 +644,8 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, t
     return out if out.shape[0] == n_sets else out[inverse]
 
 
-# the one-set batch's plan (the kernel only reads them; numba types a read-only array apart)
+# the one-set batch's plan, passed only to the kernel, which reads them (numba types a
+# read-only array apart, so they are not flagged read-only); never returned to a caller
 _ONE_ROW = np.zeros(1, dtype=np.int64)
 _NO_SLOT = np.full(1, -1, dtype=np.int64)
 _NO_ROWS = np.zeros(0, dtype=np.int64)
@@ -662,7 +669,7 @@ def distinct_rows(*columns):
     """
     n_rows = len(columns[0])
     if n_rows == 1:
-        return _ONE_ROW, _ONE_ROW
+        return np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64)
     table = np.ascontiguousarray(np.column_stack([np.asarray(c, dtype=float) for c in columns]))
     keys = table.view(np.dtype((np.void, table.dtype.itemsize * table.shape[1]))).ravel().tolist()
     seen: dict = {}
@@ -697,7 +704,7 @@ def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, i
         out = np.empty((1, n_samples))
         _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion, threshold_scale,
                     scale_of, _ONE_ROW, _NO_SLOT, _NO_ROWS, _ONE_ROW, _NO_SUMS, out)  # fmt: skip
-        return out, _ONE_ROW
+        return out, np.zeros(1, dtype=np.int64)
     unique, inverse = distinct_rows(theta, row_of, initial_memory, initial_excursion, scale_of)
     play_first, play_group = distinct_rows(
         theta[unique, :11], row_of[unique], initial_memory[unique], initial_excursion[unique], scale_of[unique]
@@ -750,9 +757,7 @@ def gpi_grouped(theta, current, row_of, n_operators=12, reading="swapped", initi
         raise ValueError(f"current must have shape (R, T) with T >= 2, got shape {np.shape(current)}")
     if row_of.shape != (n_sets,) or (row_of < 0).any() or (row_of >= current2.shape[0]).any():
         raise ValueError(f"row_of must have shape ({n_sets},) with values in 0..{current2.shape[0] - 1}")
-    if not np.isfinite(current2).all():
-        r, k = np.argwhere(~np.isfinite(current2))[0]
-        raise ValueError(f"current has a non-finite value at current[{r}, {k}] ({current2[r, k]})")
+    _refuse_non_finite_current(current2, one_d=False)
     excursion = _per_set(initial_excursion, n_sets, "initial_excursion")
     if threshold_scale is None:
         scale, scale_of = np.ones((1, 1)), np.zeros(n_sets, dtype=np.int64)
