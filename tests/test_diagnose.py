@@ -865,6 +865,40 @@ def test_a_single_candidate_that_leaves_structure_is_named_only_when_asked():
     assert _pair_verdict(rnd, best, None, [pair], {"thermal"}, Thresholds(explained_major=0.9)).status == "unexplained"
 
 
+def test_the_pair_verdict_says_why_it_names_the_member_it_names():
+    """The pair verdict's text states the comparison actually made (issue 16). When the best
+    pair stands alone, the member with the larger delta BIC alone is named, with both figures.
+    When another pair fits about as well, the name is the effect every such pair contains,
+    even if its partner is stronger alone (seed-5 independent bench, lag + a power-law creep:
+    lag + creep 992 and lag + thermal within 10, creep 944 alone against lag's 596; the text
+    said "the stronger of the two alone" of lag), and the text lists the partners it cannot
+    tell apart."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import _pair_verdict
+
+    def candidate(effect, delta_bic, adequate=False):
+        return SimpleNamespace(effect=effect, explained=1.0, delta_bic=delta_bic, adequate_after=adequate,
+                               rms_after=0.9, refitted=True)  # fmt: skip
+
+    creep, lag = candidate("creep", 944.0), candidate("lag", 596.0)
+    rnd = SimpleNamespace(fit=SimpleNamespace(rms=1.064), refitted=[creep, lag], screened=[], chi2_0_small=1.0,
+                          n_eff_small=1.0, failed={})  # fmt: skip
+    best_pair = candidate("lag+creep", 992.0, adequate=True)
+    verdict = _pair_verdict(rnd, creep, None, [best_pair], {"lag", "creep"}, Thresholds())
+    assert verdict.status == "missing_effect" and verdict.missing == "creep"
+    assert "the stronger of the two alone: delta BIC 944 against 596 for 'lag'" in verdict.reason
+
+    close_pair = candidate("lag+thermal", 985.0, adequate=True)
+    far_pair = candidate("creep+thermal", 950.0, adequate=True)
+    verdict = _pair_verdict(rnd, creep, None, [best_pair, close_pair, far_pair], {"lag"}, Thresholds())
+    assert verdict.status == "missing_effect" and verdict.missing == "lag"
+    assert "stronger" not in verdict.reason
+    assert "common to every pair within 10 in delta BIC of the best ('lag+creep' 992, 'lag+thermal' 985)" in verdict.reason
+    assert "which other effect is missing ('creep' or 'thermal')" in verdict.reason
+    assert "creep+thermal" not in verdict.reason
+
+
 def test_a_targeted_name_waits_for_the_rivals_its_screening_ranked_low(monkeypatch):
     """Before the targeted check names an effect, every other candidate whose screening shows
     any gain is refitted too, and one within bic_significant stops the name (a fresh draw of

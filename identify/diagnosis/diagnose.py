@@ -2083,9 +2083,32 @@ def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, 
             f"Two effects seem to be missing: '{first}' and '{second_name}' together explain "
             f"{100 * top.explained:.0f} % of the misfit (delta BIC {top.delta_bic:.0f} against the best single "
             f"candidate's {best.delta_bic:.0f}, '{best.effect}'; RMS {fit.rms:.4g} -> {top.rms_after:.4g}, "
-            f"consistent with the noise). Add '{first}' (the stronger of the two alone) and diagnose again."
+            f"consistent with the noise). " + _why_first(first, top, members, single, pairs_tried, thresholds)
         )
     return verdict
+
+
+def _why_first(first: str, top, members: list, single: dict, pairs_tried: list, thresholds: Thresholds) -> str:
+    """The sentence that says why the pair verdict names ``first`` of the winning pair ``top``,
+    stating the comparison that was made: the stronger of the two alone (their delta BICs), or,
+    when other pairs fit about as well, the one effect every such pair contains, with the
+    partners the data do not tell apart."""
+    competitive = [p for p in pairs_tried if p.delta_bic >= top.delta_bic - thresholds.bic_significant]
+    if len(members) == 1 and len(competitive) > 1:
+        listed = ", ".join(f"'{p.effect}' {p.delta_bic:.0f}" for p in competitive)
+        partners = sorted({n for p in competitive for n in p.effect.split("+") if n != first})
+        return (
+            f"Add '{first}', the effect common to every pair within {thresholds.bic_significant:g} in delta BIC of "
+            f"the best ({listed}), and diagnose again; these pairs do not tell which other effect is missing ("
+            + " or ".join(f"'{n}'" for n in partners) + ")."
+        )
+    other = [n for n in members if n != first]
+    if other and first in single and other[0] in single:
+        return (
+            f"Add '{first}' (the stronger of the two alone: delta BIC {single[first]:.0f} against "
+            f"{single[other[0]]:.0f} for '{other[0]}') and diagnose again."
+        )
+    return f"Add '{first}' and diagnose again."
 
 
 def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, ambiguous_pairs, pairs_tried,
