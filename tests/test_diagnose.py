@@ -899,6 +899,43 @@ def test_the_pair_verdict_says_why_it_names_the_member_it_names():
     assert "creep+thermal" not in verdict.reason
 
 
+def test_a_pair_overrules_an_adequate_single_only_by_more_than_bic_significant(monkeypatch):
+    """Two single candidates leave adequate residuals within bic_significant of each other
+    (seed 6 of the independent bench, a gain decaying with the cycles: training 695, thermal
+    692), and the best pair, thermal + incomplete_reset, gains 697: the pair is no strong
+    evidence over the single, so nothing is named and the reason names the two singles. A
+    pair that gains more than bic_significant beyond the single names its stronger member;
+    one beside a best single that leaves structure needs only to fit better."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+    from identify.diagnosis.diagnose import _pair_verdict
+
+    def candidate(effect, delta_bic, adequate):
+        return SimpleNamespace(effect=effect, explained=0.96, delta_bic=delta_bic, adequate_after=adequate,
+                               rms_after=0.735, refitted=True)  # fmt: skip
+
+    training, thermal = candidate("training", 695.0, True), candidate("thermal", 692.0, True)
+    reset = candidate("incomplete_reset", 300.0, False)
+    rnd = SimpleNamespace(fit=SimpleNamespace(rms=0.997), refitted=[training, thermal, reset], screened=[],
+                          chi2_0_small=1.0, n_eff_small=1.0, failed={})  # fmt: skip
+    common = {"thermal", "incomplete_reset"}
+    close = candidate("thermal+incomplete_reset", 697.0, True)
+    verdict = _pair_verdict(rnd, training, thermal, [close], common, Thresholds())
+    assert verdict.status == "unexplained" and verdict.missing is None
+    monkeypatch.setattr(diagnosis, "_where_summary", lambda profile: "")
+    rnd.adequacy, rnd.profile = SimpleNamespace(failed=("low_frequency",), size_ratio=0.9), None
+    reason = diagnosis._unexplained_reason(rnd, training, thermal, True, common, [close.effect], [close], "", Thresholds())
+    assert "'training' (delta BIC 695) and 'thermal' (692)" in reason
+    assert "The best pair, 'thermal+incomplete_reset' (697), gains no more than 10 beyond 'training'" in reason
+    far = candidate("thermal+incomplete_reset", 706.0, True)
+    verdict = _pair_verdict(rnd, training, thermal, [far], common, Thresholds())
+    assert verdict.status == "missing_effect" and verdict.missing == "thermal"
+    training.adequate_after = False
+    verdict = _pair_verdict(rnd, training, thermal, [close], common, Thresholds())
+    assert verdict.status == "missing_effect" and verdict.missing == "thermal"
+
+
 def test_a_targeted_name_waits_for_the_rivals_its_screening_ranked_low(monkeypatch):
     """Before the targeted check names an effect, every other candidate whose screening shows
     any gain is refitted too, and one within bic_significant stops the name (a fresh draw of
