@@ -2149,7 +2149,8 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
     if rival is not None and significant:
         pair = pairs_tried[0] if pairs_tried else None
         pair_text = ""
-        if pair is not None and best.adequate_after and pair.delta_bic > best.delta_bic:
+        if (pair is not None and best.adequate_after
+                and best.delta_bic < pair.delta_bic <= best.delta_bic + thresholds.bic_significant):
             pair_text = (
                 f" The best pair, '{pair.effect}' ({pair.delta_bic:.0f}), gains no more than "
                 f"{thresholds.bic_significant:g} beyond '{best.effect}', which already leaves a residual consistent "
