@@ -118,6 +118,16 @@ def truth_of(csv: Path) -> tuple[list[str], dict]:
     return physics, truth
 
 
+def saved_diagnoses(out: Path):
+    """Every diagnosis a run into ``out`` saved, with its record's truth: yields ``(record stem,
+    the model's effects as in the file name ("plain" or "a+b"), the diagnosis JSON, the true
+    physics in this library's names)``, in file-name order."""
+    for path in sorted((out / "work").glob("*.diagnosis.json")):
+        stem, model = path.name.split(".")[:2]
+        physics, _ = truth_of(out / "records" / f"{stem}.csv")
+        yield stem, model, json.loads(path.read_text()), physics
+
+
 def verdict_label(round_result: dict) -> str:
     return round_result["missing"] if round_result["status"] == "missing_effect" else round_result["status"]
 

@@ -21,23 +21,19 @@ diagnosis' own rule is 10 (:attr:`identify.diagnosis.diagnose.Thresholds.bic_sig
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-LIBRARY_NAME = {"first_cycle": "incomplete_reset"}
+from independent_diagnosis import saved_diagnoses
+
 MARGINS = (10.0, 30.0, 50.0, 100.0, 300.0)
 
 
 def named_margins(out: Path) -> list[tuple[str, str, str, float, bool]]:
     """``(record stem, effects in the model, named effect, margin, right)`` for each diagnosis in ``out``."""
     rows = []
-    for path in sorted((out / "work").glob("*.diagnosis.json")):
-        stem, effects = path.name.split(".")[:2]
-        diagnosis = json.loads(path.read_text())
+    for stem, effects, diagnosis, physics in saved_diagnoses(out):
         if diagnosis.get("status") != "missing_effect":
             continue
-        truth = json.loads((out / "records" / f"{stem}.truth.json").read_text())
-        physics = {LIBRARY_NAME.get(p, p) for p in truth["physics"]}
         named = diagnosis["missing"]
         refitted = [c for c in diagnosis["ranking"] if c.get("refitted") and "+" not in c["effect"]]
         mine = [c["delta_bic"] for c in refitted if c["effect"] == named]

@@ -16,9 +16,10 @@ a first-order lag of the output in disguise (``docs/diagnosis.md``, limits).
 from __future__ import annotations
 
 import argparse
-import json
 from collections import Counter
 from pathlib import Path
+
+from independent_diagnosis import saved_diagnoses
 
 FAST_TAU = 0.1  # s
 MIN_AMPLITUDE = 0.05
@@ -27,14 +28,11 @@ MIN_AMPLITUDE = 0.05
 def refits(out: Path, effect: str) -> list[dict]:
     """One row per whole-record refit of ``effect`` in the saved diagnoses of ``out``."""
     rows = []
-    for path in sorted((out / "work").glob("*.diagnosis.json")):
-        stem, model = path.name.split(".")[:2]
-        diagnosis = json.loads(path.read_text())
-        truth = json.loads((out / "records" / f"{stem}.truth.json").read_text())
+    for stem, model, diagnosis, physics in saved_diagnoses(out):
         for c in diagnosis["ranking"]:
             if c["effect"] == effect and c.get("refitted"):
                 rows.append({
-                    "draw": out.name, "record": stem, "physics": "+".join(truth["physics"]), "model": model,
+                    "draw": out.name, "record": stem, "physics": "+".join(physics), "model": model,
                     "verdict": diagnosis["missing"] or diagnosis["status"], "delta_bic": c["delta_bic"],
                     "parameters": c["parameters"],
                 })  # fmt: skip
