@@ -1985,6 +1985,19 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
     return _Verdict("adequate", None, reason)
 
 
+def _competitive_pairs(pairs_tried: list, thresholds: Thresholds) -> list:
+    """The pairs of ``pairs_tried`` (best first) within :attr:`Thresholds.bic_significant` of the
+    best one's delta BIC: they fit about as well, so only what they share can be named."""
+    return [p for p in pairs_tried if p.delta_bic >= pairs_tried[0].delta_bic - thresholds.bic_significant]
+
+
+def _pair_bar(best: CandidateResult, thresholds: Thresholds) -> float:
+    """The delta BIC a pair must exceed to decide beside the best single candidate ``best``:
+    ``best``'s own, plus :attr:`Thresholds.bic_significant` when ``best`` already leaves a
+    residual consistent with the noise (less is then no strong evidence for the pair)."""
+    return best.delta_bic + (thresholds.bic_significant if best.adequate_after else 0.0)
+
+
 def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     """Step 8 (no single candidate leaves the noise, or one does and a pair may still beat
     it): ``(pairs tried, effects common to the competitive pairs or None, names of the
@@ -2041,7 +2054,7 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     if not pairs_tried:
         return pairs_tried, common, ambiguous_pairs
     pairs_tried.sort(key=lambda p: -p.delta_bic)
-    competitive = [p for p in pairs_tried if p.delta_bic >= pairs_tried[0].delta_bic - thresholds.bic_significant]
+    competitive = _competitive_pairs(pairs_tried, thresholds)
     common = set.intersection(*(set(p.effect.split("+")) for p in competitive))
     ambiguous_pairs = [p.effect for p in competitive]
     return pairs_tried, common, ambiguous_pairs
@@ -2062,8 +2075,7 @@ def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, 
     fit, refitted = rnd.fit, rnd.refitted
     pair = pairs_tried[0] if pairs_tried else None
     verdict = _Verdict("unexplained", None, "", pair, pairs_tried)
-    needed = best.delta_bic + (thresholds.bic_significant if best.adequate_after else 0.0)
-    top = pair if pair is not None and pair.delta_bic > needed else best
+    top = pair if pair is not None and pair.delta_bic > _pair_bar(best, thresholds) else best
     if top is best and rival is not None:
         pass  # two candidates fit about equally well: the data cannot tell which is missing
     elif top is best and thresholds.explained_major is not None and best.explained >= thresholds.explained_major:
@@ -2092,17 +2104,17 @@ def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, 
             f"Two effects seem to be missing: '{first}' and '{second_name}' together explain "
             f"{100 * top.explained:.0f} % of the misfit (delta BIC {top.delta_bic:.0f} against the best single "
             f"candidate's {best.delta_bic:.0f}, '{best.effect}'; RMS {fit.rms:.4g} -> {top.rms_after:.4g}, "
-            f"consistent with the noise). " + _why_first(first, top, members, single, pairs_tried, thresholds)
+            f"consistent with the noise). " + _why_first(first, members, single, pairs_tried, thresholds)
         )
     return verdict
 
 
-def _why_first(first: str, top, members: list, single: dict, pairs_tried: list, thresholds: Thresholds) -> str:
-    """The sentence that says why the pair verdict names ``first`` of the winning pair ``top``,
+def _why_first(first: str, members: list, single: dict, pairs_tried: list, thresholds: Thresholds) -> str:
+    """The sentence that says why the pair verdict names ``first`` of the winning pair (``pairs_tried[0]``),
     stating the comparison that was made: the stronger of the two alone (their delta BICs), or,
     when other pairs fit about as well, the one effect every such pair contains, with the
     partners the data do not tell apart."""
-    competitive = [p for p in pairs_tried if p.delta_bic >= top.delta_bic - thresholds.bic_significant]
+    competitive = _competitive_pairs(pairs_tried, thresholds)
     if len(members) == 1 and len(competitive) > 1:
         listed = ", ".join(f"'{p.effect}' {p.delta_bic:.0f}" for p in competitive)
         partners = sorted({n for p in competitive for n in p.effect.split("+") if n != first})
@@ -2149,8 +2161,7 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
     if rival is not None and significant:
         pair = pairs_tried[0] if pairs_tried else None
         pair_text = ""
-        if (pair is not None and best.adequate_after
-                and best.delta_bic < pair.delta_bic <= best.delta_bic + thresholds.bic_significant):
+        if pair is not None and best.adequate_after and best.delta_bic < pair.delta_bic <= _pair_bar(best, thresholds):
             pair_text = (
                 f" The best pair, '{pair.effect}' ({pair.delta_bic:.0f}), gains no more than "
                 f"{thresholds.bic_significant:g} beyond '{best.effect}', which already leaves a residual consistent "
@@ -2207,7 +2218,7 @@ def _pair_beats_adequate_single(
     pairs_tried, common, ambiguous_pairs = _try_pairs(s, rnd)
     paired = _pair_verdict(rnd, best, None, pairs_tried, common, thresholds)
     pair = paired.pair
-    beaten = pair is not None and pair.delta_bic > best.delta_bic + thresholds.bic_significant
+    beaten = pair is not None and pair.delta_bic > _pair_bar(best, thresholds)  # best is adequate here
     if paired.status == "missing_effect" and beaten:
         paired.reason += (
             f" ('{best.effect}' alone also leaves a residual consistent with the noise, but the pair gains "
