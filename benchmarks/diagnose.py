@@ -58,6 +58,11 @@ def make_record(fs: float, workdir: Path, case: str = "creep") -> Path:
     return csv
 
 
+def _children_cpu(before: os.times_result, after: os.times_result) -> float:
+    """CPU seconds (user + system) of the child processes that ended between ``before`` and ``after``."""
+    return (after.children_user - before.children_user) + (after.children_system - before.children_system)
+
+
 def _command(csv: Path, out: Path) -> list[str]:
     return [sys.executable, "-m", "identify", "diagnose", str(csv), "--json", str(out), "--quiet"]
 
@@ -69,9 +74,7 @@ def run_once(fs: float, workdir: Path, case: str = "creep") -> tuple[float, floa
     started = time.perf_counter()
     before = os.times()
     subprocess.run(_command(csv, out), check=True, cwd=ROOT, capture_output=True)
-    after = os.times()
-    cpu = (after.children_user - before.children_user) + (after.children_system - before.children_system)
-    return time.perf_counter() - started, cpu, json.loads(out.read_text())
+    return time.perf_counter() - started, _children_cpu(before, os.times()), json.loads(out.read_text())
 
 
 def run_side_by_side(csv: Path, workdir: Path, copies: int, wait_policy: str) -> tuple[list[float], float]:
@@ -92,8 +95,7 @@ def run_side_by_side(csv: Path, workdir: Path, copies: int, wait_policy: str) ->
         if process.wait() != 0:
             raise SystemExit(f"a side-by-side diagnosis failed (exit code {process.returncode})")
         walls.append(time.perf_counter() - started)
-    after = os.times()
-    return walls, (after.children_user - before.children_user) + (after.children_system - before.children_system)
+    return walls, _children_cpu(before, os.times())
 
 
 def main(argv=None) -> int:
