@@ -24,7 +24,7 @@ import time
 import numba
 import numpy as np
 
-from model import EFFECTS, TABLE1, Model, paper_current
+from model import EFFECTS, TABLE1, THETA_NAMES, Model, paper_current
 
 
 def best_time(fn, repeats: int) -> float:
@@ -51,7 +51,8 @@ def distinct_rows_like(rows: np.ndarray) -> np.ndarray:
     out = rows.copy()
     k = np.arange(1, rows.shape[0] + 1)[:, None]
     out[:, 1] *= 1.0 + 1e-6 * k[:, 0]
-    out[:, 19:] += 1e-9 * k * np.maximum(np.abs(rows[0, 19:]), 1.0)
+    gpi = len(THETA_NAMES)  # the effect parameters follow the GPI's
+    out[:, gpi:] += 1e-9 * k * np.maximum(np.abs(rows[0, gpi:]), 1.0)
     return out
 
 
