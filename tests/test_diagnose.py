@@ -989,3 +989,41 @@ def test_a_targeted_name_waits_for_the_rivals_its_screening_ranked_low(monkeypat
     refitted.clear()
     _, targeted = _targeted_check(s, rnd, others, list(others))
     assert targeted is None and refitted == ["sensor_drift"]
+
+
+def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_ones_are_retried_in_it(monkeypatch):
+    """The refits start in the baseline's basin, whose threshold sign the misspecified plain
+    GPI chose. The best candidate (which leaves structure) is refitted with the other sign;
+    when that fits it better, the next best candidates up to max_refits are refitted with the
+    other sign too (the independent bench, seed 3, effects_012: training best in alpha > 0,
+    the true incomplete_reset adequate only with alpha < 0). When the other sign does not
+    help the best, nobody else pays for a from-scratch fit."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    def candidate(effect, delta_bic, adequate=False):
+        return SimpleNamespace(effect=effect, delta_bic=delta_bic, adequate_after=adequate)
+
+    def run(other_sign_bic):
+        asked = []
+
+        def other_sign_refits(s, rnd, names):
+            asked.append(list(names))
+            return [candidate(n, other_sign_bic[n], n == "incomplete_reset") for n in names if n in other_sign_bic]
+
+        monkeypatch.setattr(diagnosis, "_other_sign_refits", other_sign_refits)
+        refitted = [candidate("training", 42653.0), candidate("incomplete_reset", 30175.0),
+                    candidate("thermal", 15028.0), candidate("creep", 13294.0)]  # fmt: skip
+        s = SimpleNamespace(thresholds=Thresholds())
+        return diagnosis._retry_other_sign(s, SimpleNamespace(refitted=refitted)), asked
+
+    better = {"training": 43000.0, "incomplete_reset": 44525.0, "thermal": 14000.0}
+    ranked, asked = run(better)
+    assert asked == [["training"], ["incomplete_reset", "thermal"]]  # max_refits = 3 in all
+    assert [c.effect for c in ranked] == ["incomplete_reset", "training", "thermal", "creep"]
+    assert ranked[0].adequate_after and ranked[0].delta_bic == 44525.0
+    assert ranked[2].delta_bic == 15028.0  # the baseline's sign kept where it fits better
+    ranked, asked = run({"training": 40000.0, "incomplete_reset": 44525.0})
+    assert asked == [["training"]]
+    assert [c.effect for c in ranked] == ["training", "incomplete_reset", "thermal", "creep"]
