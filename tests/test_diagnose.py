@@ -1013,6 +1013,8 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
             return [candidate(n, other_sign_bic[n], n == "incomplete_reset") for n in names if n in other_sign_bic]
 
         monkeypatch.setattr(diagnosis, "_other_sign_refits", other_sign_refits)
+        monkeypatch.setattr(diagnosis, "_other_sign_refits_from",
+                            lambda s, rnd, names, anchor: other_sign_refits(s, rnd, names))  # fmt: skip
         refitted = [candidate("training", 42653.0), candidate("incomplete_reset", 30175.0),
                     candidate("thermal", 15028.0), candidate("creep", 13294.0)]  # fmt: skip
         s = SimpleNamespace(thresholds=Thresholds())
