@@ -1771,10 +1771,11 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
     worth of starts. When the other sign fits it better, the baseline's sign was the plain
     GPI's compromise, not the record's, and the next best refitted candidates that leave
     structure (up to :attr:`Thresholds.max_refits` in all) are refitted with the other sign
-    too, from the best one's GPI of that sign (:func:`_other_sign_refits_from`; measured: on a 1 kHz record of a retained
-    first-cycle strain the plain GPI chose alpha > 0; training, the best there, gained 7,165
-    in chi-square with alpha < 0 and still left structure, while the true first-cycle
-    effect, second in the baseline's sign at 1.13 sigma, fits to 1.006 sigma with alpha < 0).
+    too, from the best one's GPI of that sign (:func:`_other_sign_refits_from`). Measured:
+    on a 1 kHz record of a retained first-cycle strain the plain GPI chose alpha > 0;
+    training, the best there, gained 7,165 in chi-square with alpha < 0 and still left
+    structure, while the true first-cycle effect, second in the baseline's sign at 1.13
+    sigma, fits to 1.006 sigma with alpha < 0.
     """
     best = rnd.refitted[0]
     retried = {c.effect: c for c in _other_sign_refits(s, rnd, [best.effect])}
