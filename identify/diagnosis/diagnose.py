@@ -1362,6 +1362,16 @@ def _evaluate_candidate(
     )  # fmt: skip
 
 
+def _evaluate_in_round(s: _Setting, rnd: _Round, name: str, model_e: Model, start, screening,
+                       members=()) -> CandidateResult:  # fmt: skip
+    """:func:`_evaluate_candidate` of ``name`` (``model_e`` finished from the full vector
+    ``start``) against the round's baseline, with the diagnosis' settings."""
+    return _evaluate_candidate(
+        s.record, rnd.fit, rnd.chi2_0, rnd.adequacy, name, model_e, start, screening, s.quiet, s.noise_ref,
+        s.thresholds, s.rng, members,
+    )  # fmt: skip
+
+
 def _same_threshold_sign(model_a: Model, model_b: Model) -> bool:
     """Do the two models pin (or free) ``alpha`` alike, with the same sign?"""
     a, b = model_a.parameters["alpha"], model_b.parameters["alpha"]
@@ -1590,9 +1600,14 @@ def _screen(s: _Setting, rnd: _Round) -> list:
     return screened
 
 
+def _effect_values(model_e: Model, theta, name: str) -> dict:
+    """``{parameter: value}`` of effect ``name``'s own parameters in ``theta``, a full vector of ``model_e``."""
+    return {n: float(theta[model_e.names.index(n)]) for n in get_effect(name).parameters.names}
+
+
 def _screening_values(model_e: Model, screening: ScreeningResult) -> dict:
     """``{parameter: value}`` of the candidate's own parameters at its screening start."""
-    return {n: float(screening.start[model_e.names.index(n)]) for n in get_effect(screening.effect).parameters.names}
+    return _effect_values(model_e, screening.start, screening.effect)
 
 
 def _short_refit_from_screening(work: _Working, fit: FitResult, model_e: Model, screening: ScreeningResult, values: dict,
@@ -1666,10 +1681,7 @@ def _refit_best(s: _Setting, rnd: _Round) -> list:
         s.say(f"refitting with '{name}'")
         screening = next(one for one in rnd.screened if one.effect == name)
         result = _attempt(
-            lambda: _evaluate_candidate(
-                s.record, fit, rnd.chi2_0, rnd.adequacy, name, fit.model + name, short[name][1], screening, s.quiet,
-                s.noise_ref, s.thresholds, s.rng,
-            ),
+            lambda: _evaluate_in_round(s, rnd, name, fit.model + name, short[name][1], screening),
             s.say, f"refit with '{name}' failed", rnd.failed, (name, screening, fit, rnd.n_eff_small, "refit"),
         )  # fmt: skip
         if result is not None:
@@ -1705,13 +1717,7 @@ def _other_sign_refits(s: _Setting, rnd: _Round, names) -> list:
         if small is None:
             continue
         screening = next((one for one in rnd.screened if one.effect == name), None)
-        result = _attempt(
-            lambda: _evaluate_candidate(
-                s.record, fit, rnd.chi2_0, rnd.adequacy, name, small.model, small.theta, screening, s.quiet,
-                s.noise_ref, s.thresholds, s.rng,
-            ),
-            s.say, "not possible",
-        )  # fmt: skip
+        result = _attempt(lambda: _evaluate_in_round(s, rnd, name, small.model, small.theta, screening), s.say, "not possible")
         if result is not None:
             results.append(result)
     return results
@@ -1738,22 +1744,13 @@ def _other_sign_refits_from(s: _Setting, rnd: _Round, names, anchor: CandidateRe
         s.say(f"refitting with '{name}' with the other threshold sign, from the GPI of '{anchor.effect}' there")
         model_e = plain + name
         screening = next((one for one in rnd.screened if one.effect == name), None)
-        values = [{}]
-        if name in rnd.short:
-            short_model = fit.model + name
-            values = [{n: float(rnd.short[name][1][short_model.names.index(n)]) for n in get_effect(name).parameters.names}]
+        values = [_effect_values(fit.model + name, rnd.short[name][1], name)] if name in rnd.short else [{}]
         grid = list(screening.grid) if screening is not None else []
         small = _attempt(lambda: _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, gpi, model_e, values + grid)),
                          s.say, "not possible")  # fmt: skip
         if small is None:
             continue
-        result = _attempt(
-            lambda: _evaluate_candidate(
-                s.record, fit, rnd.chi2_0, rnd.adequacy, name, model_e, small[1], screening, s.quiet, s.noise_ref,
-                s.thresholds, s.rng,
-            ),
-            s.say, "not possible",
-        )  # fmt: skip
+        result = _attempt(lambda: _evaluate_in_round(s, rnd, name, model_e, small[1], screening), s.say, "not possible")
         if result is not None:
             results.append(result)
     return results
@@ -1953,10 +1950,7 @@ def _targeted_check(s: _Setting, rnd: _Round, others: list, ranking: list) -> tu
         model_e = fit.model + c.effect
         values = _screening_values(model_e, s_one)
         _, start = _short_refit_from_screening(s.work, fit, model_e, s_one, values)
-        return _evaluate_candidate(
-            s.record, fit, rnd.chi2_0, rnd.adequacy, c.effect, model_e, start, s_one, s.quiet, s.noise_ref,
-            thresholds, s.rng,
-        )  # fmt: skip
+        return _evaluate_in_round(s, rnd, c.effect, model_e, start, s_one)
 
     def nameable(confirmed):
         top = confirmed[0] if confirmed else None
@@ -2098,9 +2092,8 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
         s.say(f"refitting with '{one[0]}' and '{other[0]}' together")
         members = [member_chi2[n] for n in (one[0], other[0]) if n in member_chi2]
         result = _attempt(
-            lambda model_pair=model_pair, start=start, one=one, other=other, members=members: _evaluate_candidate(
-                s.record, fit, rnd.chi2_0, rnd.adequacy, f"{one[0]}+{other[0]}", model_pair, start, None, s.quiet,
-                s.noise_ref, thresholds, s.rng, members,
+            lambda model_pair=model_pair, start=start, one=one, other=other, members=members: _evaluate_in_round(
+                s, rnd, f"{one[0]}+{other[0]}", model_pair, start, None, members
             ),
             s.say, "the pair refit failed",
         )  # fmt: skip
