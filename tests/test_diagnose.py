@@ -585,7 +585,10 @@ def test_a_pair_is_finished_from_a_member_of_the_other_threshold_sign_in_that_si
     """A member refitted from scratch with the other sign of the pinned thresholds nests in
     the pair of that sign, not in the pair of the baseline's sign (there its GPI parameters
     make a different model: measured, a start 28 % above the member's chi-square, three
-    polishes to the evaluation cap, 37 s of a 92-s diagnosis)."""
+    polishes to the evaluation cap, 37 s of a 92-s diagnosis). When the pair's own start
+    already lies above that member on the whole record, the pair is finished from the member
+    only (measured: seed 3's effects_012 at 1 kHz, three pairs polished 40-60 s each from
+    starts 7 % above their member, in vain); when it lies below, from its own start first."""
     from types import SimpleNamespace
 
     from identify.diagnosis import diagnose as diagnosis
@@ -598,21 +601,46 @@ def test_a_pair_is_finished_from_a_member_of_the_other_threshold_sign_in_that_si
     member = SimpleNamespace(model=other, theta=other.default_theta())
     start = diagnosis._embed(base_model, base.theta, pair)
     free = np.ones(len(pair.names), dtype=bool)
-    calls = []
+    calls, starts = [], []
 
     def finish(record, model, noise, x, rng):
         calls.append(model)
-        return SimpleNamespace(chi2=[86000.0, 79500.0][len(calls) - 1], model=model)
+        return SimpleNamespace(chi2=ends[len(calls) - 1], model=model)
+
+    def chi2_at(record, model, noise, theta):
+        starts.append(model)
+        return start_chi2, 10000.0
 
     monkeypatch.setattr(diagnosis, "_finish", finish)
+    monkeypatch.setattr(diagnosis, "_chi2_at", chi2_at)
     white = np.random.default_rng(0).standard_normal(10000)
     white /= np.linalg.norm(white)
     monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: white * np.sqrt(fit.chi2))
-    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, [(80000.0, member)])
+    members = [(80000.0, member)]
+
+    start_chi2, ends = 86500.0, [79500.0]  # the start lies above the member: the member only
+    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)
+    assert starts == [pair] and chi2 == pytest.approx(79500.0) and len(calls) == 1
+    assert calls[0].parameters["alpha"].value > 0 and calls[0].names == pair.names  # the member's sign
+    assert fit.model is calls[0]
+
+    calls.clear()
+    start_chi2, ends = 79000.0, [78500.0]  # below the member: its own start, and nothing more
+    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)
+    assert chi2 == pytest.approx(78500.0) and len(calls) == 1 and calls[0] is pair
+
+    calls.clear()
+    start_chi2, ends = 79000.0, [86000.0, 79500.0]  # below the member, but its polish ends above it
+    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)
     assert chi2 == pytest.approx(79500.0) and len(calls) == 2
     assert calls[0] is pair  # the pair's own start: the baseline's sign
-    assert calls[1].parameters["alpha"].value > 0 and calls[1].names == pair.names  # the member's sign
+    assert calls[1].parameters["alpha"].value > 0 and calls[1].names == pair.names  # then the member's sign
     assert fit.model is calls[1]
+
+    calls.clear()
+    start_chi2, ends = 80004.0, [80002.0]  # above the member by 0.5 in BIC: decides nothing, own start
+    diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)
+    assert len(calls) == 1 and calls[0] is pair
 
 
 def test_embedding_across_threshold_signs_is_refused_and_the_pair_pool_keeps_the_baselines_sign():
