@@ -585,10 +585,7 @@ def test_a_pair_is_finished_from_a_member_of_the_other_threshold_sign_in_that_si
     """A member refitted from scratch with the other sign of the pinned thresholds nests in
     the pair of that sign, not in the pair of the baseline's sign (there its GPI parameters
     make a different model: measured, a start 28 % above the member's chi-square, three
-    polishes to the evaluation cap, 37 s of a 92-s diagnosis). When the pair's own start
-    already lies above that member on the whole record, the pair is finished from the member
-    only (measured: seed 3's effects_012 at 1 kHz, three pairs polished 40-60 s each from
-    starts 7 % above their member, in vain); when it lies below, from its own start first."""
+    polishes to the evaluation cap, 37 s of a 92-s diagnosis)."""
     from types import SimpleNamespace
 
     from identify.diagnosis import diagnose as diagnosis
@@ -601,46 +598,21 @@ def test_a_pair_is_finished_from_a_member_of_the_other_threshold_sign_in_that_si
     member = SimpleNamespace(model=other, theta=other.default_theta())
     start = diagnosis._embed(base_model, base.theta, pair)
     free = np.ones(len(pair.names), dtype=bool)
-    calls, starts = [], []
+    calls = []
 
     def finish(record, model, noise, x, rng):
         calls.append(model)
-        return SimpleNamespace(chi2=ends[len(calls) - 1], model=model)
-
-    def chi2_at(record, model, noise, theta):
-        starts.append(model)
-        return start_chi2, 10000.0
+        return SimpleNamespace(chi2=[86000.0, 79500.0][len(calls) - 1], model=model)
 
     monkeypatch.setattr(diagnosis, "_finish", finish)
-    monkeypatch.setattr(diagnosis, "_chi2_at", chi2_at)
     white = np.random.default_rng(0).standard_normal(10000)
     white /= np.linalg.norm(white)
     monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: white * np.sqrt(fit.chi2))
-    members = [(80000.0, member)]
-
-    start_chi2, ends = 86500.0, [79500.0]  # the start lies above the member: the member only
-    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)
-    assert starts == [pair] and chi2 == pytest.approx(79500.0) and len(calls) == 1
-    assert calls[0].parameters["alpha"].value > 0 and calls[0].names == pair.names  # the member's sign
-    assert fit.model is calls[0]
-
-    calls.clear()
-    start_chi2, ends = 79000.0, [78500.0]  # below the member: its own start, and nothing more
-    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)
-    assert chi2 == pytest.approx(78500.0) and len(calls) == 1 and calls[0] is pair
-
-    calls.clear()
-    start_chi2, ends = 79000.0, [86000.0, 79500.0]  # below the member, but its polish ends above it
-    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)
+    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, [(80000.0, member)])
     assert chi2 == pytest.approx(79500.0) and len(calls) == 2
     assert calls[0] is pair  # the pair's own start: the baseline's sign
-    assert calls[1].parameters["alpha"].value > 0 and calls[1].names == pair.names  # then the member's sign
+    assert calls[1].parameters["alpha"].value > 0 and calls[1].names == pair.names  # the member's sign
     assert fit.model is calls[1]
-
-    calls.clear()
-    start_chi2, ends = 80004.0, [80002.0]  # above the member by 0.5 in BIC: decides nothing, own start
-    diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)
-    assert len(calls) == 1 and calls[0] is pair
 
 
 def test_embedding_across_threshold_signs_is_refused_and_the_pair_pool_keeps_the_baselines_sign():
@@ -737,6 +709,71 @@ def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monke
     assert ambiguous == ["creep+sensor_drift", "creep+training"] and common == {"creep"}
     tried, _, _ = diagnosis._try_pairs(SimpleNamespace(**{**vars(s), "thresholds": Thresholds(max_refits=1, bic_significant=1.0)}), rnd)
     assert [p.effect for p in tried] == ["creep+incomplete_reset"]
+
+
+def test_a_pair_beside_an_adequate_single_of_the_other_threshold_sign_starts_from_that_single(monkeypatch):
+    """A pair that contains a single refitted with the other sign of the pinned thresholds
+    and already adequate alone is short-refitted in that sign, from that single's fit with
+    the partner's parameters and alone, and its whole-record refit starts there, not from
+    its short refit in the baseline's sign (seed 3's effects_012, 1 kHz: three pairs
+    polished 40-60 s each from the baseline's sign, in vain, 388 s in all). A member of the
+    other sign that leaves structure changes nothing (seed 8's effects_025 with training:
+    the pair reached the noise only from the baseline's sign)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    base_model = with_threshold_sign(normalised_model(Model()), -1)
+    base = SimpleNamespace(model=base_model, theta=base_model.default_theta())
+    flipped_model = with_threshold_sign(base_model, 1) + "incomplete_reset"
+    flipped_theta = flipped_model.default_theta()
+    flipped_theta[flipped_model.names.index("rho")] *= 1.5  # the single's own GPI
+    training_model = base_model + "training"
+    training_theta = training_model.default_theta()
+    name = "training_deficit"
+    training_theta[training_model.names.index(name)] = 0.123  # the partner's short refit
+    pool = [("training", training_model, training_theta), ("incomplete_reset", base_model + "incomplete_reset", None)]
+    monkeypatch.setattr(diagnosis, "_pair_pool", lambda rnd, thresholds: pool)
+    monkeypatch.setattr(diagnosis, "_short_pair", lambda work, fit, one, other: (500.0, "baseline sign", "its start"))
+    monkeypatch.setattr(diagnosis, "_working_copy_delta_bic", lambda rnd, chi2, k: 1000.0 - chi2)
+    monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: np.array([30.0]))
+    short_refits = []
+
+    def short_refit(record, model, noise, groups):
+        short_refits.append((model, groups))
+        return 600.0, "from the single"  # higher on the working copy than the baseline sign's 500
+
+    monkeypatch.setattr(diagnosis, "_short_refit", short_refit)
+    evaluated = []
+
+    def evaluate(record, fit, chi2_0, adequacy, name, model_e, start, *rest):
+        evaluated.append((model_e, start))
+        return SimpleNamespace(effect=name, delta_bic=100.0)
+
+    monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
+    s = SimpleNamespace(work=SimpleNamespace(record=None, noise=None), thresholds=Thresholds(), say=lambda m: None,
+                        record=None, quiet=None, noise_ref=None, rng=None)  # fmt: skip
+    single = SimpleNamespace(effect="incomplete_reset", adequate_after=True,
+                             fit=SimpleNamespace(model=flipped_model, theta=flipped_theta))  # fmt: skip
+    rnd = SimpleNamespace(fit=base, chi2_0=1.0, adequacy=None, refitted=[single])
+
+    diagnosis._try_pairs(s, rnd)
+    (model, groups), = short_refits
+    assert model.parameters["alpha"].value > 0 and model.names == (base_model + ["training", "incomplete_reset"]).names
+    both, alone = groups[0]
+    assert both[model.names.index("rho")] == flipped_theta[flipped_model.names.index("rho")]
+    assert both[model.names.index(name)] == 0.123 and alone[model.names.index(name)] != 0.123
+    assert evaluated == [(model, "from the single")]
+
+    short_refits.clear(), evaluated.clear()
+    single.adequate_after = False  # leaves structure: the pair keeps its own start
+    diagnosis._try_pairs(s, rnd)
+    assert short_refits == [] and evaluated == [("baseline sign", "its start")]
+
+    single.adequate_after = True
+    single.fit = SimpleNamespace(model=base_model + "incomplete_reset", theta=None)  # the baseline's sign
+    diagnosis._try_pairs(s, rnd)
+    assert short_refits == [] and evaluated == [("baseline sign", "its start")] * 2
 
 
 def test_pair_pool_takes_every_candidate_whose_gain_pays_for_its_parameters():
