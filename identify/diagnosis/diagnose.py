@@ -738,6 +738,14 @@ def _embed(model_from: Model, theta_from, model_to: Model, drop_extra=False) -> 
     return theta
 
 
+def _with_values(model_e: Model, theta, values: dict) -> np.ndarray:
+    """A copy of the full vector ``theta`` of ``model_e`` with ``{parameter: value}`` set."""
+    theta = np.array(theta, dtype=float)
+    for name, value in values.items():
+        theta[model_e.names.index(name)] = value
+    return theta
+
+
 def _orthonormal_basis(matrix, rtol=1e-9):
     """Orthonormal basis of the column span of ``matrix`` (T, m) by SVD, rank-revealing."""
     if matrix.shape[1] == 0:
@@ -784,9 +792,7 @@ def _screen_one_impl(record, model: Model, theta0, noise: NoiseModel, effect_nam
     chi2_reference = float(w0_perp @ w0_perp)  # the GPI alone, linearised: what the effect must beat
     outcomes = []  # (chi2_after, x, step, point)
     for point in grid:
-        theta = base.copy()
-        for name, value in point.items():
-            theta[model_e.names.index(name)] = value
+        theta = _with_values(model_e, base, point)
         if not model_e.in_bounds(theta)[0]:
             continue
         x = theta[free]
@@ -1281,10 +1287,7 @@ def _refit_starts(record, base_fit: FitResult, model_e: Model, effect_values, ex
     for values in effect_values:
         for group, bases in ((near, [off]), (far, data_driven)):
             for base in bases:
-                theta = base.copy()
-                for name, value in values.items():
-                    theta[model_e.names.index(name)] = value
-                group.append(theta)
+                group.append(_with_values(model_e, base, values))
     near.append(off)
     return [[s for s in group if model_e.in_bounds(s)[0]] for group in (near, far)]
 
@@ -1912,7 +1915,7 @@ def _unrefitted_candidates(rnd: _Round) -> list:
                 s.effect, s, False, fit.rms * math.sqrt(chi2_after / chi2_0_small), None,
                 float(_working_copy_delta_bic(rnd, chi2_after, k)), float(n_eff_small),
                 _explained(excess_small, excess_small - (chi2_0_small - chi2_after)) if excess_small > 0 else 0.0,
-                None, {}, {n: float(theta_after[model_e.names.index(n)]) for n in get_effect(s.effect).parameters.names},
+                None, {}, _effect_values(model_e, theta_after, s.effect),
             )
         )  # fmt: skip
     others.sort(key=lambda c: -c.delta_bic)
@@ -2609,12 +2612,9 @@ def _short_pair(work, fit, one, other) -> tuple[float, Model, np.ndarray]:
     model_pair = fit.model + [one[0], other[0]]
     starts, values = [], {}
     for (name_a, model_a, theta_a), (name_b, model_b, theta_b) in ((one, other), (other, one)):
-        start = _embed(model_a, theta_a, model_pair)
-        b_values = {n: float(theta_b[model_b.names.index(n)]) for n in get_effect(name_b).parameters.names}
+        b_values = _effect_values(model_b, theta_b, name_b)
         values |= b_values
-        for n, v in b_values.items():
-            start[model_pair.names.index(n)] = v
-        starts.append(start)
+        starts.append(_with_values(model_pair, _embed(model_a, theta_a, model_pair), b_values))
     # near starts only: each single candidate's fit already explored the distant (data-driven)
     # GPI basins, and a pair's optimum lies near one of its members' optima plus the other's
     # parameters
@@ -2644,25 +2644,19 @@ def _short_pair_from_flipped_single(s: _Setting, fit: FitResult, one, other, mem
     baseline's sign, 155 from creep's fit of the other sign, with a lower short refit.
     """
     names = (one[0], other[0])
-    flipped = sorted((member_fits[n][0], n) for n in names if n in member_fits and n in adequate
-                     and not _same_threshold_sign(member_fits[n][1].model, fit.model))  # fmt: skip
-    if not flipped:
+    flipped = min(((member_fits[n][0], n) for n in names if n in member_fits and n in adequate
+                   and not _same_threshold_sign(member_fits[n][1].model, fit.model)), default=None)  # fmt: skip
+    if flipped is None:
         return None
-    name_m = flipped[0][1]
+    name_m = flipped[1]
     fit_m = member_fits[name_m][1]
-    partner = names[1] if name_m == names[0] else names[0]
+    partner, partner_model, partner_theta = other if name_m == one[0] else one
+    if partner in member_fits and _same_threshold_sign(member_fits[partner][1].model, fit_m.model):
+        partner_model, partner_theta = member_fits[partner][1].model, member_fits[partner][1].theta
     s.say(f"short refit with '{names[0]}' and '{names[1]}' together with the other threshold sign, from '{name_m}' there")
     model_pair = _plain_of(fit_m.model, fit.model) + list(names)
     alone = _embed(fit_m.model, fit_m.theta, model_pair)
-    if partner in member_fits and _same_threshold_sign(member_fits[partner][1].model, fit_m.model):
-        partner_fit = member_fits[partner][1]
-        values = _effect_values(partner_fit.model, partner_fit.theta, partner)
-    else:
-        _, partner_model, partner_theta = one if partner == one[0] else other
-        values = _effect_values(partner_model, partner_theta, partner)
-    both = alone.copy()
-    for n, v in values.items():
-        both[model_pair.names.index(n)] = v
+    both = _with_values(model_pair, alone, _effect_values(partner_model, partner_theta, partner))
     starts = [x for x in (both, alone) if model_pair.in_bounds(x)[0]]
     if not starts:
         return None
