@@ -908,8 +908,16 @@ class Training(Effect):
 
     @staticmethod
     def _fade(params, drive):
-        """The fade ``f`` of the travel of ``drive`` (shape ``(T,)`` or ``(W, T)``), shape ``(W, T)``."""
-        return training_fade(accumulated_travel(drive), params[:, 2:3], params[:, 3:4])
+        """The fade ``f`` of the travel of ``drive`` (shape ``(T,)`` or ``(W, T)``), shape ``(W, T)``.
+
+        On one drive row the fade depends on a set's ``(V0, p)`` only, so it is computed
+        once per distinct pair (a Jacobian's batch varies them in two rows of its P + 1):
+        the same values, element by element."""
+        travel = accumulated_travel(drive)
+        if travel.shape[0] != 1 or params.shape[0] == 1:
+            return training_fade(travel, params[:, 2:3], params[:, 3:4])
+        pairs, row_of = np.unique(params[:, 2:4], axis=0, return_inverse=True)
+        return training_fade(travel, pairs[:, 0:1], pairs[:, 1:2])[row_of.reshape(-1)]
 
     def drive(self, params, time, current):
         """Drive with the fading first-cycle difference, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
