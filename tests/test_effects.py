@@ -779,3 +779,24 @@ def test_every_effect_says_what_tells_it_apart(name):
     text = _telling_apart(name, other)
     assert f"'{name}' {signature}" in text and f"'{other}' {EFFECTS[other].signature}" in text
     assert _telling_apart(name, f"{other}+{name}") == ""  # a pair is no single effect to describe
+
+
+def test_training_with_every_strength_on_batch_is_each_rows_own_output(paper_input):
+    """Training's fade is shared between the rows of a batch with the same (V0, p): with its
+    strain gain and play width on too (its test parameters leave them at 0), every row of a
+    Jacobian's batch is still its own single evaluation, bit for bit."""
+    time, current = paper_input[0][::4], paper_input[1][::4]
+    m = Model(["training"])
+    theta = m.default_theta()
+    values = {"training_deficit": 0.1, "training_threshold": 0.2, "training_travel": 3.0, "training_shape": 2.0,
+              "training_gain": 0.05, "training_width": 0.3}  # fmt: skip
+    for key, value in values.items():
+        theta[m.names.index(key)] = value
+    rows = np.repeat(theta[None, :], theta.size + 2, axis=0)
+    rows[np.arange(1, theta.size + 1), np.arange(theta.size)] += 1e-6 * np.maximum(np.abs(theta), 0.01)
+    rows[-1] = rows[m.names.index("training_travel") + 1]  # a repeat of the row that moves V0
+    y, valid = m.evaluate(rows, time, current)
+    assert valid.all()
+    for w in range(rows.shape[0]):
+        assert np.array_equal(y[w], m(rows[w], time, current)), f"row {w}"
+    assert not np.array_equal(y[0], m(m.default_theta(), time, current))  # the strengths are visible
