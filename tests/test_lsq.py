@@ -325,16 +325,3 @@ def test_fit_reaches_the_noise_when_the_truth_lies_beyond_the_old_wall():
     fit = fit_least_squares(rec, model, noise=noise, n_starts=3, rng=np.random.default_rng(0))
     truth = WhitenedResiduals(rec, fit.model, noise)(theta[fit.vary])
     assert fit.chi2 <= float(truth @ truth) + 1.0, (fit.chi2, float(truth @ truth))
-
-
-def test_without_the_alternate_screening_a_polished_start_ends_where_the_full_search_does(clean_fit):
-    """``n_polish_alternate=0`` (what the diagnosis uses to finish a point it has already
-    polished) runs no trf screening, so no end is labelled as run on from it, and from the
-    polished optimum it ends where the search with both screenings ends."""
-    rec, fit = clean_fit
-    both = fit_least_squares(rec, fit.model, noise=fit.noise, start=fit.theta, n_starts=1)
-    main_only = fit_least_squares(rec, fit.model, noise=fit.noise, start=fit.theta, n_starts=1, n_polish_alternate=0)
-    assert any("trf screening" in s.label for s in both.starts)
-    assert not any("trf screening" in s.label for s in main_only.starts)
-    assert main_only.chi2 == pytest.approx(both.chi2, abs=0.01)
-    assert main_only.chi2 <= fit.chi2 + 1e-6
