@@ -1160,21 +1160,14 @@ def _polish(residuals: WhitenedResiduals, x0) -> np.ndarray:
 
 def _finish(record, model_e: Model, noise: NoiseModel, x, rng, fit: FitResult | None = None) -> FitResult:
     """Polish free vector ``x`` (:func:`_polish`) and return the :class:`FitResult` there
-    (``fit`` itself when that is no worse).
-
-    The least squares that makes the result runs on from the polished point with its main
-    method only (dogbox, to convergence where the polish stopped at its cap, then the
-    sampler coordinates): the alternate method's screening would start from the same
-    point, which the polish already took into its basin (on the worst-case bench record it
-    ended within 0.5 in chi-square of the main one, and cost a tenth of the diagnosis)."""
+    (``fit`` itself when that is no worse)."""
     residuals = WhitenedResiduals(record, model_e, noise)
     x = _polish(residuals, x)
     if fit is not None:
         w = residuals(x)
         if float(w @ w) > fit.chi2 - 0.1:
             return fit
-    return fit_least_squares(record, model_e, noise=noise, start=residuals.full(x), n_starts=1, rng=rng,
-                             n_polish_alternate=0)  # fmt: skip
+    return fit_least_squares(record, model_e, noise=noise, start=residuals.full(x), n_starts=1, rng=rng)
 
 
 def _short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tuple[float, np.ndarray]:

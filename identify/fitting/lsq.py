@@ -47,7 +47,7 @@ Starts
 
 Every start first gets :data:`SCREEN_EVALUATIONS` solver evaluations of each method
 (:data:`SOLVER_METHOD` and :data:`ALTERNATE_METHOD`); the ``n_polish`` best after dogbox's
-screening, and the ``n_polish_alternate`` (:data:`N_POLISH_ALTERNATE`) best after trf's, then run on
+screening, and the :data:`N_POLISH_ALTERNATE` best after trf's, then run on
 from there to convergence with :data:`SOLVER_METHOD` (at most :data:`POLISH_EVALUATIONS`
 evaluations, tolerances :data:`TOLERANCE`) and the best of those wins. The polished set
 contains dogbox's alone, so the search only adds ends to what dogbox's ranking polishes.
@@ -723,8 +723,7 @@ class _PolishedStart:
 
 
 def fit_least_squares(
-    record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=N_POLISH,
-    n_polish_alternate=N_POLISH_ALTERNATE, threshold_sign="auto",
+    record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=N_POLISH, threshold_sign="auto"
 ) -> FitResult:
     """Least-squares fit of ``model`` to ``record`` (method in the module docstring).
 
@@ -744,8 +743,7 @@ def fit_least_squares(
 
     if threshold_sign not in THRESHOLD_SIGNS:
         raise ValueError(f"threshold_sign must be one of {sorted(THRESHOLD_SIGNS)}, got {threshold_sign!r}")
-    options = dict(noise=noise, start=start, n_starts=n_starts, rng=rng, verbose=verbose, n_polish=n_polish,
-                   n_polish_alternate=n_polish_alternate)
+    options = dict(noise=noise, start=start, n_starts=n_starts, rng=rng, verbose=verbose, n_polish=n_polish)
     alpha = model.parameters["alpha"]
     if alpha.vary or model.reading != "swapped":
         return _fit_one_sign(record, model, **options)
@@ -789,8 +787,7 @@ def fit_least_squares(
     return best
 
 
-def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=N_POLISH,
-                  n_polish_alternate=N_POLISH_ALTERNATE) -> FitResult:
+def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=N_POLISH) -> FitResult:
     """Least-squares fit of ``model`` as given (its pinned parameters, alpha's sign included).
 
     The steps: the checks (:func:`_checked_residuals`), the starts
@@ -816,10 +813,6 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
         One line per start logged at INFO (``identify.fitting.lsq``); at DEBUG when False (shown by ``-v``).
     n_polish : int, default :data:`N_POLISH`
         How many of the best screened starts are run to convergence.
-    n_polish_alternate : int, default :data:`N_POLISH_ALTERNATE`
-        How many of the best starts after a screening with :data:`ALTERNATE_METHOD` are
-        run to convergence too; 0 skips that screening (e.g. from one start that a
-        solver has already polished, where both screenings begin at the same point).
 
     Returns
     -------
@@ -829,7 +822,7 @@ def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, r
     t0 = _time.perf_counter()
     noise, residuals = _checked_residuals(record, model, noise)
     starts = candidate_starts(record, model, n_starts=n_starts, rng=rng, start=start)
-    best, outcomes = _run_starts(residuals, starts, n_polish, verbose, n_polish_alternate)
+    best, outcomes = _run_starts(residuals, starts, n_polish, verbose)
     return _fit_result(record, model, residuals, noise, best, outcomes, len(starts), t0)
 
 
@@ -869,8 +862,7 @@ class _StartLog:
             self.best = end
 
 
-def _run_starts(residuals, starts, n_polish: int, verbose: bool,
-                n_polish_alternate: int = N_POLISH_ALTERNATE) -> tuple[_PolishedStart, list]:
+def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_PolishedStart, list]:
     """``(best end, outcomes)`` of the search from ``starts``, with numba's fastest thread count
     and single-threaded BLAS: phase 1 screens every start with a few steps of each solver
     method, phase 2 runs the most promising to convergence (module docstring), phase 3
@@ -890,22 +882,18 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool,
                 x0 = np.clip(theta0[free], residuals.lower, residuals.upper)
                 before = residuals.n_evaluations
                 sol = _solve(residuals, x0, SCREEN_EVALUATIONS)
-                sol_alternate = None
-                if n_polish_alternate > 0:
-                    sol_alternate = _solve(residuals, x0, SCREEN_EVALUATIONS, method=ALTERNATE_METHOD)
+                sol_alternate = _solve(residuals, x0, SCREEN_EVALUATIONS, method=ALTERNATE_METHOD)
                 screened.append((label, sol, residuals.n_evaluations - before))
                 alternate.append(sol_alternate)
                 origins.append(x0)
-                also = "" if sol_alternate is None else f", {2 * sol_alternate.cost:.6g} ({ALTERNATE_METHOD})"
-                _log.log(log.level, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g} ({SOLVER_METHOD}){also}")
+                _log.log(log.level, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g} ({SOLVER_METHOD}), "
+                                    f"{2 * sol_alternate.cost:.6g} ({ALTERNATE_METHOD})")  # fmt: skip
             # Phase 2: run the most promising ends to convergence: the n_polish best after
-            # dogbox's screening, and the n_polish_alternate best after trf's.
+            # dogbox's screening, and the N_POLISH_ALTERNATE best after trf's.
             order = sorted(range(len(screened)), key=lambda k: screened[k][1].cost)
             polish = set(order[:n_polish])
-            polish_alternate = set()
-            if n_polish > 0 and n_polish_alternate > 0:
-                order_alternate = sorted(range(len(screened)), key=lambda k: alternate[k].cost)
-                polish_alternate = set(order_alternate[:n_polish_alternate])
+            order_alternate = sorted(range(len(screened)), key=lambda k: alternate[k].cost)
+            polish_alternate = set(order_alternate[:N_POLISH_ALTERNATE]) if n_polish > 0 else set()
             for k, (label, sol, n_eval) in enumerate(screened):
                 if k not in polish | polish_alternate:
                     log.screened_out(label, sol, n_eval)
