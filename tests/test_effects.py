@@ -115,15 +115,23 @@ def test_finite_difference_batch_is_each_rows_own_output(names, paper_input):
     for name in names:
         for key, value in EFFECTS[name].get_test_parameters().items():
             theta[m.names.index(key)] = value
+    _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats=(0, theta.size))
+
+
+def _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats):
+    """A Jacobian's batch of ``theta`` (each parameter alone perturbed, then exact repeats of
+    the rows ``repeats``) through ``m``: every row equals its own single evaluation, bit for
+    bit. Returns the batch's output."""
     n_par = theta.size
-    rows = np.repeat(theta[None, :], n_par + 3, axis=0)
+    rows = np.repeat(theta[None, :], n_par + 1 + len(repeats), axis=0)
     rows[np.arange(1, n_par + 1), np.arange(n_par)] += 1e-6 * np.maximum(np.abs(theta), 0.01)
-    rows[n_par + 1] = rows[0]
-    rows[n_par + 2] = rows[n_par]
+    for k, row in enumerate(repeats):
+        rows[n_par + 1 + k] = rows[row]
     y, valid = m.evaluate(rows, time, current)
-    assert valid.all() and y.shape == (n_par + 3, time.size)
+    assert valid.all() and y.shape == (rows.shape[0], time.size)
     for w in range(rows.shape[0]):
-        assert np.array_equal(y[w], m(rows[w], time, current)), f"{names}: row {w} ({m.names[w - 1] if 0 < w <= n_par else 'repeat'})"
+        assert np.array_equal(y[w], m(rows[w], time, current)), f"{m!r}: row {w} ({m.names[w - 1] if 0 < w <= n_par else 'repeat'})"
+    return y
 
 
 def test_all_effects_off_together_is_the_plain_gpi(paper_input, plain_gpi):
@@ -792,11 +800,6 @@ def test_training_with_every_strength_on_batch_is_each_rows_own_output(paper_inp
               "training_gain": 0.05, "training_width": 0.3}  # fmt: skip
     for key, value in values.items():
         theta[m.names.index(key)] = value
-    rows = np.repeat(theta[None, :], theta.size + 2, axis=0)
-    rows[np.arange(1, theta.size + 1), np.arange(theta.size)] += 1e-6 * np.maximum(np.abs(theta), 0.01)
-    rows[-1] = rows[m.names.index("training_travel") + 1]  # a repeat of the row that moves V0
-    y, valid = m.evaluate(rows, time, current)
-    assert valid.all()
-    for w in range(rows.shape[0]):
-        assert np.array_equal(y[w], m(rows[w], time, current)), f"row {w}"
+    moves_v0 = m.names.index("training_travel") + 1
+    y = _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats=(moves_v0,))
     assert not np.array_equal(y[0], m(m.default_theta(), time, current))  # the strengths are visible
