@@ -325,3 +325,41 @@ def test_fit_reaches_the_noise_when_the_truth_lies_beyond_the_old_wall():
     fit = fit_least_squares(rec, model, noise=noise, n_starts=3, rng=np.random.default_rng(0))
     truth = WhitenedResiduals(rec, fit.model, noise)(theta[fit.vary])
     assert fit.chi2 <= float(truth @ truth) + 1.0, (fit.chi2, float(truth @ truth))
+
+
+def _iteration(residual):
+    from scipy.optimize import OptimizeResult
+
+    return OptimizeResult(fun=np.asarray(residual, dtype=float))
+
+
+def test_stall_stop_stops_only_when_the_window_gained_less_than_its_chi_square():
+    from identify.fitting.lsq import StallStop
+
+    stop = StallStop(window=3, chi2=0.1)
+    # chi-square 10, 9, 8.95, 8.92, 8.91: the window 9 -> 8.91 gained 0.09 < 0.1
+    for chi2 in (10.0, 9.0, 8.95, 8.92):
+        stop(_iteration([math.sqrt(chi2)]))  # 10 -> 8.92 gained 1.08 over the first full window
+    with pytest.raises(StopIteration):
+        stop(_iteration([math.sqrt(8.91)]))
+    steady = StallStop(window=3, chi2=0.1)
+    for chi2 in (10.0, 9.0, 8.0, 7.0, 6.0, 5.0):  # never stalls: each window gains 3
+        steady(_iteration([math.sqrt(chi2)]))
+
+
+def test_a_stalled_solver_run_counts_as_converged_with_its_own_message():
+    from scipy.optimize import least_squares
+
+    from identify.fitting.lsq import STALLED, StallStop, solver_verdict
+
+    # a curved valley (Rosenbrock's) the solver follows in many short steps
+    def residuals(x):
+        return np.array([10.0 * (x[1] - x[0] ** 2), 1.0 - x[0]])
+
+    full = least_squares(residuals, [-1.2, 1.0], method="trf", ftol=1e-15, xtol=1e-15, gtol=1e-15)
+    assert full.status > 0 and solver_verdict(full) == (True, str(full.message))
+    stalled = least_squares(residuals, [-1.2, 1.0], method="trf", ftol=1e-15, xtol=1e-15, gtol=1e-15,
+                            callback=StallStop(window=2, chi2=10.0))  # fmt: skip
+    assert stalled.status == STALLED and stalled.nfev < full.nfev
+    success, message = solver_verdict(stalled)
+    assert success and message.startswith("stalled: the chi-square fell by less than")

@@ -158,7 +158,7 @@ from scipy.optimize import least_squares, lsq_linear
 from model import EFFECTS, READINGS, Model, envelope, get_effect
 
 from ..data.reversals import find_reversals
-from ..fitting.lsq import FitResult, WhitenedResiduals, candidate_starts, fit_least_squares
+from ..fitting.lsq import FitResult, StallStop, WhitenedResiduals, candidate_starts, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
 from ..fitting.parametrisation import normalised_model, with_threshold_sign
 from ..fitting.threads import single_threaded_blas
@@ -1143,7 +1143,7 @@ def _solve(residuals, x0, method, max_nfev, tolerance=1e-10):
     with single_threaded_blas():
         return least_squares(
             residuals, x0, jac=residuals.jacobian, bounds=(residuals.lower, residuals.upper), method=method,
-            x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, max_nfev=max_nfev,
+            x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, max_nfev=max_nfev, callback=StallStop(),
         )  # fmt: skip
 
 
