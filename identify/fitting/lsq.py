@@ -49,7 +49,8 @@ Every start first gets :data:`SCREEN_EVALUATIONS` solver evaluations of each met
 (:data:`SOLVER_METHOD` and :data:`ALTERNATE_METHOD`); the ``n_polish`` best after dogbox's
 screening, and the :data:`N_POLISH_ALTERNATE` best after trf's, then run on
 from there to convergence with :data:`SOLVER_METHOD` (at most :data:`POLISH_EVALUATIONS`
-evaluations, tolerances :data:`TOLERANCE`) and the best of those wins. The polished set
+evaluations, tolerances :data:`TOLERANCE`, and every run stopped once it has stalled:
+:class:`StallStop`) and the best of those wins. The polished set
 contains dogbox's alone, so the search only adds ends to what dogbox's ranking polishes.
 
 Table-1-shaped starts (``table1``, ``data_scaled``, ``classical``) are made for Table 1's
