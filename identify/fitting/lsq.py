@@ -111,6 +111,7 @@ __all__ = [
     "PAPER_PEAK_INPUT",
     "THRESHOLD_SIGNS",
     "parameter_units",
+    "StallStop",
 ]
 
 #: Whitened residual per sample returned for a parameter set whose model output is not finite.
