@@ -9,7 +9,8 @@ at one of three stages:
 ``"state"``
     sets the operators' initial memory (e.g. ``initial_state``):
     :meth:`Effect.initial_memory` returns shape ``(W,)``, and optionally
-    :meth:`Effect.initial_excursion` the last reversal before the record, shape ``(W,)``.
+    :meth:`Effect.initial_excursion` the last reversal before the record, shape ``(W,)``,
+    and :meth:`Effect.initial_held` a memory held beyond the bounds, shape ``(W, N)``.
 ``"output"``
     transforms the displacement after the hysteresis (e.g. ``creep``, ``thermal``,
     ``sensor_drift``): :meth:`Effect.output` returns shape ``(W, T)``.
@@ -134,6 +135,12 @@ class Effect:
     def initial_excursion(self, params):
         """Stage ``"state"``, optional: the last reversal before the record, shape ``(W,)`` [A]
         (:func:`model.gpi.gpi`'s ``initial_excursion``), or None (the default: none)."""
+        return None
+
+    def initial_held(self, params, n_operators):
+        """Stage ``"state"``, optional: memory held beyond the bounds at the record's start,
+        shape ``(W, N)`` [A] (:func:`model.gpi.gpi`'s ``initial_held``), or None (the
+        default: none)."""
         return None
 
     def output(self, params, time, current, displacement):  # pragma: no cover - protocol
@@ -409,6 +416,7 @@ class Model:
         width = None
         z0 = 0.0
         excursion = 0.0
+        held = 0.0
         for e in self.effects:
             params = theta2[:, self._slices[e.name]]
             if e.stage == "input":
@@ -431,11 +439,16 @@ class Model:
                 reversal = e.initial_excursion(params)
                 if reversal is not None:
                     excursion = np.asarray(reversal, dtype=float)
+                kept = e.initial_held(params, self.n_operators)
+                if kept is not None:
+                    held = np.asarray(kept, dtype=float)
         if drive is None:
             drive = current[None, :]
         elif not np.isfinite(drive).all():
             raise ValueError("an input-stage effect produced a non-finite drive")
-        y, y_of = gpi_grouped(theta2[:, : len(THETA_NAMES)], drive, group, self.n_operators, self.reading, z0, width, excursion)
+        y, y_of = gpi_grouped(
+            theta2[:, : len(THETA_NAMES)], drive, group, self.n_operators, self.reading, z0, width, excursion, held
+        )
         for e in self.effects:
             if e.stage == "output" or e.acts_on_output:
                 params = theta2[:, self._slices[e.name]]

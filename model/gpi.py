@@ -29,6 +29,11 @@ Initial memory (the paper does not print one; see the reading below):
 .. math::  z_j(t_0) = \max\big(\gamma_\uparrow(v_0) - r_j,\ \min(\gamma_\downarrow(v_0) + r_j,\ z^{0})\big),
            \quad z^0 = 0 .
 
+A memory *held* beyond those bounds (:math:`h_j`, added after the clamp; 0 in the paper) is
+kept until the first motion against it: the play law only moves a memory when a bound
+passes it, so a memory above its upper bound stays there on rising runs and is cut at
+the first falling one (``initial_held``; the ``initial_state`` effect).
+
 The direction-dependent term, eq. (13), with the backward difference
 :math:`\Delta v_k = v_k - v_{k-1}` (the first sample counts as rising):
 
@@ -336,7 +341,7 @@ def _omega_values(current, row, c0, c1, c2, c3, d0, d1, d2, d3, omega):
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion,
+def _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion, initial_held,
                 threshold_scale, scale_of, leaders, slot, followers, leader_of, sums, out):  # fmt: skip
     """Fill ``out[w, :]`` with the GPI response of ``theta[w]``, eq. (5) for every parameter set.
 
@@ -374,8 +379,13 @@ def _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory
     the play law (one rising then one falling update for :math:`e > 0`, the mirror for
     :math:`e < 0`; exact for the monotone tanh envelopes, whose extreme on the path lies
     at an end).
+
+    ``initial_held[w, j]`` is added to operator ``j``'s memory after the clamp and the
+    excursion (a memory held beyond the bounds; ``initial_held`` of shape ``(1, 1)``: none,
+    read as 0 for every set).
     """
     n_samples = current.shape[1]
+    held = initial_held.shape[1] > 1
     scaled = threshold_scale.shape[1] > 1
     directions = _directions(current)
     for i in prange(leaders.shape[0]):
@@ -419,6 +429,8 @@ def _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory
             memory[j] = initial_operator_memory(
                 initial_memory[w], thresholds[j], rising_env, falling_env, excursion, excursion_env
             )
+            if held:
+                memory[j] += initial_held[w, j]
         total = _weighted_sum(weights, memory)
         if store >= 0:
             sums[store, 0] = total
@@ -516,6 +528,26 @@ def _per_set(values, n_sets, name):
     return np.ascontiguousarray(np.broadcast_to(array, (n_sets,)))
 
 
+_NO_HELD = np.zeros((1, 1))
+
+
+def _held(initial_held, n_sets, n_operators):
+    """``initial_held`` as the kernel takes it: ``(1, 1)`` for none (0 everywhere), else a
+    contiguous ``(W, N)`` array (a scalar, one value per operator ``(N,)`` shared by the
+    batch, or ``(W, N)``)."""
+    array = np.asarray(initial_held, dtype=float)
+    if array.shape not in ((), (n_operators,), (n_sets, n_operators)):
+        raise ValueError(
+            f"initial_held must be a scalar or have shape ({n_operators},) (one value per operator) or "
+            f"({n_sets}, {n_operators}) (per parameter set and operator), got shape {array.shape}"
+        )
+    if not np.isfinite(array).all():
+        raise ValueError("initial_held must be finite")
+    if not array.any():
+        return _NO_HELD
+    return np.ascontiguousarray(np.broadcast_to(array, (n_sets, n_operators)))
+
+
 def _refuse_non_finite_current(current2, one_d):
     """ValueError naming the first non-finite sample of the 2-D ``current2`` (``current[k]``
     when the caller's input was 1-D, else ``current[r, k]``)."""
@@ -583,7 +615,7 @@ def _threshold_scale(threshold_scale, n_sets, n_samples):
 
 
 def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, threshold_scale=None,
-        initial_excursion=0.0):
+        initial_excursion=0.0, initial_held=0.0):
     """Generalized Prandtl-Ishlinskii response, eqs. (5)-(13), for one or many parameter sets.
 
     Defined for every finite parameter set (see "The whole domain" in the module
@@ -616,6 +648,12 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, t
         ``initial_memory`` followed it (the operators narrower than about half the
         excursion keep its trace). 0: no excursion (the memory is the clamped level).
         Used by the ``initial_state`` effect.
+    initial_held : float or array_like of shape (N,) or (W, N), default 0.0
+        Memory held beyond the bounds at ``t_0`` [A, envelope units], operator by operator:
+        added to the memory after the clamp and the excursion, not clamped (a state the
+        drive cannot leave, from another history: a pre-strain at mounting, another
+        temperature). The play law keeps it until the first motion against it. 0: none
+        (the paper). Used by the ``initial_state`` effect.
 
     Returns
     -------
@@ -626,19 +664,20 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, t
     ------
     ValueError
         Malformed input only: non-finite or wrongly shaped ``theta``/``current``/
-        ``initial_memory``/``initial_excursion``, fewer than 2 samples, ``n_operators < 1``, an unknown reading.
+        ``initial_memory``/``initial_excursion``/``initial_held``, fewer than 2 samples, ``n_operators < 1``, an unknown reading.
     """
     theta2, current2, n_operators, rising_is_a, z0, single = _prepare(
         theta, current, n_operators, reading, initial_memory
     )
     excursion = _per_set(initial_excursion, theta2.shape[0], "initial_excursion")
+    held = _held(initial_held, theta2.shape[0], n_operators)
     scale = _threshold_scale(threshold_scale, theta2.shape[0], current2.shape[1])
     if scale.shape[0] > 1:
         single = False
     n_sets = theta2.shape[0]
     row_of = np.zeros(n_sets, dtype=np.int64) if current2.shape[0] == 1 else np.arange(n_sets, dtype=np.int64)
     scale_of = np.zeros(n_sets, dtype=np.int64) if scale.shape[0] == 1 else np.arange(n_sets, dtype=np.int64)
-    out, inverse = gpi_rows(theta2, current2, row_of, n_operators, rising_is_a, z0, excursion, scale, scale_of)
+    out, inverse = gpi_rows(theta2, current2, row_of, n_operators, rising_is_a, z0, excursion, scale, scale_of, held)
     if single:
         return out[0]
     return out if out.shape[0] == n_sets else out[inverse]
@@ -680,11 +719,11 @@ def distinct_rows(*columns):
 
 
 def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion,
-             threshold_scale, scale_of):  # fmt: skip
+             threshold_scale, scale_of, initial_held=_NO_HELD):  # fmt: skip
     """The kernel on a prepared batch: each distinct parameter set once.
 
-    ``theta`` (W, 19), ``initial_memory`` and ``initial_excursion`` (W,) as
-    :func:`gpi` validates them; set ``w`` reads input row ``current[row_of[w]]`` (of an
+    ``theta`` (W, 19), ``initial_memory`` and ``initial_excursion`` (W,), ``initial_held``
+    (W, N) or (1, 1) for none, as :func:`gpi` validates them; set ``w`` reads input row ``current[row_of[w]]`` (of an
     ``(R, T)`` array) and width row ``threshold_scale[scale_of[w]]`` (of an ``(S, T)``
     array, or ``(1, 1)`` for none).
 
@@ -702,12 +741,14 @@ def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, i
     n_samples = current.shape[1]
     if theta.shape[0] == 1:  # one set: a leader without followers
         out = np.empty((1, n_samples))
-        _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion, threshold_scale,
-                    scale_of, _ONE_ROW, _NO_SLOT, _NO_ROWS, _ONE_ROW, _NO_SUMS, out)  # fmt: skip
+        _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion, initial_held,
+                    threshold_scale, scale_of, _ONE_ROW, _NO_SLOT, _NO_ROWS, _ONE_ROW, _NO_SUMS, out)  # fmt: skip
         return out, np.zeros(1, dtype=np.int64)
-    unique, inverse = distinct_rows(theta, row_of, initial_memory, initial_excursion, scale_of)
+    held_columns = (initial_held,) if initial_held.shape[1] > 1 else ()
+    unique, inverse = distinct_rows(theta, row_of, initial_memory, initial_excursion, scale_of, *held_columns)
     play_first, play_group = distinct_rows(
-        theta[unique, :11], row_of[unique], initial_memory[unique], initial_excursion[unique], scale_of[unique]
+        theta[unique, :11], row_of[unique], initial_memory[unique], initial_excursion[unique], scale_of[unique],
+        *(held[unique] for held in held_columns),
     )
     leader_of = play_first[play_group]  # the first distinct set with the same memories
     is_leader = leader_of == np.arange(unique.size)
@@ -720,14 +761,15 @@ def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, i
     out = np.empty((unique.size, n_samples))
     _gpi_kernel(
         np.ascontiguousarray(theta[unique]), current, np.ascontiguousarray(row_of[unique]), n_operators, rising_is_a,
-        np.ascontiguousarray(initial_memory[unique]), np.ascontiguousarray(initial_excursion[unique]), threshold_scale,
+        np.ascontiguousarray(initial_memory[unique]), np.ascontiguousarray(initial_excursion[unique]),
+        np.ascontiguousarray(initial_held[unique]) if held_columns else initial_held, threshold_scale,
         np.ascontiguousarray(scale_of[unique]), leaders, slot, followers, leader_of, sums, out,
     )  # fmt: skip
     return out, inverse
 
 
 def gpi_grouped(theta, current, row_of, n_operators=12, reading="swapped", initial_memory=0.0,
-                threshold_scale=None, initial_excursion=0.0):  # fmt: skip
+                threshold_scale=None, initial_excursion=0.0, initial_held=0.0):  # fmt: skip
     """:func:`gpi` for a batch whose parameter sets share input rows, without copying them per set.
 
     Parameters
@@ -737,7 +779,7 @@ def gpi_grouped(theta, current, row_of, n_operators=12, reading="swapped", initi
         The distinct drives [A].
     row_of : array_like of int, shape (W,)
         The drive (and width) row of each set, in ``0 .. R-1``.
-    n_operators, reading, initial_memory, initial_excursion
+    n_operators, reading, initial_memory, initial_excursion, initial_held
         As :func:`gpi`.
     threshold_scale : array_like of shape (R, T), optional
         The width rows, indexed by ``row_of`` too.
@@ -759,12 +801,13 @@ def gpi_grouped(theta, current, row_of, n_operators=12, reading="swapped", initi
         raise ValueError(f"row_of must have shape ({n_sets},) with values in 0..{current2.shape[0] - 1}")
     _refuse_non_finite_current(current2, one_d=False)
     excursion = _per_set(initial_excursion, n_sets, "initial_excursion")
+    held = _held(initial_held, n_sets, n_operators)
     if threshold_scale is None:
         scale, scale_of = np.ones((1, 1)), np.zeros(n_sets, dtype=np.int64)
     else:
         scale = _threshold_scale(threshold_scale, current2.shape[0], current2.shape[1])
         scale_of = row_of if scale.shape[0] > 1 else np.zeros(n_sets, dtype=np.int64)
-    return gpi_rows(theta2, current2, row_of, n_operators, rising_is_a, z0, excursion, scale, scale_of)
+    return gpi_rows(theta2, current2, row_of, n_operators, rising_is_a, z0, excursion, scale, scale_of, held)
 
 
 def bound_overlap(theta, current, n_operators=12, reading="swapped"):

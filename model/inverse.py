@@ -75,7 +75,7 @@ the output only a dead time later, which no per-sample step can reach. A lag is 
 of a first-order filter with an input linear between samples has a zero near -1 in the
 sample domain, so a step in :math:`u` makes :math:`i` ring with alternating sign, decaying as
 :math:`(-1 + h/3\tau_L)^k`: real, but the current limits may bind. ``training`` (its drive, width and strain parts) and
-``initial_state`` (its level and prior excursion) are inverted as identified (the
+``initial_state`` (its level, prior excursion and held memory) are inverted as identified (the
 compensation starts from the model's initial state). ``sensor_drift`` is supported here (an offset per sample, whatever
 its form: the effect's own output on a zero displacement), but it is
 a property of the sensor, not of the transducer (the workflows leave it out of a
@@ -216,7 +216,9 @@ def _evaluate(
     logarithmic ones). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
     reference current, node 2's time constant, sensitivity, expansion; ``thermal_c`` the
     two nodes' step coefficients. ``drift``: the sensor drift at this sample.
-    Returns ``(y, y_gpi, u1, u, travel, side, y_strain, width)``; ``side`` +1 on Omega's c
+    Before the first sample is committed, ``memory`` holds the initial memory held beyond
+    the bounds (``initial_state``'s :math:`h_j`), which the first sample adds to the clamped
+    memory. Returns ``(y, y_gpi, u1, u, travel, side, y_strain, width)``; ``side`` +1 on Omega's c
     branch (``du >= 0``), -1 on d; ``y_strain`` the strain after training's strain part (the
     output stage's input); ``width`` the factor on the thresholds in force.
     """
@@ -245,7 +247,9 @@ def _evaluate(
         rising_env, falling_env, excursion_env = _initial_envelopes(g, u, st[14])
         s = 0.0
         for j in range(n_ops):
-            s += weights[j] * initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env)
+            s += weights[j] * (
+                initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env) + memory[j]
+            )
         y_gpi = _env(g[8], g[9], g[10], g[11], u) + s
         side = 1
     else:
@@ -321,7 +325,9 @@ def _commit(
     if first:
         rising_env, falling_env, excursion_env = _initial_envelopes(g, u, st[14])
         for j in range(n_ops):
-            memory[j] = initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env)
+            memory[j] = (  # before the first commit ``memory`` holds the held part (see _evaluate)
+                initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env) + memory[j]
+            )
         for m in range(modes.shape[0]):
             modes[m] = y_gpi
         st[7] = 0.0
@@ -521,7 +527,7 @@ def _search(
 
 @njit(parallel=True, cache=True)
 def _inverse_kernel(
-    gpi_theta, n_ops, rising_is_a, z0, lag_tau, has_training, training, creep_on, creep_params, creep_taus,
+    gpi_theta, n_ops, rising_is_a, z0, held, lag_tau, has_training, training, creep_on, creep_params, creep_taus,
     thermal_on, thermal, drift, time, target, lo, hi, ytol, current_out, output_out, status_out, evaluations,
 ):
     n_sets = gpi_theta.shape[0]
@@ -548,7 +554,7 @@ def _inverse_kernel(
         for q in range(8):
             g[8 + q] = th_[11 + q]
         thresholds, weights = operator_thresholds_and_weights(alpha, rho, tau, n_ops)
-        memory = np.empty(n_ops)
+        memory = held[w].copy()  # the held part until the first sample is committed
         modes = np.empty(n_modes)
         creep_gain = np.empty(n_modes)
         creep_decay = np.empty(n_modes)
@@ -720,7 +726,12 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
 
     n_sets = theta2.shape[0]
     gpi_theta = np.ascontiguousarray(theta2[:, : len(THETA_NAMES)])
-    z0 = _effect_columns(model, theta2, "initial_state", 2, [0.0, 0.0])  # level, excursion
+    z0 = _effect_columns(model, theta2, "initial_state", 2, [0.0, 0.0])[:, :2]  # level, excursion
+    held = np.zeros((n_sets, int(model.n_operators)))
+    if "initial_state" in model.effect_names:
+        effect = model.effects[model.effect_names.index("initial_state")]
+        held = np.ascontiguousarray(effect.initial_held(theta2[:, model.effect_slice("initial_state")], model.n_operators))
+    z0 = np.ascontiguousarray(z0)
     lag = _effect_columns(model, theta2, "lag", 2, [0.0, 0.0])
     if np.any(lag[:, 1] != 0.0):
         rows = np.flatnonzero(lag[:, 1] != 0.0)
@@ -764,7 +775,7 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
     status = np.empty((n_sets, time.size), dtype=np.int8)
     evaluations = np.zeros(n_sets, dtype=np.int64)
     _inverse_kernel(
-        gpi_theta, int(model.n_operators), READINGS[model.reading], z0, lag_tau, has_training, training, creep_on,
+        gpi_theta, int(model.n_operators), READINGS[model.reading], z0, held, lag_tau, has_training, training, creep_on,
         creep_params, creep_taus, thermal_on, thermal, drift, time, target, lo, hi, ytol, current, output, status,
         evaluations,
     )

@@ -65,7 +65,7 @@ def _tanh_form(k0, k1, k2, k3, v):
 
 
 def gpi_reference(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, law="piecewise",
-                  threshold_scale=None):
+                  threshold_scale=None, initial_held=None):
     """The GPI response of one parameter set, computed the slow and plain way.
 
     Parameters
@@ -82,6 +82,8 @@ def gpi_reference(theta, current, n_operators=12, reading="swapped", initial_mem
     threshold_scale : sequence of float, length T, optional
         Factor on every threshold at each sample after the first (the initial memory is
         clamped with the thresholds of eq. (8); the weights stay those of eq. (8)).
+    initial_held : sequence of float, length ``n_operators``, optional
+        Added to each operator's clamped initial memory (not clamped).
 
     Returns
     -------
@@ -122,6 +124,8 @@ def gpi_reference(theta, current, n_operators=12, reading="swapped", initial_mem
         if k == 0:
             for j in range(n_operators):
                 z[j] = max(lower_k[j], min(upper_k[j], float(initial_memory)))
+                if initial_held is not None:
+                    z[j] += float(initial_held[j])
             omega_k = _tanh_form(*c, v)
         else:
             v_previous = current[k - 1]

@@ -84,7 +84,8 @@ def test_screening_grid_classifies_parameters_by_what_they_do():
         ("creep", {"creep_tau", "creep_decades"}, {"creep_amplitude"}),
         ("sensor_drift", set(), {"sensor_drift_linear", "sensor_drift_quadratic"}),
         ("lag", {"lag_tau"}, set()),  # acts while "off" at 0 and nonlinearly: a value grid
-        ("initial_state", {"initial_state_excursion"}, {"initial_state_memory"}),  # the level is pinned
+        # its own grid: the level pinned, each part of the history on its own axis
+        ("initial_state", {"initial_state_excursion", "initial_state_held", "initial_state_held_slope"}, {"initial_state_memory"}),
         # its own grid (SCREENING_GRIDS): amplitudes off, the fade's travel scale and shape gridded
         ("training", {"training_travel", "training_shape"}, {"training_deficit", "training_threshold", "training_gain", "training_width"}),
     ):

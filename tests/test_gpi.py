@@ -195,6 +195,38 @@ def test_initial_excursion_is_the_memory_of_a_prior_path(reading, paper_input):
 
 
 @pytest.mark.parametrize("reading", ["swapped", "literal"])
+def test_initial_held_memory_matches_oracle_and_is_kept_until_a_motion_against_it(reading, paper_input):
+    """``initial_held`` (a memory beyond the bounds, added after the clamp) against the oracle,
+    per set and per operator; 0 is exactly none; a memory held above the upper bounds is
+    kept at rest and until the rising bound passes it."""
+    current = paper_input[::10]
+    thetas = np.tile(TABLE1, (4, 1))
+    thetas[2, 0] = -0.3  # negative thresholds: bounds cross
+    width = np.arange(1, N_OPERATORS + 1) / N_OPERATORS
+    held = np.array([0.5 + 0.0 * width, -0.3 + 0.8 * width, 2.0 - 1.5 * width, 0.0 * width])
+    levels = np.array([0.0, 3.0, 0.0, -2.0])
+    fast = gpi(thetas, current, reading=reading, initial_memory=levels, initial_held=held)
+    for w in range(len(thetas)):
+        reference = gpi_reference(thetas[w], current, reading=reading, initial_memory=levels[w], initial_held=held[w])
+        np.testing.assert_allclose(fast[w], reference.output, rtol=0, atol=1e-9 * oracle_scale(reference))
+        assert np.array_equal(fast[w], gpi(thetas[w], current, reading=reading, initial_memory=levels[w],
+                                           initial_held=held[w]))  # fmt: skip
+    assert np.array_equal(fast[3], gpi(thetas[3], current, reading=reading, initial_memory=levels[3]))
+    assert np.array_equal(gpi(TABLE1, current, reading=reading, initial_held=np.zeros(N_OPERATORS)), gpi(TABLE1, current, reading=reading))
+    if reading == "swapped":  # Table 1: every memory 0.5 higher at rest, kept until a bound passes it
+        plain = gpi(TABLE1, current)
+        shift = fast[0] - plain
+        weights = TABLE1[1] * np.exp(-TABLE1[2] * TABLE1[0] * np.arange(1, N_OPERATORS + 1))
+        at_rest = np.flatnonzero(current == current[0])
+        at_rest = at_rest[: np.argmax(np.diff(np.r_[at_rest, -1]) != 1) + 1]  # before the first motion
+        np.testing.assert_allclose(shift[at_rest], 0.5 * weights.sum(), rtol=1e-9)
+        first_peak = int(np.flatnonzero(np.diff(current) < 0)[0])
+        rise = shift[at_rest[-1] : first_peak + 1]
+        assert np.all(np.diff(rise) <= 1e-12) and rise[0] > rise[-1]  # the rising bounds overtake it, one by one
+        assert np.all(np.abs(shift[first_peak:]) < 1e-9 * np.ptp(plain))  # and it never comes back
+
+
+@pytest.mark.parametrize("reading", ["swapped", "literal"])
 def test_shared_sets_are_each_sets_own_response_bit_for_bit(reading):
     """A finite-difference-shaped batch: each parameter alone perturbed, exact repeats, and
     Omega-only changes (computed once, or on a leader's memories) give every row its own
@@ -215,7 +247,10 @@ def test_shared_sets_are_each_sets_own_response_bit_for_bit(reading):
     width = 1.0 + 0.2 * np.exp(-np.arange(current.size) / 200.0)
     widths = np.repeat(width[None, :], 24, axis=0)
     widths[5] = 1.0  # its own width: not shared
-    for options in ({}, {"initial_memory": levels, "initial_excursion": 0.7}, {"threshold_scale": widths}):
+    held = np.zeros((24, N_OPERATORS))
+    held[[2, 9, 16]] = 0.4  # start beyond the bounds: not shared with rows that do not
+    for options in ({}, {"initial_memory": levels, "initial_excursion": 0.7}, {"threshold_scale": widths},
+                    {"initial_held": held}):  # fmt: skip
         batch = gpi(rows, current, reading=reading, **options)
         for w in range(24):
             one = {k: (v[w] if isinstance(v, np.ndarray) else v) for k, v in options.items()}
@@ -575,6 +610,8 @@ def _with(index, value, theta=TABLE1):
         (TABLE1, CURRENT, {"initial_memory": np.nan}, r"initial_memory must be finite"),
         (np.stack([TABLE1] * 3), CURRENT, {"initial_memory": [0.0, 1.0]}, r"initial_memory must be a scalar or have shape \(3,\)"),
         (TABLE1, CURRENT, {"initial_excursion": np.inf}, r"initial_excursion must be finite"),
+        (TABLE1, CURRENT, {"initial_held": np.ones(5)}, r"initial_held must be a scalar or have shape \(12,\)"),
+        (TABLE1, CURRENT, {"initial_held": np.full(12, np.nan)}, r"initial_held must be finite"),
         (TABLE1, CURRENT, {"threshold_scale": np.ones(19)}, r"threshold_scale must have shape \(20,\) or \(1, 20\).*got shape \(19,\)"),
         (TABLE1, CURRENT, {"threshold_scale": np.zeros(20)}, r"threshold_scale must be finite and > 0"),
     ],

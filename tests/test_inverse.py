@@ -66,6 +66,19 @@ def test_a_prior_excursion_is_inverted_to_rounding(excursion):
     _inverted_exactly(model, theta, time, target, 1e-13)
 
 
+@pytest.mark.parametrize("held, slope", [(0.4, 0.0), (-0.3, 0.8), (2.0, -1.5)])
+def test_a_held_initial_memory_is_inverted_to_rounding(held, slope):
+    """``initial_state``'s memory held beyond the bounds (kept through the first loading)
+    is part of the inverse's first step and of the memory it carries."""
+    model = Model(["initial_state", "creep"])
+    theta = _theta(model, initial_state_held=held, initial_state_held_slope=slope)
+    time, current = paper_current(fs=100)
+    target = model(theta, time, current)
+    plain = model(_theta(model), time, current)
+    assert np.abs(target - plain).max() > 0.1  # the held memory is seen
+    _inverted_exactly(model, theta, time, target, 1e-13)
+
+
 @pytest.mark.parametrize("effects", [[], ["thermal"], ["creep"], ["training"], ["thermal", "creep", "training", "initial_state"]])
 @pytest.mark.parametrize("shape", ["triangle", "multisine"])
 def test_user_targets_are_followed_exactly(effects, shape):

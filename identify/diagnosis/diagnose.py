@@ -563,10 +563,41 @@ def _training_grid(model_e: Model, record) -> list[dict]:
     return points
 
 
+def _initial_state_grid(model_e: Model, record) -> list[dict]:
+    """Screening grid of ``initial_state``: each part of the history on its own axis.
+
+    The prior excursion ``e`` takes the generic rule's values (both signs, geometric from
+    2 % of its half-range to all of it: 12 points); the held memory's level ``h`` and
+    slope ``s`` take 2 %, 10 % and 50 % of their half-range, both signs (6 each); the other
+    parts off, the pinned level where it is. 25 points with the off point. A product of the
+    three axes thinned to the generic cap of 24 would keep two values of each, all of one
+    sign: here the parts of a history enter one at a time, and the short refits then move
+    them together.
+    """
+    effect = get_effect("initial_state")
+    names = effect.parameters.names
+    off = {n: float(effect.off[n]) for n in names}
+    points = [off]
+    for name in ("initial_state_excursion", "initial_state_held", "initial_state_held_slope"):
+        parameter = model_e.parameters[name]
+        if not parameter.vary:
+            continue
+        if name == "initial_state_excursion":
+            values = _axis_values(parameter, off[name], record.time, 5, include_off=True)[1:]
+        else:
+            half = 0.5 * (float(parameter.upper) - float(parameter.lower))
+            values = [off[name] + sign * size * half for size in (0.02, 0.1, 0.5) for sign in (-1.0, 1.0)]
+        for value in values:
+            point = off | {name: float(min(max(value, parameter.lower), parameter.upper))}
+            if point not in points:
+                points.append(point)
+    return points
+
+
 #: effect name -> callable(model_with_effect, record) returning a list of {parameter: value}
 #: grid points, the "off" point first; effects not listed use :func:`screening_grid`'s
 #: generic rule.
-SCREENING_GRIDS: dict[str, Callable] = {"training": _training_grid}
+SCREENING_GRIDS: dict[str, Callable] = {"training": _training_grid, "initial_state": _initial_state_grid}
 
 _MAX_GRID = 24
 
