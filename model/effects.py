@@ -1010,11 +1010,14 @@ class InitialState(Effect):
     others); it trades off with the thresholds' scale (which operators the excursion
     reaches) and, at small sizes, with the first cycle's shape (``training``,
     ``incomplete_reset``), and it saturates where the envelopes do (beyond the record's
-    drive range larger :math:`|e|` changes nothing). The held memory is not a shift either:
-    on the operators inside their bounds :math:`h` acts as a level, on the clamped ones it
-    lies beyond the bound (measured: a uniform :math:`h = 0.3` on the paper's input with
-    two generating GPIs, 5.7 noise sigmas visible, leaves 5.6 and 1.05 sigmas after a plain
-    GPI refit). :math:`h` and :math:`s` trade off with each other and with the excursion
+    drive range larger :math:`|e|` changes nothing). The held level :math:`h` **is** the
+    pinned level wherever every memory stays inside its bounds (Table 1 at 0 A: all twelve
+    operators start inside; ``benchmarks/effects_identifiability.py``: 6.8e-11, round-off):
+    only its part beyond an operator's bound is information, carried by the operators that
+    start clamped and by sizes that take memories past their bounds (measured: a uniform
+    :math:`h = 0.3` on the paper's input with two GPIs whose wide operators start clamped,
+    5.7 noise sigmas visible, leaves 5.6 and 1.05 sigmas after a plain GPI refit). The
+    slope is not a shift (1e-2). :math:`h` and :math:`s` trade off with each other and with the excursion
     (all three move the first loading), and with ``incomplete_reset`` and ``training``;
     a record with one first loading tells them apart only by the shape of that loading
     and of the first unloading. The paper's training effect, a maximum

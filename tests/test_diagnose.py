@@ -248,6 +248,14 @@ def test_initial_states_level_is_an_exact_reparametrisation_of_the_gpi_and_its_e
             # and the effect did change the output (the check is not vacuous)
             assert np.max(np.abs(y_effect - model_e(base, time, current))) > 1.0
     assert not model_e.parameters["initial_state_memory"].vary  # pinned by default
+    # a held memory is added after the clamp: the shift carries it along, unchanged
+    theta_e = base.copy()
+    for name, value in (("initial_state_memory", -2.0), ("initial_state_held", 0.7), ("initial_state_held_slope", -0.4)):
+        theta_e[model_e.names.index(name)] = value
+    plain = GPI_EQUIVALENTS["initial_state"](model_e, theta_e, sim.record.time, sim.record.current)
+    assert plain[model_e.names.index("initial_state_held")] == 0.7 and plain[model_e.names.index("initial_state_held_slope")] == -0.4
+    y_effect, y_plain = model_e(np.vstack([theta_e, plain]), sim.record.time, sim.record.current)
+    assert np.max(np.abs(y_effect - y_plain)) <= 1e-9 * np.ptp(y_effect)
     # the prior excursion moves some operators and not others: no offset does that
     theta_e = base.copy()
     theta_e[model_e.names.index("initial_state_excursion")] = 2.0

@@ -124,8 +124,8 @@ Method
    explain nothing; after a numerical check on the record it is listed in the ranking as
    not identifiable (``note``), never refitted or named. ``initial_state``'s level is such a
    part (a constant initial memory level is a shift of the envelope and :math:`\Omega`
-   offsets; pinned by default), its prior excursion is not, so ``initial_state`` is a
-   candidate through its excursion. The reparametrising direction still serves the
+   offsets; pinned by default), its prior excursion and held memory are not, so
+   ``initial_state`` is a candidate through them. The reparametrising direction still serves the
    baseline: a short refit through it alone (:data:`REPARAMETRISED_PARAMETERS`), mapped
    back exactly, is one of the challenger starts.
 
@@ -386,7 +386,9 @@ def _initial_state_as_envelope_offset(model_e: Model, theta_e, time, current) ->
     r"""``initial_state``'s level folded into the GPI's offsets: the same output with the effect off.
 
     Only the level: the prior excursion must be off (it moves some operators and not
-    others, which no offset does).
+    others, which no offset does). A held memory (``initial_state_held``, ``_slope``) is
+    carried along unchanged: it is added after the clamp, which the shift moves by
+    :math:`s` like every bound.
 
     The operators' initial memory :math:`z_j(t_0) = \max(L_j, \min(U_j, z^0))`, with
     :math:`L_j = \gamma_\uparrow(v_0) - r_j`, :math:`U_j = \gamma_\downarrow(v_0) + r_j`, and
