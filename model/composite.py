@@ -117,6 +117,10 @@ class Effect:
     #: an input- or state-stage effect that also transforms the displacement after the
     #: hysteresis (:meth:`output`, applied before the output-stage effects)
     acts_on_output: ClassVar[bool] = False
+    #: physics of the first cycle: the material's first loading differs from the later ones
+    #: (a virgin material that trains, a prior state, a strain the first cycle leaves). A
+    #: record with one first loading can hold such parts without telling them apart.
+    first_cycle: ClassVar[bool] = False
 
     def drive(self, params, time, current):  # pragma: no cover - protocol
         """Stage ``"input"``: drive seen by the hysteresis, shape ``(W, T)`` [A]."""

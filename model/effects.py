@@ -845,6 +845,7 @@ class Training(Effect):
     name = "training"
     stage = "input"
     acts_on_output = True
+    first_cycle = True
     parameters = ParameterSet(
         [
             Parameter(
@@ -1032,6 +1033,7 @@ class InitialState(Effect):
 
     name = "initial_state"
     stage = "state"
+    first_cycle = True
     parameters = ParameterSet(
         [
             Parameter(
@@ -1149,6 +1151,7 @@ class IncompleteReset(Effect):
 
     name = "incomplete_reset"
     stage = "output"
+    first_cycle = True
     parameters = ParameterSet(
         [
             Parameter(
