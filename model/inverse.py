@@ -726,12 +726,11 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
 
     n_sets = theta2.shape[0]
     gpi_theta = np.ascontiguousarray(theta2[:, : len(THETA_NAMES)])
-    z0 = _effect_columns(model, theta2, "initial_state", 2, [0.0, 0.0])[:, :2]  # level, excursion
+    z0 = np.ascontiguousarray(_effect_columns(model, theta2, "initial_state", 2, [0.0, 0.0])[:, :2])  # level, excursion
     held = np.zeros((n_sets, int(model.n_operators)))
     if "initial_state" in model.effect_names:
         effect = model.effects[model.effect_names.index("initial_state")]
         held = np.ascontiguousarray(effect.initial_held(theta2[:, model.effect_slice("initial_state")], model.n_operators))
-    z0 = np.ascontiguousarray(z0)
     lag = _effect_columns(model, theta2, "lag", 2, [0.0, 0.0])
     if np.any(lag[:, 1] != 0.0):
         rows = np.flatnonzero(lag[:, 1] != 0.0)

@@ -160,12 +160,12 @@ from types import SimpleNamespace
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import least_squares, lsq_linear
+from scipy.optimize import lsq_linear
 
 from model import EFFECTS, READINGS, Model, envelope, get_effect
 
 from ..data.reversals import find_reversals
-from ..fitting.lsq import FitResult, StallStop, WhitenedResiduals, candidate_starts, fit_least_squares
+from ..fitting.lsq import FitResult, WhitenedResiduals, bounded_solve, candidate_starts, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
 from ..fitting.parametrisation import normalised_model, with_threshold_sign
 from ..fitting.threads import single_threaded_blas
@@ -1181,11 +1181,10 @@ MEMBER_SHORTFALL_BIC = 1.0
 
 
 def _solve(residuals, x0, method, max_nfev, tolerance=1e-10):
+    """:func:`identify.fitting.lsq.bounded_solve` with tighter tolerances and single-threaded BLAS
+    (the diagnosis is the same whatever the thread count)."""
     with single_threaded_blas():
-        return least_squares(
-            residuals, x0, jac=residuals.jacobian, bounds=(residuals.lower, residuals.upper), method=method,
-            x_scale="jac", ftol=tolerance, xtol=tolerance, gtol=tolerance, max_nfev=max_nfev, callback=StallStop(),
-        )  # fmt: skip
+        return bounded_solve(residuals, x0, max_nfev, method=method, tolerance=tolerance)
 
 
 def _polish(residuals: WhitenedResiduals, x0) -> np.ndarray:

@@ -112,6 +112,7 @@ __all__ = [
     "THRESHOLD_SIGNS",
     "parameter_units",
     "StallStop",
+    "bounded_solve",
 ]
 
 #: Whitened residual per sample returned for a parameter set whose model output is not finite.
@@ -727,7 +728,10 @@ def solver_verdict(sol) -> tuple[bool, str]:
     return bool(sol.success), str(sol.message)
 
 
-def _solve(residuals: "WhitenedResiduals", x0, max_nfev, method=SOLVER_METHOD):
+def bounded_solve(residuals: "WhitenedResiduals", x0, max_nfev, method=SOLVER_METHOD, tolerance=TOLERANCE):
+    """One bounded solver run on ``residuals`` from free vector ``x0``: ``method`` with
+    Jacobian scaling, relative tolerances ``tolerance`` and the stall rule (:class:`StallStop`).
+    The diagnosis' short refits and polishes run it too."""
     return least_squares(
         residuals,
         x0,
@@ -735,9 +739,9 @@ def _solve(residuals: "WhitenedResiduals", x0, max_nfev, method=SOLVER_METHOD):
         bounds=(residuals.lower, residuals.upper),
         method=method,
         x_scale="jac",
-        ftol=TOLERANCE,
-        xtol=TOLERANCE,
-        gtol=TOLERANCE,
+        ftol=tolerance,
+        xtol=tolerance,
+        gtol=tolerance,
         max_nfev=max_nfev,
         callback=StallStop(),
     )
@@ -747,7 +751,7 @@ def _converged(residuals: "WhitenedResiduals", sol, note: str = "") -> "_Polishe
     """``sol`` run on to convergence with :data:`SOLVER_METHOD` when it stopped at its
     evaluation cap (status 0), as a :class:`_PolishedStart` (``note`` appended to the message)."""
     if sol.status == 0:
-        sol = _solve(residuals, sol.x, POLISH_EVALUATIONS)
+        sol = bounded_solve(residuals, sol.x, POLISH_EVALUATIONS)
     success, message = solver_verdict(sol)
     return _PolishedStart(np.asarray(sol.x, dtype=float), 2.0 * float(sol.cost), success, f"{message}{note}")
 
@@ -935,8 +939,8 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
             for label, theta0 in starts:
                 x0 = np.clip(theta0[free], residuals.lower, residuals.upper)
                 before = residuals.n_evaluations
-                sol = _solve(residuals, x0, SCREEN_EVALUATIONS)
-                sol_alternate = _solve(residuals, x0, SCREEN_EVALUATIONS, method=ALTERNATE_METHOD)
+                sol = bounded_solve(residuals, x0, SCREEN_EVALUATIONS)
+                sol_alternate = bounded_solve(residuals, x0, SCREEN_EVALUATIONS, method=ALTERNATE_METHOD)
                 screened.append((label, sol, residuals.n_evaluations - before))
                 alternate.append(sol_alternate)
                 origins.append(x0)
@@ -980,7 +984,7 @@ def _polish_at_bound(residuals, screened, origins, polish, log: _StartLog) -> No
             f"had {', '.join(gpi_at_bound)} on a bound)")  # fmt: skip
     for k in sorted(polish):
         before = residuals.n_evaluations
-        sol = _solve(residuals, origins[k], POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
+        sol = bounded_solve(residuals, origins[k], POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
         end = _converged(residuals, sol, note)
         log.keep(f"{screened[k][0]} ({ALTERNATE_METHOD})", end, residuals.n_evaluations - before)
 
