@@ -1024,13 +1024,13 @@ def test_a_pair_overrules_an_adequate_single_only_by_more_than_bic_significant(m
     assert verdict.status == "unexplained" and verdict.missing is None
     monkeypatch.setattr(diagnosis, "_where_summary", lambda profile: "")
     rnd.adequacy, rnd.profile = SimpleNamespace(failed=("low_frequency",), size_ratio=0.9), None
-    reason = diagnosis._unexplained_reason(rnd, training, thermal, True, common, [close.effect], [close], "", Thresholds())
+    reason = diagnosis._unexplained_reason(None, rnd, training, thermal, True, common, [close.effect], [close], "", Thresholds())
     assert "'training' (delta BIC 695) and 'thermal' (692)" in reason
     assert "The best pair, 'thermal+incomplete_reset' (697), gains no more than 10 beyond 'training'" in reason
     # a pair that gains more but is not named (here: it leaves structure) is not said to gain no more
     rough = candidate("thermal+incomplete_reset", 720.0, False)
     assert _pair_verdict(rnd, training, thermal, [rough], common, Thresholds()).status == "unexplained"
-    reason = diagnosis._unexplained_reason(rnd, training, thermal, True, common, [rough.effect], [rough], "", Thresholds())
+    reason = diagnosis._unexplained_reason(None, rnd, training, thermal, True, common, [rough.effect], [rough], "", Thresholds())
     assert "gains no more than" not in reason
     far = candidate("thermal+incomplete_reset", 706.0, True)
     verdict = _pair_verdict(rnd, training, thermal, [far], common, Thresholds())

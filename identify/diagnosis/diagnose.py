@@ -263,6 +263,12 @@ class Thresholds:
         100 Hz record (``1/sqrt(2 n)``, n = 6000: 0.9 %), so a smaller change is less than
         what another noise realisation would move the RMS by (e.g. a drift-corrected residual at 0.95 sigma
         that a further candidate moves by 0.7 %: not a finding).
+    distinct_z : float, default 2.0
+        A candidate is named only if it fits better than every other refitted candidate
+        by at least this many standard errors in Vuong's test of the two fits
+        (:func:`fit_distinction`; one-sided normal tail 2.3 %), besides the delta BIC gap
+        of ``bic_significant``: the delta BICs of two general forms differ by their
+        parameter counts even when the data cannot tell the fits apart.
     """
 
     z_critical: float = 5.0
@@ -274,9 +280,10 @@ class Thresholds:
     try_pairs: bool = True
     targeted_refits: bool = True
     practical_rms_change: float = 0.01
+    distinct_z: float = 2.0
 
     def __post_init__(self):
-        for name in ("z_critical", "structure_floor", "bic_significant", "practical_rms_change"):
+        for name in ("z_critical", "structure_floor", "bic_significant", "practical_rms_change", "distinct_z"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"Thresholds.{name} must be a finite number >= 0, got {value!r}")
@@ -2032,7 +2039,7 @@ def _targeted_check(s: _Setting, rnd: _Round, others: list, ranking: list) -> tu
         names = {c.effect for c in confirmed}
         ranking = confirmed + [c for c in ranking if c.effect not in names]
         top = nameable(confirmed)
-        if top is not None and _rival(top, confirmed, thresholds) is None:
+        if top is not None and _rival(top, confirmed, thresholds, s.record) is None:
             targeted = top
     return ranking, targeted
 
@@ -2056,7 +2063,7 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
     thresholds = s.thresholds
     reason = tests_text
     small = [c for c in ranking if c.refitted and c.delta_bic > thresholds.bic_significant]
-    rival = _rival(small[0], ranking, thresholds) if small else None
+    rival = _rival(small[0], ranking, thresholds, s.record) if small else None
     if small:
         change, size = _practical_size(rnd.fit, small[0])
         excess = _excess_over_noise(rnd.fit)
@@ -2070,8 +2077,8 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
         elif _practical(rnd.fit, small[0], thresholds) and small[0].adequate_after and rival is not None:
             reason += (
                 f" The targeted refits of '{small[0].effect}' (delta BIC {small[0].delta_bic:.0f}) and "
-                f"'{rival.effect}' ({rival.delta_bic:.0f}) come within {thresholds.bic_significant:g} of each other, "
-                f"which is no strong evidence for either, so neither is named."
+                f"'{rival.effect}' ({rival.delta_bic:.0f}) are "
+                f"{_rival_comparison(s.record, small[0], rival, thresholds)}, so neither is named."
                 + _telling_apart(small[0].effect, rival.effect)
             )
         else:
@@ -2236,7 +2243,7 @@ def _why_first(first: str, members: list, single: dict, pairs_tried: list, thres
     return f"Add '{first}' and diagnose again."
 
 
-def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, ambiguous_pairs, pairs_tried,
+def _unexplained_reason(record, rnd: _Round, best, rival, significant: bool, common, ambiguous_pairs, pairs_tried,
                         tests_text: str, thresholds: Thresholds) -> str:  # fmt: skip
     """Why nothing is named: no candidate helps, ambiguous pairs, two rival singles, or none leaves the noise."""
     adequacy = rnd.adequacy
@@ -2275,7 +2282,7 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma), and two candidates explain it about equally well: "
             f"'{best.effect}' (delta BIC {best.delta_bic:.0f}) and '{rival.effect}' ({rival.delta_bic:.0f}), "
-            f"less than {thresholds.bic_significant:g} apart, which is no strong evidence for either, so "
+            f"{_rival_comparison(record, best, rival, thresholds)}, so "
             f"neither is named.{pair_text}{_telling_apart(best.effect, rival.effect)} Candidates: {candidates_text}. {where}"
         )
     return (
@@ -2343,7 +2350,7 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
     common, ambiguous_pairs = None, []
     best = refitted[0] if refitted else None
     significant = best is not None and best.delta_bic > thresholds.bic_significant
-    rival = _rival(best, refitted, thresholds) if best is not None else None
+    rival = _rival(best, refitted, thresholds, s.record) if best is not None else None
     if significant and best.adequate_after and rival is None:
         if _practical(rnd.fit, best, thresholds):
             verdict = _Verdict("missing_effect", best.effect, (
@@ -2368,7 +2375,7 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
         verdict = _pair_verdict(rnd, best, rival, pairs_tried, common, thresholds)
     if verdict.status == "unexplained":
         verdict.reason = _unexplained_reason(
-            rnd, best, rival, significant, common, ambiguous_pairs, verdict.pairs_tried, tests_text, thresholds
+            s.record, rnd, best, rival, significant, common, ambiguous_pairs, verdict.pairs_tried, tests_text, thresholds
         )
     return verdict
 
@@ -2575,14 +2582,73 @@ def diagnose(
     )
 
 
-def _rival(best: CandidateResult, candidates, thresholds: Thresholds) -> CandidateResult | None:
-    """Another refitted candidate whose delta BIC is within :attr:`Thresholds.bic_significant`
-    of ``best``'s: between the two models the data give no strong evidence (the BIC
-    difference of the two is that of their delta BICs), so ``best`` cannot be named."""
+def _rival(best: CandidateResult, candidates, thresholds: Thresholds, record=None) -> CandidateResult | None:
+    """Another refitted candidate that ``best`` does not clearly beat, so ``best`` cannot be named.
+
+    A rival either comes within :attr:`Thresholds.bic_significant` of ``best``'s delta BIC
+    (the BIC difference of the two models: no strong evidence for either), or, with
+    ``record`` given, fits it about as well: :func:`fit_distinction` below
+    :attr:`Thresholds.distinct_z`. The second is what a different parameter count cannot
+    decide: the library's general forms carry parameters a simpler physics leaves idle, so
+    the BIC charge alone can order two fits that are the same to within the noise (measured
+    on the independent bench: a one-pole heating, ``creep`` 1525 and ``thermal`` 1510 both
+    adequate, their chi-squares 3.9 apart, 0.6 standard errors)."""
     for c in candidates:
-        if c is not best and c.refitted and c.effect != best.effect and c.delta_bic > best.delta_bic - thresholds.bic_significant:
+        if c is best or not c.refitted or c.effect == best.effect:
+            continue
+        if c.delta_bic > best.delta_bic - thresholds.bic_significant:
             return c
+        if record is not None and c.fit is not None and best.fit is not None:
+            if fit_distinction(record, best.fit, c.fit)[1] < thresholds.distinct_z:
+                return c
     return None
+
+
+def fit_distinction(record, fit_a: FitResult, fit_b: FitResult) -> tuple[float, float]:
+    """How clearly ``fit_a`` fits ``record`` better than ``fit_b``: ``(chi2_b - chi2_a, z)``.
+
+    Vuong's (1989) test of two non-nested models: the log-likelihood ratio of the two fits,
+    here half the difference of their whitened chi-squares (same noise model), divided by
+    its standard error from the pointwise differences ``d_t = r_b,t^2 - r_a,t^2`` of the
+    squared whitened residuals, with a Newey-West (Bartlett) long-run variance over
+    ``floor(4 (n/100)^(2/9))`` lags (a misfit both fits share leaves ``d_t`` correlated).
+    ``z`` is standard normal when the two fit equally well; negative when ``fit_b`` is better.
+
+    Parameters
+    ----------
+    record : identify.data.records.Record
+    fit_a, fit_b : FitResult
+        Two fits of ``record`` with the same noise model.
+
+    Returns
+    -------
+    (float, float)
+        The chi-square difference (whitened units) and its z.
+    """
+    r_a, r_b = _whitened(record, fit_a), _whitened(record, fit_b)
+    d = r_b * r_b - r_a * r_a
+    total = float(d.sum())
+    x = d - d.mean()
+    lags = int(4.0 * (x.size / 100.0) ** (2.0 / 9.0))
+    variance = float(x @ x)
+    for lag in range(1, min(lags, x.size - 1) + 1):
+        variance += 2.0 * (1.0 - lag / (lags + 1.0)) * float(x[lag:] @ x[:-lag])
+    if variance <= 0.0:
+        return total, (0.0 if total == 0.0 else math.copysign(math.inf, total))
+    return total, total / math.sqrt(variance)
+
+
+def _rival_comparison(record, best: CandidateResult, rival: CandidateResult, thresholds: Thresholds) -> str:
+    """The comparison that made ``rival`` a rival of ``best`` (see :func:`_rival`), as a clause."""
+    gap = best.delta_bic - rival.delta_bic
+    if gap < thresholds.bic_significant:
+        return f"less than {thresholds.bic_significant:g} apart in delta BIC, which is no strong evidence for either"
+    difference, z = fit_distinction(record, best.fit, rival.fit)
+    return (
+        f"{gap:.0f} apart in delta BIC, but their chi-squares differ by {difference:.1f}, {z:.1f} standard errors "
+        f"of its pointwise spread (below {thresholds.distinct_z:g}): the two fit the record equally well to within "
+        f"the noise, and only their parameter counts differ"
+    )
 
 
 def _practical_size(fit: FitResult, candidate: CandidateResult) -> tuple[float, float]:
