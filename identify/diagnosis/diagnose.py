@@ -82,7 +82,11 @@ Method
      candidate comes within :attr:`Thresholds.bic_significant` of its
      :math:`\Delta\mathrm{BIC}` (the BIC difference between the two candidate models: less
      than 10 is no strong evidence for either, so neither can be named: e.g. logarithmic
-     creep and a slow heating node can both absorb a slow drift), unless a pair (below)
+     creep and a slow heating node can both absorb a slow drift), nor fits the record about
+     as well: the best must fit better than each other refitted candidate by
+     :attr:`Thresholds.distinct_z` standard errors in Vuong's test of the two fits
+     (:func:`fit_distinction`), since the delta BICs of two general forms also differ by
+     their parameter counts when the data cannot tell the fits apart, unless a pair (below)
      that the pair step would name gains more than :attr:`Thresholds.bic_significant`
      beyond it: a general form can reach the noise on a record hiding two other effects;
    * otherwise one candidate alone cannot be trusted (a wrong effect can absorb part of two
