@@ -678,11 +678,11 @@ def test_a_rival_within_the_bic_threshold_blocks_a_name():
 
 
 def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_separate():
-    """Vuong's test of two fits: the plain GPI against the fit with the hidden heating is many
+    """The comparison of two fits: the plain GPI against the fit with the hidden heating is many
     standard errors apart (and the sign flips with the order); a fit against a copy with one
-    parameter moved so that its chi-square rises by about 2 is not, although the BIC charge of extra parameters could
-    still put them more than bic_significant apart. Such a copy blocks a name through
-    :func:`_rival` only when the record is given (the test then runs)."""
+    parameter moved so that its chi-square rises by about 2 is not, although the BIC charge of
+    extra parameters could still put them more than bic_significant apart. Such a copy blocks
+    a name through :func:`_rival` only when the record is given (the test then runs)."""
     import dataclasses
     from types import SimpleNamespace
 
@@ -691,20 +691,14 @@ def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_se
     sim = simulate("thermal", seed=2, fs=25.0)
     plain = fit_least_squares(sim.record, normalised_model(Model()), n_starts=1)
     heated = fit_least_squares(sim.record, normalised_model(Model(["thermal"])), n_starts=1)
-    difference, z = fit_distinction(sim.record, heated, plain)
+    difference, z, se = fit_distinction(sim.record, heated, plain)
     assert difference == pytest.approx(plain.chi2 - heated.chi2, rel=1e-6)
-    assert z > 2 * Thresholds().distinct_z  # 5.5 here: a structured misfit makes d_t correlated and wide
-    back, z_back = fit_distinction(sim.record, plain, heated)
-    assert back == pytest.approx(-difference) and z_back == pytest.approx(-z)
-    assert fit_distinction(sim.record, heated, heated) == (0.0, 0.0)
-    i = heated.model.names.index("b1")
-    step = heated.theta.copy()
-    step[i] += 1e-6
-    slope = (_whitened(sim.record, dataclasses.replace(heated, theta=step)) - _whitened(sim.record, heated)) / 1e-6
-    moved = heated.theta.copy()
-    moved[i] += np.sqrt(2.0 / (slope @ slope))  # chi-square up by about 2 (one parameter, others held)
-    near = dataclasses.replace(heated, theta=moved)
-    near_difference, near_z = fit_distinction(sim.record, heated, near)
+    assert z > 5 * Thresholds().distinct_z and se > 0
+    back, z_back, se_back = fit_distinction(sim.record, plain, heated)
+    assert back == pytest.approx(-difference) and z_back == pytest.approx(-z) and se_back == pytest.approx(se)
+    assert fit_distinction(sim.record, heated, heated) == (0.0, 0.0, 0.0)
+    near = dataclasses.replace(heated, theta=_moved_by_chi2(sim.record, heated, "b1", 2.0))
+    near_difference, near_z, _ = fit_distinction(sim.record, heated, near)
     assert 0.0 < near_difference < 10.0 and abs(near_z) < Thresholds().distinct_z
     best = SimpleNamespace(effect="thermal", delta_bic=500.0, refitted=True, fit=heated)
     other = SimpleNamespace(effect="creep", delta_bic=480.0, refitted=True, fit=near)  # 20 below: no BIC rival
@@ -712,6 +706,51 @@ def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_se
     assert _rival(best, [best, other], Thresholds(), sim.record) is other
     far = SimpleNamespace(effect="creep", delta_bic=480.0, refitted=True, fit=plain)
     assert _rival(best, [best, far], Thresholds(), sim.record) is None
+
+
+def _moved_by_chi2(record, fit, name, rise):
+    """``fit.theta`` with parameter ``name`` moved so that the chi-square rises by about ``rise``
+    (the others held)."""
+    import dataclasses
+
+    from identify.diagnosis.diagnose import _whitened
+
+    i = fit.model.names.index(name)
+    step = fit.theta.copy()
+    step[i] += 1e-6
+    slope = (_whitened(record, dataclasses.replace(fit, theta=step)) - _whitened(record, fit)) / 1e-6
+    moved = fit.theta.copy()
+    moved[i] += np.sqrt(rise / (slope @ slope))
+    return moved
+
+
+def test_fit_distinctions_standard_error_is_the_spread_over_noise_draws():
+    """Two fixed fits, one of them the truth, the other 9 off in chi-square, compared on 400
+    records that differ only in their white noise: the chi-square difference spreads by the
+    standard error fit_distinction gives (2 ||r_b - r_a||) around its mean ||r_b - r_a||^2, so
+    z is standard normal about sqrt(9)/2 = 1.5."""
+    import dataclasses
+
+    from identify.diagnosis.diagnose import fit_distinction
+    from identify.fitting.noise import NoiseModel
+
+    sim = simulate("thermal", seed=2, fs=25.0)
+    fit = fit_least_squares(sim.record, normalised_model(Model(["thermal"])), n_starts=1)
+    white = NoiseModel(sigma=float(fit.noise.sigma))
+    truth = dataclasses.replace(fit, noise=white)
+    other = dataclasses.replace(truth, theta=_moved_by_chi2(sim.record, truth, "b1", 9.0))
+    y, _ = truth.model.evaluate(truth.theta[None, :], sim.record.time, sim.record.current)
+    rng = np.random.default_rng(5)
+    differences, ses = [], []
+    for _ in range(400):
+        noisy = dataclasses.replace(sim.record, displacement=y[0] + white.sigma * rng.standard_normal(y.shape[1]))
+        difference, _, se = fit_distinction(noisy, truth, other)
+        differences.append(difference)
+        ses.append(se)
+    assert np.ptp(ses) < 1e-9 * ses[0]  # the fits are fixed: so is the standard error
+    assert ses[0] == pytest.approx(6.0, rel=0.1)  # 2 sqrt(9)
+    assert np.std(differences) == pytest.approx(ses[0], rel=0.1)
+    assert np.mean(differences) == pytest.approx(ses[0] ** 2 / 4, abs=3 * ses[0] / np.sqrt(400))
 
 
 def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monkeypatch):

@@ -2596,7 +2596,7 @@ def _rival(best: CandidateResult, candidates, thresholds: Thresholds, record=Non
     decide: the library's general forms carry parameters a simpler physics leaves idle, so
     the BIC charge alone can order two fits that are the same to within the noise (measured
     on the independent bench: a one-pole heating, ``creep`` 1525 and ``thermal`` 1510 both
-    adequate, their chi-squares 3.9 apart, 0.6 standard errors)."""
+    adequate, their chi-squares 3.9 apart, 0.5 standard errors)."""
     for c in candidates:
         if c is best or not c.refitted or c.effect == best.effect:
             continue
@@ -2608,15 +2608,18 @@ def _rival(best: CandidateResult, candidates, thresholds: Thresholds, record=Non
     return None
 
 
-def fit_distinction(record, fit_a: FitResult, fit_b: FitResult) -> tuple[float, float]:
-    """How clearly ``fit_a`` fits ``record`` better than ``fit_b``: ``(chi2_b - chi2_a, z)``.
+def fit_distinction(record, fit_a: FitResult, fit_b: FitResult) -> tuple[float, float, float]:
+    """How clearly ``fit_a`` fits ``record`` better than ``fit_b``: ``(chi2_b - chi2_a, z, se)``.
 
-    Vuong's (1989) test of two non-nested models: the log-likelihood ratio of the two fits,
-    here half the difference of their whitened chi-squares (same noise model), divided by
-    its standard error from the pointwise differences ``d_t = r_b,t^2 - r_a,t^2`` of the
-    squared whitened residuals, with a Newey-West (Bartlett) long-run variance over
-    ``floor(4 (n/100)^(2/9))`` lags (a misfit both fits share leaves ``d_t`` correlated).
-    ``z`` is standard normal when the two fit equally well; negative when ``fit_b`` is better.
+    A Vuong-type comparison of two non-nested fits with the record's input as a fixed design:
+    with whitened residuals ``r = e + m`` (``e`` the whitened noise, unit variance and white
+    under the noise model; ``m`` each fit's misfit of the truth), the chi-square difference
+    ``sum(r_b^2 - r_a^2)`` varies over noise draws only through ``2 sum e (m_b - m_a)``, whose
+    standard error is ``se = 2 ||r_b - r_a||``: twice the distance of the two fits' predictions
+    in whitened units, which the data give exactly. ``z = (chi2_b - chi2_a) / se`` is about
+    standard normal when the two fit equally well; negative when ``fit_b`` is better. (Unlike
+    Vuong's sample variance of the pointwise differences, it does not count the misfits'
+    deterministic variation along the record as noise.)
 
     Parameters
     ----------
@@ -2626,20 +2629,16 @@ def fit_distinction(record, fit_a: FitResult, fit_b: FitResult) -> tuple[float, 
 
     Returns
     -------
-    (float, float)
-        The chi-square difference (whitened units) and its z.
+    (float, float, float)
+        The chi-square difference (whitened units), its z, and its standard error.
     """
     r_a, r_b = _whitened(record, fit_a), _whitened(record, fit_b)
-    d = r_b * r_b - r_a * r_a
-    total = float(d.sum())
-    x = d - d.mean()
-    lags = int(4.0 * (x.size / 100.0) ** (2.0 / 9.0))
-    variance = float(x @ x)
-    for lag in range(1, min(lags, x.size - 1) + 1):
-        variance += 2.0 * (1.0 - lag / (lags + 1.0)) * float(x[lag:] @ x[:-lag])
-    if variance <= 0.0:
-        return total, (0.0 if total == 0.0 else math.copysign(math.inf, total))
-    return total, total / math.sqrt(variance)
+    total = float(r_b @ r_b - r_a @ r_a)
+    gap = r_b - r_a
+    se = 2.0 * math.sqrt(float(gap @ gap))
+    if se == 0.0:
+        return total, (0.0 if total == 0.0 else math.copysign(math.inf, total)), se
+    return total, total / se, se
 
 
 def _rival_comparison(record, best: CandidateResult, rival: CandidateResult, thresholds: Thresholds) -> str:
@@ -2647,11 +2646,11 @@ def _rival_comparison(record, best: CandidateResult, rival: CandidateResult, thr
     gap = best.delta_bic - rival.delta_bic
     if gap < thresholds.bic_significant:
         return f"less than {thresholds.bic_significant:g} apart in delta BIC, which is no strong evidence for either"
-    difference, z = fit_distinction(record, best.fit, rival.fit)
+    difference, z, se = fit_distinction(record, best.fit, rival.fit)
     return (
         f"{gap:.0f} apart in delta BIC, but their chi-squares differ by {difference:.1f}, {z:.1f} standard errors "
-        f"of its pointwise spread (below {thresholds.distinct_z:g}): the two fit the record equally well to within "
-        f"the noise, and only their parameter counts differ"
+        f"(below {thresholds.distinct_z:g}; the BIC gap is {gap / se:.1f} of them): the two fit the record equally "
+        f"well to within the noise, and only their parameter counts differ"
     )
 
 
