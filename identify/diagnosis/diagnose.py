@@ -269,10 +269,11 @@ class Thresholds:
         that a further candidate moves by 0.7 %: not a finding).
     distinct_z : float, default 2.0
         A candidate is named only if it fits better than every other refitted candidate
-        by at least this many standard errors in Vuong's test of the two fits
+        by at least this many standard errors of their chi-square difference
         (:func:`fit_distinction`; one-sided normal tail 2.3 %), besides the delta BIC gap
         of ``bic_significant``: the delta BICs of two general forms differ by their
-        parameter counts even when the data cannot tell the fits apart.
+        parameter counts even when the data cannot tell the fits apart, and the BIC's
+        charge counts a parameter a simpler physics leaves idle as fully as one it uses.
     """
 
     z_critical: float = 5.0
