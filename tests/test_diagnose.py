@@ -403,7 +403,7 @@ def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail(monke
         best = SimpleNamespace(effect="thermal", delta_bic=362.0, adequate_after=True, explained=0.74, refitted=True,
                                rms_after=rms_after)  # fmt: skip
         rnd = SimpleNamespace(fit=fit, refitted=[best], adequacy=adequacy, profile=None)
-        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds()), rnd, _tests_text(adequacy, Thresholds()))
+        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds()))
 
     small = verdict(1.009)
     assert small.status == "adequate" and small.missing is None
@@ -440,7 +440,7 @@ def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
         monkeypatch.setattr(diagnosis, "_try_pairs", lambda s, rnd: ([pair], {"lag", "sensor_drift"}, [pair.effect]))
         rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None, short={}, screened=[],
                               chi2_0_small=1.0, n_eff_small=1.0)  # fmt: skip
-        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds()), rnd, _tests_text(adequacy, Thresholds()))
+        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds()))
 
     won = verdict(4157.0)
     assert won.status == "missing_effect" and won.missing == "sensor_drift", won.reason
@@ -450,7 +450,7 @@ def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
     assert close.pairs_tried[0].effect == "lag+sensor_drift"
     off = Thresholds(try_pairs=False)
     rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None)
-    assert _inadequate_verdict(SimpleNamespace(thresholds=off), rnd, _tests_text(adequacy, off)).missing == "creep"
+    assert _inadequate_verdict(SimpleNamespace(thresholds=off, record=None), rnd, _tests_text(adequacy, off)).missing == "creep"
 
 
 def test_pairs_that_beat_an_adequate_single_but_disagree_name_nothing(monkeypatch):
@@ -484,7 +484,7 @@ def test_pairs_that_beat_an_adequate_single_but_disagree_name_nothing(monkeypatc
         monkeypatch.setattr(diagnosis, "_try_pairs", lambda s, rnd: (pairs, common, [p.effect for p in competitive]))
         rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None, short={}, screened=[],
                               chi2_0_small=1.0, n_eff_small=1.0)  # fmt: skip
-        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds()), rnd, _tests_text(adequacy, Thresholds()))
+        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds()))
 
     split = verdict([cand("thermal+incomplete_reset", 3135.0, rms_after=1.0), cand("creep+sensor_drift", 3128.0, rms_after=1.0)])
     assert split.status == "unexplained" and split.missing is None, split.reason
@@ -677,7 +677,16 @@ def test_a_rival_within_the_bic_threshold_blocks_a_name():
     assert _rival(best, [best, cand("thermal", 3705.0, refitted=False)], Thresholds()) is None  # screening numbers
 
 
-def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_separate():
+@pytest.fixture(scope="module")
+def heating_fits():
+    """A record with a hidden heating, its plain GPI fit and its fit with ``thermal``."""
+    sim = simulate("thermal", seed=2, fs=25.0)
+    plain = fit_least_squares(sim.record, normalised_model(Model()), n_starts=1)
+    heated = fit_least_squares(sim.record, normalised_model(Model(["thermal"])), n_starts=1)
+    return sim, plain, heated
+
+
+def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_separate(heating_fits):
     """The comparison of two fits: the plain GPI against the fit with the hidden heating is many
     standard errors apart (and the sign flips with the order); a fit against a copy with one
     parameter moved so that its chi-square rises by about 2 is not, although the BIC charge of
@@ -686,11 +695,9 @@ def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_se
     import dataclasses
     from types import SimpleNamespace
 
-    from identify.diagnosis.diagnose import _rival, _whitened, fit_distinction
+    from identify.diagnosis.diagnose import _rival, fit_distinction
 
-    sim = simulate("thermal", seed=2, fs=25.0)
-    plain = fit_least_squares(sim.record, normalised_model(Model()), n_starts=1)
-    heated = fit_least_squares(sim.record, normalised_model(Model(["thermal"])), n_starts=1)
+    sim, plain, heated = heating_fits
     difference, z, se = fit_distinction(sim.record, heated, plain)
     assert difference == pytest.approx(plain.chi2 - heated.chi2, rel=1e-6)
     assert z > 5 * Thresholds().distinct_z and se > 0
@@ -706,6 +713,31 @@ def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_se
     assert _rival(best, [best, other], Thresholds(), sim.record) is other
     far = SimpleNamespace(effect="creep", delta_bic=480.0, refitted=True, fit=plain)
     assert _rival(best, [best, far], Thresholds(), sim.record) is None
+
+
+def test_pairs_that_fit_as_well_to_within_the_noise_compete_with_the_best_pair(heating_fits):
+    """A pair 20 below the best in delta BIC (no BIC rival) whose fit is the best one's to within
+    the noise counts as competitive when the record is given, so only what the two share can
+    be named, and the text says by which comparison; a pair whose fit is clearly worse does not."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import _competition_text, _competitive_pairs, _why_first
+
+    sim, plain, heated = heating_fits
+    near = dataclasses.replace(heated, theta=_moved_by_chi2(sim.record, heated, "b1", 2.0))
+    best = SimpleNamespace(effect="lag+thermal", delta_bic=900.0, fit=heated)
+    close = SimpleNamespace(effect="creep+thermal", delta_bic=880.0, fit=near)
+    worse = SimpleNamespace(effect="lag+sensor_drift", delta_bic=870.0, fit=plain)
+    tried = [best, close, worse]
+    assert _competitive_pairs(tried, Thresholds()) == [best]
+    assert _competitive_pairs(tried, Thresholds(), sim.record) == [best, close]
+    assert "or as good a fit to within 2 standard errors" in _competition_text([best, close], Thresholds())
+    assert "standard errors" not in _competition_text([best], Thresholds())
+    single = {"lag": 500.0, "thermal": 700.0, "creep": 650.0}
+    text = _why_first("thermal", ["thermal"], single, tried, Thresholds(), [best.effect, close.effect])
+    assert "common to every pair within 10 in delta BIC of the best or as good a fit" in text
+    assert "('lag' or 'creep')" in text or "('creep' or 'lag')" in text
 
 
 def _moved_by_chi2(record, fit, name, rise):
@@ -1192,7 +1224,7 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
                             lambda s, rnd, names, anchor: other_sign_refits(s, rnd, names))  # fmt: skip
         refitted = [candidate("training", 42653.0), candidate("incomplete_reset", 30175.0),
                     candidate("thermal", 15028.0), candidate("creep", 13294.0)]  # fmt: skip
-        s = SimpleNamespace(thresholds=Thresholds())
+        s = SimpleNamespace(thresholds=Thresholds(), record=None)
         return diagnosis._retry_other_sign(s, SimpleNamespace(refitted=refitted)), asked
 
     better = {"training": 43000.0, "incomplete_reset": 44525.0, "thermal": 14000.0}

@@ -2097,10 +2097,30 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
     return _Verdict("adequate", None, reason)
 
 
-def _competitive_pairs(pairs_tried: list, thresholds: Thresholds) -> list:
-    """The pairs of ``pairs_tried`` (best first) within :attr:`Thresholds.bic_significant` of the
-    best one's delta BIC: they fit about as well, so only what they share can be named."""
-    return [p for p in pairs_tried if p.delta_bic >= pairs_tried[0].delta_bic - thresholds.bic_significant]
+def _competitive_pairs(pairs_tried: list, thresholds: Thresholds, record=None) -> list:
+    """The pairs of ``pairs_tried`` (best first) that the best one does not clearly beat: within
+    :attr:`Thresholds.bic_significant` of its delta BIC, or, with ``record`` given, fitting
+    as well to within :attr:`Thresholds.distinct_z` standard errors (:func:`fit_distinction`,
+    as for the single candidates in :func:`_rival`): they fit about as well, so only what
+    they share can be named."""
+    top = pairs_tried[0]
+
+    def close(p):
+        if p is top or p.delta_bic >= top.delta_bic - thresholds.bic_significant:
+            return True
+        if record is None or p.fit is None or top.fit is None:
+            return False
+        return fit_distinction(record, top.fit, p.fit)[1] < thresholds.distinct_z
+
+    return [p for p in pairs_tried if close(p)]
+
+
+def _competition_text(competitive: list, thresholds: Thresholds) -> str:
+    """How the pairs of ``competitive`` (best first) were found to fit about as well as the best."""
+    text = f"within {thresholds.bic_significant:g} in delta BIC of the best"
+    if any(p.delta_bic < competitive[0].delta_bic - thresholds.bic_significant for p in competitive):
+        text += f" or as good a fit to within {thresholds.distinct_z:g} standard errors of the chi-square"
+    return text
 
 
 def _pair_bar(best: CandidateResult, thresholds: Thresholds) -> float:
@@ -2170,13 +2190,14 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     if not pairs_tried:
         return pairs_tried, common, ambiguous_pairs
     pairs_tried.sort(key=lambda p: -p.delta_bic)
-    competitive = _competitive_pairs(pairs_tried, thresholds)
+    competitive = _competitive_pairs(pairs_tried, thresholds, s.record)
     common = set.intersection(*(set(p.effect.split("+")) for p in competitive))
     ambiguous_pairs = [p.effect for p in competitive]
     return pairs_tried, common, ambiguous_pairs
 
 
-def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, common, thresholds) -> _Verdict:
+def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, common, thresholds,
+                  competitive_names=None) -> _Verdict:  # fmt: skip
     """Verdict from the best single candidate and the best pair (the model with the higher
     delta BIC decides: BIC charges the second effect's parameters, so a pair wins only when
     both effects are needed); ``unexplained`` when neither can be named.
@@ -2220,23 +2241,28 @@ def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, 
             f"Two effects seem to be missing: '{first}' and '{second_name}' together explain "
             f"{100 * top.explained:.0f} % of the misfit (delta BIC {top.delta_bic:.0f} against the best single "
             f"candidate's {best.delta_bic:.0f}, '{best.effect}'; RMS {fit.rms:.4g} -> {top.rms_after:.4g}, "
-            f"consistent with the noise). " + _why_first(first, members, single, pairs_tried, thresholds)
+            f"consistent with the noise). " + _why_first(first, members, single, pairs_tried, thresholds, competitive_names)
         )
     return verdict
 
 
-def _why_first(first: str, members: list, single: dict, pairs_tried: list, thresholds: Thresholds) -> str:
+def _why_first(first: str, members: list, single: dict, pairs_tried: list, thresholds: Thresholds,
+               competitive_names=None) -> str:  # fmt: skip
     """The sentence that says why the pair verdict names ``first`` of the winning pair (``pairs_tried[0]``),
     stating the comparison that was made: the stronger of the two alone (their delta BICs), or,
     when other pairs fit about as well, the one effect every such pair contains, with the
-    partners the data do not tell apart."""
-    competitive = _competitive_pairs(pairs_tried, thresholds)
+    partners the data do not tell apart (``competitive_names``: the names of the pairs that fit
+    about as well, :func:`_competitive_pairs`; by default those within bic_significant)."""
+    if competitive_names is None:
+        competitive = _competitive_pairs(pairs_tried, thresholds)
+    else:
+        competitive = [p for p in pairs_tried if p.effect in competitive_names]
     if len(members) == 1 and len(competitive) > 1:
         listed = ", ".join(f"'{p.effect}' {p.delta_bic:.0f}" for p in competitive)
         partners = sorted({n for p in competitive for n in p.effect.split("+") if n != first})
         return (
-            f"Add '{first}', the effect common to every pair within {thresholds.bic_significant:g} in delta BIC of "
-            f"the best ({listed}), and diagnose again; these pairs do not tell which other effect is missing ("
+            f"Add '{first}', the effect common to every pair {_competition_text(competitive, thresholds)} "
+            f"({listed}), and diagnose again; these pairs do not tell which other effect is missing ("
             + " or ".join(f"'{n}'" for n in partners) + ")."
         )
     other = [n for n in members if n != first]
@@ -2258,21 +2284,23 @@ def _unexplained_reason(record, rnd: _Round, best, rival, significant: bool, com
         return f"The residual is not noise ({tests_text}), and no candidate effect helps. {where}"
     if common is not None and not common and len(ambiguous_pairs) > 1 and best.adequate_after and rival is None:
         # step 8 beside an adequate single (:func:`_pair_beats_adequate_single`)
-        competitive = ", ".join(f"{p.effect} {p.delta_bic:.0f}" for p in pairs_tried if p.effect in ambiguous_pairs)
+        close = [p for p in pairs_tried if p.effect in ambiguous_pairs]
+        competitive = ", ".join(f"{p.effect} {p.delta_bic:.0f}" for p in close)
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma). '{best.effect}' alone leaves a residual consistent with the noise "
             f"(delta BIC {best.delta_bic:.0f}), but pairs of candidates fit clearly better (more than "
             f"{thresholds.bic_significant:g} above it), and the pairs that fit about equally well have no effect in "
-            f"common ({competitive}: within {thresholds.bic_significant:g} in delta BIC of the best pair), so the data "
+            f"common ({competitive}: {_competition_text(close, thresholds)} pair), so the data "
             f"do not say which effects are missing and none is named. Candidates: {candidates_text}. {where}"
         )
     if common is not None and not common and len(ambiguous_pairs) > 1:
+        close = [p for p in pairs_tried if p.effect in ambiguous_pairs]
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma); no single candidate leaves the noise, and pairs with no effect "
-            f"in common fit about equally well ({', '.join(ambiguous_pairs)}: within {thresholds.bic_significant:g} "
-            f"of delta BIC on the whole record), so none is named. Candidates: {candidates_text}. {where}"
+            f"in common fit about equally well ({', '.join(ambiguous_pairs)}: {_competition_text(close, thresholds)} "
+            f"pair, on the whole record), so none is named. Candidates: {candidates_text}. {where}"
         )
     if rival is not None and significant:
         pair = pairs_tried[0] if pairs_tried else None
@@ -2332,7 +2360,7 @@ def _pair_beats_adequate_single(
     competitive pairs)``, as :func:`_try_pairs`."""
     thresholds = s.thresholds
     pairs_tried, common, ambiguous_pairs = _try_pairs(s, rnd)
-    paired = _pair_verdict(rnd, best, None, pairs_tried, common, thresholds)
+    paired = _pair_verdict(rnd, best, None, pairs_tried, common, thresholds, ambiguous_pairs)
     pair = paired.pair
     beaten = pair is not None and pair.delta_bic > _pair_bar(best, thresholds)  # best is adequate here
     if paired.status == "missing_effect" and beaten:
@@ -2377,7 +2405,7 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
         # No single candidate leaves the noise (or two do about equally well), so the best one
         # alone cannot be trusted: pairs are tried
         pairs_tried, common, ambiguous_pairs = _try_pairs(s, rnd)
-        verdict = _pair_verdict(rnd, best, rival, pairs_tried, common, thresholds)
+        verdict = _pair_verdict(rnd, best, rival, pairs_tried, common, thresholds, ambiguous_pairs)
     if verdict.status == "unexplained":
         verdict.reason = _unexplained_reason(
             s.record, rnd, best, rival, significant, common, ambiguous_pairs, verdict.pairs_tried, tests_text, thresholds
