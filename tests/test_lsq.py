@@ -358,8 +358,13 @@ def test_a_stalled_solver_run_counts_as_converged_with_its_own_message():
 
     full = least_squares(residuals, [-1.2, 1.0], method="trf", ftol=1e-15, xtol=1e-15, gtol=1e-15)
     assert full.status > 0 and solver_verdict(full) == (True, str(full.message))
+    rule = StallStop(window=2, chi2=10.0)
     stalled = least_squares(residuals, [-1.2, 1.0], method="trf", ftol=1e-15, xtol=1e-15, gtol=1e-15,
-                            callback=StallStop(window=2, chi2=10.0))  # fmt: skip
+                            callback=rule)  # fmt: skip
     assert stalled.status == STALLED and stalled.nfev < full.nfev
-    success, message = solver_verdict(stalled)
-    assert success and message.startswith("stalled: the chi-square fell by less than")
+    success, message = solver_verdict(stalled, rule)
+    assert success and message == "stalled: the chi-square fell by less than 10 over the last 2 iterations"
+    default = StallStop()
+    assert solver_verdict(stalled)[1] == (
+        f"stalled: the chi-square fell by less than {default.chi2:g} over the last {default.window} iterations"
+    )

@@ -719,12 +719,14 @@ class StallStop:
             raise StopIteration
 
 
-def solver_verdict(sol) -> tuple[bool, str]:
+def solver_verdict(sol, stall: StallStop | None = None) -> tuple[bool, str]:
     """``(success, message)`` of a :func:`scipy.optimize.least_squares` result, a stall
-    (:class:`StallStop`) counting as converged with its own message."""
+    counting as converged with its own message, which states the rule of ``stall`` (the
+    :class:`StallStop` the run was given; default the default rule)."""
     if sol.status == STALLED:
-        return True, (f"stalled: the chi-square fell by less than {STALL_CHI2:g} over the last "
-                      f"{STALL_ITERATIONS} iterations")  # fmt: skip
+        stall = StallStop() if stall is None else stall
+        return True, (f"stalled: the chi-square fell by less than {stall.chi2:g} over the last "
+                      f"{stall.window} iterations")  # fmt: skip
     return bool(sol.success), str(sol.message)
 
 
