@@ -689,13 +689,10 @@ def heating_fits():
 def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_separate(heating_fits):
     """The comparison of two fits: the plain GPI against the fit with the hidden heating is many
     standard errors apart (and the sign flips with the order); a fit against a copy with one
-    parameter moved so that its chi-square rises by about 2 is not, although the BIC charge of
-    extra parameters could still put them more than bic_significant apart. Such a copy blocks
-    a name through :func:`_rival` only when the record is given (the test then runs)."""
+    parameter moved so that its chi-square rises by about 2 is not."""
     import dataclasses
-    from types import SimpleNamespace
 
-    from identify.diagnosis.diagnose import _rival, fit_distinction
+    from identify.diagnosis.diagnose import fit_distinction
 
     sim, plain, heated = heating_fits
     difference, z, se = fit_distinction(sim.record, heated, plain)
@@ -707,37 +704,61 @@ def test_fit_distinction_tells_a_clear_improvement_from_fits_the_noise_cannot_se
     near = dataclasses.replace(heated, theta=_moved_by_chi2(sim.record, heated, "b1", 2.0))
     near_difference, near_z, _ = fit_distinction(sim.record, heated, near)
     assert 0.0 < near_difference < 10.0 and abs(near_z) < Thresholds().distinct_z
+
+
+def test_a_bic_lead_the_noise_could_reverse_makes_a_rival(heating_fits):
+    """A lead of 20 in delta BIC (more than bic_significant) over a candidate whose fit differs
+    from the best one's by a chi-square distance of about 50 (standard error of the
+    difference about 14): 1.4 standard errors, a rival once the record is given; over a fit
+    about 2 away (standard error about 2.8) the same lead is 7 standard errors and stands.
+    The reason states the comparison."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import _rival, _rival_comparison, bic_lead_in_errors
+
+    sim, plain, heated = heating_fits
+    far = dataclasses.replace(heated, theta=_moved_by_chi2(sim.record, heated, "b1", 50.0))
+    near = dataclasses.replace(heated, theta=_moved_by_chi2(sim.record, heated, "b1", 2.0))
     best = SimpleNamespace(effect="thermal", delta_bic=500.0, refitted=True, fit=heated)
-    other = SimpleNamespace(effect="creep", delta_bic=480.0, refitted=True, fit=near)  # 20 below: no BIC rival
-    assert _rival(best, [best, other], Thresholds()) is None
-    assert _rival(best, [best, other], Thresholds(), sim.record) is other
-    far = SimpleNamespace(effect="creep", delta_bic=480.0, refitted=True, fit=plain)
-    assert _rival(best, [best, far], Thresholds(), sim.record) is None
+    distant = SimpleNamespace(effect="creep", delta_bic=480.0, refitted=True, fit=far)
+    close = SimpleNamespace(effect="creep", delta_bic=480.0, refitted=True, fit=near)
+    assert 1.0 < bic_lead_in_errors(sim.record, best, distant) < Thresholds().distinct_z
+    assert bic_lead_in_errors(sim.record, best, close) > 5.0
+    assert _rival(best, [best, distant], Thresholds()) is None  # without the record: the BIC lead alone
+    assert _rival(best, [best, distant], Thresholds(), sim.record) is distant
+    assert _rival(best, [best, close], Thresholds(), sim.record) is None
+    text = _rival_comparison(sim.record, best, distant, Thresholds())
+    assert text.startswith("20 apart in delta BIC, but that is 1.") and "standard errors" in text
+    assert _rival_comparison(sim.record, best, SimpleNamespace(effect="creep", delta_bic=495.0, fit=far),
+                             Thresholds()).startswith("less than 10 apart in delta BIC")  # fmt: skip
 
 
-def test_pairs_that_fit_as_well_to_within_the_noise_compete_with_the_best_pair(heating_fits):
-    """A pair 20 below the best in delta BIC (no BIC rival) whose fit is the best one's to within
-    the noise counts as competitive when the record is given, so only what the two share can
-    be named, and the text says by which comparison; a pair whose fit is clearly worse does not."""
+def test_pairs_a_lead_the_noise_could_reverse_compete_with_the_best_pair(heating_fits):
+    """A pair 20 below the best in delta BIC (no BIC rival) whose fit differs from the best one's
+    by a chi-square distance of about 50 counts as competitive when the record is given, so
+    only what the two share can be named, and the text says by which comparison; a pair as
+    far below whose fit is close to the best one's does not."""
     import dataclasses
     from types import SimpleNamespace
 
     from identify.diagnosis.diagnose import _competition_text, _competitive_pairs, _why_first
 
     sim, plain, heated = heating_fits
+    far = dataclasses.replace(heated, theta=_moved_by_chi2(sim.record, heated, "b1", 50.0))
     near = dataclasses.replace(heated, theta=_moved_by_chi2(sim.record, heated, "b1", 2.0))
     best = SimpleNamespace(effect="lag+thermal", delta_bic=900.0, fit=heated)
-    close = SimpleNamespace(effect="creep+thermal", delta_bic=880.0, fit=near)
-    worse = SimpleNamespace(effect="lag+sensor_drift", delta_bic=870.0, fit=plain)
-    tried = [best, close, worse]
+    distant = SimpleNamespace(effect="creep+thermal", delta_bic=880.0, fit=far)
+    close = SimpleNamespace(effect="lag+sensor_drift", delta_bic=880.0, fit=near)
+    tried = [best, distant, close]
     assert _competitive_pairs(tried, Thresholds()) == [best]
-    assert _competitive_pairs(tried, Thresholds(), sim.record) == [best, close]
-    assert "or as good a fit to within 2 standard errors" in _competition_text([best, close], Thresholds())
+    assert _competitive_pairs(tried, Thresholds(), sim.record) == [best, distant]
+    assert "or within 2 standard errors of the chi-square difference" in _competition_text([best, distant], Thresholds())
     assert "standard errors" not in _competition_text([best], Thresholds())
     single = {"lag": 500.0, "thermal": 700.0, "creep": 650.0}
-    text = _why_first("thermal", ["thermal"], single, tried, Thresholds(), [best.effect, close.effect])
-    assert "common to every pair within 10 in delta BIC of the best or as good a fit" in text
-    assert "('lag' or 'creep')" in text or "('creep' or 'lag')" in text
+    text = _why_first("thermal", ["thermal"], single, tried, Thresholds(), [best.effect, distant.effect])
+    assert "common to every pair within 10 in delta BIC of the best or within 2 standard errors" in text
+    assert "('creep' or 'lag')" in text
 
 
 def _moved_by_chi2(record, fit, name, rise):
