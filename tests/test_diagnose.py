@@ -1048,28 +1048,31 @@ def test_a_name_confined_to_the_first_loading_is_said_to_be_so():
     assert first_loading_share(record, drift) is None
 
 
-def test_a_second_part_of_the_first_loading_is_no_targeted_finding():
-    """A held initial memory acts on the first loading alone: next to a model that already
-    has first-cycle physics (training) a targeted refit of it is no finding, and the sentence
-    says why; next to a model without (creep), or for a candidate that spreads over the
-    record (a drift next to training), there is no objection."""
+def test_a_targeted_finding_in_the_first_loading_alone_is_none():
+    """A held initial memory acts on the first loading alone: a targeted refit of it is no
+    finding, next to a model that already has first-cycle physics (training: another form of
+    it) and next to one without (creep: other physics acts on the first loading alone too),
+    and the sentence says why; a candidate that spreads over the record (a drift) draws no
+    objection."""
     from types import SimpleNamespace
 
-    from identify.diagnosis.diagnose import second_first_cycle_part
+    from identify.diagnosis.diagnose import first_loading_finding
 
     sim = simulate({"initial_state": {"initial_state_held": 0.5, "initial_state_held_slope": 0.5}}, noise_sigma=0.5, seed=0)
     model = Model.from_dict(sim.truth["model"])
     held = SimpleNamespace(effect="initial_state", refitted=True, delta_bic=76.0,
                            fit=SimpleNamespace(model=model, theta=model.theta_from_dict(sim.truth["theta"])))  # fmt: skip
     with_training = SimpleNamespace(model=Model(["training"]))
-    sentence = second_first_cycle_part(sim.record, with_training, held)
+    sentence = first_loading_finding(sim.record, with_training, held)
     assert sentence is not None and "not a finding" in sentence and "'training'" in sentence and "first loading" in sentence
-    assert second_first_cycle_part(sim.record, SimpleNamespace(model=Model(["creep"])), held) is None
+    other = first_loading_finding(sim.record, SimpleNamespace(model=Model(["creep"])), held)
+    assert other is not None and "not a finding" in other and "a gap in the output" in other and "'creep'" not in other
     drift_sim = simulate("sensor_drift_linear=1.1", noise_sigma=0.5, seed=0)
     drift_model = Model.from_dict(drift_sim.truth["model"])
     drift = SimpleNamespace(effect="sensor_drift", refitted=True, delta_bic=76.0,
                             fit=SimpleNamespace(model=drift_model, theta=drift_model.theta_from_dict(drift_sim.truth["theta"])))  # fmt: skip
-    assert second_first_cycle_part(drift_sim.record, with_training, drift) is None
+    assert first_loading_finding(drift_sim.record, with_training, drift) is None
+    assert first_loading_finding(drift_sim.record, SimpleNamespace(model=Model()), drift) is None
     assert {name for name, e in EFFECTS.items() if e.first_cycle} == {"training", "initial_state", "incomplete_reset"}
 
 
