@@ -82,11 +82,7 @@ Method
      candidate comes within :attr:`Thresholds.bic_significant` of its
      :math:`\Delta\mathrm{BIC}` (the BIC difference between the two candidate models: less
      than 10 is no strong evidence for either, so neither can be named: e.g. logarithmic
-     creep and a slow heating node can both absorb a slow drift), nor comes within
-     :attr:`Thresholds.distinct_z` standard errors of the chi-square difference of the two
-     fits (:func:`fit_distinction`, :func:`bic_lead_in_errors`): two fits that differ a lot
-     along the record can score alike, and a lead another noise draw could reverse names
-     nothing, unless a pair (below)
+     creep and a slow heating node can both absorb a slow drift), unless a pair (below)
      that the pair step would name gains more than :attr:`Thresholds.bic_significant`
      beyond it: a general form can reach the noise on a record hiding two other effects;
    * otherwise one candidate alone cannot be trusted (a wrong effect can absorb part of two
@@ -268,12 +264,6 @@ class Thresholds:
         100 Hz record (``1/sqrt(2 n)``, n = 6000: 0.9 %), so a smaller change is less than
         what another noise realisation would move the RMS by (e.g. a drift-corrected residual at 0.95 sigma
         that a further candidate moves by 0.7 %: not a finding).
-    distinct_z : float, default 2.0
-        A candidate is named only if its delta BIC leads every other refitted candidate's
-        by at least this many standard errors of the two fits' chi-square difference
-        (:func:`bic_lead_in_errors`; one-sided normal tail 2.3 %), besides the lead of
-        ``bic_significant``: two fits that differ a lot along the record can score alike,
-        and then a lead of more than ``bic_significant`` can still be the noise's doing.
     """
 
     z_critical: float = 5.0
@@ -285,10 +275,9 @@ class Thresholds:
     try_pairs: bool = True
     targeted_refits: bool = True
     practical_rms_change: float = 0.01
-    distinct_z: float = 2.0
 
     def __post_init__(self):
-        for name in ("z_critical", "structure_floor", "bic_significant", "practical_rms_change", "distinct_z"):
+        for name in ("z_critical", "structure_floor", "bic_significant", "practical_rms_change"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"Thresholds.{name} must be a finite number >= 0, got {value!r}")
@@ -2044,7 +2033,7 @@ def _targeted_check(s: _Setting, rnd: _Round, others: list, ranking: list) -> tu
         names = {c.effect for c in confirmed}
         ranking = confirmed + [c for c in ranking if c.effect not in names]
         top = nameable(confirmed)
-        if top is not None and _rival(top, confirmed, thresholds, s.record) is None:
+        if top is not None and _rival(top, confirmed, thresholds) is None:
             targeted = top
     return ranking, targeted
 
@@ -2068,7 +2057,7 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
     thresholds = s.thresholds
     reason = tests_text
     small = [c for c in ranking if c.refitted and c.delta_bic > thresholds.bic_significant]
-    rival = _rival(small[0], ranking, thresholds, s.record) if small else None
+    rival = _rival(small[0], ranking, thresholds) if small else None
     if small:
         change, size = _practical_size(rnd.fit, small[0])
         excess = _excess_over_noise(rnd.fit)
@@ -2082,8 +2071,8 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
         elif _practical(rnd.fit, small[0], thresholds) and small[0].adequate_after and rival is not None:
             reason += (
                 f" The targeted refits of '{small[0].effect}' (delta BIC {small[0].delta_bic:.0f}) and "
-                f"'{rival.effect}' ({rival.delta_bic:.0f}) are "
-                f"{_rival_comparison(s.record, small[0], rival, thresholds)}, so neither is named."
+                f"'{rival.effect}' ({rival.delta_bic:.0f}) come within {thresholds.bic_significant:g} of each other, "
+                f"which is no strong evidence for either, so neither is named."
                 + _telling_apart(small[0].effect, rival.effect)
             )
         else:
@@ -2097,30 +2086,10 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
     return _Verdict("adequate", None, reason)
 
 
-def _competitive_pairs(pairs_tried: list, thresholds: Thresholds, record=None) -> list:
-    """The pairs of ``pairs_tried`` (best first) that the best one does not clearly beat: within
-    :attr:`Thresholds.bic_significant` of its delta BIC, or, with ``record`` given, within
-    :attr:`Thresholds.distinct_z` standard errors of the two fits' chi-square difference
-    (:func:`bic_lead_in_errors`, as for the single candidates in :func:`_rival`): they fit about
-    as well, so only what they share can be named."""
-    top = pairs_tried[0]
-
-    def close(p):
-        if p is top or p.delta_bic >= top.delta_bic - thresholds.bic_significant:
-            return True
-        if record is None or p.fit is None or top.fit is None:
-            return False
-        return bic_lead_in_errors(record, top, p) < thresholds.distinct_z
-
-    return [p for p in pairs_tried if close(p)]
-
-
-def _competition_text(competitive: list, thresholds: Thresholds) -> str:
-    """How the pairs of ``competitive`` (best first) were found to fit about as well as the best."""
-    text = f"within {thresholds.bic_significant:g} in delta BIC of the best"
-    if any(p.delta_bic < competitive[0].delta_bic - thresholds.bic_significant for p in competitive):
-        text += f" or within {thresholds.distinct_z:g} standard errors of the chi-square difference of the two fits"
-    return text
+def _competitive_pairs(pairs_tried: list, thresholds: Thresholds) -> list:
+    """The pairs of ``pairs_tried`` (best first) within :attr:`Thresholds.bic_significant` of the
+    best one's delta BIC: they fit about as well, so only what they share can be named."""
+    return [p for p in pairs_tried if p.delta_bic >= pairs_tried[0].delta_bic - thresholds.bic_significant]
 
 
 def _pair_bar(best: CandidateResult, thresholds: Thresholds) -> float:
@@ -2190,14 +2159,13 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     if not pairs_tried:
         return pairs_tried, common, ambiguous_pairs
     pairs_tried.sort(key=lambda p: -p.delta_bic)
-    competitive = _competitive_pairs(pairs_tried, thresholds, s.record)
+    competitive = _competitive_pairs(pairs_tried, thresholds)
     common = set.intersection(*(set(p.effect.split("+")) for p in competitive))
     ambiguous_pairs = [p.effect for p in competitive]
     return pairs_tried, common, ambiguous_pairs
 
 
-def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, common, thresholds,
-                  competitive_names=None) -> _Verdict:  # fmt: skip
+def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, common, thresholds) -> _Verdict:
     """Verdict from the best single candidate and the best pair (the model with the higher
     delta BIC decides: BIC charges the second effect's parameters, so a pair wins only when
     both effects are needed); ``unexplained`` when neither can be named.
@@ -2241,28 +2209,23 @@ def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, 
             f"Two effects seem to be missing: '{first}' and '{second_name}' together explain "
             f"{100 * top.explained:.0f} % of the misfit (delta BIC {top.delta_bic:.0f} against the best single "
             f"candidate's {best.delta_bic:.0f}, '{best.effect}'; RMS {fit.rms:.4g} -> {top.rms_after:.4g}, "
-            f"consistent with the noise). " + _why_first(first, members, single, pairs_tried, thresholds, competitive_names)
+            f"consistent with the noise). " + _why_first(first, members, single, pairs_tried, thresholds)
         )
     return verdict
 
 
-def _why_first(first: str, members: list, single: dict, pairs_tried: list, thresholds: Thresholds,
-               competitive_names=None) -> str:  # fmt: skip
+def _why_first(first: str, members: list, single: dict, pairs_tried: list, thresholds: Thresholds) -> str:
     """The sentence that says why the pair verdict names ``first`` of the winning pair (``pairs_tried[0]``),
     stating the comparison that was made: the stronger of the two alone (their delta BICs), or,
     when other pairs fit about as well, the one effect every such pair contains, with the
-    partners the data do not tell apart (``competitive_names``: the names of the pairs that fit
-    about as well, :func:`_competitive_pairs`; by default those within bic_significant)."""
-    if competitive_names is None:
-        competitive = _competitive_pairs(pairs_tried, thresholds)
-    else:
-        competitive = [p for p in pairs_tried if p.effect in competitive_names]
+    partners the data do not tell apart."""
+    competitive = _competitive_pairs(pairs_tried, thresholds)
     if len(members) == 1 and len(competitive) > 1:
         listed = ", ".join(f"'{p.effect}' {p.delta_bic:.0f}" for p in competitive)
         partners = sorted({n for p in competitive for n in p.effect.split("+") if n != first})
         return (
-            f"Add '{first}', the effect common to every pair {_competition_text(competitive, thresholds)} "
-            f"({listed}), and diagnose again; these pairs do not tell which other effect is missing ("
+            f"Add '{first}', the effect common to every pair within {thresholds.bic_significant:g} in delta BIC of "
+            f"the best ({listed}), and diagnose again; these pairs do not tell which other effect is missing ("
             + " or ".join(f"'{n}'" for n in partners) + ")."
         )
     other = [n for n in members if n != first]
@@ -2274,7 +2237,7 @@ def _why_first(first: str, members: list, single: dict, pairs_tried: list, thres
     return f"Add '{first}' and diagnose again."
 
 
-def _unexplained_reason(record, rnd: _Round, best, rival, significant: bool, common, ambiguous_pairs, pairs_tried,
+def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, ambiguous_pairs, pairs_tried,
                         tests_text: str, thresholds: Thresholds) -> str:  # fmt: skip
     """Why nothing is named: no candidate helps, ambiguous pairs, two rival singles, or none leaves the noise."""
     adequacy = rnd.adequacy
@@ -2284,23 +2247,21 @@ def _unexplained_reason(record, rnd: _Round, best, rival, significant: bool, com
         return f"The residual is not noise ({tests_text}), and no candidate effect helps. {where}"
     if common is not None and not common and len(ambiguous_pairs) > 1 and best.adequate_after and rival is None:
         # step 8 beside an adequate single (:func:`_pair_beats_adequate_single`)
-        close = [p for p in pairs_tried if p.effect in ambiguous_pairs]
-        competitive = ", ".join(f"{p.effect} {p.delta_bic:.0f}" for p in close)
+        competitive = ", ".join(f"{p.effect} {p.delta_bic:.0f}" for p in pairs_tried if p.effect in ambiguous_pairs)
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma). '{best.effect}' alone leaves a residual consistent with the noise "
             f"(delta BIC {best.delta_bic:.0f}), but pairs of candidates fit clearly better (more than "
             f"{thresholds.bic_significant:g} above it), and the pairs that fit about equally well have no effect in "
-            f"common ({competitive}: {_competition_text(close, thresholds)} pair), so the data "
+            f"common ({competitive}: within {thresholds.bic_significant:g} in delta BIC of the best pair), so the data "
             f"do not say which effects are missing and none is named. Candidates: {candidates_text}. {where}"
         )
     if common is not None and not common and len(ambiguous_pairs) > 1:
-        close = [p for p in pairs_tried if p.effect in ambiguous_pairs]
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma); no single candidate leaves the noise, and pairs with no effect "
-            f"in common fit about equally well ({', '.join(ambiguous_pairs)}: {_competition_text(close, thresholds)} "
-            f"pair, on the whole record), so none is named. Candidates: {candidates_text}. {where}"
+            f"in common fit about equally well ({', '.join(ambiguous_pairs)}: within {thresholds.bic_significant:g} "
+            f"of delta BIC on the whole record), so none is named. Candidates: {candidates_text}. {where}"
         )
     if rival is not None and significant:
         pair = pairs_tried[0] if pairs_tried else None
@@ -2315,7 +2276,7 @@ def _unexplained_reason(record, rnd: _Round, best, rival, significant: bool, com
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma), and two candidates explain it about equally well: "
             f"'{best.effect}' (delta BIC {best.delta_bic:.0f}) and '{rival.effect}' ({rival.delta_bic:.0f}), "
-            f"{_rival_comparison(record, best, rival, thresholds)}, so "
+            f"less than {thresholds.bic_significant:g} apart, which is no strong evidence for either, so "
             f"neither is named.{pair_text}{_telling_apart(best.effect, rival.effect)} Candidates: {candidates_text}. {where}"
         )
     return (
@@ -2360,7 +2321,7 @@ def _pair_beats_adequate_single(
     competitive pairs)``, as :func:`_try_pairs`."""
     thresholds = s.thresholds
     pairs_tried, common, ambiguous_pairs = _try_pairs(s, rnd)
-    paired = _pair_verdict(rnd, best, None, pairs_tried, common, thresholds, ambiguous_pairs)
+    paired = _pair_verdict(rnd, best, None, pairs_tried, common, thresholds)
     pair = paired.pair
     beaten = pair is not None and pair.delta_bic > _pair_bar(best, thresholds)  # best is adequate here
     if paired.status == "missing_effect" and beaten:
@@ -2383,7 +2344,7 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
     common, ambiguous_pairs = None, []
     best = refitted[0] if refitted else None
     significant = best is not None and best.delta_bic > thresholds.bic_significant
-    rival = _rival(best, refitted, thresholds, s.record) if best is not None else None
+    rival = _rival(best, refitted, thresholds) if best is not None else None
     if significant and best.adequate_after and rival is None:
         if _practical(rnd.fit, best, thresholds):
             verdict = _Verdict("missing_effect", best.effect, (
@@ -2405,10 +2366,10 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
         # No single candidate leaves the noise (or two do about equally well), so the best one
         # alone cannot be trusted: pairs are tried
         pairs_tried, common, ambiguous_pairs = _try_pairs(s, rnd)
-        verdict = _pair_verdict(rnd, best, rival, pairs_tried, common, thresholds, ambiguous_pairs)
+        verdict = _pair_verdict(rnd, best, rival, pairs_tried, common, thresholds)
     if verdict.status == "unexplained":
         verdict.reason = _unexplained_reason(
-            s.record, rnd, best, rival, significant, common, ambiguous_pairs, verdict.pairs_tried, tests_text, thresholds
+            rnd, best, rival, significant, common, ambiguous_pairs, verdict.pairs_tried, tests_text, thresholds
         )
     return verdict
 
@@ -2629,81 +2590,14 @@ def diagnose(
     )
 
 
-def _rival(best: CandidateResult, candidates, thresholds: Thresholds, record=None) -> CandidateResult | None:
-    """Another refitted candidate that ``best`` does not clearly beat, so ``best`` cannot be named.
-
-    A rival comes within :attr:`Thresholds.bic_significant` of ``best``'s delta BIC (the BIC
-    difference of the two models: no strong evidence for either), or, with ``record`` given,
-    within :attr:`Thresholds.distinct_z` standard errors of the two fits' chi-square
-    difference (:func:`bic_lead_in_errors`): two fits that differ a lot along the record can
-    score alike, and a lead that another noise draw could reverse names nothing (measured on
-    the independent bench: a fresh draw's training + power-law creep record, after
-    ``training``, took ``initial_state`` 112 against ``thermal`` 93 as a second name, 19
-    ahead and 0.9 standard errors)."""
+def _rival(best: CandidateResult, candidates, thresholds: Thresholds) -> CandidateResult | None:
+    """Another refitted candidate whose delta BIC is within :attr:`Thresholds.bic_significant`
+    of ``best``'s: between the two models the data give no strong evidence (the BIC
+    difference of the two is that of their delta BICs), so ``best`` cannot be named."""
     for c in candidates:
-        if c is best or not c.refitted or c.effect == best.effect:
-            continue
-        if c.delta_bic > best.delta_bic - thresholds.bic_significant:
+        if c is not best and c.refitted and c.effect != best.effect and c.delta_bic > best.delta_bic - thresholds.bic_significant:
             return c
-        if record is not None and c.fit is not None and best.fit is not None:
-            if bic_lead_in_errors(record, best, c) < thresholds.distinct_z:
-                return c
     return None
-
-
-def bic_lead_in_errors(record, best, other) -> float:
-    """``best``'s delta BIC lead over ``other`` (refitted candidates of ``record``, or pairs) in
-    standard errors of their fits' chi-square difference (:func:`fit_distinction`): how many
-    times over the noise alone could move the lead."""
-    _, _, se = fit_distinction(record, best.fit, other.fit)
-    lead = float(best.delta_bic - other.delta_bic)
-    return math.copysign(math.inf, lead) if se == 0.0 else lead / se
-
-
-def fit_distinction(record, fit_a: FitResult, fit_b: FitResult) -> tuple[float, float, float]:
-    """How clearly ``fit_a`` fits ``record`` better than ``fit_b``: ``(chi2_b - chi2_a, z, se)``.
-
-    A Vuong-type comparison of two non-nested fits with the record's input as a fixed design:
-    with whitened residuals ``r = e + m`` (``e`` the whitened noise, unit variance and white
-    under the noise model; ``m`` each fit's misfit of the truth), the chi-square difference
-    ``sum(r_b^2 - r_a^2)`` varies over noise draws only through ``2 sum e (m_b - m_a)``, whose
-    standard error is ``se = 2 ||r_b - r_a||``: twice the distance of the two fits' predictions
-    in whitened units, which the data give exactly. ``z = (chi2_b - chi2_a) / se`` is about
-    standard normal when the two fit equally well; negative when ``fit_b`` is better. (Unlike
-    Vuong's sample variance of the pointwise differences, it does not count the misfits'
-    deterministic variation along the record as noise.)
-
-    Parameters
-    ----------
-    record : identify.data.records.Record
-    fit_a, fit_b : FitResult
-        Two fits of ``record`` with the same noise model.
-
-    Returns
-    -------
-    (float, float, float)
-        The chi-square difference (whitened units), its z, and its standard error.
-    """
-    r_a, r_b = _whitened(record, fit_a), _whitened(record, fit_b)
-    total = float(r_b @ r_b - r_a @ r_a)
-    gap = r_b - r_a
-    se = 2.0 * math.sqrt(float(gap @ gap))
-    if se == 0.0:
-        return total, (0.0 if total == 0.0 else math.copysign(math.inf, total)), se
-    return total, total / se, se
-
-
-def _rival_comparison(record, best: CandidateResult, rival: CandidateResult, thresholds: Thresholds) -> str:
-    """The comparison that made ``rival`` a rival of ``best`` (see :func:`_rival`), as a clause."""
-    gap = best.delta_bic - rival.delta_bic
-    if gap < thresholds.bic_significant:
-        return f"less than {thresholds.bic_significant:g} apart in delta BIC, which is no strong evidence for either"
-    difference, _, se = fit_distinction(record, best.fit, rival.fit)
-    return (
-        f"{gap:.0f} apart in delta BIC, but that is {gap / se:.1f} standard errors of the two fits' chi-square "
-        f"difference ({difference:.1f}, standard error {se:.1f}; below {thresholds.distinct_z:g}): the fits differ "
-        f"along the record and score alike, and another noise draw could reverse their order"
-    )
 
 
 def _practical_size(fit: FitResult, candidate: CandidateResult) -> tuple[float, float]:
