@@ -2554,13 +2554,13 @@ def diagnose(
     if rnd.adequacy.adequate and thresholds.targeted_refits:
         ranking, targeted = _targeted_check(setting, rnd, others, ranking)
     tests_text = _tests_text(rnd.adequacy, thresholds)
-    second_part = None if targeted is None else first_loading_finding(record, rnd.fit, targeted)
-    if second_part is not None:
+    first_loading_only = None if targeted is None else first_loading_finding(record, rnd.fit, targeted)
+    if first_loading_only is not None:
         targeted = None
     if targeted is not None:
         verdict = _targeted_verdict(setting, rnd, targeted, tests_text)
-    elif second_part is not None:
-        verdict = _Verdict("adequate", None, tests_text + second_part)
+    elif first_loading_only is not None:
+        verdict = _Verdict("adequate", None, tests_text + first_loading_only)
     elif rnd.adequacy.adequate:
         verdict = _adequate_verdict(setting, rnd, ranking, tests_text)
     else:
