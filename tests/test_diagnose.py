@@ -91,7 +91,9 @@ def test_screening_grid_classifies_parameters_by_what_they_do():
     ):
         model_e = base_model + name
         grid = screening_grid(model_e, name, model_e.default_theta(), sim.record)
-        assert 1 <= len(grid) <= 28  # the generic cap is 24; initial_state's own grid has 28
+        # the generic cap is 24; initial_state's own grid has up to 31 points (28 here: the
+        # record starts at its lowest drive, so 3 excursions below v0 instead of 6)
+        assert 1 <= len(grid) <= 28
         for p in fixed:
             assert {g[p] for g in grid} == {model_e.parameters[p].value}
         for p in gridded:

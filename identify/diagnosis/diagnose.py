@@ -45,9 +45,11 @@ Method
 
 4. **Short refits** of every candidate when the baseline is not adequate: a few
    solver steps from the most promising of two groups of starts (near the
-   baseline: the screening's steps and grid points; far: the data-driven GPI start of
+   baseline: the grid points; far: the data-driven GPI start of
    :mod:`identify.fitting.lsq` with the effect on the grid), because a large hidden effect can
-   move the GPI far from the baseline's compromise, beyond what a linearisation sees.
+   move the GPI far from the baseline's compromise, beyond what a linearisation sees, and
+   from the screening's best step on its own (grid points where the effect does nothing tie
+   with "off" and would take the near group's refits).
    The :attr:`Thresholds.max_refits` best, and every further one whose short refit is
    significant, are **refitted** to convergence on the whole record (a short refit only
    bounds a candidate's gain from below). Then the baseline is *challenged*: the model without the effect is refitted
@@ -1673,17 +1675,19 @@ def _screening_values(model_e: Model, screening: ScreeningResult) -> dict:
 
 def _short_refit_from_screening(work: _Working, fit: FitResult, model_e: Model, screening: ScreeningResult, values: dict,
                                 carried=()):  # fmt: skip
-    """Short refit of ``model_e`` on the working copy from the screening's start, grid and starts
-    (and ``carried``: full vectors of ``model_e`` an earlier round reached with this candidate).
+    """Short refit of ``model_e`` on the working copy from the screening's start, grid and best
+    step (and ``carried``: full vectors of ``model_e`` an earlier round reached with this candidate).
 
     The screening's best start (the best grid point with the GPI stepped along the
     linearised fit) gets a short refit of its own: against the baseline's GPI, grid points
     on a stretch where the effect does nothing (a prior excursion below the envelope's reach)
     tie with "off" and would take every short refit of a shared group (measured: seed 11's
     prior excursion to 1.32 A of the independent bench, whose screening starts lay at
-    1.25-1.35 A, was refitted only from 0-0.42 A and lost to ``training``). One start, not
-    all of the screening's: three of them per candidate doubled the worst case at 70001
-    samples (257.5 s against 125.7 s; one: 112.5 s against 106.6 s)."""
+    1.25-1.35 A, was refitted only from 0-0.42 A and lost to ``training``). Only that one:
+    the screening's further starts (the baseline's GPI with the effect's part of the step
+    from the next grid points) are not refitted, neither apart nor in the shared group
+    (all of them apart, 18c1661, doubled the worst case at 70001 samples, 257.5 s against
+    125.7 s; the best one alone: 112.5 s against 106.6 s)."""
     groups = _refit_starts(work.record, fit, model_e, [values] + list(screening.grid), extra=list(carried))
     own = [s for s in screening.starts if model_e.in_bounds(s)[0]][:1]
     return _short_refit(work.record, model_e, work.noise, groups + [own])
