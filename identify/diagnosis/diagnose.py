@@ -91,8 +91,9 @@ Method
      hidden ones: a drift takes the slow part of heating next to a lag). When the best
      explains at least :attr:`Thresholds.explained_minor`, the pairs of the candidates
      whose gain alone pays for its parameters (delta BIC > 0), significant or not
-     (:data:`PAIR_POOL`), are refitted together on the working copy
-     and the best pair on the whole record, and the model with the highest
+     (:data:`PAIR_POOL`), are refitted together on the working copy (from each member's
+     fit with the partner's parameters, and with the partner off but shaped as its own fit:
+     :func:`_short_pair`) and the best pairs on the whole record, and the model with the highest
      :math:`\Delta\mathrm{BIC}` among the best single candidate and the pairs decides (BIC
      charges the second effect's parameters, so a pair wins only when both effects are
      needed): a pair that leaves a residual consistent with the noise names
