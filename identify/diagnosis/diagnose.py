@@ -655,6 +655,23 @@ def _axis_values(parameter, off_value, record_time, n_values, include_off):
     return values
 
 
+def _probe_change(model_e: Model, base_theta, column, record):
+    """``(probe, change)``: the parameter in ``column`` moved by 5 % of its range from its value
+    in ``base_theta`` (downward at the upper bound) and the model's output change on ``record``
+    (None where an output is not finite)."""
+    parameter = model_e.parameters[column]
+    value = float(base_theta[column])
+    span = parameter.upper - parameter.lower
+    step = 0.05 * span if np.isfinite(span) else 0.05 * max(abs(value), 1.0)
+    probe = value + step if value + step <= parameter.upper else value - step
+    return probe, _response_change(model_e, base_theta, column, probe, record)
+
+
+def _acts(change) -> bool:
+    """Whether a probed output change (:func:`_probe_change`) is more than rounding."""
+    return change is not None and float(np.max(np.abs(change))) > 1e-9
+
+
 def _response_change(model_e: Model, base_theta, column, value, record):
     theta = base_theta.copy()
     theta[column] = value
@@ -697,12 +714,8 @@ def screening_grid(model_e: Model, effect_name: str, base_theta, record, n_value
         if not parameter.vary:
             axes.append([off_value])
             continue
-        span = parameter.upper - parameter.lower
-        step = 0.05 * span if np.isfinite(span) else 0.05 * max(abs(off_value), 1.0)
-        probe = off_value + step if off_value + step <= parameter.upper else off_value - step
-        change = _response_change(model_e, base_theta, column, probe, record)
-        active = change is not None and float(np.max(np.abs(change))) > 1e-9
-        if not active:  # a shape parameter (does nothing while the effect is off)
+        probe, change = _probe_change(model_e, base_theta, column, record)
+        if not _acts(change):  # a shape parameter (does nothing while the effect is off)
             axes.append(_axis_values(parameter, off_value, record.time, n_values, include_off=False))
             continue
         probe2 = off_value + 2.0 * (probe - off_value)
@@ -2729,7 +2742,8 @@ def _shape_values(work, fit: FitResult, entry) -> dict:
     :attr:`model.Effect.off`: the effect off, shaped as its own fit found it.
 
     A parameter is a shape when moving it by 5 % of its range from the "off" point leaves
-    the model's output on the working copy unchanged (the test :func:`screening_grid` makes)."""
+    the model's output on the working copy unchanged (:func:`_probe_change`, the test
+    :func:`screening_grid` makes)."""
     name, model_e, theta_e = entry
     effect = get_effect(name)
     fitted = _effect_values(model_e, theta_e, name)
@@ -2738,14 +2752,9 @@ def _shape_values(work, fit: FitResult, entry) -> dict:
     values = {}
     for offset, pname in enumerate(model_e.names[cols]):
         column = cols.start + offset
-        parameter = model_e.parameters[column]
-        off_value = float(off_theta[column])
-        span = parameter.upper - parameter.lower
-        step = 0.05 * span if np.isfinite(span) else 0.05 * max(abs(off_value), 1.0)
-        probe = off_value + step if off_value + step <= parameter.upper else off_value - step
-        change = _response_change(model_e, off_theta, column, probe, work.record)
-        shape = change is not None and float(np.max(np.abs(change))) <= 1e-9
-        values[pname] = fitted[pname] if shape else float(effect.off.get(pname, off_value))
+        _, change = _probe_change(model_e, off_theta, column, work.record)
+        shape = change is not None and not _acts(change)  # a probe that fails counts as a gain
+        values[pname] = fitted[pname] if shape else float(effect.off.get(pname, off_theta[column]))
     return values
 
 
