@@ -840,7 +840,7 @@ def test_shape_values_keep_a_members_shape_and_switch_its_gains_off(name):
     fitted = diagnosis._embed(base, fit.theta, model_e)
     for pname, value in effect.get_test_parameters().items():
         parameter = model_e.parameters[pname]
-        # a fitted value away from off and from the test value, inside the bounds
+        # the fitted value: the test value, or, where that is the off value, 30 % of the range above it
         fitted[model_e.names.index(pname)] = value if value != effect.off[pname] else min(
             parameter.upper, effect.off[pname] + 0.3 * (parameter.upper - parameter.lower)
         )
