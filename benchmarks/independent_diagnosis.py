@@ -128,6 +128,18 @@ def saved_diagnoses(out: Path):
         yield stem, model, json.loads(path.read_text()), physics
 
 
+def check_outputs(parser, outs) -> None:
+    """Stop ``parser`` with a clear error when a folder of ``outs`` holds no saved diagnoses."""
+    for out in outs:
+        if not (out / "work").is_dir():
+            parser.error(f"{out}: no work/ folder (not an output of benchmarks/independent_diagnosis.py)")
+
+
+def refitted_singles(diagnosis: dict) -> list[dict]:
+    """The ranking entries of ``diagnosis`` (its JSON) for single candidates refitted on the whole record."""
+    return [c for c in diagnosis["ranking"] if c.get("refitted") and "+" not in c["effect"]]
+
+
 def verdict_label(round_result: dict) -> str:
     return round_result["missing"] if round_result["status"] == "missing_effect" else round_result["status"]
 

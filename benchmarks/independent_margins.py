@@ -23,7 +23,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from independent_diagnosis import saved_diagnoses
+from independent_diagnosis import check_outputs, refitted_singles, saved_diagnoses
 
 MARGINS = (10.0, 30.0, 50.0, 100.0, 300.0)
 
@@ -35,7 +35,7 @@ def named_margins(out: Path) -> list[tuple[str, str, str, float, bool]]:
         if diagnosis.get("status") != "missing_effect":
             continue
         named = diagnosis["missing"]
-        refitted = [c for c in diagnosis["ranking"] if c.get("refitted") and "+" not in c["effect"]]
+        refitted = refitted_singles(diagnosis)
         mine = [c["delta_bic"] for c in refitted if c["effect"] == named]
         others = [c["delta_bic"] for c in refitted if c["effect"] != named]
         if not mine or not others or mine[0] < max(others):
@@ -48,10 +48,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", nargs="+", type=Path, help="output folders of benchmarks/independent_diagnosis.py")
     args = parser.parse_args(argv)
+    check_outputs(parser, args.out)
     rows = []
     for out in args.out:
-        if not (out / "work").is_dir():
-            parser.error(f"{out}: no work/ folder (not an output of benchmarks/independent_diagnosis.py)")
         rows += [(out.name, *row) for row in named_margins(out)]
     right = sorted(row[4] for row in rows if row[5])
     wrong = sorted(row[4] for row in rows if not row[5])

@@ -19,7 +19,7 @@ import argparse
 from collections import Counter
 from pathlib import Path
 
-from independent_diagnosis import saved_diagnoses
+from independent_diagnosis import check_outputs, saved_diagnoses
 
 FAST_TAU = 0.1  # s
 MIN_AMPLITUDE = 0.05
@@ -44,10 +44,9 @@ def main(argv=None) -> int:
     parser.add_argument("out", nargs="+", type=Path, help="output folders of benchmarks/independent_diagnosis.py")
     parser.add_argument("--effect", required=True, help="a library effect name, e.g. creep")
     args = parser.parse_args(argv)
+    check_outputs(parser, args.out)
     rows = []
     for out in args.out:
-        if not (out / "work").is_dir():
-            parser.error(f"{out}: no work/ folder (not an output of benchmarks/independent_diagnosis.py)")
         rows += refits(out, args.effect)
     if not rows:
         print(f"no whole-record refit of '{args.effect}' in {', '.join(map(str, args.out))}")

@@ -32,7 +32,7 @@ import argparse
 from collections import Counter
 from pathlib import Path
 
-from independent_diagnosis import OPTIONAL, saved_diagnoses
+from independent_diagnosis import OPTIONAL, check_outputs, refitted_singles, saved_diagnoses
 
 from identify.diagnosis.diagnose import Thresholds
 
@@ -42,7 +42,7 @@ CLASSES = ("truth ahead", "tie", "other ahead", "truth not refitted")
 def separation(diagnosis: dict, missing: set[str], present: set[str], margin: float) -> tuple[str, str]:
     """``(class, detail)`` of one diagnosis whose model lacks the true effects ``missing``;
     ``present`` are every effect of the record (true ones), which are neither missing nor wrong."""
-    refitted = [c for c in diagnosis["ranking"] if c.get("refitted") and "+" not in c["effect"]]
+    refitted = refitted_singles(diagnosis)
     true = [c for c in refitted if c["effect"] in missing]
     other = [c for c in refitted if c["effect"] not in present]
     if not true:
@@ -83,10 +83,9 @@ def main(argv=None) -> int:
                         help="delta BIC margin (default: the diagnosis's own, %(default)g)")  # fmt: skip
     parser.add_argument("--list", action="store_true", help="print every diagnosis that counts, not only the table")
     args = parser.parse_args(argv)
+    check_outputs(parser, args.out)
     counts: dict[str, Counter] = {}
     for out in args.out:
-        if not (out / "work").is_dir():
-            parser.error(f"{out}: no work/ folder (not an output of benchmarks/independent_diagnosis.py)")
         for step, stem, model, cls, detail in steps(out, args.margin):
             counts.setdefault(step, Counter())[cls] += 1
             if args.list:
