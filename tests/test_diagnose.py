@@ -854,7 +854,7 @@ def test_shape_values_keep_a_members_shape_and_switch_its_gains_off(name):
     shapes = {n for n, v in values.items() if v != effect.off[n]}
     assert all(values[n] == fitted[model_e.names.index(n)] for n in shapes)
     expected = {"training": {"training_travel", "training_shape"}, "thermal": {"thermal_tau", "thermal_tau_core"},
-                "sensor_drift": {"sensor_drift_settling_tau"}, "lag": set()}  # fmt: skip
+                "sensor_drift": {"sensor_drift_settling_tau", "sensor_drift_ambient_period"}, "lag": set()}  # fmt: skip
     if name in expected:
         assert shapes == expected[name]
 

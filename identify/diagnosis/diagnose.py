@@ -144,7 +144,7 @@ Why these choices: the verdict rests on refits (what adding the effect really do
 not on the linearisation, because the GPI re-adjusts nonlinearly to a new effect; on
 physics' signatures rather than formulas, because every effect is fitted in its general
 form (creep as a spectrum of relaxation times plus logarithmic creep, drift as a
-polynomial plus a settling warm-up, heating through a two-node network, a lag plus a
+polynomial plus a settling warm-up and the room's cycle, heating through a two-node network, a lag plus a
 dead time, a first-cycle strain retained or fading), so a differently shaped law of the
 same physics is absorbed (tested in ``tests/test_diagnose_slow.py`` and on the
 independent bench, ``benchmarks/independent_diagnosis.py``); and on an information criterion with an
