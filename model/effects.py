@@ -1445,6 +1445,16 @@ class Thermal(Effect):
         return starts + [{**starts[0], **moved}]  # the caller clips a start to the model's bounds
 
     @classmethod
+    def term_reductions(cls, term):
+        """Node 2 off, or node 1 without gains at its fastest (1 s): a one-pole heating fitted
+        on node 2 behind a fast node 1, the second labelling of the one-node form (up to node
+        1's residual lag of 1 s)."""
+        fastest = cls.parameters["thermal_tau"].lower
+        return super().term_reductions(term) + [
+            {"thermal_tau": fastest, "thermal_sensitivity": 0.0, "thermal_expansion": 0.0}
+        ]
+
+    @classmethod
     def get_test_parameters(cls):
         return {
             "thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0,

@@ -172,6 +172,7 @@ from ..data.reversals import find_reversals
 from ..fitting.lsq import FitResult, WhitenedResiduals, bounded_solve, candidate_starts, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
 from ..fitting.parametrisation import normalised_model, with_threshold_sign
+from ..fitting.terms import best_form
 from ..fitting.threads import single_threaded_blas
 from .residuals import ARNoise, ResidualProfile, autocorrelation, fit_ar_noise, residual_profile
 
@@ -991,6 +992,9 @@ class CandidateResult:
     note : str
         Why the candidate was not screened or refitted (e.g. an exact reparametrisation
         of the model: :func:`exact_reparametrisation`); empty otherwise.
+    uncharged_terms : list of str
+        The optional terms (``"effect.term"``) of the added effects that the record does not
+        pay for, so ``delta_bic`` does not charge their parameters (:func:`_delta_bic`).
     """
 
     effect: str
@@ -1008,6 +1012,7 @@ class CandidateResult:
     fit: FitResult | None = None
     profile: ResidualProfile | None = None
     note: str = ""
+    uncharged_terms: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """The ranking entry: flat numbers (a table row) plus the fitted ``parameters`` (and a ``note`` when set)."""
@@ -1029,6 +1034,7 @@ class CandidateResult:
             "z_after": {k: float(v) for k, v in self.z_after.items()},
             "parameter_stderr": {k: (None if not np.isfinite(v) else float(v)) for k, v in self.parameter_stderr.items()},
             "screening": None if self.screening is None else self.screening.to_dict(),
+            "uncharged_terms": list(self.uncharged_terms),
         }
 
 
@@ -1425,8 +1431,7 @@ def _evaluate_candidate(
         record, base_fit, base_chi2, model_e, start, residuals.free, rng, members
     )
     n_eff = _n_eff(w)
-    k = int(fit_e.vary.sum() - base_fit.vary.sum())
-    delta_bic = n_eff * math.log(base_chi2 / chi2_e) - k * math.log(n_eff) if chi2_e > 0 else math.inf
+    delta_bic, uncharged = _delta_bic(record, base_fit, base_chi2, fit_e, chi2_e, n_eff)
     profile_e = _profile(record, fit_e, quiet, noise_ref)
     adequacy_e = assess_adequacy(profile_e, thresholds, excess_kind=base_adequacy.excess_kind)
     explained = _explained(base_adequacy.excess, adequacy_e.excess)
@@ -1435,8 +1440,30 @@ def _evaluate_candidate(
     stderr = {n: float(fit_e.stderr[model_e.names.index(n)]) for n in new_names}
     return CandidateResult(
         name, screening, True, fit_e.rms, fit_e.max_error_pct, float(delta_bic), float(n_eff), explained,
-        adequacy_e.adequate, adequacy_e.z, params, stderr, fit_e, profile_e,
+        adequacy_e.adequate, adequacy_e.z, params, stderr, fit_e, profile_e, uncharged_terms=uncharged,
     )  # fmt: skip
+
+
+def _delta_bic(record, base_fit: FitResult, base_chi2: float, fit_e: FitResult, chi2_e: float, n_eff: float):
+    """``(delta BIC, uncharged terms)`` of a refitted candidate against the baseline, in the
+    candidate's best form: the optional terms of the effects it adds that the record does not
+    pay for are not charged (:func:`identify.fitting.terms.best_form`, the chi-square rise of
+    pinning them off taken to first order, no refit).
+
+    :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / (\chi^2_1 + W)) - (k - k_S) \ln n_\mathrm{eff}`
+    with :math:`k` the parameters the candidate frees, :math:`k_S` those of its unused terms
+    and :math:`W` the rise of pinning them off. A general form nests simpler ones, and a
+    record of the simpler physics must not make its own effect pay for terms it does not
+    use: a linear drift is ``sensor_drift`` with its settling and ambient terms off, and,
+    charged for those five parameters, it tied with creep (136 against 144, independent
+    bench seed 14, ``effects_009``)."""
+    k = int(fit_e.vary.sum() - base_fit.vary.sum())
+    if not chi2_e > 0:
+        return math.inf, []
+    new = [e.name for e in fit_e.model.effects if e.name not in base_fit.model.effect_names]
+    form = best_form(record, fit_e, new, n_eff) if new else {"terms": [], "parameters": 0, "delta_chi2": 0.0}
+    delta_bic = n_eff * math.log(base_chi2 / (chi2_e + form["delta_chi2"])) - (k - form["parameters"]) * math.log(n_eff)
+    return float(delta_bic), [f"{effect}.{term}" for effect, term in form["terms"]]
 
 
 def _evaluate_in_round(s: _Setting, rnd: _Round, name: str, model_e: Model, start, screening,

@@ -24,6 +24,7 @@ fit (:attr:`identify.fitting.lsq.FitResult.terms`) and shown by the study and it
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import replace
@@ -32,13 +33,16 @@ import numpy as np
 
 from .noise import whiten
 
-__all__ = ["select_terms", "optional_terms", "term_decision"]
+__all__ = ["select_terms", "optional_terms", "term_decision", "best_form"]
 
 
-def optional_terms(model) -> list[tuple[str, str, tuple[str, ...]]]:
-    """``[(effect, term, parameter names)]`` of ``model``'s optional terms whose parameters all vary."""
+def optional_terms(model, effects=None) -> list[tuple[str, str, tuple[str, ...]]]:
+    """``[(effect, term, parameter names)]`` of ``model``'s optional terms whose parameters all vary
+    (of the effects named in ``effects`` only, when given)."""
     out = []
     for effect in model.effects:
+        if effects is not None and effect.name not in effects:
+            continue
         for term, names in type(effect).terms.items():
             if all(model.parameters[n].vary for n in names):
                 out.append((effect.name, term, tuple(names)))
@@ -150,3 +154,113 @@ def select_terms(record, fit, *, rng=None, log=None):
     # the refits polish the multistart's end: its starts are still the search that found it
     return replace(current, terms=decisions, n_starts=fit.n_starts, starts=list(fit.starts), n_agree=fit.n_agree,
                    seconds=fit.seconds + (time.perf_counter() - t0))
+
+
+#: At most this many optional terms are weighed jointly by :func:`best_form` (every subset).
+MAX_JOINT_TERMS = 8
+
+
+def _reduction_parts(record, model, theta, reduction) -> tuple[list[str], list[str]]:
+    """``(gains, shapes)`` of one reduction ``{parameter: value}`` of a term: a shape does
+    nothing once the reduction is applied (a time constant or an onset of a term switched
+    off); a gain does (an amplitude, a sensitivity, a dead time, the time constant of a
+    node that feeds another)."""
+    base = np.array(theta, dtype=float)
+    for n, v in reduction.items():
+        base[model.names.index(n)] = v
+    gains, shapes = [], []
+    y0 = model(base[None, :], record.time, record.current)
+    for n, v in reduction.items():
+        parameter = model.parameters[n]
+        probe = base.copy()
+        span = parameter.upper - parameter.lower
+        step = 0.05 * span if np.isfinite(span) else 0.05 * max(abs(v), 1.0)
+        probe[model.names.index(n)] = v + step if v + step <= parameter.upper else v - step
+        y1 = model(probe[None, :], record.time, record.current)
+        (gains if float(np.max(np.abs(y1 - y0))) > 1e-9 else shapes).append(n)
+    return gains, shapes
+
+
+def best_form(record, fit, effects, n_samples, jacobian=None):
+    r"""The best form of ``fit``'s effects ``effects`` by the BIC: which of their optional terms
+    (:attr:`model.Effect.terms`) the record pays for, weighed without a refit.
+
+    A general form nests simpler ones, and a comparison by BIC must not charge an effect for
+    terms it does not use. For each subset :math:`S` of the terms, the chi-square rise of
+    pinning them off with the rest of the model re-optimised is taken to first order (the
+    Wald statistic): :math:`W_S = g_S^\top (J^\top J)^{-1}_{g_S g_S \mid h_S}\, g_S`, with
+    :math:`g_S` the terms' gains (their distance from the values that switch the term off,
+    :meth:`model.Effect.term_reductions`: every way of switching it off is tried), :math:`h_S` their
+    shapes (a time constant, a period, an onset: parameters that do nothing while the term is
+    off, held at their fitted values, since where a term is off they are not parameters at
+    all) and :math:`J` the whitened residual's Jacobian at the fit over the free parameters.
+    The subset that maximises :math:`-n \ln(1 + W_S/\chi^2) + k_S \ln n` (:math:`k_S` its
+    parameters, gains and shapes) is returned; none when every term pays for itself. The
+    first-order rise is exact for terms that enter linearly and accurate where a term's
+    gains are small against their standard errors, which is where a term is unused.
+
+    Parameters
+    ----------
+    record : identify.data.records.Record
+    fit : identify.fitting.lsq.FitResult
+        The fit of the model with the effects (every term free); its noise is fixed.
+    effects : collection of str
+        The effects whose terms are weighed (e.g. the candidate effects a diagnosis adds).
+    n_samples : float
+        The sample count of the BIC (a diagnosis passes its effective count).
+    jacobian : ndarray, shape (T, P_free), optional
+        The whitened residual's Jacobian at ``fit.theta`` over ``fit``'s free parameters
+        (default: central differences, one batch of ``2 P_free + 1`` evaluations).
+
+    Returns
+    -------
+    dict
+        ``{"terms": [(effect, term)], "parameters": k_S, "delta_chi2": W_S}`` of the best
+        subset (empty, 0 and 0.0 when every term is kept).
+    """
+    from .lsq import WhitenedResiduals
+
+    model = fit.model
+    terms = optional_terms(model, effects)[:MAX_JOINT_TERMS]
+    none = {"terms": [], "parameters": 0, "delta_chi2": 0.0}
+    if not terms:
+        return none
+    theta = np.asarray(fit.theta, dtype=float)
+    free = list(np.flatnonzero(model.parameters.vary))
+    effects_by_name = {e.name: type(e) for e in model.effects}
+    # every way of switching each term off, with its gains and shapes
+    options = []
+    for effect, term, _ in terms:
+        reductions = []
+        for reduction in effects_by_name[effect].term_reductions(term):
+            gains, shapes = _reduction_parts(record, model, theta, reduction)
+            reductions.append((reduction, gains, shapes))
+        options.append(reductions)
+    if jacobian is None:
+        residuals = WhitenedResiduals(record, model, fit.noise)
+        jacobian = residuals.central_jacobian(theta[residuals.free])
+    info = jacobian.T @ jacobian
+    chi2 = _whitened_chi2(fit.residual, fit.noise)
+    log_n = math.log(n_samples)
+    best, best_gain = none, 0.0
+    for size in range(1, len(terms) + 1):
+        for subset in itertools.combinations(range(len(terms)), size):
+            for choice in itertools.product(*(options[i] for i in subset)):
+                gains = [free.index(model.names.index(n)) for _, g, _ in choice for n in g]
+                shapes = {free.index(model.names.index(n)) for _, _, h in choice for n in h}
+                values = {n: v for reduction, _, _ in choice for n, v in reduction.items()}
+                rest = [j for j in range(len(free)) if j not in shapes]
+                # the information of the parameters other than the shapes (held), inverted:
+                # the covariance of the gains with the rest re-optimised and the shapes fixed
+                cov = np.linalg.pinv(info[np.ix_(rest, rest)], rcond=1e-15, hermitian=True)
+                g_pos = [rest.index(j) for j in gains]
+                g = np.array([theta[free[j]] - values[model.names[free[j]]] for j in gains])
+                w = 0.0
+                if g.size:
+                    w = float(g @ np.linalg.pinv(cov[np.ix_(g_pos, g_pos)], rcond=1e-15, hermitian=True) @ g)
+                k = sum(len(terms[i][2]) for i in subset)
+                gain = k * log_n - n_samples * math.log1p(max(w, 0.0) / chi2) if chi2 > 0 else -math.inf
+                if gain > best_gain:
+                    best_gain = gain
+                    best = {"terms": [terms[i][:2] for i in subset], "parameters": k, "delta_chi2": max(w, 0.0)}
+    return best
