@@ -67,7 +67,8 @@ Method
    Each refitted candidate is compared with the baseline by
 
    * :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / \chi^2_1) - k \ln n_\mathrm{eff}`
-     with :math:`k` the effect's free parameters and
+     with :math:`k` the effect's free parameters in its best form (the optional terms the
+     record does not pay for are not charged, :func:`_delta_bic`) and
      :math:`n_\mathrm{eff} = n (1-\rho)/(1+\rho)`, :math:`\rho` the lag-1
      autocorrelation of the candidate model's whitened residual (a residual that is
      still correlated carries less information than its sample count says; with the
