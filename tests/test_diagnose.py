@@ -1220,3 +1220,15 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
     ranked, asked = run({"training": 40000.0, "incomplete_reset": 44525.0})
     assert asked == [["training"]]
     assert [c.effect for c in ranked] == ["training", "incomplete_reset", "thermal", "creep"]
+
+
+def test_the_candidates_text_says_which_unused_terms_went_uncharged():
+    from identify.diagnosis.diagnose import CandidateResult, _candidates_text
+
+    def candidate(name, terms):
+        return CandidateResult(name, None, True, 0.78, 1.0, 1721.4, 7000.0, 0.99, True, uncharged_terms=terms)
+
+    text = _candidates_text([candidate("thermal", ["thermal.core"]), candidate("training", [])], [])
+    assert "'thermal' explains 99 % (delta BIC 1721 with its unused thermal.core uncharged, RMS after 0.78, adequate)" in text
+    assert "'training' explains 99 % (delta BIC 1721, RMS after 0.78, adequate)" in text
+    assert candidate("creep", ["creep.logarithmic"]).details()["uncharged_terms"] == ["creep.logarithmic"]

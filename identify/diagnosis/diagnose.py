@@ -2717,9 +2717,10 @@ def _tests_text(adequacy: Adequacy, thresholds: Thresholds) -> str:
 def _candidates_text(refitted, pairs) -> str:
     parts = []
     for c in list(refitted)[:3] + list(pairs):
+        uncharged = f" with its unused {', '.join(c.uncharged_terms)} uncharged" if c.uncharged_terms else ""
         parts.append(
-            f"'{c.effect}' explains {100 * c.explained:.0f} % (delta BIC {c.delta_bic:.0f}, RMS after {c.rms_after:.4g}"
-            + (", structure left)" if not c.adequate_after else ", adequate)")
+            f"'{c.effect}' explains {100 * c.explained:.0f} % (delta BIC {c.delta_bic:.0f}{uncharged}, RMS after "
+            f"{c.rms_after:.4g}" + (", structure left)" if not c.adequate_after else ", adequate)")
         )
     return "; ".join(parts) if parts else "none refitted"
 
