@@ -480,7 +480,7 @@ def test_pairs_that_beat_an_adequate_single_but_disagree_name_nothing(monkeypatc
 
     def cand(effect, bic, adequate=True, explained=0.96, rms_after=1.02):
         return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, explained=explained,
-                               refitted=True, rms_after=rms_after, fit=None)  # fmt: skip
+                               refitted=True, rms_after=rms_after, fit=None, uncharged_terms=[])  # fmt: skip
 
     refitted = [cand("thermal", 3103.0, explained=0.97), cand("creep", 3044.0, False), cand("sensor_drift", 2992.0, False),
                 cand("incomplete_reset", 1579.0, False)]  # fmt: skip
