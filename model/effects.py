@@ -840,12 +840,23 @@ class Training(Effect):
     :math:`w` (dimensionless), ``0 <= w <= 1``. Off: ``g = F = s = w = 0`` (the drive is
     the current, the thresholds those of eq. (8) and the output the GPI's, bit for bit,
     whatever :math:`V_0`, :math:`p`).
+
+    Optional terms (:attr:`Effect.terms`): each of the four virgin differences (``drive``
+    :math:`g`, ``threshold`` :math:`F`, ``strain`` :math:`s`, ``width`` :math:`w`) and the
+    fade's ``shape`` (pinned at :math:`p = 1`, the exponential fade). A record seldom shows
+    all four: a gain that decays with the cycles is :math:`s` and :math:`V_0` alone, and
+    neither the study's posterior nor the diagnosis's delta BIC should carry the other
+    gains (at 0, each of them leaves :math:`V_0` to the rest) or charge for them.
     """
 
     name = "training"
     stage = "input"
     acts_on_output = True
     first_cycle = True
+    terms = {
+        "drive": ("training_deficit",), "threshold": ("training_threshold",), "strain": ("training_gain",),
+        "width": ("training_width",), "shape": ("training_shape",),
+    }  # fmt: skip
     parameters = ParameterSet(
         [
             Parameter(
