@@ -1448,8 +1448,8 @@ def _evaluate_candidate(
 def _delta_bic(record, base_fit: FitResult, base_chi2: float, fit_e: FitResult, chi2_e: float, n_eff: float):
     """``(delta BIC, uncharged terms)`` of a refitted candidate against the baseline, in the
     candidate's best form: the optional terms of the effects it adds that the record does not
-    pay for are not charged (:func:`identify.fitting.terms.best_form`, the chi-square rise of
-    pinning them off taken to first order, no refit).
+    pay for are not charged (:func:`identify.fitting.terms.best_form`: each switched off
+    exactly and the rest of the model re-optimised to first order, no refit).
 
     :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / (\chi^2_1 + W)) - (k - k_S) \ln n_\mathrm{eff}`
     with :math:`k` the parameters the candidate frees, :math:`k_S` those of its unused terms
