@@ -212,3 +212,17 @@ def test_a_one_pole_heating_on_node_two_is_the_one_node_form(monkeypatch):
     used = {"thermal": {**one_pole_on_node_two["thermal"], "thermal_expansion": 4.0}}
     record, fit = _at_truth(used)
     assert best_form(record, fit, ["thermal"], n_samples=record.time.size)["terms"] == []
+
+
+def test_a_term_at_a_kink_is_weighed_by_switching_it_off():
+    """A gain that decays with the cycles, fitted with a soft threshold of 1e-4 A (the threshold's
+    kink: a central difference of a few 1e-9 A there is no slope of the fit): the threshold,
+    the drive deficit, the width and the fade's shape go uncharged, the strain gain is kept."""
+    from identify.fitting.terms import best_form
+
+    gain_decay = {"training": {"training_deficit": 0.0, "training_threshold": 1e-4, "training_travel": 16.8,
+                               "training_shape": 1.0, "training_gain": 0.05, "training_width": 0.0}}  # fmt: skip
+    record, fit = _at_truth(gain_decay)
+    form = best_form(record, fit, ["training"], n_samples=record.time.size)
+    assert sorted(term for _, term in form["terms"]) == ["drive", "shape", "threshold", "width"]
+    assert form["parameters"] == 4
