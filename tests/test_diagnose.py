@@ -409,7 +409,7 @@ def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail(monke
 
     def verdict(rms_after):
         best = SimpleNamespace(effect="thermal", delta_bic=362.0, adequate_after=True, explained=0.74, refitted=True,
-                               rms_after=rms_after)  # fmt: skip
+                               rms_after=rms_after, uncharged_terms=[])  # fmt: skip
         rnd = SimpleNamespace(fit=fit, refitted=[best], adequacy=adequacy, profile=None)
         return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds()), rnd, _tests_text(adequacy, Thresholds()))
 
@@ -438,7 +438,7 @@ def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
 
     def cand(effect, bic, adequate, explained, rms_after):
         return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, explained=explained,
-                               refitted=True, rms_after=rms_after, fit=None)  # fmt: skip
+                               refitted=True, rms_after=rms_after, fit=None, uncharged_terms=[])  # fmt: skip
 
     refitted = [cand("creep", 3785.0, True, 1.0, 1.01), cand("sensor_drift", 2693.0, False, 0.88, 1.06),
                 cand("lag", 1470.0, False, 0.66, 1.15)]  # fmt: skip
@@ -818,7 +818,10 @@ def test_pair_pool_takes_every_candidate_whose_gain_pays_for_its_parameters():
     short = {name: (chi2_for(bic, name), (base + name).default_theta()) for name, bic in gains.items()}
     rnd = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), chi2_0, n_eff, short=short)
     pool = _pair_pool(rnd, thresholds)
-    assert [p[0] for p in pool] == ["creep", "thermal", "training", "lag", "sensor_drift"]  # not incomplete_reset
+    # by the short refits' chi-square (sensor_drift's 2 pays for seven parameters, a lower
+    # chi-square than lag's 40 for two), and not incomplete_reset
+    assert [p[0] for p in pool] == ["creep", "thermal", "training", "sensor_drift", "lag"]
+    assert short["sensor_drift"][0] < short["lag"][0]
     assert all(p[1].names == (base + p[0]).names for p in pool)
 
 
@@ -1104,7 +1107,7 @@ def test_a_pair_overrules_an_adequate_single_only_by_more_than_bic_significant(m
 
     def candidate(effect, delta_bic, adequate):
         return SimpleNamespace(effect=effect, explained=0.96, delta_bic=delta_bic, adequate_after=adequate,
-                               rms_after=0.735, refitted=True)  # fmt: skip
+                               rms_after=0.735, refitted=True, uncharged_terms=[])  # fmt: skip
 
     training, thermal = candidate("training", 695.0, True), candidate("thermal", 692.0, True)
     reset = candidate("incomplete_reset", 300.0, False)
