@@ -661,11 +661,53 @@ def test_embedding_across_threshold_signs_is_refused_and_the_pair_pool_keeps_the
     ]
     lag_short = (negative + "lag").default_theta()
     rnd = SimpleNamespace(fit=SimpleNamespace(model=negative), refitted=refitted, short={"lag": (950.0, lag_short)},
-                          chi2_0_small=1000.0, n_eff_small=4000.0)  # fmt: skip
+                          chi2_0_small=1000.0, n_eff_small=4000.0, replaced={})  # fmt: skip
     pool = diagnosis._pair_pool(rnd, Thresholds())
     assert [name for name, _, _ in pool] == ["creep", "lag"]
     name, model_e, theta_e = pool[1]
     assert model_e.parameters["alpha"].value < 0 and theta_e is lag_short  # the short refit, the baseline's sign
+
+    # its refit in the baseline's sign, replaced by the other sign's, enters instead, by its delta BIC
+    lag_same = negative + "lag"
+    lag_same_theta = lag_same.default_theta() + 0.0
+    lag_same_theta[lag_same.names.index("lag_tau")] = 0.02
+    rnd.replaced = {"lag": SimpleNamespace(effect="lag", delta_bic=600.0, fit=SimpleNamespace(model=lag_same, theta=lag_same_theta))}
+    pool = diagnosis._pair_pool(rnd, Thresholds())
+    assert [name for name, _, _ in pool] == ["lag", "creep"]
+    assert pool[0][1].parameters["alpha"].value < 0 and np.array_equal(pool[0][2], lag_same_theta)
+
+
+@pytest.mark.parametrize("fs", [100.0, 1000.0])
+@pytest.mark.parametrize("spec", ["lag_tau=0.0127", "lag_tau=0.005,lag_delay=0.02"])
+def test_the_working_copy_keeps_a_lagged_drives_reversals(spec, fs):
+    """A lagged or delayed drive reverses after the current, between the samples a plain
+    thinning keeps; the working copy keeps the full rate around each reversal, so the true
+    model there equals the whole record's (the direction-dependent term switches at the same
+    sample) where a plain thinning puts tens of units into the chi-square."""
+    from identify.bench import simulate
+    from identify.data.records import thinning_indices
+    from identify.data.reversals import find_reversals
+    from identify.diagnosis import diagnose as diagnosis_module
+    from identify.diagnosis.diagnose import _working_copy
+    from identify.fitting.noise import estimate_noise
+
+    sim = simulate(spec, seed=1, noise_sigma=0.5, fs=fs)
+    record = sim.record
+    truth = Model(**sim.truth["model"])
+    theta = np.array([sim.truth["theta"][name] for name in truth.names])
+    reversals = find_reversals(record.current).index
+    work = _working_copy(record, estimate_noise(record), reversals)
+    assert work.step > 1
+
+    def chi2(keep):
+        miss = np.ravel(truth(theta, record.time[keep], record.current[keep])) - sim.clean[keep]
+        return float(miss @ miss) / 0.5**2
+
+    kept = np.searchsorted(record.time, work.record.time)
+    assert np.array_equal(record.time[kept], work.record.time)
+    assert chi2(kept) < 1.0
+    assert chi2(thinning_indices(record.current, work.step, reversals)) > 30.0  # the test is not vacuous
+    assert len(work.record) < 1.5 * diagnosis_module.SCREENING_SAMPLES
 
 
 def test_a_rival_within_the_bic_threshold_blocks_a_name():

@@ -1314,9 +1314,28 @@ def _threshold_sign_variants(model: Model):
     return [(with_threshold_sign(model, -1), "negative"), (with_threshold_sign(model, 1), "positive")]
 
 
+#: Time [s] on each side of every input reversal that the working copy keeps at the full
+#: rate. The GPI is rate independent, so keeping the reversals makes a decimated record
+#: exact for it; a drive that lags the current (``lag``: a time constant, a dead time)
+#: reverses later, between the kept samples, where its flat peak is computed from fewer
+#: samples than on the whole record, and the direction-dependent term (eq. 13) switches at
+#: another sample: an error of the jump between its branches (about 3 um with Table 1).
+#: Measured with the true model on the paper's input (12 reversals, every 2nd sample at
+#: 100 Hz, every 18th at 1 kHz): a lag of 12.7 ms put 177 (100 Hz) and 207 (1 kHz) into the
+#: chi-square of the working copy; with 50 ms kept on each side of every reversal, 0 and
+#: 0, and a lag of 5 ms plus a dead time of 20 ms 0 (72 and 185 without). A drive delayed by
+#: more than the window still switches within a decimated step. Lags of tens of
+#: milliseconds are the eddy-current and amplifier time constants of such rigs. At most
+#: half of :data:`SCREENING_SAMPLES` are spent on the windows (narrower when the input
+#: reverses often).
+REVERSAL_WINDOW = 0.05
+
+
 def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
-    """``record`` decimated to about :data:`SCREENING_SAMPLES` samples, reversals kept;
-    the noise model's lag-1 correlation becomes ``rho ** step``."""
+    """``record`` decimated to about :data:`SCREENING_SAMPLES` samples, reversals kept with
+    :data:`REVERSAL_WINDOW` on each side at the full rate; the noise model's lag-1
+    correlation becomes ``rho ** step`` (the samples kept at the full rate are whitened with
+    it too: for AR(1) noise they are under-whitened, a small share of the copy)."""
     from dataclasses import replace as _replace
 
     from ..data.records import Record, thinning_indices
@@ -1325,7 +1344,9 @@ def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
     step = max(1, int(math.ceil(n / SCREENING_SAMPLES)))
     if step == 1:
         return _Working(record, noise, 1)
-    keep = thinning_indices(record.current, step, reversal_index)
+    around = int(round(REVERSAL_WINDOW / float(np.median(np.diff(record.time)))))
+    around = min(around, SCREENING_SAMPLES // (4 * max(1, len(reversal_index))))
+    keep = thinning_indices(record.current, step, reversal_index, around=around)
     small = Record(
         record.time[keep], record.current[keep], record.displacement[keep],
         source=f"{record.source} (every {step}th sample, for screening)", sha256="",
@@ -1606,7 +1627,10 @@ class _Round:
     chi-square drop; ``short``: ``{effect: (chi2, theta)}`` of the short refits; ``failed``:
     ``{effect: CandidateResult}`` of the candidates whose screening or refit failed;
     ``refitted``: the candidates refitted on the whole record by falling delta BIC;
-    ``reparametrised``: the baseline starts found through the exact reparametrisations.
+    ``reparametrised``: the baseline starts found through the exact reparametrisations;
+    ``replaced``: ``{effect: CandidateResult}`` of the refits in the baseline's threshold sign
+    that a refit with the other sign replaced in ``refitted`` (:func:`_retry_other_sign`):
+    the pairs of the baseline's sign start from them (:func:`_pair_pool`).
     """
 
     fit: FitResult
@@ -1622,6 +1646,7 @@ class _Round:
     refitted: list = field(default_factory=list)
     reparametrised: list = field(default_factory=list)
     carried: dict = field(default_factory=dict)
+    replaced: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -1889,7 +1914,8 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
     on a 1 kHz record of a retained first-cycle strain the plain GPI chose alpha > 0;
     training, the best there, gained 7,165 in chi-square with alpha < 0 and still left
     structure, while the true first-cycle effect, second in the baseline's sign at 1.13
-    sigma, fits to 1.006 sigma with alpha < 0.
+    sigma, fits to 1.006 sigma with alpha < 0. The refits of the baseline's sign that the
+    other sign replaces are kept in ``rnd.replaced`` for the pairs (:func:`_pair_pool`).
     """
     best = rnd.refitted[0]
     retried = {c.effect: c for c in _other_sign_refits(s, rnd, [best.effect])}
@@ -1897,10 +1923,9 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
     if anchor is not None and anchor.delta_bic > best.delta_bic:
         others = [c.effect for c in rnd.refitted[1 : s.thresholds.max_refits] if not c.adequate_after]
         retried.update({c.effect: c for c in _other_sign_refits_from(s, rnd, others, anchor)})
-    refitted = [
-        retried[c.effect] if c.effect in retried and retried[c.effect].delta_bic > c.delta_bic else c
-        for c in rnd.refitted
-    ]
+    better = {c.effect for c in rnd.refitted if c.effect in retried and retried[c.effect].delta_bic > c.delta_bic}
+    rnd.replaced.update({c.effect: c for c in rnd.refitted if c.effect in better and c.fit is not None})
+    refitted = [retried[c.effect] if c.effect in better else c for c in rnd.refitted]
     refitted.sort(key=lambda c: -c.delta_bic)
     return refitted
 
@@ -2742,17 +2767,20 @@ PAIR_POOL = None
 
 def _pair_pool(rnd: _Round, thresholds) -> list:
     """The candidates among which pairs are tried (at most :data:`PAIR_POOL`), as
-    ``(name, model_e, theta_e)``: the refitted ones by delta BIC (the baseline's threshold
-    sign only), then the short refits by chi-square; each whose gain alone pays for its
+    ``(name, model_e, theta_e)``: the refitted ones by delta BIC (in the baseline's threshold
+    sign: a candidate the other sign fitted better enters by its refit in the baseline's sign
+    that it replaced), then the short refits by chi-square; each whose gain alone pays for its
     parameters (delta BIC > 0 on the whole record, or on the working copy for a short
     refit), significant or not. Which member a winning pair names is decided by the
     members' gains alone (:func:`_pair_verdict`)."""
     fit, pool, seen = rnd.fit, [], set()
-    for c in rnd.refitted:
-        # one refitted with the other threshold sign (_retry_other_sign) is not nested in the
-        # pairs of the baseline's sign: its short refit (the baseline's sign) enters below
-        nested = c.fit is not None and _same_threshold_sign(c.fit.model, fit.model)
-        if c.delta_bic > 0.0 and nested and c.effect not in seen:
+    # one refitted with the other threshold sign (_retry_other_sign) is not nested in the pairs
+    # of the baseline's sign: the refit in the baseline's sign that it replaced enters instead
+    # (rnd.replaced), else its short refit (below)
+    nested = [c if c.fit is not None and _same_threshold_sign(c.fit.model, fit.model) else rnd.replaced.get(c.effect)
+              for c in rnd.refitted]  # fmt: skip
+    for c in sorted([c for c in nested if c is not None], key=lambda c: -c.delta_bic):
+        if c.delta_bic > 0.0 and c.effect not in seen:
             model_e = fit.model + c.effect
             pool.append((c.effect, model_e, _embed(c.fit.model, c.fit.theta, model_e)))
             seen.add(c.effect)
