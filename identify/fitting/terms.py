@@ -221,8 +221,16 @@ def best_form(record, fit, effects, n_samples, jacobian=None):
         return none
     log_n = math.log(n_samples)
 
+    rises = {}
+
     def rise(reductions) -> float:
         """The chi-square rise with these reductions applied and the rest re-optimised to first order."""
+        key = tuple(tuple(sorted(reduction.items())) for reduction in reductions)
+        if key not in rises:
+            rises[key] = _rise(reductions)
+        return rises[key]
+
+    def _rise(reductions) -> float:
         values = {n: v for reduction in reductions for n, v in reduction.items()}
         reduced = theta.copy()
         for n, v in values.items():
