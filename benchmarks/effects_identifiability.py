@@ -43,7 +43,8 @@ SETTINGS = {
     "thermal": {"thermal_tau": 10.0, "thermal_sensitivity": 0.03, "thermal_expansion": 1.0, "thermal_tau_core": 200.0,
                 "thermal_sensitivity_core": 0.03, "thermal_expansion_core": 1.0},
     "sensor_drift": {"sensor_drift_linear": 1.0, "sensor_drift_quadratic": 0.5, "sensor_drift_settling": 1.0,
-                     "sensor_drift_settling_tau": 10.0},
+                     "sensor_drift_settling_tau": 10.0, "sensor_drift_ambient_sine": 1.0,
+                     "sensor_drift_ambient_cosine": 0.5, "sensor_drift_ambient_period": 120.0},
 }  # fmt: skip
 
 

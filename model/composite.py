@@ -176,6 +176,14 @@ class Effect:
         thermal nodes that can exchange roles) adds a start for that."""
         return [{**values, **{name: cls.off[name] for name in cls.terms[term]}}]
 
+    @classmethod
+    def term_reductions(cls, term: str) -> list[dict[str, float]]:
+        """The ways of switching ``term`` off, each ``{parameter: value}`` (the other parameters
+        free): by default the term's parameters at :attr:`off`. An effect whose simpler form
+        has a second labelling (one thermal node standing for the other) adds it; the
+        parameters set are the ones the simpler form does not have."""
+        return [{name: cls.off[name] for name in cls.terms[term]}]
+
     def __repr__(self):
         return f"{type(self).__name__}()"
 

@@ -840,12 +840,23 @@ class Training(Effect):
     :math:`w` (dimensionless), ``0 <= w <= 1``. Off: ``g = F = s = w = 0`` (the drive is
     the current, the thresholds those of eq. (8) and the output the GPI's, bit for bit,
     whatever :math:`V_0`, :math:`p`).
+
+    Optional terms (:attr:`Effect.terms`): each of the four virgin differences (``drive``
+    :math:`g`, ``threshold`` :math:`F`, ``strain`` :math:`s`, ``width`` :math:`w`) and the
+    fade's ``shape`` (pinned at :math:`p = 1`, the exponential fade). A record seldom shows
+    all four: a gain that decays with the cycles is :math:`s` and :math:`V_0` alone, and
+    neither the study's posterior nor the diagnosis's delta BIC should carry the other
+    gains (at 0, each of them leaves :math:`V_0` to the rest) or charge for them.
     """
 
     name = "training"
     stage = "input"
     acts_on_output = True
     first_cycle = True
+    terms = {
+        "drive": ("training_deficit",), "threshold": ("training_threshold",), "strain": ("training_gain",),
+        "width": ("training_width",), "shape": ("training_shape",),
+    }  # fmt: skip
     parameters = ParameterSet(
         [
             Parameter(
@@ -1445,6 +1456,16 @@ class Thermal(Effect):
         return starts + [{**starts[0], **moved}]  # the caller clips a start to the model's bounds
 
     @classmethod
+    def term_reductions(cls, term):
+        """Node 2 off, or node 1 without gains at its fastest (1 s): a one-pole heating fitted
+        on node 2 behind a fast node 1, the second labelling of the one-node form (up to node
+        1's residual lag of 1 s)."""
+        fastest = cls.parameters["thermal_tau"].lower
+        return super().term_reductions(term) + [
+            {"thermal_tau": fastest, "thermal_sensitivity": 0.0, "thermal_expansion": 0.0}
+        ]
+
+    @classmethod
     def get_test_parameters(cls):
         return {
             "thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0,
@@ -1468,8 +1489,10 @@ class SensorDrift(Effect):
 
     .. math::
 
-        y = y_g + D_1 s + D_2 s^2 + D_w \big(1 - e^{-(t - t_0)/\tau_w}\big), \qquad
-        s = \frac{t - t_0}{t_{T-1} - t_0} \in [0, 1]
+        y = y_g + D_1 s + D_2 s^2 + D_w \big(1 - e^{-(t - t_0)/\tau_w}\big)
+            + A_s \sin \omega (t - t_0) + A_c \big(1 - \cos \omega (t - t_0)\big),
+
+        s = \frac{t - t_0}{t_{T-1} - t_0} \in [0, 1], \qquad \omega = 2\pi / P_a
 
     so the drift is 0 at the first sample. Physics: warm-up and temperature drift of the
     sensor electronics and of the sensor's mount (laser triangulation or LVDT),
@@ -1477,19 +1500,34 @@ class SensorDrift(Effect):
     without excitation. The polynomial is a drift that keeps going over the record
     (per record: normalised time); the exponential is a warm-up that *settles*: an offset
     :math:`D_w` approached with the time constant :math:`\tau_w` (a sensor switched on
-    shortly before the record).
+    shortly before the record); the periodic part follows the room: a laboratory's air
+    temperature cycles with its air conditioning or heating (periods of a minute to many
+    minutes), and the sensor and its mount, a linear thermal system, follow a periodic
+    ambient at the same period with their own lag and attenuation, so their reading
+    drifts by a sinusoid of period :math:`P_a`, whatever its phase (:math:`A_s, A_c`
+    together are its amplitude and phase, started at 0).
 
     Trade-offs: for :math:`\tau_w` much longer than the record the settling term is
     nearly a line plus a parabola (its cubic remainder is :math:`(T/\tau_w)^3/6` of
     :math:`D_w`), so :math:`D_w, \tau_w` trade off with :math:`D_1, D_2` there (a near, not
     exact, degeneracy: the bound :math:`\tau_w \le 500` s keeps the remainder above 5e-5
-    of :math:`D_w` on a 70 s record); a drift is additive and present while the drive is
-    off, so it is no reparametrisation of the GPI (whose offsets act at every sample
-    alike). Measured Jacobian rank with the GPI on the paper's input: ``docs/effects.md``.
+    of :math:`D_w` on a 70 s record); the same holds for an ambient period much longer
+    than the record (:math:`\sin` is then nearly the line, :math:`1 - \cos` the parabola;
+    the bound :math:`P_a \le 500` s keeps their remainders, :math:`(\omega T)^2/6` and
+    :math:`(\omega T)^2/12`, above 6 % on a 70 s record), and the ambient and settling
+    terms trade off with each other over part of a period. The lower bound
+    :math:`P_a \ge 30` s, three of the paper's drive periods, keeps the sinusoid away from
+    the drive's own frequency, where it would stand in for the loops (a sensor's thermal
+    mass does not follow faster ambient changes anyway). A drift is additive and present
+    while the drive is off, so it is no reparametrisation of the GPI (whose offsets act at
+    every sample alike). Measured Jacobian rank with the GPI on the paper's input:
+    ``docs/effects.md``.
 
     Parameters: ``sensor_drift_linear`` and ``sensor_drift_quadratic`` [um], each
     -50-50; ``sensor_drift_settling`` :math:`D_w` [um] (-50-50);
-    ``sensor_drift_settling_tau`` :math:`\tau_w` [s] (0.5-500). Off: the three amplitudes 0.
+    ``sensor_drift_settling_tau`` :math:`\tau_w` [s] (0.5-500); ``sensor_drift_ambient_sine``
+    :math:`A_s` and ``sensor_drift_ambient_cosine`` :math:`A_c` [um] (-50-50);
+    ``sensor_drift_ambient_period`` :math:`P_a` [s] (30-500). Off: the five amplitudes 0.
     """
 
     name = "sensor_drift"
@@ -1500,21 +1538,34 @@ class SensorDrift(Effect):
             Parameter("sensor_drift_quadratic", 0.0, -50.0, 50.0, unit="um", description="quadratic drift over the record"),
             Parameter("sensor_drift_settling", 0.0, -50.0, 50.0, unit="um", description="offset a settling warm-up approaches"),
             Parameter("sensor_drift_settling_tau", 10.0, 0.5, 500.0, unit="s", description="time constant of the warm-up"),
+            Parameter("sensor_drift_ambient_sine", 0.0, -50.0, 50.0, unit="um",
+                      description="sine part of the drift that follows a periodic ambient"),
+            Parameter("sensor_drift_ambient_cosine", 0.0, -50.0, 50.0, unit="um",
+                      description="1 - cosine part of the drift that follows a periodic ambient"),
+            Parameter("sensor_drift_ambient_period", 120.0, 30.0, 500.0, unit="s", description="period of the ambient's cycle"),
         ]
     )
     off = {
         "sensor_drift_linear": 0.0, "sensor_drift_quadratic": 0.0,
         "sensor_drift_settling": 0.0, "sensor_drift_settling_tau": 10.0,
+        "sensor_drift_ambient_sine": 0.0, "sensor_drift_ambient_cosine": 0.0, "sensor_drift_ambient_period": 120.0,
     }  # fmt: skip
-    summary = "sensor drift: y = y_g + D1 s + D2 s^2 + Dw (1 - exp(-t/tau_w)), s = normalised record time"
+    summary = (
+        "sensor drift: y = y_g + D1 s + D2 s^2 + Dw (1 - exp(-t/tau_w)) + As sin(w t) + Ac (1 - cos(w t)), "
+        "s = normalised record time, w = 2 pi / P"
+    )
     signature = "is there while the coils are off too (the quiet start, a quiet end), whatever the drive does"
-    terms = {"settling": ("sensor_drift_settling", "sensor_drift_settling_tau")}
+    terms = {
+        "settling": ("sensor_drift_settling", "sensor_drift_settling_tau"),
+        "ambient": ("sensor_drift_ambient_sine", "sensor_drift_ambient_cosine", "sensor_drift_ambient_period"),
+    }
 
     @classmethod
     def get_test_parameters(cls):
         return {
             "sensor_drift_linear": 2.0, "sensor_drift_quadratic": 1.5,
             "sensor_drift_settling": 0.0, "sensor_drift_settling_tau": 10.0,
+            "sensor_drift_ambient_sine": 0.0, "sensor_drift_ambient_cosine": 0.0, "sensor_drift_ambient_period": 120.0,
         }  # fmt: skip
 
     def output(self, params, time, current, displacement):
@@ -1527,4 +1578,8 @@ class SensorDrift(Effect):
         settling = params[:, 2:3]
         if np.any(settling != 0.0):
             drift = drift + settling * -np.expm1(-(time - time[0]) / params[:, 3:4])
+        sine, cosine = params[:, 4:5], params[:, 5:6]
+        if np.any(sine != 0.0) or np.any(cosine != 0.0):
+            phase = (2.0 * np.pi / params[:, 6:7]) * (time - time[0])
+            drift = drift + sine * np.sin(phase) + cosine * (1.0 - np.cos(phase))
         return displacement + drift

@@ -409,7 +409,7 @@ def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail(monke
 
     def verdict(rms_after):
         best = SimpleNamespace(effect="thermal", delta_bic=362.0, adequate_after=True, explained=0.74, refitted=True,
-                               rms_after=rms_after)  # fmt: skip
+                               rms_after=rms_after, uncharged_terms=[])  # fmt: skip
         rnd = SimpleNamespace(fit=fit, refitted=[best], adequacy=adequacy, profile=None)
         return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds()), rnd, _tests_text(adequacy, Thresholds()))
 
@@ -438,7 +438,7 @@ def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
 
     def cand(effect, bic, adequate, explained, rms_after):
         return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, explained=explained,
-                               refitted=True, rms_after=rms_after, fit=None)  # fmt: skip
+                               refitted=True, rms_after=rms_after, fit=None, uncharged_terms=[])  # fmt: skip
 
     refitted = [cand("creep", 3785.0, True, 1.0, 1.01), cand("sensor_drift", 2693.0, False, 0.88, 1.06),
                 cand("lag", 1470.0, False, 0.66, 1.15)]  # fmt: skip
@@ -480,7 +480,7 @@ def test_pairs_that_beat_an_adequate_single_but_disagree_name_nothing(monkeypatc
 
     def cand(effect, bic, adequate=True, explained=0.96, rms_after=1.02):
         return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, explained=explained,
-                               refitted=True, rms_after=rms_after, fit=None)  # fmt: skip
+                               refitted=True, rms_after=rms_after, fit=None, uncharged_terms=[])  # fmt: skip
 
     refitted = [cand("thermal", 3103.0, explained=0.97), cand("creep", 3044.0, False), cand("sensor_drift", 2992.0, False),
                 cand("incomplete_reset", 1579.0, False)]  # fmt: skip
@@ -661,11 +661,53 @@ def test_embedding_across_threshold_signs_is_refused_and_the_pair_pool_keeps_the
     ]
     lag_short = (negative + "lag").default_theta()
     rnd = SimpleNamespace(fit=SimpleNamespace(model=negative), refitted=refitted, short={"lag": (950.0, lag_short)},
-                          chi2_0_small=1000.0, n_eff_small=4000.0)  # fmt: skip
+                          chi2_0_small=1000.0, n_eff_small=4000.0, replaced={})  # fmt: skip
     pool = diagnosis._pair_pool(rnd, Thresholds())
     assert [name for name, _, _ in pool] == ["creep", "lag"]
     name, model_e, theta_e = pool[1]
     assert model_e.parameters["alpha"].value < 0 and theta_e is lag_short  # the short refit, the baseline's sign
+
+    # its refit in the baseline's sign, replaced by the other sign's, enters instead, by its delta BIC
+    lag_same = negative + "lag"
+    lag_same_theta = lag_same.default_theta() + 0.0
+    lag_same_theta[lag_same.names.index("lag_tau")] = 0.02
+    rnd.replaced = {"lag": SimpleNamespace(effect="lag", delta_bic=600.0, fit=SimpleNamespace(model=lag_same, theta=lag_same_theta))}
+    pool = diagnosis._pair_pool(rnd, Thresholds())
+    assert [name for name, _, _ in pool] == ["lag", "creep"]
+    assert pool[0][1].parameters["alpha"].value < 0 and np.array_equal(pool[0][2], lag_same_theta)
+
+
+@pytest.mark.parametrize("fs", [100.0, 1000.0])
+@pytest.mark.parametrize("spec", ["lag_tau=0.0127", "lag_tau=0.005,lag_delay=0.02"])
+def test_the_working_copy_keeps_a_lagged_drives_reversals(spec, fs):
+    """A lagged or delayed drive reverses after the current, between the samples a plain
+    thinning keeps; the working copy keeps the full rate around each reversal, so the true
+    model there equals the whole record's (the direction-dependent term switches at the same
+    sample) where a plain thinning puts tens of units into the chi-square."""
+    from identify.bench import simulate
+    from identify.data.records import thinning_indices
+    from identify.data.reversals import find_reversals
+    from identify.diagnosis import diagnose as diagnosis_module
+    from identify.diagnosis.diagnose import _working_copy
+    from identify.fitting.noise import estimate_noise
+
+    sim = simulate(spec, seed=1, noise_sigma=0.5, fs=fs)
+    record = sim.record
+    truth = Model(**sim.truth["model"])
+    theta = np.array([sim.truth["theta"][name] for name in truth.names])
+    reversals = find_reversals(record.current).index
+    work = _working_copy(record, estimate_noise(record), reversals)
+    assert work.step > 1
+
+    def chi2(keep):
+        miss = np.ravel(truth(theta, record.time[keep], record.current[keep])) - sim.clean[keep]
+        return float(miss @ miss) / 0.5**2
+
+    kept = np.searchsorted(record.time, work.record.time)
+    assert np.array_equal(record.time[kept], work.record.time)
+    assert chi2(kept) < 1.0
+    assert chi2(thinning_indices(record.current, work.step, reversals)) > 30.0  # the test is not vacuous
+    assert len(work.record) < 1.5 * diagnosis_module.SCREENING_SAMPLES
 
 
 def test_a_rival_within_the_bic_threshold_blocks_a_name():
@@ -818,7 +860,10 @@ def test_pair_pool_takes_every_candidate_whose_gain_pays_for_its_parameters():
     short = {name: (chi2_for(bic, name), (base + name).default_theta()) for name, bic in gains.items()}
     rnd = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), chi2_0, n_eff, short=short)
     pool = _pair_pool(rnd, thresholds)
-    assert [p[0] for p in pool] == ["creep", "thermal", "training", "lag", "sensor_drift"]  # not incomplete_reset
+    # by the short refits' chi-square (sensor_drift's 2 pays for seven parameters, a lower
+    # chi-square than lag's 40 for two), and not incomplete_reset
+    assert [p[0] for p in pool] == ["creep", "thermal", "training", "sensor_drift", "lag"]
+    assert short["sensor_drift"][0] < short["lag"][0]
     assert all(p[1].names == (base + p[0]).names for p in pool)
 
 
@@ -854,7 +899,7 @@ def test_shape_values_keep_a_members_shape_and_switch_its_gains_off(name):
     shapes = {n for n, v in values.items() if v != effect.off[n]}
     assert all(values[n] == fitted[model_e.names.index(n)] for n in shapes)
     expected = {"training": {"training_travel", "training_shape"}, "thermal": {"thermal_tau", "thermal_tau_core"},
-                "sensor_drift": {"sensor_drift_settling_tau"}, "lag": set()}  # fmt: skip
+                "sensor_drift": {"sensor_drift_settling_tau", "sensor_drift_ambient_period"}, "lag": set()}  # fmt: skip
     if name in expected:
         assert shapes == expected[name]
 
@@ -1104,7 +1149,7 @@ def test_a_pair_overrules_an_adequate_single_only_by_more_than_bic_significant(m
 
     def candidate(effect, delta_bic, adequate):
         return SimpleNamespace(effect=effect, explained=0.96, delta_bic=delta_bic, adequate_after=adequate,
-                               rms_after=0.735, refitted=True)  # fmt: skip
+                               rms_after=0.735, refitted=True, uncharged_terms=[])  # fmt: skip
 
     training, thermal = candidate("training", 695.0, True), candidate("thermal", 692.0, True)
     reset = candidate("incomplete_reset", 300.0, False)
@@ -1220,3 +1265,15 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
     ranked, asked = run({"training": 40000.0, "incomplete_reset": 44525.0})
     assert asked == [["training"]]
     assert [c.effect for c in ranked] == ["training", "incomplete_reset", "thermal", "creep"]
+
+
+def test_the_candidates_text_says_which_unused_terms_went_uncharged():
+    from identify.diagnosis.diagnose import CandidateResult, _candidates_text
+
+    def candidate(name, terms):
+        return CandidateResult(name, None, True, 0.78, 1.0, 1721.4, 7000.0, 0.99, True, uncharged_terms=terms)
+
+    text = _candidates_text([candidate("thermal", ["thermal.core"]), candidate("training", [])], [])
+    assert "'thermal' explains 99 % (delta BIC 1721 with its unused thermal.core uncharged, RMS after 0.78, adequate)" in text
+    assert "'training' explains 99 % (delta BIC 1721, RMS after 0.78, adequate)" in text
+    assert candidate("creep", ["creep.logarithmic"]).details()["uncharged_terms"] == ["creep.logarithmic"]

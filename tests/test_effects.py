@@ -586,6 +586,22 @@ def signature_settling_drift(paper_input, plain_gpi):
     np.testing.assert_allclose(change, 0.5 * time / 70.0 + 3.0 * -np.expm1(-time / 8.0), rtol=1e-9, atol=1e-12)
 
 
+def signature_ambient_drift(paper_input, plain_gpi):
+    """The ambient term follows a periodic room temperature: As sin(w t) + Ac (1 - cos(w t)),
+    0 at the first sample, present in the quiet start, and periodic."""
+    time, current = paper_input
+    m = Model(["sensor_drift"])
+    values = {"sensor_drift_ambient_sine": 1.5, "sensor_drift_ambient_cosine": -2.0, "sensor_drift_ambient_period": 64.0}
+    change = m(_theta(m, values), time, current) - plain_gpi
+    phase = 2.0 * np.pi * (time - time[0]) / 64.0
+    np.testing.assert_allclose(change, 1.5 * np.sin(phase) - 2.0 * (1.0 - np.cos(phase)), rtol=1e-9, atol=1e-12)
+    assert change[0] == 0.0
+    quiet = current == 0.0
+    assert np.max(np.abs(change[quiet])) > 0.5  # the room does not wait for the drive
+    one_period = np.searchsorted(time, time[0] + 64.0)
+    assert abs(change[one_period]) < 0.05  # back to the start after one period
+
+
 SIGNATURES = {
     "lag": signature_lag,
     "training": signature_training,
@@ -603,6 +619,7 @@ GENERAL_FORMS = {
     "thermal two nodes": signature_thermal_two_nodes,
     "logarithmic creep": signature_log_creep,
     "settling drift": signature_settling_drift,
+    "ambient drift": signature_ambient_drift,
 }
 
 

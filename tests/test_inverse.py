@@ -180,14 +180,15 @@ GENERAL_FORMS = {
     "thermal": {"thermal_tau": 8.0, "thermal_sensitivity": 0.02, "thermal_expansion": 1.5, "thermal_tau_core": 120.0,
                 "thermal_sensitivity_core": 0.03, "thermal_expansion_core": -2.0},
     "sensor_drift": {"sensor_drift_linear": 1.0, "sensor_drift_quadratic": -0.5, "sensor_drift_settling": 2.0,
-                     "sensor_drift_settling_tau": 12.0},
+                     "sensor_drift_settling_tau": 12.0, "sensor_drift_ambient_sine": 0.8,
+                     "sensor_drift_ambient_cosine": -0.6, "sensor_drift_ambient_period": 64.0},
 }  # fmt: skip
 
 
 @pytest.mark.parametrize("effects", [["training"], ["creep"], ["thermal"], ["sensor_drift"], ["training", "creep", "thermal", "sensor_drift"]])
 def test_the_general_forms_are_inverted_exactly(effects):
     """Each supported effect with every term of its general form on (training's strain part,
-    creep's logarithmic part, thermal's second node, the settling drift): the model on the
+    creep's logarithmic part, thermal's second node, the settling and ambient drift): the model on the
     inverse's drive gives the target back to rounding, and the kernel's own output is the
     Model's (an inverse that left a term out would report 'exact' for a drive that misses)."""
     model = Model(effects)

@@ -256,6 +256,23 @@ def test_keep_every_keeps_the_reversals_so_the_gpi_output_is_unchanged():
             keep_every(record, bad)
 
 
+def test_thinning_keeps_the_samples_around_each_reversal_when_asked():
+    from identify.data.records import thinning_indices
+
+    current = np.sin(np.linspace(0.0, 6.0 * np.pi, 601))
+    reversals = np.array([0, 50, 150, 250, 350, 450, 550, 600])
+    plain = thinning_indices(current, 10, reversals)
+    wide = thinning_indices(current, 10, reversals, around=3)
+    assert set(plain.tolist()) < set(wide.tolist())
+    for r in reversals:
+        near = [k for k in range(r - 3, r + 4) if 0 <= k < len(current)]
+        assert set(near) <= set(wide.tolist())
+    assert wide.min() == 0 and wide.max() == len(current) - 1  # clipped to the record
+    assert not {47, 53} & set(plain.tolist()) and {47, 53} <= set(wide.tolist())
+    with pytest.raises(ValueError, match="around must be >= 0"):
+        thinning_indices(current, 10, reversals, around=-1)
+
+
 def test_every_option_thins_the_record_and_rejects_bad_values(tmp_path, capsys):
     from identify.bench import simulate
     from identify.cli import main

@@ -87,7 +87,7 @@ def test_one_pole_heating_pins_the_second_node_off_and_two_nodes_keep_it():
 
 def test_a_model_without_optional_terms_is_returned_as_it_is():
     record = simulate(None, fs=10.0, seed=1).record
-    fit = fit_least_squares(record, normalised_model(Model(["training"])), noise=estimate_noise(record), n_starts=1)
+    fit = fit_least_squares(record, normalised_model(Model(["incomplete_reset"])), noise=estimate_noise(record), n_starts=1)
     assert select_terms(record, fit) is fit
 
 
@@ -142,3 +142,87 @@ def test_a_first_order_lag_pins_the_dead_time_off_and_a_dead_time_is_kept():
     assert decisions["first order"]["delta_chi2"] <= decisions["first order"]["penalty"]
     assert not decisions["dead time"]["pinned"]
     assert decisions["dead time"]["delta_chi2"] > 3 * decisions["dead time"]["penalty"]
+
+
+# -- best_form: the BIC's charge for the terms a record uses (the diagnosis' candidates) --------
+def _at_truth(effects, seed=4, fs=20.0):
+    """``(record, fit-like)``: the model with ``effects`` (every term free) at the true
+    parameters of a simulated record; the Wald statistic needs the Jacobian there, not a search."""
+    from types import SimpleNamespace
+
+    sim = simulate(effects, fs=fs, seed=seed)
+    record = sim.record
+    model = normalised_model(Model(list(effects)))
+    theta = model.theta_from_dict({n: v for n, v in sim.truth["theta"].items() if n in model.names})
+    residual = record.displacement - model(theta, record.time, record.current)
+    return record, SimpleNamespace(model=model, theta=theta, noise=estimate_noise(record), residual=residual)
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
+def test_every_term_reduction_switches_its_term_off(name):
+    cls = EFFECTS[name]
+    for term, names in cls.terms.items():
+        reductions = cls.term_reductions(term)
+        assert reductions[0] == {n: cls.off[n] for n in names}
+        for reduction in reductions:
+            assert set(reduction) <= set(cls.parameters.names)
+            assert all(cls.parameters[n].lower <= v <= cls.parameters[n].upper for n, v in reduction.items())
+
+
+def test_a_linear_drift_is_not_charged_for_the_settling_and_ambient_terms():
+    from identify.fitting.terms import best_form
+
+    record, fit = _at_truth({"sensor_drift": {"sensor_drift_linear": 3.0}})
+    form = best_form(record, fit, ["sensor_drift"], n_samples=record.time.size)
+    assert sorted(form["terms"]) == [("sensor_drift", "ambient"), ("sensor_drift", "settling")]
+    assert form["parameters"] == 5
+    assert 0.0 <= form["delta_chi2"] < 5 * np.log(record.time.size)
+
+
+def test_a_term_the_record_uses_is_charged():
+    from identify.fitting.terms import best_form
+
+    values = {"sensor_drift_linear": 1.0, "sensor_drift_ambient_sine": 2.0, "sensor_drift_ambient_cosine": -1.5,
+              "sensor_drift_ambient_period": 64.0}  # fmt: skip
+    record, fit = _at_truth({"sensor_drift": values})
+    form = best_form(record, fit, ["sensor_drift"], n_samples=record.time.size)
+    assert form["terms"] == [("sensor_drift", "settling")]  # the ambient cycle pays for itself
+    # and the effects not named are not weighed
+    assert best_form(record, fit, ["thermal"], n_samples=record.time.size)["terms"] == []
+
+
+def test_a_one_pole_heating_on_node_two_is_the_one_node_form(monkeypatch):
+    """Node 2 carrying a one-pole heating behind node 1 at its fastest, without gains: the
+    second labelling of the one-node form (:meth:`model.Effect.term_reductions`), not charged
+    for the core node; the first labelling alone would charge it."""
+    from identify.fitting.terms import best_form
+
+    one_pole_on_node_two = {"thermal": {"thermal_tau": 1.0, "thermal_sensitivity": 0.0, "thermal_expansion": 0.0,
+                                        "thermal_tau_core": 25.0, "thermal_sensitivity_core": 0.08,
+                                        "thermal_expansion_core": 2.0}}  # fmt: skip
+    record, fit = _at_truth(one_pole_on_node_two)
+    form = best_form(record, fit, ["thermal"], n_samples=record.time.size)
+    assert form["terms"] == [("thermal", "core")] and form["parameters"] == 3
+    assert form["delta_chi2"] < 3 * np.log(record.time.size)
+    first_only = EFFECTS["thermal"].term_reductions("core")[:1]
+    monkeypatch.setattr(EFFECTS["thermal"], "term_reductions", classmethod(lambda cls, term: first_only))
+    assert best_form(record, fit, ["thermal"], n_samples=record.time.size)["terms"] == []
+    monkeypatch.undo()
+    # with node 1's fast gains in use, the core node is not the spare one
+    used = {"thermal": {**one_pole_on_node_two["thermal"], "thermal_expansion": 4.0}}
+    record, fit = _at_truth(used)
+    assert best_form(record, fit, ["thermal"], n_samples=record.time.size)["terms"] == []
+
+
+def test_a_term_at_a_kink_is_weighed_by_switching_it_off():
+    """A gain that decays with the cycles, fitted with a soft threshold of 1e-4 A (the threshold's
+    kink: a central difference of a few 1e-9 A there is no slope of the fit): the threshold,
+    the drive deficit, the width and the fade's shape go uncharged, the strain gain is kept."""
+    from identify.fitting.terms import best_form
+
+    gain_decay = {"training": {"training_deficit": 0.0, "training_threshold": 1e-4, "training_travel": 16.8,
+                               "training_shape": 1.0, "training_gain": 0.05, "training_width": 0.0}}  # fmt: skip
+    record, fit = _at_truth(gain_decay)
+    form = best_form(record, fit, ["training"], n_samples=record.time.size)
+    assert sorted(term for _, term in form["terms"]) == ["drive", "shape", "threshold", "width"]
+    assert form["parameters"] == 4

@@ -709,8 +709,9 @@ def write_record(path, record_or_arrays, sidecar: dict | None = None) -> None:
         side.unlink()
 
 
-def thinning_indices(current, every: int, reversals=None) -> np.ndarray:
-    """Sorted sample indices kept by thinning: ``0, every, 2 every, ...``, every input reversal and the last sample.
+def thinning_indices(current, every: int, reversals=None, around: int = 0) -> np.ndarray:
+    """Sorted sample indices kept by thinning: ``0, every, 2 every, ...``, every input reversal
+    (with the ``around`` samples on each side of it) and the last sample.
 
     Parameters
     ----------
@@ -721,6 +722,10 @@ def thinning_indices(current, every: int, reversals=None) -> np.ndarray:
     reversals : array_like of int, optional
         Indices of the input reversals when already known; default
         :func:`identify.data.reversals.find_reversals` ``(current).index``.
+    around : int, default 0
+        Samples kept at the full rate on each side of every reversal (>= 0): a drive that
+        lags the current (a lag, a dead time) reverses after it, and its peak is then
+        computed from the same samples as on the whole record.
 
     Returns
     -------
@@ -729,7 +734,11 @@ def thinning_indices(current, every: int, reversals=None) -> np.ndarray:
     n = len(current)
     if reversals is None:
         reversals = find_reversals(current).index
-    keep = np.union1d(np.arange(0, n, int(every)), np.asarray(reversals, dtype=int))
+    reversals = np.asarray(reversals, dtype=int)
+    if around < 0:
+        raise ValueError(f"around must be >= 0 samples, got {around!r}")
+    near = (reversals[:, None] + np.arange(-int(around), int(around) + 1)[None, :]).ravel()
+    keep = np.union1d(np.arange(0, n, int(every)), near[(near >= 0) & (near < n)])
     return np.union1d(keep, [n - 1])
 
 

@@ -67,7 +67,8 @@ Method
    Each refitted candidate is compared with the baseline by
 
    * :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / \chi^2_1) - k \ln n_\mathrm{eff}`
-     with :math:`k` the effect's free parameters and
+     with :math:`k` the effect's free parameters in its best form (the optional terms the
+     record does not pay for are not charged, :func:`_delta_bic`) and
      :math:`n_\mathrm{eff} = n (1-\rho)/(1+\rho)`, :math:`\rho` the lag-1
      autocorrelation of the candidate model's whitened residual (a residual that is
      still correlated carries less information than its sample count says; with the
@@ -144,7 +145,7 @@ Why these choices: the verdict rests on refits (what adding the effect really do
 not on the linearisation, because the GPI re-adjusts nonlinearly to a new effect; on
 physics' signatures rather than formulas, because every effect is fitted in its general
 form (creep as a spectrum of relaxation times plus logarithmic creep, drift as a
-polynomial plus a settling warm-up, heating through a two-node network, a lag plus a
+polynomial plus a settling warm-up and the room's cycle, heating through a two-node network, a lag plus a
 dead time, a first-cycle strain retained or fading), so a differently shaped law of the
 same physics is absorbed (tested in ``tests/test_diagnose_slow.py`` and on the
 independent bench, ``benchmarks/independent_diagnosis.py``); and on an information criterion with an
@@ -172,6 +173,7 @@ from ..data.reversals import find_reversals
 from ..fitting.lsq import FitResult, WhitenedResiduals, bounded_solve, candidate_starts, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
 from ..fitting.parametrisation import normalised_model, with_threshold_sign
+from ..fitting.terms import best_form
 from ..fitting.threads import single_threaded_blas
 from .residuals import ARNoise, ResidualProfile, autocorrelation, fit_ar_noise, residual_profile
 
@@ -991,6 +993,9 @@ class CandidateResult:
     note : str
         Why the candidate was not screened or refitted (e.g. an exact reparametrisation
         of the model: :func:`exact_reparametrisation`); empty otherwise.
+    uncharged_terms : list of str
+        The optional terms (``"effect.term"``) of the added effects that the record does not
+        pay for, so ``delta_bic`` does not charge their parameters (:func:`_delta_bic`).
     """
 
     effect: str
@@ -1008,6 +1013,7 @@ class CandidateResult:
     fit: FitResult | None = None
     profile: ResidualProfile | None = None
     note: str = ""
+    uncharged_terms: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         """The ranking entry: flat numbers (a table row) plus the fitted ``parameters`` (and a ``note`` when set)."""
@@ -1029,6 +1035,7 @@ class CandidateResult:
             "z_after": {k: float(v) for k, v in self.z_after.items()},
             "parameter_stderr": {k: (None if not np.isfinite(v) else float(v)) for k, v in self.parameter_stderr.items()},
             "screening": None if self.screening is None else self.screening.to_dict(),
+            "uncharged_terms": list(self.uncharged_terms),
         }
 
 
@@ -1307,9 +1314,28 @@ def _threshold_sign_variants(model: Model):
     return [(with_threshold_sign(model, -1), "negative"), (with_threshold_sign(model, 1), "positive")]
 
 
+#: Time [s] on each side of every input reversal that the working copy keeps at the full
+#: rate. The GPI is rate independent, so keeping the reversals makes a decimated record
+#: exact for it; a drive that lags the current (``lag``: a time constant, a dead time)
+#: reverses later, between the kept samples, where its flat peak is computed from fewer
+#: samples than on the whole record, and the direction-dependent term (eq. 13) switches at
+#: another sample: an error of the jump between its branches (about 3 um with Table 1).
+#: Measured with the true model on the paper's input (12 reversals, every 2nd sample at
+#: 100 Hz, every 18th at 1 kHz): a lag of 12.7 ms put 177 (100 Hz) and 207 (1 kHz) into the
+#: chi-square of the working copy; with 50 ms kept on each side of every reversal, 0 and
+#: 0, and a lag of 5 ms plus a dead time of 20 ms 0 (72 and 185 without). A drive delayed by
+#: more than the window still switches within a decimated step. Lags of tens of
+#: milliseconds are the eddy-current and amplifier time constants of such rigs. At most
+#: half of :data:`SCREENING_SAMPLES` are spent on the windows (narrower when the input
+#: reverses often).
+REVERSAL_WINDOW = 0.05
+
+
 def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
-    """``record`` decimated to about :data:`SCREENING_SAMPLES` samples, reversals kept;
-    the noise model's lag-1 correlation becomes ``rho ** step``."""
+    """``record`` decimated to about :data:`SCREENING_SAMPLES` samples, reversals kept with
+    :data:`REVERSAL_WINDOW` on each side at the full rate; the noise model's lag-1
+    correlation becomes ``rho ** step`` (the samples kept at the full rate are whitened with
+    it too: for AR(1) noise they are under-whitened, a small share of the copy)."""
     from dataclasses import replace as _replace
 
     from ..data.records import Record, thinning_indices
@@ -1318,7 +1344,9 @@ def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
     step = max(1, int(math.ceil(n / SCREENING_SAMPLES)))
     if step == 1:
         return _Working(record, noise, 1)
-    keep = thinning_indices(record.current, step, reversal_index)
+    around = int(round(REVERSAL_WINDOW / float(np.median(np.diff(record.time)))))
+    around = min(around, SCREENING_SAMPLES // (4 * max(1, len(reversal_index))))
+    keep = thinning_indices(record.current, step, reversal_index, around=around)
     small = Record(
         record.time[keep], record.current[keep], record.displacement[keep],
         source=f"{record.source} (every {step}th sample, for screening)", sha256="",
@@ -1425,8 +1453,7 @@ def _evaluate_candidate(
         record, base_fit, base_chi2, model_e, start, residuals.free, rng, members
     )
     n_eff = _n_eff(w)
-    k = int(fit_e.vary.sum() - base_fit.vary.sum())
-    delta_bic = n_eff * math.log(base_chi2 / chi2_e) - k * math.log(n_eff) if chi2_e > 0 else math.inf
+    delta_bic, uncharged = _delta_bic(record, base_fit, base_chi2, fit_e, chi2_e, n_eff)
     profile_e = _profile(record, fit_e, quiet, noise_ref)
     adequacy_e = assess_adequacy(profile_e, thresholds, excess_kind=base_adequacy.excess_kind)
     explained = _explained(base_adequacy.excess, adequacy_e.excess)
@@ -1435,8 +1462,30 @@ def _evaluate_candidate(
     stderr = {n: float(fit_e.stderr[model_e.names.index(n)]) for n in new_names}
     return CandidateResult(
         name, screening, True, fit_e.rms, fit_e.max_error_pct, float(delta_bic), float(n_eff), explained,
-        adequacy_e.adequate, adequacy_e.z, params, stderr, fit_e, profile_e,
+        adequacy_e.adequate, adequacy_e.z, params, stderr, fit_e, profile_e, uncharged_terms=uncharged,
     )  # fmt: skip
+
+
+def _delta_bic(record, base_fit: FitResult, base_chi2: float, fit_e: FitResult, chi2_e: float, n_eff: float):
+    """``(delta BIC, uncharged terms)`` of a refitted candidate against the baseline, in the
+    candidate's best form: the optional terms of the effects it adds that the record does not
+    pay for are not charged (:func:`identify.fitting.terms.best_form`: each switched off
+    exactly and the rest of the model re-optimised to first order, no refit).
+
+    :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / (\chi^2_1 + W)) - (k - k_S) \ln n_\mathrm{eff}`
+    with :math:`k` the parameters the candidate frees, :math:`k_S` those of its unused terms
+    and :math:`W` the rise of pinning them off. A general form nests simpler ones, and a
+    record of the simpler physics must not make its own effect pay for terms it does not
+    use: a linear drift is ``sensor_drift`` with its settling and ambient terms off, and,
+    charged for those five parameters, it tied with creep (136 against 144, independent
+    bench seed 14, ``effects_009``)."""
+    k = int(fit_e.vary.sum() - base_fit.vary.sum())
+    if not chi2_e > 0:
+        return math.inf, []
+    new = [e.name for e in fit_e.model.effects if e.name not in base_fit.model.effect_names]
+    form = best_form(record, fit_e, new, n_eff) if new else {"terms": [], "parameters": 0, "delta_chi2": 0.0}
+    delta_bic = n_eff * math.log(base_chi2 / (chi2_e + form["delta_chi2"])) - (k - form["parameters"]) * math.log(n_eff)
+    return float(delta_bic), [f"{effect}.{term}" for effect, term in form["terms"]]
 
 
 def _evaluate_in_round(s: _Setting, rnd: _Round, name: str, model_e: Model, start, screening,
@@ -1578,7 +1627,10 @@ class _Round:
     chi-square drop; ``short``: ``{effect: (chi2, theta)}`` of the short refits; ``failed``:
     ``{effect: CandidateResult}`` of the candidates whose screening or refit failed;
     ``refitted``: the candidates refitted on the whole record by falling delta BIC;
-    ``reparametrised``: the baseline starts found through the exact reparametrisations.
+    ``reparametrised``: the baseline starts found through the exact reparametrisations;
+    ``replaced``: ``{effect: CandidateResult}`` of the refits in the baseline's threshold sign
+    that a refit with the other sign replaced in ``refitted`` (:func:`_retry_other_sign`):
+    the pairs of the baseline's sign start from them (:func:`_pair_pool`).
     """
 
     fit: FitResult
@@ -1594,6 +1646,7 @@ class _Round:
     refitted: list = field(default_factory=list)
     reparametrised: list = field(default_factory=list)
     carried: dict = field(default_factory=dict)
+    replaced: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -1861,7 +1914,8 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
     on a 1 kHz record of a retained first-cycle strain the plain GPI chose alpha > 0;
     training, the best there, gained 7,165 in chi-square with alpha < 0 and still left
     structure, while the true first-cycle effect, second in the baseline's sign at 1.13
-    sigma, fits to 1.006 sigma with alpha < 0.
+    sigma, fits to 1.006 sigma with alpha < 0. The refits of the baseline's sign that the
+    other sign replaces are kept in ``rnd.replaced`` for the pairs (:func:`_pair_pool`).
     """
     best = rnd.refitted[0]
     retried = {c.effect: c for c in _other_sign_refits(s, rnd, [best.effect])}
@@ -1869,10 +1923,9 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
     if anchor is not None and anchor.delta_bic > best.delta_bic:
         others = [c.effect for c in rnd.refitted[1 : s.thresholds.max_refits] if not c.adequate_after]
         retried.update({c.effect: c for c in _other_sign_refits_from(s, rnd, others, anchor)})
-    refitted = [
-        retried[c.effect] if c.effect in retried and retried[c.effect].delta_bic > c.delta_bic else c
-        for c in rnd.refitted
-    ]
+    better = {c.effect for c in rnd.refitted if c.effect in retried and retried[c.effect].delta_bic > c.delta_bic}
+    rnd.replaced.update({c.effect: c for c in rnd.refitted if c.effect in better and c.fit is not None})
+    refitted = [retried[c.effect] if c.effect in better else c for c in rnd.refitted]
     refitted.sort(key=lambda c: -c.delta_bic)
     return refitted
 
@@ -2689,9 +2742,10 @@ def _tests_text(adequacy: Adequacy, thresholds: Thresholds) -> str:
 def _candidates_text(refitted, pairs) -> str:
     parts = []
     for c in list(refitted)[:3] + list(pairs):
+        uncharged = f" with its unused {', '.join(c.uncharged_terms)} uncharged" if c.uncharged_terms else ""
         parts.append(
-            f"'{c.effect}' explains {100 * c.explained:.0f} % (delta BIC {c.delta_bic:.0f}, RMS after {c.rms_after:.4g}"
-            + (", structure left)" if not c.adequate_after else ", adequate)")
+            f"'{c.effect}' explains {100 * c.explained:.0f} % (delta BIC {c.delta_bic:.0f}{uncharged}, RMS after "
+            f"{c.rms_after:.4g}" + (", structure left)" if not c.adequate_after else ", adequate)")
         )
     return "; ".join(parts) if parts else "none refitted"
 
@@ -2713,17 +2767,20 @@ PAIR_POOL = None
 
 def _pair_pool(rnd: _Round, thresholds) -> list:
     """The candidates among which pairs are tried (at most :data:`PAIR_POOL`), as
-    ``(name, model_e, theta_e)``: the refitted ones by delta BIC (the baseline's threshold
-    sign only), then the short refits by chi-square; each whose gain alone pays for its
+    ``(name, model_e, theta_e)``: the refitted ones by delta BIC (in the baseline's threshold
+    sign: a candidate the other sign fitted better enters by its refit in the baseline's sign
+    that it replaced), then the short refits by chi-square; each whose gain alone pays for its
     parameters (delta BIC > 0 on the whole record, or on the working copy for a short
     refit), significant or not. Which member a winning pair names is decided by the
     members' gains alone (:func:`_pair_verdict`)."""
     fit, pool, seen = rnd.fit, [], set()
-    for c in rnd.refitted:
-        # one refitted with the other threshold sign (_retry_other_sign) is not nested in the
-        # pairs of the baseline's sign: its short refit (the baseline's sign) enters below
-        nested = c.fit is not None and _same_threshold_sign(c.fit.model, fit.model)
-        if c.delta_bic > 0.0 and nested and c.effect not in seen:
+    # one refitted with the other threshold sign (_retry_other_sign) is not nested in the pairs
+    # of the baseline's sign: the refit in the baseline's sign that it replaced enters instead
+    # (rnd.replaced), else its short refit (below)
+    nested = [c if c.fit is not None and _same_threshold_sign(c.fit.model, fit.model) else rnd.replaced.get(c.effect)
+              for c in rnd.refitted]  # fmt: skip
+    for c in sorted([c for c in nested if c is not None], key=lambda c: -c.delta_bic):
+        if c.delta_bic > 0.0 and c.effect not in seen:
             model_e = fit.model + c.effect
             pool.append((c.effect, model_e, _embed(c.fit.model, c.fit.theta, model_e)))
             seen.add(c.effect)
