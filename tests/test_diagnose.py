@@ -1239,7 +1239,7 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
     from identify.diagnosis import diagnose as diagnosis
 
     def candidate(effect, delta_bic, adequate=False):
-        return SimpleNamespace(effect=effect, delta_bic=delta_bic, adequate_after=adequate)
+        return SimpleNamespace(effect=effect, delta_bic=delta_bic, adequate_after=adequate, fit=SimpleNamespace())
 
     def run(other_sign_bic):
         asked = []
@@ -1254,17 +1254,21 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
         refitted = [candidate("training", 42653.0), candidate("incomplete_reset", 30175.0),
                     candidate("thermal", 15028.0), candidate("creep", 13294.0)]  # fmt: skip
         s = SimpleNamespace(thresholds=Thresholds())
-        return diagnosis._retry_other_sign(s, SimpleNamespace(refitted=refitted)), asked
+        rnd = SimpleNamespace(refitted=refitted, replaced={})
+        return diagnosis._retry_other_sign(s, rnd), asked, rnd.replaced
 
     better = {"training": 43000.0, "incomplete_reset": 44525.0, "thermal": 14000.0}
-    ranked, asked = run(better)
+    ranked, asked, replaced = run(better)
     assert asked == [["training"], ["incomplete_reset", "thermal"]]  # max_refits = 3 in all
     assert [c.effect for c in ranked] == ["incomplete_reset", "training", "thermal", "creep"]
     assert ranked[0].adequate_after and ranked[0].delta_bic == 44525.0
     assert ranked[2].delta_bic == 15028.0  # the baseline's sign kept where it fits better
-    ranked, asked = run({"training": 40000.0, "incomplete_reset": 44525.0})
+    # the refits of the baseline's sign that the other sign replaced are kept for the pairs
+    assert {n: c.delta_bic for n, c in replaced.items()} == {"training": 42653.0, "incomplete_reset": 30175.0}
+    ranked, asked, replaced = run({"training": 40000.0, "incomplete_reset": 44525.0})
     assert asked == [["training"]]
     assert [c.effect for c in ranked] == ["training", "incomplete_reset", "thermal", "creep"]
+    assert replaced == {}
 
 
 def test_the_candidates_text_says_which_unused_terms_went_uncharged():
