@@ -1254,8 +1254,8 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
         refitted = [candidate("training", 42653.0), candidate("incomplete_reset", 30175.0),
                     candidate("thermal", 15028.0), candidate("creep", 13294.0)]  # fmt: skip
         s = SimpleNamespace(thresholds=Thresholds())
-        rnd = SimpleNamespace(refitted=refitted, replaced={})
-        return diagnosis._retry_other_sign(s, rnd), asked, rnd.replaced
+        ranked, replaced = diagnosis._retry_other_sign(s, SimpleNamespace(refitted=refitted))
+        return ranked, asked, replaced
 
     better = {"training": 43000.0, "incomplete_reset": 44525.0, "thermal": 14000.0}
     ranked, asked, replaced = run(better)

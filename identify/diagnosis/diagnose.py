@@ -1898,9 +1898,11 @@ def _other_sign_refits_from(s: _Setting, rnd: _Round, names, anchor: CandidateRe
     return results
 
 
-def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
+def _retry_other_sign(s: _Setting, rnd: _Round) -> tuple[list, dict]:
     """Step 4 (the best candidate leaves structure): it is refitted from scratch with the other
-    threshold sign too; the refitted list with the better of the two, by falling delta BIC.
+    threshold sign too: ``(refitted, replaced)``, the refitted list with the better of the two
+    by falling delta BIC, and ``{effect: CandidateResult}`` of the refits in the baseline's
+    sign that the other sign replaced there.
 
     The refits started in the baseline's basin; a misspecified plain GPI can settle on the
     other sign of the thresholds, a different model (e.g. a first-cycle transient of 3 sigma
@@ -1915,7 +1917,7 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
     training, the best there, gained 7,165 in chi-square with alpha < 0 and still left
     structure, while the true first-cycle effect, second in the baseline's sign at 1.13
     sigma, fits to 1.006 sigma with alpha < 0. The refits of the baseline's sign that the
-    other sign replaces are kept in ``rnd.replaced`` for the pairs (:func:`_pair_pool`).
+    other sign replaces are kept for the pairs (``rnd.replaced``, :func:`_pair_pool`).
     """
     best = rnd.refitted[0]
     retried = {c.effect: c for c in _other_sign_refits(s, rnd, [best.effect])}
@@ -1924,10 +1926,10 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> list:
         others = [c.effect for c in rnd.refitted[1 : s.thresholds.max_refits] if not c.adequate_after]
         retried.update({c.effect: c for c in _other_sign_refits_from(s, rnd, others, anchor)})
     better = {c.effect for c in rnd.refitted if c.effect in retried and retried[c.effect].delta_bic > c.delta_bic}
-    rnd.replaced.update({c.effect: c for c in rnd.refitted if c.effect in better and c.fit is not None})
+    replaced = {c.effect: c for c in rnd.refitted if c.effect in better and c.fit is not None}
     refitted = [retried[c.effect] if c.effect in better else c for c in rnd.refitted]
     refitted.sort(key=lambda c: -c.delta_bic)
-    return refitted
+    return refitted, replaced
 
 
 def _reparametrisation_paths(s: _Setting, rnd: _Round) -> list:
@@ -2005,7 +2007,8 @@ def _diagnosis_rounds(s: _Setting, fit: FitResult) -> _Round:
             rnd.short = _short_refits(s, rnd)
         rnd.refitted = _refit_best(s, rnd)
         if not rnd.adequacy.adequate and rnd.refitted and not rnd.refitted[0].adequate_after:
-            rnd.refitted = _retry_other_sign(s, rnd)
+            rnd.refitted, replaced = _retry_other_sign(s, rnd)
+            rnd.replaced.update(replaced)
         if not rnd.adequacy.adequate:
             rnd.reparametrised = _reparametrisation_paths(s, rnd)
         if not (rnd.refitted or rnd.reparametrised) or attempt == MAX_BASELINE_CHALLENGES:
