@@ -753,7 +753,7 @@ def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monke
 
     def evaluate(record, fit, chi2_0, adequacy, name, *rest):
         refitted.append(name)
-        return SimpleNamespace(effect=name, delta_bic=full[name])
+        return SimpleNamespace(effect=name, delta_bic=full[name], fit=None)
 
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
     s = SimpleNamespace(work=None, thresholds=Thresholds(), say=lambda m: None, record=None, quiet=None,
@@ -767,6 +767,13 @@ def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monke
     assert [p.effect for p in tried] == ["creep+sensor_drift", "creep+training", "creep+incomplete_reset",
                                          "sensor_drift+training"]  # fmt: skip
     assert ambiguous == ["creep+sensor_drift", "creep+training"] and common == {"creep"}
+    # the refitted pairs are ranked on one GPI basin too, like the single candidates
+    shared = []
+    real = diagnosis._shared_basin_refits
+    monkeypatch.setattr(diagnosis, "_shared_basin_refits",
+                        lambda s, rnd, candidates: shared.append([c.effect for c in candidates]) or real(s, rnd, candidates))  # fmt: skip
+    diagnosis._try_pairs(s, rnd)
+    assert shared == [["creep+incomplete_reset", "creep+sensor_drift", "creep+training", "sensor_drift+training"]]
     tried, _, _ = diagnosis._try_pairs(SimpleNamespace(**{**vars(s), "thresholds": Thresholds(max_refits=1, bic_significant=1.0)}), rnd)
     assert [p.effect for p in tried] == ["creep+incomplete_reset"]
 
@@ -809,7 +816,7 @@ def test_a_pair_beside_an_adequate_single_of_the_other_threshold_sign_starts_fro
 
     def evaluate(record, fit, chi2_0, adequacy, name, model_e, start, *rest):
         evaluated.append((model_e, start))
-        return SimpleNamespace(effect=name, delta_bic=100.0)
+        return SimpleNamespace(effect=name, delta_bic=100.0, fit=None)
 
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
     s = SimpleNamespace(work=SimpleNamespace(record=None, noise=None), thresholds=Thresholds(), say=lambda m: None,
@@ -1332,7 +1339,7 @@ def test_a_candidate_stuck_in_a_worse_gpi_basin_is_refitted_from_the_best_candid
     monkeypatch.setattr(diagnosis, "_evaluate_in_round",
                         lambda s, rnd, name, *a, **k: calls.append(name) or real(s, rnd, name, *a, **k))  # fmt: skip
     rnd.refitted = [donor, settled, worse]
-    refitted = diagnosis._shared_basin_refits(s, rnd)
+    refitted = diagnosis._shared_basin_refits(s, rnd, rnd.refitted)
     assert calls == ["thermal"]  # only the stuck candidate is refitted on the whole record
     by_name = {c.effect: c for c in refitted}
     assert by_name["training"] is donor and by_name["creep"] is settled
@@ -1346,5 +1353,5 @@ def test_a_candidate_stuck_in_a_worse_gpi_basin_is_refitted_from_the_best_candid
 
     calls.clear()
     rnd.refitted = [replace(donor, delta_bic=1e6), settled, worse]
-    refitted = diagnosis._shared_basin_refits(s, rnd)
+    refitted = diagnosis._shared_basin_refits(s, rnd, rnd.refitted)
     assert calls == [] and refitted[2] is worse

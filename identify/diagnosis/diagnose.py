@@ -63,7 +63,10 @@ Method
    also fitted from scratch with the other sign of the pinned thresholds (a misspecified
    plain GPI can settle on the other sign, a different model, and refits from its basin
    stay there; e.g. a 3-sigma first-cycle transient flips it to alpha > 0), and such a
-   candidate challenges the plain GPI of its own sign.
+   candidate challenges the plain GPI of its own sign. The refitted candidates are then
+   ranked on one GPI basin: each is refitted again from the GPI of the candidate of lowest
+   chi-square when that start beats its own refit and could bring it near the best
+   (:func:`_shared_basin_refits`).
    Each refitted candidate is compared with the baseline by
 
    * :math:`\Delta\mathrm{BIC} = n_\mathrm{eff} \ln(\chi^2_0 / \chi^2_1) - k \ln n_\mathrm{eff}`
@@ -1938,24 +1941,22 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> tuple[list, dict]:
 SHARED_BASIN_GAIN = 1.0
 
 
-def _shared_basin_start(candidate: CandidateResult, donor: CandidateResult) -> np.ndarray | None:
-    """Full vector of ``candidate``'s model: ``donor``'s fit for every parameter the two share
-    (the GPI and the baseline's effects), ``candidate``'s own for the effect it adds; None
-    when that is out of bounds or the two pin other threshold signs."""
+def _shared_basin_start(candidate: CandidateResult, donor: CandidateResult, base: Model) -> np.ndarray | None:
+    """Full vector of ``candidate``'s model: ``donor``'s fit for the parameters of the baseline
+    model ``base`` (the GPI and the effects already in it), ``candidate``'s own for the
+    effects it adds; None when that is out of bounds or the two pin other threshold signs."""
     model_e = candidate.fit.model
     if not _same_threshold_sign(donor.fit.model, model_e):
         return None
-    start = _with_values(model_e, _embed(donor.fit.model, donor.fit.theta, model_e, drop_extra=True), {
-        n: float(candidate.fit.theta[model_e.names.index(n)])
-        for n in model_e.names if n not in donor.fit.model.names
-    })  # fmt: skip
+    shared = {n: float(donor.fit.theta[donor.fit.model.names.index(n)]) for n in base.names}
+    start = _with_values(model_e, candidate.fit.theta, shared)
     return start if model_e.in_bounds(start)[0] else None
 
 
-def _shared_basin_refits(s: _Setting, rnd: _Round) -> list:
-    """Step 4b: every refitted candidate again from the GPI of the one with the lowest chi-square
-    (of its threshold sign); the refitted list with the better of each candidate's two
-    refits, by falling delta BIC.
+def _shared_basin_refits(s: _Setting, rnd: _Round, candidates: list) -> list:
+    """Step 4b: every refitted candidate (single or pair) of ``candidates`` again from the GPI of
+    the one with the lowest chi-square (of its threshold sign); ``candidates`` with the better
+    of each one's two refits, by falling delta BIC.
 
     The slow effects are small next to the hysteresis, so the GPI basin one of them found
     serves the others as well; each candidate's own refit starts from its short refit on
@@ -1974,16 +1975,16 @@ def _shared_basin_refits(s: _Setting, rnd: _Round) -> list:
     there would come within ``bic_significant`` of the best candidate's (a candidate far
     behind cannot change the verdict; at 70001 samples each of these refits costs 10-40 s
     of the worst case's budget)."""
-    fitted = [c for c in rnd.refitted if c.fit is not None]
+    fitted = [c for c in candidates if c.fit is not None]
     if not fitted:
-        return rnd.refitted
+        return sorted(candidates, key=lambda c: -c.delta_bic)
     best_bic = max(c.delta_bic for c in fitted)
     work = s.work
     refitted = []
-    for c in rnd.refitted:
+    for c in candidates:
         same = [d for d in fitted if _same_threshold_sign(d.fit.model, c.fit.model)] if c.fit is not None else []
         donor = min(same, key=lambda d: d.fit.chi2) if same else None
-        start = None if donor is None or donor is c else _shared_basin_start(c, donor)
+        start = None if donor is None or donor is c else _shared_basin_start(c, donor, rnd.fit.model)
         if start is None:
             refitted.append(c)
             continue
@@ -2086,7 +2087,7 @@ def _diagnosis_rounds(s: _Setting, fit: FitResult) -> _Round:
             rnd.refitted, replaced = _retry_other_sign(s, rnd)
             rnd.replaced.update(replaced)
         if len(rnd.refitted) > 1:
-            rnd.refitted = _shared_basin_refits(s, rnd)
+            rnd.refitted = _shared_basin_refits(s, rnd, rnd.refitted)
         if not rnd.adequacy.adequate:
             rnd.reparametrised = _reparametrisation_paths(s, rnd)
         if not (rnd.refitted or rnd.reparametrised) or attempt == MAX_BASELINE_CHALLENGES:
@@ -2282,9 +2283,10 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     bic_significant of the best one (BIC on the working copy), are refitted on the whole
     record: a short refit is a lower bound on what a pair explains, not an estimate, so the
     pair it ranks second or third may still be the best (the same holds for the single
-    candidates). The pairs tried are returned best first (delta BIC on the whole record); those
-    within bic_significant of the best fit about as well, so only an effect common to all of
-    them can be named.
+    candidates). The refitted pairs are then ranked on one GPI basin, as the single candidates
+    are (:func:`_shared_basin_refits`). The pairs tried are returned best first (delta BIC on
+    the whole record); those within bic_significant of the best fit about as well, so only
+    an effect common to all of them can be named.
     """
     work, fit, thresholds = s.work, rnd.fit, s.thresholds
     pool = _pair_pool(rnd, thresholds)
@@ -2335,7 +2337,7 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
             pairs_tried.append(result)
     if not pairs_tried:
         return pairs_tried, common, ambiguous_pairs
-    pairs_tried.sort(key=lambda p: -p.delta_bic)
+    pairs_tried = _shared_basin_refits(s, rnd, pairs_tried)
     competitive = _competitive_pairs(pairs_tried, thresholds)
     common = set.intersection(*(set(p.effect.split("+")) for p in competitive))
     ambiguous_pairs = [p.effect for p in competitive]
@@ -2667,7 +2669,7 @@ def diagnose(
     noise reference; then, in :func:`_diagnosis_rounds`, the screening of every candidate
     (:func:`_screen`), short refits (:func:`_short_refits`), refits of the best on the whole
     record (:func:`_refit_best`), the other threshold sign for the best (:func:`_retry_other_sign`),
-    the reparametrisation paths (:func:`_reparametrisation_paths`) and the baseline challenge
+    the refits from a shared GPI basin (:func:`_shared_basin_refits`), the reparametrisation paths (:func:`_reparametrisation_paths`) and the baseline challenge
     (:func:`_challenge_baseline`), repeated when the baseline improves; then the ranking,
     the targeted check of an adequate baseline (:func:`_targeted_check`) and the verdict
     (:func:`_targeted_verdict`, :func:`_adequate_verdict`, :func:`_inadequate_verdict` with
