@@ -49,11 +49,22 @@ OPTIONAL = {"initial_state"}
 
 
 def generate(generator: Path, suite: str, out: Path, seed: int, per_form: int | None, n: int | None) -> Path:
+    """``out/records``, generated unless it already holds records: those of the same settings
+    are reused, and records of other settings are never overwritten (a draw's results are
+    scored against them; regenerating another seed over them once mixed two draws)."""
     records = out / "records"
     done = records / ".generated.json"
     settings = {"generator": str(generator), "suite": suite, "seed": seed, "per_form": per_form, "n": n}
-    if done.exists() and json.loads(done.read_text()) == settings:
-        return records
+    if done.exists():
+        earlier = json.loads(done.read_text())
+        if earlier == settings:
+            return records
+        raise SystemExit(
+            f"error: {records} holds records generated with {earlier}; this run asks for {settings}. "
+            "Give the same --seed/--per-form/--n/--suite, or another --out."
+        )
+    if records.exists() and any(records.glob("*.csv")):
+        raise SystemExit(f"error: {records} holds records without {done.name}; give another --out")
     records.mkdir(parents=True, exist_ok=True)
     command = [sys.executable, str(generator), "--suite", suite, "--out", str(records), "--seed", str(seed)]
     if per_form is not None:
@@ -224,7 +235,12 @@ def main(argv=None) -> int:
                         help="work from the end of the list (a second worker beside a first one; records are locked)")
     parser.add_argument("--only", default="", help="comma-separated substrings: diagnose only records whose stem contains one")
     args = parser.parse_args(argv)
-    records = generate(args.generator, args.suite, args.out, args.seed, args.per_form, args.n)
+    if args.summary_only:  # only what is there: never generate
+        records = args.out / "records"
+        if not records.is_dir():
+            raise SystemExit(f"error: no records in {records}")
+    else:
+        records = generate(args.generator, args.suite, args.out, args.seed, args.per_form, args.n)
     results_dir = args.out / "results"
     work = args.out / "work"
     results_dir.mkdir(parents=True, exist_ok=True)
