@@ -2669,7 +2669,8 @@ def diagnose(
     noise reference; then, in :func:`_diagnosis_rounds`, the screening of every candidate
     (:func:`_screen`), short refits (:func:`_short_refits`), refits of the best on the whole
     record (:func:`_refit_best`), the other threshold sign for the best (:func:`_retry_other_sign`),
-    the refits from a shared GPI basin (:func:`_shared_basin_refits`), the reparametrisation paths (:func:`_reparametrisation_paths`) and the baseline challenge
+    the refits from a shared GPI basin (:func:`_shared_basin_refits`), the reparametrisation
+    paths (:func:`_reparametrisation_paths`) and the baseline challenge
     (:func:`_challenge_baseline`), repeated when the baseline improves; then the ranking,
     the targeted check of an adequate baseline (:func:`_targeted_check`) and the verdict
     (:func:`_targeted_verdict`, :func:`_adequate_verdict`, :func:`_inadequate_verdict` with
