@@ -1990,7 +1990,7 @@ def _shared_basin_refits(s: _Setting, rnd: _Round, candidates: list) -> list:
             continue
         model_e = c.fit.model
         short = _attempt(lambda: _short_refit(work.record, model_e, work.noise, [[start]]), s.say,
-                         f"no start from '{donor.effect}''s GPI for '{c.effect}'")  # fmt: skip
+                         f"no short refit of '{c.effect}' from the GPI of '{donor.effect}'")  # fmt: skip
         if short is None:
             refitted.append(c)
             continue
@@ -2003,7 +2003,7 @@ def _shared_basin_refits(s: _Setting, rnd: _Round, candidates: list) -> list:
             continue
         s.say(f"refitting '{c.effect}' from the GPI of '{donor.effect}'")
         again = _attempt(lambda: _evaluate_in_round(s, rnd, c.effect, model_e, short[1], c.screening), s.say,
-                         f"refit of '{c.effect}' from '{donor.effect}''s GPI failed")  # fmt: skip
+                         f"refit of '{c.effect}' from the GPI of '{donor.effect}' failed")  # fmt: skip
         refitted.append(again if again is not None and again.fit.chi2 < c.fit.chi2 else c)
     refitted.sort(key=lambda c: -c.delta_bic)
     return refitted
