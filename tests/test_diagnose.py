@@ -816,12 +816,12 @@ def test_a_pair_beside_an_adequate_single_of_the_other_threshold_sign_starts_fro
 
     def evaluate(record, fit, chi2_0, adequacy, name, model_e, start, *rest):
         evaluated.append((model_e, start))
-        return SimpleNamespace(effect=name, delta_bic=100.0, fit=None)
+        return SimpleNamespace(effect=name, delta_bic=100.0, fit=None, adequate_after=False)
 
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
     s = SimpleNamespace(work=SimpleNamespace(record=None, noise=None), thresholds=Thresholds(), say=lambda m: None,
                         record=None, quiet=None, noise_ref=None, rng=None)  # fmt: skip
-    single = SimpleNamespace(effect="incomplete_reset", adequate_after=True,
+    single = SimpleNamespace(effect="incomplete_reset", adequate_after=True, delta_bic=90.0,
                              fit=SimpleNamespace(model=flipped_model, theta=flipped_theta))  # fmt: skip
     rnd = SimpleNamespace(fit=base, chi2_0=1.0, adequacy=None, refitted=[single])
 
@@ -1355,3 +1355,81 @@ def test_a_candidate_stuck_in_a_worse_gpi_basin_is_refitted_from_the_best_candid
     rnd.refitted = [replace(donor, delta_bic=1e6), settled, worse]
     refitted = diagnosis._shared_basin_refits(s, rnd, rnd.refitted)
     assert calls == [] and refitted[2] is worse
+
+
+def test_a_pair_that_would_name_is_checked_against_the_pairs_that_swap_its_named_member():
+    """Independent bench, seed 12, ``effects_022`` (a gain fading with the cycles + a warm-up
+    drift): thermal + sensor_drift won and named `thermal` while training + sensor_drift was
+    never refitted on the whole record. Before a winning pair names an effect, the pairs that
+    keep its weaker member and swap the stronger one for a candidate at least as strong alone
+    as the weaker member are refitted too (at most max_refits); none when the pair would not
+    decide, or when the swap is already among the pairs tried."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import _swapped_pairs
+
+    def cand(effect, bic, adequate=False):
+        return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, fit=object())
+
+    refitted = [cand("thermal", 10283.0), cand("training", 9783.0), cand("sensor_drift", 9310.0), cand("creep", 6135.0)]
+    rnd = SimpleNamespace(refitted=refitted)
+
+    def short(a, b):
+        return (1.0, f"model {a}+{b}", f"start {a}+{b}", (a, None, None), (b, None, None))
+
+    shorts = [short(a, b) for a, b in (("thermal", "training"), ("thermal", "sensor_drift"), ("training", "sensor_drift"),
+                                       ("sensor_drift", "creep"), ("thermal", "creep"))]  # fmt: skip
+    best = cand("thermal+sensor_drift", 15732.0, adequate=True)
+    swaps = _swapped_pairs(rnd, [best, cand("sensor_drift+creep", 11853.0)], shorts, Thresholds())
+    assert [(item[3][0], item[4][0]) for item in swaps] == [("training", "sensor_drift")]
+    # already tried: nothing to add
+    tried = [best, cand("sensor_drift+training", 15700.0, adequate=True)]
+    assert _swapped_pairs(rnd, tried, shorts, Thresholds()) == []
+    # a pair that leaves structure, or does not beat the best single, names nothing: no swaps
+    assert _swapped_pairs(rnd, [cand("thermal+sensor_drift", 15732.0, adequate=False)], shorts, Thresholds()) == []
+    assert _swapped_pairs(rnd, [cand("thermal+sensor_drift", 10000.0, adequate=True)], shorts, Thresholds()) == []
+    # (creep, weaker alone than sensor_drift, was no swap above); swaps come from the short
+    # refits (training + creep has none here), at most max_refits of them
+    creep_pair = cand("thermal+creep", 15732.0, adequate=True)
+    swaps = _swapped_pairs(rnd, [creep_pair], shorts, Thresholds())
+    assert [(item[3][0], item[4][0]) for item in swaps] == [("sensor_drift", "creep")]
+    assert _swapped_pairs(rnd, [creep_pair], shorts, Thresholds(max_refits=0)) == []
+    # seed 14's draw: the pair gains 42 over the drift alone, training is 258 behind it alone:
+    # no swap can make that up
+    rnd14 = SimpleNamespace(refitted=[cand("sensor_drift", 3320.0, True), cand("training", 3062.0), cand("creep", 3051.0),
+                                      cand("thermal", 3044.0)])  # fmt: skip
+    shorts14 = [short(a, b) for a, b in (("training", "thermal"), ("creep", "thermal"), ("sensor_drift", "thermal"))]
+    assert _swapped_pairs(rnd14, [cand("sensor_drift+thermal", 3362.0, adequate=True)], shorts14, Thresholds()) == []
+    # a pair that gains more over the drift alone than training is behind it: the swap is tried
+    swaps = _swapped_pairs(rnd14, [cand("sensor_drift+thermal", 3600.0, adequate=True)], shorts14, Thresholds())
+    assert [(item[3][0], item[4][0]) for item in swaps] == [("training", "thermal"), ("creep", "thermal")]
+
+
+def test_a_swapped_pair_starts_from_the_best_pairs_gpi_and_kept_member():
+    """A swapped pair (training + sensor_drift beside the winning thermal + sensor_drift, seed
+    12's gain fade + warm-up drift: 68248 in chi-square from thermal + sensor_drift's GPI and
+    drift, 69337 from its own short refit) starts from the best pair's GPI and its values of
+    the member they share, with the swapped-in member's own single fit; its own start when
+    the swapped-in member has no single fit."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    base = normalised_model(Model())
+    best_model = base + ["thermal", "sensor_drift"]
+    single_model = base + ["training"]
+    model_pair = base + ["training", "sensor_drift"]
+
+    def vector(model, values):
+        return model.theta_from_dict({**model.theta_dict(model.default_theta()), **values})
+
+    best = SimpleNamespace(fit=SimpleNamespace(model=best_model, theta=vector(best_model, {
+        "rho": 5.5, "a1": 0.6, "thermal_tau": 3.4, "sensor_drift_settling": 2.6, "sensor_drift_settling_tau": 10.4})))
+    single = SimpleNamespace(fit=SimpleNamespace(model=single_model, theta=vector(single_model, {
+        "rho": 5.0, "a1": 0.5, "training_gain": 0.017, "training_travel": 14.5})))
+    own = vector(model_pair, {"rho": 4.0, "sensor_drift_settling": 4.2, "sensor_drift_settling_tau": 69.0})
+    start = model_pair.theta_dict(diagnosis._swap_start(best, {"training": single}, model_pair, own))
+    assert start["rho"] == 5.5 and start["a1"] == 0.6  # the best pair's GPI
+    assert start["sensor_drift_settling"] == 2.6 and start["sensor_drift_settling_tau"] == 10.4  # the kept member
+    assert start["training_gain"] == 0.017 and start["training_travel"] == 14.5  # the swapped-in member's own fit
+    assert diagnosis._swap_start(best, {}, model_pair, own) is own
