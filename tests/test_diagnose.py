@@ -1371,8 +1371,8 @@ def test_a_pair_that_would_name_is_checked_against_the_pairs_that_swap_its_named
     def cand(effect, bic, adequate=False):
         return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, fit=object())
 
-    refitted = [cand("thermal", 10283.0), cand("training", 9783.0), cand("sensor_drift", 9310.0), cand("creep", 6135.0)]
-    rnd = SimpleNamespace(refitted=refitted)
+    singles = {c.effect: c for c in (cand("thermal", 10283.0), cand("training", 9783.0), cand("sensor_drift", 9310.0),
+                                 cand("creep", 6135.0))}  # fmt: skip
 
     def short(a, b):
         return (1.0, f"model {a}+{b}", f"start {a}+{b}", (a, None, None), (b, None, None))
@@ -1380,28 +1380,28 @@ def test_a_pair_that_would_name_is_checked_against_the_pairs_that_swap_its_named
     shorts = [short(a, b) for a, b in (("thermal", "training"), ("thermal", "sensor_drift"), ("training", "sensor_drift"),
                                        ("sensor_drift", "creep"), ("thermal", "creep"))]  # fmt: skip
     best = cand("thermal+sensor_drift", 15732.0, adequate=True)
-    swaps = _swapped_pairs(rnd, [best, cand("sensor_drift+creep", 11853.0)], shorts, Thresholds())
+    swaps = _swapped_pairs(singles, [best, cand("sensor_drift+creep", 11853.0)], shorts, Thresholds())
     assert [(item[3][0], item[4][0]) for item in swaps] == [("training", "sensor_drift")]
     # already tried: nothing to add
     tried = [best, cand("sensor_drift+training", 15700.0, adequate=True)]
-    assert _swapped_pairs(rnd, tried, shorts, Thresholds()) == []
+    assert _swapped_pairs(singles, tried, shorts, Thresholds()) == []
     # a pair that leaves structure, or does not beat the best single, names nothing: no swaps
-    assert _swapped_pairs(rnd, [cand("thermal+sensor_drift", 15732.0, adequate=False)], shorts, Thresholds()) == []
-    assert _swapped_pairs(rnd, [cand("thermal+sensor_drift", 10000.0, adequate=True)], shorts, Thresholds()) == []
+    assert _swapped_pairs(singles, [cand("thermal+sensor_drift", 15732.0, adequate=False)], shorts, Thresholds()) == []
+    assert _swapped_pairs(singles, [cand("thermal+sensor_drift", 10000.0, adequate=True)], shorts, Thresholds()) == []
     # (creep, weaker alone than sensor_drift, was no swap above); swaps come from the short
     # refits (training + creep has none here), at most max_refits of them
     creep_pair = cand("thermal+creep", 15732.0, adequate=True)
-    swaps = _swapped_pairs(rnd, [creep_pair], shorts, Thresholds())
+    swaps = _swapped_pairs(singles, [creep_pair], shorts, Thresholds())
     assert [(item[3][0], item[4][0]) for item in swaps] == [("sensor_drift", "creep")]
-    assert _swapped_pairs(rnd, [creep_pair], shorts, Thresholds(max_refits=0)) == []
+    assert _swapped_pairs(singles, [creep_pair], shorts, Thresholds(max_refits=0)) == []
     # seed 14's draw: the pair gains 42 over the drift alone, training is 258 behind it alone:
     # no swap can make that up
-    rnd14 = SimpleNamespace(refitted=[cand("sensor_drift", 3320.0, True), cand("training", 3062.0), cand("creep", 3051.0),
-                                      cand("thermal", 3044.0)])  # fmt: skip
+    singles14 = {c.effect: c for c in (cand("sensor_drift", 3320.0, True), cand("training", 3062.0), cand("creep", 3051.0),
+                                   cand("thermal", 3044.0))}  # fmt: skip
     shorts14 = [short(a, b) for a, b in (("training", "thermal"), ("creep", "thermal"), ("sensor_drift", "thermal"))]
-    assert _swapped_pairs(rnd14, [cand("sensor_drift+thermal", 3362.0, adequate=True)], shorts14, Thresholds()) == []
+    assert _swapped_pairs(singles14, [cand("sensor_drift+thermal", 3362.0, adequate=True)], shorts14, Thresholds()) == []
     # a pair that gains more over the drift alone than training is behind it: the swap is tried
-    swaps = _swapped_pairs(rnd14, [cand("sensor_drift+thermal", 3600.0, adequate=True)], shorts14, Thresholds())
+    swaps = _swapped_pairs(singles14, [cand("sensor_drift+thermal", 3600.0, adequate=True)], shorts14, Thresholds())
     assert [(item[3][0], item[4][0]) for item in swaps] == [("training", "thermal"), ("creep", "thermal")]
 
 

@@ -2342,8 +2342,8 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     if not pairs_tried:
         return pairs_tried, common, ambiguous_pairs
     pairs_tried = _shared_basin_refits(s, rnd, pairs_tried)
-    swaps = _swapped_pairs(rnd, pairs_tried, shorts, thresholds)
     singles = {c.effect: c for c in rnd.refitted if c.fit is not None}
+    swaps = _swapped_pairs(singles, pairs_tried, shorts, thresholds)
     for _, model_pair, start, one, other in swaps:
         s.say(f"before '{pairs_tried[0].effect}' names an effect: the pair '{one[0]}+{other[0]}' from its GPI")
         start = _swap_start(pairs_tried[0], singles, model_pair, start)
@@ -2358,7 +2358,7 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     return pairs_tried, common, ambiguous_pairs
 
 
-def _swapped_pairs(rnd: _Round, pairs_tried: list, shorts: list, thresholds: Thresholds) -> list:
+def _swapped_pairs(refitted: dict, pairs_tried: list, shorts: list, thresholds: Thresholds) -> list:
     """Step 8b: the short pair refits (items of ``shorts``) to refit on the whole record as well
     before the best pair of ``pairs_tried`` (best first) may name an effect: those that keep its
     weaker member and swap the stronger one (the one a pair verdict names first) for another
@@ -2368,6 +2368,7 @@ def _swapped_pairs(rnd: _Round, pairs_tried: list, shorts: list, thresholds: Thr
     further behind would need its partner to give it more than the named member got from
     it); at most :attr:`Thresholds.max_refits`, the strongest alone first. None when the best
     pair would not decide (it leaves structure, or does not beat the best single candidate).
+    ``refitted``: ``{name: candidate}`` of the single candidates refitted on the whole record.
 
     The pairs refitted on the whole record are chosen by their short refits on the working
     copy, lower bounds that can rank a true pair low; a name taken from the best pair must
@@ -2379,7 +2380,6 @@ def _swapped_pairs(rnd: _Round, pairs_tried: list, shorts: list, thresholds: Thr
     alone reached 3320 and its pair with thermal 3362: training (3062) and creep (3051),
     258 and 269 behind the drift, cannot make that up, and their two pair refits cost 90 s
     of 70001 samples."""
-    refitted = {c.effect: c for c in rnd.refitted if c.fit is not None}
     best_single = max(refitted.values(), key=lambda c: c.delta_bic, default=None)
     best = pairs_tried[0] if pairs_tried else None
     if (best is None or best_single is None or not best.adequate_after
@@ -2421,9 +2421,8 @@ def _swap_start(best: CandidateResult, singles: dict, model_pair: Model, start) 
     if single is None or not (_same_threshold_sign(best.fit.model, single.fit.model)
                               and _same_threshold_sign(best.fit.model, model_pair)):  # fmt: skip
         return start
-    own = _embed(single.fit.model, single.fit.theta, model_pair)
-    shared = {n: float(best.fit.theta[best.fit.model.names.index(n)]) for n in model_pair.names if n in best.fit.model.names}
-    point = _with_values(model_pair, own, shared)
+    kept = _embed(best.fit.model, best.fit.theta, model_pair, drop_extra=True)
+    point = _with_values(model_pair, kept, _effect_values(single.fit.model, single.fit.theta, new))
     return point if model_pair.in_bounds(point)[0] else start
 
 
