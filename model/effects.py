@@ -10,6 +10,7 @@ name                  stage    equation (one line)
 ====================  =======  ================================================================
 ``lag``               input    :math:`\tau_L \dot v = i - v`, the GPI sees :math:`u(t) = v(t - d)` (first order plus dead time)
 ``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`; thresholds times :math:`1 + w f`; strain excursion times :math:`1 + s f`; :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
+``rate_width``        input    thresholds :math:`r_j (1 + b|\dot u|)` (:math:`b \ge 0`) or :math:`r_j / (1 + |b||\dot u|)` (:math:`b < 0`): rate-dependent hysteresis
 ``initial_state``     state    operators' initial memory from a level :math:`z^0` and a prior excursion
 ``incomplete_reset``  output   :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading with travel
 ``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change
@@ -44,6 +45,7 @@ from .parameters import Parameter, ParameterSet
 __all__ = [
     "Lag",
     "Training",
+    "RateWidth",
     "InitialState",
     "Creep",
     "Thermal",
@@ -56,6 +58,8 @@ __all__ = [
     "creep_time_constants",
     "thermal_rise",
     "accumulated_travel",
+    "drive_rate",
+    "rate_threshold_scale",
     "training_fade",
     "REFERENCE_CURRENT",
     "CREEP_MODES",
@@ -961,6 +965,121 @@ class Training(Effect):
         if not gain.any():  # off: the displacement itself, bit for bit
             return y
         return y + gain * self._fade(params, current) * (y - y[:, 0:1])
+
+
+def drive_rate(time, drive):
+    """The drive's rate over each sample step, ``|u_k - u_{k-1}| / (t_k - t_{k-1})`` [A/s], 0 at the first sample.
+
+    The play operators' update at sample ``k`` moves the drive from ``u_{k-1}`` to ``u_k``;
+    for a drive linear between samples this is its rate during that step, exactly, with the
+    actual time steps. ``drive`` may be ``(T,)`` or ``(W, T)``; the result is ``(W, T)``."""
+    time = np.asarray(time, dtype=float)
+    drive = np.atleast_2d(np.asarray(drive, dtype=float))
+    rate = np.zeros_like(drive)
+    rate[:, 1:] = np.abs(np.diff(drive, axis=1)) / np.diff(time)[None, :]
+    return rate
+
+
+def rate_threshold_scale(rate, coefficient):
+    r"""The factor on every play threshold at a drive rate, shape of ``rate`` broadcast with ``coefficient``.
+
+    :math:`1 + b\,|\dot u|` for :math:`b \ge 0` and :math:`1 / (1 + |b|\,|\dot u|)` for
+    :math:`b < 0`: positive for every rate, continuous with a continuous derivative in
+    :math:`b` at 0 (both branches are :math:`1 + b|\dot u| + O(b^2)`), and the two signs
+    are each other's reciprocal, so a narrowing is as general as a widening."""
+    coefficient = np.asarray(coefficient, dtype=float)
+    grow = 1.0 + np.abs(coefficient) * rate
+    return np.where(coefficient >= 0.0, grow, 1.0 / grow)
+
+
+@register_effect
+class RateWidth(Effect):
+    r"""Rate-dependent hysteresis: every play threshold changes with the drive's rate.
+
+    .. math::
+
+        r_{j,k} = r_j\, s_k, \qquad s_k = \begin{cases} 1 + b\,|\dot u_k| & b \ge 0 \\
+        1 / (1 + |b|\,|\dot u_k|) & b < 0 \end{cases}, \qquad
+        |\dot u_k| = \frac{|u_k - u_{k-1}|}{t_k - t_{k-1}}
+
+    The GPI's thresholds :math:`r_j = \alpha j` of eq. (8) are scaled at each sample by a
+    factor that depends on the drive's rate during the step into it (:func:`drive_rate`:
+    exact for a drive linear between samples, with the actual time steps); the drive
+    itself, the envelopes and the weights are unchanged. :math:`u` is the drive the GPI
+    sees (after ``lag``'s, when both are present: the rate of the field, not of the
+    recorded current). Physics: the twin boundaries of an MSM crystal move against a
+    friction that grows with their velocity (a viscous twinning stress on top of the
+    static one), and their velocity follows the field's rate, so a faster drive needs a
+    larger field change before the strain follows: the hysteresis is rate dependent, and
+    the loops of the same amplitude differ between frequencies (e.g. Henry, Bono,
+    Feuchtwanger, Allen and O'Handley, "ac field-induced actuation of Ni-Mn-Ga", J. Appl.
+    Phys. 91, 2002; rate-dependent Prandtl-Ishlinskii operators with thresholds that are
+    functions of the input rate: Ang, Khosla and Riviere, IEEE/ASME Trans. Mechatronics
+    12, 2007; Al Janaideh, Rakheja and Su, Mechatronics 19, 2009). The paper drives at
+    0.1 Hz, where a rate-independent GPI fits; on its decaying sine the rate falls with the
+    amplitude, so a rate-dependent width shows itself as loops that change shape within
+    a cycle (widest where the drive crosses zero fastest) and from cycle to cycle.
+
+    Sign: with the paper's negative thresholds (:math:`\alpha < 0`) the loop is the
+    envelopes' gap less :math:`2|r_j|`, so a threshold that grows (:math:`b > 0`) narrows
+    the loop; with the classical positive thresholds it widens it. :math:`b` is therefore
+    signed, and the narrowing branch is the reciprocal of the widening one, so the factor
+    stays positive at every rate and the model is smooth in :math:`b` through 0.
+
+    What the GPI cannot do: it is rate independent (its output depends on the drive's
+    path, not on its speed). Trade-offs: a *constant* factor on every threshold is an
+    exact reparametrisation of the GPI (:math:`\alpha` takes it, or, with :math:`\alpha`
+    pinned, the envelopes and weights), so :math:`b` is identified only through the
+    rate's variation within a cycle and between cycles. ``lag`` also makes the loop depend
+    on the rate (a delayed drive shifts every branch in time, and so in current by the
+    rate times the delay), but it moves every branch by the same time, reversals included,
+    where this effect changes the operators' widths and leaves the reversals in place; on
+    one record at one frequency the two are correlated, and a drive of another frequency
+    separates them. A heating that follows :math:`i^2` with a fast time constant is, on a
+    pure sine, an affine function of :math:`\dot i^2` (:math:`\dot i^2 = \omega^2 (A^2 -
+    i^2)`), so the two are correlated there too; the heating acts on the strain's gain and
+    offset, this effect on the loop's width. The rate is read from the drive as recorded:
+    a drive measured with noise gives a noisy rate (a low-pass ``lag`` on the drive
+    smooths it).
+
+    Parameters: ``rate_width_coefficient`` :math:`b` [s/A], ``-2 <= b <= 2``. Off:
+    ``b = 0`` (every threshold that of eq. (8), bit for bit).
+    """
+
+    name = "rate_width"
+    stage = "input"
+    parameters = ParameterSet(
+        [
+            Parameter(
+                "rate_width_coefficient", 0.0, -2.0, 2.0, unit="s/A",
+                description="relative change of every play threshold per unit drive rate (negative: the reciprocal)",
+            ),
+        ]
+    )  # fmt: skip
+    off = {"rate_width_coefficient": 0.0}
+    summary = "rate-dependent thresholds: r_j (1 + b |du/dt|) for b >= 0, r_j / (1 + |b| |du/dt|) for b < 0"
+    signature = (
+        "the loop's width changes with the drive's rate, within a cycle and with the amplitude, and leaves the "
+        "reversals where they are"
+    )
+
+    @classmethod
+    def get_test_parameters(cls):
+        return {"rate_width_coefficient": 0.1}
+
+    def drive(self, params, time, current):
+        """The drive itself (this effect changes only the thresholds), shape ``(1 or W, T)`` [A]."""
+        return np.atleast_2d(np.asarray(current, dtype=float))
+
+    def threshold_scale(self, params, time, drive):
+        """The factor on every threshold at each sample, shape ``(W, T)``; None where ``b = 0`` for every set."""
+        params = np.asarray(params, dtype=float)
+        coefficient = params[:, 0:1]
+        if not np.isfinite(coefficient).all():
+            raise ValueError(f"rate_width: rate_width_coefficient must be finite, got {coefficient[:, 0][:5].tolist()}")
+        if not coefficient.any():
+            return None
+        return rate_threshold_scale(drive_rate(time, drive), coefficient)
 
 
 @register_effect

@@ -602,8 +602,39 @@ def signature_ambient_drift(paper_input, plain_gpi):
     assert abs(change[one_period]) < 0.05  # back to the start after one period
 
 
+def signature_rate_width(paper_input, plain_gpi):
+    """Every play threshold times 1 + b |du/dt| (b > 0) or 1 / (1 + |b| |du/dt|) (b < 0), the rate
+    that of the step into each sample; the quiet start untouched; the loop of a faster drive
+    differs from a slower one's on the same path (a rate-independent GPI gives the same
+    loop), and with lag the rate is the lagged drive's."""
+    time, current = paper_input
+    m = Model(["rate_width"])
+    rate = np.zeros_like(current)
+    rate[1:] = np.abs(np.diff(current)) / np.diff(time)
+    for b, scale in ((0.1, 1.0 + 0.1 * rate), (-0.1, 1.0 / (1.0 + 0.1 * rate))):
+        y = m(_theta(m, {"rate_width_coefficient": b}), time, current)
+        assert np.array_equal(y, gpi(TABLE1, current, threshold_scale=scale))
+        assert np.array_equal(y[time < 10.0], plain_gpi[time < 10.0])
+        assert np.max(np.abs(y - plain_gpi)) > 1.0
+    # the same path at ten times the rate: the rate-independent GPI's output is the same
+    # function of the path, this effect's is not
+    fast_time = time[0] + (time - time[0]) / 10.0
+    slow = m(_theta(m, {"rate_width_coefficient": 0.1}), time, current)
+    fast = m(_theta(m, {"rate_width_coefficient": 0.1}), fast_time, current)
+    assert np.array_equal(gpi(TABLE1, current), plain_gpi)
+    assert np.max(np.abs(fast - slow)) > 5.0 * np.max(np.abs(slow - plain_gpi)) / 10.0
+    # after lag: the rate of the lagged drive
+    both = Model(["lag", "rate_width"])
+    y = both(_theta(both, {"lag_tau": 0.5, "rate_width_coefficient": 0.1}), time, current)
+    lagged = first_order_lowpass(time, current, 0.5)[0]
+    lag_rate = np.zeros_like(lagged)
+    lag_rate[1:] = np.abs(np.diff(lagged)) / np.diff(time)
+    np.testing.assert_allclose(y, gpi(TABLE1, lagged, threshold_scale=1.0 + 0.1 * lag_rate), rtol=1e-12, atol=1e-10)
+
+
 SIGNATURES = {
     "lag": signature_lag,
+    "rate_width": signature_rate_width,
     "training": signature_training,
     "creep": signature_creep,
     "thermal": signature_thermal,
