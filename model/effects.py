@@ -10,7 +10,7 @@ name                  stage    equation (one line)
 ====================  =======  ================================================================
 ``lag``               input    :math:`\tau_L \dot v = i - v`, the GPI sees :math:`u(t) = v(t - d)` (first order plus dead time)
 ``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`; thresholds times :math:`1 + w f`; strain excursion times :math:`1 + s f`; :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
-``rate_width``        input    thresholds :math:`r_j (1 + b|\dot u|)` (:math:`b \ge 0`) or :math:`r_j / (1 + |b||\dot u|)` (:math:`b < 0`): rate-dependent hysteresis
+``rate_width``        input    thresholds :math:`r_j (1 + b g)` (:math:`b \ge 0`) or :math:`r_j / (1 + |b| g)` (:math:`b < 0`), :math:`g = \ln(1 + c|\dot u|)/c`: rate-dependent hysteresis
 ``initial_state``     state    operators' initial memory from a level :math:`z^0` and a prior excursion
 ``incomplete_reset``  output   :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading with travel
 ``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change
@@ -980,15 +980,22 @@ def drive_rate(time, drive):
     return rate
 
 
-def rate_threshold_scale(rate, coefficient):
-    r"""The factor on every play threshold at a drive rate, shape of ``rate`` broadcast with ``coefficient``.
+def rate_threshold_scale(rate, coefficient, saturation=0.0):
+    r"""The factor on every play threshold at a drive rate, shape of ``rate`` broadcast with the parameters.
 
-    :math:`1 + b\,|\dot u|` for :math:`b \ge 0` and :math:`1 / (1 + |b|\,|\dot u|)` for
+    With :math:`g(r) = \ln(1 + c\,r)/c` (:math:`g(r) = r` at :math:`c = 0`, its limit):
+    :math:`1 + b\,g(|\dot u|)` for :math:`b \ge 0` and :math:`1 / (1 + |b|\,g(|\dot u|))` for
     :math:`b < 0`: positive for every rate, continuous with a continuous derivative in
-    :math:`b` at 0 (both branches are :math:`1 + b|\dot u| + O(b^2)`), and the two signs
-    are each other's reciprocal, so a narrowing is as general as a widening."""
+    :math:`b` at 0 (both branches are :math:`1 + b\,g + O(b^2)`), and the two signs are each
+    other's reciprocal, so a narrowing is as general as a widening. ``saturation``
+    :math:`c \ge 0` [s/A] bends the law from linear (below :math:`1/c`) to logarithmic
+    (above it)."""
     coefficient = np.asarray(coefficient, dtype=float)
-    grow = 1.0 + np.abs(coefficient) * rate
+    saturation = np.asarray(saturation, dtype=float)
+    cr = saturation * rate
+    # ln(1 + c r) / c, written to be exact (r itself) at c = 0 and accurate for small c r
+    bent = np.where(saturation > 0.0, np.log1p(cr) / np.where(saturation > 0.0, saturation, 1.0), rate)
+    grow = 1.0 + np.abs(coefficient) * bent
     return np.where(coefficient >= 0.0, grow, 1.0 / grow)
 
 
@@ -998,8 +1005,9 @@ class RateWidth(Effect):
 
     .. math::
 
-        r_{j,k} = r_j\, s_k, \qquad s_k = \begin{cases} 1 + b\,|\dot u_k| & b \ge 0 \\
-        1 / (1 + |b|\,|\dot u_k|) & b < 0 \end{cases}, \qquad
+        r_{j,k} = r_j\, s_k, \qquad s_k = \begin{cases} 1 + b\,g(|\dot u_k|) & b \ge 0 \\
+        1 / (1 + |b|\,g(|\dot u_k|)) & b < 0 \end{cases}, \qquad
+        g(r) = \frac{\ln(1 + c\,r)}{c}, \qquad
         |\dot u_k| = \frac{|u_k - u_{k-1}|}{t_k - t_{k-1}}
 
     The GPI's thresholds :math:`r_j = \alpha j` of eq. (8) are scaled at each sample by a
@@ -1019,6 +1027,14 @@ class RateWidth(Effect):
     0.1 Hz, where a rate-independent GPI fits; on its decaying sine the rate falls with the
     amplitude, so a rate-dependent width shows itself as loops that change shape within
     a cycle (widest where the drive crosses zero fastest) and from cycle to cycle.
+
+    The law of the rate: :math:`g(r) = r` (:math:`c = 0`, the limit) is a friction linear
+    in the boundaries' velocity (viscous); :math:`c > 0` bends it to a logarithm above the
+    rate :math:`1/c`, the kinetic relation of a thermally activated motion, whose velocity
+    grows exponentially with the driving stress, so the stress grows with the logarithm of
+    the velocity (twin-wall kinetics in Ni-Mn-Ga: Faran and Shilo, J. Mech. Phys. Solids
+    59, 2011): a rate dependence that levels off at fast drives. The bend is an optional
+    term (:attr:`Effect.terms` ``saturation``): while it is 0 the law is the linear one.
 
     Sign: with the paper's negative thresholds (:math:`\alpha < 0`) the loop is the
     envelopes' gap less :math:`2|r_j|`, so a threshold that grows (:math:`b > 0`) narrows
@@ -1042,8 +1058,14 @@ class RateWidth(Effect):
     a drive measured with noise gives a noisy rate (a low-pass ``lag`` on the drive
     smooths it).
 
-    Parameters: ``rate_width_coefficient`` :math:`b` [s/A], ``-2 <= b <= 2``. Off:
-    ``b = 0`` (every threshold that of eq. (8), bit for bit).
+    Trade-offs within the effect: :math:`b` and :math:`c` trade off where the record's rates
+    are all below :math:`1/c` (the law is linear there whatever :math:`c`) or all far above
+    it (a logarithm's scale and offset); while :math:`b = 0`, :math:`c` does nothing.
+
+    Parameters: ``rate_width_coefficient`` :math:`b` [s/A], ``-2 <= b <= 2``;
+    ``rate_width_saturation`` :math:`c` [s/A], ``0 <= c <= 20`` (at 20 the bend starts at
+    0.05 A/s). Off: ``b = 0`` (every threshold that of eq. (8), bit for bit, whatever
+    :math:`c`).
     """
 
     name = "rate_width"
@@ -1054,10 +1076,18 @@ class RateWidth(Effect):
                 "rate_width_coefficient", 0.0, -2.0, 2.0, unit="s/A",
                 description="relative change of every play threshold per unit drive rate (negative: the reciprocal)",
             ),
+            Parameter(
+                "rate_width_saturation", 0.0, 0.0, 20.0, unit="s/A",
+                description="bend of the rate law, ln(1 + c r)/c: linear below the rate 1/c, logarithmic above it",
+            ),
         ]
     )  # fmt: skip
-    off = {"rate_width_coefficient": 0.0}
-    summary = "rate-dependent thresholds: r_j (1 + b |du/dt|) for b >= 0, r_j / (1 + |b| |du/dt|) for b < 0"
+    off = {"rate_width_coefficient": 0.0, "rate_width_saturation": 0.0}
+    terms = {"saturation": ("rate_width_saturation",)}
+    summary = (
+        "rate-dependent thresholds: r_j (1 + b g) for b >= 0, r_j / (1 + |b| g) for b < 0, "
+        "g = ln(1 + c |du/dt|)/c (|du/dt| at c = 0)"
+    )
     signature = (
         "the loop's width changes with the drive's rate, within a cycle and with the amplitude, and leaves the "
         "reversals where they are"
@@ -1065,7 +1095,7 @@ class RateWidth(Effect):
 
     @classmethod
     def get_test_parameters(cls):
-        return {"rate_width_coefficient": 0.1}
+        return {"rate_width_coefficient": 0.1, "rate_width_saturation": 0.0}
 
     def drive(self, params, time, current):
         """The drive itself (this effect changes only the thresholds), shape ``(1 or W, T)`` [A]."""
@@ -1074,12 +1104,16 @@ class RateWidth(Effect):
     def threshold_scale(self, params, time, drive):
         """The factor on every threshold at each sample, shape ``(W, T)``; None where ``b = 0`` for every set."""
         params = np.asarray(params, dtype=float)
-        coefficient = params[:, 0:1]
-        if not np.isfinite(coefficient).all():
-            raise ValueError(f"rate_width: rate_width_coefficient must be finite, got {coefficient[:, 0][:5].tolist()}")
+        coefficient, saturation = params[:, 0:1], params[:, 1:2]
+        bad = ~(np.isfinite(params).all(axis=1) & (params[:, 1] >= 0.0))
+        if bad.any():
+            raise ValueError(
+                "rate_width: the parameters must be finite and rate_width_saturation >= 0; parameter set(s) "
+                f"{np.flatnonzero(bad)[:5].tolist()} are not ({params[bad][:3].tolist()})"
+            )
         if not coefficient.any():
             return None
-        return rate_threshold_scale(drive_rate(time, drive), coefficient)
+        return rate_threshold_scale(drive_rate(time, drive), coefficient, saturation)
 
 
 @register_effect

@@ -632,6 +632,24 @@ def signature_rate_width(paper_input, plain_gpi):
     np.testing.assert_allclose(y, gpi(TABLE1, lagged, threshold_scale=1.0 + 0.1 * lag_rate), rtol=1e-12, atol=1e-10)
 
 
+def signature_rate_width_saturation(paper_input, plain_gpi):
+    """The bent rate law: every threshold times 1 + b ln(1 + c r)/c, r the rate of the step into
+    each sample; c = 0 is the linear law exactly and a small c is close to it; the bend lowers
+    the factor at the fast rates only."""
+    time, current = paper_input
+    m = Model(["rate_width"])
+    rate = np.zeros_like(current)
+    rate[1:] = np.abs(np.diff(current)) / np.diff(time)
+    y = m(_theta(m, {"rate_width_coefficient": 0.2, "rate_width_saturation": 2.0}), time, current)
+    assert np.array_equal(y, gpi(TABLE1, current, threshold_scale=1.0 + 0.2 * np.log1p(2.0 * rate) / 2.0))
+    narrowing = m(_theta(m, {"rate_width_coefficient": -0.2, "rate_width_saturation": 2.0}), time, current)
+    assert np.array_equal(narrowing, gpi(TABLE1, current, threshold_scale=1.0 / (1.0 + 0.2 * np.log1p(2.0 * rate) / 2.0)))
+    linear = m(_theta(m, {"rate_width_coefficient": 0.2}), time, current)
+    near = m(_theta(m, {"rate_width_coefficient": 0.2, "rate_width_saturation": 1e-9}), time, current)
+    np.testing.assert_allclose(near, linear, rtol=0, atol=1e-6)
+    assert np.max(np.abs(y - linear)) > 1.0
+
+
 SIGNATURES = {
     "lag": signature_lag,
     "rate_width": signature_rate_width,
@@ -647,6 +665,7 @@ GENERAL_FORMS = {
     "lag dead time": signature_lag_dead_time,
     "training strain gain": signature_training_strain_gain,
     "training play width": signature_training_width,
+    "rate_width saturation": signature_rate_width_saturation,
     "thermal two nodes": signature_thermal_two_nodes,
     "logarithmic creep": signature_log_creep,
     "settling drift": signature_settling_drift,
