@@ -35,7 +35,7 @@ from model import TABLE1, Model, paper_current
 #: effect is the first word of its label
 SETTINGS = {
     "lag": {"lag_tau": 0.02, "lag_delay": 0.03},
-    "rate_width": {"rate_width_coefficient": 0.1},
+    "rate_width": {"rate_width_coefficient": 0.1, "rate_width_saturation": 1.0},
     "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 2.0, "training_shape": 1.5, "training_gain": 0.05, "training_width": 0.2},
     "initial_state (level freed: the control)": {"initial_state_memory": -0.5},
     "initial_state": {"initial_state_excursion": 2.0, "initial_state_held": 0.3, "initial_state_held_slope": 0.2},

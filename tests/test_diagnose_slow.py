@@ -97,9 +97,11 @@ def alternative_record(kind: str, seed: int, size: float = 3.0) -> Record:
     two time constants, 8 s (60 %) and 120 s (40 %) (library: one). ``lag2``: the field
     through two cascaded first-order lags of 6 ms, a critically damped second-order lag
     (library: first order). ``exp_drift``: ``D (1 - exp(-t / 25 s))`` (library: quadratic).
-    ``rate_saturating``: every threshold times ``1 + 0.3 tanh(|di/dt| / 1 A/s)``, a viscous
-    friction that saturates at high rates, the rate by central differences (library: linear
-    in the rate of the step into each sample). The effect is scaled to ``size`` noise sigmas RMS.
+    ``rate_saturating``: every threshold times ``1 + a tanh(|di/dt| / 1 A/s)``, a viscous
+    friction that saturates at high rates, the rate by central differences (library: linear,
+    or logarithmic above a rate, in the rate of the step into each sample); its amplitude
+    ``a`` is found by root finding (the GPI is not linear in its thresholds). The others are
+    scaled to ``size`` noise sigmas RMS.
     """
     sim = simulate(None, seed=seed, noise_sigma=SIGMA)
     t, i, plain = sim.record.time, sim.record.current, sim.plain
@@ -114,8 +116,18 @@ def alternative_record(kind: str, seed: int, size: float = 3.0) -> Record:
         shape = gpi(TABLE1, first_order_lowpass(t, first_order_lowpass(t, i, 0.006)[0], 0.006)[0]) - plain
     elif kind == "exp_drift":
         shape = 1.0 - np.exp(-(t - t[0]) / 25.0)
-    elif kind == "rate_saturating":
-        shape = gpi(TABLE1, i, threshold_scale=1.0 + 0.3 * np.tanh(np.abs(np.gradient(i, t)) / 1.0)) - plain
+    elif kind == "rate_saturating":  # nonlinear in its amplitude: the amplitude is sized, not the output scaled
+        from scipy.optimize import brentq
+
+        rate = np.abs(np.gradient(i, t))
+
+        def excess(amount):
+            change = gpi(TABLE1, i, threshold_scale=1.0 + amount * np.tanh(rate / 1.0)) - plain
+            return np.sqrt(np.mean(change**2)) / SIGMA - size
+
+        amount = brentq(excess, 1e-4, 1.0, xtol=1e-6)
+        clean = gpi(TABLE1, i, threshold_scale=1.0 + amount * np.tanh(rate / 1.0))
+        return Record(t, i, clean + noise, source=f"alternative form {kind!r} (seed {seed})", sha256="")
     else:  # pragma: no cover - test bug
         raise ValueError(kind)
     scale = size * SIGMA / np.sqrt(np.mean(shape**2))
