@@ -122,7 +122,13 @@ def test_screening_ranks_the_hidden_effect_first():
     # overlap with thermal's (thermal 3512, incomplete_reset 2766, creep 2409, drift 2159,
     # training 1539 here); the refits separate them (slow tests)
     slow_changes = ("sensor_drift", "training", "incomplete_reset", "creep")
-    assert ranking[0].chi2_drop > 10 * max(r.chi2_drop for r in ranking[1:] if r.effect not in slow_changes)
+    # a rate-dependent width is partly one too: on the decaying sine the rate falls with the
+    # amplitude, so the loops' width changes over the record (403 here, 8.7 times below)
+    partly_slow = ("rate_width",)
+    assert ranking[0].chi2_drop > 10 * max(
+        r.chi2_drop for r in ranking[1:] if r.effect not in slow_changes + partly_slow
+    )
+    assert ranking[0].chi2_drop > 5 * max(r.chi2_drop for r in ranking if r.effect in partly_slow)
     assert ranking[0].chi2_drop > 0.5 * (fit.chi2 - len(sim.record))  # explains most of the excess
     # the short refit from the screening's starts realises most of the predicted drop
     model_e = model + "thermal"
@@ -178,7 +184,7 @@ def test_diagnose_command_writes_the_contract(clean_csv, tmp_path, capsys):
     assert content["status"] in STATUSES and content["status"] == "adequate" and content["missing"] is None
     assert content["effects"] == []
     assert 0.8 < content["rms"] / content["noise_sigma"] < 1.2
-    assert {r["effect"] for r in content["ranking"]} == {"lag", "training", "initial_state", "incomplete_reset", "creep", "thermal", "sensor_drift"}
+    assert {r["effect"] for r in content["ranking"]} == set(EFFECTS)  # every library effect is a candidate
     for entry in content["ranking"]:
         assert {"effect", "rms_after", "delta_bic", "explained_fraction", "parameters"} <= set(entry)
     # initial_state is a candidate through its prior excursion (its level is pinned: an exact
