@@ -89,6 +89,16 @@ def outside_record(kind: str, seed: int) -> Record:
     return Record(t, i, y, source=f"outside-library effect {kind!r} (seed {seed})", sha256="")
 
 
+def _amount_for_size(clean_of, plain, size: float, upper: float) -> float:
+    """The amount at which ``clean_of(amount)`` differs from ``plain`` by ``size`` noise sigmas RMS
+    (root finding between 1e-4 and ``upper``): an effect nonlinear in its amount is sized by its
+    own parameter, not by scaling its output."""
+    from scipy.optimize import brentq
+
+    return brentq(lambda amount: np.sqrt(np.mean((clean_of(amount) - plain) ** 2)) / SIGMA - size, 1e-4, upper,
+                  xtol=1e-6)  # fmt: skip
+
+
 def alternative_record(kind: str, seed: int, size: float = 3.0) -> Record:
     """A record whose hidden effect follows another functional form of a library effect's physics.
 
@@ -117,16 +127,12 @@ def alternative_record(kind: str, seed: int, size: float = 3.0) -> Record:
     elif kind == "exp_drift":
         shape = 1.0 - np.exp(-(t - t[0]) / 25.0)
     elif kind == "rate_saturating":  # nonlinear in its amplitude: the amplitude is sized, not the output scaled
-        from scipy.optimize import brentq
-
         rate = np.abs(np.gradient(i, t))
 
-        def excess(amount):
-            change = gpi(TABLE1, i, threshold_scale=1.0 + amount * np.tanh(rate / 1.0)) - plain
-            return np.sqrt(np.mean(change**2)) / SIGMA - size
+        def clean_of(amount):
+            return gpi(TABLE1, i, threshold_scale=1.0 + amount * np.tanh(rate / 1.0))
 
-        amount = brentq(excess, 1e-4, 1.0, xtol=1e-6)
-        clean = gpi(TABLE1, i, threshold_scale=1.0 + amount * np.tanh(rate / 1.0))
+        clean = clean_of(_amount_for_size(clean_of, plain, size, 1.0))
         return Record(t, i, clean + noise, source=f"alternative form {kind!r} (seed {seed})", sha256="")
     else:  # pragma: no cover - test bug
         raise ValueError(kind)
@@ -271,16 +277,13 @@ def training_alternative_record(kind: str, seed: int, size: float = 3.0) -> Reco
     """A bench record with a first-cycle effect of another form (:func:`training_alternative_drive`)
     whose noise-free contribution has ``size`` noise sigmas RMS against the plain GPI (the
     effect's own parameter set to that size by root finding, not a scaled output)."""
-    from scipy.optimize import brentq
-
     sim = simulate(None, seed=seed, noise_sigma=SIGMA)
     t, i, plain = sim.record.time, sim.record.current, sim.plain
 
-    def excess(amount):
-        return np.sqrt(np.mean((gpi(TABLE1, training_alternative_drive(kind, i, amount)) - plain) ** 2)) / SIGMA - size
+    def clean_of(amount):
+        return gpi(TABLE1, training_alternative_drive(kind, i, amount))
 
-    amount = brentq(excess, 1e-4, 0.5 if kind != "threshold_linear" else 2.0, xtol=1e-6)
-    clean = gpi(TABLE1, training_alternative_drive(kind, i, amount))
+    clean = clean_of(_amount_for_size(clean_of, plain, size, 0.5 if kind != "threshold_linear" else 2.0))
     noise = sim.record.displacement - sim.clean
     return Record(t, i, clean + noise, source=f"first-cycle form {kind!r} (seed {seed})", sha256="")
 

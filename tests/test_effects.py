@@ -602,6 +602,13 @@ def signature_ambient_drift(paper_input, plain_gpi):
     assert abs(change[one_period]) < 0.05  # back to the start after one period
 
 
+def _step_rate(time, drive):
+    """|x_k - x_(k-1)| / (t_k - t_(k-1)), 0 at the first sample: the rate the thresholds of sample k see."""
+    rate = np.zeros_like(drive)
+    rate[1:] = np.abs(np.diff(drive)) / np.diff(time)
+    return rate
+
+
 def signature_rate_width(paper_input, plain_gpi):
     """Every play threshold times 1 + b |du/dt| (b > 0) or 1 / (1 + |b| |du/dt|) (b < 0), the rate
     that of the step into each sample; the quiet start untouched; the loop of a faster drive
@@ -609,8 +616,7 @@ def signature_rate_width(paper_input, plain_gpi):
     loop), and with lag the rate is the lagged drive's."""
     time, current = paper_input
     m = Model(["rate_width"])
-    rate = np.zeros_like(current)
-    rate[1:] = np.abs(np.diff(current)) / np.diff(time)
+    rate = _step_rate(time, current)
     for b, scale in ((0.1, 1.0 + 0.1 * rate), (-0.1, 1.0 / (1.0 + 0.1 * rate))):
         y = m(_theta(m, {"rate_width_coefficient": b}), time, current)
         assert np.array_equal(y, gpi(TABLE1, current, threshold_scale=scale))
@@ -627,8 +633,7 @@ def signature_rate_width(paper_input, plain_gpi):
     both = Model(["lag", "rate_width"])
     y = both(_theta(both, {"lag_tau": 0.5, "rate_width_coefficient": 0.1}), time, current)
     lagged = first_order_lowpass(time, current, 0.5)[0]
-    lag_rate = np.zeros_like(lagged)
-    lag_rate[1:] = np.abs(np.diff(lagged)) / np.diff(time)
+    lag_rate = _step_rate(time, lagged)
     np.testing.assert_allclose(y, gpi(TABLE1, lagged, threshold_scale=1.0 + 0.1 * lag_rate), rtol=1e-12, atol=1e-10)
 
 
@@ -638,8 +643,7 @@ def signature_rate_width_saturation(paper_input, plain_gpi):
     the factor at the fast rates only."""
     time, current = paper_input
     m = Model(["rate_width"])
-    rate = np.zeros_like(current)
-    rate[1:] = np.abs(np.diff(current)) / np.diff(time)
+    rate = _step_rate(time, current)
     y = m(_theta(m, {"rate_width_coefficient": 0.2, "rate_width_saturation": 2.0}), time, current)
     assert np.array_equal(y, gpi(TABLE1, current, threshold_scale=1.0 + 0.2 * np.log1p(2.0 * rate) / 2.0))
     narrowing = m(_theta(m, {"rate_width_coefficient": -0.2, "rate_width_saturation": 2.0}), time, current)
