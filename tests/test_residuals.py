@@ -200,6 +200,35 @@ def test_no_false_alarm_with_the_quiet_segment_as_reference():
     assert worst < 5.0
 
 
+def test_block_mean_variance_error_matches_the_ar1_delta_method():
+    # AR(1): ln V_L -> ln f(0) = ln sigma_e^2 - 2 ln(1 - phi) for long blocks, so
+    # var(ln V) = 4 (1 + phi) / ((1 - phi) n) + 2 / n (Yule-Walker: var(phi) = (1 - phi^2) / n)
+    n = 1000
+    for phi in (0.0, 0.35, 0.7):
+        model = ARNoise(np.array([phi]), 1.0, 1.0 / np.sqrt(1 - phi**2), n)
+        closed = np.sqrt(4 * (1 + phi) / ((1 - phi) * n) + 2 / n)
+        assert model.block_mean_variance_relative_sd(2000) == pytest.approx(closed, rel=0.02)
+    # fitted as white: only the level's error
+    assert ARNoise(np.zeros(0), 1.0, 1.0, n).block_mean_variance_relative_sd(20) == pytest.approx(np.sqrt(2 / n))
+
+
+def test_low_frequency_test_is_calibrated_with_an_estimated_reference():
+    """The low-frequency z under the null when the noise model comes from a 1000-sample quiet
+    segment: unit sd and a normal tail. Without the error of the fitted AR coefficients in its
+    null the sd is ~1.5 at phi = 0.6 (the reference's long-run variance is uncertain by ~13 %,
+    its sigma^2 by ~6 %) and z passes 5 about once in a few hundred records."""
+    rng = np.random.default_rng(21)
+    z = []
+    for _ in range(300):
+        e = ar1(rng, 7001, 0.6)
+        z.append(low_frequency_test(e, fit_ar_noise(e[:1001]), 20).z)
+    z = np.array(z)
+    # sd of a sample sd over 300 draws ~ 0.04; of the mean ~ 0.06
+    assert 0.85 < z.std() < 1.15
+    assert abs(z.mean()) < 0.35
+    assert np.mean(z > 3.0) < 0.02 and z.max() < 4.5
+
+
 def test_residual_profile_locates_an_error_at_the_troughs():
     time, current = paper_current(100.0)
     rng = np.random.default_rng(7)
