@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import stats
 from scipy.signal import lfilter
 
 from identify.data.reversals import branch_direction, find_reversals, input_rate, time_since_reversal
@@ -165,6 +166,28 @@ def test_ljung_box_is_calibrated_on_white_noise_and_sees_a_sine():
     t = np.arange(2000)
     structured = ljung_box(rng.standard_normal(2000) + 0.3 * np.sin(2 * np.pi * t / 200), 20)
     assert structured.p_value < 1e-6 and structured.z > 5
+
+
+def test_ljung_box_with_an_estimated_filter_has_a_normal_tail():
+    """White innovations whitened by a filter whose coefficient is off by N(0, 1/n_q), as a
+    filter fitted on a quiet segment of n_q samples is: Q = chi2_40 + (n/n_q) chi2_1. A normal
+    z of Q (or a scaled chi2 of the same mean and variance) puts ~1.6 % of these draws above
+    3 and some above 5 (the (n/n_q) chi2_1 tail); the p-value of the sum keeps z normal."""
+    rng = np.random.default_rng(3)
+    n, n_quiet = 7000, 1000
+    z = []
+    for _ in range(1000):
+        e = rng.standard_normal(n + 1)
+        w = e[1:] - rng.standard_normal() / np.sqrt(n_quiet) * e[:-1]
+        z.append(ljung_box(w, 40, filter_error=n / n_quiet, filter_dof=1).z)
+    z = np.array(z)
+    assert 0.9 < z.std() < 1.12 and abs(z.mean()) < 0.15
+    assert np.mean(z > 3.0) < 0.008 and z.max() < 4.5
+    # no filter error: the plain chi2_m tail
+    plain = ljung_box(rng.standard_normal(2000), 20)
+    assert plain.p_value == pytest.approx(stats.chi2.sf(plain.statistic, 20), rel=1e-9)
+    with pytest.raises(ValueError, match="filter_dof"):
+        ljung_box(rng.standard_normal(200), 10, filter_error=1.0, filter_dof=0)
 
 
 def test_variance_and_low_frequency_tests_measure_the_structure():

@@ -18,14 +18,17 @@ straight line (so a slowly drifting sensor shows up as *structure* in the residu
 not as noise). Three tests compare the residual with it:
 
 ``variance``
-    :math:`R = \overline{r^2} / \sigma^2`. Under the null its standard deviation is
-    :math:`\sqrt{2/n_{\mathrm{eff}} + 2/n_{q,\mathrm{eff}}}`, the first term for the
-    residual's own sampling error, the second for the error of the quiet segment's
-    :math:`\hat\sigma^2`; ``n_eff`` is the number of samples divided by the noise's
-    variance inflation :math:`\sum_k \rho_k^2` (for AR(1): :math:`(1+\rho^2)/(1-\rho^2)`).
+    :math:`R = \overline{r^2} / \hat\sigma^2`. Under the null :math:`\ln R` has the
+    standard deviation :math:`\sqrt{2/n_{\mathrm{eff}} + 2/n_{q,\mathrm{eff}}}`, the first
+    term for the residual's own sampling error, the second for the error of the quiet
+    segment's :math:`\hat\sigma^2` (a ratio of two estimates: on a log scale their errors
+    add and the ratio's skew stays out of the tail); ``z`` is :math:`\ln R` over it.
+    ``n_eff`` is the number of samples divided by the noise's variance inflation :math:`\sum_k \rho_k^2` (for AR(1): :math:`(1+\rho^2)/(1-\rho^2)`).
 ``ljung_box``
     Ljung-Box :math:`Q = n(n+2)\sum_{k=1}^m \hat\rho_k^2/(n-k)` on the residual
-    *whitened* by the quiet segment's AR filter; :math:`\chi^2_m` under the null.
+    *whitened* by the quiet segment's AR filter; :math:`\chi^2_m` under the null, plus
+    the error of that filter (:func:`ljung_box`: a scaled :math:`\chi^2` term, matched
+    with the whole null by a scaled :math:`\chi^2`; ``z`` is its Wilson-Hilferty deviate).
 ``low_frequency``
     Block means of length ``L`` (default 0.2 s): under the null each has the variance
     :math:`V_L = L^{-2}\sum_{|k|<L}(L-|k|)\gamma_k` of the AR noise, so
@@ -36,8 +39,8 @@ not as noise). Three tests compare the residual with it:
     1000 quiet samples of AR(1) noise with :math:`\phi = 0.35`, against 2.9 % of
     :math:`\chi^2_B/B` for 350 blocks). Both errors add on a log scale, so the
     standardised excess is :math:`z = \ln(S/B) / \sqrt{2/B + \mathrm{var}(\ln \hat V_L)}`.
-    ``mean_b \bar r_b^2 - V_L`` estimates the mean square of the slowly varying part of the residual
-    (:attr:`StatTest.structure_variance`), which is what a missing physical effect
+    ``mean_b \bar r_b^2 - V_L`` estimates the mean square of the slowly varying part of
+    the residual (:attr:`StatTest.structure_variance`), which is what a missing physical effect
     leaves: every effect of the library acts on the time scale of the drive (seconds),
     not of the sensor noise (samples).
 
@@ -51,7 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
-from scipy import stats
+from scipy import special, stats
 from scipy.signal import lfilter
 
 from ..data.reversals import Reversals, as_1d, branch_direction, find_reversals, input_rate, time_since_reversal
@@ -561,7 +564,27 @@ class StatTest:
         }
 
 
-def ljung_box(whitened, n_lags=40, filter_error=0.0) -> StatTest:
+_LEGENDRE_NODES, _LEGENDRE_WEIGHTS = np.polynomial.legendre.leggauss(256)
+
+
+def _log_sf_chi2_sum(q: float, m: int, scale: float, dof: int) -> float:
+    """``log P(chi2_m + scale * chi2_dof > q)`` (see :func:`ljung_box`, Notes)."""
+    if scale == 0.0:
+        return float(stats.chi2.logsf(q, m))
+    top = q / scale
+    if top <= 0.0:
+        return 0.0
+    # y = u^2 takes the chi2_1 density's y^(-1/2) out of the integrand
+    half = 0.5 * np.sqrt(top)
+    u = half * (_LEGENDRE_NODES + 1.0)
+    y = u * u
+    log_terms = (
+        stats.chi2.logpdf(y, dof) + np.log(2.0 * u) + stats.chi2.logsf(q - scale * y, m) + np.log(half * _LEGENDRE_WEIGHTS)
+    )
+    return float(min(np.logaddexp(special.logsumexp(log_terms), stats.chi2.logsf(top, dof)), 0.0))
+
+
+def ljung_box(whitened, n_lags=40, filter_error=0.0, filter_dof=1) -> StatTest:
     r"""Ljung-Box portmanteau test of whiteness.
 
     Parameters
@@ -574,9 +597,24 @@ def ljung_box(whitened, n_lags=40, filter_error=0.0) -> StatTest:
         Expected extra ``Q`` from an *estimated* whitening filter: a filter fitted on
         ``n_q`` samples misses the true one by ``~ n_q^{-1/2}`` per coefficient, which
         leaves autocorrelations of that size and adds about ``n / n_q`` per
-        coefficient to ``Q`` (``(n / n_q) max(p, 1)`` for an AR(p) filter). The null
-        then has mean ``m + c`` and sd ``sqrt(2 m + 2 c^2)`` (a scaled
-        :math:`\chi^2` term for the filter error); the p-value is that normal tail.
+        coefficient to ``Q`` (``(n / n_q) max(p, 1)`` for an AR(p) filter).
+    filter_dof : int, default 1
+        Degrees of freedom of that extra term, ``max(p, 1)``: it is distributed as
+        :math:`(c / d)\,\chi^2_d` (for AR(1) exactly :math:`(n / n_q)\chi^2_1`, since the
+        coefficient's error :math:`\delta\phi` leaves :math:`\delta\rho_k = -\delta\phi\,\phi^{k-1}`).
+
+    Notes
+    -----
+    The null of ``Q`` is :math:`\chi^2_m + (c/d)\chi^2_d`, mean ``m + c``, variance
+    ``2 m + 2 c^2 / d``. With a short quiet segment ``c/d`` is large (7 for a 70 s record
+    and a 10 s quiet start) and the second term's exponential tail, far heavier than
+    :math:`\chi^2_m`'s, sets the false alarms: a normal z of ``Q`` passes 5 in about
+    0.5 % of pure-noise records, and a scaled :math:`\chi^2` of the same mean and
+    variance is still too light. The p-value is that of the sum itself,
+    :math:`P = \int_0^{Q d/c} f_{\chi^2_d}(y)\, \bar F_{\chi^2_m}(Q - c y / d)\, dy +
+    \bar F_{\chi^2_d}(Q d / c)` (Gauss-Legendre in :math:`u = \sqrt y`, in logs, so a
+    p-value far below 1e-300 keeps its size), and ``z`` is its normal deviate,
+    :math:`\Phi^{-1}(1 - P)`.
     """
     w = as_1d("whitened", whitened)
     n = w.size
@@ -585,22 +623,25 @@ def ljung_box(whitened, n_lags=40, filter_error=0.0) -> StatTest:
         raise ValueError(f"ljung_box needs at least 4 samples per lag, got {n} samples")
     if not (np.isfinite(filter_error) and filter_error >= 0):
         raise ValueError(f"filter_error must be a finite number >= 0, got {filter_error!r}")
+    if isinstance(filter_dof, bool) or not isinstance(filter_dof, (int, np.integer)) or filter_dof < 1:
+        raise ValueError(f"filter_dof must be an integer >= 1, got {filter_dof!r}")
     rho = autocorrelation(w, m)[1:]
     q = float(n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, m + 1))))
     c = float(filter_error)
     null_mean = m + c
-    null_sd = float(np.sqrt(2.0 * m + 2.0 * c * c))
-    z = (q - null_mean) / null_sd
-    p_value = float(stats.chi2.sf(q, m)) if c == 0.0 else float(stats.norm.sf(z))
+    null_variance = 2.0 * m + 2.0 * c * c / int(filter_dof)
+    log_p = _log_sf_chi2_sum(q, m, c / int(filter_dof), int(filter_dof))
+    z = float(-special.ndtri_exp(log_p))
+    p_value = float(np.exp(log_p))
     return StatTest(
         "ljung_box",
         q,
         float(null_mean),
-        null_sd,
+        float(np.sqrt(null_variance)),
         float(z),
         p_value,
         0.0,
-        {"n_lags": m, "n": int(n), "lag1": float(rho[0]), "filter_error": c},
+        {"n_lags": m, "n": int(n), "lag1": float(rho[0]), "filter_error": c, "filter_dof": int(filter_dof)},
     )
 
 
@@ -621,13 +662,14 @@ def variance_ratio_test(residual, noise: ARNoise, n_fitted=0) -> StatTest:
     inflation = noise.variance_inflation()
     expected = 1.0 - min(n_fitted, n - 1) / n
     ratio = float(np.mean(r**2) / noise.sigma**2)
+    # a ratio of two variance estimates: their relative errors add on a log scale
     sd = float(np.sqrt(2.0 * inflation / n + 2.0 * inflation / noise.n_samples))
-    z = (ratio - expected) / sd
+    z = float(np.log(max(ratio, 1e-300) / expected) / sd)
     return StatTest(
         "variance",
         ratio,
         expected,
-        sd,
+        expected * sd,  # the sd of the ratio itself, to first order
         float(z),
         float(stats.norm.sf(z)),
         float(max(ratio - expected, 0.0) * noise.sigma**2),
@@ -859,7 +901,9 @@ def residual_profile(
     block = min(block, max(t.size // 8, 1))
     tests = {
         "variance": variance_ratio_test(r_en, noise, n_fitted),
-        "ljung_box": ljung_box(noise.whiten(r), n_lags, filter_error=t.size / noise.n_samples * max(noise.order, 1)),
+        "ljung_box": ljung_box(
+            noise.whiten(r), n_lags, filter_error=t.size / noise.n_samples * max(noise.order, 1), filter_dof=max(noise.order, 1)
+        ),
         "low_frequency": low_frequency_test(r, noise, block),
     }
     rms = float(np.sqrt(np.mean(r_en**2)))
