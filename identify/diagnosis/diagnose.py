@@ -216,8 +216,9 @@ class Thresholds:
     ----------
     z_critical : float, default 5.0
         Standardised excess above which a test counts as failed (one-sided normal tail
-        ``3e-7``; three tests over many records stay far from a false alarm even with
-        the slightly heavier-than-normal tails of the Ljung-Box statistic).
+        ``3e-7``; each test's null includes the error of the noise reference fitted on
+        the quiet segment, so its z is close to normal on pure noise:
+        ``benchmarks/noise_test_calibration.py``).
     structure_floor : float, default 0.1
         Smallest RMS of the non-noise part, in units of the noise sigma, that counts
         as a misfit (0.1 sigma adds 0.5 % to the residual RMS).
