@@ -205,6 +205,13 @@ def test_variance_and_low_frequency_tests_measure_the_structure():
     assert lf.structure_variance == pytest.approx(0.045, abs=0.015)
     inflated = variance_ratio_test(1.3 * white, noise)
     assert inflated.z > 5 and inflated.structure_variance == pytest.approx(0.69, abs=0.1)
+    # a misfit far beyond the noise: p-values below the double range still give a finite,
+    # large z (it goes into JSON), growing with the misfit
+    for amplitude in (30.0, 300.0):
+        huge = white + amplitude * np.sin(2 * np.pi * t / 1000)
+        zs = [low_frequency_test(huge, noise, 20).z, variance_ratio_test(huge, noise).z,
+              ljung_box(huge, 40, filter_error=6.0).z]  # fmt: skip
+        assert all(np.isfinite(z) and z > 30 for z in zs)
 
 
 def test_no_false_alarm_with_the_quiet_segment_as_reference():

@@ -18,17 +18,17 @@ straight line (so a slowly drifting sensor shows up as *structure* in the residu
 not as noise). Three tests compare the residual with it:
 
 ``variance``
-    :math:`R = \overline{r^2} / \hat\sigma^2`. Under the null :math:`\ln R` has the
-    standard deviation :math:`\sqrt{2/n_{\mathrm{eff}} + 2/n_{q,\mathrm{eff}}}`, the first
-    term for the residual's own sampling error, the second for the error of the quiet
-    segment's :math:`\hat\sigma^2` (a ratio of two estimates: on a log scale their errors
-    add and the ratio's skew stays out of the tail); ``z`` is :math:`\ln R` over it.
-    ``n_eff`` is the number of samples divided by the noise's variance inflation :math:`\sum_k \rho_k^2` (for AR(1): :math:`(1+\rho^2)/(1-\rho^2)`).
+    :math:`R = \overline{r^2} / \hat\sigma^2`, a ratio of two variance estimates: under
+    the null :math:`R` over its expectation is :math:`F(n_{\mathrm{eff}}, n_{q,\mathrm{eff}})`,
+    the first for the residual's own sampling error, the second for the error of the
+    quiet segment's :math:`\hat\sigma^2`. ``n_eff`` is the number of samples divided by
+    the noise's variance inflation :math:`\sum_k \rho_k^2` (for AR(1):
+    :math:`(1+\rho^2)/(1-\rho^2)`).
 ``ljung_box``
     Ljung-Box :math:`Q = n(n+2)\sum_{k=1}^m \hat\rho_k^2/(n-k)` on the residual
     *whitened* by the quiet segment's AR filter; :math:`\chi^2_m` under the null, plus
-    the error of that filter (:func:`ljung_box`: a scaled :math:`\chi^2` term, matched
-    with the whole null by a scaled :math:`\chi^2`; ``z`` is its Wilson-Hilferty deviate).
+    the error of that filter (:func:`ljung_box`: a scaled :math:`\chi^2_p` term; the
+    p-value is that of the sum).
 ``low_frequency``
     Block means of length ``L`` (default 0.2 s): under the null each has the variance
     :math:`V_L = L^{-2}\sum_{|k|<L}(L-|k|)\gamma_k` of the AR noise, so
@@ -36,16 +36,19 @@ not as noise). Three tests compare the residual with it:
     reference :math:`\hat V_L` is estimated from the quiet segment, and at low frequency
     its error is not only that of :math:`\hat\sigma^2`: it rests on the fitted AR
     coefficients too (:meth:`ARNoise.block_mean_variance_relative_sd`, about 10 % for
-    1000 quiet samples of AR(1) noise with :math:`\phi = 0.35`, against 2.9 % of
-    :math:`\chi^2_B/B` for 350 blocks). Both errors add on a log scale, so the
-    standardised excess is :math:`z = \ln(S/B) / \sqrt{2/B + \mathrm{var}(\ln \hat V_L)}`.
+    1000 quiet samples of AR(1) noise with :math:`\phi = 0.35`, against 7.6 % of
+    :math:`\chi^2_B/B` for 350 blocks). With :math:`\ln(\hat V_L / V_L)` normal (delta
+    method), the p-value is that of the mixture,
+    :math:`P(S > s) = E_\epsilon[\bar F_{\chi^2_B}(s e^\epsilon)]` (Gauss-Hermite).
     ``mean_b \bar r_b^2 - V_L`` estimates the mean square of the slowly varying part of
     the residual (:attr:`StatTest.structure_variance`), which is what a missing physical effect
     leaves: every effect of the library acts on the time scale of the drive (seconds),
     not of the sensor noise (samples).
 
-Each test returns a standardised excess ``z`` (0 mean, unit sd under the null) and a
-one-sided p-value; the verdict thresholds live in :mod:`identify.diagnosis.diagnose`.
+Each test returns a one-sided p-value and its normal deviate ``z`` (0 mean, unit sd and a
+normal tail under the null; beyond the double range of the p-value, an approximate deviate
+above 38); the verdict thresholds live in :mod:`identify.diagnosis.diagnose`. Calibration
+on pure noise: ``benchmarks/noise_test_calibration.py``.
 """
 
 from __future__ import annotations
@@ -584,6 +587,28 @@ def _log_sf_chi2_sum(q: float, m: int, scale: float, dof: int) -> float:
     return float(min(np.logaddexp(special.logsumexp(log_terms), stats.chi2.logsf(top, dof)), 0.0))
 
 
+def _z_of(log_p: float, beyond: float) -> float:
+    """Normal deviate of a one-sided p-value given by its log; ``beyond`` where the tail
+    underflowed (p below ~1e-308: an approximate deviate, far above any threshold)."""
+    if np.isfinite(log_p):
+        return float(-special.ndtri_exp(min(log_p, 0.0)))
+    return float(max(beyond, 38.0))
+
+
+_HERMITE_NODES, _HERMITE_WEIGHTS = np.polynomial.hermite_e.hermegauss(64)
+
+
+def _log_sf_chi2_lognormal(s: float, dof: int, log_sd: float) -> float:
+    """``log P(chi2_dof * exp(-eps) > s)``, ``eps ~ N(0, log_sd^2)`` (see :func:`low_frequency_test`)."""
+    if s <= 0.0:
+        return 0.0
+    if log_sd == 0.0:
+        return float(stats.chi2.logsf(s, dof))
+    eps = log_sd * _HERMITE_NODES
+    terms = stats.chi2.logsf(s * np.exp(eps), dof) + np.log(_HERMITE_WEIGHTS / np.sqrt(2.0 * np.pi))
+    return float(min(special.logsumexp(terms), 0.0))
+
+
 def ljung_box(whitened, n_lags=40, filter_error=0.0, filter_dof=1) -> StatTest:
     r"""Ljung-Box portmanteau test of whiteness.
 
@@ -631,7 +656,7 @@ def ljung_box(whitened, n_lags=40, filter_error=0.0, filter_dof=1) -> StatTest:
     null_mean = m + c
     null_variance = 2.0 * m + 2.0 * c * c / int(filter_dof)
     log_p = _log_sf_chi2_sum(q, m, c / int(filter_dof), int(filter_dof))
-    z = float(-special.ndtri_exp(log_p))
+    z = _z_of(log_p, (q - null_mean) / np.sqrt(null_variance))
     p_value = float(np.exp(log_p))
     return StatTest(
         "ljung_box",
@@ -662,16 +687,19 @@ def variance_ratio_test(residual, noise: ARNoise, n_fitted=0) -> StatTest:
     inflation = noise.variance_inflation()
     expected = 1.0 - min(n_fitted, n - 1) / n
     ratio = float(np.mean(r**2) / noise.sigma**2)
-    # a ratio of two variance estimates: their relative errors add on a log scale
-    sd = float(np.sqrt(2.0 * inflation / n + 2.0 * inflation / noise.n_samples))
-    z = float(np.log(max(ratio, 1e-300) / expected) / sd)
+    # a ratio of two variance estimates, each a chi-square over its effective samples:
+    # (R / expected) ~ F(n / inflation, n_q / inflation) under the null
+    dof_residual, dof_quiet = n / inflation, noise.n_samples / inflation
+    sd = float(np.sqrt(2.0 / dof_residual + 2.0 / dof_quiet))
+    log_p = float(stats.f.logsf(ratio / expected, dof_residual, dof_quiet))
+    z = _z_of(log_p, np.log(max(ratio, 1e-300) / expected) / sd)
     return StatTest(
         "variance",
         ratio,
         expected,
         expected * sd,  # the sd of the ratio itself, to first order
-        float(z),
-        float(stats.norm.sf(z)),
+        z,
+        float(np.exp(log_p)),
         float(max(ratio - expected, 0.0) * noise.sigma**2),
         {"n": int(n), "rms": float(np.sqrt(np.mean(r**2))), "noise_sigma": float(noise.sigma)},
     )
@@ -698,21 +726,20 @@ def low_frequency_test(residual, noise: ARNoise, block_length) -> StatTest:
     block_var = noise.block_mean_variance(L)
     statistic = float(np.sum(means**2) / block_var)
     # the reference V_L is itself estimated from the quiet segment (its level and its
-    # correlation): S = chi^2_B (V_L / V_L-hat), so on a log scale the two errors add,
-    # ln(S / B) ~ N(0, 2 / B + var(ln V_L-hat)) under the null (the ratio's skew stays
-    # out of the tail this way)
+    # correlation): S = chi^2_B (V_L / V_L-hat) under the null, with ln(V_L-hat / V_L) ~
+    # N(0, rel^2); its tail is that mixture's, P(S > s) = E[chi2_B.sf(s exp(eps))]
     rel_sd_reference = noise.block_mean_variance_relative_sd(L)
-    log_sd = float(np.sqrt(2.0 / n_blocks + rel_sd_reference**2))
-    null_sd = n_blocks * log_sd  # the sd of S itself, to first order
-    z = float(np.log(max(statistic, 1e-300) / n_blocks) / log_sd)
+    null_sd = float(n_blocks * np.sqrt(2.0 / n_blocks + rel_sd_reference**2))  # to first order
+    log_p = _log_sf_chi2_lognormal(statistic, n_blocks, rel_sd_reference)
+    z = _z_of(log_p, np.log(max(statistic, 1e-300) / n_blocks) / np.sqrt(2.0 / n_blocks + rel_sd_reference**2))
     structure = float(max(np.mean(means**2) - block_var, 0.0))
     return StatTest(
         "low_frequency",
         statistic,
         float(n_blocks),
         null_sd,
-        float(z),
-        float(stats.norm.sf(z)),
+        z,
+        float(np.exp(log_p)),
         structure,
         {
             "block_length": L,
