@@ -54,7 +54,7 @@ def test_adequacy_rule_white_structured_and_negligible():
     assert verdict.excess_kind == "low_frequency"
     assert verdict.structure_rms == pytest.approx(0.3 / np.sqrt(2), rel=0.25)
 
-    # 70001 samples resolve structure of 0.07 sigma RMS (low-frequency z ~ 9), but it is below the floor
+    # 70001 samples resolve structure of 0.07 sigma RMS (low-frequency z ~ 12), but it is below the floor
     time_k, current_k = paper_current(1000.0)
     tiny = rng.standard_normal(time_k.size) + 0.1 * np.sin(2 * np.pi * time_k / 7.0)
     profile = residual_profile(time_k, current_k, tiny, slice(0, 10001), output_range=300.0,
