@@ -533,11 +533,12 @@ class StatTest:
     statistic : float
         The raw statistic (see the module docstring).
     null_mean, null_sd : float
-        Its mean and sd under the null.
+        Its mean and sd under the null (the sd to first order in the reference's error).
     z : float
-        ``(statistic - null_mean) / null_sd``: the standardised excess (one-sided: large = structure).
+        The standardised excess: the normal deviate of ``p_value`` (one-sided: large =
+        structure), not ``(statistic - null_mean) / null_sd``, whose null is skewed.
     p_value : float
-        One-sided p-value of the excess.
+        One-sided p-value of the statistic under the null.
     structure_variance : float
         Estimated mean square of the non-noise part [output units^2] (``variance``
         and ``low_frequency`` tests; NaN-free: 0 where it does not apply).
@@ -650,12 +651,13 @@ def ljung_box(whitened, n_lags=40, filter_error=0.0, filter_dof=1) -> StatTest:
         raise ValueError(f"filter_error must be a finite number >= 0, got {filter_error!r}")
     if isinstance(filter_dof, bool) or not isinstance(filter_dof, (int, np.integer)) or filter_dof < 1:
         raise ValueError(f"filter_dof must be an integer >= 1, got {filter_dof!r}")
+    d = int(filter_dof)
     rho = autocorrelation(w, m)[1:]
     q = float(n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, m + 1))))
     c = float(filter_error)
     null_mean = m + c
-    null_variance = 2.0 * m + 2.0 * c * c / int(filter_dof)
-    log_p = _log_sf_chi2_sum(q, m, c / int(filter_dof), int(filter_dof))
+    null_variance = 2.0 * m + 2.0 * c * c / d
+    log_p = _log_sf_chi2_sum(q, m, c / d, d)
     z = _z_of(log_p, (q - null_mean) / np.sqrt(null_variance))
     p_value = float(np.exp(log_p))
     return StatTest(
@@ -666,7 +668,7 @@ def ljung_box(whitened, n_lags=40, filter_error=0.0, filter_dof=1) -> StatTest:
         float(z),
         p_value,
         0.0,
-        {"n_lags": m, "n": int(n), "lag1": float(rho[0]), "filter_error": c, "filter_dof": int(filter_dof)},
+        {"n_lags": m, "n": int(n), "lag1": float(rho[0]), "filter_error": c, "filter_dof": d},
     )
 
 
@@ -729,15 +731,15 @@ def low_frequency_test(residual, noise: ARNoise, block_length) -> StatTest:
     # correlation): S = chi^2_B (V_L / V_L-hat) under the null, with ln(V_L-hat / V_L) ~
     # N(0, rel^2); its tail is that mixture's, P(S > s) = E[chi2_B.sf(s exp(eps))]
     rel_sd_reference = noise.block_mean_variance_relative_sd(L)
-    null_sd = float(n_blocks * np.sqrt(2.0 / n_blocks + rel_sd_reference**2))  # to first order
+    log_sd = float(np.sqrt(2.0 / n_blocks + rel_sd_reference**2))  # sd of ln(S / B), to first order
     log_p = _log_sf_chi2_lognormal(statistic, n_blocks, rel_sd_reference)
-    z = _z_of(log_p, np.log(max(statistic, 1e-300) / n_blocks) / np.sqrt(2.0 / n_blocks + rel_sd_reference**2))
+    z = _z_of(log_p, np.log(max(statistic, 1e-300) / n_blocks) / log_sd)
     structure = float(max(np.mean(means**2) - block_var, 0.0))
     return StatTest(
         "low_frequency",
         statistic,
         float(n_blocks),
-        null_sd,
+        n_blocks * log_sd,
         z,
         float(np.exp(log_p)),
         structure,
@@ -926,11 +928,10 @@ def residual_profile(
     dt = float(np.median(np.diff(t)))
     block = max(int(round(block_seconds / dt)), 1)
     block = min(block, max(t.size // 8, 1))
+    filter_dof = max(noise.order, 1)  # the whitening filter's estimated coefficients (at least one: the order choice)
     tests = {
         "variance": variance_ratio_test(r_en, noise, n_fitted),
-        "ljung_box": ljung_box(
-            noise.whiten(r), n_lags, filter_error=t.size / noise.n_samples * max(noise.order, 1), filter_dof=max(noise.order, 1)
-        ),
+        "ljung_box": ljung_box(noise.whiten(r), n_lags, filter_error=t.size / noise.n_samples * filter_dof, filter_dof=filter_dof),
         "low_frequency": low_frequency_test(r, noise, block),
     }
     rms = float(np.sqrt(np.mean(r_en**2)))
