@@ -188,6 +188,9 @@ def test_diagnose_command_writes_the_contract(clean_csv, tmp_path, capsys):
     assert {r["effect"] for r in content["ranking"]} == set(EFFECTS)  # every library effect is a candidate
     for entry in content["ranking"]:
         assert {"effect", "rms_after", "delta_bic", "explained_fraction", "parameters"} <= set(entry)
+    bic = {r["effect"]: r["delta_bic"] for r in content["ranking"] + content["pairs_tried"]}
+    for row in content["gaps"]:  # the best refitted candidate against each other, with the gap's noise sd
+        assert row["gap"] == pytest.approx(bic[row["better"]] - bic[row["other"]]) and row["noise_sd"] > 0
     # initial_state is a candidate through its prior excursion (its level is pinned: an exact
     # reparametrisation): screened like any effect, not credited on a clean record
     entry = next(r for r in content["ranking"] if r["effect"] == "initial_state")

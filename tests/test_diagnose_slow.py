@@ -249,6 +249,9 @@ def test_other_functional_forms_are_named_by_their_physics(kind, expected):
     assert d.status == "missing_effect" and d.missing == expected, d.reason
     # the library's general form absorbs the differently shaped physics (within 15 % of the noise)
     assert d.best.rms_after / d.noise_sigma < 1.15
+    # the name holds against every other refitted candidate: each gap beyond the noise's reach
+    rows = [g for g in d.gaps if g["better"] == expected]
+    assert rows and all(g["gap"] >= d.thresholds.gap_z * g["noise_sd"] for g in rows), rows
 
 
 def training_alternative_drive(kind: str, current, size: float):
