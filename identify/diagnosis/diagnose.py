@@ -2304,10 +2304,8 @@ def _practical_beyond(single: CandidateResult, pair: CandidateResult, sigma: flo
     """``(relative RMS change, structure in sigmas, practical?)`` of ``pair`` beyond ``single``: the
     practical size a targeted finding needs (:attr:`Thresholds.practical_rms_change`), here for
     the second effect a pair adds to a single candidate."""
-    rms0, rms1 = float(single.rms_after), float(pair.rms_after)
-    change = (rms0 - rms1) / rms0 if rms0 > 0 else 0.0
-    size = math.sqrt(max(rms0 * rms0 - rms1 * rms1, 0.0)) / float(sigma)
-    return change, size, change >= thresholds.practical_rms_change and size >= thresholds.structure_floor
+    change, size = _rms_change_and_size(single.rms_after, pair.rms_after, sigma)
+    return change, size, _is_practical(change, size, thresholds)
 
 
 def _pair_beats(best: CandidateResult, pair, thresholds: Thresholds, fit: FitResult) -> bool:
@@ -2571,9 +2569,9 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
     candidates_text = _candidates_text(rnd.refitted, pairs_tried)
     if best is None:
         return f"The residual is not noise ({tests_text}), and no candidate effect helps. {where}"
+    listed = [p for p in pairs_tried if p.effect in ambiguous_pairs]  # the pairs tied with the best one
     if common is not None and not common and len(ambiguous_pairs) > 1 and best.adequate_after and rival is None:
         # step 8 beside an adequate single (:func:`_pair_beats_adequate_single`)
-        listed = [p for p in pairs_tried if p.effect in ambiguous_pairs]
         competitive = ", ".join(f"{p.effect} {p.delta_bic:.0f}" for p in listed)
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
@@ -2584,7 +2582,6 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
             f"do not say which effects are missing and none is named. Candidates: {candidates_text}. {where}"
         )
     if common is not None and not common and len(ambiguous_pairs) > 1:
-        listed = [p for p in pairs_tried if p.effect in ambiguous_pairs]
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma); no single candidate leaves the noise, and pairs with no effect "
@@ -2970,9 +2967,12 @@ def diagnose(
 def _gap_table(record, candidates) -> list:
     """:attr:`Diagnosis.gaps` of ``candidates``: the best refitted one (by delta BIC) against each other."""
     fitted = sorted((c for c in candidates if c.refitted and c.fit is not None), key=lambda c: -c.delta_bic)
+    if len(fitted) < 2:
+        return []
+    best = _whitened(record, fitted[0].fit)
     rows = []
     for other in fitted[1:]:
-        sd = gap_noise_sd(record, fitted[0], other)
+        sd = _gap_sd_of_whitened(best, _whitened(record, other.fit), fitted[0].n_eff)
         rows.append({"better": fitted[0].effect, "other": other.effect,
                      "gap": float(fitted[0].delta_bic - other.delta_bic), "noise_sd": float(sd)})  # fmt: skip
     return rows
@@ -3057,13 +3057,24 @@ def _apart_text(record, best: CandidateResult, rival: CandidateResult, threshold
     )
 
 
-def _practical_size(fit: FitResult, candidate: CandidateResult) -> tuple[float, float]:
-    """``(relative RMS change, explained structure in sigmas)`` of adding ``candidate`` to ``fit``:
-    ``(RMS0 - RMS1) / RMS0`` and ``sqrt(RMS0^2 - RMS1^2) / sigma`` (energised part)."""
-    rms0, rms1 = float(fit.rms), float(candidate.rms_after)
+def _rms_change_and_size(rms0: float, rms1: float, sigma: float) -> tuple[float, float]:
+    """``(relative RMS change, explained structure in sigmas)`` from RMS ``rms0`` to ``rms1``:
+    ``(RMS0 - RMS1) / RMS0`` and ``sqrt(RMS0^2 - RMS1^2) / sigma``."""
+    rms0, rms1 = float(rms0), float(rms1)
     change = (rms0 - rms1) / rms0 if rms0 > 0 else 0.0
-    size = math.sqrt(max(rms0 * rms0 - rms1 * rms1, 0.0)) / float(fit.noise.sigma)
+    size = math.sqrt(max(rms0 * rms0 - rms1 * rms1, 0.0)) / float(sigma)
     return change, size
+
+
+def _is_practical(change: float, size: float, thresholds: Thresholds) -> bool:
+    """The practical size (:attr:`Thresholds.practical_rms_change` and :attr:`Thresholds.structure_floor`)."""
+    return change >= thresholds.practical_rms_change and size >= thresholds.structure_floor
+
+
+def _practical_size(fit: FitResult, candidate: CandidateResult) -> tuple[float, float]:
+    """``(relative RMS change, explained structure in sigmas)`` of adding ``candidate`` to ``fit``
+    (energised part, :func:`_rms_change_and_size`)."""
+    return _rms_change_and_size(fit.rms, candidate.rms_after, fit.noise.sigma)
 
 
 def _excess_over_noise(fit: FitResult) -> float:
@@ -3076,8 +3087,7 @@ def _excess_over_noise(fit: FitResult) -> float:
 
 def _practical(fit: FitResult, candidate: CandidateResult, thresholds: Thresholds) -> bool:
     """Does what ``candidate`` explains matter against the noise (see :attr:`Thresholds.practical_rms_change`)?"""
-    change, size = _practical_size(fit, candidate)
-    return change >= thresholds.practical_rms_change and size >= thresholds.structure_floor
+    return _is_practical(*_practical_size(fit, candidate), thresholds)
 
 
 def _tests_text(adequacy: Adequacy, thresholds: Thresholds) -> str:
