@@ -1547,3 +1547,70 @@ def test_a_swapped_pair_starts_from_the_best_pairs_gpi_and_kept_member():
     assert start["sensor_drift_settling"] == 2.6 and start["sensor_drift_settling_tau"] == 10.4  # the kept member
     assert start["training_gain"] == 0.017 and start["training_travel"] == 14.5  # the swapped-in member's own fit
     assert diagnosis._swap_start(best, {}, model_pair, own) is own
+
+
+def test_a_short_refit_short_of_the_screenings_promise_is_fitted_afresh_in_both_threshold_signs():
+    """A short refit that ends above the screening's linearised chi-square has stayed in the
+    baseline's GPI basin; the candidate is fitted from scratch on the working copy. The
+    record hides a training (wider virgin loops) of the paper's sign (alpha < 0) and the
+    baseline is taken with alpha > 0: the fresh fit ends lower with alpha < 0 and is kept as
+    that sign's candidate; a short refit already below it is left alone (independent
+    bench, seed 18, effects_015: the plain GPI chose alpha > 0, training's short refit
+    stayed 89 above its screening, and thermal was named)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+    from identify.fitting.lsq import WhitenedResiduals
+
+    sim = simulate({"training": {"training_width": 0.4, "training_travel": 15.0}}, fs=10.0, seed=3)
+    record = sim.record
+    noise = estimate_noise(record)
+    positive = with_threshold_sign(normalised_model(Model()), 1)
+    model_e = positive + "training"
+    stuck = fit_least_squares(record, model_e, noise=noise, n_starts=2, threshold_sign="positive")
+    residuals = WhitenedResiduals(record, model_e, noise)
+    w = residuals(stuck.theta[residuals.free])
+    result = (float(w @ w), stuck.theta)
+    s = SimpleNamespace(work=diagnosis._Working(record, noise, 1), rng=np.random.default_rng(0), say=lambda m: None)
+    screening = SimpleNamespace(effect="training")
+
+    # the trigger: a shortfall worth more than bic_significant in the working copy's BIC units
+    s.thresholds, rnd = Thresholds(), SimpleNamespace(n_eff_small=3000.0)
+    assert diagnosis._short_of_screening(s, rnd, SimpleNamespace(chi2_after=4617.0), 4706.0)  # 57 in BIC
+    assert not diagnosis._short_of_screening(s, rnd, SimpleNamespace(chi2_after=4617.0), 4630.0)  # 8
+    assert not diagnosis._short_of_screening(s, rnd, SimpleNamespace(chi2_after=4617.0), 4000.0)
+
+    rnd = SimpleNamespace(fresh={})
+    assert diagnosis._fresh_if_better(s, rnd, model_e, screening, result) is result
+    fresh = rnd.fresh["training"]
+    assert fresh.model.parameters["alpha"].value < 0
+    w_fresh = WhitenedResiduals(record, fresh.model, noise)(fresh.theta[fresh.vary])
+    assert float(w_fresh @ w_fresh) < result[0] - 10.0
+
+    rnd = SimpleNamespace(fresh={})
+    below = (0.5 * float(w_fresh @ w_fresh), stuck.theta)  # a short refit no fresh fit beats
+    assert diagnosis._fresh_if_better(s, rnd, model_e, screening, below) is below
+    assert rnd.fresh == {}
+
+
+def test_a_fresh_fit_of_the_other_sign_replaces_a_candidate_only_where_it_fits_better(monkeypatch):
+    """The fresh fits of the other threshold sign are refitted on the whole record; each one
+    replaces the candidate's refit of the baseline's sign only when its delta BIC is
+    higher (the replaced refit kept for the pairs), and joins the ranking when the
+    candidate was not refitted at all."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    def candidate(effect, delta_bic):
+        return SimpleNamespace(effect=effect, delta_bic=delta_bic, fit=SimpleNamespace())
+
+    other_sign = {"training": 929.0, "initial_state": 40.0, "lag": 12.0}
+    monkeypatch.setattr(diagnosis, "_evaluate_in_round",
+                        lambda s, rnd, name, model, theta, screening: candidate(name, other_sign[name]))  # fmt: skip
+    refitted = [candidate("thermal", 726.0), candidate("training", 180.0), candidate("initial_state", 52.0)]
+    rnd = SimpleNamespace(refitted=refitted, screened=[], fresh={n: SimpleNamespace(model=None, theta=None) for n in other_sign})
+    ranked, replaced = diagnosis._fresh_other_sign(SimpleNamespace(say=lambda m: None), rnd)
+    assert [(c.effect, c.delta_bic) for c in ranked] == [
+        ("training", 929.0), ("thermal", 726.0), ("initial_state", 52.0), ("lag", 12.0)]
+    assert {n: c.delta_bic for n, c in replaced.items()} == {"training": 180.0}

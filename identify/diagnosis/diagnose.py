@@ -49,7 +49,12 @@ Method
    :mod:`identify.fitting.lsq` with the effect on the grid), because a large hidden effect can
    move the GPI far from the baseline's compromise, beyond what a linearisation sees, and
    from the screening's best step on its own (grid points where the effect does nothing tie
-   with "off" and would take the near group's refits).
+   with "off" and would take the near group's refits). A candidate whose short refit
+   ends above the screening's linearised chi-square (by more than
+   :attr:`Thresholds.bic_significant` in BIC) has stayed in the baseline's basin and is
+   fitted from scratch on the working copy, in both threshold signs
+   (:func:`_fresh_if_better`); a lower fit of the other sign is refitted as that sign's
+   candidate (:func:`_fresh_other_sign`).
    The :attr:`Thresholds.max_refits` best, and every further one whose short refit is
    significant, are **refitted** to convergence on the whole record (a short refit only
    bounds a candidate's gain from below). Then the baseline is *challenged*: the model without the effect is refitted
@@ -1659,7 +1664,9 @@ class _Round:
     ``reparametrised``: the baseline starts found through the exact reparametrisations;
     ``replaced``: ``{effect: CandidateResult}`` of the refits in the baseline's threshold sign
     that a refit with the other sign replaced in ``refitted`` (:func:`_retry_other_sign`):
-    the pairs of the baseline's sign start from them (:func:`_pair_pool`).
+    the pairs of the baseline's sign start from them (:func:`_pair_pool`); ``fresh``:
+    ``{effect: FitResult}`` of the fresh fits on the working copy that ended lower with the
+    other threshold sign (:func:`_fresh_if_better`).
     """
 
     fit: FitResult
@@ -1676,6 +1683,7 @@ class _Round:
     reparametrised: list = field(default_factory=list)
     carried: dict = field(default_factory=dict)
     replaced: dict = field(default_factory=dict)
+    fresh: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -1827,9 +1835,81 @@ def _short_refits(s: _Setting, rnd: _Round) -> dict:
         result = _attempt(lambda: _short_refit_from_screening(s.work, rnd.fit, model_e, one, values, carried), s.say,
                           f"short refit with '{one.effect}' failed", rnd.failed,
                           (one.effect, one, rnd.fit, rnd.n_eff_small, "short refit"))  # fmt: skip
+        if result is not None and _short_of_screening(s, rnd, one, result[0]):
+            result = _fresh_if_better(s, rnd, model_e, one, result)
         if result is not None:
             short[one.effect] = result
     return short
+
+
+#: Data-driven starts of a candidate's fresh fit (:func:`_fresh_if_better`).
+FRESH_STARTS = 2
+
+
+def _short_of_screening(s: _Setting, rnd: _Round, screening: ScreeningResult, chi2: float) -> bool:
+    """Did a short refit ending at ``chi2`` fall short of the screening's linearised chi-square
+    by more than :attr:`Thresholds.bic_significant` in the working copy's BIC units
+    (``n ln(chi2 / chi2_after)``, ``n`` the baseline's effective sample count there)?"""
+    n_eff = rnd.n_eff_small
+    return n_eff * math.log(chi2 / max(screening.chi2_after, 1e-300)) > s.thresholds.bic_significant
+
+
+def _fresh_if_better(s: _Setting, rnd: _Round, model_e: Model, screening: ScreeningResult, result):
+    """A candidate's short refit, or its fresh fit on the working copy where that is lower.
+
+    The screening's chi-square after the step (:attr:`ScreeningResult.chi2_after`) is a
+    linearised prediction about the baseline's GPI. A short refit that ends above it has
+    not even reached what the linearisation promised: the candidate's optimum lies in
+    another GPI basin than the baseline's compromise, which the near starts do not reach
+    and a few steps from the far ones do not either. Such a candidate is fitted from
+    scratch on the working copy (:func:`identify.fitting.lsq.fit_least_squares` with
+    :data:`FRESH_STARTS` data-driven starts, both solvers, run to convergence, both signs of
+    a pinned ``alpha``). A fit of the baseline's sign that ends lower replaces the short
+    refit; one of the other sign that ends lower is kept in ``rnd.fresh`` and refitted on
+    the whole record as that sign's candidate (:func:`_fresh_other_sign`): a plain GPI
+    whose two signs nearly tie may settle on the sign the hidden effect does not fit.
+    Measured on an independent record whose play widths narrow with cycling (seed 18,
+    ``effects_015``): the plain GPI took alpha > 0 (chi-square 8987 against 8995),
+    ``training``'s short refit there ended at 4706 on the working copy against the
+    screening's 4617; fresh, with alpha < 0, 3906 (the fit with ``--effects training``
+    reaches the same).
+    """
+    work = s.work
+    s.say(f"fitting '{screening.effect}' from scratch (its short refit stayed above the screening's prediction)")
+    fresh = _attempt(lambda: fit_least_squares(work.record, model_e, noise=work.noise, n_starts=FRESH_STARTS,
+                                               n_polish=1, rng=s.rng),
+                     s.say, "not possible")  # fmt: skip
+    if fresh is None:
+        return result
+    residuals = WhitenedResiduals(work.record, fresh.model, work.noise)
+    w = residuals(fresh.theta[residuals.free])
+    chi2 = float(w @ w)
+    if chi2 >= result[0]:
+        return result
+    if not _same_threshold_sign(fresh.model, model_e):
+        rnd.fresh[screening.effect] = fresh
+        return result
+    return chi2, _embed(fresh.model, fresh.theta, model_e)
+
+
+def _fresh_other_sign(s: _Setting, rnd: _Round) -> tuple[list, dict]:
+    """The fresh fits of the other threshold sign (``rnd.fresh``, :func:`_fresh_if_better`)
+    refitted on the whole record: ``(refitted, replaced)`` as :func:`_retry_other_sign`, each
+    candidate in the sign where its delta BIC is higher."""
+    retried = {}
+    for name, fresh in rnd.fresh.items():
+        s.say(f"refitting with '{name}' from its fresh fit with the other threshold sign")
+        screening = next((one for one in rnd.screened if one.effect == name), None)
+        result = _attempt(lambda: _evaluate_in_round(s, rnd, name, fresh.model, fresh.theta, screening), s.say,
+                          "not possible")  # fmt: skip
+        if result is not None:
+            retried[name] = result
+    own = {c.effect: c for c in rnd.refitted}
+    better = {name for name, c in retried.items() if name not in own or c.delta_bic > own[name].delta_bic}
+    replaced = {name: own[name] for name in better if name in own and own[name].fit is not None}
+    refitted = [c for c in rnd.refitted if c.effect not in better] + [retried[name] for name in better]
+    refitted.sort(key=lambda c: -c.delta_bic)
+    return refitted, replaced
 
 
 def _refit_best(s: _Setting, rnd: _Round) -> list:
@@ -2109,6 +2189,9 @@ def _diagnosis_rounds(s: _Setting, fit: FitResult) -> _Round:
         if not rnd.adequacy.adequate:
             rnd.short = _short_refits(s, rnd)
         rnd.refitted = _refit_best(s, rnd)
+        if rnd.fresh:
+            rnd.refitted, replaced = _fresh_other_sign(s, rnd)
+            rnd.replaced.update(replaced)
         if not rnd.adequacy.adequate and rnd.refitted and not rnd.refitted[0].adequate_after:
             rnd.refitted, replaced = _retry_other_sign(s, rnd)
             rnd.replaced.update(replaced)
