@@ -1772,6 +1772,11 @@ def _effect_values(model_e: Model, theta, name: str) -> dict:
     return {n: float(theta[model_e.names.index(n)]) for n in get_effect(name).parameters.names}
 
 
+def _screening_of(rnd: _Round, name: str) -> ScreeningResult | None:
+    """Candidate ``name``'s :class:`ScreeningResult` in ``rnd`` (None when it was not screened)."""
+    return next((one for one in rnd.screened if one.effect == name), None)
+
+
 def _screening_values(model_e: Model, screening: ScreeningResult) -> dict:
     """``{parameter: value}`` of the candidate's own parameters at its screening start."""
     return _effect_values(model_e, screening.start, screening.effect)
@@ -1899,17 +1904,27 @@ def _fresh_other_sign(s: _Setting, rnd: _Round) -> tuple[list, dict]:
     retried = {}
     for name, fresh in rnd.fresh.items():
         s.say(f"refitting with '{name}' from its fresh fit with the other threshold sign")
-        screening = next((one for one in rnd.screened if one.effect == name), None)
+        screening = _screening_of(rnd, name)
         result = _attempt(lambda: _evaluate_in_round(s, rnd, name, fresh.model, fresh.theta, screening), s.say,
                           "not possible")  # fmt: skip
         if result is not None:
             retried[name] = result
-    own = {c.effect: c for c in rnd.refitted}
+    return _keep_higher(rnd.refitted, retried)
+
+
+def _keep_higher(refitted: list, retried: dict) -> tuple[list, dict]:
+    """``(refitted, replaced)``: each candidate of ``refitted`` replaced by its refit in
+    ``retried`` (``{effect: CandidateResult}``, e.g. with the other threshold sign) where that
+    one's delta BIC is higher, a refit of a candidate ``refitted`` lacks added, by falling
+    delta BIC; and ``{effect: CandidateResult}`` of the replaced refits (those with a fit: the
+    pairs start from them, :func:`_pair_pool`)."""
+    own = {c.effect: c for c in refitted}
     better = {name for name, c in retried.items() if name not in own or c.delta_bic > own[name].delta_bic}
-    replaced = {name: own[name] for name in better if name in own and own[name].fit is not None}
-    refitted = [c for c in rnd.refitted if c.effect not in better] + [retried[name] for name in better]
-    refitted.sort(key=lambda c: -c.delta_bic)
-    return refitted, replaced
+    replaced = {c.effect: c for c in refitted if c.effect in better and c.fit is not None}
+    ranked = [retried[c.effect] if c.effect in better else c for c in refitted]
+    ranked += [retried[name] for name in retried if name in better and name not in own]
+    ranked.sort(key=lambda c: -c.delta_bic)
+    return ranked, replaced
 
 
 def _refit_best(s: _Setting, rnd: _Round) -> list:
@@ -1930,7 +1945,7 @@ def _refit_best(s: _Setting, rnd: _Round) -> list:
         ):
             continue
         s.say(f"refitting with '{name}'")
-        screening = next(one for one in rnd.screened if one.effect == name)
+        screening = _screening_of(rnd, name)
         result = _attempt(
             lambda: _evaluate_in_round(s, rnd, name, fit.model + name, short[name][1], screening),
             s.say, f"refit with '{name}' failed", rnd.failed, (name, screening, fit, rnd.n_eff_small, "refit"),
@@ -1967,7 +1982,7 @@ def _other_sign_refits(s: _Setting, rnd: _Round, names) -> list:
                          s.say, "not possible")  # fmt: skip
         if small is None:
             continue
-        screening = next((one for one in rnd.screened if one.effect == name), None)
+        screening = _screening_of(rnd, name)
         result = _attempt(lambda: _evaluate_in_round(s, rnd, name, small.model, small.theta, screening), s.say, "not possible")
         if result is not None:
             results.append(result)
@@ -1994,7 +2009,7 @@ def _other_sign_refits_from(s: _Setting, rnd: _Round, names, anchor: CandidateRe
     for name in names:
         s.say(f"refitting with '{name}' with the other threshold sign, from the GPI of '{anchor.effect}' there")
         model_e = plain + name
-        screening = next((one for one in rnd.screened if one.effect == name), None)
+        screening = _screening_of(rnd, name)
         values = [_effect_values(fit.model + name, rnd.short[name][1], name)] if name in rnd.short else [{}]
         grid = list(screening.grid) if screening is not None else []
         small = _attempt(lambda: _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, gpi, model_e, values + grid)),
@@ -2034,11 +2049,7 @@ def _retry_other_sign(s: _Setting, rnd: _Round) -> tuple[list, dict]:
     if anchor is not None and anchor.delta_bic > best.delta_bic:
         others = [c.effect for c in rnd.refitted[1 : s.thresholds.max_refits] if not c.adequate_after]
         retried.update({c.effect: c for c in _other_sign_refits_from(s, rnd, others, anchor)})
-    better = {c.effect for c in rnd.refitted if c.effect in retried and retried[c.effect].delta_bic > c.delta_bic}
-    replaced = {c.effect: c for c in rnd.refitted if c.effect in better and c.fit is not None}
-    refitted = [retried[c.effect] if c.effect in better else c for c in rnd.refitted]
-    refitted.sort(key=lambda c: -c.delta_bic)
-    return refitted, replaced
+    return _keep_higher(rnd.refitted, retried)  # every retried name is among the refitted
 
 
 #: A candidate is refitted on the whole record from another candidate's GPI when that start's
