@@ -1722,7 +1722,20 @@ class SensorDrift(Effect):
         }  # fmt: skip
 
     def output(self, params, time, current, displacement):
-        """Displacement plus drift, shape ``(W, T)`` [um]."""
+        """Displacement plus drift, shape ``(W, T)`` [um].
+
+        The drift does not depend on the displacement, so it is computed once per distinct
+        parameter row (a finite-difference Jacobian's rows that move the GPI or another
+        effect share one drift) and added to every row that has it."""
+        params = np.atleast_2d(np.asarray(params, dtype=float))
+        if params.shape[0] > 1:
+            distinct, row_of = np.unique(params, axis=0, return_inverse=True)
+            if distinct.shape[0] < params.shape[0]:
+                return displacement + self.drift(distinct, time)[row_of.reshape(-1)]
+        return displacement + self.drift(params, time)
+
+    def drift(self, params, time):
+        """The drift alone, shape ``(W, T)`` [um], for parameter rows ``(W, 7)``; 0 at the first sample."""
         params = np.asarray(params, dtype=float)
         time = np.asarray(time, dtype=float)
         span = time[-1] - time[0]
@@ -1735,4 +1748,4 @@ class SensorDrift(Effect):
         if np.any(sine != 0.0) or np.any(cosine != 0.0):
             phase = (2.0 * np.pi / params[:, 6:7]) * (time - time[0])
             drift = drift + sine * np.sin(phase) + cosine * (1.0 - np.cos(phase))
-        return displacement + drift
+        return drift

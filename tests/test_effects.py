@@ -118,6 +118,33 @@ def test_finite_difference_batch_is_each_rows_own_output(names, paper_input):
     _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats=(0, theta.size))
 
 
+def test_sensor_drift_with_every_term_on_batch_is_each_rows_own_output(paper_input):
+    """The drift is computed once per distinct parameter row and added to every row that has
+    it (rows that move the GPI share one drift): with the settling and ambient terms on too,
+    a Jacobian's batch still gives every row its own single evaluation, bit for bit."""
+    time, current = paper_input[0][::4], paper_input[1][::4]
+    m = Model(["sensor_drift"])
+    theta = m.default_theta()
+    on = {"sensor_drift_linear": 2.0, "sensor_drift_quadratic": -1.0, "sensor_drift_settling": 1.5,
+          "sensor_drift_settling_tau": 12.0, "sensor_drift_ambient_sine": 0.4, "sensor_drift_ambient_cosine": -0.3,
+          "sensor_drift_ambient_period": 90.0}  # fmt: skip
+    for key, value in on.items():
+        theta[m.names.index(key)] = value
+    y = _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats=(0, 3, theta.size))
+    drift = m.effects[0].drift(theta[m.effect_slice("sensor_drift")][None, :], time)[0]
+    assert np.ptp(drift) > 1.0 and drift[0] == 0.0
+    assert np.array_equal(y[0], m(_off(m, theta), time, current) + drift)
+
+
+def _off(m, theta):
+    """``theta`` with every effect at its off setting."""
+    out = np.array(theta, dtype=float)
+    for e in m.effects:
+        for key, value in e.off.items():
+            out[m.names.index(key)] = value
+    return out
+
+
 def _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats):
     """A Jacobian's batch of ``theta`` (each parameter alone perturbed, then exact repeats of
     the rows ``repeats``) through ``m``: every row equals its own single evaluation, bit for
