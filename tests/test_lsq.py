@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from identify.fitting.parametrisation import normalised_model
-from identify.fitting.lsq import FitResult, WhitenedResiduals, candidate_starts, fit_least_squares
+from identify.fitting.lsq import FitResult, WhitenedResiduals, candidate_starts, difference_columns, fit_least_squares
 from identify.fitting.noise import NoiseModel, estimate_noise
 from identify.data.records import Record
 from model import TABLE1, Model, paper_current
@@ -127,6 +127,31 @@ def test_jacobian_is_one_batched_model_call_and_matches_central_differences():
     scale = np.linalg.norm(central, axis=0)
     # forward differences have O(h) truncation error, h ~ 1.5e-8 relative
     assert np.all(np.linalg.norm(jac - central, axis=0) < 1e-4 * scale)
+
+
+def test_jacobian_columns_are_numpys_forward_differences_bit_for_bit():
+    """The Jacobian is laid out (T, P) by a compiled loop over blocks of samples: the same
+    subtraction and division per value as numpy's transposed differences, so the same bits;
+    the selected-columns form leaves the other columns as they were."""
+    rec = simulated_record(fs=10.0, seed=1)
+    model = normalised_model(Model(["creep"]))
+    residuals = WhitenedResiduals(rec, model, estimate_noise(rec))
+    x = model.default_theta()[residuals.free]
+    at_bound = list(residuals.free).index(model.names.index("creep_amplitude"))
+    x[at_bound] = residuals.upper[at_bound]  # a parameter on its upper bound steps backwards
+    steps = residuals._steps(x, 0.5)
+    steps = np.where(x + steps > residuals.upper, -steps, steps)
+    rows = np.repeat(x[None, :], x.size + 1, axis=0)
+    rows[1:][np.arange(x.size), np.arange(x.size)] += steps
+    w, valid = residuals.batch(rows)
+    assert valid.all()
+    expected = np.ascontiguousarray(((w[1:] - w[0]) / steps[:, None]).T)
+    assert np.array_equal(residuals.jacobian(x), expected)
+    columns = np.array([0, 4, x.size - 1])
+    out = np.full(expected.shape, 7.0)
+    difference_columns(w, w[0], steps, columns, out)
+    assert np.array_equal(out[:, columns], expected[:, columns])
+    assert (np.delete(out, columns, axis=1) == 7.0).all()
 
 
 def test_data_driven_start_is_exact_for_a_rescaled_transducer():

@@ -89,6 +89,7 @@ import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from scipy.optimize import least_squares
 
 from model import GPI_PARAMETERS, THETA_NAMES, Model
@@ -394,6 +395,26 @@ def parameter_units(model: Model, record=None) -> list[str]:
     return units
 
 
+@njit(cache=True)
+def difference_columns(rows, base, steps, columns, out):
+    """Forward differences laid out as a Jacobian: ``out[k, j] = (rows[j + 1, k] - base[k]) / steps[j]``
+    for each ``j`` in ``columns`` (``rows`` of shape ``(P + 1, T)``, ``out`` ``(T, P)``; other
+    columns untouched).
+
+    The same two operations per value as numpy's ``((rows[1:] - base) / steps[:, None]).T``,
+    so the same bits, written in blocks of samples: numpy's transposed copy of the
+    ``(P, T)`` differences strides through memory and costs about ten times as much at
+    70001 samples."""
+    n_samples = base.shape[0]
+    block = 64
+    for k0 in range(0, n_samples, block):
+        k1 = min(k0 + block, n_samples)
+        for j in columns:
+            step = steps[j]
+            for k in range(k0, k1):
+                out[k, j] = (rows[j + 1, k] - base[k]) / step
+
+
 class WhitenedResiduals:
     """Whitened residuals of a record as a function of the free parameters.
 
@@ -469,8 +490,8 @@ class WhitenedResiduals:
         rows[1:][np.arange(n_free), np.arange(n_free)] += steps
         w, valid = self.batch(rows)
         base = w[0] if valid[0] else self(x)
-        # column j = (w[j + 1] - base) / steps[j], laid out (T, P_free) in C order as a column loop fills it
-        jac = np.ascontiguousarray(((w[1:] - base) / steps[:, None]).T)
+        jac = np.empty((self.data.size, n_free))
+        difference_columns(w, base, steps, np.arange(n_free), jac)
         bad = [j for j in range(n_free) if not valid[j + 1]]
         jac[:, bad] = 0.0
         if bad and valid[0]:
@@ -1022,8 +1043,7 @@ class _ResidualsInCoordinates:
         usable = inside & valid
         jac = np.zeros((self.residuals.data.size, u.size))
         if usable[0]:
-            columns = np.flatnonzero(usable[1:])
-            jac[:, columns] = (w[1 + columns] - w[0][None, :]).T / steps[columns]
+            difference_columns(w, w[0], steps, np.flatnonzero(usable[1:]), jac)
         return jac
 
 
