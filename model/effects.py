@@ -1735,17 +1735,26 @@ class SensorDrift(Effect):
         return displacement + self.drift(params, time)
 
     def drift(self, params, time):
-        """The drift alone, shape ``(W, T)`` [um], for parameter rows ``(W, 7)``; 0 at the first sample."""
+        r"""The drift alone, shape ``(W, T)`` [um], for parameter rows ``(W, 7)``; 0 at the first sample.
+
+        The settling curve depends on :math:`\tau_w` alone and the ambient's sine and cosine
+        on :math:`P_a` alone, so each is computed once per distinct value (a Jacobian's rows
+        share them but for the one row that moves it) and weighted per row: the same values."""
         params = np.asarray(params, dtype=float)
         time = np.asarray(time, dtype=float)
         span = time[-1] - time[0]
-        s = (time - time[0]) / span if span > 0 else np.zeros_like(time)
+        elapsed = time - time[0]
+        s = elapsed / span if span > 0 else np.zeros_like(time)
         drift = params[:, 0:1] * s + params[:, 1:2] * s**2
         settling = params[:, 2:3]
         if np.any(settling != 0.0):
-            drift = drift + settling * -np.expm1(-(time - time[0]) / params[:, 3:4])
+            taus, tau_of = np.unique(params[:, 3], return_inverse=True)
+            drift += settling * (-np.expm1(-elapsed / taus[:, None]))[tau_of.reshape(-1)]
         sine, cosine = params[:, 4:5], params[:, 5:6]
         if np.any(sine != 0.0) or np.any(cosine != 0.0):
-            phase = (2.0 * np.pi / params[:, 6:7]) * (time - time[0])
-            drift = drift + sine * np.sin(phase) + cosine * (1.0 - np.cos(phase))
+            periods, period_of = np.unique(params[:, 6], return_inverse=True)
+            phase = (2.0 * np.pi / periods[:, None]) * elapsed
+            period_of = period_of.reshape(-1)
+            drift += sine * np.sin(phase)[period_of]
+            drift += cosine * (1.0 - np.cos(phase))[period_of]
         return drift
