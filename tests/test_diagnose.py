@@ -1165,6 +1165,34 @@ def test_a_targeted_finding_in_the_first_loading_alone_is_none():
     assert {name for name, e in EFFECTS.items() if e.first_cycle} == {"training", "initial_state", "incomplete_reset"}
 
 
+def test_a_name_in_the_first_loading_beside_first_cycle_physics_is_not_given_on_a_residual_that_is_not_noise():
+    """The targeted check's first-loading rule on the other path: when the residual fails the
+    noise tests and the best candidate puts >= 95 % of its part in the first loading while
+    the model already has first-cycle physics, the verdict is `unexplained` with the reason
+    and the candidates, not the name; below the share, or with no first-cycle physics in the
+    model, the name stands (the caution sentence is added as before)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis.diagnose import FIRST_LOADING_SHARE, _first_cycle_again, _Verdict
+
+    rec = simulate(None, seed=0, fs=10.0).record
+    held = SimpleNamespace(effect="initial_state", refitted=True, delta_bic=225.0, explained=1.0, rms_after=0.5,
+                           adequate_after=True, uncharged_terms=())  # fmt: skip
+    profile = residual_profile(rec.time, rec.current, np.zeros_like(rec.time) + 0.1, slice(0, 101), output_range=300.0)
+    rnd = SimpleNamespace(fit=SimpleNamespace(model=Model(["training"])), refitted=[held], profile=profile)
+    verdict = _Verdict("missing_effect", "initial_state", "Adding 'initial_state' explains 100 % ...")
+    tests_text = "tests above z = 5: ljung_box z 7.1; non-noise part 0.31 sigma >= the 0.1 sigma floor"
+    out = _first_cycle_again(rnd, verdict, 0.999, tests_text)
+    assert out.status == "unexplained" and out.missing is None
+    assert "99.9 % of its part of the fit in the first loading" in out.reason and "('training')" in out.reason
+    assert "delta BIC 225" in out.reason and "Candidates: 'initial_state' explains 100 %" in out.reason
+    assert out.reason.startswith("The residual is not noise (tests above z = 5")
+    assert _first_cycle_again(rnd, verdict, FIRST_LOADING_SHARE - 0.01, tests_text) is None
+    assert _first_cycle_again(rnd, verdict, None, tests_text) is None
+    no_first_cycle = SimpleNamespace(fit=SimpleNamespace(model=Model(["creep"])), refitted=[held], profile=profile)
+    assert _first_cycle_again(no_first_cycle, verdict, 0.999, tests_text) is None
+
+
 def test_a_single_candidate_that_leaves_structure_is_named_only_when_asked():
     """No pair beats the best single candidate, which explains 80 % of the misfit and leaves
     structure: by default nothing is named (a candidate that leaves structure is not trusted,
