@@ -2933,10 +2933,10 @@ def _first_cycle_again(rnd: _Round, verdict: _Verdict, share: float | None, test
     The targeted check's rule (:func:`first_loading_finding`) on the other path: the record
     has one first loading, and a further part confined to it cannot be told from another
     form of the first-cycle physics the model has (the model's form of it is not the
-    material's). Measured on the independent bench, every draw of a play width narrowing
-    with the cycles + a creep (seeds 12, 18) and of the narrowing alone (seeds 11, 17): after
-    `training`, `initial_state` was named with 99.9 % of its part in the first loading, then
-    `adequate`; none of these records has a prior state."""
+    material's). Measured on the independent bench: after `training`, `initial_state` was
+    named second with 99.9 % of its part in the first loading on play widths narrowing with
+    the cycles + a creep (seed 18 at 7f129cc; seed 12 with earlier code) and on the narrowing
+    alone (seeds 11 and 17 with earlier code); none of these records has a prior state."""
     held = [e.name for e in rnd.fit.model.effects if e.first_cycle]
     if share is None or share < FIRST_LOADING_SHARE or not held:
         return None
