@@ -133,16 +133,7 @@ def test_sensor_drift_with_every_term_on_batch_is_each_rows_own_output(paper_inp
     y = _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats=(0, 3, theta.size))
     drift = m.effects[0].drift(theta[m.effect_slice("sensor_drift")][None, :], time)[0]
     assert np.ptp(drift) > 1.0 and drift[0] == 0.0
-    assert np.array_equal(y[0], m(_off(m, theta), time, current) + drift)
-
-
-def _off(m, theta):
-    """``theta`` with every effect at its off setting."""
-    out = np.array(theta, dtype=float)
-    for e in m.effects:
-        for key, value in e.off.items():
-            out[m.names.index(key)] = value
-    return out
+    assert np.array_equal(y[0], m(m.default_theta(), time, current) + drift)  # the drift's defaults: off
 
 
 def _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats):

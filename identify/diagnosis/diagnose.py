@@ -2890,6 +2890,19 @@ def _part_in_first_loading(record, fit: FitResult, effect_names) -> float | None
     return float(first @ first) / total
 
 
+def _another_form_clause(model: Model) -> str:
+    """The clause of the first-loading rules (:func:`first_loading_finding`,
+    :func:`_first_cycle_again`) for a model that already holds first-cycle physics
+    (:attr:`model.composite.Effect.first_cycle`), naming it; ``""`` when it holds none."""
+    held = [e.name for e in model.effects if e.first_cycle]
+    if not held:
+        return ""
+    return (
+        f", and the model already has first-cycle physics ({', '.join(repr(n) for n in held)}): the record has one "
+        "first loading and cannot tell a further part of it from another form of the physics the model has"
+    )
+
+
 def first_loading_finding(record, fit: FitResult, candidate: CandidateResult) -> str | None:
     """Why a targeted finding is none when it acts on the first loading alone, else None.
 
@@ -2906,17 +2919,13 @@ def first_loading_finding(record, fit: FitResult, candidate: CandidateResult) ->
     share = first_loading_share(record, candidate)
     if share is None or share < FIRST_LOADING_SHARE:
         return None
-    held = [e.name for e in fit.model.effects if e.first_cycle]
     opening = (
         f" The targeted refit of '{candidate.effect}' (delta BIC {candidate.delta_bic:.0f}) puts "
         f"{100 * share:.1f} % of its part of the fit in the first loading (before the drive's first reversal)"
     )
+    held = _another_form_clause(fit.model)
     if held:
-        return opening + (
-            f", and the model already has first-cycle physics ({', '.join(repr(n) for n in held)}): the record "
-            "has one first loading and cannot tell a further part of it from another form of the physics the "
-            "model has, so it is not a finding."
-        )
+        return opening + held + ", so it is not a finding."
     return opening + (
         ": the record has one first loading and cannot tell a small misfit there from other physics that acts "
         "on it alone (a virgin material that trains at once, the memory a run before the record left, a gap in "
@@ -2937,17 +2946,16 @@ def _first_cycle_again(rnd: _Round, verdict: _Verdict, share: float | None, test
     named second with 99.9 % of its part in the first loading on play widths narrowing with
     the cycles + a creep (seed 18 at 7f129cc; seed 12 with earlier code) and on the narrowing
     alone (seeds 11 and 17 with earlier code); none of these records has a prior state."""
-    held = [e.name for e in rnd.fit.model.effects if e.first_cycle]
+    held = _another_form_clause(rnd.fit.model)
     if share is None or share < FIRST_LOADING_SHARE or not held:
         return None
     named = next((c for c in rnd.refitted if c.effect == verdict.missing), None)
     size = "" if named is None else f" (delta BIC {named.delta_bic:.0f}, explains {100 * named.explained:.0f} %)"
     reason = (
         f"The residual is not noise ({tests_text}). The best candidate, '{verdict.missing}'{size}, puts "
-        f"{100 * share:.1f} % of its part of the fit in the first loading (before the drive's first reversal), and "
-        f"the model already has first-cycle physics ({', '.join(repr(n) for n in held)}): the record has one first "
-        "loading and cannot tell a further part of it from another form of the physics the model has, so it is not "
-        f"named. Candidates: {_candidates_text(rnd.refitted, verdict.pairs_tried)}. {_where_summary(rnd.profile)}"
+        f"{100 * share:.1f} % of its part of the fit in the first loading (before the drive's first reversal)"
+        f"{held}, so it is not named. Candidates: {_candidates_text(rnd.refitted, verdict.pairs_tried)}. "
+        f"{_where_summary(rnd.profile)}"
     )
     return _Verdict("unexplained", None, reason, None, verdict.pairs_tried)
 
