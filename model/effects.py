@@ -13,7 +13,7 @@ name                  stage    equation (one line)
 ``rate_width``        input    thresholds :math:`r_j (1 + b g)` (:math:`b \ge 0`) or :math:`r_j / (1 + |b| g)` (:math:`b < 0`), :math:`g = \ln(1 + c|\dot u|)/c`: rate-dependent hysteresis
 ``initial_state``     state    operators' initial memory from a level :math:`z^0` and a prior excursion
 ``incomplete_reset``  output   :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading with travel
-``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change
+``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change (or from the end of its leg)
 ``thermal``           output   two nodes :math:`\tau_T \dot\vartheta_1 = (i/i_\mathrm{ref})^2 - \vartheta_1`, :math:`\tau_2 \dot\vartheta_2 = \vartheta_1 - \vartheta_2`, :math:`y = y_g (1 - S\vartheta_1 - S_2\vartheta_2) + E\vartheta_1 + E_2\vartheta_2`
 ``sensor_drift``      output   :math:`y = y_g + D_1 s + D_2 s^2 + D_w (1 - e^{-t/\tau_w})`, :math:`s = (t - t_0)/(t_{T-1} - t_0)`
 ====================  =======  ================================================================
@@ -311,7 +311,7 @@ def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivit
 
 
 @njit(parallel=True, cache=True)
-def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log, out):
+def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log, hold, out):
     """Creep of each row of ``displacement``: ``taus.shape[1]`` equal-weight saturating modes
     (amplitude ``amplitude[w]``) plus ``n_log[w]`` logarithmic-creep modes ``log_taus[w, :n_log[w]]``
     of weight :data:`LOG_CREEP_MODE_WEIGHT` decades each (rate ``log_rate[w]`` per decade).
@@ -328,7 +328,11 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
         gain = np.empty(n_modes + n_log_max)
         spectrum = amplitude[w] != 0.0
         logarithmic = log_rate[w] != 0.0 and n_log[w] > 0
+        held_part = hold[w] != 0.0
         y0 = displacement[w, 0]
+        held = y0
+        last_direction = 0.0
+        x_prev = y0
         for m in range(n_modes):
             modes[m] = y0  # at rest at the start: every mode at equilibrium
         for m in range(n_log_max):
@@ -360,7 +364,27 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
                         modes[m] = y_now
                     total += modes[m]
                 value -= amplitude[w] * (y_now - total / n_modes)
-            if logarithmic:
+            if logarithmic and held_part:
+                # the part ``hold`` of each leg's change creeps from the leg's end (a reversal
+                # or a stop, known once the sample after it is): the modes see the output held there
+                y_before = displacement[w, k - 2] if k >= 2 else y0
+                change = y_prev - y_before
+                if change == 0.0:
+                    held = y_prev
+                else:
+                    direction = 1.0 if change > 0.0 else -1.0
+                    if last_direction != 0.0 and direction != last_direction:
+                        held = y_before
+                    last_direction = direction
+                x_now = (1.0 - hold[w]) * y_now + hold[w] * held
+                grown = 0.0
+                for m in range(n_log[w]):
+                    j = n_modes + m
+                    logs[m] = x_now - (x_now - x_prev) * gain[j] + decay[j] * (logs[m] - x_prev)
+                    grown += logs[m] - y0
+                x_prev = x_now
+                value += log_rate[w] * LOG_CREEP_MODE_WEIGHT * grown
+            elif logarithmic:
                 grown = 0.0
                 for m in range(n_log[w]):
                     j = n_modes + m
@@ -1412,6 +1436,16 @@ class Creep(Effect):
     output, superposed: a Prony series of :math:`J` modes half a decade apart reaching ten
     times the record's length (:func:`log_creep_time_constants`; within 0.05 decade-units
     of the logarithm for :math:`t \ge 10 t_0`), so it never saturates within a record.
+    **When each change starts to creep** (:math:`q`, ``creep_log_hold``): the part
+    :math:`q` of each leg's change starts its logarithmic creep at the leg's end instead of
+    with the change, so the logarithmic modes follow :math:`(1-q)\,y_g + q\,h` instead of
+    :math:`y_g`, with :math:`h` the output at the end of the last completed leg (a reversal
+    or a stop of :math:`y_g`, known one sample after it). :math:`q = 0` superposes the creep
+    of every increment (Boltzmann superposition); :math:`q = 1` lets the twin boundaries
+    creep only once the drive stops advancing them, each leg's change :math:`\Delta_m`
+    creeping by :math:`\gamma\Delta_m` per decade from its end: thermally activated motion
+    takes over where the driven motion stops. A step and a hold creep the same way under
+    both (from the stop); on a sine they differ by when the growth starts.
     Its instantaneous response is :math:`y_g` itself and it moves the output beyond the
     GPI's value, so over a record it trades off partly with the GPI's gain (``rho`` and
     the envelope amplitudes: a part that has grown by the same amount at every peak looks
@@ -1425,15 +1459,18 @@ class Creep(Effect):
     Trade-offs within the effect: :math:`\tau` with :math:`d` (a wide spectrum with a
     shorter centre resembles a narrower one with a longer centre over a record), and
     :math:`A` with :math:`\gamma` where the saturating spectrum is wide (both logarithmic
-    within the span). Measured Jacobian rank with the GPI on the paper's input:
+    within the span), and :math:`q` with :math:`t_0` (both delay the growth after a
+    reversal; :math:`q` has no effect while :math:`\gamma = 0`). Measured Jacobian rank with the GPI on the paper's input:
     ``docs/effects.md``.
 
     Parameters: ``creep_amplitude`` (fraction of a step that creeps, -0.5-0.5; < 0
     relaxes back),
     ``creep_tau`` [s] (central time constant, 0.01-100), ``creep_decades`` (spectrum
     width, 0-4), ``creep_log_rate`` :math:`\gamma` (fraction of a step per decade of time,
-    -0.1-0.1), ``creep_log_onset`` :math:`t_0` [s] (0.001-10). Off: ``creep_amplitude = 0``
-    and ``creep_log_rate = 0``.
+    -0.1-0.1), ``creep_log_onset`` :math:`t_0` [s] (0.001-10), ``creep_log_hold`` :math:`q`
+    (part of each leg's change that creeps from the leg's end, 0-1). Off:
+    ``creep_amplitude = 0`` and ``creep_log_rate = 0``; ``creep_log_hold = 0`` is the
+    superposed form.
     """
 
     name = "creep"
@@ -1454,16 +1491,21 @@ class Creep(Effect):
                 "creep_log_onset", 0.1, 0.001, 10.0, unit="s",
                 description="logarithmic creep: time after a change from which it grows logarithmically",
             ),
+            Parameter(
+                "creep_log_hold", 0.0, 0.0, 1.0, unit="",
+                description="logarithmic creep: fraction of each leg's change that starts creeping at the leg's end (the reversal)",
+            ),
         ]
     )  # fmt: skip
-    off = {"creep_amplitude": 0.0, "creep_tau": 1.0, "creep_decades": 1.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1}
-    summary = "creep: saturating log-spaced modes, y_g - A (y_g - mean s_m), plus logarithmic creep gamma per decade after each change"
+    off = {"creep_amplitude": 0.0, "creep_tau": 1.0, "creep_decades": 1.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1,
+           "creep_log_hold": 0.0}
+    summary = "creep: saturating log-spaced modes, y_g - A (y_g - mean s_m), plus logarithmic creep gamma per decade after each change (a part q from the end of its leg)"
     signature = "follows the strain: after each reversal the output keeps moving the way it last changed, also while the input is held, and stops when the strain does not change"
-    terms = {"logarithmic": ("creep_log_rate", "creep_log_onset")}
+    terms = {"logarithmic": ("creep_log_rate", "creep_log_onset"), "after_reversal": ("creep_log_hold",)}
 
     @classmethod
     def get_test_parameters(cls):
-        return {"creep_amplitude": 0.05, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1}
+        return {"creep_amplitude": 0.05, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1, "creep_log_hold": 0.0}
 
     def output(self, params, time, current, displacement):
         """Displacement after creep, shape ``(W, T)`` [um]."""
@@ -1474,9 +1516,10 @@ class Creep(Effect):
         log_rate = _column(params, 3)
         duration = float(time[-1] - time[0]) if time.size else 0.0
         log_taus, counts = log_creep_time_constants(params[:, 4], duration)
+        hold = _column(params, 5)
         displacement = np.ascontiguousarray(np.atleast_2d(displacement), dtype=float)
         out = np.empty_like(displacement)
-        _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, counts, out)
+        _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, counts, hold, out)
         return out
 
 

@@ -186,6 +186,21 @@ def _filter_step(state, x_prev, x_now, gain, decay, active):
 
 
 @njit(cache=True, inline="always")
+def _held_level(st):
+    """``(held, direction)`` at the present sample: the strain at the end of the last completed
+    leg (a reversal or a stop, known once the sample after it is), as in
+    :func:`model.effects._creep_kernel` (``creep_log_hold``)."""
+    change = st[12] - st[15]
+    if change == 0.0:
+        return st[12], st[16]
+    direction = 1.0 if change > 0.0 else -1.0
+    held = st[17]
+    if st[16] != 0.0 and direction != st[16]:
+        held = st[15]
+    return held, direction
+
+
+@njit(cache=True, inline="always")
 def _env(k0, k1, k2, k3, v):
     return k0 * math.tanh(k1 * v + k2) + k3
 
@@ -212,8 +227,8 @@ def _evaluate(
     ``g``: the 16 envelope/Omega coefficients (rising env 0-3, falling env 4-7, Omega c
     8-11, Omega d 12-15). ``st``: scalar state (see the kernel). ``tr``: training's six
     parameters. ``cp``: creep's saturating amplitude, number of saturating modes, logarithmic
-    rate, number of logarithmic modes (``modes`` holds the saturating modes, then the
-    logarithmic ones). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
+    rate, number of logarithmic modes, the part held to the leg's end (``modes`` holds the
+    saturating modes, then the logarithmic ones). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
     reference current, node 2's time constant, sensitivity, expansion; ``thermal_c`` the
     two nodes' step coefficients. ``drift``: the sensor drift at this sample.
     Before the first sample is committed, ``memory`` holds the initial memory held beyond
@@ -292,9 +307,13 @@ def _evaluate(
                 total += _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
             y = y - cp[0] * (y_strain - total / n_sat)
         if cp[2] != 0.0 and n_log > 0:
+            x_prev, x_now = st[12], y_strain
+            if cp[4] != 0.0:  # the part creeping from the leg's end sees the held strain
+                held, _ = _held_level(st)
+                x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
             grown = 0.0
             for m in range(n_sat, n_sat + n_log):
-                grown += _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m]) - st[11]
+                grown += _filter_step(modes[m], x_prev, x_now, creep_gain[m], creep_decay[m], creep_active[m]) - st[11]
             y = y + cp[2] * LOG_CREEP_MODE_WEIGHT * grown
     if thermal_on:
         if first:
@@ -330,6 +349,10 @@ def _commit(
             )
         for m in range(modes.shape[0]):
             modes[m] = y_gpi
+        st[15] = y_strain
+        st[16] = 0.0
+        st[17] = y_strain
+        st[18] = y_strain
         st[7] = 0.0
         st[13] = 0.0
         st[5] = 1.0
@@ -346,8 +369,19 @@ def _commit(
             for j in range(n_ops):
                 memory[j] = min(memory[j], env + thresholds[j] * width)
         if creep_on:
-            for m in range(int(cp[1]) + int(cp[3])):
+            n_sat = int(cp[1])
+            for m in range(n_sat):
                 modes[m] = _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
+            x_prev, x_now = st[12], y_strain
+            if cp[4] != 0.0:
+                held, direction = _held_level(st)
+                x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
+                st[16] = direction
+                st[17] = held
+                st[18] = x_now
+            for m in range(n_sat, n_sat + int(cp[3])):
+                modes[m] = _filter_step(modes[m], x_prev, x_now, creep_gain[m], creep_decay[m], creep_active[m])
+            st[15] = st[12]
         if thermal_on:
             heating = (i / th[3]) ** 2
             previous = st[7]
@@ -564,8 +598,9 @@ def _inverse_kernel(
         # 7 temperature rise (node 1), 8 initial memory level z0, 9 heating prev,
         # 10 the current's travel, 11 the GPI output at the first sample, 12 the strain
         # (after training's strain part) prev, 13 temperature rise of node 2, 14 initial
-        # excursion
-        st = np.zeros(15)
+        # excursion, 15 the strain two samples back, 16 its last direction of change, 17 the
+        # strain held at the last leg's end, 18 the logarithmic creep's input prev
+        st = np.zeros(19)
         st[8] = z0[w, 0]
         st[14] = z0[w, 1]
         lag_c = np.zeros(3)
@@ -745,7 +780,7 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
     if has_training and not ((training[:, 2] > 0).all() and (training[:, 3] > 0).all() and (training[:, 1] >= 0).all()):
         raise ValueError("training: training_threshold >= 0 and training_travel, training_shape > 0 are required")
     creep_on = "creep" in model.effect_names
-    creep = _effect_columns(model, theta2, "creep", 5, [0.0, 1.0, 1.0, 0.0, 0.1])
+    creep = _effect_columns(model, theta2, "creep", 6, [0.0, 1.0, 1.0, 0.0, 0.1, 0.0])
     if creep_on:
         saturating = creep_time_constants(creep[:, 1], creep[:, 2])
         if saturating.shape[1] != CREEP_MODES:  # pragma: no cover - consistency
@@ -754,11 +789,13 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
         log_taus = np.where(np.arange(log_taus.shape[1])[None, :] < n_log[:, None], log_taus, 1.0)
         creep_taus = np.ascontiguousarray(np.hstack([saturating, log_taus]))
         creep_params = np.ascontiguousarray(
-            np.column_stack([creep[:, 0], np.full(n_sets, float(saturating.shape[1])), creep[:, 3], n_log.astype(float)])
+            np.column_stack(
+                [creep[:, 0], np.full(n_sets, float(saturating.shape[1])), creep[:, 3], n_log.astype(float), creep[:, 5]]
+            )
         )
     else:
         creep_taus = np.ones((n_sets, 1))
-        creep_params = np.zeros((n_sets, 4))
+        creep_params = np.zeros((n_sets, 5))
     thermal_on = "thermal" in model.effect_names
     thermal = _effect_columns(model, theta2, "thermal", 6, [30.0, 0.0, 0.0, 300.0, 0.0, 0.0])
     # the sensor drift is an offset per sample whatever its form: the effect's own output on 0

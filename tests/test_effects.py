@@ -202,7 +202,7 @@ def signature_creep(paper_input, plain_gpi):
     y_g = step * np.clip((time - t_a) / (t_b - t_a), 0.0, 1.0)
     amplitude, tau, decades = 0.1, 1.5, 2.0
     creep = EFFECTS["creep"]()
-    y = creep.output(np.array([[amplitude, tau, decades, 0.0, 0.1]]), time, np.zeros_like(time), y_g[None, :])[0]
+    y = creep.output(np.array([[amplitude, tau, decades, 0.0, 0.1, 0.0]]), time, np.zeros_like(time), y_g[None, :])[0]
     taus = creep_time_constants(tau, decades)[0]
     # Each mode s_m (tau_m s' = y_g - s): 0 before t_a; on the ramp (slope k = step/(t_b - t_a))
     # s = k (t' - tau_m (1 - exp(-t'/tau_m))), t' = t - t_a; after t_b it relaxes to step:
@@ -225,7 +225,7 @@ def signature_creep(paper_input, plain_gpi):
     assert np.all(np.diff(y[i_stop:]) > 0)  # monotone approach
     # A signed amplitude: A < 0 overshoots by |A| times what is still to creep and relaxes back,
     # the same modes with the other sign (the deviation from y_g is exactly antisymmetric in A)
-    y_back = creep.output(np.array([[-amplitude, tau, decades, 0.0, 0.1]]), time, np.zeros_like(time), y_g[None, :])[0]
+    y_back = creep.output(np.array([[-amplitude, tau, decades, 0.0, 0.1, 0.0]]), time, np.zeros_like(time), y_g[None, :])[0]
     np.testing.assert_allclose(y_back - y_g, -(y - y_g), rtol=1e-12, atol=1e-11)
     assert y_back[i_stop] > step and np.all(np.diff(y_back[i_stop:]) < 0)  # beyond the step, then back
     assert abs(y_back[-1] - step) < abs(y_back[i_stop] - step)
@@ -528,7 +528,7 @@ def signature_log_creep(paper_input, plain_gpi):
     y_g = np.where(time >= 1.0, step, 0.0)[None, :]
     creep = EFFECTS["creep"]()
     gamma, onset = 0.02, 0.01
-    y = creep.output(np.array([[0.0, 1.0, 1.0, gamma, onset]]), time, np.zeros_like(time), y_g)[0]
+    y = creep.output(np.array([[0.0, 1.0, 1.0, gamma, onset, 0.0]]), time, np.zeros_like(time), y_g)[0]
     after = time - 1.0
     window = (after >= 10 * onset) & (after <= 100.0)
     grown = (y - y_g[0])[window] / (gamma * step)
@@ -537,9 +537,44 @@ def signature_log_creep(paper_input, plain_gpi):
     taus, counts = log_creep_time_constants(np.array([onset]), 200.0)
     assert counts[0] == math.ceil(LOG_CREEP_MODES_PER_DECADE * math.log10(2000.0 / onset))
     # combined with the saturating spectrum: the sum of both parts
-    both = creep.output(np.array([[0.05, 2.0, 2.0, gamma, onset]]), time, np.zeros_like(time), y_g)[0]
-    saturating = creep.output(np.array([[0.05, 2.0, 2.0, 0.0, onset]]), time, np.zeros_like(time), y_g)[0]
+    both = creep.output(np.array([[0.05, 2.0, 2.0, gamma, onset, 0.0]]), time, np.zeros_like(time), y_g)[0]
+    saturating = creep.output(np.array([[0.05, 2.0, 2.0, 0.0, onset, 0.0]]), time, np.zeros_like(time), y_g)[0]
     np.testing.assert_allclose(both - saturating, y - y_g[0], rtol=1e-9, atol=1e-9)
+
+
+def signature_log_creep_after_leg(paper_input, plain_gpi):
+    """creep_log_hold q: the part q of each leg's change starts its logarithmic creep at the
+    leg's end (a reversal or a stop) instead of with the change. q = 1 on a ramp, a reversal
+    and a hold: nothing creeps during the first leg, then each leg's change dY_m creeps by
+    gamma dY_m per decade from its end t_m; q = 0.5 is halfway between q = 0 and q = 1."""
+    time = np.linspace(0.0, 200.0, 200001)
+    step = 50.0
+    rise = np.clip((time - 1.0) / 2.0, 0.0, 1.0) * step  # a leg up over 1-3 s
+    fall = np.clip((time - 3.0) / 2.0, 0.0, 1.0) * 0.5 * step  # back by half over 3-5 s, then held
+    y_g = (rise - fall)[None, :]
+    creep = EFFECTS["creep"]()
+    gamma, onset = 0.02, 0.01
+
+    def out(hold):
+        return creep.output(np.array([[0.0, 1.0, 1.0, gamma, onset, hold]]), time, np.zeros_like(time), y_g)[0]
+
+    from_change, from_end, half = out(0.0), out(1.0), out(0.5)
+    during_first_leg = time <= 3.0
+    assert np.array_equal(from_end[during_first_leg], y_g[0][during_first_leg])  # waits for the leg's end
+    assert from_change[time.searchsorted(3.0)] - step > 0.01 * gamma * step  # creeps with the change
+    ends, changes = (3.0, 5.0), (step, -0.5 * step)
+    window = time >= 5.0 + 10 * onset
+    expected = sum(dy * np.log10(1.0 + np.maximum(time[window] - t_m, 0.0) / onset) for t_m, dy in zip(ends, changes))
+    grown = (from_end - y_g[0])[window] / gamma
+    assert np.max(np.abs(grown - expected)) < 0.06 * step
+    np.testing.assert_allclose(half, 0.5 * (from_change + from_end), rtol=0, atol=1e-9 * step)
+    # a step and a hold: from the stop, the logarithmic law of the plain form
+    y_step = np.where(time >= 1.0, step, 0.0)[None, :]
+    held = creep.output(np.array([[0.0, 1.0, 1.0, gamma, onset, 1.0]]), time, np.zeros_like(time), y_step)[0]
+    after = time - 1.0
+    window = (after >= 10 * onset) & (after <= 100.0)
+    grown = (held - y_step[0])[window] / (gamma * step)
+    assert np.max(np.abs(grown - np.log10(1.0 + after[window] / onset))) < 0.06
 
 
 def signature_training_strain_gain(paper_input, plain_gpi):
@@ -690,6 +725,7 @@ GENERAL_FORMS = {
     "rate_width saturation": signature_rate_width_saturation,
     "thermal two nodes": signature_thermal_two_nodes,
     "logarithmic creep": signature_log_creep,
+    "logarithmic creep after each leg": signature_log_creep_after_leg,
     "settling drift": signature_settling_drift,
     "ambient drift": signature_ambient_drift,
 }

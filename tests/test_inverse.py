@@ -176,7 +176,7 @@ GENERAL_FORMS = {
     "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 6.0, "training_shape": 1.5,
                  "training_gain": 0.06, "training_width": 0.3},
     "creep": {"creep_amplitude": 0.03, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.004,
-              "creep_log_onset": 0.2},
+              "creep_log_onset": 0.2, "creep_log_hold": 0.5},
     "thermal": {"thermal_tau": 8.0, "thermal_sensitivity": 0.02, "thermal_expansion": 1.5, "thermal_tau_core": 120.0,
                 "thermal_sensitivity_core": 0.03, "thermal_expansion_core": -2.0},
     "sensor_drift": {"sensor_drift_linear": 1.0, "sensor_drift_quadratic": -0.5, "sensor_drift_settling": 2.0,
