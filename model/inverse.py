@@ -68,8 +68,8 @@ Effects with dynamics
 ``lag``, ``creep`` and ``thermal`` are inverted exactly in their general forms, each with
 its own state in the per-sample step: the current found at sample ``k`` is the one whose
 *filtered* drive (lag) and whose heating (thermal, both nodes) give the target; creep's
-modes (the saturating spectrum and the logarithmic ones) are advanced with the strain
-found. A lag's dead time (``lag_delay`` not 0) is refused: the current at a sample acts on
+modes (the saturating spectrum and the logarithmic ones, these with the part held to the
+leg's end) are advanced with the strain found. A lag's dead time (``lag_delay`` not 0) is refused: the current at a sample acts on
 the output only a dead time later, which no per-sample step can reach. A lag is inverted exactly too, which means the current leads the drive
 (:math:`i \approx u + \tau_L \dot u`) and steps where the drive has a kink; the exact step
 of a first-order filter with an input linear between samples has a zero near -1 in the

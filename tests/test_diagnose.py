@@ -1463,7 +1463,7 @@ def test_a_candidate_stuck_in_a_worse_gpi_basin_is_refitted_from_the_best_candid
                                          True, fit=fit)  # fmt: skip
 
     donor = fitted("training", truth)  # the good basin
-    settled = fitted("creep", {})  # its own refit, in the donor's basin of the GPI
+    settled = fitted("creep", donor.fit.model.theta_dict(donor.fit.theta))  # from the donor's GPI: in its basin
     thermal = fitted("thermal", {})
     # thermal stuck in a worse GPI basin: the same effect, its GPI's slopes moved
     model_t = thermal.fit.model
