@@ -314,7 +314,9 @@ def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivit
 def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log, hold, out):
     """Creep of each row of ``displacement``: ``taus.shape[1]`` equal-weight saturating modes
     (amplitude ``amplitude[w]``) plus ``n_log[w]`` logarithmic-creep modes ``log_taus[w, :n_log[w]]``
-    of weight :data:`LOG_CREEP_MODE_WEIGHT` decades each (rate ``log_rate[w]`` per decade).
+    of weight :data:`LOG_CREEP_MODE_WEIGHT` decades each (rate ``log_rate[w]`` per decade),
+    which follow ``(1 - hold[w])`` times the displacement plus ``hold[w]`` times the
+    displacement at the end of the last completed leg (``creep_log_hold``).
     A part whose amplitude is 0 is skipped. The per-step decay is recomputed only when the step
     changes by more than 1e-12 of itself (uniform sampling: once per mode)."""
     n_sets = displacement.shape[0]
@@ -1493,7 +1495,7 @@ class Creep(Effect):
             ),
             Parameter(
                 "creep_log_hold", 0.0, 0.0, 1.0, unit="",
-                description="logarithmic creep: fraction of each leg's change that starts creeping at the leg's end (the reversal)",
+                description="logarithmic creep: fraction of each leg's change that starts creeping at the leg's end (a reversal or a stop)",
             ),
         ]
     )  # fmt: skip
