@@ -310,6 +310,22 @@ def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivit
                              expansion2, displacement, out)  # fmt: skip
 
 
+@njit(cache=True, inline="always")
+def _leg_end_level(y_prev, y_before, held, last_direction):
+    """``(held, direction)`` after the sample ``y_prev`` (the one before it ``y_before``): the
+    output at the end of the last completed leg, a stop (``y_prev == y_before``) or a reversal
+    (the change's direction flips: the leg ended at ``y_before``), known once the sample after
+    it is; ``held`` and ``last_direction`` (+1, -1, 0 before any change) are the values so far.
+    :func:`_creep_kernel` and :mod:`model.inverse` (``creep_log_hold``) share it."""
+    change = y_prev - y_before
+    if change == 0.0:
+        return y_prev, last_direction
+    direction = 1.0 if change > 0.0 else -1.0
+    if last_direction != 0.0 and direction != last_direction:
+        held = y_before
+    return held, direction
+
+
 @njit(parallel=True, cache=True)
 def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log, hold, out):
     """Creep of each row of ``displacement``: ``taus.shape[1]`` equal-weight saturating modes
@@ -366,31 +382,19 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
                         modes[m] = y_now
                     total += modes[m]
                 value -= amplitude[w] * (y_now - total / n_modes)
-            if logarithmic and held_part:
-                # the part ``hold`` of each leg's change creeps from the leg's end (a reversal
-                # or a stop, known once the sample after it is): the modes see the output held there
-                y_before = displacement[w, k - 2] if k >= 2 else y0
-                change = y_prev - y_before
-                if change == 0.0:
-                    held = y_prev
-                else:
-                    direction = 1.0 if change > 0.0 else -1.0
-                    if last_direction != 0.0 and direction != last_direction:
-                        held = y_before
-                    last_direction = direction
-                x_now = (1.0 - hold[w]) * y_now + hold[w] * held
+            if logarithmic:
+                x_before, x_now = y_prev, y_now
+                if held_part:
+                    # the part ``hold`` of each leg's change creeps from the leg's end: the modes
+                    # see the output held there
+                    y_before = displacement[w, k - 2] if k >= 2 else y0
+                    held, last_direction = _leg_end_level(y_prev, y_before, held, last_direction)
+                    x_before, x_now = x_prev, (1.0 - hold[w]) * y_now + hold[w] * held
+                    x_prev = x_now
                 grown = 0.0
                 for m in range(n_log[w]):
                     j = n_modes + m
-                    logs[m] = x_now - (x_now - x_prev) * gain[j] + decay[j] * (logs[m] - x_prev)
-                    grown += logs[m] - y0
-                x_prev = x_now
-                value += log_rate[w] * LOG_CREEP_MODE_WEIGHT * grown
-            elif logarithmic:
-                grown = 0.0
-                for m in range(n_log[w]):
-                    j = n_modes + m
-                    logs[m] = y_now - (y_now - y_prev) * gain[j] + decay[j] * (logs[m] - y_prev)
+                    logs[m] = x_now - (x_now - x_before) * gain[j] + decay[j] * (logs[m] - x_before)
                     grown += logs[m] - y0
                 value += log_rate[w] * LOG_CREEP_MODE_WEIGHT * grown
             out[w, k] = value

@@ -92,7 +92,14 @@ import numpy as np
 from numba import njit, prange
 
 from .composite import Model
-from .effects import CREEP_MODES, LOG_CREEP_MODE_WEIGHT, REFERENCE_CURRENT, creep_time_constants, log_creep_time_constants
+from .effects import (
+    CREEP_MODES,
+    LOG_CREEP_MODE_WEIGHT,
+    REFERENCE_CURRENT,
+    _leg_end_level,
+    creep_time_constants,
+    log_creep_time_constants,
+)
 from .gpi import READINGS, THETA_NAMES, initial_operator_memory, operator_thresholds_and_weights
 
 __all__ = [
@@ -183,21 +190,6 @@ def _filter_step(state, x_prev, x_now, gain, decay, active):
     if not active:
         return x_now
     return x_now - (x_now - x_prev) * gain + decay * (state - x_prev)
-
-
-@njit(cache=True, inline="always")
-def _held_level(st):
-    """``(held, direction)`` at the present sample: the strain at the end of the last completed
-    leg (a reversal or a stop, known once the sample after it is), as in
-    :func:`model.effects._creep_kernel` (``creep_log_hold``)."""
-    change = st[12] - st[15]
-    if change == 0.0:
-        return st[12], st[16]
-    direction = 1.0 if change > 0.0 else -1.0
-    held = st[17]
-    if st[16] != 0.0 and direction != st[16]:
-        held = st[15]
-    return held, direction
 
 
 @njit(cache=True, inline="always")
@@ -309,7 +301,7 @@ def _evaluate(
         if cp[2] != 0.0 and n_log > 0:
             x_prev, x_now = st[12], y_strain
             if cp[4] != 0.0:  # the part creeping from the leg's end sees the held strain
-                held, _ = _held_level(st)
+                held, _ = _leg_end_level(st[12], st[15], st[17], st[16])
                 x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
             grown = 0.0
             for m in range(n_sat, n_sat + n_log):
@@ -374,7 +366,7 @@ def _commit(
                 modes[m] = _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
             x_prev, x_now = st[12], y_strain
             if cp[4] != 0.0:
-                held, direction = _held_level(st)
+                held, direction = _leg_end_level(st[12], st[15], st[17], st[16])
                 x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
                 st[16] = direction
                 st[17] = held
