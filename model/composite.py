@@ -73,8 +73,13 @@ def register_effect(cls):
     in_terms = [n for names in cls.terms.values() for n in names]
     if not set(in_terms) <= set(cls.parameters.names) or len(in_terms) != len(set(in_terms)):
         raise ValueError(f"effect {cls.name!r}: 'terms' must name its own parameters, each in one term at most")
-    if cls.terms and len(in_terms) == len(cls.parameters):
-        raise ValueError(f"effect {cls.name!r}: 'terms' must leave part of the effect outside every optional term")
+    if not set(cls.forms) <= set(cls.terms) or len(cls.forms) == 1:
+        raise ValueError(f"effect {cls.name!r}: 'forms' must name two or more of its terms (got {list(cls.forms)})")
+    if cls.terms and len(in_terms) == len(cls.parameters) and not cls.forms:
+        raise ValueError(
+            f"effect {cls.name!r}: 'terms' must leave part of the effect outside every optional term, "
+            "or name its alternative general forms ('forms'), of which a fit keeps one"
+        )
     EFFECTS[cls.name] = cls
     return cls
 
@@ -112,8 +117,14 @@ class Effect:
     #: parameters are at :attr:`off`, and while its gains are 0 its other parameters (a time
     #: constant, an onset) have no effect at all, so a record without that part leaves them
     #: unidentified. A fit may pin such a term off where the record does not support it
-    #: (``identify.fitting.terms``). Every effect keeps at least one term that is not listed.
+    #: (``identify.fitting.terms``). Every effect keeps a part that is never pinned off: a
+    #: parameter outside every term, or one of its :attr:`forms`.
     terms: ClassVar[dict[str, tuple[str, ...]]] = {}
+    #: terms that are alternative general forms of the effect, each a complete physics of it
+    #: (e.g. saturating and logarithmic creep): a record of one form must not pay for the
+    #: other, so each is optional, but a fit keeps at least one (:meth:`keeps_a_form`). An
+    #: effect whose every parameter lies in a term names two or more.
+    forms: ClassVar[tuple[str, ...]] = ()
     #: an input- or state-stage effect that also transforms the displacement after the
     #: hysteresis (:meth:`output`, applied before the output-stage effects)
     acts_on_output: ClassVar[bool] = False
@@ -175,6 +186,12 @@ class Effect:
         :attr:`off`. An effect whose other terms can take over what ``term`` did (e.g. two
         thermal nodes that can exchange roles) adds a start for that."""
         return [{**values, **{name: cls.off[name] for name in cls.terms[term]}}]
+
+    @classmethod
+    def keeps_a_form(cls, off_terms) -> bool:
+        """Does the effect keep one of its :attr:`forms` with the terms ``off_terms`` (names)
+        switched off? True for an effect without forms (its core is never a term)."""
+        return not cls.forms or not set(cls.forms) <= set(off_terms)
 
     @classmethod
     def term_reductions(cls, term: str) -> list[dict[str, float]]:

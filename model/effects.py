@@ -1507,7 +1507,12 @@ class Creep(Effect):
            "creep_log_hold": 0.0}
     summary = "creep: saturating log-spaced modes, y_g - A (y_g - mean s_m), plus logarithmic creep gamma per decade after each change (a part q from the end of its leg)"
     signature = "follows the strain: after each reversal the output keeps moving the way it last changed, also while the input is held, and stops when the strain does not change"
-    terms = {"logarithmic": ("creep_log_rate", "creep_log_onset"), "after_reversal": ("creep_log_hold",)}
+    terms = {
+        "saturating": ("creep_amplitude", "creep_tau", "creep_decades"),
+        "logarithmic": ("creep_log_rate", "creep_log_onset"),
+        "after_reversal": ("creep_log_hold",),
+    }
+    forms = ("saturating", "logarithmic")
 
     @classmethod
     def get_test_parameters(cls):

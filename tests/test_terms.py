@@ -53,6 +53,29 @@ def test_a_term_must_name_own_parameters_and_leave_a_core():
     assert "toy" not in EFFECTS
 
 
+def test_an_effect_of_alternative_forms_keeps_one():
+    """An effect whose every parameter lies in a term must name two or more of them as its
+    alternative forms, and a fit keeps one of them (:meth:`model.Effect.keeps_a_form`)."""
+    def effect(forms):
+        return type("Toy", (Effect,), {
+            "name": "toy", "stage": "output", "terms": {"x": ("toy_a",), "y": ("toy_b",)}, "forms": forms,
+            "off": {"toy_a": 0.0, "toy_b": 1.0},
+            "parameters": ParameterSet([Parameter("toy_a", 0.0, -1, 1), Parameter("toy_b", 1.0, 0.5, 2)]),
+        })  # fmt: skip
+
+    with pytest.raises(ValueError, match="'forms' must name two or more"):
+        register_effect(effect(("x",)))
+    with pytest.raises(ValueError, match="'forms' must name two or more"):
+        register_effect(effect(("x", "z")))
+    assert "toy" not in EFFECTS
+    toy = effect(("x", "y"))
+    assert toy.keeps_a_form({"x"}) and toy.keeps_a_form({"y"}) and not toy.keeps_a_form({"x", "y"})
+    assert EFFECTS["thermal"].keeps_a_form({"core"})  # no forms: the core is never a term
+    creep = EFFECTS["creep"]
+    assert set(creep.forms) == {"saturating", "logarithmic"}
+    assert not creep.keeps_a_form({"saturating", "logarithmic", "after_reversal"})
+
+
 def _fit(effects, seed=3):
     record = simulate(effects, fs=20.0, seed=seed).record
     fit = fit_least_squares(record, normalised_model(Model(["thermal"])), noise=estimate_noise(record), n_starts=2,
@@ -177,6 +200,42 @@ def test_a_linear_drift_is_not_charged_for_the_settling_and_ambient_terms():
     assert sorted(form["terms"]) == [("sensor_drift", "ambient"), ("sensor_drift", "settling")]
     assert form["parameters"] == 5
     assert 0.0 <= form["delta_chi2"] < 5 * np.log(record.time.size)
+
+
+def test_creep_is_charged_for_the_form_the_record_has_only():
+    """Saturating and logarithmic creep are alternative forms: a record of one is not charged
+    for the other (nor for the onset after each leg, unused), and a fit never drops both."""
+    from identify.fitting.terms import best_form
+
+    log_only = {"creep_amplitude": 0.0, "creep_log_rate": 0.03, "creep_log_onset": 0.1}
+    record, fit = _at_truth({"creep": log_only}, fs=100.0)
+    form = best_form(record, fit, ["creep"], n_samples=record.time.size)
+    assert sorted(form["terms"]) == [("creep", "after_reversal"), ("creep", "saturating")]
+    assert form["parameters"] == 4 and form["delta_chi2"] < 4 * np.log(record.time.size)
+    record, fit = _at_truth({"creep": {"creep_amplitude": 0.08, "creep_tau": 2.0, "creep_decades": 1.0}}, fs=100.0)
+    form = best_form(record, fit, ["creep"], n_samples=record.time.size)
+    assert sorted(form["terms"]) == [("creep", "after_reversal"), ("creep", "logarithmic")]
+    assert form["parameters"] == 3
+    # both forms too small to pay for themselves: one of them is still charged
+    tiny = {"creep_amplitude": 1e-4, "creep_tau": 2.0, "creep_decades": 1.0, "creep_log_rate": 1e-4}
+    record, fit = _at_truth({"creep": tiny}, fs=100.0)
+    form = best_form(record, fit, ["creep"], n_samples=record.time.size)
+    dropped = {term for _, term in form["terms"]}
+    assert len(dropped & {"saturating", "logarithmic"}) == 1 and "after_reversal" in dropped
+
+
+def test_select_terms_keeps_the_last_form_of_an_effect():
+    """A record without creep fitted with creep: select_terms may pin one form off, never both
+    (that would be the model without creep, a choice of effects, not of terms)."""
+    record = simulate(None, fs=20.0, seed=5).record
+    fit = fit_least_squares(record, normalised_model(Model(["creep"])), noise=estimate_noise(record), n_starts=1,
+                            rng=np.random.default_rng(0))  # fmt: skip
+    selected = select_terms(record, fit, rng=np.random.default_rng(0))
+    pinned = {d["term"] for d in selected.terms if d["pinned"]}
+    assert len(pinned & {"saturating", "logarithmic"}) == 1, selected.terms
+    kept = "logarithmic" if "saturating" in pinned else "saturating"
+    names = EFFECTS["creep"].terms[kept]
+    assert all(selected.model.parameters[n].vary for n in names)
 
 
 def test_a_term_the_record_uses_is_charged():

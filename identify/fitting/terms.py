@@ -33,7 +33,7 @@ import numpy as np
 
 from .noise import whiten
 
-__all__ = ["select_terms", "optional_terms", "term_decision", "best_form"]
+__all__ = ["select_terms", "optional_terms", "term_decision", "best_form", "keeps_every_effect"]
 
 
 def optional_terms(model, effects=None) -> list[tuple[str, str, tuple[str, ...]]]:
@@ -47,6 +47,26 @@ def optional_terms(model, effects=None) -> list[tuple[str, str, tuple[str, ...]]
             if all(model.parameters[n].vary for n in names):
                 out.append((effect.name, term, tuple(names)))
     return out
+
+
+def _off_terms(model, effect_name) -> set[str]:
+    """The terms of ``model``'s effect ``effect_name`` pinned at their off values."""
+    effect = type(next(e for e in model.effects if e.name == effect_name))
+    off = set()
+    for term, names in effect.terms.items():
+        if all(not model.parameters[n].vary and model.parameters[n].value == effect.off[n] for n in names):
+            off.add(term)
+    return off
+
+
+def keeps_every_effect(model, switched_off) -> bool:
+    """Does ``model`` keep a form of each effect (:meth:`model.Effect.keeps_a_form`) with the
+    terms ``switched_off`` (``[(effect, term)]``) off as well as those pinned off?"""
+    by_effect: dict[str, set[str]] = {}
+    for effect_name, term in switched_off:
+        by_effect.setdefault(effect_name, set()).add(term)
+    effects = {e.name: type(e) for e in model.effects}
+    return all(effects[name].keeps_a_form(terms | _off_terms(model, name)) for name, terms in by_effect.items())
 
 
 def _whitened_chi2(residual, noise) -> float:
@@ -130,6 +150,8 @@ def select_terms(record, fit, *, rng=None, log=None):
         for effect, term, names in optional_terms(current.model):
             if any(d["effect"] == effect and d["term"] == term for d in decisions):
                 continue  # tested before and kept: the rest of the model has not lost anything it could use
+            if not keeps_every_effect(current.model, [(effect, term)]):
+                continue  # the effect's last form: the effect itself is the model's choice, not a term
             refit = _reduced_fit(record, current, effect, term, names, rng)
             if refit is not None:
                 reduced, chi2 = refit
@@ -256,6 +278,8 @@ def best_form(record, fit, effects, n_samples, jacobian=None):
     best, best_gain = none, 0.0
     for size in range(1, len(cheap) + 1):
         for subset in itertools.combinations(cheap, size):
+            if not keeps_every_effect(model, [terms[i][:2] for i, _ in subset]):
+                continue  # an effect with every form off is no form of it
             k = sum(len(terms[i][2]) for i, _ in subset)
             for choice in itertools.product(*(ways for _, ways in subset)):
                 delta = rise(choice)
