@@ -1476,7 +1476,9 @@ class Creep(Effect):
     -0.1-0.1), ``creep_log_onset`` :math:`t_0` [s] (0.001-10), ``creep_log_hold`` :math:`q`
     (part of each leg's change that creeps from the leg's end, 0-1). Off:
     ``creep_amplitude = 0`` and ``creep_log_rate = 0``; ``creep_log_hold = 0`` is the
-    superposed form.
+    superposed form. The saturating and the logarithmic parts are alternative forms
+    (:attr:`Effect.forms`): each is an optional term (:attr:`Effect.terms`), so a record of
+    one is not charged for the other, and a fit keeps at least one.
     """
 
     name = "creep"

@@ -1,8 +1,10 @@
 """Pin off the optional terms of the effects that a record does not support: :func:`select_terms`.
 
 An effect's general form has optional terms (:attr:`model.Effect.terms`: the second node of
-``thermal``, the settling warm-up and the ambient cycle of ``sensor_drift``, the logarithmic
-part of ``creep``).
+``thermal``, the settling warm-up and the ambient cycle of ``sensor_drift``, the saturating
+and the logarithmic parts of ``creep``). An effect's alternative forms
+(:attr:`model.Effect.forms`, creep's two parts) are each optional, but one is always kept
+(:func:`keeps_every_effect`).
 Where a record has no such part, the term's gains fit to about 0 and its other parameters
 (a time constant, an onset) then have no effect at all: the likelihood is flat along them
 and, near 0 gain, the gains trade with the rest of the effect (two thermal nodes of equal
