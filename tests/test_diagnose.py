@@ -855,6 +855,58 @@ def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monke
     assert [p.effect for p in tried] == ["creep+incomplete_reset"]
 
 
+def test_a_pairs_short_refit_charges_its_members_as_their_own_refits_were_charged(monkeypatch):
+    """The short pair refits are ranked by delta BIC on the working copy with each member
+    charged the parameters its own refit was charged (less its unused optional terms), as
+    the full refits are: a training that uses one of its four virgin differences is not a
+    six-parameter effect in a pair (independent bench seed 18, training + creep: its pairs
+    never reached a full refit, while those of a thermal without unused terms did)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+    from identify.diagnosis.diagnose import CandidateResult, _charged_parameters
+
+    def single(name, unused):
+        return CandidateResult(name, None, True, 1.0, 1.0, 500.0, 4000.0, 0.9, False, fit=SimpleNamespace(),
+                               uncharged_terms=unused)  # fmt: skip
+
+    refitted = [single("training", ["training.drive", "training.threshold", "training.strain", "training.width"]),
+                single("thermal", []), single("creep", ["creep.saturating", "creep.after_reversal"]),
+                CandidateResult("lag", None, False, 1.0, 1.0, -9.0, 4000.0, 0.0, False)]  # fmt: skip
+    rnd = SimpleNamespace(fit=None, chi2_0=1.0, adequacy=None, refitted=refitted, chi2_0_small=5000.0,
+                          n_eff_small=4000.0)  # fmt: skip
+    assert _charged_parameters(rnd) == {"training": 2, "thermal": 6, "creep": 2}
+
+    names = ["thermal", "training", "creep"]
+    monkeypatch.setattr(diagnosis, "_pair_pool", lambda rnd, thresholds: [(n, None, None) for n in names])
+    # thermal + creep reaches 10 lower in chi-square than training + creep on the working copy
+    # (about 8 in BIC), but frees 4 parameters more that its members' own fits use (33 in BIC)
+    short = {("thermal", "training"): 4600.0, ("thermal", "creep"): 4590.0, ("training", "creep"): 4600.0}
+    monkeypatch.setattr(diagnosis, "_shape_values", lambda work, fit, entry: {})
+    monkeypatch.setattr(diagnosis, "_short_pair", lambda work, fit, one, other, shapes: (short[(one[0], other[0])], None, None))
+    monkeypatch.setattr(diagnosis, "_short_pair_from_flipped_single", lambda *args: None)
+    monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: np.ones(4))
+    monkeypatch.setattr(diagnosis, "_shared_basin_refits", lambda s, rnd, candidates: candidates)
+    monkeypatch.setattr(diagnosis, "_swapped_pairs", lambda *args: [])
+    monkeypatch.setattr(diagnosis, "_competitive_pairs", lambda pairs, thresholds, record: pairs[:1])
+    chosen = []
+
+    def evaluate(record, fit, chi2_0, adequacy, name, *rest):
+        chosen.append(name)
+        return SimpleNamespace(effect=name, delta_bic=1.0, fit=None)
+
+    monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
+    s = SimpleNamespace(work=None, thresholds=Thresholds(max_refits=1, bic_significant=1.0), say=lambda m: None,
+                        record=None, quiet=None, noise_ref=None, rng=None)  # fmt: skip
+    diagnosis._try_pairs(s, rnd)
+    assert chosen == ["training+creep"]
+    # charged every parameter (no single refit to tell), the lower chi-square wins
+    rnd.refitted = []
+    chosen.clear()
+    diagnosis._try_pairs(s, rnd)
+    assert chosen == ["thermal+creep"]
+
+
 def test_a_pair_beside_an_adequate_single_of_the_other_threshold_sign_starts_from_that_single(monkeypatch):
     """A pair that contains a single refitted with the other sign of the pinned thresholds
     and already adequate alone is short-refitted in that sign, from that single's fit with

@@ -2459,8 +2459,10 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     if not shorts:
         return pairs_tried, common, ambiguous_pairs
 
+    charged = _charged_parameters(rnd)
+
     def short_bic(item):
-        k = sum(len(get_effect(n).parameters) for n in (item[3][0], item[4][0]))
+        k = sum(charged.get(n, len(get_effect(n).parameters)) for n in (item[3][0], item[4][0]))
         return _working_copy_delta_bic(rnd, item[0], k)
 
     shorts.sort(key=short_bic, reverse=True)
@@ -2505,6 +2507,29 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     common = set.intersection(*(set(p.effect.split("+")) for p in competitive))
     ambiguous_pairs = [p.effect for p in competitive]
     return pairs_tried, common, ambiguous_pairs
+
+
+def _charged_parameters(rnd: _Round) -> dict:
+    """``{effect: parameters}`` that each candidate refitted on the whole record was charged
+    (its parameters less those of the optional terms its best form leaves uncharged,
+    :func:`_delta_bic`): the charge of a member in a pair's short refit (:func:`_try_pairs`),
+    whose chi-square on the working copy is otherwise weighed against every parameter of both
+    members. A pair's full refit is charged by its own best form; charging its short refit
+    for terms neither member uses ranks the pairs of effects with many optional terms (a
+    training of four virgin differences using one, a two-node thermal using one node) behind
+    pairs of the same gain with fewer parameters, and leaves them out of the full refits."""
+    charged = {}
+    for c in rnd.refitted:
+        if c.fit is None or c.effect in charged or "+" in c.effect:
+            continue
+        effect = get_effect(c.effect)
+        unused = 0
+        for entry in c.uncharged_terms:
+            name, term = entry.split(".", 1)
+            if name == c.effect:
+                unused += len(type(effect).terms.get(term, ()))
+        charged[c.effect] = len(effect.parameters) - unused
+    return charged
 
 
 def _swapped_pairs(refitted: dict, pairs_tried: list, shorts: list, thresholds: Thresholds) -> list:
