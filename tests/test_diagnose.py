@@ -859,8 +859,7 @@ def test_a_pairs_short_refit_charges_its_members_as_their_own_refits_were_charge
     """The short pair refits are ranked by delta BIC on the working copy with each member
     charged the parameters its own refit was charged (less its unused optional terms), as
     the full refits are: a training that uses one of its four virgin differences is not a
-    six-parameter effect in a pair (independent bench seed 18, training + creep: its pairs
-    never reached a full refit, while those of a thermal without unused terms did)."""
+    six-parameter effect in a pair."""
     from types import SimpleNamespace
 
     from identify.diagnosis import diagnose as diagnosis
