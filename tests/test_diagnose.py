@@ -949,7 +949,7 @@ def test_a_pair_beside_an_adequate_single_of_the_other_threshold_sign_starts_fro
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
     s = SimpleNamespace(work=SimpleNamespace(record=None, noise=None), thresholds=Thresholds(), say=lambda m: None,
                         record=None, quiet=None, noise_ref=None, rng=None)  # fmt: skip
-    single = SimpleNamespace(effect="incomplete_reset", adequate_after=True, delta_bic=90.0,
+    single = SimpleNamespace(effect="incomplete_reset", adequate_after=True, delta_bic=90.0, uncharged_terms=[],
                              fit=SimpleNamespace(model=flipped_model, theta=flipped_theta))  # fmt: skip
     rnd = SimpleNamespace(fit=base, chi2_0=1.0, adequacy=None, refitted=[single])
 
