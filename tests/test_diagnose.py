@@ -1377,6 +1377,36 @@ def test_a_pair_overrules_an_adequate_single_only_by_more_than_bic_significant(m
     assert verdict.status == "missing_effect" and verdict.missing == "thermal"
 
 
+def test_unexplained_by_pairs_says_when_the_best_single_is_adequate_but_has_a_rival(monkeypatch):
+    """Pairs without a common effect beside an adequate best single with a rival (independent
+    bench seed 17, a linear drift: sensor_drift 1770 adequate, creep 1746): the reason says the
+    single leaves the noise and which rival the record cannot tell it from, not that no
+    single leaves the noise; with every single leaving structure it says that."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    def candidate(effect, delta_bic, adequate):
+        return SimpleNamespace(effect=effect, explained=0.98, delta_bic=delta_bic, adequate_after=adequate,
+                               rms_after=0.834, refitted=True, uncharged_terms=[])  # fmt: skip
+
+    drift, creep = candidate("sensor_drift", 1770.0, True), candidate("creep", 1746.0, True)
+    pairs = [candidate("sensor_drift+lag", 1761.0, True), candidate("creep+rate_width", 1737.0, True)]
+    rnd = SimpleNamespace(fit=SimpleNamespace(rms=1.0, noise=SimpleNamespace(sigma=0.83)), refitted=[drift, creep],
+                          screened=[], chi2_0_small=1.0, n_eff_small=1.0, failed={}, profile=None,
+                          adequacy=SimpleNamespace(failed=("low_frequency",), size_ratio=0.57))  # fmt: skip
+    monkeypatch.setattr(diagnosis, "_where_summary", lambda profile: "")
+    monkeypatch.setattr(diagnosis, "_pairs_apart_text", lambda record, listed, thresholds: "within 10")
+    names = [p.effect for p in pairs]
+    reason = diagnosis._unexplained_reason(rnd, drift, creep, True, set(), names, pairs, "", Thresholds())
+    assert ("'sensor_drift' alone leaves a residual consistent with the noise (delta BIC 1770) but the record "
+            "cannot tell it from 'creep' (1746), and pairs with no effect in common") in reason, reason
+    assert "no single candidate leaves the noise" not in reason
+    drift.adequate_after = creep.adequate_after = False
+    reason = diagnosis._unexplained_reason(rnd, drift, creep, True, set(), names, pairs, "", Thresholds())
+    assert "no single candidate leaves the noise, and pairs with no effect in common" in reason
+
+
 def test_a_targeted_name_waits_for_the_rivals_its_screening_ranked_low(monkeypatch):
     """Before the targeted check names an effect, every other candidate whose screening shows
     any gain is refitted too, and one within bic_significant stops the name (a fresh draw of

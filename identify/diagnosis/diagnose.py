@@ -2710,9 +2710,14 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
             f"do not say which effects are missing and none is named. Candidates: {candidates_text}. {where}"
         )
     if common is not None and not common and len(ambiguous_pairs) > 1:
+        singles = "no single candidate leaves the noise"
+        if best.adequate_after and rival is not None:  # an adequate best single, but with a rival
+            singles = (f"'{best.effect}' alone leaves a residual consistent with the noise (delta BIC "
+                       f"{best.delta_bic:.0f}) but the record cannot tell it from '{rival.effect}' "
+                       f"({rival.delta_bic:.0f})")  # fmt: skip
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
-            f"{adequacy.size_ratio:.2f} sigma); no single candidate leaves the noise, and pairs with no effect "
+            f"{adequacy.size_ratio:.2f} sigma); {singles}, and pairs with no effect "
             f"in common fit about equally well ({', '.join(ambiguous_pairs)}: "
             f"{_pairs_apart_text(record, listed, thresholds)} of the best on the whole record), so none is named. "
             f"Candidates: {candidates_text}. {where}"
