@@ -2522,16 +2522,11 @@ def _charged_parameters(rnd: _Round) -> dict:
     ``unexplained`` with either charge: training + creep's short refit ends 141 above
     thermal + creep's in chi-square on the working copy, a gap no charge closes.)"""
     charged = {}
-    for c in rnd.refitted:
-        if c.fit is None or c.effect in charged or "+" in c.effect:
-            continue
-        effect = get_effect(c.effect)
-        unused = 0
-        for entry in c.uncharged_terms:
-            name, term = entry.split(".", 1)
-            if name == c.effect:
-                unused += len(type(effect).terms.get(term, ()))
-        charged[c.effect] = len(effect.parameters) - unused
+    for c in rnd.refitted:  # single candidates: their uncharged terms ("effect.term") are their own
+        if c.fit is not None:
+            effect = get_effect(c.effect)
+            unused = sum(len(effect.terms[entry.split(".", 1)[1]]) for entry in c.uncharged_terms)
+            charged[c.effect] = len(effect.parameters) - unused
     return charged
 
 

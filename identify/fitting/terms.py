@@ -51,14 +51,11 @@ def optional_terms(model, effects=None) -> list[tuple[str, str, tuple[str, ...]]
     return out
 
 
-def _off_terms(model, effect_name) -> set[str]:
-    """The terms of ``model``'s effect ``effect_name`` pinned at their off values."""
-    effect = type(next(e for e in model.effects if e.name == effect_name))
-    off = set()
-    for term, names in effect.terms.items():
-        if all(not model.parameters[n].vary and model.parameters[n].value == effect.off[n] for n in names):
-            off.add(term)
-    return off
+def _off_terms(model, effect) -> set[str]:
+    """The terms of ``model``'s effect (class ``effect``) pinned at their off values."""
+    parameters = model.parameters
+    return {term for term, names in effect.terms.items()
+            if all(not parameters[n].vary and parameters[n].value == effect.off[n] for n in names)}  # fmt: skip
 
 
 def keeps_every_effect(model, switched_off) -> bool:
@@ -68,7 +65,7 @@ def keeps_every_effect(model, switched_off) -> bool:
     for effect_name, term in switched_off:
         by_effect.setdefault(effect_name, set()).add(term)
     effects = {e.name: type(e) for e in model.effects}
-    return all(effects[name].keeps_a_form(terms | _off_terms(model, name)) for name, terms in by_effect.items())
+    return all(effects[name].keeps_a_form(terms | _off_terms(model, effects[name])) for name, terms in by_effect.items())
 
 
 def _whitened_chi2(residual, noise) -> float:
