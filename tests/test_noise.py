@@ -212,3 +212,108 @@ def test_log_likelihood_of_rows_in_lockstep_equals_each_row_alone():
     together = log_likelihood_of_rows(data, rows, np.arange(11), noise)
     alone = [log_likelihood_of_rows(data, rows[k : k + 1], np.arange(1), noise)[0] for k in range(11)]
     np.testing.assert_array_equal(together, alone)
+
+
+# -- uneven sampling: each step's own correlation (module docstring, "Uneven sampling") -------
+
+
+def _kept(n, every, around, centres):
+    """Indices 0, every, 2 every, ... with ``around`` samples on each side of ``centres`` (as
+    the working copy and ``--every`` keep them) and the last one."""
+    near = (np.asarray(centres)[:, None] + np.arange(-around, around + 1)[None, :]).ravel()
+    return np.union1d(np.union1d(np.arange(0, n, every), near[(near >= 0) & (near < n)]), [n - 1])
+
+
+def test_step_correlations_are_rho_to_the_power_of_each_step():
+    noise = NoiseModel(sigma=1.0, rho=0.6, kind="ar1", dt=0.01)
+    even = np.arange(50) * 0.01
+    assert noise.step_correlations(even) is None  # an even grid at dt: rho everywhere
+    assert noise.step_correlations(even + 1e-13 * np.sin(np.arange(50))) is None  # round-off of the time stamps
+    assert NoiseModel(sigma=1.0, rho=0.6, kind="ar1").step_correlations(even[::3]) is None  # no dt: every step one dt
+    assert NoiseModel(sigma=1.0, dt=0.01).step_correlations(even[::3]) is None  # white
+    time = np.array([0.0, 0.01, 0.03, 0.06, 0.065, 0.165])
+    np.testing.assert_allclose(noise.step_correlations(time), [0.6, 0.36, 0.216, 0.6**0.5, 0.6**10], rtol=1e-12)
+    negative = NoiseModel(sigma=1.0, rho=-0.5, kind="ar1", dt=0.01)
+    # whole steps: the AR(1)'s own (-0.5)^k; a fractional step keeps the sign of its nearest whole step
+    np.testing.assert_allclose(negative.step_correlations(time), [-0.5, 0.25, -0.125, -(0.5**0.5), 0.5**10], rtol=1e-12)
+    close = noise.step_correlations(np.array([0.0, 1e-9, 0.01]))
+    assert close[0] == 0.99  # clipped as rho is
+
+
+@pytest.mark.parametrize("rho", [0.7, -0.4])
+def test_a_thinned_record_keeps_the_exact_ar1_likelihood(rho):
+    """Reference: the multivariate normal of the kept samples of an AR(1) at the full rate,
+    covariance sigma^2 rho^|i - j| over their original indices: the working copy and
+    ``--every`` keep every k-th sample and the reversals at the full rate. Positive rho also
+    at fractional steps: the Ornstein-Uhlenbeck covariance sigma^2 rho^(|t_i - t_j| / dt)."""
+    rng = np.random.default_rng(11)
+    sigma, dt, n = 0.6, 0.01, 400
+    kept = _kept(n, 9, 3, [57, 200, 333])
+    time = kept * dt
+    lags = np.abs(np.subtract.outer(kept, kept))
+    reference = multivariate_normal(np.zeros(kept.size), sigma**2 * rho**lags)
+    e = reference.rvs(random_state=rng)
+    noise = NoiseModel(sigma=sigma, rho=rho, kind="ar1", dt=dt)
+    assert log_likelihood(e, noise, time=time) == pytest.approx(reference.logpdf(e), rel=1e-10)
+    one_rho = log_likelihood(e, noise)  # every step taken as one dt: not the record's density
+    assert abs(one_rho - reference.logpdf(e)) > 1.0
+    if rho > 0:
+        jittered = np.sort(time + rng.uniform(-0.3, 0.3, time.size) * dt)
+        steps = np.abs(np.subtract.outer(jittered, jittered)) / dt
+        ou = multivariate_normal(np.zeros(kept.size), sigma**2 * rho**steps)
+        assert log_likelihood(e, noise, time=jittered) == pytest.approx(ou.logpdf(e), rel=1e-10)
+
+
+def test_whitening_a_thinned_ar1_record_makes_it_white():
+    rng = np.random.default_rng(12)
+    sigma, rho, dt, n = 0.5, 0.8, 0.001, 60000
+    e = ar1_noise(rng, n, sigma, rho)
+    kept = _kept(n, 18, 50, np.arange(2500, n, 5000))  # the working copy of a 1 kHz record
+    noise = NoiseModel(sigma=sigma, rho=rho, kind="ar1", dt=dt)
+    w = whiten(e[kept], noise, time=kept * dt)
+    assert np.std(w) == pytest.approx(1.0, abs=0.03)  # se 0.009
+    assert abs(float(w[1:] @ w[:-1] / (w @ w))) < 0.04  # se 0.01
+    blind = whiten(e[kept], NoiseModel(sigma=sigma, rho=rho**18, kind="ar1"))  # one correlation for every step
+    assert float(blind[1:] @ blind[:-1] / (blind @ blind)) > 0.1
+
+
+def test_the_fused_kernels_take_each_steps_correlation():
+    """whiten_rows (bit for bit) and log_likelihood_of_rows (to rounding) with an uneven grid
+    equal whiten and log_likelihood with it; a time of the wrong length is refused."""
+    from identify.fitting.noise import log_likelihood_of_rows, whiten_rows
+
+    rng = np.random.default_rng(13)
+    kept = _kept(700, 7, 4, [100, 350, 600])
+    time = kept * 0.01
+    data = rng.normal(size=kept.size)
+    rows = data + rng.normal(scale=0.1, size=(6, kept.size))
+    rows[5, 3] = np.nan
+    noise = NoiseModel(sigma=0.1, rho=0.5, kind="ar1", dt=0.01)
+    w, finite = whiten_rows(data, rows, noise, 0.1, time=time)
+    np.testing.assert_array_equal(w, whiten(data[None, :] - rows, noise, 0.1, time=time))
+    assert finite.tolist() == [True] * 5 + [False]
+    picked = np.array([4, 0, 2])
+    expected = log_likelihood(data[None, :] - rows[picked], noise, time=time)
+    assert np.allclose(log_likelihood_of_rows(data, rows, picked, noise, time=time), expected, rtol=1e-12, atol=0)
+    even = log_likelihood_of_rows(data, rows, picked, noise)
+    assert not np.allclose(even, expected, rtol=1e-6)
+    with pytest.raises(ValueError, match="time has shape"):
+        whiten(data, noise, time=time[:-1])
+
+
+def test_the_noise_estimate_keeps_its_step_and_a_thinned_record_its_own():
+    rng = np.random.default_rng(14)
+    e = ar1_noise(rng, 5000, 0.4, 0.6)
+    rec = make_record(e, 3000, n_on=2000, fs=1000.0)
+    noise = estimate_noise(rec)
+    assert noise.kind == "ar1" and noise.dt == pytest.approx(0.001, rel=1e-12)
+    assert NoiseModel.from_dict(noise.to_dict()) == noise
+    assert NoiseModel.from_dict({k: v for k, v in noise.to_dict().items() if k != "dt"}).dt is None  # older files
+    with pytest.raises(ValueError, match="dt"):
+        NoiseModel(sigma=1.0, rho=0.3, kind="ar1", dt=0.0)
+    # a quiet start with one sample missing in ten: rho from the pairs one dt apart
+    keep = np.flatnonzero(np.arange(5000) % 10 != 5)
+    gappy = Record(rec.time[keep], rec.current[keep], rec.displacement[keep], source="gaps", sha256="")
+    estimate = estimate_noise(gappy)
+    assert estimate.dt == pytest.approx(0.001, rel=1e-12)
+    assert estimate.rho == pytest.approx(noise.rho, abs=0.03)

@@ -65,19 +65,23 @@ def write_chain_attributes(path, names, units) -> None:
         g.attrs["parameter_units"] = np.array([str(u).encode() for u in units], dtype=bytes)
 
 
-def pointwise_log_likelihood(residual, noise, sigma=None) -> np.ndarray:
+def pointwise_log_likelihood(residual, noise, sigma=None, *, time=None) -> np.ndarray:
     """``(S, T)`` log-likelihood per sample: the AR(1) conditional Gaussian densities of the
-    whitened residuals (:func:`identify.fitting.noise.whiten`); their sum over T is
-    :func:`identify.fitting.noise.log_likelihood`."""
+    whitened residuals (:func:`identify.fitting.noise.whiten`, each step's own correlation
+    on an uneven ``time`` grid); their sum over T is :func:`identify.fitting.noise.log_likelihood`."""
     from .noise import whiten
 
     e = np.atleast_2d(np.asarray(residual, dtype=float))
-    w = whiten(e, noise, sigma)
+    w = whiten(e, noise, sigma, time=time)
     sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
     log_sig = np.log(sig)[:, None] if sig.ndim == 1 else math.log(float(sig))
     out = -0.5 * w * w - log_sig - 0.5 * math.log(2.0 * math.pi)
     if noise.rho != 0.0:
-        out[:, 1:] -= 0.5 * math.log(1.0 - noise.rho**2)
+        correlations = noise.step_correlations(time)
+        if correlations is None:
+            out[:, 1:] -= 0.5 * math.log(1.0 - noise.rho**2)
+        else:
+            out[:, 1:] -= 0.5 * np.log1p(-correlations * correlations)
     return out
 
 
@@ -101,15 +105,18 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
     flat = sub.reshape(-1, sub.shape[2])
     y, valid = log_post.model.evaluate(log_post.full_theta(flat), log_post.time, log_post.current)
     sigma = np.exp(flat[:, -1]) if log_post.free_sigma else None
-    pointwise = pointwise_log_likelihood(data[None, :] - y, log_post.noise, sigma)
+    pointwise = pointwise_log_likelihood(data[None, :] - y, log_post.noise, sigma, time=time)
     pointwise[~np.asarray(valid, dtype=bool)] = -np.inf
     rng = np.random.default_rng(seed)
     noise_sigma = sigma[:, None] if sigma is not None else log_post.noise.sigma
     white = rng.standard_normal(y.shape)
-    rho = log_post.noise.rho
+    correlations = log_post.noise.step_correlations(time)
+    if correlations is None:
+        correlations = np.full(max(time.size - 1, 0), log_post.noise.rho)
     eps = np.empty_like(white)
     eps[:, 0] = white[:, 0]
-    for t in range(1, time.size):  # AR(1) with unit marginal variance
+    for t in range(1, time.size):  # AR(1) with unit marginal variance, each step's own correlation
+        rho = correlations[t - 1]
         eps[:, t] = rho * eps[:, t - 1] + math.sqrt(1.0 - rho * rho) * white[:, t]
     predictive = y + noise_sigma * eps
     shape = (n_chain, sub.shape[1], time.size)

@@ -442,6 +442,9 @@ class WhitenedResiduals:
         self.data = np.asarray(record.displacement, dtype=float)
         self.model = model
         self.noise = noise
+        # the time grid for the whitening when its steps are not all the noise's one step
+        # (a thinned record: each step its own correlation), else None (checked once here)
+        self._uneven_time = None if noise.step_correlations(self.time) is None else self.time
         self.sigma = 1.0 if noise.is_free else noise.sigma
         self.free = np.flatnonzero(model.parameters.vary)
         self.template = model.parameters.values.copy()
@@ -463,7 +466,7 @@ class WhitenedResiduals:
         thetas = self.full(np.atleast_2d(x_rows))
         y, valid = self.model.evaluate(thetas, self.time, self.current)
         self.n_evaluations += thetas.shape[0]
-        w, finite = whiten_rows(self.data, y, self.noise, self.sigma)
+        w, finite = whiten_rows(self.data, y, self.noise, self.sigma, time=self._uneven_time)
         valid = valid & finite
         return w, valid
 

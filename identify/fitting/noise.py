@@ -49,6 +49,31 @@ so the :math:`w_k` are i.i.d. standard normal and
 
 White noise is the case :math:`\rho = 0`.
 
+Uneven sampling
+---------------
+``rho`` is the correlation of two samples one quiet-segment step ``dt`` apart (the
+median time step of the quiet segment, :attr:`NoiseModel.dt`). A record whose steps
+differ from it (a record thinned by ``--every`` or by the diagnosis' working copy, which
+keep every input reversal at the full rate; dropped samples; a logger with uneven time
+stamps) is whitened with each step's own correlation
+
+.. math::  r_k = \rho^{(t_k - t_{k-1}) / dt},
+
+the exact AR(1) correlation at a whole number of steps (either sign of ``rho``) and, for
+``rho > 0``, that of the Ornstein-Uhlenbeck process the AR(1) samples at any step (a
+fractional step of a negative ``rho`` keeps the sign of the nearest whole step), clipped
+to ``|r_k| <= 0.99`` as ``rho`` is:
+
+.. math::
+
+    w_k = (e_k - r_k e_{k-1}) / (\sigma\sqrt{1 - r_k^2}), \qquad
+    \log L = -\tfrac12 \sum_k w_k^2 - T \log\sigma - \tfrac12 \sum_{k\ge1}\log(1-r_k^2)
+             - \tfrac{T}{2}\log 2\pi .
+
+On an even grid every ``r_k = rho`` and the formulas above are recovered bit for bit.
+The whitening functions take the record's ``time`` for this (without it every step is
+taken as one ``dt``).
+
 No quiet segment
 ----------------
 Then :func:`estimate_noise` raises :class:`NoQuietSegmentError` naming the two
@@ -126,6 +151,10 @@ class NoiseModel:
         ``source="quiet_segment"``).
     n_quiet : int
         Number of those samples (0 when ``quiet`` is None).
+    dt : float or None
+        The time step [s] that ``rho`` refers to: the quiet segment's median step (None: the
+        record's steps are all taken as one step; see "Uneven sampling" in the module
+        docstring and :meth:`step_correlations`).
     """
 
     sigma: float
@@ -134,6 +163,7 @@ class NoiseModel:
     source: str = "quiet_segment"
     quiet: slice | None = None
     n_quiet: int = 0
+    dt: float | None = None
 
     def __post_init__(self):
         if self.kind not in ("white", "ar1"):
@@ -144,6 +174,8 @@ class NoiseModel:
             raise ValueError(f"NoiseModel.rho must lie in (-1, 1), got {self.rho!r}")
         if self.kind == "white" and self.rho != 0.0:
             raise ValueError(f"white noise has rho = 0, got {self.rho!r}")
+        if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"NoiseModel.dt must be None or a finite time step > 0 [s], got {self.dt!r}")
         if self.source == "free":
             if not (math.isnan(self.sigma) or self.sigma > 0):
                 raise ValueError(f"a free noise sigma is NaN (not yet estimated) or > 0, got {self.sigma!r}")
@@ -159,8 +191,39 @@ class NoiseModel:
         """A copy with ``sigma`` replaced (e.g. the least-squares estimate of a free sigma)."""
         return replace(self, sigma=float(sigma))
 
+    def step_correlations(self, time) -> np.ndarray | None:
+        """Each step's lag-1 correlation ``r_k`` on the time grid ``time`` (module docstring,
+        "Uneven sampling"), or None when every step has ``rho`` (white noise, no ``dt``, or
+        an even grid at ``dt``).
+
+        Parameters
+        ----------
+        time : array_like, shape (T,)
+            Strictly increasing sample times [s].
+
+        Returns
+        -------
+        ndarray of shape (T - 1,) or None
+        """
+        if self.rho == 0.0 or self.dt is None or time is None:
+            return None
+        steps = np.diff(np.asarray(time, dtype=float)) / self.dt
+        whole = np.rint(steps)
+        # time stamps written with ~10 significant digits: a step within 1e-6 of a whole
+        # number of dt is that number
+        exact = np.abs(steps - whole) <= 1e-6 * np.maximum(whole, 1.0)
+        if exact.all() and (whole == 1.0).all():
+            return None
+        r = np.empty_like(steps)
+        r[exact] = self.rho ** whole[exact]
+        fractional = ~exact
+        if fractional.any():
+            sign = np.where(np.mod(np.maximum(whole[fractional], 1.0), 2.0) == 1.0, math.copysign(1.0, self.rho), 1.0)
+            r[fractional] = sign * abs(self.rho) ** steps[fractional]
+        return np.clip(r, -0.99, 0.99)
+
     def to_dict(self) -> dict:
-        """JSON-ready: sigma, rho, kind, source, n_quiet and the quiet samples [start, stop)."""
+        """JSON-ready: sigma, rho, kind, source, n_quiet, the quiet samples [start, stop) and dt."""
         return {
             "sigma": None if math.isnan(self.sigma) else float(self.sigma),
             "rho": float(self.rho),
@@ -168,6 +231,7 @@ class NoiseModel:
             "source": self.source,
             "n_quiet": int(self.n_quiet),
             "quiet": None if self.quiet is None else [int(self.quiet.start), int(self.quiet.stop)],
+            "dt": None if self.dt is None else float(self.dt),
         }
 
     @classmethod
@@ -182,6 +246,7 @@ class NoiseModel:
             source=d.get("source", "quiet_segment"),
             quiet=None if quiet is None else slice(int(quiet[0]), int(quiet[1])),
             n_quiet=int(d.get("n_quiet", 0)),
+            dt=None if d.get("dt") is None else float(d["dt"]),
         )
 
 
@@ -287,11 +352,17 @@ def estimate_noise(record, *, noise_sigma=None, current_tolerance=None, min_quie
             f"(a noise-free or heavily quantised record?), so it gives no noise estimate. {_FALLBACKS}"
         )
     sigma = math.sqrt(sum_sq / (n - 2))
-    rho_hat = float(detrended[1:] @ detrended[:-1]) / sum_sq
+    steps = np.diff(t)
+    dt = float(np.median(steps))
+    at_dt = np.abs(steps - dt) <= 1e-6 * dt  # the lag-1 pairs one dt apart (all, on an even grid)
+    if at_dt.all():
+        rho_hat = float(detrended[1:] @ detrended[:-1]) / sum_sq
+    else:
+        rho_hat = float(detrended[1:][at_dt] @ detrended[:-1][at_dt]) / sum_sq * (n / max(int(at_dt.sum()), 1))
     if _ar1_is_significant(rho_hat, n):
         rho = float(np.clip(rho_hat, -0.99, 0.99))
-        return NoiseModel(sigma=sigma, rho=rho, kind="ar1", source="quiet_segment", quiet=quiet, n_quiet=n)
-    return NoiseModel(sigma=sigma, rho=0.0, kind="white", source="quiet_segment", quiet=quiet, n_quiet=n)
+        return NoiseModel(sigma=sigma, rho=rho, kind="ar1", source="quiet_segment", quiet=quiet, n_quiet=n, dt=dt)
+    return NoiseModel(sigma=sigma, rho=0.0, kind="white", source="quiet_segment", quiet=quiet, n_quiet=n, dt=dt)
 
 
 def energised_mask(record, noise: NoiseModel | None = None) -> np.ndarray:
@@ -317,17 +388,26 @@ def _checked_sigma(noise: NoiseModel, sigma, caller: str) -> np.ndarray:
     return sig
 
 
-def _gaussian_log_likelihood(quadratic, n_samples: int, sig, rho: float):
-    """The module docstring's log-likelihood from its quadratic term ``sum w_k^2`` (unit-free)."""
-    return (
-        -0.5 * quadratic
-        - n_samples * np.log(sig)
-        - 0.5 * (n_samples - 1) * math.log(1.0 - rho**2)
-        - 0.5 * n_samples * math.log(2.0 * math.pi)
-    )
+def _gaussian_log_likelihood(quadratic, n_samples: int, sig, rho: float, correlations=None):
+    """The module docstring's log-likelihood from its quadratic term ``sum w_k^2`` (unit-free);
+    ``correlations``: each step's ``r_k`` on an uneven grid (None: every step ``rho``)."""
+    if correlations is None:
+        log_det = (n_samples - 1) * math.log(1.0 - rho**2)
+    else:
+        log_det = float(np.sum(np.log1p(-correlations * correlations)))
+    return -0.5 * quadratic - n_samples * np.log(sig) - 0.5 * log_det - 0.5 * n_samples * math.log(2.0 * math.pi)
 
 
-def whiten(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
+def _correlations_for(noise: NoiseModel, time, n_samples: int):
+    """``noise.step_correlations(time)``, checked against the residual's ``n_samples``."""
+    if time is None:
+        return None
+    if np.shape(time) != (n_samples,):
+        raise ValueError(f"time has shape {np.shape(time)}, but the residual has {n_samples} samples")
+    return noise.step_correlations(time)
+
+
+def whiten(residual, noise: NoiseModel, sigma=None, *, time=None) -> np.ndarray:
     """Whitened, standardised residuals ``w`` (i.i.d. N(0, 1) under the noise model).
 
     Parameters
@@ -337,6 +417,10 @@ def whiten(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
     noise : NoiseModel
     sigma : float or array_like of shape (W,), optional
         Overrides ``noise.sigma`` (required when the noise sigma is free).
+    time : array_like of shape (T,), optional
+        The samples' times [s]: each step is whitened with its own correlation when the
+        grid is not the noise model's even step (module docstring, "Uneven sampling").
+        Default: every step is one ``noise.dt``.
 
     Returns
     -------
@@ -348,10 +432,14 @@ def whiten(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
         sig = sig[:, None]
     if noise.rho == 0.0:
         return e / sig
-    rho = noise.rho
+    correlations = _correlations_for(noise, time, e.shape[-1])
     w = np.empty_like(e)
     w[..., 0] = e[..., 0]
-    w[..., 1:] = (e[..., 1:] - rho * e[..., :-1]) / math.sqrt(1.0 - rho * rho)
+    if correlations is None:
+        rho = noise.rho
+        w[..., 1:] = (e[..., 1:] - rho * e[..., :-1]) / math.sqrt(1.0 - rho * rho)
+    else:
+        w[..., 1:] = (e[..., 1:] - correlations * e[..., :-1]) / np.sqrt(1.0 - correlations * correlations)
     return w / sig
 
 
@@ -381,21 +469,45 @@ def _whitened_rows(data, model_rows, rho, scale, sigma, out, finite):
         finite[r] = check == 0.0
 
 
-def whiten_rows(data, model_rows, noise: NoiseModel, sigma) -> tuple[np.ndarray, np.ndarray]:
-    """``(whiten(data - model_rows, noise, sigma), finite)`` for rows ``(W, T)`` and a scalar
-    ``sigma``: the same values bit for bit, in one pass (the least squares' hot path),
-    with ``finite`` ``(W,)`` whether each row is finite throughout."""
+@njit(cache=True)
+def _whitened_rows_uneven(data, model_rows, correlations, scales, sigma, out, finite):
+    """:func:`_whitened_rows` with each step's own correlation ``correlations[k - 1]`` and
+    ``scales[k - 1] = sqrt(1 - correlations[k - 1]^2)`` (an uneven grid)."""
+    n_samples = data.shape[0]
+    for r in range(model_rows.shape[0]):
+        previous = data[0] - model_rows[r, 0]
+        w = previous / sigma
+        out[r, 0] = w
+        check = w - w
+        for k in range(1, n_samples):
+            e = data[k] - model_rows[r, k]
+            w = ((e - correlations[k - 1] * previous) / scales[k - 1]) / sigma
+            previous = e
+            out[r, k] = w
+            check += w - w
+        finite[r] = check == 0.0
+
+
+def whiten_rows(data, model_rows, noise: NoiseModel, sigma, *, time=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(whiten(data - model_rows, noise, sigma, time=time), finite)`` for rows ``(W, T)`` and
+    a scalar ``sigma``: the same values bit for bit, in one pass (the least squares' hot
+    path), with ``finite`` ``(W,)`` whether each row is finite throughout."""
     sig = float(_checked_sigma(noise, sigma, "whiten_rows"))
     data = np.ascontiguousarray(data, dtype=np.float64)
     model_rows = np.ascontiguousarray(np.atleast_2d(model_rows), dtype=np.float64)
     out = np.empty(model_rows.shape)
     finite = np.empty(model_rows.shape[0], dtype=np.bool_)
     rho = float(noise.rho)
-    _whitened_rows(data, model_rows, rho, math.sqrt(1.0 - rho * rho), sig, out, finite)
+    correlations = _correlations_for(noise, time, data.shape[0]) if rho != 0.0 else None
+    if correlations is None:
+        _whitened_rows(data, model_rows, rho, math.sqrt(1.0 - rho * rho), sig, out, finite)
+    else:
+        scales = np.sqrt(1.0 - correlations * correlations)
+        _whitened_rows_uneven(data, model_rows, correlations, scales, sig, out, finite)
     return out, finite
 
 
-def log_likelihood(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
+def log_likelihood(residual, noise: NoiseModel, sigma=None, *, time=None) -> np.ndarray:
     """Gaussian log-likelihood of residuals under the noise model (formula in the module docstring).
 
     Parameters
@@ -404,15 +516,18 @@ def log_likelihood(residual, noise: NoiseModel, sigma=None) -> np.ndarray:
     noise : NoiseModel
     sigma : float or array_like of shape (W,), optional
         Overrides ``noise.sigma`` (required when the noise sigma is free).
+    time : array_like of shape (T,), optional
+        The samples' times [s] (see :func:`whiten`).
 
     Returns
     -------
     float or ndarray of shape (W,)
     """
     e = np.asarray(residual, dtype=float)
-    w = whiten(e, noise, sigma)
+    w = whiten(e, noise, sigma, time=time)
     sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
-    return _gaussian_log_likelihood(np.sum(w * w, axis=-1), e.shape[-1], sig, noise.rho)
+    correlations = _correlations_for(noise, time, e.shape[-1]) if noise.rho != 0.0 else None
+    return _gaussian_log_likelihood(np.sum(w * w, axis=-1), e.shape[-1], sig, noise.rho, correlations)
 
 
 @njit(cache=True, inline="always")
@@ -463,7 +578,24 @@ def _whitened_sum_of_squares(data, model_rows, rows, rho, out):
         out[i] = total
 
 
-def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None) -> np.ndarray:
+@njit(cache=True)
+def _whitened_sum_of_squares_uneven(data, model_rows, rows, correlations, out):
+    """:func:`_whitened_sum_of_squares` with each step's own correlation (an uneven grid)."""
+    n_samples = data.shape[0]
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        previous = data[0] - model_rows[r, 0]
+        total = previous * previous
+        for k in range(1, n_samples):
+            e = data[k] - model_rows[r, k]
+            c = correlations[k - 1]
+            innovation = e - c * previous
+            total += innovation * innovation / (1.0 - c * c)
+            previous = e
+        out[i] = total
+
+
+def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None, *, time=None) -> np.ndarray:
     """:func:`log_likelihood` of ``data - model_rows[rows]``, fused (the sampler's hot path).
 
     Parameters
@@ -477,18 +609,24 @@ def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None
     noise : NoiseModel
     sigma : array_like of shape (R,), optional
         Per-row sigma (required when the noise sigma is free).
+    time : array_like of shape (T,), optional
+        The samples' times [s] (see :func:`whiten`).
 
     Returns
     -------
     ndarray, shape (R,)
-        Equal to ``log_likelihood(data - model_rows[rows], noise, sigma)`` up to rounding
-        (one pass, no (R, T) temporaries).
+        Equal to ``log_likelihood(data - model_rows[rows], noise, sigma, time=time)`` up to
+        rounding (one pass, no (R, T) temporaries).
     """
     data = np.ascontiguousarray(data, dtype=np.float64)
     model_rows = np.ascontiguousarray(model_rows, dtype=np.float64)
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     sig = _checked_sigma(noise, sigma, "log_likelihood_of_rows")
     sum_of_squares = np.empty(rows.shape[0])
-    _whitened_sum_of_squares(data, model_rows, rows, float(noise.rho), sum_of_squares)
-    return _gaussian_log_likelihood(sum_of_squares / sig**2, data.shape[0], sig, noise.rho)
+    correlations = _correlations_for(noise, time, data.shape[0]) if noise.rho != 0.0 else None
+    if correlations is None:
+        _whitened_sum_of_squares(data, model_rows, rows, float(noise.rho), sum_of_squares)
+    else:
+        _whitened_sum_of_squares_uneven(data, model_rows, rows, correlations, sum_of_squares)
+    return _gaussian_log_likelihood(sum_of_squares / sig**2, data.shape[0], sig, noise.rho, correlations)
 

@@ -391,6 +391,7 @@ class LogPosterior:
         self.data = np.asarray(record.displacement, dtype=float)
         self.model = model
         self.noise = noise
+        self._uneven_time = None if noise.step_correlations(self.time) is None else self.time  # see WhitenedResiduals
         self.free = np.flatnonzero(model.parameters.vary)
         self.template = model.parameters.values.copy()
         self._labelled = model.has_canonical_domain  # a labelling to keep (e.g. two thermal nodes): checked per call
@@ -504,7 +505,7 @@ class LogPosterior:
             if valid.any():
                 rows = ok[valid]
                 sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
-                out[rows] += log_likelihood_of_rows(self.data, y, np.flatnonzero(valid), self.noise, sigma)
+                out[rows] += log_likelihood_of_rows(self.data, y, np.flatnonzero(valid), self.noise, sigma, time=self._uneven_time)
             out[ok[~valid]] = -np.inf
         out[~np.isfinite(out)] = -np.inf
         return float(out[0]) if x_in.ndim == 1 else out

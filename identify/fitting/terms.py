@@ -68,8 +68,8 @@ def keeps_every_effect(model, switched_off) -> bool:
     return all(effects[name].keeps_a_form(terms | _off_terms(model, effects[name])) for name, terms in by_effect.items())
 
 
-def _whitened_chi2(residual, noise) -> float:
-    return float(np.sum(whiten(residual, noise) ** 2))
+def _whitened_chi2(residual, noise, time) -> float:
+    return float(np.sum(whiten(residual, noise, time=time) ** 2))
 
 
 def _reduced_fit(record, fit, effect_name, term, names, rng):
@@ -97,7 +97,7 @@ def _reduced_fit(record, fit, effect_name, term, names, rng):
         except ValueError:
             continue  # a start outside the model's reach: the other starts decide
         # one noise model for every comparison (a free sigma is re-estimated per fit)
-        chi2 = _whitened_chi2(candidate.residual, fit.noise)
+        chi2 = _whitened_chi2(candidate.residual, fit.noise, record.time)
         if chi2 < best_chi2:
             best, best_chi2 = candidate, chi2
     return None if best is None else (best, best_chi2)
@@ -141,7 +141,7 @@ def select_terms(record, fit, *, rng=None, log=None):
     t0 = time.perf_counter()
     say = log or (lambda message: None)
     n_samples = int(np.asarray(fit.residual).size)
-    chi2_ref = _whitened_chi2(fit.residual, fit.noise)
+    chi2_ref = _whitened_chi2(fit.residual, fit.noise, record.time)
     decisions = list(fit.terms)
     current = fit
     while True:
