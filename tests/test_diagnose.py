@@ -731,6 +731,33 @@ def test_the_working_copy_keeps_a_lagged_drives_reversals(spec, fs):
     assert len(work.record) < 1.5 * diagnosis_module.SCREENING_SAMPLES
 
 
+def test_the_working_copy_whitens_each_step_with_its_own_correlation():
+    """AR(1) noise on the working copy of a 1 kHz record (every 18th sample, the reversals'
+    windows at the full rate): the true model's whitened residual there is white, where
+    one correlation ``rho ** step`` for every step (the copy's noise before) leaves the
+    windows' samples correlated and weighs them as if they were independent."""
+    from identify.bench import simulate
+    from identify.data.reversals import find_reversals
+    from identify.diagnosis.diagnose import _working_copy
+    from identify.fitting.noise import NoiseModel, estimate_noise, whiten
+
+    sim = simulate({}, seed=4, noise_sigma=0.5, noise_rho=0.7, fs=1000.0)
+    record = sim.record
+    noise = estimate_noise(record)
+    assert noise.kind == "ar1"
+    work = _working_copy(record, noise, find_reversals(record.current).index)
+    assert work.step >= 10
+    kept = np.searchsorted(record.time, work.record.time)
+    residual = work.record.displacement - sim.clean[kept]
+    w = whiten(residual, work.noise, time=work.record.time)
+    assert np.std(w) == pytest.approx(1.0, abs=0.04)
+    assert abs(float(w[1:] @ w[:-1] / (w @ w))) < 0.06
+    steps = np.diff(kept)
+    assert (steps == 1).sum() > 0.1 * steps.size  # the windows are a fair share of the copy
+    blind = whiten(residual, NoiseModel(sigma=noise.sigma, rho=noise.rho**work.step, kind="ar1"))
+    assert float(blind[1:] @ blind[:-1] / (blind @ blind)) > 0.1  # about 0.7 x the windows' share (0.16, se 0.014)
+
+
 def test_a_rival_within_the_bic_threshold_blocks_a_name():
     """Two refitted candidates whose delta BICs are less than 10 apart: no strong evidence for
     either, so the best cannot be named (the issue's 'never a wrong name')."""

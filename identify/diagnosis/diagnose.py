@@ -1373,9 +1373,10 @@ REVERSAL_WINDOW = 0.05
 
 def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
     """``record`` decimated to about :data:`SCREENING_SAMPLES` samples, reversals kept with
-    :data:`REVERSAL_WINDOW` on each side at the full rate; the noise model's lag-1
-    correlation becomes ``rho ** step`` (the samples kept at the full rate are whitened with
-    it too: for AR(1) noise they are under-whitened, a small share of the copy)."""
+    :data:`REVERSAL_WINDOW` on each side at the full rate; the noise model whitens each
+    step of the copy with its own correlation (``rho ** (step / dt)``: ``rho ** every`` on
+    the decimated stretches, ``rho`` in the windows kept at the full rate; see
+    :meth:`identify.fitting.noise.NoiseModel.step_correlations`)."""
     from dataclasses import replace as _replace
 
     from ..data.records import Record, thinning_indices
@@ -1395,9 +1396,10 @@ def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
     quiet = None
     if noise.quiet is not None:
         quiet = slice(0, int(np.searchsorted(keep, noise.quiet.indices(n)[1])))
-    rho = noise.rho**step if noise.kind == "ar1" else 0.0
-    small_noise = _replace(noise, rho=rho, kind="ar1" if rho else "white", quiet=quiet,
-                           n_quiet=0 if quiet is None else quiet.stop)  # fmt: skip
+    dt = noise.dt
+    if dt is None and noise.kind == "ar1":  # a noise model from before its step was kept: the record's
+        dt = float(np.median(np.diff(record.time)))
+    small_noise = _replace(noise, quiet=quiet, n_quiet=0 if quiet is None else quiet.stop, dt=dt)
     return _Working(small, small_noise, step)
 
 
