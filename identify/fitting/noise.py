@@ -218,7 +218,7 @@ class NoiseModel:
         r[exact] = self.rho ** whole[exact]
         fractional = ~exact
         if fractional.any():
-            sign = np.where(np.mod(np.maximum(whole[fractional], 1.0), 2.0) == 1.0, math.copysign(1.0, self.rho), 1.0)
+            sign = math.copysign(1.0, self.rho) ** np.maximum(whole[fractional], 1.0)  # the nearest whole step's
             r[fractional] = sign * abs(self.rho) ** steps[fractional]
         return np.clip(r, -0.99, 0.99)
 
@@ -354,11 +354,10 @@ def estimate_noise(record, *, noise_sigma=None, current_tolerance=None, min_quie
     sigma = math.sqrt(sum_sq / (n - 2))
     steps = np.diff(t)
     dt = float(np.median(steps))
-    at_dt = np.abs(steps - dt) <= 1e-6 * dt  # the lag-1 pairs one dt apart (all, on an even grid)
-    if at_dt.all():
-        rho_hat = float(detrended[1:] @ detrended[:-1]) / sum_sq
-    else:
-        rho_hat = float(detrended[1:][at_dt] @ detrended[:-1][at_dt]) / sum_sq * (n / max(int(at_dt.sum()), 1))
+    # the lag-1 pairs one dt apart (all n - 1 of them on an even grid, where the factor is 1)
+    at_dt = np.abs(steps - dt) <= 1e-6 * dt
+    pairs = float(detrended[1:][at_dt] @ detrended[:-1][at_dt])
+    rho_hat = pairs / sum_sq * ((n - 1) / max(int(at_dt.sum()), 1))
     if _ar1_is_significant(rho_hat, n):
         rho = float(np.clip(rho_hat, -0.99, 0.99))
         return NoiseModel(sigma=sigma, rho=rho, kind="ar1", source="quiet_segment", quiet=quiet, n_quiet=n, dt=dt)
@@ -427,12 +426,18 @@ def whiten(residual, noise: NoiseModel, sigma=None, *, time=None) -> np.ndarray:
     ndarray, same shape as ``residual`` (dimensionless)
     """
     e = np.asarray(residual, dtype=float)
+    correlations = _correlations_for(noise, time, e.shape[-1]) if noise.rho != 0.0 else None
+    return _whitened(e, noise, sigma, correlations)
+
+
+def _whitened(e, noise: NoiseModel, sigma, correlations) -> np.ndarray:
+    """:func:`whiten` of the float array ``e`` with each step's ``correlations`` already
+    known (None: every step ``noise.rho``)."""
     sig = _checked_sigma(noise, sigma, "whiten")
     if e.ndim == 2 and sig.ndim == 1:
         sig = sig[:, None]
     if noise.rho == 0.0:
         return e / sig
-    correlations = _correlations_for(noise, time, e.shape[-1])
     w = np.empty_like(e)
     w[..., 0] = e[..., 0]
     if correlations is None:
@@ -524,9 +529,9 @@ def log_likelihood(residual, noise: NoiseModel, sigma=None, *, time=None) -> np.
     float or ndarray of shape (W,)
     """
     e = np.asarray(residual, dtype=float)
-    w = whiten(e, noise, sigma, time=time)
-    sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
     correlations = _correlations_for(noise, time, e.shape[-1]) if noise.rho != 0.0 else None
+    w = _whitened(e, noise, sigma, correlations)
+    sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
     return _gaussian_log_likelihood(np.sum(w * w, axis=-1), e.shape[-1], sig, noise.rho, correlations)
 
 
