@@ -40,6 +40,7 @@ import numpy as np
 from numba import njit, prange
 
 from .composite import Effect, register_effect
+from .gpi import kernel_array
 from .parameters import Parameter, ParameterSet
 
 __all__ = [
@@ -522,7 +523,7 @@ def first_order_lowpass(time, signal, tau, initial=None):
         initial = signal2[:, 0]
     initial = np.ascontiguousarray(np.broadcast_to(np.asarray(initial, dtype=float), (n_sets,)))
     out = np.empty((n_sets, time.size))
-    _lowpass_kernel(time, signal2, tau, initial, out)
+    _lowpass_kernel(kernel_array(time), kernel_array(signal2), kernel_array(tau), kernel_array(initial), out)
     return out
 
 
@@ -569,7 +570,8 @@ def delayed_lowpass(time, signal, tau, delay):
         return lagged
     tau_rows = np.ascontiguousarray(np.broadcast_to(tau, (n_sets,)))
     out = np.empty((n_sets, time.size))
-    _delay_kernel(time, signal2, np.ascontiguousarray(lagged), tau_rows, delay, out)
+    _delay_kernel(kernel_array(time), kernel_array(signal2), kernel_array(lagged), kernel_array(tau_rows),
+                  kernel_array(delay), out)  # fmt: skip
     return out
 
 
@@ -1403,7 +1405,8 @@ def incomplete_reset_strain(current, displacement, strain, retained, fade):
     excursion = np.ascontiguousarray(np.abs(y - y[:, :1]))
     out = np.zeros((strain.size, current.size))
     if current.size:
-        _incomplete_reset_kernel(current, excursion, strain, retained, fade, out)
+        _incomplete_reset_kernel(kernel_array(current), excursion, kernel_array(strain), kernel_array(retained),
+                                 kernel_array(fade), out)  # fmt: skip
     return out
 
 
@@ -1532,7 +1535,8 @@ class Creep(Effect):
         hold = _column(params, 5)
         displacement = np.ascontiguousarray(np.atleast_2d(displacement), dtype=float)
         out = np.empty_like(displacement)
-        _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, counts, hold, out)
+        _creep_kernel(kernel_array(time), kernel_array(displacement), kernel_array(amplitude), kernel_array(taus),
+                      kernel_array(log_rate), kernel_array(log_taus), kernel_array(counts), kernel_array(hold), out)  # fmt: skip
         return out
 
 
@@ -1688,7 +1692,7 @@ class Thermal(Effect):
         displacement = np.ascontiguousarray(np.atleast_2d(displacement), dtype=float)
         out = np.empty_like(displacement)
         columns = [_column(params, c) for c in range(6)]
-        _thermal_kernel(time, heating, *columns, displacement, out)
+        _thermal_kernel(kernel_array(time), heating, *(kernel_array(c) for c in columns), kernel_array(displacement), out)
         return out
 
 

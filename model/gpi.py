@@ -518,6 +518,23 @@ def _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory
             last_was_rising_branch = d >= 0
 
 
+def kernel_array(values):
+    """``values`` as a C-contiguous, writeable ndarray of its own dtype (a copy only where
+    it is neither).
+
+    numba compiles one version of a kernel per type of its arguments, and a read-only array
+    (a ``broadcast_to`` view, which ``ascontiguousarray`` passes through unchanged when the
+    shapes already match) is another type than a writeable one: every kernel call passes
+    its arrays through here, so each kernel is compiled once, not once per mix of read-only
+    arguments (the GPI's parallel kernel had been compiled in ten versions by the tests).
+    The values are the same, so are the results.
+    """
+    array = np.asarray(values)
+    if array.flags.c_contiguous and array.flags.writeable:
+        return array
+    return np.array(array, order="C")
+
+
 def _per_set(values, n_sets, name):
     """A scalar or one value per parameter set, as a contiguous ``(W,)`` array."""
     array = np.asarray(values, dtype=float)
@@ -741,8 +758,10 @@ def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, i
     n_samples = current.shape[1]
     if theta.shape[0] == 1:  # one set: a leader without followers
         out = np.empty((1, n_samples))
-        _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion, initial_held,
-                    threshold_scale, scale_of, _ONE_ROW, _NO_SLOT, _NO_ROWS, _ONE_ROW, _NO_SUMS, out)  # fmt: skip
+        _gpi_kernel(kernel_array(theta), kernel_array(current), kernel_array(row_of), n_operators, rising_is_a,
+                    kernel_array(initial_memory), kernel_array(initial_excursion), kernel_array(initial_held),
+                    kernel_array(threshold_scale), kernel_array(scale_of), _ONE_ROW, _NO_SLOT, _NO_ROWS, _ONE_ROW,
+                    _NO_SUMS, out)  # fmt: skip
         return out, np.zeros(1, dtype=np.int64)
     held_columns = (initial_held,) if initial_held.shape[1] > 1 else ()
     unique, inverse = distinct_rows(theta, row_of, initial_memory, initial_excursion, scale_of, *held_columns)
@@ -760,10 +779,10 @@ def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, i
     sums = np.empty((shared.size, n_samples))
     out = np.empty((unique.size, n_samples))
     _gpi_kernel(
-        np.ascontiguousarray(theta[unique]), current, np.ascontiguousarray(row_of[unique]), n_operators, rising_is_a,
-        np.ascontiguousarray(initial_memory[unique]), np.ascontiguousarray(initial_excursion[unique]),
-        np.ascontiguousarray(initial_held[unique]) if held_columns else initial_held, threshold_scale,
-        np.ascontiguousarray(scale_of[unique]), leaders, slot, followers, leader_of, sums, out,
+        kernel_array(theta[unique]), kernel_array(current), kernel_array(row_of[unique]), n_operators, rising_is_a,
+        kernel_array(initial_memory[unique]), kernel_array(initial_excursion[unique]),
+        kernel_array(initial_held[unique] if held_columns else initial_held), kernel_array(threshold_scale),
+        kernel_array(scale_of[unique]), leaders, slot, followers, kernel_array(leader_of), sums, out,
     )  # fmt: skip
     return out, inverse
 
@@ -893,5 +912,5 @@ def classical_pi(current, thresholds, weights, linear_gain=0.0, initial=0.0):
             raise ValueError(f"{name} has a non-finite value at index {int(np.flatnonzero(~np.isfinite(arr))[0])}")
     z0 = np.ascontiguousarray(np.broadcast_to(np.asarray(initial, dtype=float), r.shape))
     plays = np.empty((v.size, r.size))
-    _play_kernel(np.ascontiguousarray(v), np.ascontiguousarray(r), z0, plays)
+    _play_kernel(kernel_array(v), kernel_array(r), kernel_array(z0), plays)
     return float(linear_gain) * v + plays @ p

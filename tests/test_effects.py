@@ -928,3 +928,40 @@ def test_training_with_every_strength_on_batch_is_each_rows_own_output(paper_inp
     moves_v0 = m.names.index("training_travel") + 1
     y = _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats=(moves_v0,))
     assert not np.array_equal(y[0], m(m.default_theta(), time, current))  # the strengths are visible
+
+
+def _compiled_versions():
+    """``{kernel: number of compiled versions}`` of every numba kernel of the model."""
+    import model.effects as effects_module
+    import model.gpi as gpi_module
+
+    return {
+        f"{module.__name__}.{name}": len(obj.signatures)
+        for module in (gpi_module, effects_module)
+        for name, obj in vars(module).items()
+        if hasattr(obj, "signatures") and hasattr(obj, "py_func")
+    }
+
+
+def test_read_only_inputs_give_the_same_output_without_another_compiled_kernel(paper_input):
+    """numba compiles a kernel once per type of its arguments, and a read-only array (a
+    ``broadcast_to`` view, a frozen record column) is another type: every array reaches the
+    kernels writeable (:func:`model.gpi.kernel_array`), so read-only inputs compile nothing
+    more and give the same bits."""
+    time, current = paper_input[0][::8], paper_input[1][::8]
+    m = Model(list(EFFECTS))
+    theta = m.default_theta()
+    for name in EFFECTS:
+        for key, value in EFFECTS[name].get_test_parameters().items():
+            theta[m.names.index(key)] = value
+    batch = np.stack([theta, theta * (1 + 1e-6)])
+    expected = m(batch, time, current)
+    m(theta, time, current)
+    before = _compiled_versions()
+    frozen = [np.array(a) for a in (batch, time, current)]
+    for a in frozen:
+        a.setflags(write=False)
+    single = np.broadcast_to(theta, theta.shape)  # a read-only view
+    assert np.array_equal(m(*frozen), expected)
+    assert np.array_equal(m(single, frozen[1], frozen[2]), expected[0])
+    assert _compiled_versions() == before
