@@ -41,3 +41,15 @@ def test_api_and_cli_share_the_sampler_defaults():
     args = build_parser().parse_args(["study", "x.csv", "--out", "o"])
     assert params["max_steps"].default == args.max_steps == DEFAULT_MAX_STEPS == 60000
     assert params["check_every"].default == args.check_every == DEFAULT_CHECK_EVERY
+
+
+def test_the_test_extra_installs_what_the_default_options_use():
+    """pytest's default options run the suite in worker processes (``-n``): the test extra
+    installs pytest-xdist, which provides that option."""
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    addopts = project["tool"]["pytest"]["ini_options"]["addopts"]
+    assert re.search(r"(^|\s)-n\s+\d+", addopts)
+    extra = project["project"]["optional-dependencies"]["test"]
+    assert any(re.match(r"pytest-xdist\b", requirement) for requirement in extra)
