@@ -518,10 +518,10 @@ def first_order_lowpass(time, signal, tau, initial=None):
     n_sets = max(signal2.shape[0], tau.size)
     if signal2.shape[0] not in (1, n_sets) or tau.size not in (1, n_sets):
         raise ValueError(f"signal has {signal2.shape[0]} rows and tau {tau.size} values: they must match or be 1")
-    tau = np.ascontiguousarray(np.broadcast_to(tau, (n_sets,)))
+    tau = np.broadcast_to(tau, (n_sets,))  # the kernel call makes it contiguous and writeable
     if initial is None:
         initial = signal2[:, 0]
-    initial = np.ascontiguousarray(np.broadcast_to(np.asarray(initial, dtype=float), (n_sets,)))
+    initial = np.broadcast_to(np.asarray(initial, dtype=float), (n_sets,))
     out = np.empty((n_sets, time.size))
     _lowpass_kernel(kernel_array(time), kernel_array(signal2), kernel_array(tau), kernel_array(initial), out)
     return out
@@ -565,10 +565,10 @@ def delayed_lowpass(time, signal, tau, delay):
     lagged = first_order_lowpass(time, signal2, np.broadcast_to(tau, (n_sets,)) if tau.size == 1 else tau)
     if lagged.shape[0] != n_sets:
         lagged = np.ascontiguousarray(np.broadcast_to(lagged, (n_sets, time.size)))
-    delay = np.ascontiguousarray(np.broadcast_to(delay, (n_sets,)))
+    delay = np.broadcast_to(delay, (n_sets,))  # the kernel call makes it contiguous and writeable
     if not np.any(delay > 0):
         return lagged
-    tau_rows = np.ascontiguousarray(np.broadcast_to(tau, (n_sets,)))
+    tau_rows = np.broadcast_to(tau, (n_sets,))
     out = np.empty((n_sets, time.size))
     _delay_kernel(kernel_array(time), kernel_array(signal2), kernel_array(lagged), kernel_array(tau_rows),
                   kernel_array(delay), out)  # fmt: skip
@@ -1397,8 +1397,8 @@ def incomplete_reset_strain(current, displacement, strain, retained, fade):
     """
     current = np.ascontiguousarray(current, dtype=float)
     strain = np.ascontiguousarray(np.atleast_1d(strain), dtype=float)
-    retained = np.ascontiguousarray(np.broadcast_to(np.asarray(retained, dtype=float), strain.shape))
-    fade = np.ascontiguousarray(np.broadcast_to(np.asarray(fade, dtype=float), strain.shape))
+    retained = np.broadcast_to(np.asarray(retained, dtype=float), strain.shape)  # the kernel call makes them
+    fade = np.broadcast_to(np.asarray(fade, dtype=float), strain.shape)  # contiguous and writeable
     y = np.atleast_2d(np.asarray(displacement, dtype=float))
     if y.shape[0] not in (1, strain.size) or y.shape[1] != current.size:
         raise ValueError(f"incomplete_reset: the displacement has shape {y.shape} for {strain.size} parameter sets and {current.size} samples")

@@ -910,7 +910,7 @@ def classical_pi(current, thresholds, weights, linear_gain=0.0, initial=0.0):
     for name, arr in (("current", v), ("thresholds", r), ("weights", p)):
         if not np.isfinite(arr).all():
             raise ValueError(f"{name} has a non-finite value at index {int(np.flatnonzero(~np.isfinite(arr))[0])}")
-    z0 = np.ascontiguousarray(np.broadcast_to(np.asarray(initial, dtype=float), r.shape))
+    z0 = np.broadcast_to(np.asarray(initial, dtype=float), r.shape)  # the kernel call makes it contiguous and writeable
     plays = np.empty((v.size, r.size))
     _play_kernel(kernel_array(v), kernel_array(r), kernel_array(z0), plays)
     return float(linear_gain) * v + plays @ p
