@@ -1750,3 +1750,87 @@ def test_a_fresh_fit_of_the_other_sign_replaces_a_candidate_only_where_it_fits_b
     assert [(c.effect, c.delta_bic) for c in ranked] == [
         ("training", 929.0), ("thermal", 726.0), ("initial_state", 52.0), ("lag", 12.0)]
     assert {n: c.delta_bic for n, c in replaced.items()} == {"training": 180.0}
+
+
+def test_the_other_threshold_signs_baseline_is_tied_only_within_bic_significant():
+    """When the plain model's two threshold signs fit the record alike, the data do not choose
+    the sign; the other sign's baseline is returned as tied within bic_significant in BIC, not
+    beyond, and never one of the round's own sign."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    record = simulate({}, fs=10.0, seed=3).record
+    noise = estimate_noise(record)
+    negative, positive = diagnosis._fit_baselines(record, normalised_model(Model()), noise, n_starts=2)
+    assert negative.model.parameters["alpha"].value < 0 < positive.model.parameters["alpha"].value
+    w_neg, w_pos = diagnosis._whitened(record, negative), diagnosis._whitened(record, positive)
+    gap = diagnosis._n_eff(w_neg) * math.log(float(w_neg @ w_neg) / float(w_pos @ w_pos))
+
+    def tied(thresholds, baselines, chi2_0=float(w_pos @ w_pos)):
+        s = SimpleNamespace(record=record, thresholds=thresholds, sign_baselines=baselines)
+        return diagnosis._tied_baseline(s, SimpleNamespace(fit=positive, chi2_0=chi2_0))
+
+    assert tied(Thresholds(bic_significant=max(gap, 0.0) + 1.0), [negative, positive]) is negative
+    assert tied(Thresholds(bic_significant=max(gap, 0.0) + 1.0), [positive]) is None  # its own sign
+    # a baseline of the other sign that fits worse by more than bic_significant is not tied
+    worse = replace(negative, theta=negative.theta * np.where(np.array(negative.model.names) == "rho", 1.05, 1.0))
+    w_worse = diagnosis._whitened(record, worse)
+    assert diagnosis._n_eff(w_worse) * math.log(float(w_worse @ w_worse) / float(w_pos @ w_pos)) > 20.0
+    assert tied(Thresholds(bic_significant=max(gap, 0.0) + 1.0), [worse]) is None
+
+
+def test_when_the_threshold_signs_tie_each_candidate_is_refitted_in_the_other_sign_where_that_fits_it_better(monkeypatch):
+    """A tie of the plain model's two signs: every candidate with a short refit gets one from
+    the other sign's baseline; those that end lower than in the baseline's sign, and that the
+    refit rule would refit, are finished on the whole record and replace their refit of the
+    baseline's sign where their delta BIC is higher (the independent bench, seed 20,
+    effects_015: narrowing play widths, the signs tied at chi-square 6845.7 and the baseline
+    took alpha > 0, where thermal beat training 190 to 77; training with alpha < 0: 292)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+
+    negative = with_threshold_sign(normalised_model(Model()), -1)
+    positive = with_threshold_sign(normalised_model(Model()), 1)
+    # short refits (working-copy chi-square) of the baseline's sign and of the other one
+    own_short = {"thermal": 3400.0, "training": 3500.0, "creep": 3550.0, "lag": 3640.0}
+    other_short = {"thermal": 3420.0, "training": 3100.0, "creep": 3540.0, "lag": 3639.5}
+    asked_short, finished = [], []
+
+    def short_refit(record, model_e, noise, groups):
+        name = model_e.effect_names[-1]
+        assert model_e.parameters["alpha"].value < 0  # from the tied baseline's sign
+        asked_short.append(name)
+        return other_short[name], np.zeros(len(model_e.names))
+
+    def evaluate(s, rnd, name, model_e, start, screening):
+        finished.append(name)
+        return SimpleNamespace(effect=name, delta_bic={"training": 292.0, "creep": 60.0}[name],
+                               fit=SimpleNamespace(model=model_e))  # fmt: skip
+
+    monkeypatch.setattr(diagnosis, "_short_refit", short_refit)
+    monkeypatch.setattr(diagnosis, "_refit_starts", lambda *args, **kwargs: [[]])
+    monkeypatch.setattr(diagnosis, "_effect_values", lambda model_e, theta, name: {})
+    monkeypatch.setattr(diagnosis, "_screening_values", lambda model_e, one: {})
+    monkeypatch.setattr(diagnosis, "_evaluate_in_round", evaluate)
+
+    def refit(name, delta_bic):
+        return SimpleNamespace(effect=name, delta_bic=delta_bic, fit=SimpleNamespace(model=positive + name))
+
+    screened = [SimpleNamespace(effect=n, grid=[]) for n in ("thermal", "training", "creep", "lag", "sensor_drift")]
+    rnd = SimpleNamespace(
+        fit=SimpleNamespace(model=positive), screened=screened, short={n: (c, None) for n, c in own_short.items()},
+        chi2_0_small=3646.4,
+        n_eff_small=3000.0, refitted=[refit("thermal", 190.0), refit("training", 77.0), refit("creep", 88.0)],
+    )  # fmt: skip
+    s = SimpleNamespace(work=SimpleNamespace(record=None, noise=None), thresholds=Thresholds(), say=lambda m: None)
+    tied = SimpleNamespace(model=negative, theta=np.zeros(len(negative.names)))
+    ranked, replaced = diagnosis._tied_sign_refits(s, rnd, tied)
+    assert asked_short == ["thermal", "training", "creep", "lag"]  # sensor_drift had no short refit
+    # thermal ended higher in the other sign; lag lower by less than SHARED_BASIN_GAIN
+    assert finished == ["training", "creep"]
+    assert [(c.effect, c.delta_bic) for c in ranked] == [("training", 292.0), ("thermal", 190.0), ("creep", 88.0)]
+    assert ranked[0].fit.model.parameters["alpha"].value < 0
+    assert {n: c.delta_bic for n, c in replaced.items()} == {"training": 77.0}  # kept for the pairs
