@@ -12,12 +12,10 @@ import pytest
 
 from identify.bench import simulate
 from identify.cli import main
-from identify.fitting.posterior import BACKEND_GROUP, chain_diagnostics
+from identify.fitting.posterior import BACKEND_GROUP, chain_diagnostics, import_arviz
 from identify.data.records import write_record
 
-with warnings.catch_warnings():
-    warnings.simplefilter("ignore", FutureWarning)
-    import arviz as az
+az = import_arviz()  # two test workers may import arviz at the same moment (see import_arviz)
 
 STEPS = ["--max-steps", "120", "--check-every", "60", "--n-starts", "2", "--progress", "off"]
 
@@ -127,3 +125,28 @@ def test_pointwise_log_likelihood_sums_to_the_likelihood():
     for rho in (0.0, 0.6):
         noise = NoiseModel(sigma=0.7, rho=rho, kind="ar1" if rho else "white", source="user")
         assert np.allclose(pointwise_log_likelihood(residual, noise).sum(axis=1), log_likelihood(residual, noise))
+
+
+def test_arviz_imports_although_another_process_won_its_stamp_file_race(monkeypatch):
+    """ArviZ's import writes a daily stamp file through a temporary file of a fixed name; the
+    loser of two processes importing it at once gets FileNotFoundError. import_arviz tries
+    once more (the stamp is there by then) and returns the module."""
+    import importlib.abc
+    import sys
+
+    class LosesTheRaceOnce(importlib.abc.MetaPathFinder):
+        raised = 0
+
+        def find_spec(self, name, path=None, target=None):
+            if name == "arviz" and not self.raised:
+                self.raised += 1
+                raise FileNotFoundError(2, "No such file or directory", "daily_warning.tmp")
+            return None
+
+    finder = LosesTheRaceOnce()
+    for name in [m for m in sys.modules if m == "arviz" or m.startswith("arviz.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setattr(sys, "meta_path", [finder, *sys.meta_path])
+    module = import_arviz()
+    assert finder.raised == 1
+    assert callable(module.rhat) and callable(module.ess)

@@ -709,12 +709,26 @@ DIAGNOSTICS = ("rhat", "ess_bulk", "ess_tail", "mcse_mean", "mcse_sd")
 
 
 def import_arviz():
-    """The ``arviz`` module, imported without its FutureWarning about the coming refactor."""
+    """The ``arviz`` module, imported without its FutureWarning about the coming refactor.
+
+    ArviZ 0.2x writes a once-a-day stamp file (``daily_warning`` in its user cache) when it
+    is imported, through a temporary file of a fixed name. Two processes that import it for
+    the first time that day race for it, and the loser's import raises FileNotFoundError
+    (seen on 2026-12-02: the two test workers' first run of the day; a batch's parallel
+    studies would meet it the same way). By then the winner has written the stamp, so the
+    import is tried once more, from a clean slate of ``arviz`` modules.
+    """
+    import sys
     import warnings
 
     with warnings.catch_warnings():  # arviz 0.2x announces its refactor on import
         warnings.simplefilter("ignore", FutureWarning)
-        import arviz
+        try:
+            import arviz
+        except FileNotFoundError:
+            for name in [m for m in sys.modules if m == "arviz" or m.startswith("arviz.")]:
+                del sys.modules[name]
+            import arviz
 
     return arviz
 
