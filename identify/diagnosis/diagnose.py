@@ -1626,7 +1626,11 @@ def fit_baseline(
     FitResult
         The best fit over the signs (whitened chi-square on the whole record).
     """
-    baselines = _fit_baselines(record, model, noise, n_starts=n_starts, rng=rng, progress=progress)
+    return _best_baseline(record, _fit_baselines(record, model, noise, n_starts=n_starts, rng=rng, progress=progress))
+
+
+def _best_baseline(record, baselines) -> FitResult:
+    """The baseline of lowest whitened chi-square on the whole record."""
     return min(baselines, key=lambda f: float(np.sum(_whitened(record, f) ** 2)))
 
 
@@ -1959,12 +1963,7 @@ def _refit_best(s: _Setting, rnd: _Round) -> list:
     order = sorted(short, key=lambda name: short[name][0])
     refitted: list[CandidateResult] = []
     for rank, name in enumerate(order):
-        if short[name][0] >= rnd.chi2_0_small:
-            continue
-        k = len(get_effect(name).parameters)
-        if rank >= s.thresholds.max_refits and not (
-            _working_copy_delta_bic(rnd, short[name][0], k) > s.thresholds.bic_significant
-        ):
+        if not _worth_refitting(s, rnd, name, short[name][0], rank):
             continue
         s.say(f"refitting with '{name}'")
         screening = _screening_of(rnd, name)
@@ -1976,6 +1975,29 @@ def _refit_best(s: _Setting, rnd: _Round) -> list:
             refitted.append(result)
     refitted.sort(key=lambda c: -c.delta_bic)
     return refitted
+
+
+def _worth_refitting(s: _Setting, rnd: _Round, name: str, chi2: float, rank: int) -> bool:
+    """Is candidate ``name``, whose short refit ends at ``chi2`` on the working copy (``rank``-th
+    lowest of the short refits it is ranked among, from 0), refitted on the whole record? When
+    it beats the baseline there and is among the :attr:`Thresholds.max_refits` best, or beyond
+    them its gain is significant (delta BIC > :attr:`Thresholds.bic_significant`)."""
+    if chi2 >= rnd.chi2_0_small:
+        return False
+    k = len(get_effect(name).parameters)
+    return rank < s.thresholds.max_refits or _working_copy_delta_bic(rnd, chi2, k) > s.thresholds.bic_significant
+
+
+def _short_refit_from_gpi(s: _Setting, rnd: _Round, name: str, gpi, model_e: Model, extra_values=()):
+    """Short refit of ``model_e`` (``gpi``'s model plus candidate ``name``) on the working copy,
+    from ``gpi`` (``.model``, ``.theta``) with the candidate's parameters at its short refit in
+    the round, then ``extra_values``, then its screening grid (:func:`_refit_starts`):
+    ``(chi2, theta)``."""
+    screening = _screening_of(rnd, name)
+    values = [_effect_values(rnd.fit.model + name, rnd.short[name][1], name)] if name in rnd.short else [{}]
+    values += list(extra_values) + (list(screening.grid) if screening is not None else [])
+    work = s.work
+    return _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, gpi, model_e, values))
 
 
 def _other_sign_refits(s: _Setting, rnd: _Round, names) -> list:
@@ -2024,20 +2046,16 @@ def _other_sign_refits_from(s: _Setting, rnd: _Round, names, anchor: CandidateRe
     -------
     list of CandidateResult
     """
-    fit, work = rnd.fit, s.work
-    plain = _plain_of(anchor.fit.model, fit.model)
+    plain = _plain_of(anchor.fit.model, rnd.fit.model)
     gpi = SimpleNamespace(model=plain, theta=_embed(anchor.fit.model, anchor.fit.theta, plain, drop_extra=True))
     results = []
     for name in names:
         s.say(f"refitting with '{name}' with the other threshold sign, from the GPI of '{anchor.effect}' there")
         model_e = plain + name
-        screening = _screening_of(rnd, name)
-        values = [_effect_values(fit.model + name, rnd.short[name][1], name)] if name in rnd.short else [{}]
-        grid = list(screening.grid) if screening is not None else []
-        small = _attempt(lambda: _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, gpi, model_e, values + grid)),
-                         s.say, "not possible")  # fmt: skip
+        small = _attempt(lambda: _short_refit_from_gpi(s, rnd, name, gpi, model_e), s.say, "not possible")
         if small is None:
             continue
+        screening = _screening_of(rnd, name)
         result = _attempt(lambda: _evaluate_in_round(s, rnd, name, model_e, small[1], screening), s.say, "not possible")
         if result is not None:
             results.append(result)
@@ -2111,7 +2129,7 @@ def _tied_sign_refits(s: _Setting, rnd: _Round, tied: FitResult) -> tuple[list, 
     alpha > 0, where ``training`` gained delta BIC 77 and ``thermal`` 190; with alpha < 0
     ``training`` alone fits to 0.92 sigma.
     """
-    fit, work = rnd.fit, s.work
+    fit = rnd.fit
     sign = "positive" if tied.model.parameters["alpha"].value > 0 else "negative"
     s.say(f"the plain model's two threshold signs fit alike; the candidates are refitted with alpha {sign} too")
     short = {}
@@ -2120,19 +2138,14 @@ def _tied_sign_refits(s: _Setting, rnd: _Round, tied: FitResult) -> tuple[list, 
         if name not in rnd.short:
             continue
         model_e = tied.model + name
-        values = [_effect_values(fit.model + name, rnd.short[name][1], name), _screening_values(fit.model + name, one)]
-        starts = lambda: _refit_starts(work.record, tied, model_e, values + list(one.grid))  # noqa: E731
-        result = _attempt(lambda: _short_refit(work.record, model_e, work.noise, starts()), s.say,
+        extra = [_screening_values(fit.model + name, one)]
+        result = _attempt(lambda: _short_refit_from_gpi(s, rnd, name, tied, model_e, extra), s.say,
                           f"short refit with '{name}' and alpha {sign} not possible")  # fmt: skip
         if result is not None and result[0] < rnd.short[name][0] - SHARED_BASIN_GAIN:
             short[name] = result
     retried = {}
     for rank, name in enumerate(sorted(short, key=lambda n: short[n][0])):
-        chi2 = short[name][0]
-        k = len(get_effect(name).parameters)
-        if chi2 >= rnd.chi2_0_small or (
-            rank >= s.thresholds.max_refits and not _working_copy_delta_bic(rnd, chi2, k) > s.thresholds.bic_significant
-        ):
+        if not _worth_refitting(s, rnd, name, short[name][0], rank):
             continue
         s.say(f"refitting with '{name}' and alpha {sign}")
         model_e = tied.model + name
@@ -3168,7 +3181,7 @@ def diagnose(
     sign_baselines = []
     if fit is None:
         sign_baselines = _fit_baselines(record, model, noise, n_starts=n_starts, rng=rng, progress=say)
-        fit = min(sign_baselines, key=lambda f: float(np.sum(_whitened(record, f) ** 2)))
+        fit = _best_baseline(record, sign_baselines)
     # Candidates that are exact reparametrisations of the baseline model cannot explain
     # anything it cannot: reported as such, never screened, refitted or named.
     redundant = [name for name in candidates if exact_reparametrisation(record, fit.model, fit.theta, name)]
