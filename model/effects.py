@@ -311,6 +311,38 @@ def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivit
                              expansion2, displacement, out)  # fmt: skip
 
 
+@njit(cache=True)
+def _held_steps(time, max_distinct):
+    """``(steps, index)`` as :func:`_distinct_steps`, for a step that is kept until the sample
+    step changes by more than 1e-12 of itself (:func:`_creep_kernel`'s rule): ``steps[index[k]]``
+    is the step whose coefficients sample ``k >= 1`` uses. Empty ``steps`` when there are more
+    than ``max_distinct``."""
+    n_samples = time.shape[0]
+    steps = np.empty(max_distinct)
+    index = np.zeros(n_samples, dtype=np.int64)
+    n_distinct = 0
+    current = 0
+    last_step = -1.0
+    for k in range(1, n_samples):
+        step = time[k] - time[k - 1]
+        if abs(step - last_step) > 1e-12 * step:
+            last_step = step
+            found = -1
+            for m in range(n_distinct):
+                if steps[m] == step:
+                    found = m
+                    break
+            if found < 0:
+                if n_distinct == max_distinct:
+                    return steps[:0], index
+                steps[n_distinct] = step
+                found = n_distinct
+                n_distinct += 1
+            current = found
+        index[k] = current
+    return steps[:n_distinct], index
+
+
 @njit(cache=True, inline="always")
 def _leg_end_level(y_prev, y_before, held, last_direction):
     """``(held, direction)`` after the sample ``y_prev`` (the one before it ``y_before``): the
@@ -335,16 +367,36 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
     which follow ``(1 - hold[w])`` times the displacement plus ``hold[w]`` times the
     displacement at the end of the last completed leg (``creep_log_hold``).
     A part whose amplitude is 0 is skipped. The per-step decay is recomputed only when the step
-    changes by more than 1e-12 of itself (uniform sampling: once per mode)."""
+    changes by more than 1e-12 of itself (uniform sampling: once per mode). With at most
+    :data:`MAX_DISTINCT_STEPS` distinct steps under that rule (:func:`_held_steps`; a CSV
+    record at 1 kHz changes its step in the last bits at most samples but has about 16
+    distinct steps) each mode's coefficients are computed once per distinct step and
+    parameter set instead of at every change, the same values bit for bit."""
     n_sets = displacement.shape[0]
     n_samples = displacement.shape[1]
     n_modes = taus.shape[1]
     n_log_max = log_taus.shape[1]
+    steps, index = _held_steps(time, MAX_DISTINCT_STEPS)
+    tabulated = steps.shape[0] > 0
+    n_table = steps.shape[0]
     for w in prange(n_sets):
         modes = np.empty(n_modes)
         logs = np.empty(n_log_max)
-        decay = np.empty(n_modes + n_log_max)
-        gain = np.empty(n_modes + n_log_max)
+        decay_table = np.empty((max(n_table, 1), n_modes + n_log_max))
+        gain_table = np.empty((max(n_table, 1), n_modes + n_log_max))
+        for i in range(n_table):
+            for m in range(n_modes):
+                if taus[w, m] > 0.0:
+                    a, g = _lowpass_coefficients(steps[i], taus[w, m])
+                    decay_table[i, m] = a
+                    gain_table[i, m] = g
+            for m in range(n_log[w]):
+                a, g = _lowpass_coefficients(steps[i], log_taus[w, m])
+                decay_table[i, n_modes + m] = a
+                gain_table[i, n_modes + m] = g
+        decay = decay_table[0]
+        gain = gain_table[0]
+        row = -1
         spectrum = amplitude[w] != 0.0
         logarithmic = log_rate[w] != 0.0 and n_log[w] > 0
         held_part = hold[w] != 0.0
@@ -359,18 +411,24 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
         out[w, 0] = y0
         last_step = -1.0
         for k in range(1, n_samples):
-            step = time[k] - time[k - 1]
-            if abs(step - last_step) > 1e-12 * step:
-                last_step = step
-                for m in range(n_modes):
-                    if taus[w, m] > 0.0:
-                        a, g = _lowpass_coefficients(step, taus[w, m])
-                        decay[m] = a
-                        gain[m] = g
-                for m in range(n_log[w]):
-                    a, g = _lowpass_coefficients(step, log_taus[w, m])
-                    decay[n_modes + m] = a
-                    gain[n_modes + m] = g
+            if tabulated:
+                if index[k] != row:
+                    row = index[k]
+                    decay = decay_table[row]
+                    gain = gain_table[row]
+            else:
+                step = time[k] - time[k - 1]
+                if abs(step - last_step) > 1e-12 * step:
+                    last_step = step
+                    for m in range(n_modes):
+                        if taus[w, m] > 0.0:
+                            a, g = _lowpass_coefficients(step, taus[w, m])
+                            decay[m] = a
+                            gain[m] = g
+                    for m in range(n_log[w]):
+                        a, g = _lowpass_coefficients(step, log_taus[w, m])
+                        decay[n_modes + m] = a
+                        gain[n_modes + m] = g
             y_prev = displacement[w, k - 1]
             y_now = displacement[w, k]
             value = y_now
