@@ -1528,6 +1528,51 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
     assert replaced == {}
 
 
+def test_the_other_threshold_sign_is_finished_only_where_it_starts_lower_on_the_whole_record():
+    """A candidate fitted with the other threshold sign on the working copy is finished on the
+    whole record only when it starts lower there than the candidate's own refit started (its
+    short refit): both starts are fitted on the working copy, so they compare like for like
+    (seed 21's effects_027, 1 kHz: the other sign's creep started 14,500 higher and its
+    finish took 176 of 295 s). A candidate without an own refit of the baseline's sign is
+    always finished."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+    from identify.diagnosis.diagnose import _embed
+
+    record = simulate({}, fs=10.0, seed=3).record
+    noise = estimate_noise(record)
+    negative, positive = diagnosis._fit_baselines(record, normalised_model(Model()), noise, n_starts=2)
+    with_thermal = {"negative": negative.model + "thermal", "positive": positive.model + "thermal"}
+
+    def start(sign, rho_factor=1.0):  # that sign's baseline with thermal off, rho scaled
+        fit = negative if sign == "negative" else positive
+        theta = _embed(fit.model, fit.theta, with_thermal[sign])
+        theta[with_thermal[sign].names.index("rho")] *= rho_factor
+        return theta
+
+    def lower(own_start, other_start, own_model=None):
+        said = []
+        own = SimpleNamespace(effect="thermal", fit=SimpleNamespace(model=own_model or with_thermal["positive"]))
+        rnd = SimpleNamespace(fit=positive, refitted=[own], short={"thermal": (0.0, own_start)})
+        s = SimpleNamespace(record=record, say=said.append)
+        return diagnosis._other_sign_start_lower(s, rnd, "thermal", with_thermal["negative"], other_start, "negative"), said
+
+    chi2 = {f: diagnosis._whole_record_chi2(SimpleNamespace(record=record), SimpleNamespace(fit=positive),
+                                            with_thermal["positive"], start("positive", f)) for f in (1.0, 1.05)}  # fmt: skip
+    assert chi2[1.05] > chi2[1.0] + 100.0
+    # the other sign's start lower than the own start: finished
+    assert lower(start("positive", 1.05), start("negative")) == (True, [])
+    # higher: not finished, and the comparison made is said
+    finished, said = lower(start("positive"), start("negative", 1.05))
+    assert not finished and "starts no lower on the whole record" in said[0] and f"{chi2[1.0]:.6g}" in said[0]
+    # no own refit in the baseline's sign to compare with: finished
+    assert lower(start("positive"), start("negative", 1.05), own_model=with_thermal["negative"])[0]
+    rnd = SimpleNamespace(fit=positive, refitted=[], short={})
+    assert diagnosis._other_sign_start_lower(SimpleNamespace(record=record, say=print), rnd, "thermal",
+                                             with_thermal["negative"], start("negative", 1.05), "negative")  # fmt: skip
+
+
 def test_the_candidates_text_says_which_unused_terms_went_uncharged():
     from identify.diagnosis.diagnose import CandidateResult, _candidates_text
 
