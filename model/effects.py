@@ -371,7 +371,8 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
     :data:`MAX_DISTINCT_STEPS` distinct steps under that rule (:func:`_held_steps`; a CSV
     record at 1 kHz changes its step in the last bits at most samples but has about 16
     distinct steps) each mode's coefficients are computed once per distinct step and
-    parameter set instead of at every change, the same values bit for bit."""
+    parameter set instead of at every change (a change then copies the step's row), the
+    same values bit for bit."""
     n_sets = displacement.shape[0]
     n_samples = displacement.shape[1]
     n_modes = taus.shape[1]
@@ -394,9 +395,8 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
                 a, g = _lowpass_coefficients(steps[i], log_taus[w, m])
                 decay_table[i, n_modes + m] = a
                 gain_table[i, n_modes + m] = g
-        decay = decay_table[0]
-        gain = gain_table[0]
-        row = -1
+        decay = np.empty(n_modes + n_log_max)
+        gain = np.empty(n_modes + n_log_max)
         spectrum = amplitude[w] != 0.0
         logarithmic = log_rate[w] != 0.0 and n_log[w] > 0
         held_part = hold[w] != 0.0
@@ -411,15 +411,15 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
         out[w, 0] = y0
         last_step = -1.0
         for k in range(1, n_samples):
-            if tabulated:
-                if index[k] != row:
+            step = time[k] - time[k - 1]
+            if abs(step - last_step) > 1e-12 * step:
+                last_step = step
+                if tabulated:  # the table's row of this step (index[k]: the step itself here)
                     row = index[k]
-                    decay = decay_table[row]
-                    gain = gain_table[row]
-            else:
-                step = time[k] - time[k - 1]
-                if abs(step - last_step) > 1e-12 * step:
-                    last_step = step
+                    for m in range(n_modes + n_log[w]):
+                        decay[m] = decay_table[row, m]
+                        gain[m] = gain_table[row, m]
+                else:
                     for m in range(n_modes):
                         if taus[w, m] > 0.0:
                             a, g = _lowpass_coefficients(step, taus[w, m])
