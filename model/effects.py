@@ -133,14 +133,22 @@ def _lowpass_coefficients(step, tau):
 #: Most distinct sample steps for which the filters tabulate their coefficients
 #: (:func:`_distinct_steps`); a record with more computes them at every sample.
 MAX_DISTINCT_STEPS = 64
+#: The creep kernel keeps a step's coefficients until the sample step changes by more than
+#: this share of itself.
+CREEP_STEP_HOLD = 1e-12
 
 
 @njit(cache=True)
-def _distinct_steps(time, max_distinct):
+def _distinct_steps(time, max_distinct, hold=0.0):
     """``(steps, index)``: the distinct values of ``time[k] - time[k-1]`` (first
     occurrence order) and, for ``k >= 1``, ``index[k]`` with ``steps[index[k]]`` that
     step (exactly: equal floats); ``index[0] = 0``. Empty ``steps`` when there are more
-    than ``max_distinct`` (then no table pays)."""
+    than ``max_distinct`` (then no table pays).
+
+    ``hold > 0``: a step is kept while the sample step differs from it by at most ``hold``
+    of itself (:func:`_creep_kernel`'s rule, :data:`CREEP_STEP_HOLD`), and
+    ``steps[index[k]]`` is the step kept at sample ``k``; a new one is looked up (exactly)
+    when the rule lets go."""
     n_samples = time.shape[0]
     steps = np.empty(max_distinct)
     index = np.zeros(n_samples, dtype=np.int64)
@@ -148,7 +156,7 @@ def _distinct_steps(time, max_distinct):
     last = 0
     for k in range(1, n_samples):
         step = time[k] - time[k - 1]
-        if n_distinct > 0 and steps[last] == step:  # the common case: the step of the previous sample
+        if n_distinct > 0 and abs(step - steps[last]) <= hold * step:  # the common case: the step kept
             index[k] = last
             continue
         found = -1
@@ -311,38 +319,6 @@ def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivit
                              expansion2, displacement, out)  # fmt: skip
 
 
-@njit(cache=True)
-def _held_steps(time, max_distinct):
-    """``(steps, index)`` as :func:`_distinct_steps`, for a step that is kept until the sample
-    step changes by more than 1e-12 of itself (:func:`_creep_kernel`'s rule): ``steps[index[k]]``
-    is the step whose coefficients sample ``k >= 1`` uses. Empty ``steps`` when there are more
-    than ``max_distinct``."""
-    n_samples = time.shape[0]
-    steps = np.empty(max_distinct)
-    index = np.zeros(n_samples, dtype=np.int64)
-    n_distinct = 0
-    current = 0
-    last_step = -1.0
-    for k in range(1, n_samples):
-        step = time[k] - time[k - 1]
-        if abs(step - last_step) > 1e-12 * step:
-            last_step = step
-            found = -1
-            for m in range(n_distinct):
-                if steps[m] == step:
-                    found = m
-                    break
-            if found < 0:
-                if n_distinct == max_distinct:
-                    return steps[:0], index
-                steps[n_distinct] = step
-                found = n_distinct
-                n_distinct += 1
-            current = found
-        index[k] = current
-    return steps[:n_distinct], index
-
-
 @njit(cache=True, inline="always")
 def _leg_end_level(y_prev, y_before, held, last_direction):
     """``(held, direction)`` after the sample ``y_prev`` (the one before it ``y_before``): the
@@ -367,8 +343,8 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
     which follow ``(1 - hold[w])`` times the displacement plus ``hold[w]`` times the
     displacement at the end of the last completed leg (``creep_log_hold``).
     A part whose amplitude is 0 is skipped. The per-step decay is recomputed only when the step
-    changes by more than 1e-12 of itself (uniform sampling: once per mode). With at most
-    :data:`MAX_DISTINCT_STEPS` distinct steps under that rule (:func:`_held_steps`; a CSV
+    changes by more than :data:`CREEP_STEP_HOLD` (1e-12) of itself (uniform sampling: once per mode). With at most
+    :data:`MAX_DISTINCT_STEPS` distinct steps under that rule (:func:`_distinct_steps`; a CSV
     record at 1 kHz changes its step in the last bits at most samples but has about 16
     distinct steps) each mode's coefficients are computed once per distinct step and
     parameter set instead of at every change (a change then copies the step's row), the
@@ -377,9 +353,9 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
     n_samples = displacement.shape[1]
     n_modes = taus.shape[1]
     n_log_max = log_taus.shape[1]
-    steps, index = _held_steps(time, MAX_DISTINCT_STEPS)
-    tabulated = steps.shape[0] > 0
+    steps, index = _distinct_steps(time, MAX_DISTINCT_STEPS, CREEP_STEP_HOLD)
     n_table = steps.shape[0]
+    tabulated = n_table > 0
     for w in prange(n_sets):
         modes = np.empty(n_modes)
         logs = np.empty(n_log_max)
@@ -412,7 +388,7 @@ def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log
         last_step = -1.0
         for k in range(1, n_samples):
             step = time[k] - time[k - 1]
-            if abs(step - last_step) > 1e-12 * step:
+            if abs(step - last_step) > CREEP_STEP_HOLD * step:
                 last_step = step
                 if tabulated:  # the table's row of this step (index[k]: the step itself here)
                     row = index[k]

@@ -863,19 +863,19 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
 
 def test_creep_tabulated_steps_equal_the_per_change_coefficients(monkeypatch):
     """The creep kernel computes each mode's coefficients once per distinct held step
-    (:func:`model.effects._held_steps`): bit for bit its direct rule (recompute whenever the
+    (:func:`model.effects._distinct_steps` with ``CREEP_STEP_HOLD``): bit for bit its direct rule (recompute whenever the
     step changes by more than 1e-12 of itself), on a grid as a 1 kHz CSV gives (steps that
     differ in their last bits at most samples) with genuinely different steps in it, for the
     saturating spectrum, the logarithmic modes and the part held from a leg's end."""
     from model import effects
-    from model.effects import MAX_DISTINCT_STEPS, _held_steps
+    from model.effects import CREEP_STEP_HOLD, MAX_DISTINCT_STEPS, _distinct_steps
 
     rng = np.random.default_rng(5)
     steps = np.where((np.arange(2999) // 400) % 3 == 1, 0.003, 0.001)  # 1 ms with 3 ms stretches
     time = np.array([float(f"{t:.3f}") for t in np.r_[0.0, np.cumsum(steps)]])  # read back from text
     diffs = np.diff(time)
     assert np.unique(diffs).size > 2 and np.count_nonzero(np.diff(diffs)) > 100  # last-bit changes
-    held, index = _held_steps(time, MAX_DISTINCT_STEPS)
+    held, index = _distinct_steps(time, MAX_DISTINCT_STEPS, CREEP_STEP_HOLD)
     assert 2 <= held.size <= MAX_DISTINCT_STEPS
     # the held step is within 1e-12 of every sample's own step
     np.testing.assert_allclose(held[index[1:]], diffs, rtol=1e-11, atol=0)
@@ -885,7 +885,7 @@ def test_creep_tabulated_steps_equal_the_per_change_coefficients(monkeypatch):
     creep = EFFECTS["creep"]()
     y = creep.output(params, time, np.zeros_like(time), y_g)
     # the oracle: the kernel's own Python function with the table switched off (direct rule)
-    monkeypatch.setattr(effects, "_held_steps", lambda t, m: (np.empty(0), np.zeros(t.size, dtype=np.int64)))
+    monkeypatch.setattr(effects, "_distinct_steps", lambda t, m, hold=0.0: (np.empty(0), np.zeros(t.size, dtype=np.int64)))
     monkeypatch.setattr(effects, "_creep_kernel", effects._creep_kernel.py_func)
     expected = creep.output(params, time, np.zeros_like(time), y_g)
     np.testing.assert_array_equal(y, expected)

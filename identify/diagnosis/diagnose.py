@@ -2254,9 +2254,7 @@ def _shared_basin_refits(s: _Setting, rnd: _Round, candidates: list) -> list:
         if short is None:
             refitted.append(c)
             continue
-        residuals = WhitenedResiduals(s.record, model_e, rnd.fit.noise)
-        w = residuals(short[1][residuals.free])
-        chi2_start = float(w @ w)
+        chi2_start = _whole_record_chi2(s, rnd, model_e, short[1])
         reach = c.delta_bic + c.n_eff * math.log(c.fit.chi2 / chi2_start) if chi2_start > 0 else -math.inf
         if not (chi2_start < c.fit.chi2 - SHARED_BASIN_GAIN and reach > best_bic - s.thresholds.bic_significant):
             refitted.append(c)
