@@ -27,8 +27,9 @@ noise's). So:
   realisations;
 * ``data tie``: the gap is within either margin: on this record's noise level no such
   rule can name the true effect without naming the rival on about as many realisations;
-* ``data favour other``: the rival's form fits the noiseless truth better (by both margins):
-  the library's form of the true physics is the one that falls short.
+* ``data favour other``: the rival gets the higher delta BIC on the noiseless truth (by both
+  margins): it fits about as well with fewer parameters charged, or the true effect's form
+  fits worse (the saved ``chi2`` of each fit tells which).
 
 The fits are least squares from the diagnosis's starts (``fit_baseline``: several starts,
 both threshold signs), so a class can also reflect a fit that missed its best basin; the
