@@ -51,6 +51,7 @@ import numpy as np
 from independent_diagnosis import OPTIONAL, check_outputs, refitted_singles, saved_diagnoses
 
 from identify import Model, estimate_noise, load_record
+from identify.data.fileio import atomic_write
 from identify.diagnosis.diagnose import Thresholds, _delta_bic, fit_baseline
 from identify.fitting.lsq import fit_least_squares
 from identify.fitting.noise import whiten
@@ -69,7 +70,7 @@ def noiseless_record(csv: Path):
 
 
 def steps(out: Path, only: list[str]):
-    """``(stem, model effects, missing true effects, best true, best other, diagnosis)`` of every saved
+    """``(stem, model effects, best true, best other, diagnosis)`` of every saved
     diagnosis whose model lacks a true library effect and that refitted a true and another candidate."""
     for stem, model, diagnosis, physics in saved_diagnoses(out):
         if only and not any(o in stem for o in only):
@@ -83,15 +84,17 @@ def steps(out: Path, only: list[str]):
         true = [c for c in refitted if c["effect"] in missing]
         other = [c for c in refitted if c["effect"] not in present]
         if true and other:
-            yield stem, effects, missing, max(true, key=lambda c: c["delta_bic"]), max(other, key=lambda c: c["delta_bic"]), diagnosis
+            yield stem, effects, max(true, key=lambda c: c["delta_bic"]), max(other, key=lambda c: c["delta_bic"]), diagnosis
 
 
-def oracle_step(csv: Path, effects: list[str], names: list[str], n_eff: float, seed: int) -> dict:
+def oracle_step(csv: Path, effects: list[str], names: list[str], n_eff: float | None, seed: int) -> dict:
     """Fit ``effects`` alone and with each of ``names`` to the noiseless record; the expected delta BIC
-    of each and the noise sd of the gap between the first two."""
+    of each and the noise sd of the gap between the first two. ``n_eff``: the BIC's sample count
+    (the noisy diagnosis's effective count; ``None``: the record's samples)."""
     record, clean = noiseless_record(csv)
     noise = estimate_noise(record)
     n_obs = float(len(record.time))  # a noisy fit's chi-square is this much larger, for every model alike
+    n_eff = n_eff or n_obs
     fits = {}
     for key, model_effects in [("base", effects)] + [(name, effects + [name]) for name in names]:
         fits[key] = fit_baseline(clean, Model(model_effects), noise, rng=np.random.default_rng(seed))
@@ -104,8 +107,7 @@ def oracle_step(csv: Path, effects: list[str], names: list[str], n_eff: float, s
     # truth's basin (against the better of the plain fit and the plain fit from its noiseless optimum)
     from_truth = {key: fit_least_squares(record, f.model, noise=noise, start=f.theta, n_starts=1) for key, f in fits.items()}
     noisy_base = min(fit_baseline(record, Model(effects), noise, rng=np.random.default_rng(seed)), from_truth["base"], key=lambda f: f.chi2)
-    n_eff_noisy = float(n_eff)
-    reached = {name: _delta_bic(record, noisy_base, noisy_base.chi2, from_truth[name], from_truth[name].chi2, n_eff_noisy)[0] for name in names}
+    reached = {name: _delta_bic(record, noisy_base, noisy_base.chi2, from_truth[name], from_truth[name].chi2, n_eff)[0] for name in names}
     prediction = {name: clean.displacement - fits[name].residual for name in names}
     d = whiten(prediction[names[0]] - prediction[names[1]], noise, time=record.time)
     return {"noise_sigma": float(noise.sigma), "chi2": {k: float(f.chi2) for k, f in fits.items()},
@@ -134,11 +136,11 @@ def main(argv=None) -> int:
     print("| record | model | true | other | noisy delta BIC (true, other) | from the truth's basin (true, other) | noiseless: expected delta BIC (true, other) | gap | noise sd of gap | z | class | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for out in args.outs:
-        for stem, effects, _missing, true, other, diagnosis in steps(out, only):
+        for stem, effects, true, other, diagnosis in steps(out, only):
             started = clock.perf_counter()
-            n_eff = float(diagnosis.get("details", {}).get(true["effect"], {}).get("n_eff") or 0.0)
+            n_eff = diagnosis.get("details", {}).get(true["effect"], {}).get("n_eff")
             csv = out / "records" / f"{stem}.csv"
-            result = oracle_step(csv, effects, [true["effect"], other["effect"]], n_eff or float(len(load_record(str(csv)).time)), args.seed)
+            result = oracle_step(csv, effects, [true["effect"], other["effect"]], n_eff, args.seed)
             (e_true, _), (e_other, _) = result["expected"][true["effect"]], result["expected"][other["effect"]]
             gap, sd = e_true - e_other, result["gap_sd"]
             kind = classify(gap, sd, thresholds)
@@ -147,10 +149,8 @@ def main(argv=None) -> int:
                   f"| {true['delta_bic']:.0f}, {other['delta_bic']:.0f} "
                   f"| {result['from_truth_basin'][true['effect']]:.0f}, {result['from_truth_basin'][other['effect']]:.0f} | {e_true:.0f}, {e_other:.0f} | {gap:.0f} | {sd:.0f} "
                   f"| {gap / sd if sd > 0 else math.inf:.1f} | {kind} | {clock.perf_counter() - started:.0f} |", flush=True)  # fmt: skip
-            target = out / "work" / f"{stem}.{'+'.join(effects) or 'plain'}.oracle.json"
-            partial = target.with_suffix(".json.partial")
-            partial.write_text(json.dumps({"true": true["effect"], "other": other["effect"], "class": kind, **result}, indent=1))
-            partial.replace(target)  # never a half-written file
+            atomic_write(out / "work" / f"{stem}.{'+'.join(effects) or 'plain'}.oracle.json",
+                         json.dumps({"true": true["effect"], "other": other["effect"], "class": kind, **result}, indent=1))
     total = sum(counts.values())
     print()
     for kind in CLASSES:
