@@ -285,3 +285,18 @@ def test_a_term_at_a_kink_is_weighed_by_switching_it_off():
     form = best_form(record, fit, ["training"], n_samples=record.time.size)
     assert sorted(term for _, term in form["terms"]) == ["drive", "shape", "threshold", "width"]
     assert form["parameters"] == 4
+
+
+def test_a_training_of_its_strain_gain_alone_is_charged_for_it():
+    """A strain gain fading slowly over the whole record (V0 = 50 A, p = 0.93): with the gain
+    switched off, the fade length and shape act no more, and their columns at the fit must not
+    rebuild the gain in the first-order re-optimisation (they did: every term went uncharged)."""
+    from identify.fitting.terms import best_form
+
+    slow_gain = {"training": {"training_deficit": 0.0, "training_threshold": 0.0, "training_travel": 50.0,
+                              "training_shape": 0.93, "training_gain": 0.0163, "training_width": 0.0}}  # fmt: skip
+    record, fit = _at_truth(slow_gain, fs=20.0)
+    form = best_form(record, fit, ["training"], n_samples=record.time.size)
+    dropped = sorted(term for _, term in form["terms"])
+    assert "strain" not in dropped, form
+    assert set(dropped) <= {"drive", "shape", "threshold", "width"}

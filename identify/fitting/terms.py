@@ -177,6 +177,34 @@ def select_terms(record, fit, *, rng=None, log=None):
                    seconds=fit.seconds + (time.perf_counter() - t0))
 
 
+def _dead_columns(residuals, theta, candidates) -> tuple[np.ndarray, set[int]]:
+    """``(w, dead)``: the whitened residual at the full vector ``theta`` and the columns of
+    ``candidates`` (full-vector indices of free parameters) along which it does not change at all
+    there: each moved by 1 % of its range (toward the side inside its bounds), one batch.
+
+    With a term switched off, a parameter that only shaped that term's action (training's fade
+    length :math:`V_0` with every virgin difference but one off) acts no more, yet its
+    Jacobian column at the fit still carries the term's shape; in the first-order
+    re-optimisation it would rebuild the term that was switched off, and the term would go
+    uncharged (measured: a strain gain 0.016 fading over 50 A, its column of :math:`V_0`
+    absorbed it wholly). A column that is dead at the reduced point is no direction of the
+    reduced model."""
+    free = [int(j) for j in residuals.free]
+    x = np.asarray(theta, dtype=float)[residuals.free]
+    probes = [j for j in sorted(candidates) if j in free]
+    rows = np.repeat(x[None, :], len(probes) + 1, axis=0)
+    for k, column in enumerate(probes):
+        i = free.index(column)
+        lower, upper = residuals.lower[i], residuals.upper[i]
+        span = upper - lower if np.isfinite(upper - lower) else max(abs(x[i]), 1.0)
+        step = 0.01 * span
+        rows[k + 1, i] = x[i] + step if x[i] + step <= upper else x[i] - step
+    w, valid = residuals.batch(rows)
+    base = w[0] if valid[0] else residuals(x)
+    dead = {column for k, column in enumerate(probes) if valid[k + 1] and np.array_equal(w[k + 1], base)}
+    return base, dead
+
+
 #: At most this many optional terms, each cheap alone, are weighed jointly by :func:`best_form` (every subset).
 MAX_JOINT_TERMS = 8
 
@@ -232,6 +260,9 @@ def best_form(record, fit, effects, n_samples, jacobian=None):
     residuals = WhitenedResiduals(record, model, fit.noise)
     free = [int(j) for j in residuals.free]
     effects_by_name = {e.name: type(e) for e in model.effects}
+    # the weighed effects' free parameters: with some terms off, one of them may act no more
+    weighed = {model.names.index(n) for e in model.effects if e.name in set(effects)
+               for n in e.parameters.names if model.parameters[n].vary}  # fmt: skip
     options = [effects_by_name[effect].term_reductions(term) for effect, term, _ in terms]
     if jacobian is None:
         jacobian = residuals.central_jacobian(theta[residuals.free])
@@ -256,8 +287,8 @@ def best_form(record, fit, effects, n_samples, jacobian=None):
         reduced = theta.copy()
         for n, v in values.items():
             reduced[model.names.index(n)] = v
-        w_s = residuals(reduced[residuals.free])
-        off_columns = {model.names.index(n) for n in values}
+        w_s, dead = _dead_columns(residuals, reduced, weighed - {model.names.index(n) for n in values})
+        off_columns = {model.names.index(n) for n in values} | dead
         rest = [j for j, column in enumerate(free) if column not in off_columns]
         projection = jacobian[:, rest].T @ w_s
         absorbed = float(projection @ np.linalg.pinv(info[np.ix_(rest, rest)], rcond=1e-15, hermitian=True) @ projection)
