@@ -73,6 +73,8 @@ def main(argv=None) -> int:
     sys.path.insert(0, str(ROOT / "benchmarks" / "independent"))
     import generator
 
+    from identify.data.fileio import atomic_write
+
     records_dir = args.out / "records"
     records_dir.mkdir(parents=True, exist_ok=True)
     specs = generator.clean_records(args.records, args.seed)
@@ -93,9 +95,7 @@ def main(argv=None) -> int:
             truth = json.loads((records_dir / f"{stem}.truth.json").read_text())
             figures.update(fs=truth.get("fs"), input_reading=truth.get("input_reading"),
                            noise=truth.get("noise", {}).get("kind"), sigma=truth.get("noise", {}).get("sigma"))  # fmt: skip
-            tmp = done.with_suffix(".tmp")
-            tmp.write_text(json.dumps(figures, indent=1))
-            tmp.replace(done)
+            atomic_write(done, json.dumps(figures, indent=1))
         results.append(figures)
         flag = "" if figures["status"] == "adequate" and figures["ratio"] <= RMS_TOLERANCE else "   <-- FAIL"
         print(f"{figures['stem']}: {figures['samples']} samples, {figures.get('noise')}, sigma {figures.get('sigma') or 0:.2f}, "

@@ -41,6 +41,9 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this checkout's library, also when run from a worktree
+
+from identify.data.fileio import atomic_write  # noqa: E402
 DEFAULT_GENERATOR = Path("/work/main/benchmarks/independent/generator.py")
 #: the generator's category names -> this library's effect names
 LIBRARY_NAME = {"first_cycle": "incomplete_reset"}
@@ -77,7 +80,7 @@ def generate(generator: Path, suite: str, out: Path, seed: int, per_form: int | 
     if n is not None:
         command += ["--n", str(n)]
     subprocess.run(command, check=True)
-    done.write_text(json.dumps(settings))
+    atomic_write(done, json.dumps(settings))
     return records
 
 
@@ -99,7 +102,7 @@ def diagnose_once(csv: Path, effects: list[str], workdir: Path) -> dict:
         run = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
         seconds = time.perf_counter() - started
         if run.returncode == 0 and out.exists():
-            timing.write_text(repr(seconds))
+            atomic_write(timing, repr(seconds))
     if run is not None and (run.returncode != 0 or not out.exists()):
         return {"effects": effects, "status": "error", "missing": None, "error": (run.stderr or run.stdout)[-2000:],
                 "seconds": seconds}  # fmt: skip
@@ -284,9 +287,7 @@ def main(argv=None) -> int:
         os.close(descriptor)
         history = diagnose_record(csv, args.rounds, work)
         result = {"physics": physics, "history": history, "score": score(physics, history)}
-        tmp = target.with_suffix(".tmp")
-        tmp.write_text(json.dumps(result, indent=1))
-        tmp.replace(target)
+        atomic_write(target, json.dumps(result, indent=1))
         lock.unlink(missing_ok=True)
         results[csv.stem] = result
         s = result["score"]
@@ -295,7 +296,7 @@ def main(argv=None) -> int:
               + f"  [{'ok' if s['final_ok'] else 'WRONG' if s['wrong_first'] else 'miss'}] {sum(h['seconds'] for h in history):.0f} s",
               flush=True)  # fmt: skip
     text = summarise(results)
-    (args.out / "summary.md").write_text(text + "\n")
+    atomic_write(args.out / "summary.md", text + "\n")
     print(text)
     return 0
 
