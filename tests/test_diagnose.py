@@ -831,6 +831,31 @@ def test_a_rival_far_in_bic_but_within_the_gaps_noise_blocks_a_name(monkeypatch)
     assert "less than 10 apart" in _apart_text(record, best, cand("thermal", 54135.0), Thresholds())
 
 
+def test_a_tie_by_the_gaps_noise_is_stated_with_the_digits_that_show_it(monkeypatch):
+    """The clause of a tie states the comparison made: a gap 2.496 noise sd wide is below the
+    2.5 asked for, and the text must not read "2.5 sd < 2.5", nor a gap of 14.4 over a noise
+    sd of 5.77 as "14 apart ... by 6" (independent bench, seed 22, a power-law creep: `creep`
+    807 against `thermal` 793 read so)."""
+    from types import SimpleNamespace
+
+    from identify.diagnosis import diagnose as diagnosis
+    from identify.diagnosis.diagnose import _apart_text, _below_text, _tied
+
+    def cand(effect, bic):
+        return SimpleNamespace(effect=effect, delta_bic=bic, refitted=True, fit=object(), n_eff=7001.0)
+
+    best, other = cand("creep", 807.4), cand("thermal", 793.0)
+    record = object()
+    monkeypatch.setattr(diagnosis, "gap_noise_sd", lambda rec, b, o: 5.77)
+    assert _tied(record, best, other, Thresholds())  # 14.4 / 5.77 = 2.4957 < 2.5
+    text = _apart_text(record, best, other, Thresholds())
+    assert "14.4 apart" in text and "by 5.77 " in text and "2.496 sd < 2.5" in text, text
+    assert _below_text(2.4957, 2.5) == "2.496" and _below_text(0.71, 2.5) == "0.7"
+    assert _below_text(2.49999, 2.5) == "2.499"  # below at every shown digit: truncated
+    for z in np.linspace(0.0, 2.5, 2001)[:-1]:
+        assert float(_below_text(z, 2.5)) < 2.5
+
+
 def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monkeypatch):
     """A short refit on the working copy is a lower bound on what a pair explains: the best
     ``max_refits`` pairs by their short refits (and any other within bic_significant of the

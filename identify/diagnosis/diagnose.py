@@ -2793,7 +2793,7 @@ def _pairs_apart_text(record, competitive: list, thresholds: Thresholds) -> str:
            if p.delta_bic <= best.delta_bic - thresholds.bic_significant]  # fmt: skip
     text = f"within {thresholds.bic_significant:g} in delta BIC"
     if far:
-        text += " or " + ", ".join(f"'{p.effect}' {z:.1f}" for p, z in far) + (
+        text += " or " + ", ".join(f"'{p.effect}' {_below_text(z, thresholds.gap_z)}" for p, z in far) + (
             f" noise standard deviations of the gap (< {thresholds.gap_z:g})"
         )
     return text
@@ -3360,10 +3360,26 @@ def _apart_text(record, best: CandidateResult, rival: CandidateResult, threshold
     if gap < thresholds.bic_significant:
         return f"less than {thresholds.bic_significant:g} apart, which is no strong evidence for either"
     return (
-        f"{gap:.0f} apart, but their fits differ so much that the noise alone moves that gap by "
-        f"{gap / z:.0f} (one standard deviation; {z:.1f} sd < {thresholds.gap_z:g}: another realisation of "
-        f"the noise could reverse their order)"
+        f"{_figure(gap)} apart, but their fits differ so much that the noise alone moves that gap by "
+        f"{_figure(gap / z)} (one standard deviation; {_below_text(z, thresholds.gap_z)} sd < "
+        f"{thresholds.gap_z:g}: another realisation of the noise could reverse their order)"
     )
+
+
+def _figure(x: float) -> str:
+    """``x`` as text: whole numbers from 100 up, three significant digits below (a gap of 14.4
+    over a noise sd of 5.77 reads as the 2.5 sd it is, not as 14 over 6)."""
+    return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"
+
+
+def _below_text(z: float, limit: float) -> str:
+    """``z``, which is below ``limit``, with the fewest decimals (one to three) that still show it
+    below: 2.497 against 2.5 reads "2.497", never "2.5 < 2.5"."""
+    for digits in (1, 2, 3):
+        text = f"{z:.{digits}f}"
+        if float(text) < limit:
+            return text
+    return f"{math.floor(z * 1000) / 1000:.3f}"
 
 
 def _rms_change_and_size(rms0: float, rms1: float, sigma: float) -> tuple[float, float]:
