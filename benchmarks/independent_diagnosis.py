@@ -44,6 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's library, also when run from a worktree
 
 from identify.data.fileio import atomic_write  # noqa: E402
+
 DEFAULT_GENERATOR = Path("/work/main/benchmarks/independent/generator.py")
 #: the generator's category names -> this library's effect names
 LIBRARY_NAME = {"first_cycle": "incomplete_reset"}

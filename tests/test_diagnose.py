@@ -356,6 +356,11 @@ def test_texts_state_the_comparison_actually_made():
     assert "< 5" not in text
     quiet = Adequacy(True, (), {"variance": 1.0, "ljung_box": 2.5, "low_frequency": -0.3}, 0.0, 0.0, 0.0, "none", 0.0)
     assert "no test's excess reaches z = 5 (largest 2.5)" in _tests_text(quiet, thresholds)
+    near = Adequacy(True, (), {"variance": 1.0, "ljung_box": 4.97, "low_frequency": -0.3}, 0.0, 0.0, 0.0, "none", 0.0)
+    assert "(largest 4.97)" in _tests_text(near, thresholds)  # never 'reaches z = 5 (largest 5.0)'
+    edge = Adequacy(True, ("ljung_box",), {"variance": 1.0, "ljung_box": 18.0, "low_frequency": 2.0}, 0.01, 0.09996,
+                    0.09996, "ljung_box", 3.0)  # fmt: skip
+    assert "0.09996 sigma, below the 0.1 sigma floor" in _tests_text(edge, thresholds)
     bad = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.5, "low_frequency": 40.0}, 0.5, 0.5, 0.5,
                    "low_frequency", 0.25)  # fmt: skip
     assert "low_frequency z 40.0" in _tests_text(bad, thresholds) and ">= the 0.1 sigma floor" in _tests_text(bad, thresholds)
@@ -835,7 +840,7 @@ def test_a_tie_by_the_gaps_noise_is_stated_with_the_digits_that_show_it(monkeypa
     """The clause of a tie states the comparison made: a gap 2.496 noise sd wide is below the
     2.5 asked for, and the text must not read "2.5 sd < 2.5", nor a gap of 14.4 over a noise
     sd of 5.77 as "14 apart ... by 6" (independent bench, seed 22, a power-law creep: `creep`
-    807 against `thermal` 793 read so)."""
+    807 against `thermal` 793, a gap of 14.2 over 5.77, 2.47 sd, read "2.5 sd < 2.5")."""
     from types import SimpleNamespace
 
     from identify.diagnosis import diagnose as diagnosis

@@ -3368,18 +3368,19 @@ def _apart_text(record, best: CandidateResult, rival: CandidateResult, threshold
 
 def _figure(x: float) -> str:
     """``x`` as text: whole numbers from 100 up, three significant digits below (a gap of 14.4
-    over a noise sd of 5.77 reads as the 2.5 sd it is, not as 14 over 6)."""
+    over a noise sd of 5.77 reads as the 2.496 sd it is, not as 14 over 6)."""
     return f"{x:.0f}" if abs(x) >= 100 else f"{x:.3g}"
 
 
-def _below_text(z: float, limit: float) -> str:
-    """``z``, which is below ``limit``, with the fewest decimals (one to three) that still show it
-    below: 2.497 against 2.5 reads "2.497", never "2.5 < 2.5"."""
-    for digits in (1, 2, 3):
-        text = f"{z:.{digits}f}"
+def _below_text(x: float, limit: float, decimals=(1, 2, 3)) -> str:
+    """``x``, which is below ``limit``, with the fewest of ``decimals`` that still show it below
+    (truncated at the last where none does): 2.497 against 2.5 reads "2.497", never "2.5 < 2.5"."""
+    for digits in decimals:
+        text = f"{x:.{digits}f}"
         if float(text) < limit:
             return text
-    return f"{math.floor(z * 1000) / 1000:.3f}"
+    last = decimals[-1]
+    return f"{math.floor(x * 10**last) / 10**last:.{last}f}"
 
 
 def _rms_change_and_size(rms0: float, rms1: float, sigma: float) -> tuple[float, float]:
@@ -3421,13 +3422,14 @@ def _tests_text(adequacy: Adequacy, thresholds: Thresholds) -> str:
     if not adequacy.failed:
         return (
             f"The residual passes the noise tests: no test's excess reaches z = {zc:g} "
-            f"(largest {max(adequacy.z.values()):.1f})."
+            f"(largest {_below_text(max(adequacy.z.values()), zc)})."
         )
     failed = ", ".join(f"{name} z {adequacy.z[name]:.1f}" for name in adequacy.failed)
     if adequacy.adequate:
         return (
             f"The residual is at the noise level up to a negligible misfit: tests above z = {zc:g} ({failed}) "
-            f"see a non-noise part of {adequacy.size_ratio:.3f} sigma, below the {thresholds.structure_floor:g} sigma floor."
+            f"see a non-noise part of {_below_text(adequacy.size_ratio, thresholds.structure_floor, (3, 4, 5))} sigma, "
+            f"below the {thresholds.structure_floor:g} sigma floor."
         )
     return (
         f"tests above z = {zc:g}: {failed}; non-noise part {adequacy.size_ratio:.2f} sigma >= the "
