@@ -37,9 +37,9 @@ RMS_TOLERANCE = 1.005
 
 def score_record(csv_path: Path, npz_path: Path, seed: int = 0) -> dict:
     """Diagnose one clean record; return its figures (JSON-ready)."""
+    from identify.data.records import load_record
     from identify.diagnosis import diagnose
     from identify.fitting.noise import energised_mask
-    from identify.data.records import load_record
 
     record = load_record(csv_path)
     truth = np.load(npz_path)
@@ -93,22 +93,34 @@ def main(argv=None) -> int:
         else:
             figures = score_record(records_dir / f"{stem}.csv", records_dir / f"{stem}.npz")
             truth = json.loads((records_dir / f"{stem}.truth.json").read_text())
-            figures.update(fs=truth.get("fs"), input_reading=truth.get("input_reading"),
-                           noise=truth.get("noise", {}).get("kind"), sigma=truth.get("noise", {}).get("sigma"))  # fmt: skip
+            figures.update(
+                fs=truth.get("fs"),
+                input_reading=truth.get("input_reading"),
+                noise=truth.get("noise", {}).get("kind"),
+                sigma=truth.get("noise", {}).get("sigma"),
+            )
             atomic_write(done, json.dumps(figures, indent=1))
         results.append(figures)
         flag = "" if figures["status"] == "adequate" and figures["ratio"] <= RMS_TOLERANCE else "   <-- FAIL"
-        print(f"{figures['stem']}: {figures['samples']} samples, {figures.get('noise')}, sigma {figures.get('sigma') or 0:.2f}, "
-              f"rms fit/true {figures['ratio']:.4f}, {figures['status']}, {figures['seconds']:.0f} s{flag}", flush=True)  # fmt: skip
+        print(
+            f"{figures['stem']}: {figures['samples']} samples, {figures.get('noise')}, sigma "
+            f"{figures.get('sigma') or 0:.2f}, "
+            f"rms fit/true {figures['ratio']:.4f}, {figures['status']}, {figures['seconds']:.0f} s{flag}",
+            flush=True,
+        )
     ratios = np.array([r["ratio"] for r in results])
     not_adequate = [r["stem"] for r in results if r["status"] != "adequate"]
     local = [r["stem"] for r in results if r["ratio"] > RMS_TOLERANCE]
     n = len(results)
     print(f"\n== {n} clean records ==")
-    print(f"least squares no worse than the truth (rms_fit <= {RMS_TOLERANCE} rms_true): {n - len(local)}/{n} "
-          f"({100 * (n - len(local)) / n:.1f} %); failures: {', '.join(local) or 'none'}")  # fmt: skip
-    print(f"diagnose 'adequate': {n - len(not_adequate)}/{n} ({100 * (n - len(not_adequate)) / n:.1f} %); "
-          f"others: {', '.join(not_adequate) or 'none'}")
+    print(
+        f"least squares no worse than the truth (rms_fit <= {RMS_TOLERANCE} rms_true): {n - len(local)}/{n} "
+        f"({100 * (n - len(local)) / n:.1f} %); failures: {', '.join(local) or 'none'}"
+    )
+    print(
+        f"diagnose 'adequate': {n - len(not_adequate)}/{n} ({100 * (n - len(not_adequate)) / n:.1f} %); "
+        f"others: {', '.join(not_adequate) or 'none'}"
+    )
     q = np.quantile(ratios, [0.0, 0.5, 0.9, 0.99, 1.0])
     print("rms_fit / rms_true: min {:.4f}, median {:.4f}, 90 % {:.4f}, 99 % {:.4f}, max {:.4f}".format(*q))
     for fs in sorted({r.get("fs") for r in results}, key=lambda v: v or 0):

@@ -19,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from identify.commands import COMMANDS  # noqa: E402
+from identify.commands import COMMANDS
 
 HEAVY = ("numpy", "numba", "scipy", "matplotlib")
 

@@ -40,24 +40,38 @@ def main(argv=None) -> int:
     rows = []
     for seed in args.seeds:
         started = time.perf_counter()
-        result = closed_loop(args.out / f"seed-{seed}", effects=effects, seed=seed, n_draws=args.draws,
-                             progress=lambda m: print(f"  seed {seed}: {m}", flush=True))  # fmt: skip
-        print(f"seed {seed}: diagnosis {result.diagnosis_status} ({result.named}), study effects {result.effects}, "
-              f"converged {result.converged}, {time.perf_counter() - started:.0f} s", flush=True)  # fmt: skip
+        result = closed_loop(
+            args.out / f"seed-{seed}",
+            effects=effects,
+            seed=seed,
+            n_draws=args.draws,
+            progress=lambda m: print(f"  seed {seed}: {m}", flush=True),
+        )
+        print(
+            f"seed {seed}: diagnosis {result.diagnosis_status} ({result.named}), study effects {result.effects}, "
+            f"converged {result.converged}, {time.perf_counter() - started:.0f} s",
+            flush=True,
+        )
         for case in result.cases:
             rows.append((seed, case))
-            print(f"  {case.target:<10} compensated RMS {case.rms_pct:.4f} % max {case.max_pct:.4f} % | linear RMS "
-                  f"{case.linear_rms_pct:.2f} % max {case.linear_max_pct:.2f} % | coverage credible "
-                  f"{case.credible_coverage:.3f} predictive {case.predictive_coverage:.3f} | predicted RMS "
-                  f"{case.predicted_rms_pct['median']:.4f} % [{case.predicted_rms_pct['lo95']:.4f}, "
-                  f"{case.predicted_rms_pct['hi95']:.4f}] | median model {case.model_samples}", flush=True)  # fmt: skip
+            print(
+                f"  {case.target:<10} compensated RMS {case.rms_pct:.4f} % max {case.max_pct:.4f} % | linear RMS "
+                f"{case.linear_rms_pct:.2f} % max {case.linear_max_pct:.2f} % | coverage credible "
+                f"{case.credible_coverage:.3f} predictive {case.predictive_coverage:.3f} | predicted RMS "
+                f"{case.predicted_rms_pct['median']:.4f} % [{case.predicted_rms_pct['lo95']:.4f}, "
+                f"{case.predicted_rms_pct['hi95']:.4f}] | median model {case.model_samples}",
+                flush=True,
+            )
     if rows:
         for name in sorted({c.target for _, c in rows}):
             cases = [c for _, c in rows if c.target == name]
-            print(f"{name}: over {len(cases)} seeds: RMS {max(c.rms_pct for c in cases):.4f} % (worst), max "
-                  f"{max(c.max_pct for c in cases):.4f} % (worst), linear RMS >= {min(c.linear_rms_pct for c in cases):.2f} %, "
-                  f"credible coverage {np.mean([c.credible_coverage for c in cases]):.3f} (mean), predictive "
-                  f"{np.mean([c.predictive_coverage for c in cases]):.3f} (mean)")  # fmt: skip
+            print(
+                f"{name}: over {len(cases)} seeds: RMS {max(c.rms_pct for c in cases):.4f} % (worst), max "
+                f"{max(c.max_pct for c in cases):.4f} % (worst), linear RMS >= "
+                f"{min(c.linear_rms_pct for c in cases):.2f} %, "
+                f"credible coverage {np.mean([c.credible_coverage for c in cases]):.3f} (mean), predictive "
+                f"{np.mean([c.predictive_coverage for c in cases]):.3f} (mean)"
+            )
         summary = [dict(seed=s, **c.__dict__) for s, c in rows]
         (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return 0

@@ -42,10 +42,24 @@ def make_record(fs: float, workdir: Path, case: str = "creep") -> Path:
     csv = workdir / f"{case}_{int(fs)}.csv"
     effects = "creep_amplitude=0.0153" if case == "creep" else "none"
     subprocess.run(
-        [sys.executable, "-m", "identify", "simulate", "--out", str(csv), "--effects", effects,
-         "--fs", str(fs), "--seed", "5"],
-        check=True, cwd=ROOT, capture_output=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "identify",
+            "simulate",
+            "--out",
+            str(csv),
+            "--effects",
+            effects,
+            "--fs",
+            str(fs),
+            "--seed",
+            "5",
+        ],
+        check=True,
+        cwd=ROOT,
+        capture_output=True,
+    )
     if case == "unexplained":
         import numpy as np
 
@@ -86,8 +100,13 @@ def run_side_by_side(csv: Path, workdir: Path, copies: int, wait_policy: str) ->
     before = os.times()
     started = time.perf_counter()
     processes = [
-        subprocess.Popen(_command(csv, workdir / f"side_{wait_policy}_{k}.json"), cwd=ROOT, env=env,
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        subprocess.Popen(
+            _command(csv, workdir / f"side_{wait_policy}_{k}.json"),
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         for k in range(copies)
     ]
     walls = []
@@ -102,9 +121,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="7001 samples only")
     parser.add_argument("--case", choices=("creep", "unexplained"), default="creep")
-    parser.add_argument("--side-by-side", type=int, default=0, metavar="N",
-                        help="run N diagnoses of the 7001-sample record at once, with numba's OpenMP threads "
-                             "waiting passively (as the bench runners set) and as libgomp does by default, alternating")  # fmt: skip
+    parser.add_argument(
+        "--side-by-side",
+        type=int,
+        default=0,
+        metavar="N",
+        help="run N diagnoses of the 7001-sample record at once, with numba's OpenMP threads "
+        "waiting passively (as the bench runners set) and as libgomp does by default, alternating",
+    )
     args = parser.parse_args(argv)
     if args.side_by_side:
         with tempfile.TemporaryDirectory() as tmp:
@@ -125,7 +149,8 @@ def main(argv=None) -> int:
             times[fs] = seconds
             n = int(round(70 * fs)) + 1
             print(
-                f"diagnose ({args.case}), {n:6d} samples: {seconds:6.1f} s wall, {cpu:6.1f} s CPU (target < {target:.0f} s) "
+                f"diagnose ({args.case}), {n:6d} samples: {seconds:6.1f} s wall, {cpu:6.1f} s CPU (target < "
+                f"{target:.0f} s) "
                 f"-> {result['status']}{' (' + result['missing'] + ')' if result['missing'] else ''}, "
                 f"RMS {result['rms']:.3f} um vs noise {result['noise_sigma']:.3f} um"
             )

@@ -11,7 +11,8 @@ uniform grid (``k * 2**-10`` s) has one step. The filters of the effects (``ther
 nodes, ``creep``'s modes, ``lag``) need ``exp(-step / tau)`` per step and mode, so a kernel
 that recomputes them whenever the step changes pays for the CSV grid, one that tabulates
 them per distinct step does not. Prints, per effect, the best time of ``Model([effect])``'s
-evaluation (the GPI and the effect; the plain GPI first, for reference) for ``W`` parameter sets (the effect's test parameters, its time constants scaled over a
+evaluation (the GPI and the effect; the plain GPI first, for reference) for ``W`` parameter sets (the effect's test
+parameters, its time constants scaled over a
 decade; creep's logarithmic modes on too) on the paper's input on both grids, and their
 ratio (1.0: the grid does not matter).
 """
@@ -19,10 +20,11 @@ ratio (1.0: the grid does not matter).
 from __future__ import annotations
 
 import argparse
+
 import numpy as np
+from shared_batch import best_time  # the best of several calls (benchmarks/shared_batch.py)
 
 from model import EFFECTS, Model, paper_current
-from shared_batch import best_time  # the best of several calls (benchmarks/shared_batch.py)
 
 
 def grids(n_samples: int) -> dict:
@@ -61,18 +63,25 @@ def main(argv=None) -> None:
     sizes = [70001] if args.quick else [7001, 70001]
     repeats = 3 if args.quick else 7
     rng = np.random.default_rng(0)
-    print(f"Model([effect]).evaluate for {args.sets} parameter sets, best of {repeats}: CSV grid vs exactly uniform grid")
+    print(
+        f"Model([effect]).evaluate for {args.sets} parameter sets, best of {repeats}: CSV grid vs exactly uniform grid"
+    )
     print(f"{'effect':<18}{'T':>7}{'csv (ms)':>11}{'uniform (ms)':>14}{'ratio':>8}")
     for n_samples in sizes:
         for name in ["(plain GPI)"] + sorted(EFFECTS):
             m = Model() if name.startswith("(") else Model([name])
-            thetas = np.tile(m.default_theta(), (args.sets, 1)) if name.startswith("(") else parameter_sets(m, name, args.sets, rng)
+            thetas = (
+                np.tile(m.default_theta(), (args.sets, 1))
+                if name.startswith("(")
+                else parameter_sets(m, name, args.sets, rng)
+            )
             times = {}
             for label, t in grids(n_samples).items():
                 current = np.interp(t, *paper_current(fs=1000.0))
                 times[label] = best_time(lambda: m.evaluate(thetas, t, current), repeats)
             ratio = times["csv"] / times["uniform"]
             print(f"{name:<18}{n_samples:>7}{1e3 * times['csv']:>11.2f}{1e3 * times['uniform']:>14.2f}{ratio:>8.2f}")
+
 
 if __name__ == "__main__":
     main()

@@ -36,18 +36,47 @@ from model import TABLE1, Model, paper_current
 SETTINGS = {
     "lag": {"lag_tau": 0.02, "lag_delay": 0.03},
     "rate_width": {"rate_width_coefficient": 0.1, "rate_width_saturation": 1.0},
-    "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 2.0, "training_shape": 1.5, "training_gain": 0.05, "training_width": 0.2},
+    "training": {
+        "training_deficit": 0.08,
+        "training_threshold": 0.1,
+        "training_travel": 2.0,
+        "training_shape": 1.5,
+        "training_gain": 0.05,
+        "training_width": 0.2,
+    },
     "initial_state (level freed: the control)": {"initial_state_memory": -0.5},
     "initial_state": {"initial_state_excursion": 2.0, "initial_state_held": 0.3, "initial_state_held_slope": 0.2},
-    "incomplete_reset": {"incomplete_reset_strain": 5.0, "incomplete_reset_retained": 0.5, "incomplete_reset_fade": 0.05},
-    "creep": {"creep_amplitude": 0.02, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.005, "creep_log_onset": 0.1,
-              "creep_log_hold": 0.5},
-    "thermal": {"thermal_tau": 10.0, "thermal_sensitivity": 0.03, "thermal_expansion": 1.0, "thermal_tau_core": 200.0,
-                "thermal_sensitivity_core": 0.03, "thermal_expansion_core": 1.0},
-    "sensor_drift": {"sensor_drift_linear": 1.0, "sensor_drift_quadratic": 0.5, "sensor_drift_settling": 1.0,
-                     "sensor_drift_settling_tau": 10.0, "sensor_drift_ambient_sine": 1.0,
-                     "sensor_drift_ambient_cosine": 0.5, "sensor_drift_ambient_period": 120.0},
-}  # fmt: skip
+    "incomplete_reset": {
+        "incomplete_reset_strain": 5.0,
+        "incomplete_reset_retained": 0.5,
+        "incomplete_reset_fade": 0.05,
+    },
+    "creep": {
+        "creep_amplitude": 0.02,
+        "creep_tau": 2.0,
+        "creep_decades": 2.0,
+        "creep_log_rate": 0.005,
+        "creep_log_onset": 0.1,
+        "creep_log_hold": 0.5,
+    },
+    "thermal": {
+        "thermal_tau": 10.0,
+        "thermal_sensitivity": 0.03,
+        "thermal_expansion": 1.0,
+        "thermal_tau_core": 200.0,
+        "thermal_sensitivity_core": 0.03,
+        "thermal_expansion_core": 1.0,
+    },
+    "sensor_drift": {
+        "sensor_drift_linear": 1.0,
+        "sensor_drift_quadratic": 0.5,
+        "sensor_drift_settling": 1.0,
+        "sensor_drift_settling_tau": 10.0,
+        "sensor_drift_ambient_sine": 1.0,
+        "sensor_drift_ambient_cosine": 0.5,
+        "sensor_drift_ambient_period": 120.0,
+    },
+}
 
 
 def jacobian(model: Model, theta, time, current, free):
@@ -85,8 +114,13 @@ def main(argv=None) -> int:
     free0 = np.flatnonzero(plain.parameters.vary)
     j0 = jacobian(plain, theta0, time, current, free0)
     s0 = np.linalg.svd(j0, compute_uv=False)
-    print(f"paper input, {time.size} samples; plain GPI: {free0.size} free parameters, sv_min/sv_max {s0[-1] / s0[0]:.2e}")
-    print("| effect | free | sv_min/sv_max (GPI alone {:.1e}) | indep (effect vs GPI) | worst direction | least separable parameter (vs GPI + rest of effect) |".format(s0[-1] / s0[0]))
+    print(
+        f"paper input, {time.size} samples; plain GPI: {free0.size} free parameters, sv_min/sv_max {s0[-1] / s0[0]:.2e}"
+    )
+    print(
+        f"| effect | free | sv_min/sv_max (GPI alone {s0[-1] / s0[0]:.1e}) | indep (effect vs GPI) | worst direction "
+        "| least separable parameter (vs GPI + rest of effect) |"
+    )
     print("|---|---|---|---|---|---|")
     for label, values in SETTINGS.items():
         model = plain + label.split()[0]
@@ -110,8 +144,10 @@ def main(argv=None) -> int:
             sv_k, _ = projected_sv(jac[:, others], jac[:, [effect_cols[k]]])
             per_param.append((sv_k[0], model.names[free[effect_cols[k]]]))
         least = min(per_param)
-        print(f"| {label} | {len(effect_cols)} | {s[-1] / s[0]:.1e} | {sv[-1]:.1e} (largest {sv[0]:.2f}) | {loadings} | "
-              f"{least[1]} {least[0]:.1e} |")  # fmt: skip
+        print(
+            f"| {label} | {len(effect_cols)} | {s[-1] / s[0]:.1e} | {sv[-1]:.1e} (largest {sv[0]:.2f}) | {loadings} | "
+            f"{least[1]} {least[0]:.1e} |"
+        )
     return 0
 
 

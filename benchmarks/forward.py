@@ -268,8 +268,10 @@ def main(argv=None):
 
     import numba
 
-    print(f"model.gpi benchmark  ({time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores, "
-          f"numba {numba.__version__} with {numba.get_num_threads()} threads, numpy {np.__version__})")
+    print(
+        f"model.gpi benchmark  ({time.strftime('%Y-%m-%d')}, {platform.machine()}, {os.cpu_count()} cores, "
+        f"numba {numba.__version__} with {numba.get_num_threads()} threads, numpy {np.__version__})"
+    )
     gpi(theta[:2], paper_current(100.0)[1][:100])  # compile or load the cached kernel
 
     print("\n== speed against numpy (best of repeats; baselines checked to agree with gpi to 1e-9) ==")
@@ -278,24 +280,33 @@ def main(argv=None):
         current = paper_current(fs)[1]
         f = compare_speed(theta, current, n_operators, repeats, 2 if fs > 100 or args.quick else 3)
         print(f"W = {f.n_walkers}, T = {f.n_samples}, N = {n_operators}:")
-        print(f"  gpi, {numba.get_num_threads()} threads:        {f.gpi.wall * 1e3:9.2f}  ({f.gpi.cpu * 1e3:9.2f})   "
-              f"{f.updates_per_second:.3g} operator updates/s")
+        print(
+            f"  gpi, {numba.get_num_threads()} threads:        {f.gpi.wall * 1e3:9.2f}  ({f.gpi.cpu * 1e3:9.2f})   "
+            f"{f.updates_per_second:.3g} operator updates/s"
+        )
         print(f"  gpi, 1 thread:          {f.gpi_one_thread.wall * 1e3:9.2f}  ({f.gpi_one_thread.cpu * 1e3:9.2f})")
-        print(f"  numpy time loop:        {f.baseline.wall * 1e3:9.2f}  ({f.baseline.cpu * 1e3:9.2f})   "
-              f"ratio {f.ratio:.1f}x wall; against gpi on 1 thread {f.baseline.wall / f.gpi_one_thread.wall:.1f}x wall, "
-              f"{f.baseline.cpu / f.gpi_one_thread.cpu:.1f}x CPU time")
-        print(f"  numpy, envelopes first: {f.precomputed.wall * 1e3:9.2f}  ({f.precomputed.cpu * 1e3:9.2f})   "
-              f"ratio {f.precomputed.wall / f.gpi.wall:.1f}x wall")
+        print(
+            f"  numpy time loop:        {f.baseline.wall * 1e3:9.2f}  ({f.baseline.cpu * 1e3:9.2f})   "
+            f"ratio {f.ratio:.1f}x wall; against gpi on 1 thread {f.baseline.wall / f.gpi_one_thread.wall:.1f}x wall, "
+            f"{f.baseline.cpu / f.gpi_one_thread.cpu:.1f}x CPU time"
+        )
+        print(
+            f"  numpy, envelopes first: {f.precomputed.wall * 1e3:9.2f}  ({f.precomputed.cpu * 1e3:9.2f})   "
+            f"ratio {f.precomputed.wall / f.gpi.wall:.1f}x wall"
+        )
 
     print("\n== linearity (gpi; numba on 1 thread, best CPU time: constant time per unit = linear cost) ==")
     base_current = paper_current(100.0)[1]
     sizes_t = (100.0, 200.0, 400.0) if args.quick else (100.0, 200.0, 400.0, 800.0)
-    print("T sweep (W = %d, N = %d):" % (args.walkers, n_operators))
+    print(f"T sweep (W = {args.walkers}, N = {n_operators}):")
     for fs in sizes_t:
         current = paper_current(fs)[1]
         seconds = single_thread_cpu(lambda: gpi(theta, current, n_operators), repeats)
-        print(f"  T = {current.size:>6}: {seconds * 1e3:8.2f} ms  {seconds / (args.walkers * current.size) * 1e9:6.2f} ns per walker-sample")
-    print("N sweep (W = %d, T = %d); cost = per-sample part + per-operator part:" % (args.walkers, base_current.size))
+        print(
+            f"  T = {current.size:>6}: {seconds * 1e3:8.2f} ms  {seconds / (args.walkers * current.size) * 1e9:6.2f} "
+            "ns per walker-sample"
+        )
+    print(f"N sweep (W = {args.walkers}, T = {base_current.size}); cost = per-sample part + per-operator part:")
     n_values = (1, 6, 12, 24) if args.quick else (1, 6, 12, 24, 48)
     per_walker_sample = []
     for n in n_values:
@@ -304,13 +315,13 @@ def main(argv=None):
         print(f"  N = {n:>3}: {seconds * 1e3:8.2f} ms  {per_walker_sample[-1] * 1e9:6.2f} ns per walker-sample")
     slope, intercept = np.polyfit(n_values, per_walker_sample, 1)
     print(f"  least-squares fit: {intercept * 1e9:.2f} ns per walker-sample + {slope * 1e9:.3f} ns per operator update")
-    print("W sweep (T = %d, N = %d):" % (base_current.size, n_operators))
+    print(f"W sweep (T = {base_current.size}, N = {n_operators}):")
     for n_walkers in (16, 32, 64, 128):
         batch = benchmark_theta(n_walkers, np.random.default_rng(args.seed + 1))
         seconds = single_thread_cpu(lambda: gpi(batch, base_current, n_operators), repeats)
         print(f"  W = {n_walkers:>4}: {seconds * 1e3:8.2f} ms  {seconds / n_walkers * 1e6:8.1f} us per walker")
 
-    print("\n== memory of one gpi call (W = %d, T = 70001, after warm-up) ==" % args.walkers)
+    print(f"\n== memory of one gpi call (W = {args.walkers}, T = 70001, after warm-up) ==")
     current = paper_current(1000.0)[1]
     gpi(theta, current)  # warm-up at full size
     tracemalloc.start()
@@ -332,8 +343,10 @@ def main(argv=None):
         rss = _rss_growth_in_fresh_process(theta_file, 1000.0)
     if rss is not None:
         output_bytes = args.walkers * current.size * 8
-        print(f"  resident-set high-water growth:  {rss / 2**20:8.2f} MiB  = {rss / output_bytes:.3f} x output "
-              "(fresh process, kernel loaded, includes the output itself)")
+        print(
+            f"  resident-set high-water growth:  {rss / 2**20:8.2f} MiB  = {rss / output_bytes:.3f} x output "
+            "(fresh process, kernel loaded, includes the output itself)"
+        )
     print(f"\nmodel package: {os.path.dirname(model.__file__)}")
     return 0
 

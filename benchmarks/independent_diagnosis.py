@@ -43,7 +43,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's library, also when run from a worktree
 
-from identify.data.fileio import atomic_write  # noqa: E402
+from identify.data.fileio import atomic_write
 
 DEFAULT_GENERATOR = Path("/work/main/benchmarks/independent/generator.py")
 #: the generator's category names -> this library's effect names
@@ -105,8 +105,13 @@ def diagnose_once(csv: Path, effects: list[str], workdir: Path) -> dict:
         if run.returncode == 0 and out.exists():
             atomic_write(timing, repr(seconds))
     if run is not None and (run.returncode != 0 or not out.exists()):
-        return {"effects": effects, "status": "error", "missing": None, "error": (run.stderr or run.stdout)[-2000:],
-                "seconds": seconds}  # fmt: skip
+        return {
+            "effects": effects,
+            "status": "error",
+            "missing": None,
+            "error": (run.stderr or run.stdout)[-2000:],
+            "seconds": seconds,
+        }
     result = json.loads(out.read_text())
     return {
         "effects": effects,
@@ -114,7 +119,10 @@ def diagnose_once(csv: Path, effects: list[str], workdir: Path) -> dict:
         "missing": result["missing"],
         "rms_over_sigma": result["rms"] / result["noise_sigma"],
         "reason": result["reason"],
-        "ranking": [(c["effect"], c["delta_bic"], c["explained_fraction"], c.get("adequate_after")) for c in result["ranking"][:4]],
+        "ranking": [
+            (c["effect"], c["delta_bic"], c["explained_fraction"], c.get("adequate_after"))
+            for c in result["ranking"][:4]
+        ],
         "seconds": seconds,
     }
 
@@ -186,30 +194,47 @@ def score(physics: list[str], history: list[dict]) -> dict:
     else:
         kind = "single" if len(nameable) == 1 else "pair"
         first_ok = first in nameable or first in optional
-        final_ok = (final["status"] == "adequate" and set(nameable) <= set(named) <= set(nameable) | set(optional)
-                    and abs(final_rms - 1.0) <= 0.10)  # fmt: skip
+        final_ok = (
+            final["status"] == "adequate"
+            and set(nameable) <= set(named) <= set(nameable) | set(optional)
+            and abs(final_rms - 1.0) <= 0.10
+        )
     wrong_first = history[0]["status"] == "missing_effect" and first not in nameable + optional
-    return {"kind": kind, "first": first, "first_ok": first_ok, "final_ok": final_ok, "wrong_first": wrong_first,
-            "named": named, "final": verdict_label(final), "final_rms_over_sigma": final_rms}  # fmt: skip
+    return {
+        "kind": kind,
+        "first": first,
+        "first_ok": first_ok,
+        "final_ok": final_ok,
+        "wrong_first": wrong_first,
+        "named": named,
+        "final": verdict_label(final),
+        "final_rms_over_sigma": final_rms,
+    }
 
 
 def summarise(results: dict) -> str:
     rows = defaultdict(list)
-    for stem, r in sorted(results.items()):
+    for _stem, r in sorted(results.items()):
         rows["+".join(r["physics"]) or "none (clean)"].append(r)
     columns = sorted({r["score"]["first"] for r in results.values()} - {"adequate", "unexplained", "error"})
     columns += ["adequate", "unexplained", "error"]
-    lines = ["| true physics \\ first verdict | " + " | ".join(columns) + " | first right | ends right | final RMS/sigma (median) | time per record (median) |",
-             "|---|" + "---|" * (len(columns) + 4)]  # fmt: skip
+    lines = [
+        "| true physics \\ first verdict | "
+        + " | ".join(columns)
+        + " | first right | ends right | final RMS/sigma (median) | time per record (median) |",
+        "|---|" + "---|" * (len(columns) + 4),
+    ]
     for label, group in sorted(rows.items()):
         counts = Counter(r["score"]["first"] for r in group)
         rms = sorted(r["score"]["final_rms_over_sigma"] for r in group)
         secs = sorted(sum(h["seconds"] for h in r["history"]) for r in group)
         lines.append(
-            f"| {label} | " + " | ".join(str(counts.get(c, 0)) for c in columns)
-            + f" | {sum(r['score']['first_ok'] for r in group)}/{len(group)} | {sum(r['score']['final_ok'] for r in group)}/{len(group)}"
+            f"| {label} | "
+            + " | ".join(str(counts.get(c, 0)) for c in columns)
+            + f" | {sum(r['score']['first_ok'] for r in group)}/{len(group)} | "
+            f"{sum(r['score']['final_ok'] for r in group)}/{len(group)}"
             + f" | {rms[len(rms) // 2]:.3f} | {secs[len(secs) // 2]:.0f} s |"
-        )  # fmt: skip
+        )
     by_kind = defaultdict(list)
     for r in results.values():
         by_kind[r["score"]["kind"]].append(r)
@@ -227,9 +252,14 @@ def summarise(results: dict) -> str:
             ok = sum(r["score"][key] for r in group)
             lines.append(f"* {kind}: {what}: {ok}/{len(group)} = {100 * ok / len(group):.0f} % (target {target})")
     wrong = [stem for stem, r in results.items() if r["score"]["wrong_first"]]
-    lines.append(f"* wrong first name (an effect that is not there named first): {len(wrong)}" + (f" ({', '.join(wrong)})" if wrong else ""))
+    lines.append(
+        f"* wrong first name (an effect that is not there named first): {len(wrong)}"
+        + (f" ({', '.join(wrong)})" if wrong else "")
+    )
     total = sum(sum(h["seconds"] for h in r["history"]) for r in results.values())
-    lines.append(f"* {len(results)} records, {sum(len(r['history']) for r in results.values())} diagnoses, {total / 60:.1f} min")
+    lines.append(
+        f"* {len(results)} records, {sum(len(r['history']) for r in results.values())} diagnoses, {total / 60:.1f} min"
+    )
     return "\n".join(lines)
 
 
@@ -238,14 +268,23 @@ def main(argv=None) -> int:
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--suite", default="effects", choices=("effects", "clean", "all"))
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--per-form", type=int, default=None, help="the generator's records per single form (its default: 3)")
-    parser.add_argument("--n", type=int, default=None, help="the generator's number of clean records (its default: 100)")
+    parser.add_argument(
+        "--per-form", type=int, default=None, help="the generator's records per single form (its default: 3)"
+    )
+    parser.add_argument(
+        "--n", type=int, default=None, help="the generator's number of clean records (its default: 100)"
+    )
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--generator", type=Path, default=DEFAULT_GENERATOR)
     parser.add_argument("--summary-only", action="store_true", help="only summarise the records diagnosed so far")
-    parser.add_argument("--reverse", action="store_true",
-                        help="work from the end of the list (a second worker beside a first one; records are locked)")
-    parser.add_argument("--only", default="", help="comma-separated substrings: diagnose only records whose stem contains one")
+    parser.add_argument(
+        "--reverse",
+        action="store_true",
+        help="work from the end of the list (a second worker beside a first one; records are locked)",
+    )
+    parser.add_argument(
+        "--only", default="", help="comma-separated substrings: diagnose only records whose stem contains one"
+    )
     args = parser.parse_args(argv)
     if args.summary_only:  # only what is there: never generate
         records = args.out / "records"
@@ -292,10 +331,15 @@ def main(argv=None) -> int:
         lock.unlink(missing_ok=True)
         results[csv.stem] = result
         s = result["score"]
-        print(f"{csv.stem:<40} truth {'+'.join(physics) or 'none':<28} -> "
-              + " -> ".join(verdict_label(h) + (f" ({h['rms_over_sigma']:.3f})" if 'rms_over_sigma' in h else "") for h in history)
-              + f"  [{'ok' if s['final_ok'] else 'WRONG' if s['wrong_first'] else 'miss'}] {sum(h['seconds'] for h in history):.0f} s",
-              flush=True)  # fmt: skip
+        print(
+            f"{csv.stem:<40} truth {'+'.join(physics) or 'none':<28} -> "
+            + " -> ".join(
+                verdict_label(h) + (f" ({h['rms_over_sigma']:.3f})" if "rms_over_sigma" in h else "") for h in history
+            )
+            + f"  [{'ok' if s['final_ok'] else 'WRONG' if s['wrong_first'] else 'miss'}] "
+            f"{sum(h['seconds'] for h in history):.0f} s",
+            flush=True,
+        )
     text = summarise(results)
     atomic_write(args.out / "summary.md", text + "\n")
     print(text)

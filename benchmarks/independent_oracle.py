@@ -84,7 +84,13 @@ def steps(out: Path, only: list[str]):
         true = [c for c in refitted if c["effect"] in missing]
         other = [c for c in refitted if c["effect"] not in present]
         if true and other:
-            yield stem, effects, max(true, key=lambda c: c["delta_bic"]), max(other, key=lambda c: c["delta_bic"]), diagnosis
+            yield (
+                stem,
+                effects,
+                max(true, key=lambda c: c["delta_bic"]),
+                max(other, key=lambda c: c["delta_bic"]),
+                diagnosis,
+            )
 
 
 def oracle_step(csv: Path, effects: list[str], names: list[str], n_eff: float | None, seed: int) -> dict:
@@ -105,13 +111,27 @@ def oracle_step(csv: Path, effects: list[str], names: list[str], n_eff: float | 
         expected[name] = (delta_bic, uncharged)
     # the noisy record refitted from each noiseless optimum: the delta BIC a refit reaches from the
     # truth's basin (against the better of the plain fit and the plain fit from its noiseless optimum)
-    from_truth = {key: fit_least_squares(record, f.model, noise=noise, start=f.theta, n_starts=1) for key, f in fits.items()}
-    noisy_base = min(fit_baseline(record, Model(effects), noise, rng=np.random.default_rng(seed)), from_truth["base"], key=lambda f: f.chi2)
-    reached = {name: _delta_bic(record, noisy_base, noisy_base.chi2, from_truth[name], from_truth[name].chi2, n_eff)[0] for name in names}
+    from_truth = {
+        key: fit_least_squares(record, f.model, noise=noise, start=f.theta, n_starts=1) for key, f in fits.items()
+    }
+    noisy_base = min(
+        fit_baseline(record, Model(effects), noise, rng=np.random.default_rng(seed)),
+        from_truth["base"],
+        key=lambda f: f.chi2,
+    )
+    reached = {
+        name: _delta_bic(record, noisy_base, noisy_base.chi2, from_truth[name], from_truth[name].chi2, n_eff)[0]
+        for name in names
+    }
     prediction = {name: clean.displacement - fits[name].residual for name in names}
     d = whiten(prediction[names[0]] - prediction[names[1]], noise, time=record.time)
-    return {"noise_sigma": float(noise.sigma), "chi2": {k: float(f.chi2) for k, f in fits.items()},
-            "expected": expected, "from_truth_basin": reached, "gap_sd": 2.0 * float(np.sqrt(np.sum(d * d)))}  # fmt: skip
+    return {
+        "noise_sigma": float(noise.sigma),
+        "chi2": {k: float(f.chi2) for k, f in fits.items()},
+        "expected": expected,
+        "from_truth_basin": reached,
+        "gap_sd": 2.0 * float(np.sqrt(np.sum(d * d))),
+    }
 
 
 def classify(gap: float, sd: float, thresholds: Thresholds) -> str:
@@ -133,7 +153,10 @@ def main(argv=None) -> int:
     thresholds = Thresholds()
     only = [o for o in args.only.split(",") if o]
     counts = Counter()
-    print("| record | model | true | other | noisy delta BIC (true, other) | from the truth's basin (true, other) | noiseless: expected delta BIC (true, other) | gap | noise sd of gap | z | class | s |")
+    print(
+        "| record | model | true | other | noisy delta BIC (true, other) | from the truth's basin (true, other) | "
+        "noiseless: expected delta BIC (true, other) | gap | noise sd of gap | z | class | s |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for out in args.outs:
         for stem, effects, true, other, diagnosis in steps(out, only):
@@ -145,12 +168,19 @@ def main(argv=None) -> int:
             gap, sd = e_true - e_other, result["gap_sd"]
             kind = classify(gap, sd, thresholds)
             counts[kind] += 1
-            print(f"| {out.name}/{stem} | {'+'.join(effects) or 'plain'} | {true['effect']} | {other['effect']} "
-                  f"| {true['delta_bic']:.0f}, {other['delta_bic']:.0f} "
-                  f"| {result['from_truth_basin'][true['effect']]:.0f}, {result['from_truth_basin'][other['effect']]:.0f} | {e_true:.0f}, {e_other:.0f} | {gap:.0f} | {sd:.0f} "
-                  f"| {gap / sd if sd > 0 else math.inf:.1f} | {kind} | {clock.perf_counter() - started:.0f} |", flush=True)  # fmt: skip
-            atomic_write(out / "work" / f"{stem}.{'+'.join(effects) or 'plain'}.oracle.json",
-                         json.dumps({"true": true["effect"], "other": other["effect"], "class": kind, **result}, indent=1))
+            print(
+                f"| {out.name}/{stem} | {'+'.join(effects) or 'plain'} | {true['effect']} | {other['effect']} "
+                f"| {true['delta_bic']:.0f}, {other['delta_bic']:.0f} "
+                f"| {result['from_truth_basin'][true['effect']]:.0f}, "
+                f"{result['from_truth_basin'][other['effect']]:.0f} | {e_true:.0f}, {e_other:.0f} | {gap:.0f} | "
+                f"{sd:.0f} "
+                f"| {gap / sd if sd > 0 else math.inf:.1f} | {kind} | {clock.perf_counter() - started:.0f} |",
+                flush=True,
+            )
+            atomic_write(
+                out / "work" / f"{stem}.{'+'.join(effects) or 'plain'}.oracle.json",
+                json.dumps({"true": true["effect"], "other": other["effect"], "class": kind, **result}, indent=1),
+            )
     total = sum(counts.values())
     print()
     for kind in CLASSES:

@@ -31,11 +31,17 @@ def refits(out: Path, effect: str) -> list[dict]:
     for stem, model, diagnosis, physics in saved_diagnoses(out):
         for c in diagnosis["ranking"]:
             if c["effect"] == effect and c.get("refitted"):
-                rows.append({
-                    "draw": out.name, "record": stem, "physics": "+".join(physics), "model": model,
-                    "verdict": diagnosis["missing"] or diagnosis["status"], "delta_bic": c["delta_bic"],
-                    "parameters": c["parameters"],
-                })  # fmt: skip
+                rows.append(
+                    {
+                        "draw": out.name,
+                        "record": stem,
+                        "physics": "+".join(physics),
+                        "model": model,
+                        "verdict": diagnosis["missing"] or diagnosis["status"],
+                        "delta_bic": c["delta_bic"],
+                        "parameters": c["parameters"],
+                    }
+                )
     return rows
 
 
@@ -53,13 +59,20 @@ def main(argv=None) -> int:
         return 0
     for r in rows:
         values = ", ".join(f"{k} {v:.4g}" for k, v in r["parameters"].items())
-        print(f"{r['draw']}/{r['record']} (truth {r['physics']}; model {r['model']}; verdict {r['verdict']}): "
-              f"delta BIC {r['delta_bic']:.0f}; {values}")  # fmt: skip
+        print(
+            f"{r['draw']}/{r['record']} (truth {r['physics']}; model {r['model']}; verdict {r['verdict']}): "
+            f"delta BIC {r['delta_bic']:.0f}; {values}"
+        )
     print(f"{len(rows)} refits of '{args.effect}'")
     if args.effect == "creep":
-        fast = [r for r in rows if r["parameters"]["creep_tau"] < FAST_TAU
-                and abs(r["parameters"]["creep_amplitude"]) > MIN_AMPLITUDE]  # fmt: skip
-        print(f"{len(fast)} with creep_tau < {FAST_TAU:g} s and |creep_amplitude| > {MIN_AMPLITUDE:g}, by true physics:")
+        fast = [
+            r
+            for r in rows
+            if r["parameters"]["creep_tau"] < FAST_TAU and abs(r["parameters"]["creep_amplitude"]) > MIN_AMPLITUDE
+        ]
+        print(
+            f"{len(fast)} with creep_tau < {FAST_TAU:g} s and |creep_amplitude| > {MIN_AMPLITUDE:g}, by true physics:"
+        )
         for physics, n in sorted(Counter(r["physics"] for r in fast).items()):
             taus = [r["parameters"]["creep_tau"] for r in fast if r["physics"] == physics]
             print(f"  {physics}: {n} (creep_tau {1000 * min(taus):.0f}-{1000 * max(taus):.0f} ms)")

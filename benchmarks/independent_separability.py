@@ -52,7 +52,10 @@ def separation(diagnosis: dict, missing: set[str], present: set[str], margin: fl
         return "truth ahead", f"{best_true['effect']} {best_true['delta_bic']:.0f}, no other refitted"
     best_other = max(other, key=lambda c: c["delta_bic"])
     gap = best_true["delta_bic"] - best_other["delta_bic"]
-    detail = f"{best_true['effect']} {best_true['delta_bic']:.0f} against {best_other['effect']} {best_other['delta_bic']:.0f}"
+    detail = (
+        f"{best_true['effect']} {best_true['delta_bic']:.0f} against {best_other['effect']} "
+        f"{best_other['delta_bic']:.0f}"
+    )
     if gap > margin:
         return "truth ahead", detail
     if gap < -margin:
@@ -79,8 +82,12 @@ def steps(out: Path, margin: float):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", nargs="+", type=Path, help="output folders of benchmarks/independent_diagnosis.py")
-    parser.add_argument("--margin", type=float, default=Thresholds().bic_significant,
-                        help="delta BIC margin (default: the diagnosis's own, %(default)g)")  # fmt: skip
+    parser.add_argument(
+        "--margin",
+        type=float,
+        default=Thresholds().bic_significant,
+        help="delta BIC margin (default: the diagnosis's own, %(default)g)",
+    )
     parser.add_argument("--list", action="store_true", help="print every diagnosis that counts, not only the table")
     args = parser.parse_args(argv)
     check_outputs(parser, args.out)

@@ -40,10 +40,12 @@ def main(argv=None) -> int:
     parser.add_argument("--first", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "coverage")
     parser.add_argument(
-        "--truth", choices=("both-sides", "off-wall"), default="both-sides",
+        "--truth",
+        choices=("both-sides", "off-wall"),
+        default="both-sides",
         help="both-sides (default): calibration_truth(seed), b3 within +-0.25 A of Table 1; off-wall: the 2026-11-22 "
         "bench's one truth for every record, Table 1 with b3 + 0.5 A (operator bounds apart), scaled by k = 1.3",
-    )  # fmt: skip
+    )
     args = parser.parse_args(argv)
     from identify.bench.calibration import GPI_SCALING_K, calibration_truth, interval_coverage
 
@@ -67,8 +69,10 @@ def main(argv=None) -> int:
     print("per parameter (posterior / least squares):")
     print("  " + ", ".join(f"{n} {post[n]:.2f}/{lsq[n]:.2f}" for n in result.names))
     seconds = [r.seconds for r in result.records]
-    print(f"seconds per record {np.median(seconds):.0f} (median), {max(seconds):.0f} (max); "
-          f"this run {time.perf_counter() - start:.0f} s; load average {os.getloadavg()[0]:.2f}")  # fmt: skip
+    print(
+        f"seconds per record {np.median(seconds):.0f} (median), {max(seconds):.0f} (max); "
+        f"this run {time.perf_counter() - start:.0f} s; load average {os.getloadavg()[0]:.2f}"
+    )
     return 0
 
 

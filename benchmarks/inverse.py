@@ -52,8 +52,10 @@ def _timed(function, repeats):
 
 def _say(label, timing, target=None):
     times, cpu = timing
-    line = (f"{label:<58} wall median {statistics.median(times):7.3f} s, best {min(times):7.3f} s; "
-            f"CPU median {statistics.median(cpu):7.3f} s")
+    line = (
+        f"{label:<58} wall median {statistics.median(times):7.3f} s, best {min(times):7.3f} s; "
+        f"CPU median {statistics.median(cpu):7.3f} s"
+    )
     if target is not None:
         line += f"   (target < {target:g} s: {'met' if statistics.median(times) < target else 'NOT met'})"
     print(line, flush=True)
@@ -93,7 +95,9 @@ def main(argv=None) -> int:
     invert(model, median, time_axis[:50], target[:50])  # compile / load the cache
     one, *times = _timed(lambda: invert(model, median, time_axis, target), args.repeats)
     _say(f"inverse, median set, {time_axis.size} samples", times, 1.0)
-    print(f"    {one.evaluations[0] / time_axis.size:.1f} model steps per sample; samples exact: {int(one.exact.sum())}")
+    print(
+        f"    {one.evaluations[0] / time_axis.size:.1f} model steps per sample; samples exact: {int(one.exact.sum())}"
+    )
     many, *times = _timed(lambda: invert(model, draws, time_axis, target), args.repeats)
     _say(f"inverse, {draws.shape[0]} draws, {time_axis.size} samples", times, 10.0)
     print(f"    samples exact over all draws: {int(many.exact.sum())} of {many.status.size}")

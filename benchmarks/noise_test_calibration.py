@@ -47,7 +47,9 @@ def null_z(rng, phi, fs, draws):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--draws", type=int, default=1000, help="pure-noise records per setting (default 1000; 1/10 at 1 kHz)")
+    parser.add_argument(
+        "--draws", type=int, default=1000, help="pure-noise records per setting (default 1000; 1/10 at 1 kHz)"
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     if args.draws < 10:
@@ -60,8 +62,11 @@ def main(argv=None):
         for phi in (0.0, 0.35, 0.7):
             z = null_z(rng, phi, fs, draws)
             for name, values in z.items():
-                print(f"| {fs:g} Hz | {phi:g} | {draws} | {name} | {values.mean():.2f} | {values.std():.2f} | "
-                      f"{values.max():.2f} | {100 * np.mean(values > 3):.1f} % | {100 * np.mean(values > 5):.1f} % |", flush=True)  # fmt: skip
+                print(
+                    f"| {fs:g} Hz | {phi:g} | {draws} | {name} | {values.mean():.2f} | {values.std():.2f} | "
+                    f"{values.max():.2f} | {100 * np.mean(values > 3):.1f} % | {100 * np.mean(values > 5):.1f} % |",
+                    flush=True,
+                )
     print(f"\n{clock.perf_counter() - start:.0f} s")
 
 

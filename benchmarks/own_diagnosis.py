@@ -34,9 +34,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from test_diagnose_slow import CASES, SEEDS, _case_record, format_confusion  # noqa: E402
+from test_diagnose_slow import CASES, SEEDS, _case_record, format_confusion
 
-from identify.diagnosis.diagnose import diagnose  # noqa: E402
+from identify.diagnosis.diagnose import diagnose
 
 
 class _Result:
@@ -69,24 +69,34 @@ def main(argv=None) -> int:
             d = diagnose(record, rng=np.random.default_rng(seed))
             best = d.best
             row = {
-                "case": case, "seed": seed, "status": d.status, "missing": d.missing,
+                "case": case,
+                "seed": seed,
+                "status": d.status,
+                "missing": d.missing,
                 "rms_over_sigma": d.rms / d.noise_sigma,
                 "rms_after_over_sigma": None if best is None else best.rms_after / d.noise_sigma,
                 "adequate_after": None if best is None else best.adequate_after,
-                "wall_s": time.perf_counter() - started, "cpu_s": time.process_time() - cpu,
+                "wall_s": time.perf_counter() - started,
+                "cpu_s": time.process_time() - cpu,
                 "reason": d.reason,
-            }  # fmt: skip
+            }
             with path.open("a") as f:
                 f.write(json.dumps(row) + "\n")
             done[case, seed] = row
             verdict = d.missing if d.status == "missing_effect" else d.status
-            print(f"{case:<14} seed {seed}: {verdict:<16} RMS {row['rms_over_sigma']:.3f} sigma, {row['wall_s']:.0f} s "
-                  f"(CPU {row['cpu_s']:.0f} s)", flush=True)  # fmt: skip
+            print(
+                f"{case:<14} seed {seed}: {verdict:<16} RMS {row['rms_over_sigma']:.3f} sigma, {row['wall_s']:.0f} s "
+                f"(CPU {row['cpu_s']:.0f} s)",
+                flush=True,
+            )
     results = {key: _Result(row["status"], row["missing"]) for key, row in done.items() if key[1] in seeds}
     print(format_confusion(results))
     walls = sorted(row["wall_s"] for key, row in done.items() if key[1] in seeds)
     if walls:
-        print(f"{len(walls)} diagnoses, wall {sum(walls) / 60:.1f} min, median {walls[len(walls) // 2]:.0f} s, max {walls[-1]:.0f} s")
+        print(
+            f"{len(walls)} diagnoses, wall {sum(walls) / 60:.1f} min, median {walls[len(walls) // 2]:.0f} s, max "
+            f"{walls[-1]:.0f} s"
+        )
     return 0
 
 

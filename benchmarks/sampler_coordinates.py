@@ -58,9 +58,14 @@ def main(argv=None) -> int:
     for coords in ("gpi", "identity"):
         t0 = time.perf_counter()
         res = sample_posterior(
-            log_post, lambda n, r: initial_walkers(log_post, mean, cov, n, r), out / f"chain_{coords}.h5",
-            np.random.default_rng(args.seed), max_steps=args.max_steps, coordinates=coords, progress=False,
-        )  # fmt: skip
+            log_post,
+            lambda n, r: initial_walkers(log_post, mean, cov, n, r),
+            out / f"chain_{coords}.h5",
+            np.random.default_rng(args.seed),
+            max_steps=args.max_steps,
+            coordinates=coords,
+            progress=False,
+        )
         seconds = time.perf_counter() - t0
         results[coords] = res
         print(
@@ -79,7 +84,10 @@ def main(argv=None) -> int:
         row = [(xa.mean() - xb.mean()) / se_mean]
         for q in (0.025, 0.975):
             # standard error of a quantile: sqrt(q (1-q) / ESS) / density, density from the sd (normal approximation)
-            dens = lambda x: np.exp(-0.5 * 1.959964**2) / (np.sqrt(2 * np.pi) * x.std())  # noqa: E731
+
+            def dens(x):
+                return np.exp(-0.5 * 1.959964**2) / (np.sqrt(2 * np.pi) * x.std())
+
             se = np.hypot(np.sqrt(q * (1 - q) / ess_a) / dens(xa), np.sqrt(q * (1 - q) / ess_b) / dens(xb))
             row.append((np.quantile(xa, q) - np.quantile(xb, q)) / se)
         worst = max(worst, *np.abs(row))

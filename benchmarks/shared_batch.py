@@ -63,7 +63,10 @@ def main(argv=None) -> int:
     repeats = 10 if args.quick else 20
     rates = [100.0] if args.quick else [100.0, 1000.0]
     models = [("GPI", Model()), ("GPI + thermal + training", Model(["training", "thermal"]))]
-    print(f"{'model':26s} {'T':>6s} {'threads':>7s} {'W':>3s} {'Jacobian batch':>15s} {'distinct batch':>15s} {'ratio':>6s}")
+    print(
+        f"{'model':26s} {'T':>6s} {'threads':>7s} {'W':>3s} {'Jacobian batch':>15s} {'distinct batch':>15s} "
+        f"{'ratio':>6s}"
+    )
     threads_before = numba.get_num_threads()
     try:
         for fs in rates:

@@ -52,9 +52,9 @@ def main(argv=None) -> int:
     parser.add_argument("--skip-study", action="store_true", help="only the least-squares timings")
     args = parser.parse_args(argv)
 
-    from identify.fitting.parametrisation import normalised_model
-    from identify.fitting.lsq import fit_least_squares
     from identify.data.records import load_record
+    from identify.fitting.lsq import fit_least_squares
+    from identify.fitting.parametrisation import normalised_model
     from model import Model
 
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} (1 min)")
@@ -76,8 +76,18 @@ def main(argv=None) -> int:
         return 0
 
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="study-bench-"))
-    command = [sys.executable, "-m", "identify", "study", str(ROOT / "data" / "bench_default.csv"), "--out", str(out),
-               "--progress", "off", "--force"]  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "identify",
+        "study",
+        str(ROOT / "data" / "bench_default.csv"),
+        "--out",
+        str(out),
+        "--progress",
+        "off",
+        "--force",
+    ]
     print("running:", " ".join(command[1:]))
     t0 = time.perf_counter()
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
@@ -96,7 +106,8 @@ def main(argv=None) -> int:
         print(f"  {phase:<16} {seconds:7.1f} s")
     print(
         f"posterior: {post['n_steps']} steps x {post['n_walkers']} walkers, {1e3 * per_step:.2f} ms/step "
-        f"(= {per_step / base:.2f} x baseline), tau_max {post['tau_max']}, acceptance {post['acceptance_fraction']:.3f}, "
+        f"(= {per_step / base:.2f} x baseline), tau_max {post['tau_max']}, acceptance "
+        f"{post['acceptance_fraction']:.3f}, "
         f"{'converged' if post['converged'] else 'NOT converged'}"
     )
     print(f"load average after: {os.getloadavg()[0]:.2f}; results in {out}")

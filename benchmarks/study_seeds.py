@@ -39,15 +39,33 @@ def _seeds(text):
 
 
 def run_one(tree: Path, data: Path, effects: str, seed: int, out: Path) -> dict:
-    command = [sys.executable, "-m", "identify", "study", str(data), "--out", str(out), "--seed", str(seed),
-               "--force", "--progress", "off"] + (["--effects", effects] if effects else [])  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "identify",
+        "study",
+        str(data),
+        "--out",
+        str(out),
+        "--seed",
+        str(seed),
+        "--force",
+        "--progress",
+        "off",
+    ] + (["--effects", effects] if effects else [])
     env = dict(os.environ, PYTHONPATH=str(tree))
     load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     done = subprocess.run(command, cwd=tree, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
-    row = {"tree": str(tree), "seed": seed, "wall": wall, "load_before": load_before, "load_after": os.getloadavg()[0],
-           "exit": done.returncode}  # fmt: skip
+    row = {
+        "tree": str(tree),
+        "seed": seed,
+        "wall": wall,
+        "load_before": load_before,
+        "load_after": os.getloadavg()[0],
+        "exit": done.returncode,
+    }
     if done.returncode not in (0, 1):
         row["error"] = done.stderr[-500:]
         return row
@@ -81,8 +99,11 @@ def main(argv=None) -> int:
                 continue
             phases = ", ".join(f"{k} {v:.1f}" for k, v in row["phases"].items() if v >= 0.05)
             load = f"{row['load_before']:5.2f}-{row['load_after']:<5.2f}"
-            print(f"{tree.name:<28} {seed:>4} {row['wall']:7.1f} {load} {row['steps']:>6} {row['tau_max']:6.1f} "
-                  f"{str(row['converged']):>5}  {phases}", flush=True)  # fmt: skip
+            print(
+                f"{tree.name:<28} {seed:>4} {row['wall']:7.1f} {load} {row['steps']:>6} {row['tau_max']:6.1f} "
+                f"{str(row['converged']):>5}  {phases}",
+                flush=True,
+            )
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

@@ -139,8 +139,17 @@ def main(argv=None) -> int:
     TIMES.clear()
     CALLS.clear()
     t0 = time.perf_counter()
-    result = identify.study(record, model, out=out, seed=args.seed, max_steps=max_steps, report=not args.no_report,
-                            force=True, quiet=True, progress=False)  # fmt: skip
+    result = identify.study(
+        record,
+        model,
+        out=out,
+        seed=args.seed,
+        max_steps=max_steps,
+        report=not args.no_report,
+        force=True,
+        quiet=True,
+        progress=False,
+    )
     wall = time.perf_counter() - t0
     load_after = _load()
 
@@ -149,14 +158,20 @@ def main(argv=None) -> int:
     manifest = json.loads((out / "manifest.json").read_text())
     phases = manifest["runs"][-1]["phases"] if manifest.get("runs") else manifest.get("phases", {})
     post = result.summary["posterior"]
-    print(f"record {args.data}, effects '{args.effects or 'none'}', seed {args.seed}; {os.cpu_count()} cores, "
-          f"load {load_before:.2f} before, {load_after:.2f} after")  # fmt: skip
+    print(
+        f"record {args.data}, effects '{args.effects or 'none'}', seed {args.seed}; {os.cpu_count()} cores, "
+        f"load {load_before:.2f} before, {load_after:.2f} after"
+    )
     if not args.skip_startup:
-        print(f"start-up: python -m identify --help {cli_startup:.2f} s; import {import_seconds:.2f} s; "
-              f"first model call (cached kernels) {first_call:.2f} s")  # fmt: skip
+        print(
+            f"start-up: python -m identify --help {cli_startup:.2f} s; import {import_seconds:.2f} s; "
+            f"first model call (cached kernels) {first_call:.2f} s"
+        )
     verdict = "converged" if post["converged"] else "NOT converged"
-    print(f"study() {wall:.1f} s: {post['n_steps']} steps x {post['n_walkers']} walkers, "
-          f"tau_max {post['tau_max']:.1f}, {verdict}")  # fmt: skip
+    print(
+        f"study() {wall:.1f} s: {post['n_steps']} steps x {post['n_walkers']} walkers, "
+        f"tau_max {post['tau_max']:.1f}, {verdict}"
+    )
     for name, seconds in phases.items():
         print(f"  phase {name:<22} {seconds:8.2f} s")
     steps = max(int(post["n_steps"]), 1)
@@ -167,13 +182,27 @@ def main(argv=None) -> int:
         print(f"  {label:<46} {TIMES[label]:8.2f} s  {CALLS[label]:7d} calls{per}")
     moves = TIMES.get("posterior: moves (incl. log-posterior)", 0.0)
     log_post = TIMES.get("posterior: log-posterior calls", 0.0)
-    outside = sampling - moves - sum(TIMES.get(k, 0.0) for k in (
-        "posterior: HDF5 flush", "posterior: thread-count probe", "posterior: convergence checks",
-        "posterior: final summary (reads chain.h5)", "posterior: initial walkers"))  # fmt: skip
-    print(f"  posterior: moves less log-posterior and map          {moves - log_post - map_seconds:8.2f} s "
-          f"({1e3 * (moves - log_post - map_seconds) / steps:.3f} ms/step)")  # fmt: skip
-    print(f"  posterior: emcee's loop outside the moves            {outside:8.2f} s "
-          f"({1e3 * outside / steps:.3f} ms/step)")  # fmt: skip
+    outside = (
+        sampling
+        - moves
+        - sum(
+            TIMES.get(k, 0.0)
+            for k in (
+                "posterior: HDF5 flush",
+                "posterior: thread-count probe",
+                "posterior: convergence checks",
+                "posterior: final summary (reads chain.h5)",
+                "posterior: initial walkers",
+            )
+        )
+    )
+    print(
+        f"  posterior: moves less log-posterior and map          {moves - log_post - map_seconds:8.2f} s "
+        f"({1e3 * (moves - log_post - map_seconds) / steps:.3f} ms/step)"
+    )
+    print(
+        f"  posterior: emcee's loop outside the moves            {outside:8.2f} s ({1e3 * outside / steps:.3f} ms/step)"
+    )
     if args.save:
         from identify.fitting.posterior import BACKEND_GROUP, ChainBackend
 

@@ -28,6 +28,7 @@ first ``--exact-samples`` kept samples for that, a dense covariance). No timing.
 from __future__ import annotations
 
 import argparse
+
 import numpy as np
 from scipy.stats import multivariate_normal
 
@@ -79,8 +80,10 @@ def main(argv=None) -> int:
                 w = whiten(residual, model, time=time)
                 short = log_likelihood(residual[:m], model, time=None if time is None else time[:m])
                 rows[kind][label].append((float(w @ w) / w.size, float(w[1:] @ w[:-1] / (w @ w)), short - exact))
-    print(f"{args.records} clean records, AR(1) rho {args.rho} at {args.fs:g} Hz, sigma 0.5 um; "
-          f"log-likelihood error against the exact density of the first {args.exact_samples} kept samples")
+    print(
+        f"{args.records} clean records, AR(1) rho {args.rho} at {args.fs:g} Hz, sigma 0.5 um; "
+        f"log-likelihood error against the exact density of the first {args.exact_samples} kept samples"
+    )
     print("| kept samples | whitening | chi2 / T | lag-1 of the whitened residual | log-likelihood error |")
     print("|---|---|---|---|---|")
     for kind in KINDS:

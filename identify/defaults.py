@@ -14,7 +14,16 @@ DEFAULT_N_STARTS = 8
 # Names the command line offers in its --help without importing the model (numba): kept
 # equal to model.EFFECTS, model.READINGS and model.INPUT_READINGS by tests/test_layout.py.
 #: The effects of the library, in model.EFFECTS' order.
-EFFECT_NAMES = ("lag", "training", "rate_width", "initial_state", "incomplete_reset", "creep", "thermal", "sensor_drift")
+EFFECT_NAMES = (
+    "lag",
+    "training",
+    "rate_width",
+    "initial_state",
+    "incomplete_reset",
+    "creep",
+    "thermal",
+    "sensor_drift",
+)
 #: Readings of the paper's eqs. (5)-(7).
 READINGS = ("swapped", "literal")
 #: Readings of the decay in the paper's eq. (16).

@@ -95,13 +95,19 @@ def add_verbosity_arguments(parser: argparse.ArgumentParser) -> None:
     """``-v/--verbose`` and ``-q/--quiet`` (counted) on ``parser``; every command has them."""
     group = parser.add_argument_group("messages on stderr")
     group.add_argument(
-        "-v", "--verbose", action="count", default=0,
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
         help="more detail (one line per least-squares start, per convergence check); -v adds DEBUG",
-    )  # fmt: skip
+    )
     group.add_argument(
-        "-q", "--quiet", action="count", default=0,
+        "-q",
+        "--quiet",
+        action="count",
+        default=0,
         help="less: -q shows only warnings and errors (no progress), -qq only errors",
-    )  # fmt: skip
+    )
 
 
 def say(message: str, level: int = logging.INFO) -> None:

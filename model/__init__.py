@@ -3,13 +3,14 @@
 Pure and vectorised: no I/O, no plotting.
 """
 
+from . import effects  # registers the library's effects in EFFECTS
+from .composite import EFFECTS, Effect, Model, get_effect, register_effect
 from .gpi import GPI_PARAMETERS, READINGS, TABLE1, THETA_NAMES, bound_overlap, classical_pi, envelope, gpi
 from .parameters import Parameter, ParameterSet
-from .composite import EFFECTS, Effect, Model, get_effect, register_effect
-from . import effects as _effects  # noqa: F401  (fills EFFECTS)
 from .signals import INPUT_READINGS, QUIET_SECONDS, paper_current
 
 __all__ = [
+    "effects",
     "gpi",
     "bound_overlap",
     "classical_pi",

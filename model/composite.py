@@ -52,7 +52,7 @@ __all__ = ["Effect", "Model", "EFFECTS", "register_effect", "get_effect", "STAGE
 STAGES = ("input", "state", "output")
 
 #: name -> Effect subclass, in registration (canonical) order.
-EFFECTS: dict[str, type["Effect"]] = {}
+EFFECTS: dict[str, type[Effect]] = {}
 
 
 def register_effect(cls):
@@ -69,7 +69,9 @@ def register_effect(cls):
             raise ValueError(f"effect {cls.name!r}: parameter {p.name!r} must start with {prefix!r}")
     missing = set(cls.parameters.names) ^ set(cls.off)
     if missing:
-        raise ValueError(f"effect {cls.name!r}: 'off' must give exactly one value per parameter (mismatch: {sorted(missing)})")
+        raise ValueError(
+            f"effect {cls.name!r}: 'off' must give exactly one value per parameter (mismatch: {sorted(missing)})"
+        )
     in_terms = [n for names in cls.terms.values() for n in names]
     if not set(in_terms) <= set(cls.parameters.names) or len(in_terms) != len(set(in_terms)):
         raise ValueError(f"effect {cls.name!r}: 'terms' must name its own parameters, each in one term at most")
@@ -84,7 +86,7 @@ def register_effect(cls):
     return cls
 
 
-def get_effect(name: str) -> "Effect":
+def get_effect(name: str) -> Effect:
     """An instance of the registered effect ``name`` (clear error listing the known names)."""
     if isinstance(name, Effect):
         return name
@@ -237,7 +239,9 @@ class Model:
         order = list(EFFECTS)
         stage_rank = {s: i for i, s in enumerate(STAGES)}
         self.effects = tuple(
-            sorted(instances.values(), key=lambda e: (stage_rank[e.stage], order.index(e.name) if e.name in order else 0))
+            sorted(
+                instances.values(), key=lambda e: (stage_rank[e.stage], order.index(e.name) if e.name in order else 0)
+            )
         )
         self.n_operators = int(n_operators)
         self.reading = reading
@@ -286,7 +290,7 @@ class Model:
         kept = {p.name: p for p in self.parameters}  # the effects already here keep their settings (pins, bounds)
         return out.with_parameters(ParameterSet(kept.get(p.name, p) for p in out.parameters))
 
-    def with_parameters(self, parameters) -> "Model":
+    def with_parameters(self, parameters) -> Model:
         """A copy with other parameter settings (values, bounds, pins): ``parameters`` must
         hold this model's parameters, in its order. The effects and the GPI settings are shared
         (the forward model does not read the settings)."""
@@ -299,18 +303,18 @@ class Model:
         out.parameters = parameters
         return out
 
-    def with_gpi_parameters(self, gpi_parameters) -> "Model":
+    def with_gpi_parameters(self, gpi_parameters) -> Model:
         """A copy whose 19 GPI parameters have the settings ``gpi_parameters`` (Table 1 order);
         the effects' parameters keep theirs."""
         gpi_parameters = ParameterSet(gpi_parameters)
-        return self.with_parameters(list(gpi_parameters) + list(self.parameters[len(THETA_NAMES):]))
+        return self.with_parameters(list(gpi_parameters) + list(self.parameters[len(THETA_NAMES) :]))
 
     def to_dict(self) -> dict:
         """JSON-ready description (effects, operators, reading)."""
         return {"effects": list(self.effect_names), "n_operators": self.n_operators, "reading": self.reading}
 
     @classmethod
-    def from_dict(cls, d) -> "Model":
+    def from_dict(cls, d) -> Model:
         return cls(d.get("effects", ()), d.get("n_operators", 12), d.get("reading", "swapped"))
 
     # -- parameter vectors ----------------------------------------------------------
@@ -352,10 +356,11 @@ class Model:
         own :meth:`Effect.in_canonical_domain`): only there does the labelling matter."""
         vary = dict(zip(self.names, self.parameters.vary))
         return [
-            e for e in self.effects
+            e
+            for e in self.effects
             if type(e).in_canonical_domain.__func__ is not Effect.in_canonical_domain.__func__
             and all(vary[n] for n in e.parameters.names)
-        ]  # fmt: skip
+        ]
 
     @property
     def has_canonical_domain(self) -> bool:
@@ -399,7 +404,8 @@ class Model:
         theta = np.asarray(theta, dtype=float)
         if theta.ndim not in (1, 2) or theta.shape[-1] != self.n_parameters:
             raise ValueError(
-                f"theta must have shape ({self.n_parameters},) or (W, {self.n_parameters}) for {self!r}, got {theta.shape}"
+                f"theta must have shape ({self.n_parameters},) or (W, {self.n_parameters}) for {self!r}, got "
+                f"{theta.shape}"
             )
         time = np.asarray(time, dtype=float)
         current = np.asarray(current, dtype=float)
@@ -455,7 +461,9 @@ class Model:
                 scale = e.threshold_scale(sub, time, seen)
                 new_drive = np.atleast_2d(np.asarray(e.drive(sub, time, seen), dtype=float))
                 if new_drive.shape[0] not in (1, first.size):
-                    raise ValueError(f"an input-stage effect returned {new_drive.shape[0]} rows for {first.size} parameter sets")
+                    raise ValueError(
+                        f"an input-stage effect returned {new_drive.shape[0]} rows for {first.size} parameter sets"
+                    )
                 if scale is not None:
                     scale = np.broadcast_to(np.atleast_2d(np.asarray(scale, dtype=float)), (first.size, time.size))
                     width = scale if width is None else width[group[first]] * scale
@@ -498,7 +506,5 @@ class Model:
         y, valid = self.evaluate(theta, time, current)
         if not valid.all():
             rows = np.flatnonzero(~valid)[:10].tolist()
-            raise ValueError(
-                f"parameter set(s) {rows} give a non-finite output on this input (an effect overflowed)"
-            )
+            raise ValueError(f"parameter set(s) {rows} give a non-finite output on this input (an effect overflowed)")
         return y[0] if theta.ndim == 1 else y

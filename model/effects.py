@@ -5,18 +5,28 @@ Every effect registers itself in :data:`model.composite.EFFECTS` with
 physical units and bounds, has an exact ``off`` setting (the model is then the plain GPI
 bit for bit) and a typical "on" setting (:meth:`get_test_parameters`).
 
-====================  =======  ================================================================
-name                  stage    equation (one line)
-====================  =======  ================================================================
-``lag``               input    :math:`\tau_L \dot v = i - v`, the GPI sees :math:`u(t) = v(t - d)` (first order plus dead time)
-``training``          input    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`; thresholds times :math:`1 + w f`; strain excursion times :math:`1 + s f`; :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
-``rate_width``        input    thresholds :math:`r_j (1 + b g)` (:math:`b \ge 0`) or :math:`r_j / (1 + |b| g)` (:math:`b < 0`), :math:`g = \ln(1 + c|\dot u|)/c`: rate-dependent hysteresis
-``initial_state``     state    operators' initial memory from a level :math:`z^0` and a prior excursion
-``incomplete_reset``  output   :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading with travel
-``creep``             output   saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade after each change (or from the end of its leg)
-``thermal``           output   two nodes :math:`\tau_T \dot\vartheta_1 = (i/i_\mathrm{ref})^2 - \vartheta_1`, :math:`\tau_2 \dot\vartheta_2 = \vartheta_1 - \vartheta_2`, :math:`y = y_g (1 - S\vartheta_1 - S_2\vartheta_2) + E\vartheta_1 + E_2\vartheta_2`
-``sensor_drift``      output   :math:`y = y_g + D_1 s + D_2 s^2 + D_w (1 - e^{-t/\tau_w})`, :math:`s = (t - t_0)/(t_{T-1} - t_0)`
-====================  =======  ================================================================
+``lag`` (input)
+    :math:`\tau_L \dot v = i - v`, the GPI sees :math:`u(t) = v(t - d)` (first order plus dead time)
+``training`` (input)
+    excursion :math:`i - i_0` less :math:`F f`, times :math:`1 - g f`; thresholds times :math:`1 + w f`; strain
+    excursion times :math:`1 + s f`; :math:`f = e^{-(V/V_0)^p}`, :math:`V` the drive's travel
+``rate_width`` (input)
+    thresholds :math:`r_j (1 + b g)` (:math:`b \ge 0`) or :math:`r_j / (1 + |b| g)` (:math:`b < 0`),
+    :math:`g = \ln(1 + c|\dot u|)/c`: rate-dependent hysteresis
+``initial_state`` (state)
+    operators' initial memory from a level :math:`z^0` and a prior excursion
+``incomplete_reset`` (output)
+    :math:`y = y_g + A (n + q)`: extra strain on the virgin loading, fraction :math:`R` kept after unloading, fading
+    with travel
+``creep`` (output)
+    saturating spectrum :math:`y_g - A(y_g - \tfrac1M\sum_m s_m)` plus logarithmic creep :math:`\gamma` per decade
+    after each change (or from the end of its leg)
+``thermal`` (output)
+    two nodes :math:`\tau_T \dot\vartheta_1 = (i/i_\mathrm{ref})^2 - \vartheta_1`,
+    :math:`\tau_2 \dot\vartheta_2 = \vartheta_1 - \vartheta_2`,
+    :math:`y = y_g (1 - S\vartheta_1 - S_2\vartheta_2) + E\vartheta_1 + E_2\vartheta_2`
+``sensor_drift`` (output)
+    :math:`y = y_g + D_1 s + D_2 s^2 + D_w (1 - e^{-t/\tau_w})`, :math:`s = (t - t_0)/(t_{T-1} - t_0)`
 
 Output-stage effects act in the order incomplete reset, creep, thermal, sensor drift (the
 registration order): the first-cycle strain and creep belong to the strain, temperature
@@ -200,8 +210,9 @@ def _thermal_lane(rise, rise2, x_prev, x_now, gain1, decay1, gain2, decay2, y, s
 
 
 @njit(cache=True)
-def _thermal_four(w0, index, steps, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2,
-                  displacement, out):  # fmt: skip
+def _thermal_four(
+    w0, index, steps, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2, displacement, out
+):
     """Parameter sets ``w0 .. w0 + 3`` of :func:`_thermal_kernel` in lockstep (both nodes,
     tabulated): four independent recursions interleaved, so one's latency hides behind the
     others'; each set's operations are those of :func:`_thermal_one`, bit for bit."""
@@ -228,14 +239,18 @@ def _thermal_four(w0, index, steps, heating, tau, sensitivity, expansion, tau2, 
         m = index[k]
         x_prev = heating[k - 1]
         x_now = heating[k]
-        r0, q0, y0 = _thermal_lane(r0, q0, x_prev, x_now, g1[0, m], a1[0, m], g2[0, m], a2[0, m], displacement[w0, k],
-                                   s0, e0, t0, f0)  # fmt: skip
-        r1, q1, y1 = _thermal_lane(r1, q1, x_prev, x_now, g1[1, m], a1[1, m], g2[1, m], a2[1, m], displacement[w1, k],
-                                   s1, e1, t1, f1)  # fmt: skip
-        r2, q2, y2 = _thermal_lane(r2, q2, x_prev, x_now, g1[2, m], a1[2, m], g2[2, m], a2[2, m], displacement[w2, k],
-                                   s2, e2, t2, f2)  # fmt: skip
-        r3, q3, y3 = _thermal_lane(r3, q3, x_prev, x_now, g1[3, m], a1[3, m], g2[3, m], a2[3, m], displacement[w3, k],
-                                   s3, e3, t3, f3)  # fmt: skip
+        r0, q0, y0 = _thermal_lane(
+            r0, q0, x_prev, x_now, g1[0, m], a1[0, m], g2[0, m], a2[0, m], displacement[w0, k], s0, e0, t0, f0
+        )
+        r1, q1, y1 = _thermal_lane(
+            r1, q1, x_prev, x_now, g1[1, m], a1[1, m], g2[1, m], a2[1, m], displacement[w1, k], s1, e1, t1, f1
+        )
+        r2, q2, y2 = _thermal_lane(
+            r2, q2, x_prev, x_now, g1[2, m], a1[2, m], g2[2, m], a2[2, m], displacement[w2, k], s2, e2, t2, f2
+        )
+        r3, q3, y3 = _thermal_lane(
+            r3, q3, x_prev, x_now, g1[3, m], a1[3, m], g2[3, m], a2[3, m], displacement[w3, k], s3, e3, t3, f3
+        )
         out[w0, k] = y0
         out[w1, k] = y1
         out[w2, k] = y2
@@ -243,8 +258,9 @@ def _thermal_four(w0, index, steps, heating, tau, sensitivity, expansion, tau2, 
 
 
 @njit(cache=True)
-def _thermal_one(w, time, steps, index, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2,
-                 displacement, out):  # fmt: skip
+def _thermal_one(
+    w, time, steps, index, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2, displacement, out
+):
     """Parameter set ``w`` of :func:`_thermal_kernel`, alone (any case)."""
     n_samples = displacement.shape[1]
     n_steps = steps.shape[0]
@@ -280,7 +296,8 @@ def _thermal_one(w, time, steps, index, heating, tau, sensitivity, expansion, ta
                 rise2 = _lowpass_step(rise2, previous, rise, time[k] - time[k - 1], tau2[w])
             out[w, k] = (
                 displacement[w, k] * (1.0 - sensitivity[w] * rise - sensitivity2[w] * rise2)
-                + expansion[w] * rise + expansion2[w] * rise2
+                + expansion[w] * rise
+                + expansion2[w] * rise2
             )
         else:
             out[w, k] = displacement[w, k] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
@@ -311,12 +328,37 @@ def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivit
             if not (tau[w] > 0.0 and tau2[w] > 0.0 and (sensitivity2[w] != 0.0 or expansion2[w] != 0.0)):
                 lockstep = False
         if lockstep:
-            _thermal_four(w0, index, steps, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2,
-                          displacement, out)  # fmt: skip
+            _thermal_four(
+                w0,
+                index,
+                steps,
+                heating,
+                tau,
+                sensitivity,
+                expansion,
+                tau2,
+                sensitivity2,
+                expansion2,
+                displacement,
+                out,
+            )
         else:
             for w in range(w0, w_end):
-                _thermal_one(w, time, steps, index, heating, tau, sensitivity, expansion, tau2, sensitivity2,
-                             expansion2, displacement, out)  # fmt: skip
+                _thermal_one(
+                    w,
+                    time,
+                    steps,
+                    index,
+                    heating,
+                    tau,
+                    sensitivity,
+                    expansion,
+                    tau2,
+                    sensitivity2,
+                    expansion2,
+                    displacement,
+                    out,
+                )
 
 
 @njit(cache=True, inline="always")
@@ -547,7 +589,9 @@ def first_order_lowpass(time, signal, tau, initial=None):
     time = np.ascontiguousarray(time, dtype=float)
     signal2 = np.ascontiguousarray(np.atleast_2d(np.asarray(signal, dtype=float)))
     if time.ndim != 1 or signal2.ndim != 2 or signal2.shape[1] != time.size:
-        raise ValueError(f"time must be (T,) and signal (T,) or (W, T) with the same T; got {time.shape}, {np.shape(signal)}")
+        raise ValueError(
+            f"time must be (T,) and signal (T,) or (W, T) with the same T; got {time.shape}, {np.shape(signal)}"
+        )
     tau = np.atleast_1d(np.asarray(tau, dtype=float))
     n_sets = max(signal2.shape[0], tau.size)
     if signal2.shape[0] not in (1, n_sets) or tau.size not in (1, n_sets):
@@ -604,8 +648,14 @@ def delayed_lowpass(time, signal, tau, delay):
         return lagged
     tau_rows = np.broadcast_to(tau, (n_sets,))
     out = np.empty((n_sets, time.size))
-    _delay_kernel(kernel_array(time), kernel_array(signal2), kernel_array(lagged), kernel_array(tau_rows),
-                  kernel_array(delay), out)  # fmt: skip
+    _delay_kernel(
+        kernel_array(time),
+        kernel_array(signal2),
+        kernel_array(lagged),
+        kernel_array(tau_rows),
+        kernel_array(delay),
+        out,
+    )
     return out
 
 
@@ -666,7 +716,8 @@ def creep_time_constants(tau, decades, n_modes=CREEP_MODES):
 
 
 def thermal_rise(time, current, tau):
-    r"""Normalised temperature rise :math:`\vartheta`: :math:`\tau \dot\vartheta = (i/i_\mathrm{ref})^2 - \vartheta`, :math:`\vartheta(t_0) = 0`.
+    r"""Normalised temperature rise :math:`\vartheta`: :math:`\tau \dot\vartheta = (i/i_\mathrm{ref})^2 - \vartheta`,
+    :math:`\vartheta(t_0) = 0`.
 
     Parameters
     ----------
@@ -796,7 +847,10 @@ class Lag(Effect):
     off = {"lag_tau": 0.0, "lag_delay": 0.0}
     summary = "coil/eddy-current lag plus dead time: tau dv/dt = i - v, the hysteresis sees u(t) = v(t - d)"
     terms = {"dead_time": ("lag_delay",)}
-    signature = "the output lags the input by the same time at every cycle and amplitude, so a drive of another frequency changes the loop's width in proportion"
+    signature = (
+        "the output lags the input by the same time at every cycle and amplitude, so a drive of another "
+        "frequency changes the loop's width in proportion"
+    )
 
     @classmethod
     def get_test_parameters(cls):
@@ -924,41 +978,73 @@ class Training(Effect):
     acts_on_output = True
     first_cycle = True
     terms = {
-        "drive": ("training_deficit",), "threshold": ("training_threshold",), "strain": ("training_gain",),
-        "width": ("training_width",), "shape": ("training_shape",),
-    }  # fmt: skip
+        "drive": ("training_deficit",),
+        "threshold": ("training_threshold",),
+        "strain": ("training_gain",),
+        "width": ("training_width",),
+        "shape": ("training_shape",),
+    }
     parameters = ParameterSet(
         [
             Parameter(
-                "training_deficit", 0.0, 0.0, 0.5, unit="",
+                "training_deficit",
+                0.0,
+                0.0,
+                0.5,
+                unit="",
                 description="fraction of the drive the virgin material lacks (its higher twinning stress)",
             ),
             Parameter(
-                "training_threshold", 0.0, 0.0, 2.0, unit="A",
+                "training_threshold",
+                0.0,
+                0.0,
+                2.0,
+                unit="A",
                 description="extra drive the virgin material needs before it responds at all",
             ),
             Parameter(
-                "training_travel", 2.0, 0.5, 50.0, unit="A",
+                "training_travel",
+                2.0,
+                0.5,
+                50.0,
+                unit="A",
                 description="accumulated drive travel over which the first-cycle difference fades by 1/e",
             ),
             Parameter(
-                "training_shape", 1.0, 0.5, 8.0, unit="",
+                "training_shape",
+                1.0,
+                0.5,
+                8.0,
+                unit="",
                 description="exponent of the fade exp(-(V/V0)^p): 1 exponential, large a step at V0",
             ),
             Parameter(
-                "training_gain", 0.0, -0.5, 0.5, unit="",
-                description="fraction by which the virgin strain excursion exceeds the trained one (negative: falls short)",
+                "training_gain",
+                0.0,
+                -0.5,
+                0.5,
+                unit="",
+                description="fraction by which the virgin strain excursion exceeds the trained one (negative: falls "
+                "short)",
             ),
             Parameter(
-                "training_width", 0.0, 0.0, 1.0, unit="",
+                "training_width",
+                0.0,
+                0.0,
+                1.0,
+                unit="",
                 description="fraction by which the virgin play width (every threshold) exceeds the trained one",
             ),
         ]
-    )  # fmt: skip
+    )
     off = {
-        "training_deficit": 0.0, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0,
-        "training_gain": 0.0, "training_width": 0.0,
-    }  # fmt: skip
+        "training_deficit": 0.0,
+        "training_threshold": 0.0,
+        "training_travel": 2.0,
+        "training_shape": 1.0,
+        "training_gain": 0.0,
+        "training_width": 0.0,
+    }
     summary = (
         "first-cycle training: excursion soft-thresholded by F f and scaled by 1 - g f, play width "
         "1 + w f, strain excursion scaled by 1 + s f, f = exp(-(V/V0)^p)"
@@ -971,9 +1057,13 @@ class Training(Effect):
     @classmethod
     def get_test_parameters(cls):
         return {
-            "training_deficit": 0.2, "training_threshold": 0.0, "training_travel": 2.0, "training_shape": 1.0,
-            "training_gain": 0.0, "training_width": 0.0,
-        }  # fmt: skip
+            "training_deficit": 0.2,
+            "training_threshold": 0.0,
+            "training_travel": 2.0,
+            "training_shape": 1.0,
+            "training_gain": 0.0,
+            "training_width": 0.0,
+        }
 
     @staticmethod
     def _check(params):
@@ -1002,7 +1092,8 @@ class Training(Effect):
         return training_fade(travel, pairs[:, 0:1], pairs[:, 1:2])[row_of.reshape(-1)]
 
     def drive(self, params, time, current):
-        """Drive with the fading first-cycle difference, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W, T)``."""
+        """Drive with the fading first-cycle difference, shape ``(W, T)`` [A]; ``current`` may be ``(T,)`` or ``(W,
+        T)``."""
         params = self._check(params)
         deficit, threshold = params[:, 0:1], params[:, 1:2]
         drive = np.atleast_2d(np.asarray(current, dtype=float))
@@ -1139,15 +1230,23 @@ class RateWidth(Effect):
     parameters = ParameterSet(
         [
             Parameter(
-                "rate_width_coefficient", 0.0, -2.0, 2.0, unit="s/A",
+                "rate_width_coefficient",
+                0.0,
+                -2.0,
+                2.0,
+                unit="s/A",
                 description="relative change of every play threshold per unit drive rate (negative: the reciprocal)",
             ),
             Parameter(
-                "rate_width_saturation", 0.0, 0.0, 20.0, unit="s/A",
+                "rate_width_saturation",
+                0.0,
+                0.0,
+                20.0,
+                unit="s/A",
                 description="bend of the rate law, ln(1 + c r)/c: linear below the rate 1/c, logarithmic above it",
             ),
         ]
-    )  # fmt: skip
+    )
     off = {"rate_width_coefficient": 0.0, "rate_width_saturation": 0.0}
     terms = {"saturation": ("rate_width_saturation",)}
     summary = (
@@ -1267,27 +1366,48 @@ class InitialState(Effect):
     parameters = ParameterSet(
         [
             Parameter(
-                "initial_state_memory", 0.0, -20.0, 20.0, unit="A", vary=False,
+                "initial_state_memory",
+                0.0,
+                -20.0,
+                20.0,
+                unit="A",
+                vary=False,
                 description="level the operators' initial memory is clamped from (0: paper; very negative: virgin); "
                 "pinned: an exact reparametrisation next to free GPI offsets",
             ),
             Parameter(
-                "initial_state_excursion", 0.0, -20.0, 20.0, unit="A",
+                "initial_state_excursion",
+                0.0,
+                -20.0,
+                20.0,
+                unit="A",
                 description="the last reversal before the record: the drive went to v0 + e and back (0: none)",
             ),
             Parameter(
-                "initial_state_held", 0.0, -10.0, 10.0, unit="A",
+                "initial_state_held",
+                0.0,
+                -10.0,
+                10.0,
+                unit="A",
                 description="memory held beyond the bounds at the start, every operator (0: none); "
                 "kept until the first motion against it",
             ),
             Parameter(
-                "initial_state_held_slope", 0.0, -10.0, 10.0, unit="A",
+                "initial_state_held_slope",
+                0.0,
+                -10.0,
+                10.0,
+                unit="A",
                 description="the held memory's growth from the narrowest to the widest operator: h_j = h + s j/N",
             ),
         ]
-    )  # fmt: skip
-    off = {"initial_state_memory": 0.0, "initial_state_excursion": 0.0, "initial_state_held": 0.0,
-           "initial_state_held_slope": 0.0}  # fmt: skip
+    )
+    off = {
+        "initial_state_memory": 0.0,
+        "initial_state_excursion": 0.0,
+        "initial_state_held": 0.0,
+        "initial_state_held_slope": 0.0,
+    }
     summary = (
         "first-cycle state: initial operator memory from a level z0, a prior excursion to v0 + e and a memory "
         "held beyond the bounds h + s j/N (all 0 = paper)"
@@ -1385,22 +1505,39 @@ class IncompleteReset(Effect):
     parameters = ParameterSet(
         [
             Parameter(
-                "incomplete_reset_strain", 0.0, -50.0, 50.0, unit="um",
+                "incomplete_reset_strain",
+                0.0,
+                -50.0,
+                50.0,
+                unit="um",
                 description="extra strain of the virgin loading at the record's largest excursion",
             ),
             Parameter(
-                "incomplete_reset_retained", 0.5, 0.0, 1.0, unit="",
+                "incomplete_reset_retained",
+                0.5,
+                0.0,
+                1.0,
+                unit="",
                 description="fraction of the virgin extra strain that the unloading does not reset",
             ),
             Parameter(
-                "incomplete_reset_fade", 0.0, 0.0, 2.0, unit="1/A",
+                "incomplete_reset_fade",
+                0.0,
+                0.0,
+                2.0,
+                unit="1/A",
                 description="fading of the retained strain per unit of drive travel (0: fixed)",
             ),
         ]
-    )  # fmt: skip
+    )
     off = {"incomplete_reset_strain": 0.0, "incomplete_reset_retained": 0.5, "incomplete_reset_fade": 0.0}
-    summary = "first-cycle strain: extra strain A on the virgin loading, fraction R kept after unloading (fading with travel)"
-    signature = "the first loading reaches further than the later ones and part of it stays after unloading; the later cycles ride on that raised level"
+    summary = (
+        "first-cycle strain: extra strain A on the virgin loading, fraction R kept after unloading (fading with travel)"
+    )
+    signature = (
+        "the first loading reaches further than the later ones and part of it stays after unloading; the "
+        "later cycles ride on that raised level"
+    )
 
     @classmethod
     def get_test_parameters(cls):
@@ -1435,12 +1572,16 @@ def incomplete_reset_strain(current, displacement, strain, retained, fade):
     fade = np.broadcast_to(np.asarray(fade, dtype=float), strain.shape)  # contiguous and writeable
     y = np.atleast_2d(np.asarray(displacement, dtype=float))
     if y.shape[0] not in (1, strain.size) or y.shape[1] != current.size:
-        raise ValueError(f"incomplete_reset: the displacement has shape {y.shape} for {strain.size} parameter sets and {current.size} samples")
+        raise ValueError(
+            f"incomplete_reset: the displacement has shape {y.shape} for {strain.size} parameter sets and "
+            f"{current.size} samples"
+        )
     excursion = np.ascontiguousarray(np.abs(y - y[:, :1]))
     out = np.zeros((strain.size, current.size))
     if current.size:
-        _incomplete_reset_kernel(kernel_array(current), excursion, kernel_array(strain), kernel_array(retained),
-                                 kernel_array(fade), out)  # fmt: skip
+        _incomplete_reset_kernel(
+            kernel_array(current), excursion, kernel_array(strain), kernel_array(retained), kernel_array(fade), out
+        )
     return out
 
 
@@ -1503,7 +1644,8 @@ class Creep(Effect):
     shorter centre resembles a narrower one with a longer centre over a record), and
     :math:`A` with :math:`\gamma` where the saturating spectrum is wide (both logarithmic
     within the span), and :math:`q` with :math:`t_0` (both delay the growth after a
-    reversal; :math:`q` has no effect while :math:`\gamma = 0`). Measured Jacobian rank with the GPI on the paper's input:
+    reversal; :math:`q` has no effect while :math:`\gamma = 0`). Measured Jacobian rank with the GPI on the paper's
+    input:
     ``docs/effects.md``.
 
     Parameters: ``creep_amplitude`` (fraction of a step that creeps, -0.5-0.5; < 0
@@ -1523,29 +1665,62 @@ class Creep(Effect):
     parameters = ParameterSet(
         [
             Parameter(
-                "creep_amplitude", 0.0, -0.5, 0.5, unit="",
+                "creep_amplitude",
+                0.0,
+                -0.5,
+                0.5,
+                unit="",
                 description="fraction of a displacement step that creeps (< 0: that relaxes back after an overshoot)",
             ),
-            Parameter("creep_tau", 1.0, 0.01, 100.0, unit="s", description="central creep time constant (geometric mean)"),
-            Parameter("creep_decades", 1.0, 0.0, 4.0, unit="decades", description="width of the log-spaced creep spectrum"),
             Parameter(
-                "creep_log_rate", 0.0, -0.1, 0.1, unit="",
+                "creep_tau", 1.0, 0.01, 100.0, unit="s", description="central creep time constant (geometric mean)"
+            ),
+            Parameter(
+                "creep_decades", 1.0, 0.0, 4.0, unit="decades", description="width of the log-spaced creep spectrum"
+            ),
+            Parameter(
+                "creep_log_rate",
+                0.0,
+                -0.1,
+                0.1,
+                unit="",
                 description="logarithmic creep: fraction of a step added per decade of elapsed time",
             ),
             Parameter(
-                "creep_log_onset", 0.1, 0.001, 10.0, unit="s",
+                "creep_log_onset",
+                0.1,
+                0.001,
+                10.0,
+                unit="s",
                 description="logarithmic creep: time after a change from which it grows logarithmically",
             ),
             Parameter(
-                "creep_log_hold", 0.0, 0.0, 1.0, unit="",
-                description="logarithmic creep: fraction of each leg's change that starts creeping at the leg's end (a reversal or a stop)",
+                "creep_log_hold",
+                0.0,
+                0.0,
+                1.0,
+                unit="",
+                description="logarithmic creep: fraction of each leg's change that starts creeping at the leg's end "
+                "(a reversal or a stop)",
             ),
         ]
-    )  # fmt: skip
-    off = {"creep_amplitude": 0.0, "creep_tau": 1.0, "creep_decades": 1.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1,
-           "creep_log_hold": 0.0}
-    summary = "creep: saturating log-spaced modes, y_g - A (y_g - mean s_m), plus logarithmic creep gamma per decade after each change (a part q from the end of its leg)"
-    signature = "follows the strain: after each reversal the output keeps moving the way it last changed, also while the input is held, and stops when the strain does not change"
+    )
+    off = {
+        "creep_amplitude": 0.0,
+        "creep_tau": 1.0,
+        "creep_decades": 1.0,
+        "creep_log_rate": 0.0,
+        "creep_log_onset": 0.1,
+        "creep_log_hold": 0.0,
+    }
+    summary = (
+        "creep: saturating log-spaced modes, y_g - A (y_g - mean s_m), plus logarithmic creep gamma per decade "
+        "after each change (a part q from the end of its leg)"
+    )
+    signature = (
+        "follows the strain: after each reversal the output keeps moving the way it last changed, also while "
+        "the input is held, and stops when the strain does not change"
+    )
     terms = {
         "saturating": ("creep_amplitude", "creep_tau", "creep_decades"),
         "logarithmic": ("creep_log_rate", "creep_log_onset"),
@@ -1555,7 +1730,14 @@ class Creep(Effect):
 
     @classmethod
     def get_test_parameters(cls):
-        return {"creep_amplitude": 0.05, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.0, "creep_log_onset": 0.1, "creep_log_hold": 0.0}
+        return {
+            "creep_amplitude": 0.05,
+            "creep_tau": 2.0,
+            "creep_decades": 2.0,
+            "creep_log_rate": 0.0,
+            "creep_log_onset": 0.1,
+            "creep_log_hold": 0.0,
+        }
 
     def output(self, params, time, current, displacement):
         """Displacement after creep, shape ``(W, T)`` [um]."""
@@ -1569,8 +1751,17 @@ class Creep(Effect):
         hold = _column(params, 5)
         displacement = np.ascontiguousarray(np.atleast_2d(displacement), dtype=float)
         out = np.empty_like(displacement)
-        _creep_kernel(kernel_array(time), kernel_array(displacement), kernel_array(amplitude), kernel_array(taus),
-                      kernel_array(log_rate), kernel_array(log_taus), kernel_array(counts), kernel_array(hold), out)  # fmt: skip
+        _creep_kernel(
+            kernel_array(time),
+            kernel_array(displacement),
+            kernel_array(amplitude),
+            kernel_array(taus),
+            kernel_array(log_rate),
+            kernel_array(log_taus),
+            kernel_array(counts),
+            kernel_array(hold),
+            out,
+        )
         return out
 
 
@@ -1637,35 +1828,67 @@ class Thermal(Effect):
     stage = "output"
     parameters = ParameterSet(
         [
-            Parameter("thermal_tau", 30.0, 1.0, 2000.0, unit="s", description="thermal time constant of the coil (node 1)"),
             Parameter(
-                "thermal_sensitivity", 0.0, -0.5, 0.5, unit="",
+                "thermal_tau", 30.0, 1.0, 2000.0, unit="s", description="thermal time constant of the coil (node 1)"
+            ),
+            Parameter(
+                "thermal_sensitivity",
+                0.0,
+                -0.5,
+                0.5,
+                unit="",
                 description="relative strain loss per unit normalised temperature rise of node 1",
             ),
             Parameter(
-                "thermal_expansion", 0.0, -50.0, 50.0, unit="um",
+                "thermal_expansion",
+                0.0,
+                -50.0,
+                50.0,
+                unit="um",
                 description="displacement from thermal expansion at unit normalised rise of node 1",
             ),
             Parameter(
-                "thermal_tau_core", 300.0, 1.0, 5000.0, unit="s",
+                "thermal_tau_core",
+                300.0,
+                1.0,
+                5000.0,
+                unit="s",
                 description="thermal time constant of sample and core (node 2, heated by node 1)",
             ),
             Parameter(
-                "thermal_sensitivity_core", 0.0, -0.5, 0.5, unit="",
+                "thermal_sensitivity_core",
+                0.0,
+                -0.5,
+                0.5,
+                unit="",
                 description="relative strain loss per unit normalised temperature rise of node 2",
             ),
             Parameter(
-                "thermal_expansion_core", 0.0, -50.0, 50.0, unit="um",
+                "thermal_expansion_core",
+                0.0,
+                -50.0,
+                50.0,
+                unit="um",
                 description="displacement from thermal expansion at unit normalised rise of node 2",
             ),
         ]
-    )  # fmt: skip
+    )
     off = {
-        "thermal_tau": 30.0, "thermal_sensitivity": 0.0, "thermal_expansion": 0.0,
-        "thermal_tau_core": 300.0, "thermal_sensitivity_core": 0.0, "thermal_expansion_core": 0.0,
-    }  # fmt: skip
-    summary = "Joule heating through coil and core: tau th1' = (i/5 A)^2 - th1, tau2 th2' = th1 - th2, y = y_g (1 - S th1 - S2 th2) + E th1 + E2 th2"
-    signature = "follows the drive's power, not the strain: builds up while current flows and decays with its time constants once the drive stops (a record that ends with the drive off for a few time constants shows it)"
+        "thermal_tau": 30.0,
+        "thermal_sensitivity": 0.0,
+        "thermal_expansion": 0.0,
+        "thermal_tau_core": 300.0,
+        "thermal_sensitivity_core": 0.0,
+        "thermal_expansion_core": 0.0,
+    }
+    summary = (
+        "Joule heating through coil and core: tau th1' = (i/5 A)^2 - th1, tau2 th2' = th1 - th2, y = y_g (1 - "
+        "S th1 - S2 th2) + E th1 + E2 th2"
+    )
+    signature = (
+        "follows the drive's power, not the strain: builds up while current flows and decays with its time "
+        "constants once the drive stops (a record that ends with the drive off for a few time constants shows it)"
+    )
     terms = {"core": ("thermal_tau_core", "thermal_sensitivity_core", "thermal_expansion_core")}
 
     @staticmethod
@@ -1676,7 +1899,10 @@ class Thermal(Effect):
         ratio = tau2 / tau1
         out = dict(values)
         out["thermal_tau"], out["thermal_tau_core"] = tau2, tau1
-        for g1, g2 in (("thermal_sensitivity", "thermal_sensitivity_core"), ("thermal_expansion", "thermal_expansion_core")):
+        for g1, g2 in (
+            ("thermal_sensitivity", "thermal_sensitivity_core"),
+            ("thermal_expansion", "thermal_expansion_core"),
+        ):
             out[g1] = values[g1] * ratio
             out[g2] = values[g2] + values[g1] * (1.0 - ratio)
         return out
@@ -1698,8 +1924,11 @@ class Thermal(Effect):
         by a fast node 1 without gains feeding node 2, so a two-node fit may have put it on
         either node."""
         starts = super().reduced_starts(values, term)
-        moved = {"thermal_tau": values["thermal_tau_core"], "thermal_sensitivity": values["thermal_sensitivity_core"],
-                 "thermal_expansion": values["thermal_expansion_core"]}  # fmt: skip
+        moved = {
+            "thermal_tau": values["thermal_tau_core"],
+            "thermal_sensitivity": values["thermal_sensitivity_core"],
+            "thermal_expansion": values["thermal_expansion_core"],
+        }
         return starts + [{**starts[0], **moved}]  # the caller clips a start to the model's bounds
 
     @classmethod
@@ -1715,9 +1944,13 @@ class Thermal(Effect):
     @classmethod
     def get_test_parameters(cls):
         return {
-            "thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0,
-            "thermal_tau_core": 300.0, "thermal_sensitivity_core": 0.0, "thermal_expansion_core": 0.0,
-        }  # fmt: skip
+            "thermal_tau": 20.0,
+            "thermal_sensitivity": 0.08,
+            "thermal_expansion": 3.0,
+            "thermal_tau_core": 300.0,
+            "thermal_sensitivity_core": 0.0,
+            "thermal_expansion_core": 0.0,
+        }
 
     def output(self, params, time, current, displacement):
         """Displacement with the heating's effect, shape ``(W, T)`` [um]."""
@@ -1726,7 +1959,9 @@ class Thermal(Effect):
         displacement = np.ascontiguousarray(np.atleast_2d(displacement), dtype=float)
         out = np.empty_like(displacement)
         columns = [_column(params, c) for c in range(6)]
-        _thermal_kernel(kernel_array(time), heating, *(kernel_array(c) for c in columns), kernel_array(displacement), out)
+        _thermal_kernel(
+            kernel_array(time), heating, *(kernel_array(c) for c in columns), kernel_array(displacement), out
+        )
         return out
 
 
@@ -1782,21 +2017,45 @@ class SensorDrift(Effect):
     parameters = ParameterSet(
         [
             Parameter("sensor_drift_linear", 0.0, -50.0, 50.0, unit="um", description="linear drift over the record"),
-            Parameter("sensor_drift_quadratic", 0.0, -50.0, 50.0, unit="um", description="quadratic drift over the record"),
-            Parameter("sensor_drift_settling", 0.0, -50.0, 50.0, unit="um", description="offset a settling warm-up approaches"),
-            Parameter("sensor_drift_settling_tau", 10.0, 0.5, 500.0, unit="s", description="time constant of the warm-up"),
-            Parameter("sensor_drift_ambient_sine", 0.0, -50.0, 50.0, unit="um",
-                      description="sine part of the drift that follows a periodic ambient"),
-            Parameter("sensor_drift_ambient_cosine", 0.0, -50.0, 50.0, unit="um",
-                      description="1 - cosine part of the drift that follows a periodic ambient"),
-            Parameter("sensor_drift_ambient_period", 120.0, 30.0, 500.0, unit="s", description="period of the ambient's cycle"),
+            Parameter(
+                "sensor_drift_quadratic", 0.0, -50.0, 50.0, unit="um", description="quadratic drift over the record"
+            ),
+            Parameter(
+                "sensor_drift_settling", 0.0, -50.0, 50.0, unit="um", description="offset a settling warm-up approaches"
+            ),
+            Parameter(
+                "sensor_drift_settling_tau", 10.0, 0.5, 500.0, unit="s", description="time constant of the warm-up"
+            ),
+            Parameter(
+                "sensor_drift_ambient_sine",
+                0.0,
+                -50.0,
+                50.0,
+                unit="um",
+                description="sine part of the drift that follows a periodic ambient",
+            ),
+            Parameter(
+                "sensor_drift_ambient_cosine",
+                0.0,
+                -50.0,
+                50.0,
+                unit="um",
+                description="1 - cosine part of the drift that follows a periodic ambient",
+            ),
+            Parameter(
+                "sensor_drift_ambient_period", 120.0, 30.0, 500.0, unit="s", description="period of the ambient's cycle"
+            ),
         ]
     )
     off = {
-        "sensor_drift_linear": 0.0, "sensor_drift_quadratic": 0.0,
-        "sensor_drift_settling": 0.0, "sensor_drift_settling_tau": 10.0,
-        "sensor_drift_ambient_sine": 0.0, "sensor_drift_ambient_cosine": 0.0, "sensor_drift_ambient_period": 120.0,
-    }  # fmt: skip
+        "sensor_drift_linear": 0.0,
+        "sensor_drift_quadratic": 0.0,
+        "sensor_drift_settling": 0.0,
+        "sensor_drift_settling_tau": 10.0,
+        "sensor_drift_ambient_sine": 0.0,
+        "sensor_drift_ambient_cosine": 0.0,
+        "sensor_drift_ambient_period": 120.0,
+    }
     summary = (
         "sensor drift: y = y_g + D1 s + D2 s^2 + Dw (1 - exp(-t/tau_w)) + As sin(w t) + Ac (1 - cos(w t)), "
         "s = normalised record time, w = 2 pi / P"
@@ -1810,10 +2069,14 @@ class SensorDrift(Effect):
     @classmethod
     def get_test_parameters(cls):
         return {
-            "sensor_drift_linear": 2.0, "sensor_drift_quadratic": 1.5,
-            "sensor_drift_settling": 0.0, "sensor_drift_settling_tau": 10.0,
-            "sensor_drift_ambient_sine": 0.0, "sensor_drift_ambient_cosine": 0.0, "sensor_drift_ambient_period": 120.0,
-        }  # fmt: skip
+            "sensor_drift_linear": 2.0,
+            "sensor_drift_quadratic": 1.5,
+            "sensor_drift_settling": 0.0,
+            "sensor_drift_settling_tau": 10.0,
+            "sensor_drift_ambient_sine": 0.0,
+            "sensor_drift_ambient_cosine": 0.0,
+            "sensor_drift_ambient_period": 120.0,
+        }
 
     def output(self, params, time, current, displacement):
         """Displacement plus drift, shape ``(W, T)`` [um].

@@ -79,8 +79,6 @@ the recursion over the memories. ``benchmarks/forward.py`` measures speed and me
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
@@ -100,23 +98,51 @@ __all__ = [
 
 #: Table 1's order of the 19 GPI parameters.
 THETA_NAMES = (
-    "alpha", "rho", "tau",
-    "a0", "a1", "a2", "a3",
-    "b0", "b1", "b2", "b3",
-    "c0", "c1", "c2", "c3",
-    "d0", "d1", "d2", "d3",
-)  # fmt: skip
+    "alpha",
+    "rho",
+    "tau",
+    "a0",
+    "a1",
+    "a2",
+    "a3",
+    "b0",
+    "b1",
+    "b2",
+    "b3",
+    "c0",
+    "c1",
+    "c2",
+    "c3",
+    "d0",
+    "d1",
+    "d2",
+    "d3",
+)
 
 #: Table 1 of the paper, in :data:`THETA_NAMES` order.
 TABLE1 = np.array(
     [
-        -0.1993, 5.6438, 0.0714,
-        8.5043, 0.5140, -0.0612, -6.1533,
-        3.3505, 1.3916, -0.9146, 3.6876,
-        1.5687, 6.6176, -11.5359, 25.7303,
-        2.1349, 7.1117, -9.2777, 28.1546,
+        -0.1993,
+        5.6438,
+        0.0714,
+        8.5043,
+        0.5140,
+        -0.0612,
+        -6.1533,
+        3.3505,
+        1.3916,
+        -0.9146,
+        3.6876,
+        1.5687,
+        6.6176,
+        -11.5359,
+        25.7303,
+        2.1349,
+        7.1117,
+        -9.2777,
+        28.1546,
     ]
-)  # fmt: skip
+)
 
 _DESCRIPTIONS = {
     "alpha": ("A", "threshold step: r_j = alpha * j (eq. 9)"),
@@ -153,11 +179,23 @@ _BOUNDS = {
     "alpha": (-2.0, 2.0),
     "rho": (1e-3, 1e3),
     "tau": (-5.0, 5.0),
-    "a0": (1e-3, 100.0), "a1": (1e-3, 20.0), "a2": (-20.0, 20.0), "a3": (-100.0, 100.0),
-    "b0": (1e-3, 100.0), "b1": (1e-3, 20.0), "b2": (-20.0, 20.0), "b3": (-100.0, 100.0),
-    "c0": (-1e3, 1e3), "c1": (-50.0, 50.0), "c2": (-100.0, 100.0), "c3": (-1e4, 1e4),
-    "d0": (-1e3, 1e3), "d1": (-50.0, 50.0), "d2": (-100.0, 100.0), "d3": (-1e4, 1e4),
-}  # fmt: skip
+    "a0": (1e-3, 100.0),
+    "a1": (1e-3, 20.0),
+    "a2": (-20.0, 20.0),
+    "a3": (-100.0, 100.0),
+    "b0": (1e-3, 100.0),
+    "b1": (1e-3, 20.0),
+    "b2": (-20.0, 20.0),
+    "b3": (-100.0, 100.0),
+    "c0": (-1e3, 1e3),
+    "c1": (-50.0, 50.0),
+    "c2": (-100.0, 100.0),
+    "c3": (-1e4, 1e4),
+    "d0": (-1e3, 1e3),
+    "d1": (-50.0, 50.0),
+    "d2": (-100.0, 100.0),
+    "d3": (-1e4, 1e4),
+}
 
 #: The 19 GPI parameters with Table 1 values, default bounds and units.
 GPI_PARAMETERS = ParameterSet(
@@ -290,8 +328,9 @@ def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1,
         up = dv > 0.0
         env[k] = _tanh_env(ru0 if up else rd0, ru1 if up else rd1, ru2 if up else rd2, ru3 if up else rd3, v)
         on_rising = dv >= 0.0
-        omega[k] = _tanh_env(c0 if on_rising else d0, c1 if on_rising else d1, c2 if on_rising else d2,
-                             c3 if on_rising else d3, v)  # fmt: skip
+        omega[k] = _tanh_env(
+            c0 if on_rising else d0, c1 if on_rising else d1, c2 if on_rising else d2, c3 if on_rising else d3, v
+        )
 
 
 @njit(cache=True)
@@ -336,13 +375,30 @@ def _omega_values(current, row, c0, c1, c2, c3, d0, d1, d2, d3, omega):
     for k in range(1, n_samples):
         v = current[row, k]
         on_rising = v - current[row, k - 1] >= 0.0
-        omega[k] = _tanh_env(c0 if on_rising else d0, c1 if on_rising else d1, c2 if on_rising else d2,
-                             c3 if on_rising else d3, v)  # fmt: skip
+        omega[k] = _tanh_env(
+            c0 if on_rising else d0, c1 if on_rising else d1, c2 if on_rising else d2, c3 if on_rising else d3, v
+        )
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _gpi_kernel(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion, initial_held,
-                threshold_scale, scale_of, leaders, slot, followers, leader_of, sums, out):  # fmt: skip
+def _gpi_kernel(
+    theta,
+    current,
+    row_of,
+    n_operators,
+    rising_is_a,
+    initial_memory,
+    initial_excursion,
+    initial_held,
+    threshold_scale,
+    scale_of,
+    leaders,
+    slot,
+    followers,
+    leader_of,
+    sums,
+    out,
+):
     """Fill ``out[w, :]`` with the GPI response of ``theta[w]``, eq. (5) for every parameter set.
 
     Parameter set ``w`` reads input row ``current[row_of[w]]`` and threshold-scale row
@@ -539,7 +595,9 @@ def _per_set(values, n_sets, name):
     """A scalar or one value per parameter set, as a contiguous ``(W,)`` array."""
     array = np.asarray(values, dtype=float)
     if array.shape not in ((), (1,), (n_sets,)):
-        raise ValueError(f"{name} must be a scalar or have shape ({n_sets},) (one value per parameter set), got shape {array.shape}")
+        raise ValueError(
+            f"{name} must be a scalar or have shape ({n_sets},) (one value per parameter set), got shape {array.shape}"
+        )
     if not np.isfinite(array).all():
         raise ValueError(f"{name} must be finite")
     return np.ascontiguousarray(np.broadcast_to(array, (n_sets,)))
@@ -603,7 +661,8 @@ def _prepare(theta, current, n_operators, reading, initial_memory):
         raise ValueError(f"current needs at least 2 samples, got {current2.shape[1]}")
     if current2.shape[0] not in (1, theta2.shape[0]):
         raise ValueError(
-            f"current has {current2.shape[0]} rows but theta has {theta2.shape[0]}: a 2-D current needs one row per parameter set"
+            f"current has {current2.shape[0]} rows but theta has {theta2.shape[0]}: a 2-D current needs one row per "
+            "parameter set"
         )
     if current.ndim == 2:
         single = False
@@ -631,8 +690,16 @@ def _threshold_scale(threshold_scale, n_sets, n_samples):
     return np.ascontiguousarray(scale2)
 
 
-def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, threshold_scale=None,
-        initial_excursion=0.0, initial_held=0.0):
+def gpi(
+    theta,
+    current,
+    n_operators=12,
+    reading="swapped",
+    initial_memory=0.0,
+    threshold_scale=None,
+    initial_excursion=0.0,
+    initial_held=0.0,
+):
     """Generalized Prandtl-Ishlinskii response, eqs. (5)-(13), for one or many parameter sets.
 
     Defined for every finite parameter set (see "The whole domain" in the module
@@ -681,7 +748,8 @@ def gpi(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, t
     ------
     ValueError
         Malformed input only: non-finite or wrongly shaped ``theta``/``current``/
-        ``initial_memory``/``initial_excursion``/``initial_held``, fewer than 2 samples, ``n_operators < 1``, an unknown reading.
+        ``initial_memory``/``initial_excursion``/``initial_held``, fewer than 2 samples, ``n_operators < 1``, an
+        unknown reading.
     """
     theta2, current2, n_operators, rising_is_a, z0, single = _prepare(
         theta, current, n_operators, reading, initial_memory
@@ -735,8 +803,18 @@ def distinct_rows(*columns):
     return first, group
 
 
-def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, initial_excursion,
-             threshold_scale, scale_of, initial_held=_NO_HELD):  # fmt: skip
+def gpi_rows(
+    theta,
+    current,
+    row_of,
+    n_operators,
+    rising_is_a,
+    initial_memory,
+    initial_excursion,
+    threshold_scale,
+    scale_of,
+    initial_held=_NO_HELD,
+):
     """The kernel on a prepared batch: each distinct parameter set once.
 
     ``theta`` (W, 19), ``initial_memory`` and ``initial_excursion`` (W,), ``initial_held``
@@ -758,15 +836,33 @@ def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, i
     n_samples = current.shape[1]
     if theta.shape[0] == 1:  # one set: a leader without followers
         out = np.empty((1, n_samples))
-        _gpi_kernel(kernel_array(theta), kernel_array(current), kernel_array(row_of), n_operators, rising_is_a,
-                    kernel_array(initial_memory), kernel_array(initial_excursion), kernel_array(initial_held),
-                    kernel_array(threshold_scale), kernel_array(scale_of), _ONE_ROW, _NO_SLOT, _NO_ROWS, _ONE_ROW,
-                    _NO_SUMS, out)  # fmt: skip
+        _gpi_kernel(
+            kernel_array(theta),
+            kernel_array(current),
+            kernel_array(row_of),
+            n_operators,
+            rising_is_a,
+            kernel_array(initial_memory),
+            kernel_array(initial_excursion),
+            kernel_array(initial_held),
+            kernel_array(threshold_scale),
+            kernel_array(scale_of),
+            _ONE_ROW,
+            _NO_SLOT,
+            _NO_ROWS,
+            _ONE_ROW,
+            _NO_SUMS,
+            out,
+        )
         return out, np.zeros(1, dtype=np.int64)
     held_columns = (initial_held,) if initial_held.shape[1] > 1 else ()
     unique, inverse = distinct_rows(theta, row_of, initial_memory, initial_excursion, scale_of, *held_columns)
     play_first, play_group = distinct_rows(
-        theta[unique, :11], row_of[unique], initial_memory[unique], initial_excursion[unique], scale_of[unique],
+        theta[unique, :11],
+        row_of[unique],
+        initial_memory[unique],
+        initial_excursion[unique],
+        scale_of[unique],
         *(held[unique] for held in held_columns),
     )
     leader_of = play_first[play_group]  # the first distinct set with the same memories
@@ -779,16 +875,37 @@ def gpi_rows(theta, current, row_of, n_operators, rising_is_a, initial_memory, i
     sums = np.empty((shared.size, n_samples))
     out = np.empty((unique.size, n_samples))
     _gpi_kernel(
-        kernel_array(theta[unique]), kernel_array(current), kernel_array(row_of[unique]), n_operators, rising_is_a,
-        kernel_array(initial_memory[unique]), kernel_array(initial_excursion[unique]),
-        kernel_array(initial_held[unique] if held_columns else initial_held), kernel_array(threshold_scale),
-        kernel_array(scale_of[unique]), leaders, slot, followers, kernel_array(leader_of), sums, out,
-    )  # fmt: skip
+        kernel_array(theta[unique]),
+        kernel_array(current),
+        kernel_array(row_of[unique]),
+        n_operators,
+        rising_is_a,
+        kernel_array(initial_memory[unique]),
+        kernel_array(initial_excursion[unique]),
+        kernel_array(initial_held[unique] if held_columns else initial_held),
+        kernel_array(threshold_scale),
+        kernel_array(scale_of[unique]),
+        leaders,
+        slot,
+        followers,
+        kernel_array(leader_of),
+        sums,
+        out,
+    )
     return out, inverse
 
 
-def gpi_grouped(theta, current, row_of, n_operators=12, reading="swapped", initial_memory=0.0,
-                threshold_scale=None, initial_excursion=0.0, initial_held=0.0):  # fmt: skip
+def gpi_grouped(
+    theta,
+    current,
+    row_of,
+    n_operators=12,
+    reading="swapped",
+    initial_memory=0.0,
+    threshold_scale=None,
+    initial_excursion=0.0,
+    initial_held=0.0,
+):
     """:func:`gpi` for a batch whose parameter sets share input rows, without copying them per set.
 
     Parameters

@@ -69,8 +69,10 @@ Effects with dynamics
 its own state in the per-sample step: the current found at sample ``k`` is the one whose
 *filtered* drive (lag) and whose heating (thermal, both nodes) give the target; creep's
 modes (the saturating spectrum and the logarithmic ones, these with the part held to the
-leg's end) are advanced with the strain found. A lag's dead time (``lag_delay`` not 0) is refused: the current at a sample acts on
-the output only a dead time later, which no per-sample step can reach. A lag is inverted exactly too, which means the current leads the drive
+leg's end) are advanced with the strain found. A lag's dead time (``lag_delay`` not 0) is refused: the current at a
+sample acts on
+the output only a dead time later, which no per-sample step can reach. A lag is inverted exactly too, which means the
+current leads the drive
 (:math:`i \approx u + \tau_L \dot u`) and steps where the drive has a kink; the exact step
 of a first-order filter with an input linear between samples has a zero near -1 in the
 sample domain, so a step in :math:`u` makes :math:`i` ring with alternating sign, decaying as
@@ -211,8 +213,27 @@ def _initial_envelopes(g, u, excursion):
 
 @njit(cache=True)
 def _evaluate(
-    i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, cp, modes,
-    creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
+    i,
+    first,
+    n_ops,
+    g,
+    thresholds,
+    weights,
+    memory,
+    st,
+    lag_c,
+    has_training,
+    tr,
+    creep_on,
+    cp,
+    modes,
+    creep_gain,
+    creep_decay,
+    creep_active,
+    thermal_on,
+    th,
+    thermal_c,
+    drift,
 ):
     """Model output at the present sample for current ``i``, from the committed state.
 
@@ -255,7 +276,8 @@ def _evaluate(
         s = 0.0
         for j in range(n_ops):
             s += weights[j] * (
-                initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env) + memory[j]
+                initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env)
+                + memory[j]
             )
         y_gpi = _env(g[8], g[9], g[10], g[11], u) + s
         side = 1
@@ -325,19 +347,58 @@ def _evaluate(
 
 @njit(cache=True)
 def _commit(
-    i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, cp, modes,
-    creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
+    i,
+    first,
+    n_ops,
+    g,
+    thresholds,
+    weights,
+    memory,
+    st,
+    lag_c,
+    has_training,
+    tr,
+    creep_on,
+    cp,
+    modes,
+    creep_gain,
+    creep_decay,
+    creep_active,
+    thermal_on,
+    th,
+    thermal_c,
+    drift,
 ):
     """Advance the state with the chosen current ``i``; returns the output."""
     y, y_gpi, u1, u, travel, side, y_strain, width = _evaluate(
-        i, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, cp, modes,
-        creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
+        i,
+        first,
+        n_ops,
+        g,
+        thresholds,
+        weights,
+        memory,
+        st,
+        lag_c,
+        has_training,
+        tr,
+        creep_on,
+        cp,
+        modes,
+        creep_gain,
+        creep_decay,
+        creep_active,
+        thermal_on,
+        th,
+        thermal_c,
+        drift,
     )
     if first:
         rising_env, falling_env, excursion_env = _initial_envelopes(g, u, st[14])
         for j in range(n_ops):
             memory[j] = (  # before the first commit ``memory`` holds the held part (see _evaluate)
-                initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env) + memory[j]
+                initial_operator_memory(st[8], thresholds[j], rising_env, falling_env, st[14], excursion_env)
+                + memory[j]
             )
         for m in range(modes.shape[0]):
             modes[m] = y_gpi
@@ -396,13 +457,53 @@ def _commit(
 
 @njit(cache=True)
 def _objective(
-    x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_params,
-    modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
+    x,
+    s,
+    target,
+    first,
+    n_ops,
+    g,
+    thresholds,
+    weights,
+    memory,
+    st,
+    lag_c,
+    has_training,
+    tr,
+    creep_on,
+    creep_params,
+    modes,
+    creep_gain,
+    creep_decay,
+    creep_active,
+    thermal_on,
+    th,
+    thermal_c,
+    drift,
 ):
     """``s (y(s x) - target)`` on side ``s``, ``-inf`` off it (search coordinate ``x = s i``)."""
     y, _, _, _, _, side, _, _ = _evaluate(
-        s * x, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on, creep_params,
-        modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift,
+        s * x,
+        first,
+        n_ops,
+        g,
+        thresholds,
+        weights,
+        memory,
+        st,
+        lag_c,
+        has_training,
+        tr,
+        creep_on,
+        creep_params,
+        modes,
+        creep_gain,
+        creep_decay,
+        creep_active,
+        thermal_on,
+        th,
+        thermal_c,
+        drift,
     )
     if not first and side != s:
         return -np.inf
@@ -416,9 +517,35 @@ def _magnitude(f):
 
 @njit(cache=True)
 def _search(
-    s, start, step0, lo, hi, target, htol, rtol, xtol, first, n_ops, g, thresholds, weights, memory, st, lag_c,
-    has_training, tr, creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
-    thermal_c, drift,
+    s,
+    start,
+    step0,
+    lo,
+    hi,
+    target,
+    htol,
+    rtol,
+    xtol,
+    first,
+    n_ops,
+    g,
+    thresholds,
+    weights,
+    memory,
+    st,
+    lag_c,
+    has_training,
+    tr,
+    creep_on,
+    creep_params,
+    modes,
+    creep_gain,
+    creep_decay,
+    creep_active,
+    thermal_on,
+    th,
+    thermal_c,
+    drift,
 ):
     """The current on side ``s`` whose output meets the target, nearest ``start`` (``F`` = :func:`_objective`).
 
@@ -444,8 +571,31 @@ def _search(
         x_min, x_max = -hi, -lo
     x0 = min(max(s * start, x_min), x_max)
     n_eval = 1
-    f0 = _objective(x0, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr,
-                    creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, drift)  # fmt: skip
+    f0 = _objective(
+        x0,
+        s,
+        target,
+        first,
+        n_ops,
+        g,
+        thresholds,
+        weights,
+        memory,
+        st,
+        lag_c,
+        has_training,
+        tr,
+        creep_on,
+        creep_params,
+        modes,
+        creep_gain,
+        creep_decay,
+        creep_active,
+        thermal_on,
+        th,
+        thermal_c,
+        drift,
+    )
     if abs(f0) <= htol:
         return s * x0, f0, n_eval
     down_done = x0 <= x_min
@@ -459,9 +609,31 @@ def _search(
             off = x
             x = min(x0 + step, x_max)
             step *= 4.0
-            f = _objective(x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training,
-                           tr, creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
-                           thermal_c, drift)  # fmt: skip
+            f = _objective(
+                x,
+                s,
+                target,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params,
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                drift,
+            )
             n_eval += 1
         if f == -np.inf:
             return s * x0, f0, n_eval  # the side cannot be reached within the limits
@@ -470,9 +642,31 @@ def _search(
             if on - off <= 16.0 * xtol:  # without input dynamics the edge is x0 itself: no bisection
                 break
             x = 0.5 * (off + on)
-            f = _objective(x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training,
-                           tr, creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
-                           thermal_c, drift)  # fmt: skip
+            f = _objective(
+                x,
+                s,
+                target,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params,
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                drift,
+            )
             n_eval += 1
             if f == -np.inf:
                 off = x
@@ -500,9 +694,31 @@ def _search(
         while True:
             x = min(xp + step, x_max) if direction > 0 else max(xp - step, x_min)
             step *= 4.0
-            f = _objective(x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr,
-                           creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th,
-                           thermal_c, drift)  # fmt: skip
+            f = _objective(
+                x,
+                s,
+                target,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params,
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                drift,
+            )
             n_eval += 1
             if (f < 0.0) != (fp < 0.0):
                 if direction > 0:
@@ -532,9 +748,31 @@ def _search(
                 x = 0.5 * (xl + xr)
         else:
             x = 0.5 * (xl + xr)
-        f = _objective(x, s, target, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr,
-                       creep_on, creep_params, modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c,
-                       drift)  # fmt: skip
+        f = _objective(
+            x,
+            s,
+            target,
+            first,
+            n_ops,
+            g,
+            thresholds,
+            weights,
+            memory,
+            st,
+            lag_c,
+            has_training,
+            tr,
+            creep_on,
+            creep_params,
+            modes,
+            creep_gain,
+            creep_decay,
+            creep_active,
+            thermal_on,
+            th,
+            thermal_c,
+            drift,
+        )
         n_eval += 1
         if (f < 0.0) == (fl < 0.0):
             xl, fl, gl = x, f, f
@@ -553,8 +791,29 @@ def _search(
 
 @njit(parallel=True, cache=True)
 def _inverse_kernel(
-    gpi_theta, n_ops, rising_is_a, z0, held, lag_tau, has_training, training, creep_on, creep_params, creep_taus,
-    thermal_on, thermal, drift, time, target, lo, hi, ytol, current_out, output_out, status_out, evaluations,
+    gpi_theta,
+    n_ops,
+    rising_is_a,
+    z0,
+    held,
+    lag_tau,
+    has_training,
+    training,
+    creep_on,
+    creep_params,
+    creep_taus,
+    thermal_on,
+    thermal,
+    drift,
+    time,
+    target,
+    lo,
+    hi,
+    ytol,
+    current_out,
+    output_out,
+    status_out,
+    evaluations,
 ):
     n_sets = gpi_theta.shape[0]
     n_samples = time.shape[0]
@@ -634,16 +893,68 @@ def _inverse_kernel(
                 start = st[0]
                 step0 = max(2.0 * previous_step, 1e-4 * (hi - lo))
             i_best, f_best, n_eval = _search(
-                pref, start, step0, lo, hi, tk, htol, rtol, xtol, first, n_ops, g, thresholds, weights, memory, st,
-                lag_c, has_training, tr, creep_on, creep_params[w], modes, creep_gain, creep_decay, creep_active,
-                thermal_on, th, thermal_c, d,
+                pref,
+                start,
+                step0,
+                lo,
+                hi,
+                tk,
+                htol,
+                rtol,
+                xtol,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params[w],
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                d,
             )
             n_eval_total += n_eval
             if abs(f_best) > htol and not first:
                 i_other, f_other, n_eval = _search(
-                    -pref, start, step0, lo, hi, tk, htol, rtol, xtol, first, n_ops, g, thresholds, weights, memory,
-                    st, lag_c, has_training, tr, creep_on, creep_params[w], modes, creep_gain, creep_decay,
-                    creep_active, thermal_on, th, thermal_c, d,
+                    -pref,
+                    start,
+                    step0,
+                    lo,
+                    hi,
+                    tk,
+                    htol,
+                    rtol,
+                    xtol,
+                    first,
+                    n_ops,
+                    g,
+                    thresholds,
+                    weights,
+                    memory,
+                    st,
+                    lag_c,
+                    has_training,
+                    tr,
+                    creep_on,
+                    creep_params[w],
+                    modes,
+                    creep_gain,
+                    creep_decay,
+                    creep_active,
+                    thermal_on,
+                    th,
+                    thermal_c,
+                    d,
                 )
                 n_eval_total += n_eval
                 if abs(f_other) <= htol:
@@ -667,8 +978,27 @@ def _inverse_kernel(
             if not first:
                 previous_step = abs(i_best - st[0])
             y = _commit(
-                i_best, first, n_ops, g, thresholds, weights, memory, st, lag_c, has_training, tr, creep_on,
-                creep_params[w], modes, creep_gain, creep_decay, creep_active, thermal_on, th, thermal_c, d,
+                i_best,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params[w],
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                d,
             )
             current_out[w, k] = i_best
             output_out[w, k] = y
@@ -728,7 +1058,10 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
     single = theta.ndim == 1
     theta2 = np.ascontiguousarray(np.atleast_2d(theta))
     if theta2.ndim != 2 or theta2.shape[1] != model.n_parameters or theta2.shape[0] < 1:
-        raise ValueError(f"theta must have shape ({model.n_parameters},) or (W, {model.n_parameters}) for {model!r}, got {theta.shape}")
+        raise ValueError(
+            f"theta must have shape ({model.n_parameters},) or (W, {model.n_parameters}) for {model!r}, got "
+            f"{theta.shape}"
+        )
     if not np.isfinite(theta2).all():
         raise ValueError("theta has a non-finite value")
     time = np.ascontiguousarray(time, dtype=float)
@@ -757,7 +1090,9 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
     held = np.zeros((n_sets, int(model.n_operators)))
     if "initial_state" in model.effect_names:
         effect = model.effects[model.effect_names.index("initial_state")]
-        held = np.ascontiguousarray(effect.initial_held(theta2[:, model.effect_slice("initial_state")], model.n_operators))
+        held = np.ascontiguousarray(
+            effect.initial_held(theta2[:, model.effect_slice("initial_state")], model.n_operators)
+        )
     lag = _effect_columns(model, theta2, "lag", 2, [0.0, 0.0])
     if np.any(lag[:, 1] != 0.0):
         rows = np.flatnonzero(lag[:, 1] != 0.0)
@@ -782,7 +1117,13 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
         creep_taus = np.ascontiguousarray(np.hstack([saturating, log_taus]))
         creep_params = np.ascontiguousarray(
             np.column_stack(
-                [creep[:, 0], np.full(n_sets, float(saturating.shape[1])), creep[:, 3], n_log.astype(float), creep[:, 5]]
+                [
+                    creep[:, 0],
+                    np.full(n_sets, float(saturating.shape[1])),
+                    creep[:, 3],
+                    n_log.astype(float),
+                    creep[:, 5],
+                ]
             )
         )
     else:
@@ -803,8 +1144,28 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
     status = np.empty((n_sets, time.size), dtype=np.int8)
     evaluations = np.zeros(n_sets, dtype=np.int64)
     _inverse_kernel(
-        gpi_theta, int(model.n_operators), READINGS[model.reading], z0, held, lag_tau, has_training, training, creep_on,
-        creep_params, creep_taus, thermal_on, thermal, drift, time, target, lo, hi, ytol, current, output, status,
+        gpi_theta,
+        int(model.n_operators),
+        READINGS[model.reading],
+        z0,
+        held,
+        lag_tau,
+        has_training,
+        training,
+        creep_on,
+        creep_params,
+        creep_taus,
+        thermal_on,
+        thermal,
+        drift,
+        time,
+        target,
+        lo,
+        hi,
+        ytol,
+        current,
+        output,
+        status,
         evaluations,
     )
     if single:

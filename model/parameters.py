@@ -44,10 +44,11 @@ class Parameter:
             raise ValueError(f"parameter {self.name!r}: lower bound {self.lower} is not below upper bound {self.upper}")
         if not np.isfinite(self.value) or not (self.lower <= self.value <= self.upper):
             raise ValueError(
-                f"parameter {self.name!r}: value {self.value} is not finite or lies outside [{self.lower}, {self.upper}]"
+                f"parameter {self.name!r}: value {self.value} is not finite or lies outside [{self.lower}, "
+                f"{self.upper}]"
             )
 
-    def with_(self, **changes) -> "Parameter":
+    def with_(self, **changes) -> Parameter:
         """A copy with some fields changed (validated again)."""
         return replace(self, **changes)
 
@@ -97,7 +98,7 @@ class ParameterSet(tuple):
             return tuple.__getitem__(self, self.index(key))
         return tuple.__getitem__(self, key)
 
-    def replace(self, name: str, **changes) -> "ParameterSet":
+    def replace(self, name: str, **changes) -> ParameterSet:
         """A copy with parameter ``name`` changed."""
         i = self.index(name)
         items = list(self)

@@ -64,8 +64,16 @@ def _tanh_form(k0, k1, k2, k3, v):
     return k0 * math.tanh(k1 * v + k2) + k3
 
 
-def gpi_reference(theta, current, n_operators=12, reading="swapped", initial_memory=0.0, law="piecewise",
-                  threshold_scale=None, initial_held=None):
+def gpi_reference(
+    theta,
+    current,
+    n_operators=12,
+    reading="swapped",
+    initial_memory=0.0,
+    law="piecewise",
+    threshold_scale=None,
+    initial_held=None,
+):
     """The GPI response of one parameter set, computed the slow and plain way.
 
     Parameters

@@ -91,10 +91,23 @@ def build_results_folder(directory, settings: FixtureSettings = FixtureSettings(
     out = Path(directory)
     csv = simulate_record(out.parent / f"{out.name}.csv", settings)
     argv = [
-        "study", str(csv), "--out", str(out), "--seed", str(settings.seed), "--n-starts", "1",
-        "--walkers", str(settings.n_walkers), "--max-steps", str(settings.max_steps),
-        "--check-every", str(max(1, settings.max_steps // 2)), "--progress", "off",
-    ]  # fmt: skip
+        "study",
+        str(csv),
+        "--out",
+        str(out),
+        "--seed",
+        str(settings.seed),
+        "--n-starts",
+        "1",
+        "--walkers",
+        str(settings.n_walkers),
+        "--max-steps",
+        str(settings.max_steps),
+        "--check-every",
+        str(max(1, settings.max_steps // 2)),
+        "--progress",
+        "off",
+    ]
     if settings.free_noise:
         argv += ["--noise-sigma", "free"]
     captured = io.StringIO()

@@ -38,9 +38,13 @@ def test_the_api_names_are_there_and_import_lazily():
     for name in ("load_record", "Model", "study", "diagnose", "StudyResult", "fit_least_squares", "write_report"):
         assert name in identify.__all__ and callable(getattr(identify, name)), name
     with pytest.raises(AttributeError):
-        identify.no_such_name  # noqa: B018
-    code = "import sys, identify; print(sorted(m for m in ('numpy', 'numba', 'scipy', 'matplotlib') if m in sys.modules))"
-    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "[]"
+        _ = identify.no_such_name
+    code = (
+        "import sys, identify; print(sorted(m for m in ('numpy', 'numba', 'scipy', 'matplotlib') if m in sys.modules))"
+    )
+    assert (
+        subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "[]"
+    )
 
 
 def test_study_from_python_is_the_command_lines_study(small_csv, tmp_path, capsys):
@@ -58,9 +62,12 @@ def test_study_from_python_is_the_command_lines_study(small_csv, tmp_path, capsy
 
     # 40 steps: NOT CONVERGED, a result with a finding; the command line's exit code says so
     assert result.status == "not converged" and not result.converged and result.exit_code == 1
-    assert main(["study", str(small_csv), "--out", str(tmp_path / "cli"), "--seed", "3", "--no-report", *SHORT_ARGS]) == 1
+    assert (
+        main(["study", str(small_csv), "--out", str(tmp_path / "cli"), "--seed", "3", "--no-report", *SHORT_ARGS]) == 1
+    )
     assert np.array_equal(chain_of(tmp_path / "api"), chain_of(tmp_path / "cli"))
     cli_summary = json.loads((tmp_path / "cli" / "summary.json").read_text())
+
     def untimed(section):
         return {key: value for key, value in section.items() if key != "seconds"}
 

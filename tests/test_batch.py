@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 import model
-from identify.workflows import batch as B
 from identify import cli
-from identify.data.records import write_record
 from identify.data.fileio import toml_module
+from identify.data.records import write_record
+from identify.workflows import batch as B
 
 NOISE_SIGMA = 0.3  # um, the simulated sensor noise
 
@@ -71,12 +71,21 @@ def test_config_errors_name_the_key_and_file(tmp_path, fit_registered):
         ('task = "fit"\nrecords = [{path = "a.csv"}]\n', "out must be a folder path"),
         ('task = "fit"\nout = "o"\n', "records must be a non-empty array"),
         ('task = "fit"\nout = "o"\nrecords = [{path = "a.csv", glob = "*.csv"}]\n', "records[0] needs exactly one of"),
-        ('task = "fit"\nout = "o"\nrecords = [{glob = "nothing*.csv"}]\n', "records[0].glob 'nothing*.csv' matches no file"),
+        (
+            'task = "fit"\nout = "o"\nrecords = [{glob = "nothing*.csv"}]\n',
+            "records[0].glob 'nothing*.csv' matches no file",
+        ),
         ('task = "fit"\nout = "o"\nworkers = 0\nrecords = [{path = "a.csv"}]\n', "workers must be an integer >= 1"),
         ('task = "fit"\nout = "o"\nexecutor = "spark"\nrecords = [{path = "a.csv"}]\n', "executor must be one of"),
         ('task = "fit"\nout = "o"\nrecords = [{path = "a.csv"}, {path = "a.csv"}]\n', "two records are named 'a'"),
-        ('task = "fit"\nout = "o"\nrecords = [{path = "a.csv"}]\nvariants = [{n_operators = 3}]\n', "variants[0].name is required"),
-        ('task = "fit"\nout = "o"\nrecords = [{path = "a.csv", out = "x"}]\n', "records[0].out: set by the batch itself"),
+        (
+            'task = "fit"\nout = "o"\nrecords = [{path = "a.csv"}]\nvariants = [{n_operators = 3}]\n',
+            "variants[0].name is required",
+        ),
+        (
+            'task = "fit"\nout = "o"\nrecords = [{path = "a.csv", out = "x"}]\n',
+            "records[0].out: set by the batch itself",
+        ),
         ('task = "fit"\nout = "o"\nrecords = [{path = "a.csv"}\n', "not valid TOML"),
     ]
     for text, expected in cases:
@@ -182,16 +191,31 @@ def test_finished_result_requires_marker_with_same_fingerprint(tmp_path):
 def test_error_line_is_taken_from_the_log():
     log = "fitting ...\nTraceback (most recent call last):\n  File x\nValueError: theta has a NaN\n"
     assert B._error_from_log(log, 1) == "ValueError: theta has a NaN"
-    assert B._error_from_log("loading\nerror: a.csv, line 3: column 'current' is empty\n", 2).startswith("error: a.csv, line 3")
+    assert B._error_from_log("loading\nerror: a.csv, line 3: column 'current' is empty\n", 2).startswith(
+        "error: a.csv, line 3"
+    )
     assert B._error_from_log("", 9) == "exit code 9: (no output)"
 
 
 def test_summary_files(tmp_path):
     results = [
-        B.JobResult("a__v", "fit", "a", "v", "ok", rms=0.301, max_error_pct=1.5, statistic_name="reduced_chi2",
-                    statistic=1.01, verdict="converged", seconds=3.2, output_unit="um", report="a__v/report.html"),
+        B.JobResult(
+            "a__v",
+            "fit",
+            "a",
+            "v",
+            "ok",
+            rms=0.301,
+            max_error_pct=1.5,
+            statistic_name="reduced_chi2",
+            statistic=1.01,
+            verdict="converged",
+            seconds=3.2,
+            output_unit="um",
+            report="a__v/report.html",
+        ),
         B.JobResult("b__v", "fit", "b", "v", "failed", seconds=0.4, error="error: b.csv, line 7: 'x' is not a number"),
-    ]  # fmt: skip
+    ]
     B.write_summary(tmp_path, results)
     rows = read_summary(tmp_path)
     assert rows["a__v"]["status"] == "ok" and float(rows["a__v"]["rms"]) == 0.301
@@ -299,9 +323,7 @@ def test_dask_executor(tmp_path):
     """The same batch on a dask.distributed LocalCluster (threads, one worker)."""
     require_fit_command()
     pytest.importorskip("distributed", reason="dask.distributed is not installed (pip install '.[dask]')")
-    config = B.load_config(
-        small_batch(tmp_path, executor="dask", extra="[executor_options]\nprocesses = false\n")
-    )
+    config = B.load_config(small_batch(tmp_path, executor="dask", extra="[executor_options]\nprocesses = false\n"))
     config = B.BatchConfig(**{**config.__dict__, "workers": 1})
     started = time.perf_counter()
     result = B.run_batch(config, progress=False)
@@ -354,8 +376,10 @@ def test_a_run_that_did_not_converge_makes_the_batch_exit_1(tmp_path, capsys):
     """A study job whose chain stops at its cap exits 1 (a finding): the batch reports it as
     finished but NOT converged (not as failed) and exits 1; an exit 1 with an error line is a failure."""
     simulated_record(tmp_path / "good.csv", 11)
-    text = ('task = "study"\nout = "runs"\nworkers = 1\n[options]\nn_starts = 1\nmax_steps = 40\ncheck_every = 20\n'
-            'no_report = true\n[[records]]\npath = "good.csv"\n')  # fmt: skip
+    text = (
+        'task = "study"\nout = "runs"\nworkers = 1\n[options]\nn_starts = 1\nmax_steps = 40\ncheck_every = 20\n'
+        'no_report = true\n[[records]]\npath = "good.csv"\n'
+    )
     assert cli.main(["batch", str(write_config(tmp_path, text)), "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert "NOT CONVERGED good__default: posterior NOT converged" in err

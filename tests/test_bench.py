@@ -11,8 +11,8 @@ import pytest
 
 import identify
 from identify import cli
-from identify.cli import simulate as cmd_simulate
 from identify.bench import parse_effect_spec, sensor_noise, simulate
+from identify.cli import simulate as cmd_simulate
 from identify.data.records import load_record, sidecar_path
 from model import EFFECTS, TABLE1, Model, gpi, paper_current
 
@@ -49,7 +49,12 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path):
 def test_sidecar_round_trip_reproduces_the_record(tmp_path):
     out = tmp_path / "bench.csv"
     spec = ",".join(EFFECTS)  # the whole library
-    assert _run(["--out", str(out), "--effects", spec, "--noise", "0.3", "--noise-rho", "0.6", "--fs", "50", "--seed", "4"]) == 0
+    assert (
+        _run(
+            ["--out", str(out), "--effects", spec, "--noise", "0.3", "--noise-rho", "0.6", "--fs", "50", "--seed", "4"]
+        )
+        == 0
+    )
     record = load_record(out)
     truth = record.sidecar
     assert truth["seed"] == 4 and truth["fs"] == 50.0 and truth["input_reading"] == "literal"
@@ -95,7 +100,10 @@ def test_noise_statistics():
     # Standard errors: std of a sample std ~ sigma / sqrt(2n) (white; ~3x larger for rho=0.8).
     assert abs(white.std() - 0.5) < 0.005
     assert abs(ar1.std() - 0.5) < 0.015
-    lag1 = lambda e: np.corrcoef(e[:-1], e[1:])[0, 1]  # noqa: E731
+
+    def lag1(e):
+        return np.corrcoef(e[:-1], e[1:])[0, 1]
+
     assert abs(lag1(white)) < 0.01 and abs(lag1(ar1) - 0.8) < 0.01
     with pytest.raises(ValueError, match="rho"):
         sensor_noise(rng, 10, 0.5, rho=1.0)

@@ -18,14 +18,23 @@ from model import TABLE1, THETA_NAMES, Model
 
 def record(seed, truth, lo, hi, estimate, stderr):
     return RecordCoverage(
-        seed=seed, names=("a", "b", "c"), truth=list(truth), posterior_interval=np.column_stack([lo, hi]).tolist(),
-        least_squares=list(estimate), stderr=list(stderr), converged=True, n_steps=1000, tau_max=10.0,
+        seed=seed,
+        names=("a", "b", "c"),
+        truth=list(truth),
+        posterior_interval=np.column_stack([lo, hi]).tolist(),
+        least_squares=list(estimate),
+        stderr=list(stderr),
+        converged=True,
+        n_steps=1000,
+        tau_max=10.0,
         seconds=1.0,
-    )  # fmt: skip
+    )
 
 
 def test_inside_counts_the_interval_ends_and_the_wald_width():
-    r = record(0, [0.0, 1.0, 2.0], [-1.0, 1.0, 2.5], [1.0, 3.0, 3.0], [0.0, 1.0 + WALD_Z95 * 0.999, 2.0 + 2.0], [1.0, 1.0, 1.0])
+    r = record(
+        0, [0.0, 1.0, 2.0], [-1.0, 1.0, 2.5], [1.0, 3.0, 3.0], [0.0, 1.0 + WALD_Z95 * 0.999, 2.0 + 2.0], [1.0, 1.0, 1.0]
+    )
     assert r.posterior_inside.tolist() == [True, True, False]  # the lower end counts as inside
     assert r.least_squares_inside.tolist() == [True, True, False]  # 1.96 se inside, 2 se outside
 
@@ -96,7 +105,10 @@ def test_the_likelihood_ratio_check_averages_the_records_that_have_it():
     old = record(0, truth, [-1] * 3, [1] * 3, truth, [1] * 3)  # written before delta_chi2 was kept
     assert CoverageResult([old]).likelihood_ratio() is None
     assert "chi-square of the truth" not in CoverageResult([old]).summary()
-    a, b = (dataclasses.replace(record(s, truth, [-1] * 3, [1] * 3, truth, [1] * 3), delta_chi2=d) for s, d in ((1, 2.0), (2, 4.0)))
+    a, b = (
+        dataclasses.replace(record(s, truth, [-1] * 3, [1] * 3, truth, [1] * 3), delta_chi2=d)
+        for s, d in ((1, 2.0), (2, 4.0))
+    )
     mean, se, dof = CoverageResult([old, a, b]).likelihood_ratio()
     assert (mean, dof) == (3.0, 3)
     assert se == pytest.approx(np.std([2.0, 4.0], ddof=1) / np.sqrt(2))

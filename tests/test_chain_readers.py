@@ -14,7 +14,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import threading
 import time
 
 import emcee
@@ -120,7 +119,9 @@ def test_the_package_reads_a_chain_without_blocking_a_writer(tmp_path):
     for state in _steps(2):
         backend.save_step(state, np.ones(8, dtype=bool))
     backend.flush()
-    writer = _python('import sys, time, h5py\nf = h5py.File(sys.argv[1], "a")\nprint("open", flush=True)\ntime.sleep(5)\n', path)
+    writer = _python(
+        'import sys, time, h5py\nf = h5py.File(sys.argv[1], "a")\nprint("open", flush=True)\ntime.sleep(5)\n', path
+    )
     try:
         assert writer.stdout.readline().strip() == "open"
         with pytest.raises(OSError):  # the stock reader is refused by the writer's lock
@@ -173,10 +174,30 @@ def test_a_study_finishes_while_its_chain_is_read_all_the_time(tmp_path):
     reader = _python(HAMMER, out / "chain.h5", stop, 0.001)
     try:
         study = subprocess.run(
-            [sys.executable, "-m", "identify", "study", str(csv), "--out", str(out), "--max-steps", "400",
-             "--check-every", "20", "--n-starts", "1", "--progress", "off", "--no-report"],
-            capture_output=True, text=True, env=env, cwd=ROOT, timeout=600,
-        )  # fmt: skip
+            [
+                sys.executable,
+                "-m",
+                "identify",
+                "study",
+                str(csv),
+                "--out",
+                str(out),
+                "--max-steps",
+                "400",
+                "--check-every",
+                "20",
+                "--n-starts",
+                "1",
+                "--progress",
+                "off",
+                "--no-report",
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+            cwd=ROOT,
+            timeout=600,
+        )
     finally:
         stop.touch()
         reads = int(reader.communicate(timeout=60)[0])

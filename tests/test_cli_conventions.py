@@ -1,9 +1,17 @@
 """Command-line conventions on real subprocesses (issue 18): --version."""
 
+import dataclasses
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
+
+from identify.bench import simulate
+from identify.cli import main
+from identify.data.records import write_record
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -17,22 +25,19 @@ def _env():
 def test_version(tmp_path):
     import importlib.metadata as md
 
-    done = subprocess.run([sys.executable, "-m", "identify", "--version"], cwd=tmp_path, env=_env(),
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "identify", "--version"],
+        cwd=tmp_path,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == f"python -m identify {md.version('msma-gpi')}"
 
 
 # -- verbosity, exit codes, progress (issue 18) ------------------------------------------------
-
-import dataclasses  # noqa: E402
-import json  # noqa: E402
-
-import pytest  # noqa: E402
-
-from identify.bench import simulate  # noqa: E402
-from identify.cli import main  # noqa: E402
-from identify.data.records import write_record  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -47,8 +52,15 @@ def _cli(*args, cwd, extra_env=None, timeout=600):
     env = _env()
     env.pop("IDENTIFY_DEBUG", None)
     env.update(extra_env or {})
-    return subprocess.run([sys.executable, "-m", "identify", *map(str, args)], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "identify", *map(str, args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def test_quiet_and_verbose_on_a_subprocess(small_csv, tmp_path):
@@ -57,6 +69,7 @@ def test_quiet_and_verbose_on_a_subprocess(small_csv, tmp_path):
     plain = _cli("fit", small_csv, "--n-starts", "2", cwd=tmp_path)
     quiet = _cli("fit", small_csv, "--n-starts", "2", "-q", cwd=tmp_path)
     verbose = _cli("fit", small_csv, "--n-starts", "2", "-v", cwd=tmp_path)
+
     def table(stdout):  # the last line ends with the fit's wall time
         return stdout.rsplit(";", 1)[0]
 
@@ -86,14 +99,42 @@ def test_old_verbosity_flags_still_work(small_csv, tmp_path, capsys):
 
 
 def test_study_not_converged_exits_1_and_says_so(small_csv, tmp_path):
-    done = _cli("study", small_csv, "--out", "run", "--max-steps", "40", "--check-every", "20", "--n-starts", "1",
-                "--progress", "off", "--no-report", cwd=tmp_path)  # fmt: skip
+    done = _cli(
+        "study",
+        small_csv,
+        "--out",
+        "run",
+        "--max-steps",
+        "40",
+        "--check-every",
+        "20",
+        "--n-starts",
+        "1",
+        "--progress",
+        "off",
+        "--no-report",
+        cwd=tmp_path,
+    )
     assert done.returncode == 1, done.stderr[-3000:]
     assert "exit code 1: the chain did NOT CONVERGE" in done.stderr and "Traceback" not in done.stderr
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["posterior"]["converged"] is False  # the result is complete: a finding, not a failure
-    again = _cli("study", small_csv, "--out", "run", "--max-steps", "40", "--check-every", "20", "--n-starts", "1",
-                 "--progress", "off", "--no-report", cwd=tmp_path)  # fmt: skip
+    again = _cli(
+        "study",
+        small_csv,
+        "--out",
+        "run",
+        "--max-steps",
+        "40",
+        "--check-every",
+        "20",
+        "--n-starts",
+        "1",
+        "--progress",
+        "off",
+        "--no-report",
+        cwd=tmp_path,
+    )
     assert again.returncode == 1 and "already holds this study, finished (NOT converged" in again.stderr
 
 
@@ -117,8 +158,21 @@ def test_progress_lines_outside_a_terminal(small_csv, tmp_path):
     every IDENTIFY_PROGRESS_SECONDS with step, speed and, after the first check, tau and the
     projected steps (50 tau) instead of the cap. The interval is tiny (5 ms) so that a line comes
     before the first check at step 200 even on a machine running 1000s of steps per second."""
-    done = _cli("study", small_csv, "--out", "run", "--max-steps", "600", "--check-every", "200", "--n-starts", "1",
-                "--no-report", cwd=tmp_path, extra_env={"IDENTIFY_PROGRESS_SECONDS": "0.005"})  # fmt: skip
+    done = _cli(
+        "study",
+        small_csv,
+        "--out",
+        "run",
+        "--max-steps",
+        "600",
+        "--check-every",
+        "200",
+        "--n-starts",
+        "1",
+        "--no-report",
+        cwd=tmp_path,
+        extra_env={"IDENTIFY_PROGRESS_SECONDS": "0.005"},
+    )
     assert done.returncode == 1, done.stderr[-3000:]
     lines = [ln for ln in done.stderr.splitlines() if ln.startswith("emcee: step ")]
     assert len(lines) >= 3, done.stderr[-3000:]
@@ -129,7 +183,21 @@ def test_progress_lines_outside_a_terminal(small_csv, tmp_path):
     steps = [int(ln.split()[2]) for ln in lines]
     assert steps == sorted(steps) and steps[-1] <= 600
     assert "\r" not in done.stderr  # no bar outside a terminal
-    quiet = _cli("study", small_csv, "--out", "run_q", "--max-steps", "200", "--check-every", "100", "--n-starts", "1",
-                 "--no-report", "-q", cwd=tmp_path, extra_env={"IDENTIFY_PROGRESS_SECONDS": "0.05"})  # fmt: skip
+    quiet = _cli(
+        "study",
+        small_csv,
+        "--out",
+        "run_q",
+        "--max-steps",
+        "200",
+        "--check-every",
+        "100",
+        "--n-starts",
+        "1",
+        "--no-report",
+        "-q",
+        cwd=tmp_path,
+        extra_env={"IDENTIFY_PROGRESS_SECONDS": "0.05"},
+    )
     assert quiet.returncode == 1 and "emcee: step" not in quiet.stderr
     assert "NOT CONVERGE" in quiet.stderr  # the finding is a warning: -q keeps it

@@ -39,14 +39,21 @@ def test_help_imports_no_numerical_library():
 
 def test_the_check_sees_a_heavy_import():
     """The same check fails when a command does import numpy (here: by running one that loads a record)."""
-    code = SCRIPT.format(heavy=HEAVY, commands=[]) + "\nimport identify.data.records\nprint([n for n in heavy if n in sys.modules])"
+    code = (
+        SCRIPT.format(heavy=HEAVY, commands=[])
+        + "\nimport identify.data.records\nprint([n for n in heavy if n in sys.modules])"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert "numpy" in out
 
 
 def test_python_m_identify_help_runs():
-    result = subprocess.run([sys.executable, "-X", "importtime", "-m", "identify", "study", "--help"],
-                            capture_output=True, text=True, check=True)  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "identify", "study", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert "usage: python -m identify study" in result.stdout
     imported = {line.split("|")[-1].strip() for line in result.stderr.splitlines() if line.startswith("import time:")}
     assert not imported & set(HEAVY), imported & set(HEAVY)

@@ -39,7 +39,9 @@ def test_markdown_states_the_reading_and_its_evidence(default_run):
     swapped = gpi(TABLE1, current)
     literal = gpi(TABLE1, current, reading="literal")
     # The numbers in the table are the model's, formatted as stated (4 decimals rest, 2 extremes).
-    assert re.search(rf"\| swapped \(used\) \| {swapped[0]:.4f} \| 0 \| {swapped.min():.2f} \| {swapped.max():.2f} \|", text)
+    assert re.search(
+        rf"\| swapped \(used\) \| {swapped[0]:.4f} \| 0 \| {swapped.min():.2f} \| {swapped.max():.2f} \|", text
+    )
     assert re.search(rf"\| literal \| {literal[0]:.4f} \| 0 \| {literal.min():.2f} \| {literal.max():.2f} \|", text)
     # Cross-check against the values pinned in test_gpi (rest -0.5598, peak 295.70; literal 217.05, -569.18, 649.64).
     for stated in ("-0.5598", "295.70", "217.0473", "-569.18", "649.64"):

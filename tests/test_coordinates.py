@@ -140,8 +140,14 @@ def _thermal_coords():
 
     kw, x = GPICoordinates.get_test_parameters()
     model = Model(["thermal"])
-    thermal = {"thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0,
-               "thermal_tau_core": 300.0, "thermal_sensitivity_core": 0.01, "thermal_expansion_core": -0.5}  # fmt: skip
+    thermal = {
+        "thermal_tau": 20.0,
+        "thermal_sensitivity": 0.08,
+        "thermal_expansion": 3.0,
+        "thermal_tau_core": 300.0,
+        "thermal_sensitivity_core": 0.01,
+        "thermal_expansion_core": -0.5,
+    }
     names = list(kw["names"]) + list(thermal)
     lower = np.concatenate([kw["lower"], [model.parameters[n].lower for n in thermal]])
     coords = GPICoordinates(**{**kw, "names": names, "lower": lower}, duration=70.0)
@@ -163,7 +169,10 @@ def test_no_thermal_blocks_without_the_record_duration():
     _, x = _thermal_coords()
     kw, _ = GPICoordinates.get_test_parameters()
     coords, _ = _thermal_coords()
-    assert "thermal" not in GPICoordinates(**{**kw, "names": coords.names, "lower": np.zeros(len(coords.names)) + 1e-3}).blocks
+    assert (
+        "thermal"
+        not in GPICoordinates(**{**kw, "names": coords.names, "lower": np.zeros(len(coords.names)) + 1e-3}).blocks
+    )
 
 
 def test_the_move_gives_emcees_stock_chain_bit_for_bit():

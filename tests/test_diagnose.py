@@ -15,26 +15,26 @@ import pytest
 
 from identify.bench import simulate
 from identify.cli import main
+from identify.data.records import write_record
 from identify.diagnosis.diagnose import (
-    STATUSES,
-    Thresholds,
-    _refit_starts,
-    _short_refit,
     GPI_EQUIVALENTS,
     SCREENING_GRIDS,
+    STATUSES,
+    Thresholds,
     _plain_of,
+    _refit_starts,
     _same_threshold_sign,
+    _short_refit,
     assess_adequacy,
     diagnose,
     exact_reparametrisation,
     screen_candidates,
     screening_grid,
 )
-from identify.fitting.parametrisation import normalised_model, with_threshold_sign
+from identify.diagnosis.residuals import ARNoise, residual_profile
 from identify.fitting.lsq import fit_least_squares
 from identify.fitting.noise import estimate_noise
-from identify.data.records import write_record
-from identify.diagnosis.residuals import ARNoise, residual_profile
+from identify.fitting.parametrisation import normalised_model, with_threshold_sign
 from model import EFFECTS, Model, paper_current
 
 
@@ -58,8 +58,9 @@ def test_adequacy_rule_white_structured_and_negligible():
     # 70001 samples resolve structure of 0.07 sigma RMS (low-frequency z ~ 12), but it is below the floor
     time_k, current_k = paper_current(1000.0)
     tiny = rng.standard_normal(time_k.size) + 0.1 * np.sin(2 * np.pi * time_k / 7.0)
-    profile = residual_profile(time_k, current_k, tiny, slice(0, 10001), output_range=300.0,
-                               noise=ARNoise(np.zeros(0), 1.0, 1.0, 10**6))  # fmt: skip
+    profile = residual_profile(
+        time_k, current_k, tiny, slice(0, 10001), output_range=300.0, noise=ARNoise(np.zeros(0), 1.0, 1.0, 10**6)
+    )
     verdict = assess_adequacy(profile)
     assert verdict.failed and verdict.adequate
     assert not assess_adequacy(profile, Thresholds(structure_floor=0.01)).adequate
@@ -86,9 +87,17 @@ def test_screening_grid_classifies_parameters_by_what_they_do():
         ("sensor_drift", set(), {"sensor_drift_linear", "sensor_drift_quadratic"}),
         ("lag", {"lag_tau"}, set()),  # acts while "off" at 0 and nonlinearly: a value grid
         # its own grid: the level pinned, each part of the history on its own axis
-        ("initial_state", {"initial_state_excursion", "initial_state_held", "initial_state_held_slope"}, {"initial_state_memory"}),
+        (
+            "initial_state",
+            {"initial_state_excursion", "initial_state_held", "initial_state_held_slope"},
+            {"initial_state_memory"},
+        ),
         # its own grid (SCREENING_GRIDS): amplitudes off, the fade's travel scale and shape gridded
-        ("training", {"training_travel", "training_shape"}, {"training_deficit", "training_threshold", "training_gain", "training_width"}),
+        (
+            "training",
+            {"training_travel", "training_shape"},
+            {"training_deficit", "training_threshold", "training_gain", "training_width"},
+        ),
     ):
         model_e = base_model + name
         grid = screening_grid(model_e, name, model_e.default_theta(), sim.record)
@@ -177,7 +186,10 @@ def clean_csv(tmp_path_factory):
 def test_diagnose_command_writes_the_contract(clean_csv, tmp_path, capsys):
     out_json = tmp_path / "d.json"
     out_dir = tmp_path / "run"
-    assert main(["diagnose", str(clean_csv), "--json", str(out_json), "--out", str(out_dir), "--quiet", "--n-starts", "2"]) == 0
+    assert (
+        main(["diagnose", str(clean_csv), "--json", str(out_json), "--out", str(out_dir), "--quiet", "--n-starts", "2"])
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "verdict: adequate" in printed
     content = json.loads(out_json.read_text())
@@ -197,14 +209,38 @@ def test_diagnose_command_writes_the_contract(clean_csv, tmp_path, capsys):
     assert "not identifiable" not in (entry.get("note") or "") and "initial_state_excursion" in entry["parameters"]
     assert json.loads((out_dir / "diagnosis.json").read_text()) == content
     pngs = sorted(p.name for p in (out_dir / "diagnosis").glob("*.png"))
-    assert pngs == [f"{stem}.png" for stem in ("1_residual_vs_time", "2_residual_vs_current", "3_residual_vs_rate",
-                                               "4_cycles", "5_autocorrelation", "6_candidates")]  # fmt: skip
+    assert pngs == [
+        f"{stem}.png"
+        for stem in (
+            "1_residual_vs_time",
+            "2_residual_vs_current",
+            "3_residual_vs_rate",
+            "4_cycles",
+            "5_autocorrelation",
+            "6_candidates",
+        )
+    ]
     assert all((out_dir / "diagnosis" / p).stat().st_size > 10_000 for p in pngs)
 
 
 def test_diagnose_with_effects_fits_them(clean_csv, tmp_path):
     out_json = tmp_path / "d.json"
-    assert main(["diagnose", str(clean_csv), "--effects", "sensor_drift", "--json", str(out_json), "--quiet", "--n-starts", "2"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                str(clean_csv),
+                "--effects",
+                "sensor_drift",
+                "--json",
+                str(out_json),
+                "--quiet",
+                "--n-starts",
+                "2",
+            ]
+        )
+        == 0
+    )
     content = json.loads(out_json.read_text())
     assert content["effects"] == ["sensor_drift"]
     assert "sensor_drift" not in {r["effect"] for r in content["ranking"]}
@@ -268,10 +304,17 @@ def test_initial_states_level_is_an_exact_reparametrisation_of_the_gpi_and_its_e
     assert not model_e.parameters["initial_state_memory"].vary  # pinned by default
     # a held memory is added after the clamp: the shift carries it along, unchanged
     theta_e = base.copy()
-    for name, value in (("initial_state_memory", -2.0), ("initial_state_held", 0.7), ("initial_state_held_slope", -0.4)):
+    for name, value in (
+        ("initial_state_memory", -2.0),
+        ("initial_state_held", 0.7),
+        ("initial_state_held_slope", -0.4),
+    ):
         theta_e[model_e.names.index(name)] = value
     plain = GPI_EQUIVALENTS["initial_state"](model_e, theta_e, sim.record.time, sim.record.current)
-    assert plain[model_e.names.index("initial_state_held")] == 0.7 and plain[model_e.names.index("initial_state_held_slope")] == -0.4
+    assert (
+        plain[model_e.names.index("initial_state_held")] == 0.7
+        and plain[model_e.names.index("initial_state_held_slope")] == -0.4
+    )
     y_effect, y_plain = model_e(np.vstack([theta_e, plain]), sim.record.time, sim.record.current)
     assert np.max(np.abs(y_effect - y_plain)) <= 1e-9 * np.ptp(y_effect)
     # the prior excursion moves some operators and not others: no offset does that
@@ -302,7 +345,22 @@ def test_report_renders_ranking_parameters_as_a_readable_list():
 
 def test_diagnose_drop_window_option(clean_csv, tmp_path, capsys):
     out_json = tmp_path / "d.json"
-    assert main(["diagnose", str(clean_csv), "--drop-window", "20:20.5", "--json", str(out_json), "--quiet", "--n-starts", "2"]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                str(clean_csv),
+                "--drop-window",
+                "20:20.5",
+                "--json",
+                str(out_json),
+                "--quiet",
+                "--n-starts",
+                "2",
+            ]
+        )
+        == 0
+    )
     assert json.loads(out_json.read_text())["status"] in STATUSES
     assert main(["diagnose", str(clean_csv), "--drop-window", "20", "--quiet"]) == 2
     assert "START:STOP" in capsys.readouterr().err
@@ -323,11 +381,18 @@ def test_training_screening_grid_spans_the_records_travel():
     travels = sorted({g["training_travel"] for g in grid[1:]})
     np.testing.assert_allclose(travels, np.geomspace(total / 50, total, 5), rtol=1e-12)
     assert {g["training_shape"] for g in grid[1:]} == {1.0, 3.0, 8.0}
-    assert all(g["training_deficit"] == g["training_threshold"] == g["training_gain"] == g["training_width"] == 0.0 for g in grid)
+    assert all(
+        g["training_deficit"] == g["training_threshold"] == g["training_gain"] == g["training_width"] == 0.0
+        for g in grid
+    )
     # a short record's travel is clipped to the parameter's bounds
     short = simulate(None, seed=0, duration=12.0).record
     for g in SCREENING_GRIDS["training"](model_e, short):
-        assert model_e.parameters["training_travel"].lower <= g["training_travel"] <= model_e.parameters["training_travel"].upper
+        assert (
+            model_e.parameters["training_travel"].lower
+            <= g["training_travel"]
+            <= model_e.parameters["training_travel"].upper
+        )
 
 
 def test_threshold_sign_helpers():
@@ -349,8 +414,16 @@ def test_texts_state_the_comparison_actually_made():
     from identify.diagnosis.diagnose import Adequacy, _tests_text
 
     thresholds = Thresholds()
-    small = Adequacy(True, ("ljung_box",), {"variance": 1.0, "ljung_box": 18.0, "low_frequency": 2.0}, 0.01, 0.05, 0.05,
-                     "ljung_box", 3.0)  # fmt: skip
+    small = Adequacy(
+        True,
+        ("ljung_box",),
+        {"variance": 1.0, "ljung_box": 18.0, "low_frequency": 2.0},
+        0.01,
+        0.05,
+        0.05,
+        "ljung_box",
+        3.0,
+    )
     text = _tests_text(small, thresholds)
     assert "ljung_box z 18.0" in text and "above z = 5" in text and "0.050 sigma, below the 0.1 sigma floor" in text
     assert "< 5" not in text
@@ -358,12 +431,30 @@ def test_texts_state_the_comparison_actually_made():
     assert "no test's excess reaches z = 5 (largest 2.5)" in _tests_text(quiet, thresholds)
     near = Adequacy(True, (), {"variance": 1.0, "ljung_box": 4.97, "low_frequency": -0.3}, 0.0, 0.0, 0.0, "none", 0.0)
     assert "(largest 4.97)" in _tests_text(near, thresholds)  # never 'reaches z = 5 (largest 5.0)'
-    edge = Adequacy(True, ("ljung_box",), {"variance": 1.0, "ljung_box": 18.0, "low_frequency": 2.0}, 0.01, 0.09996,
-                    0.09996, "ljung_box", 3.0)  # fmt: skip
+    edge = Adequacy(
+        True,
+        ("ljung_box",),
+        {"variance": 1.0, "ljung_box": 18.0, "low_frequency": 2.0},
+        0.01,
+        0.09996,
+        0.09996,
+        "ljung_box",
+        3.0,
+    )
     assert "0.09996 sigma, below the 0.1 sigma floor" in _tests_text(edge, thresholds)
-    bad = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.5, "low_frequency": 40.0}, 0.5, 0.5, 0.5,
-                   "low_frequency", 0.25)  # fmt: skip
-    assert "low_frequency z 40.0" in _tests_text(bad, thresholds) and ">= the 0.1 sigma floor" in _tests_text(bad, thresholds)
+    bad = Adequacy(
+        False,
+        ("low_frequency",),
+        {"variance": 1.0, "ljung_box": 2.5, "low_frequency": 40.0},
+        0.5,
+        0.5,
+        0.5,
+        "low_frequency",
+        0.25,
+    )
+    assert "low_frequency z 40.0" in _tests_text(bad, thresholds) and ">= the 0.1 sigma floor" in _tests_text(
+        bad, thresholds
+    )
 
 
 def test_a_targeted_finding_needs_a_practical_size():
@@ -403,7 +494,9 @@ def test_a_targeted_finding_needs_an_excess_over_the_noise():
     above = SimpleNamespace(rms=1.022, noise=SimpleNamespace(sigma=1.0))
     assert _excess_over_noise(above) == pytest.approx(0.2109, abs=1e-4)
     assert _excess_over_noise(above) >= Thresholds().structure_floor
-    assert _excess_over_noise(SimpleNamespace(rms=1.004, noise=SimpleNamespace(sigma=1.0))) < Thresholds().structure_floor
+    assert (
+        _excess_over_noise(SimpleNamespace(rms=1.004, noise=SimpleNamespace(sigma=1.0))) < Thresholds().structure_floor
+    )
 
 
 def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail(monkeypatch):
@@ -418,15 +511,32 @@ def test_a_candidate_of_no_practical_size_is_not_named_when_the_tests_fail(monke
     from identify.diagnosis.diagnose import Adequacy, _inadequate_verdict, _tests_text
 
     monkeypatch.setattr(diagnosis, "_try_pairs", lambda s, rnd: ([], None, []))  # no pair beats it
-    adequacy = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 7.9}, 0.5, 0.5,
-                        0.5, "low_frequency", 0.12)  # fmt: skip
+    adequacy = Adequacy(
+        False,
+        ("low_frequency",),
+        {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 7.9},
+        0.5,
+        0.5,
+        0.5,
+        "low_frequency",
+        0.12,
+    )
     fit = SimpleNamespace(rms=1.012, noise=SimpleNamespace(sigma=1.0))
 
     def verdict(rms_after):
-        best = SimpleNamespace(effect="thermal", delta_bic=362.0, adequate_after=True, explained=0.74, refitted=True,
-                               rms_after=rms_after, uncharged_terms=[])  # fmt: skip
+        best = SimpleNamespace(
+            effect="thermal",
+            delta_bic=362.0,
+            adequate_after=True,
+            explained=0.74,
+            refitted=True,
+            rms_after=rms_after,
+            uncharged_terms=[],
+        )
         rnd = SimpleNamespace(fit=fit, refitted=[best], adequacy=adequacy, profile=None)
-        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds()))
+        return _inadequate_verdict(
+            SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds())
+        )
 
     small = verdict(1.009)
     assert small.status == "adequate" and small.missing is None
@@ -448,24 +558,53 @@ def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
     from identify.diagnosis import diagnose as diagnosis
     from identify.diagnosis.diagnose import Adequacy, _inadequate_verdict, _tests_text
 
-    adequacy = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 9.0}, 0.5, 0.5,
-                        0.5, "low_frequency", 0.5)  # fmt: skip
+    adequacy = Adequacy(
+        False,
+        ("low_frequency",),
+        {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 9.0},
+        0.5,
+        0.5,
+        0.5,
+        "low_frequency",
+        0.5,
+    )
     fit = SimpleNamespace(rms=1.4, noise=SimpleNamespace(sigma=1.0))
 
     def cand(effect, bic, adequate, explained, rms_after):
-        return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, explained=explained,
-                               refitted=True, rms_after=rms_after, fit=None, uncharged_terms=[])  # fmt: skip
+        return SimpleNamespace(
+            effect=effect,
+            delta_bic=bic,
+            adequate_after=adequate,
+            explained=explained,
+            refitted=True,
+            rms_after=rms_after,
+            fit=None,
+            uncharged_terms=[],
+        )
 
-    refitted = [cand("creep", 3785.0, True, 1.0, 1.01), cand("sensor_drift", 2693.0, False, 0.88, 1.06),
-                cand("lag", 1470.0, False, 0.66, 1.15)]  # fmt: skip
+    refitted = [
+        cand("creep", 3785.0, True, 1.0, 1.01),
+        cand("sensor_drift", 2693.0, False, 0.88, 1.06),
+        cand("lag", 1470.0, False, 0.66, 1.15),
+    ]
 
     def verdict(pair_bic, name="lag+sensor_drift"):
         pair = cand(name, pair_bic, True, 1.0, 0.99)
         monkeypatch.setattr(diagnosis, "_try_pairs", lambda s, rnd: ([pair], set(name.split("+")), [pair.effect]))
         monkeypatch.setattr(diagnosis, "_where_summary", lambda profile: "(where)")
-        rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None, short={}, screened=[],
-                              chi2_0_small=1.0, n_eff_small=1.0)  # fmt: skip
-        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds()))
+        rnd = SimpleNamespace(
+            fit=fit,
+            refitted=refitted,
+            adequacy=adequacy,
+            profile=None,
+            short={},
+            screened=[],
+            chi2_0_small=1.0,
+            n_eff_small=1.0,
+        )
+        return _inadequate_verdict(
+            SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds())
+        )
 
     won = verdict(4157.0)
     assert won.status == "missing_effect" and won.missing == "sensor_drift", won.reason
@@ -475,12 +614,17 @@ def test_a_pair_that_gains_clearly_more_beats_an_adequate_single(monkeypatch):
     assert close.pairs_tried[0].effect == "creep+lag"
     rival = verdict(3790.0)  # two other effects fit as well as creep alone: the data cannot say which
     assert rival.status == "unexplained" and rival.missing is None, rival.reason
-    assert ("'creep' alone leaves a residual consistent with the noise (delta BIC 3785), but pairs without it fit "
-            "about as well ('lag+sensor_drift' 3790: gains no more than 10 beyond 'creep'") in rival.reason
+    assert (
+        "'creep' alone leaves a residual consistent with the noise (delta BIC 3785), but pairs without it fit "
+        "about as well ('lag+sensor_drift' 3790: gains no more than 10 beyond 'creep'"
+    ) in rival.reason
     assert rival.pairs_tried[0].effect == "lag+sensor_drift" and "(where)" in rival.reason
     off = Thresholds(try_pairs=False)
     rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None)
-    assert _inadequate_verdict(SimpleNamespace(thresholds=off, record=None), rnd, _tests_text(adequacy, off)).missing == "creep"
+    assert (
+        _inadequate_verdict(SimpleNamespace(thresholds=off, record=None), rnd, _tests_text(adequacy, off)).missing
+        == "creep"
+    )
 
 
 def test_pairs_that_beat_an_adequate_single_but_disagree_name_nothing(monkeypatch):
@@ -497,36 +641,72 @@ def test_pairs_that_beat_an_adequate_single_but_disagree_name_nothing(monkeypatc
     from identify.diagnosis.diagnose import Adequacy, _inadequate_verdict, _tests_text
 
     monkeypatch.setattr(diagnosis, "_where_summary", lambda profile: "(where)")
-    adequacy = Adequacy(False, ("low_frequency",), {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 9.0}, 0.5, 0.5,
-                        0.5, "low_frequency", 0.5)  # fmt: skip
+    adequacy = Adequacy(
+        False,
+        ("low_frequency",),
+        {"variance": 1.0, "ljung_box": 2.0, "low_frequency": 9.0},
+        0.5,
+        0.5,
+        0.5,
+        "low_frequency",
+        0.5,
+    )
     fit = SimpleNamespace(rms=1.32, noise=SimpleNamespace(sigma=1.0))
 
     def cand(effect, bic, adequate=True, explained=0.96, rms_after=1.02):
-        return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, explained=explained,
-                               refitted=True, rms_after=rms_after, fit=None, uncharged_terms=[])  # fmt: skip
+        return SimpleNamespace(
+            effect=effect,
+            delta_bic=bic,
+            adequate_after=adequate,
+            explained=explained,
+            refitted=True,
+            rms_after=rms_after,
+            fit=None,
+            uncharged_terms=[],
+        )
 
-    refitted = [cand("thermal", 3103.0, explained=0.97), cand("creep", 3044.0, False), cand("sensor_drift", 2992.0, False),
-                cand("incomplete_reset", 1579.0, False)]  # fmt: skip
+    refitted = [
+        cand("thermal", 3103.0, explained=0.97),
+        cand("creep", 3044.0, False),
+        cand("sensor_drift", 2992.0, False),
+        cand("incomplete_reset", 1579.0, False),
+    ]
 
     def verdict(pairs):
         top = max(p.delta_bic for p in pairs)
         competitive = [p for p in pairs if p.delta_bic >= top - 10.0]
         common = set.intersection(*(set(p.effect.split("+")) for p in competitive))
         monkeypatch.setattr(diagnosis, "_try_pairs", lambda s, rnd: (pairs, common, [p.effect for p in competitive]))
-        rnd = SimpleNamespace(fit=fit, refitted=refitted, adequacy=adequacy, profile=None, short={}, screened=[],
-                              chi2_0_small=1.0, n_eff_small=1.0)  # fmt: skip
-        return _inadequate_verdict(SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds()))
+        rnd = SimpleNamespace(
+            fit=fit,
+            refitted=refitted,
+            adequacy=adequacy,
+            profile=None,
+            short={},
+            screened=[],
+            chi2_0_small=1.0,
+            n_eff_small=1.0,
+        )
+        return _inadequate_verdict(
+            SimpleNamespace(thresholds=Thresholds(), record=None), rnd, _tests_text(adequacy, Thresholds())
+        )
 
-    split = verdict([cand("thermal+incomplete_reset", 3135.0, rms_after=1.0), cand("creep+sensor_drift", 3128.0, rms_after=1.0)])
+    split = verdict(
+        [cand("thermal+incomplete_reset", 3135.0, rms_after=1.0), cand("creep+sensor_drift", 3128.0, rms_after=1.0)]
+    )
     assert split.status == "unexplained" and split.missing is None, split.reason
     assert "'thermal' alone leaves a residual consistent with the noise" in split.reason
     assert "thermal+incomplete_reset 3135, creep+sensor_drift 3128" in split.reason and "(where)" in split.reason
     shared = verdict([cand("creep+sensor_drift", 3150.0, rms_after=1.0), cand("creep+training", 3145.0, rms_after=1.0)])
     assert shared.status == "missing_effect" and shared.missing == "creep", shared.reason
-    near = verdict([cand("thermal+incomplete_reset", 3110.0, rms_after=1.0), cand("creep+sensor_drift", 3108.0, rms_after=1.0)])
+    near = verdict(
+        [cand("thermal+incomplete_reset", 3110.0, rms_after=1.0), cand("creep+sensor_drift", 3108.0, rms_after=1.0)]
+    )
     assert near.status == "unexplained" and near.missing is None, near.reason  # creep + drift fits as well as thermal
     assert "pairs without it fit about as well ('creep+sensor_drift' 3108: gains no more than 10" in near.reason
-    held = verdict([cand("thermal+incomplete_reset", 3110.0, rms_after=1.0), cand("creep+sensor_drift", 3050.0, rms_after=1.0)])
+    held = verdict(
+        [cand("thermal+incomplete_reset", 3110.0, rms_after=1.0), cand("creep+sensor_drift", 3050.0, rms_after=1.0)]
+    )
     assert held.status == "missing_effect" and held.missing == "thermal", held.reason
 
 
@@ -560,10 +740,14 @@ def test_a_refit_that_ends_above_its_baseline_is_finished_again_from_the_nested_
     assert len(calls) == 2 and np.array_equal(calls[0], start) and np.array_equal(calls[1], nested)
     calls.clear()
     ends = [88773.0, 89000.0]  # the nested start ends higher still: the first end is kept
-    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, model_e, start, free, None)[2] == pytest.approx(88773.0)
+    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, model_e, start, free, None)[2] == pytest.approx(
+        88773.0
+    )
     calls.clear()
     ends = [87000.0]
-    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, model_e, start, free, None)[2] == pytest.approx(87000.0)
+    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, model_e, start, free, None)[2] == pytest.approx(
+        87000.0
+    )
     assert len(calls) == 1
 
 
@@ -605,22 +789,30 @@ def test_a_pair_refit_that_ends_above_a_member_alone_is_finished_again_from_that
     assert len(calls) == 2 and np.array_equal(calls[1], diagnosis._embed(lag_model, lag_theta, pair))
     calls.clear()
     ends = [79000.0]  # already below every member: not repeated
-    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)[2] == pytest.approx(79000.0)
+    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)[
+        2
+    ] == pytest.approx(79000.0)
     assert len(calls) == 1
     calls.clear()
     ends = [80004.0]  # above lag alone by 0.5 in BIC (n_eff log(80004/80000)): decides nothing, not repeated
-    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)[2] == pytest.approx(80004.0)
+    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)[
+        2
+    ] == pytest.approx(80004.0)
     assert len(calls) == 1
     calls.clear()
     ends = [80040.0, 79990.0]  # 5 in BIC above lag alone: repeated from lag's fit
-    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)[2] == pytest.approx(79990.0)
+    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)[
+        2
+    ] == pytest.approx(79990.0)
     assert len(calls) == 2
     calls.clear()
     outside = lag_theta.copy()
     outside[lag_model.names.index("lag_tau")] = 1e9  # beyond the lag's bound in the pair
     members = [(80000.0, SimpleNamespace(model=lag_model, theta=outside)), (85000.0, drift_fit)]
     ends = [86000.0, 84000.0]  # the drift's fit is the reference now
-    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)[2] == pytest.approx(84000.0)
+    assert diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, members)[
+        2
+    ] == pytest.approx(84000.0)
     assert np.array_equal(calls[1], diagnosis._embed(drift_model, drift_fit.theta, pair))
 
 
@@ -651,7 +843,9 @@ def test_a_pair_is_finished_from_a_member_of_the_other_threshold_sign_in_that_si
     white = np.random.default_rng(0).standard_normal(10000)
     white /= np.linalg.norm(white)
     monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: white * np.sqrt(fit.chi2))
-    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(None, base, 87370.0, pair, start, free, None, [(80000.0, member)])
+    fit, _, chi2 = diagnosis._refit_no_worse_than_nested(
+        None, base, 87370.0, pair, start, free, None, [(80000.0, member)]
+    )
     assert chi2 == pytest.approx(79500.0) and len(calls) == 2
     assert calls[0] is pair  # the pair's own start: the baseline's sign
     assert calls[1].parameters["alpha"].value > 0 and calls[1].names == pair.names  # the member's sign
@@ -672,22 +866,33 @@ def test_embedding_across_threshold_signs_is_refused_and_the_pair_pool_keeps_the
     with pytest.raises(ValueError, match="not nested"):
         diagnosis._embed(positive + "lag", (positive + "lag").default_theta(), negative + "lag")
     assert np.array_equal(  # the same sign, and a free alpha, embed as before
-        diagnosis._embed(negative, negative.default_theta(), negative + "lag")[: len(negative.names)], negative.default_theta()
+        diagnosis._embed(negative, negative.default_theta(), negative + "lag")[: len(negative.names)],
+        negative.default_theta(),
     )
     plain = normalised_model(Model())
     free = plain.with_parameters(plain.parameters.replace("alpha", vary=True))
-    assert np.array_equal(diagnosis._embed(free, free.default_theta(), free + "lag")[: len(free.names)], free.default_theta())
+    assert np.array_equal(
+        diagnosis._embed(free, free.default_theta(), free + "lag")[: len(free.names)], free.default_theta()
+    )
 
     lag_other = positive + "lag"
     lag_theta = lag_other.default_theta()
     creep_model = negative + "creep"
     refitted = [
         SimpleNamespace(effect="lag", delta_bic=900.0, fit=SimpleNamespace(model=lag_other, theta=lag_theta)),
-        SimpleNamespace(effect="creep", delta_bic=500.0, fit=SimpleNamespace(model=creep_model, theta=creep_model.default_theta())),
+        SimpleNamespace(
+            effect="creep", delta_bic=500.0, fit=SimpleNamespace(model=creep_model, theta=creep_model.default_theta())
+        ),
     ]
     lag_short = (negative + "lag").default_theta()
-    rnd = SimpleNamespace(fit=SimpleNamespace(model=negative), refitted=refitted, short={"lag": (950.0, lag_short)},
-                          chi2_0_small=1000.0, n_eff_small=4000.0, replaced={})  # fmt: skip
+    rnd = SimpleNamespace(
+        fit=SimpleNamespace(model=negative),
+        refitted=refitted,
+        short={"lag": (950.0, lag_short)},
+        chi2_0_small=1000.0,
+        n_eff_small=4000.0,
+        replaced={},
+    )
     pool = diagnosis._pair_pool(rnd, Thresholds())
     assert [name for name, _, _ in pool] == ["creep", "lag"]
     name, model_e, theta_e = pool[1]
@@ -697,7 +902,9 @@ def test_embedding_across_threshold_signs_is_refused_and_the_pair_pool_keeps_the
     lag_same = negative + "lag"
     lag_same_theta = lag_same.default_theta() + 0.0
     lag_same_theta[lag_same.names.index("lag_tau")] = 0.02
-    rnd.replaced = {"lag": SimpleNamespace(effect="lag", delta_bic=600.0, fit=SimpleNamespace(model=lag_same, theta=lag_same_theta))}
+    rnd.replaced = {
+        "lag": SimpleNamespace(effect="lag", delta_bic=600.0, fit=SimpleNamespace(model=lag_same, theta=lag_same_theta))
+    }
     pool = diagnosis._pair_pool(rnd, Thresholds())
     assert [name for name, _, _ in pool] == ["lag", "creep"]
     assert pool[0][1].parameters["alpha"].value < 0 and np.array_equal(pool[0][2], lag_same_theta)
@@ -875,14 +1082,25 @@ def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monke
     names = ["creep", "incomplete_reset", "sensor_drift", "training"]
     pool = [(n, None, None) for n in names]
     monkeypatch.setattr(diagnosis, "_pair_pool", lambda rnd, thresholds: pool)
-    short = {("creep", "incomplete_reset"): 100.0, ("creep", "sensor_drift"): 102.0, ("creep", "training"): 105.0,
-             ("incomplete_reset", "sensor_drift"): 140.0, ("incomplete_reset", "training"): 300.0,
-             ("sensor_drift", "training"): 108.0}  # fmt: skip
+    short = {
+        ("creep", "incomplete_reset"): 100.0,
+        ("creep", "sensor_drift"): 102.0,
+        ("creep", "training"): 105.0,
+        ("incomplete_reset", "sensor_drift"): 140.0,
+        ("incomplete_reset", "training"): 300.0,
+        ("sensor_drift", "training"): 108.0,
+    }
     monkeypatch.setattr(diagnosis, "_shape_values", lambda work, fit, entry: {})
-    monkeypatch.setattr(diagnosis, "_short_pair", lambda work, fit, one, other, shapes: (short[(one[0], other[0])], None, None))
+    monkeypatch.setattr(
+        diagnosis, "_short_pair", lambda work, fit, one, other, shapes: (short[(one[0], other[0])], None, None)
+    )
     monkeypatch.setattr(diagnosis, "_working_copy_delta_bic", lambda rnd, chi2, k: 1000.0 - chi2)
-    full = {"creep+incomplete_reset": 3064.0, "creep+sensor_drift": 3150.0, "creep+training": 3145.0,
-            "sensor_drift+training": 3000.0}  # fmt: skip
+    full = {
+        "creep+incomplete_reset": 3064.0,
+        "creep+sensor_drift": 3150.0,
+        "creep+training": 3145.0,
+        "sensor_drift+training": 3000.0,
+    }
     refitted = []
 
     def evaluate(record, fit, chi2_0, adequacy, name, *rest):
@@ -890,25 +1108,35 @@ def test_pairs_ranked_lower_by_their_short_refits_are_refitted_in_full_too(monke
         return SimpleNamespace(effect=name, delta_bic=full[name], fit=None)
 
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
-    s = SimpleNamespace(work=None, thresholds=Thresholds(), say=lambda m: None, record=None, quiet=None,
-                        noise_ref=None, rng=None)  # fmt: skip
+    s = SimpleNamespace(
+        work=None, thresholds=Thresholds(), say=lambda m: None, record=None, quiet=None, noise_ref=None, rng=None
+    )
     rnd = SimpleNamespace(fit=None, chi2_0=1.0, adequacy=None, refitted=[])
     tried, common, ambiguous = diagnosis._try_pairs(s, rnd)
     # by short refits: creep+incomplete_reset (900), creep+sensor_drift (898), creep+training (895),
     # then sensor_drift+training (892: fourth, but within 10 of the best, so refitted too); the
     # other two pairs (860, 700) are not
     assert refitted == ["creep+incomplete_reset", "creep+sensor_drift", "creep+training", "sensor_drift+training"]
-    assert [p.effect for p in tried] == ["creep+sensor_drift", "creep+training", "creep+incomplete_reset",
-                                         "sensor_drift+training"]  # fmt: skip
+    assert [p.effect for p in tried] == [
+        "creep+sensor_drift",
+        "creep+training",
+        "creep+incomplete_reset",
+        "sensor_drift+training",
+    ]
     assert ambiguous == ["creep+sensor_drift", "creep+training"] and common == {"creep"}
     # the refitted pairs are ranked on one GPI basin too, like the single candidates
     shared = []
     real = diagnosis._shared_basin_refits
-    monkeypatch.setattr(diagnosis, "_shared_basin_refits",
-                        lambda s, rnd, candidates: shared.append([c.effect for c in candidates]) or real(s, rnd, candidates))  # fmt: skip
+    monkeypatch.setattr(
+        diagnosis,
+        "_shared_basin_refits",
+        lambda s, rnd, candidates: shared.append([c.effect for c in candidates]) or real(s, rnd, candidates),
+    )
     diagnosis._try_pairs(s, rnd)
     assert shared == [["creep+incomplete_reset", "creep+sensor_drift", "creep+training", "sensor_drift+training"]]
-    tried, _, _ = diagnosis._try_pairs(SimpleNamespace(**{**vars(s), "thresholds": Thresholds(max_refits=1, bic_significant=1.0)}), rnd)
+    tried, _, _ = diagnosis._try_pairs(
+        SimpleNamespace(**{**vars(s), "thresholds": Thresholds(max_refits=1, bic_significant=1.0)}), rnd
+    )
     assert [p.effect for p in tried] == ["creep+incomplete_reset"]
 
 
@@ -923,14 +1151,19 @@ def test_a_pairs_short_refit_charges_its_members_as_their_own_refits_were_charge
     from identify.diagnosis.diagnose import CandidateResult, _charged_parameters
 
     def single(name, unused):
-        return CandidateResult(name, None, True, 1.0, 1.0, 500.0, 4000.0, 0.9, False, fit=SimpleNamespace(),
-                               uncharged_terms=unused)  # fmt: skip
+        return CandidateResult(
+            name, None, True, 1.0, 1.0, 500.0, 4000.0, 0.9, False, fit=SimpleNamespace(), uncharged_terms=unused
+        )
 
-    refitted = [single("training", ["training.drive", "training.threshold", "training.strain", "training.width"]),
-                single("thermal", []), single("creep", ["creep.saturating", "creep.after_reversal"]),
-                CandidateResult("lag", None, False, 1.0, 1.0, -9.0, 4000.0, 0.0, False)]  # fmt: skip
-    rnd = SimpleNamespace(fit=None, chi2_0=1.0, adequacy=None, refitted=refitted, chi2_0_small=5000.0,
-                          n_eff_small=4000.0)  # fmt: skip
+    refitted = [
+        single("training", ["training.drive", "training.threshold", "training.strain", "training.width"]),
+        single("thermal", []),
+        single("creep", ["creep.saturating", "creep.after_reversal"]),
+        CandidateResult("lag", None, False, 1.0, 1.0, -9.0, 4000.0, 0.0, False),
+    ]
+    rnd = SimpleNamespace(
+        fit=None, chi2_0=1.0, adequacy=None, refitted=refitted, chi2_0_small=5000.0, n_eff_small=4000.0
+    )
     assert _charged_parameters(rnd) == {"training": 2, "thermal": 6, "creep": 2}
 
     names = ["thermal", "training", "creep"]
@@ -939,7 +1172,9 @@ def test_a_pairs_short_refit_charges_its_members_as_their_own_refits_were_charge
     # (about 8 in BIC), but frees 4 parameters more that its members' own fits use (33 in BIC)
     short = {("thermal", "training"): 4600.0, ("thermal", "creep"): 4590.0, ("training", "creep"): 4600.0}
     monkeypatch.setattr(diagnosis, "_shape_values", lambda work, fit, entry: {})
-    monkeypatch.setattr(diagnosis, "_short_pair", lambda work, fit, one, other, shapes: (short[(one[0], other[0])], None, None))
+    monkeypatch.setattr(
+        diagnosis, "_short_pair", lambda work, fit, one, other, shapes: (short[(one[0], other[0])], None, None)
+    )
     monkeypatch.setattr(diagnosis, "_short_pair_from_flipped_single", lambda *args: None)
     monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: np.ones(4))
     monkeypatch.setattr(diagnosis, "_shared_basin_refits", lambda s, rnd, candidates: candidates)
@@ -952,8 +1187,15 @@ def test_a_pairs_short_refit_charges_its_members_as_their_own_refits_were_charge
         return SimpleNamespace(effect=name, delta_bic=1.0, fit=None)
 
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
-    s = SimpleNamespace(work=None, thresholds=Thresholds(max_refits=1, bic_significant=1.0), say=lambda m: None,
-                        record=None, quiet=None, noise_ref=None, rng=None)  # fmt: skip
+    s = SimpleNamespace(
+        work=None,
+        thresholds=Thresholds(max_refits=1, bic_significant=1.0),
+        say=lambda m: None,
+        record=None,
+        quiet=None,
+        noise_ref=None,
+        rng=None,
+    )
     diagnosis._try_pairs(s, rnd)
     assert chosen == ["training+creep"]
     # charged every parameter (no single refit to tell), the lower chi-square wins
@@ -987,7 +1229,9 @@ def test_a_pair_beside_an_adequate_single_of_the_other_threshold_sign_starts_fro
     pool = [("training", training_model, training_theta), ("incomplete_reset", base_model + "incomplete_reset", None)]
     monkeypatch.setattr(diagnosis, "_pair_pool", lambda rnd, thresholds: pool)
     monkeypatch.setattr(diagnosis, "_shape_values", lambda work, fit, entry: {})
-    monkeypatch.setattr(diagnosis, "_short_pair", lambda work, fit, one, other, shapes: (500.0, "baseline sign", "its start"))
+    monkeypatch.setattr(
+        diagnosis, "_short_pair", lambda work, fit, one, other, shapes: (500.0, "baseline sign", "its start")
+    )
     monkeypatch.setattr(diagnosis, "_working_copy_delta_bic", lambda rnd, chi2, k: 1000.0 - chi2)
     monkeypatch.setattr(diagnosis, "_whitened", lambda record, fit: np.array([30.0]))
     short_refits = []
@@ -1004,14 +1248,26 @@ def test_a_pair_beside_an_adequate_single_of_the_other_threshold_sign_starts_fro
         return SimpleNamespace(effect=name, delta_bic=100.0, fit=None, adequate_after=False)
 
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
-    s = SimpleNamespace(work=SimpleNamespace(record=None, noise=None), thresholds=Thresholds(), say=lambda m: None,
-                        record=None, quiet=None, noise_ref=None, rng=None)  # fmt: skip
-    single = SimpleNamespace(effect="incomplete_reset", adequate_after=True, delta_bic=90.0, uncharged_terms=[],
-                             fit=SimpleNamespace(model=flipped_model, theta=flipped_theta))  # fmt: skip
+    s = SimpleNamespace(
+        work=SimpleNamespace(record=None, noise=None),
+        thresholds=Thresholds(),
+        say=lambda m: None,
+        record=None,
+        quiet=None,
+        noise_ref=None,
+        rng=None,
+    )
+    single = SimpleNamespace(
+        effect="incomplete_reset",
+        adequate_after=True,
+        delta_bic=90.0,
+        uncharged_terms=[],
+        fit=SimpleNamespace(model=flipped_model, theta=flipped_theta),
+    )
     rnd = SimpleNamespace(fit=base, chi2_0=1.0, adequacy=None, refitted=[single])
 
     diagnosis._try_pairs(s, rnd)
-    (model, groups), = short_refits
+    ((model, groups),) = short_refits
     assert model.parameters["alpha"].value > 0 and model.names == (base_model + ["training", "incomplete_reset"]).names
     both, alone = groups[0]
     assert both[model.names.index("rho")] == flipped_theta[flipped_model.names.index("rho")]
@@ -1047,8 +1303,14 @@ def test_pair_pool_takes_every_candidate_whose_gain_pays_for_its_parameters():
         k = len(get_effect(name).parameters)
         return chi2_0 / np.exp((bic + k * np.log(n_eff)) / n_eff)
 
-    gains = {"creep": 900.0, "thermal": 700.0, "training": 500.0, "lag": 40.0, "sensor_drift": 2.0,
-             "incomplete_reset": -5.0}  # fmt: skip
+    gains = {
+        "creep": 900.0,
+        "thermal": 700.0,
+        "training": 500.0,
+        "lag": 40.0,
+        "sensor_drift": 2.0,
+        "incomplete_reset": -5.0,
+    }
     short = {name: (chi2_for(bic, name), (base + name).default_theta()) for name, bic in gains.items()}
     rnd = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), chi2_0, n_eff, short=short)
     pool = _pair_pool(rnd, thresholds)
@@ -1078,8 +1340,10 @@ def test_shape_values_keep_a_members_shape_and_switch_its_gains_off(name):
     for pname, value in effect.get_test_parameters().items():
         parameter = model_e.parameters[pname]
         # the fitted value: the test value, or, where that is the off value, 30 % of the range above it
-        fitted[model_e.names.index(pname)] = value if value != effect.off[pname] else min(
-            parameter.upper, effect.off[pname] + 0.3 * (parameter.upper - parameter.lower)
+        fitted[model_e.names.index(pname)] = (
+            value
+            if value != effect.off[pname]
+            else min(parameter.upper, effect.off[pname] + 0.3 * (parameter.upper - parameter.lower))
         )
     work = SimpleNamespace(record=record)
     values = diagnosis._shape_values(work, fit, (name, model_e, fitted))
@@ -1090,8 +1354,12 @@ def test_shape_values_keep_a_members_shape_and_switch_its_gains_off(name):
     np.testing.assert_array_equal(y_start, y_base)
     shapes = {n for n, v in values.items() if v != effect.off[n]}
     assert all(values[n] == fitted[model_e.names.index(n)] for n in shapes)
-    expected = {"training": {"training_travel", "training_shape"}, "thermal": {"thermal_tau", "thermal_tau_core"},
-                "sensor_drift": {"sensor_drift_settling_tau", "sensor_drift_ambient_period"}, "lag": set()}  # fmt: skip
+    expected = {
+        "training": {"training_travel", "training_shape"},
+        "thermal": {"thermal_tau", "thermal_tau_core"},
+        "sensor_drift": {"sensor_drift_settling_tau", "sensor_drift_ambient_period"},
+        "lag": set(),
+    }
     if name in expected:
         assert shapes == expected[name]
 
@@ -1106,9 +1374,14 @@ def test_a_pair_short_refit_is_never_worse_than_its_better_member(monkeypatch):
 
     from identify.diagnosis import diagnose as diagnosis
 
-    sim = simulate({"training": {"training_gain": 0.05, "training_travel": 20.0},
-                    "sensor_drift": {"sensor_drift_settling": 3.0, "sensor_drift_settling_tau": 8.0}},
-                   seed=0, fs=10.0)  # fmt: skip
+    sim = simulate(
+        {
+            "training": {"training_gain": 0.05, "training_travel": 20.0},
+            "sensor_drift": {"sensor_drift_settling": 3.0, "sensor_drift_settling_tau": 8.0},
+        },
+        seed=0,
+        fs=10.0,
+    )
     record = sim.record
     noise = estimate_noise(record)
     base = normalised_model(Model())
@@ -1116,8 +1389,10 @@ def test_a_pair_short_refit_is_never_worse_than_its_better_member(monkeypatch):
     fit = SimpleNamespace(model=base, theta=gpi)
     work = diagnosis._Working(record, noise, 1)
     members = []
-    for name, values in (("training", {"training_gain": 0.05, "training_travel": 20.0}),
-                         ("sensor_drift", {"sensor_drift_settling": 3.0, "sensor_drift_settling_tau": 8.0})):
+    for name, values in (
+        ("training", {"training_gain": 0.05, "training_travel": 20.0}),
+        ("sensor_drift", {"sensor_drift_settling": 3.0, "sensor_drift_settling_tau": 8.0}),
+    ):
         # each member's own fit, from the truth's part of it: it absorbs part of the other
         model_e = base + name
         start = diagnosis._with_values(model_e, diagnosis._embed(base, gpi, model_e), values)
@@ -1156,8 +1431,14 @@ def test_every_candidate_with_a_significant_short_refit_is_refitted_in_full(monk
         k = len(get_effect(name).parameters)
         return chi2_0 / np.exp((bic + k * np.log(n_eff)) / n_eff)
 
-    gains = {"thermal": 3000.0, "sensor_drift": 2900.0, "training": 2800.0, "creep": 600.0, "lag": 5.0,
-             "incomplete_reset": -30.0}  # fmt: skip
+    gains = {
+        "thermal": 3000.0,
+        "sensor_drift": 2900.0,
+        "training": 2800.0,
+        "creep": 600.0,
+        "lag": 5.0,
+        "incomplete_reset": -30.0,
+    }
     short = {name: (chi2_for(bic, name), (base + name).default_theta()) for name, bic in gains.items()}
     screened = [SimpleNamespace(effect=name) for name in gains]
     refits = []
@@ -1167,10 +1448,12 @@ def test_every_candidate_with_a_significant_short_refit_is_refitted_in_full(monk
         return SimpleNamespace(effect=name, delta_bic=gains[name])
 
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
-    rnd = _Round(SimpleNamespace(model=base), None, None, chi2_0, np.zeros(1), chi2_0, n_eff, short=short,
-                 screened=screened)  # fmt: skip
-    setting = SimpleNamespace(thresholds=Thresholds(), say=lambda _: None, record=None, quiet=None, noise_ref=None,
-                              rng=None)  # fmt: skip
+    rnd = _Round(
+        SimpleNamespace(model=base), None, None, chi2_0, np.zeros(1), chi2_0, n_eff, short=short, screened=screened
+    )
+    setting = SimpleNamespace(
+        thresholds=Thresholds(), say=lambda _: None, record=None, quiet=None, noise_ref=None, rng=None
+    )
     refitted = _refit_best(setting, rnd)
     # the best three whatever they gain, creep (significant) beyond them; lag (5 < 10) is not,
     # incomplete_reset does not beat the baseline
@@ -1202,8 +1485,17 @@ def test_a_better_baseline_keeps_the_candidates_basins():
     refit_theta = theta.copy()
     refit_theta[model_lag.names.index("lag_tau")] = 0.03
     refitted = SimpleNamespace(effect="lag", fit=SimpleNamespace(model=model_lag, theta=refit_theta))
-    first = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), 1.0, 1.0,
-                   short={"lag": (1.0, theta)}, refitted=[refitted])  # fmt: skip
+    first = _Round(
+        SimpleNamespace(model=base),
+        None,
+        None,
+        1.0,
+        np.zeros(1),
+        1.0,
+        1.0,
+        short={"lag": (1.0, theta)},
+        refitted=[refitted],
+    )
     carried = _carry(first)
     second = _Round(SimpleNamespace(model=base), None, None, 1.0, np.zeros(1), 1.0, 1.0, carried=carried)
     starts = _carried_starts(second, base + "lag", "lag")
@@ -1255,19 +1547,34 @@ def test_a_targeted_finding_in_the_first_loading_alone_is_none():
 
     from identify.diagnosis.diagnose import first_loading_finding
 
-    sim = simulate({"initial_state": {"initial_state_held": 0.5, "initial_state_held_slope": 0.5}}, noise_sigma=0.5, seed=0)
+    sim = simulate(
+        {"initial_state": {"initial_state_held": 0.5, "initial_state_held_slope": 0.5}}, noise_sigma=0.5, seed=0
+    )
     model = Model.from_dict(sim.truth["model"])
-    held = SimpleNamespace(effect="initial_state", refitted=True, delta_bic=76.0,
-                           fit=SimpleNamespace(model=model, theta=model.theta_from_dict(sim.truth["theta"])))  # fmt: skip
+    held = SimpleNamespace(
+        effect="initial_state",
+        refitted=True,
+        delta_bic=76.0,
+        fit=SimpleNamespace(model=model, theta=model.theta_from_dict(sim.truth["theta"])),
+    )
     with_training = SimpleNamespace(model=Model(["training"]))
     sentence = first_loading_finding(sim.record, with_training, held)
-    assert sentence is not None and "not a finding" in sentence and "'training'" in sentence and "first loading" in sentence
+    assert (
+        sentence is not None
+        and "not a finding" in sentence
+        and "'training'" in sentence
+        and "first loading" in sentence
+    )
     other = first_loading_finding(sim.record, SimpleNamespace(model=Model(["creep"])), held)
     assert other is not None and "not a finding" in other and "a gap in the output" in other and "'creep'" not in other
     drift_sim = simulate("sensor_drift_linear=1.1", noise_sigma=0.5, seed=0)
     drift_model = Model.from_dict(drift_sim.truth["model"])
-    drift = SimpleNamespace(effect="sensor_drift", refitted=True, delta_bic=76.0,
-                            fit=SimpleNamespace(model=drift_model, theta=drift_model.theta_from_dict(drift_sim.truth["theta"])))  # fmt: skip
+    drift = SimpleNamespace(
+        effect="sensor_drift",
+        refitted=True,
+        delta_bic=76.0,
+        fit=SimpleNamespace(model=drift_model, theta=drift_model.theta_from_dict(drift_sim.truth["theta"])),
+    )
     assert first_loading_finding(drift_sim.record, with_training, drift) is None
     assert first_loading_finding(drift_sim.record, SimpleNamespace(model=Model()), drift) is None
     assert {name for name, e in EFFECTS.items() if e.first_cycle} == {"training", "initial_state", "incomplete_reset"}
@@ -1284,8 +1591,15 @@ def test_a_name_in_the_first_loading_beside_first_cycle_physics_is_not_given_on_
     from identify.diagnosis.diagnose import FIRST_LOADING_SHARE, _first_cycle_again, _Verdict
 
     rec = simulate(None, seed=0, fs=10.0).record
-    held = SimpleNamespace(effect="initial_state", refitted=True, delta_bic=225.0, explained=1.0, rms_after=0.5,
-                           adequate_after=True, uncharged_terms=())  # fmt: skip
+    held = SimpleNamespace(
+        effect="initial_state",
+        refitted=True,
+        delta_bic=225.0,
+        explained=1.0,
+        rms_after=0.5,
+        adequate_after=True,
+        uncharged_terms=(),
+    )
     profile = residual_profile(rec.time, rec.current, np.zeros_like(rec.time) + 0.1, slice(0, 101), output_range=300.0)
     rnd = SimpleNamespace(fit=SimpleNamespace(model=Model(["training"])), refitted=[held], profile=profile)
     verdict = _Verdict("missing_effect", "initial_state", "Adding 'initial_state' explains 100 % ...")
@@ -1334,12 +1648,19 @@ def test_the_pair_verdict_says_why_it_names_the_member_it_names():
     from identify.diagnosis.diagnose import _pair_verdict
 
     def candidate(effect, delta_bic, adequate=False):
-        return SimpleNamespace(effect=effect, explained=1.0, delta_bic=delta_bic, adequate_after=adequate,
-                               rms_after=0.9, refitted=True)  # fmt: skip
+        return SimpleNamespace(
+            effect=effect, explained=1.0, delta_bic=delta_bic, adequate_after=adequate, rms_after=0.9, refitted=True
+        )
 
     creep, lag = candidate("creep", 944.0), candidate("lag", 596.0)
-    rnd = SimpleNamespace(fit=SimpleNamespace(rms=1.064, noise=SimpleNamespace(sigma=0.85)), refitted=[creep, lag], screened=[], chi2_0_small=1.0,
-                          n_eff_small=1.0, failed={})  # fmt: skip
+    rnd = SimpleNamespace(
+        fit=SimpleNamespace(rms=1.064, noise=SimpleNamespace(sigma=0.85)),
+        refitted=[creep, lag],
+        screened=[],
+        chi2_0_small=1.0,
+        n_eff_small=1.0,
+        failed={},
+    )
     best_pair = candidate("lag+creep", 992.0, adequate=True)
     verdict = _pair_verdict(rnd, creep, None, [best_pair], {"lag", "creep"}, Thresholds())
     assert verdict.status == "missing_effect" and verdict.missing == "creep"
@@ -1350,8 +1671,10 @@ def test_the_pair_verdict_says_why_it_names_the_member_it_names():
     verdict = _pair_verdict(rnd, creep, None, [best_pair, close_pair, far_pair], {"lag"}, Thresholds())
     assert verdict.status == "missing_effect" and verdict.missing == "lag"
     assert "stronger" not in verdict.reason
-    assert ("common to every pair the record cannot tell from the best ('lag+creep' 992, 'lag+thermal' 985: "
-            "within 10 in delta BIC)") in verdict.reason
+    assert (
+        "common to every pair the record cannot tell from the best ('lag+creep' 992, 'lag+thermal' 985: "
+        "within 10 in delta BIC)"
+    ) in verdict.reason
     assert "which other effect is missing ('creep' or 'thermal')" in verdict.reason
     assert "creep+thermal" not in verdict.reason
 
@@ -1366,12 +1689,26 @@ def test_pairs_whose_gap_is_within_its_noise_tie_with_the_best_pair(monkeypatch)
     from identify.diagnosis.diagnose import _competitive_pairs, _pair_verdict
 
     def candidate(effect, delta_bic, adequate=True):
-        return SimpleNamespace(effect=effect, explained=1.0, delta_bic=delta_bic, adequate_after=adequate,
-                               rms_after=0.9, refitted=True, fit=object(), n_eff=7001.0)  # fmt: skip
+        return SimpleNamespace(
+            effect=effect,
+            explained=1.0,
+            delta_bic=delta_bic,
+            adequate_after=adequate,
+            rms_after=0.9,
+            refitted=True,
+            fit=object(),
+            n_eff=7001.0,
+        )
 
     creep, lag = candidate("creep", 944.0, False), candidate("lag", 596.0, False)
-    rnd = SimpleNamespace(fit=SimpleNamespace(rms=1.064, noise=SimpleNamespace(sigma=0.85)), refitted=[creep, lag], screened=[], chi2_0_small=1.0,
-                          n_eff_small=1.0, failed={})  # fmt: skip
+    rnd = SimpleNamespace(
+        fit=SimpleNamespace(rms=1.064, noise=SimpleNamespace(sigma=0.85)),
+        refitted=[creep, lag],
+        screened=[],
+        chi2_0_small=1.0,
+        n_eff_small=1.0,
+        failed={},
+    )
     pairs = [candidate("lag+creep", 992.0), candidate("lag+thermal", 950.0)]
     record = object()
     monkeypatch.setattr(diagnosis, "gap_noise_sd", lambda rec, b, o: 30.0)
@@ -1397,26 +1734,43 @@ def test_a_pair_overrules_an_adequate_single_only_by_more_than_bic_significant(m
     from identify.diagnosis.diagnose import _pair_verdict
 
     def candidate(effect, delta_bic, adequate):
-        return SimpleNamespace(effect=effect, explained=0.96, delta_bic=delta_bic, adequate_after=adequate,
-                               rms_after=0.735, refitted=True, uncharged_terms=[])  # fmt: skip
+        return SimpleNamespace(
+            effect=effect,
+            explained=0.96,
+            delta_bic=delta_bic,
+            adequate_after=adequate,
+            rms_after=0.735,
+            refitted=True,
+            uncharged_terms=[],
+        )
 
     training, thermal = candidate("training", 695.0, True), candidate("thermal", 692.0, True)
     reset = candidate("incomplete_reset", 300.0, False)
-    rnd = SimpleNamespace(fit=SimpleNamespace(rms=0.997, noise=SimpleNamespace(sigma=0.735)), refitted=[training, thermal, reset], screened=[],
-                          chi2_0_small=1.0, n_eff_small=1.0, failed={})  # fmt: skip
+    rnd = SimpleNamespace(
+        fit=SimpleNamespace(rms=0.997, noise=SimpleNamespace(sigma=0.735)),
+        refitted=[training, thermal, reset],
+        screened=[],
+        chi2_0_small=1.0,
+        n_eff_small=1.0,
+        failed={},
+    )
     common = {"thermal", "incomplete_reset"}
     close = candidate("thermal+incomplete_reset", 697.0, True)
     verdict = _pair_verdict(rnd, training, thermal, [close], common, Thresholds())
     assert verdict.status == "unexplained" and verdict.missing is None
     monkeypatch.setattr(diagnosis, "_where_summary", lambda profile: "")
     rnd.adequacy, rnd.profile = SimpleNamespace(failed=("low_frequency",), size_ratio=0.9), None
-    reason = diagnosis._unexplained_reason(rnd, training, thermal, True, common, [close.effect], [close], "", Thresholds())
+    reason = diagnosis._unexplained_reason(
+        rnd, training, thermal, True, common, [close.effect], [close], "", Thresholds()
+    )
     assert "'training' (delta BIC 695) and 'thermal' (692)" in reason
     assert "The best pair, 'thermal+incomplete_reset' (697), gains no more than 10 beyond 'training'" in reason
     # a pair that gains more but is not named (here: it leaves structure) is not said to gain no more
     rough = candidate("thermal+incomplete_reset", 720.0, False)
     assert _pair_verdict(rnd, training, thermal, [rough], common, Thresholds()).status == "unexplained"
-    reason = diagnosis._unexplained_reason(rnd, training, thermal, True, common, [rough.effect], [rough], "", Thresholds())
+    reason = diagnosis._unexplained_reason(
+        rnd, training, thermal, True, common, [rough.effect], [rough], "", Thresholds()
+    )
     assert "gains no more than" not in reason
     far = candidate("thermal+incomplete_reset", 706.0, True)
     far.rms_after = 0.72  # 2 % below the singles' RMS, 0.2 sigma of structure: a practical size
@@ -1426,9 +1780,13 @@ def test_a_pair_overrules_an_adequate_single_only_by_more_than_bic_significant(m
     small = candidate("thermal+incomplete_reset", 706.0, True)
     small.rms_after = 0.7343
     assert _pair_verdict(rnd, training, thermal, [small], common, Thresholds()).status == "unexplained"
-    reason = diagnosis._unexplained_reason(rnd, training, thermal, True, common, [small.effect], [small], "", Thresholds())
-    assert ("The best pair, 'thermal+incomplete_reset' (706), gains 11 beyond 'training', which already leaves a "
-            "residual consistent with the noise, but changes its RMS by 0.10 % and explains 0.04 sigma") in reason
+    reason = diagnosis._unexplained_reason(
+        rnd, training, thermal, True, common, [small.effect], [small], "", Thresholds()
+    )
+    assert (
+        "The best pair, 'thermal+incomplete_reset' (706), gains 11 beyond 'training', which already leaves a "
+        "residual consistent with the noise, but changes its RMS by 0.10 % and explains 0.04 sigma"
+    ) in reason
     training.adequate_after = False
     verdict = _pair_verdict(rnd, training, thermal, [close], common, Thresholds())
     assert verdict.status == "missing_effect" and verdict.missing == "thermal"
@@ -1444,20 +1802,36 @@ def test_unexplained_by_pairs_says_when_the_best_single_is_adequate_but_has_a_ri
     from identify.diagnosis import diagnose as diagnosis
 
     def candidate(effect, delta_bic, adequate):
-        return SimpleNamespace(effect=effect, explained=0.98, delta_bic=delta_bic, adequate_after=adequate,
-                               rms_after=0.834, refitted=True, uncharged_terms=[])  # fmt: skip
+        return SimpleNamespace(
+            effect=effect,
+            explained=0.98,
+            delta_bic=delta_bic,
+            adequate_after=adequate,
+            rms_after=0.834,
+            refitted=True,
+            uncharged_terms=[],
+        )
 
     drift, creep = candidate("sensor_drift", 1770.0, True), candidate("creep", 1746.0, True)
     pairs = [candidate("sensor_drift+lag", 1761.0, True), candidate("creep+rate_width", 1737.0, True)]
-    rnd = SimpleNamespace(fit=SimpleNamespace(rms=1.0, noise=SimpleNamespace(sigma=0.83)), refitted=[drift, creep],
-                          screened=[], chi2_0_small=1.0, n_eff_small=1.0, failed={}, profile=None,
-                          adequacy=SimpleNamespace(failed=("low_frequency",), size_ratio=0.57))  # fmt: skip
+    rnd = SimpleNamespace(
+        fit=SimpleNamespace(rms=1.0, noise=SimpleNamespace(sigma=0.83)),
+        refitted=[drift, creep],
+        screened=[],
+        chi2_0_small=1.0,
+        n_eff_small=1.0,
+        failed={},
+        profile=None,
+        adequacy=SimpleNamespace(failed=("low_frequency",), size_ratio=0.57),
+    )
     monkeypatch.setattr(diagnosis, "_where_summary", lambda profile: "")
     monkeypatch.setattr(diagnosis, "_pairs_apart_text", lambda record, listed, thresholds: "within 10")
     names = [p.effect for p in pairs]
     reason = diagnosis._unexplained_reason(rnd, drift, creep, True, set(), names, pairs, "", Thresholds())
-    assert ("'sensor_drift' alone leaves a residual consistent with the noise (delta BIC 1770) but the record "
-            "cannot tell it from 'creep' (1746), and pairs with no effect in common") in reason, reason
+    assert (
+        "'sensor_drift' alone leaves a residual consistent with the noise (delta BIC 1770) but the record "
+        "cannot tell it from 'creep' (1746), and pairs with no effect in common"
+    ) in reason, reason
     assert "no single candidate leaves the noise" not in reason
     drift.adequate_after = creep.adequate_after = False
     reason = diagnosis._unexplained_reason(rnd, drift, creep, True, set(), names, pairs, "", Thresholds())
@@ -1487,8 +1861,9 @@ def test_a_targeted_name_waits_for_the_rivals_its_screening_ranked_low(monkeypat
     monkeypatch.setattr(diagnosis, "_evaluate_candidate", evaluate)
     monkeypatch.setattr(diagnosis, "_short_refit_from_screening", lambda *a, **k: (0.0, None))
     monkeypatch.setattr(diagnosis, "_screening_values", lambda *a, **k: {})
-    s = SimpleNamespace(thresholds=Thresholds(), say=lambda m: None, work=None, record=None, quiet=None, noise_ref=None,
-                        rng=None)  # fmt: skip
+    s = SimpleNamespace(
+        thresholds=Thresholds(), say=lambda m: None, work=None, record=None, quiet=None, noise_ref=None, rng=None
+    )
     rnd = SimpleNamespace(fit=fit, chi2_0=1.0, adequacy=None)
 
     def screened(name, bic):
@@ -1500,7 +1875,9 @@ def test_a_targeted_name_waits_for_the_rivals_its_screening_ranked_low(monkeypat
     assert targeted is None  # creep (19) within 10 of sensor_drift (16)
     assert [c.effect for c in ranking[:2]] == ["creep", "sensor_drift"] and all(c.refitted for c in ranking[:2])
     reason = _adequate_verdict(s, SimpleNamespace(fit=fit), ranking, "The residual passes the noise tests.").reason
-    assert "'creep' (delta BIC 19) and 'sensor_drift' (16) are less than 10 apart, which is no strong evidence" in reason
+    assert (
+        "'creep' (delta BIC 19) and 'sensor_drift' (16) are less than 10 apart, which is no strong evidence" in reason
+    )
     assert "below the practical size" not in reason
 
     refit_gain["creep"] = (-2.0, 1.04)  # the rival's refit gains nothing: the name stands
@@ -1536,10 +1913,15 @@ def test_when_the_other_threshold_sign_fits_the_best_candidate_better_the_next_o
             return [candidate(n, other_sign_bic[n], n == "incomplete_reset") for n in names if n in other_sign_bic]
 
         monkeypatch.setattr(diagnosis, "_other_sign_refits", other_sign_refits)
-        monkeypatch.setattr(diagnosis, "_other_sign_refits_from",
-                            lambda s, rnd, names, anchor: other_sign_refits(s, rnd, names))  # fmt: skip
-        refitted = [candidate("training", 42653.0), candidate("incomplete_reset", 30175.0),
-                    candidate("thermal", 15028.0), candidate("creep", 13294.0)]  # fmt: skip
+        monkeypatch.setattr(
+            diagnosis, "_other_sign_refits_from", lambda s, rnd, names, anchor: other_sign_refits(s, rnd, names)
+        )
+        refitted = [
+            candidate("training", 42653.0),
+            candidate("incomplete_reset", 30175.0),
+            candidate("thermal", 15028.0),
+            candidate("creep", 13294.0),
+        ]
         s = SimpleNamespace(thresholds=Thresholds())
         ranked, replaced = diagnosis._retry_other_sign(s, SimpleNamespace(refitted=refitted))
         return ranked, asked, replaced
@@ -1586,10 +1968,19 @@ def test_the_other_threshold_sign_is_finished_only_where_it_starts_lower_on_the_
         own = SimpleNamespace(effect="thermal", fit=SimpleNamespace(model=own_model or with_thermal["positive"]))
         rnd = SimpleNamespace(fit=positive, refitted=[own], short={"thermal": (0.0, own_start)})
         s = SimpleNamespace(record=record, say=said.append)
-        return diagnosis._other_sign_start_lower(s, rnd, "thermal", with_thermal["negative"], other_start, "negative"), said
+        return diagnosis._other_sign_start_lower(
+            s, rnd, "thermal", with_thermal["negative"], other_start, "negative"
+        ), said
 
-    chi2 = {f: diagnosis._whole_record_chi2(SimpleNamespace(record=record), SimpleNamespace(fit=positive),
-                                            with_thermal["positive"], start("positive", f)) for f in (1.0, 1.05)}  # fmt: skip
+    chi2 = {
+        f: diagnosis._whole_record_chi2(
+            SimpleNamespace(record=record),
+            SimpleNamespace(fit=positive),
+            with_thermal["positive"],
+            start("positive", f),
+        )
+        for f in (1.0, 1.05)
+    }
     assert chi2[1.05] > chi2[1.0] + 100.0
     # the other sign's start lower than the own start: finished
     assert lower(start("positive", 1.05), start("negative")) == (True, [])
@@ -1599,8 +1990,14 @@ def test_the_other_threshold_sign_is_finished_only_where_it_starts_lower_on_the_
     # no own refit in the baseline's sign to compare with: finished
     assert lower(start("positive"), start("negative", 1.05), own_model=with_thermal["negative"])[0]
     rnd = SimpleNamespace(fit=positive, refitted=[], short={})
-    assert diagnosis._other_sign_start_lower(SimpleNamespace(record=record, say=print), rnd, "thermal",
-                                             with_thermal["negative"], start("negative", 1.05), "negative")  # fmt: skip
+    assert diagnosis._other_sign_start_lower(
+        SimpleNamespace(record=record, say=print),
+        rnd,
+        "thermal",
+        with_thermal["negative"],
+        start("negative", 1.05),
+        "negative",
+    )
 
 
 def test_the_candidates_text_says_which_unused_terms_went_uncharged():
@@ -1610,7 +2007,10 @@ def test_the_candidates_text_says_which_unused_terms_went_uncharged():
         return CandidateResult(name, None, True, 0.78, 1.0, 1721.4, 7000.0, 0.99, True, uncharged_terms=terms)
 
     text = _candidates_text([candidate("thermal", ["thermal.core"]), candidate("training", [])], [])
-    assert "'thermal' explains 99 % (delta BIC 1721 with its unused thermal.core uncharged, RMS after 0.78, adequate)" in text
+    assert (
+        "'thermal' explains 99 % (delta BIC 1721 with its unused thermal.core uncharged, RMS after 0.78, adequate)"
+        in text
+    )
     assert "'training' explains 99 % (delta BIC 1721, RMS after 0.78, adequate)" in text
     assert candidate("creep", ["creep.logarithmic"]).details()["uncharged_terms"] == ["creep.logarithmic"]
 
@@ -1633,17 +2033,31 @@ def test_a_candidate_stuck_in_a_worse_gpi_basin_is_refitted_from_the_best_candid
     truth = dict(sim.truth["theta"])
     work = diagnosis._working_copy(record, noise, diagnosis.find_reversals(record.current).index)
     quiet, noise_ref = diagnosis._noise_reference(record, base_fit, noise, noise.quiet)
-    s = diagnosis._Setting(record, work, quiet, noise_ref, Thresholds(), 2, np.random.default_rng(0),
-                           lambda message: None, ["thermal", "creep", "training"], [])  # fmt: skip
+    s = diagnosis._Setting(
+        record,
+        work,
+        quiet,
+        noise_ref,
+        Thresholds(),
+        2,
+        np.random.default_rng(0),
+        lambda message: None,
+        ["thermal", "creep", "training"],
+        [],
+    )
     rnd = diagnosis._start_round(s, base_fit)
 
     def fitted(name, values):
         model_e = base_fit.model + name
-        start = diagnosis._with_values(model_e, diagnosis._embed(base_fit.model, base_fit.theta, model_e),
-                                       {n: v for n, v in values.items() if n in model_e.names})  # fmt: skip
+        start = diagnosis._with_values(
+            model_e,
+            diagnosis._embed(base_fit.model, base_fit.theta, model_e),
+            {n: v for n, v in values.items() if n in model_e.names},
+        )
         fit = fit_least_squares(record, model_e, noise=noise, start=start, n_starts=1, rng=np.random.default_rng(0))
-        return diagnosis.CandidateResult(name, None, True, fit.rms, fit.max_error_pct, 0.0, float(len(record)), 1.0,
-                                         True, fit=fit)  # fmt: skip
+        return diagnosis.CandidateResult(
+            name, None, True, fit.rms, fit.max_error_pct, 0.0, float(len(record)), 1.0, True, fit=fit
+        )
 
     donor = fitted("training", truth)  # the good basin
     settled = fitted("creep", donor.fit.model.theta_dict(donor.fit.theta))  # from the donor's GPI: in its basin
@@ -1661,8 +2075,9 @@ def test_a_candidate_stuck_in_a_worse_gpi_basin_is_refitted_from_the_best_candid
 
     calls = []
     real = diagnosis._evaluate_in_round
-    monkeypatch.setattr(diagnosis, "_evaluate_in_round",
-                        lambda s, rnd, name, *a, **k: calls.append(name) or real(s, rnd, name, *a, **k))  # fmt: skip
+    monkeypatch.setattr(
+        diagnosis, "_evaluate_in_round", lambda s, rnd, name, *a, **k: calls.append(name) or real(s, rnd, name, *a, **k)
+    )
     rnd.refitted = [donor, settled, worse]
     refitted = diagnosis._shared_basin_refits(s, rnd, rnd.refitted)
     assert calls == ["thermal"]  # only the stuck candidate is refitted on the whole record
@@ -1696,14 +2111,29 @@ def test_a_pair_that_would_name_is_checked_against_the_pairs_that_swap_its_named
     def cand(effect, bic, adequate=False):
         return SimpleNamespace(effect=effect, delta_bic=bic, adequate_after=adequate, fit=object())
 
-    singles = {c.effect: c for c in (cand("thermal", 10283.0), cand("training", 9783.0), cand("sensor_drift", 9310.0),
-                                 cand("creep", 6135.0))}  # fmt: skip
+    singles = {
+        c.effect: c
+        for c in (
+            cand("thermal", 10283.0),
+            cand("training", 9783.0),
+            cand("sensor_drift", 9310.0),
+            cand("creep", 6135.0),
+        )
+    }
 
     def short(a, b):
         return (1.0, f"model {a}+{b}", f"start {a}+{b}", (a, None, None), (b, None, None))
 
-    shorts = [short(a, b) for a, b in (("thermal", "training"), ("thermal", "sensor_drift"), ("training", "sensor_drift"),
-                                       ("sensor_drift", "creep"), ("thermal", "creep"))]  # fmt: skip
+    shorts = [
+        short(a, b)
+        for a, b in (
+            ("thermal", "training"),
+            ("thermal", "sensor_drift"),
+            ("training", "sensor_drift"),
+            ("sensor_drift", "creep"),
+            ("thermal", "creep"),
+        )
+    ]
     best = cand("thermal+sensor_drift", 15732.0, adequate=True)
     swaps = _swapped_pairs(singles, [best, cand("sensor_drift+creep", 11853.0)], shorts, Thresholds())
     assert [(item[3][0], item[4][0]) for item in swaps] == [("training", "sensor_drift")]
@@ -1721,10 +2151,19 @@ def test_a_pair_that_would_name_is_checked_against_the_pairs_that_swap_its_named
     assert _swapped_pairs(singles, [creep_pair], shorts, Thresholds(max_refits=0)) == []
     # seed 14's draw: the pair gains 42 over the drift alone, training is 258 behind it alone:
     # no swap can make that up
-    singles14 = {c.effect: c for c in (cand("sensor_drift", 3320.0, True), cand("training", 3062.0), cand("creep", 3051.0),
-                                   cand("thermal", 3044.0))}  # fmt: skip
+    singles14 = {
+        c.effect: c
+        for c in (
+            cand("sensor_drift", 3320.0, True),
+            cand("training", 3062.0),
+            cand("creep", 3051.0),
+            cand("thermal", 3044.0),
+        )
+    }
     shorts14 = [short(a, b) for a, b in (("training", "thermal"), ("creep", "thermal"), ("sensor_drift", "thermal"))]
-    assert _swapped_pairs(singles14, [cand("sensor_drift+thermal", 3362.0, adequate=True)], shorts14, Thresholds()) == []
+    assert (
+        _swapped_pairs(singles14, [cand("sensor_drift+thermal", 3362.0, adequate=True)], shorts14, Thresholds()) == []
+    )
     # a pair that gains more over the drift alone than training is behind it: the swap is tried
     swaps = _swapped_pairs(singles14, [cand("sensor_drift+thermal", 3600.0, adequate=True)], shorts14, Thresholds())
     assert [(item[3][0], item[4][0]) for item in swaps] == [("training", "thermal"), ("creep", "thermal")]
@@ -1748,10 +2187,27 @@ def test_a_swapped_pair_starts_from_the_best_pairs_gpi_and_kept_member():
     def vector(model, values):
         return model.theta_from_dict({**model.theta_dict(model.default_theta()), **values})
 
-    best = SimpleNamespace(fit=SimpleNamespace(model=best_model, theta=vector(best_model, {
-        "rho": 5.5, "a1": 0.6, "thermal_tau": 3.4, "sensor_drift_settling": 2.6, "sensor_drift_settling_tau": 10.4})))
-    single = SimpleNamespace(fit=SimpleNamespace(model=single_model, theta=vector(single_model, {
-        "rho": 5.0, "a1": 0.5, "training_gain": 0.017, "training_travel": 14.5})))
+    best = SimpleNamespace(
+        fit=SimpleNamespace(
+            model=best_model,
+            theta=vector(
+                best_model,
+                {
+                    "rho": 5.5,
+                    "a1": 0.6,
+                    "thermal_tau": 3.4,
+                    "sensor_drift_settling": 2.6,
+                    "sensor_drift_settling_tau": 10.4,
+                },
+            ),
+        )
+    )
+    single = SimpleNamespace(
+        fit=SimpleNamespace(
+            model=single_model,
+            theta=vector(single_model, {"rho": 5.0, "a1": 0.5, "training_gain": 0.017, "training_travel": 14.5}),
+        )
+    )
     own = vector(model_pair, {"rho": 4.0, "sensor_drift_settling": 4.2, "sensor_drift_settling_tau": 69.0})
     start = model_pair.theta_dict(diagnosis._swap_start(best, {"training": single}, model_pair, own))
     assert start["rho"] == 5.5 and start["a1"] == 0.6  # the best pair's GPI
@@ -1817,13 +2273,20 @@ def test_a_fresh_fit_of_the_other_sign_replaces_a_candidate_only_where_it_fits_b
         return SimpleNamespace(effect=effect, delta_bic=delta_bic, fit=SimpleNamespace())
 
     other_sign = {"training": 929.0, "initial_state": 40.0, "lag": 12.0}
-    monkeypatch.setattr(diagnosis, "_evaluate_in_round",
-                        lambda s, rnd, name, model, theta, screening: candidate(name, other_sign[name]))  # fmt: skip
+    monkeypatch.setattr(
+        diagnosis, "_evaluate_in_round", lambda s, rnd, name, model, theta, screening: candidate(name, other_sign[name])
+    )
     refitted = [candidate("thermal", 726.0), candidate("training", 180.0), candidate("initial_state", 52.0)]
-    rnd = SimpleNamespace(refitted=refitted, screened=[], fresh={n: SimpleNamespace(model=None, theta=None) for n in other_sign})
+    rnd = SimpleNamespace(
+        refitted=refitted, screened=[], fresh={n: SimpleNamespace(model=None, theta=None) for n in other_sign}
+    )
     ranked, replaced = diagnosis._fresh_other_sign(SimpleNamespace(say=lambda m: None), rnd)
     assert [(c.effect, c.delta_bic) for c in ranked] == [
-        ("training", 929.0), ("thermal", 726.0), ("initial_state", 52.0), ("lag", 12.0)]
+        ("training", 929.0),
+        ("thermal", 726.0),
+        ("initial_state", 52.0),
+        ("lag", 12.0),
+    ]
     assert {n: c.delta_bic for n, c in replaced.items()} == {"training": 180.0}
 
 
@@ -1856,7 +2319,9 @@ def test_the_other_threshold_signs_baseline_is_tied_only_within_bic_significant(
     assert tied(Thresholds(bic_significant=max(gap, 0.0) + 1.0), [worse]) is None
 
 
-def test_when_the_threshold_signs_tie_each_candidate_is_refitted_in_the_other_sign_where_that_fits_it_better(monkeypatch):
+def test_when_the_threshold_signs_tie_each_candidate_is_refitted_in_the_other_sign_where_that_fits_it_better(
+    monkeypatch,
+):
     """A tie of the plain model's two signs: every candidate with a short refit gets one from
     the other sign's baseline; those that end lower than in the baseline's sign, and that the
     refit rule would refit, are finished on the whole record and replace their refit of the
@@ -1882,8 +2347,9 @@ def test_when_the_threshold_signs_tie_each_candidate_is_refitted_in_the_other_si
 
     def evaluate(s, rnd, name, model_e, start, screening):
         finished.append(name)
-        return SimpleNamespace(effect=name, delta_bic={"training": 292.0, "creep": 60.0}[name],
-                               fit=SimpleNamespace(model=model_e))  # fmt: skip
+        return SimpleNamespace(
+            effect=name, delta_bic={"training": 292.0, "creep": 60.0}[name], fit=SimpleNamespace(model=model_e)
+        )
 
     monkeypatch.setattr(diagnosis, "_short_refit", short_refit)
     monkeypatch.setattr(diagnosis, "_refit_starts", lambda *args, **kwargs: [[]])
@@ -1896,10 +2362,13 @@ def test_when_the_threshold_signs_tie_each_candidate_is_refitted_in_the_other_si
 
     screened = [SimpleNamespace(effect=n, grid=[]) for n in ("thermal", "training", "creep", "lag", "sensor_drift")]
     rnd = SimpleNamespace(
-        fit=SimpleNamespace(model=positive), screened=screened, short={n: (c, None) for n, c in own_short.items()},
+        fit=SimpleNamespace(model=positive),
+        screened=screened,
+        short={n: (c, None) for n, c in own_short.items()},
         chi2_0_small=3646.4,
-        n_eff_small=3000.0, refitted=[refit("thermal", 190.0), refit("training", 77.0), refit("creep", 88.0)],
-    )  # fmt: skip
+        n_eff_small=3000.0,
+        refitted=[refit("thermal", 190.0), refit("training", 77.0), refit("creep", 88.0)],
+    )
     s = SimpleNamespace(work=SimpleNamespace(record=None, noise=None), thresholds=Thresholds(), say=lambda m: None)
     tied = SimpleNamespace(model=negative, theta=np.zeros(len(negative.names)))
     ranked, replaced = diagnosis._tied_sign_refits(s, rnd, tied)

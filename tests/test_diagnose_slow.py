@@ -33,10 +33,10 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
-from identify.diagnosis.diagnose import diagnose, fit_baseline
-from identify.fitting.parametrisation import normalised_model
-from identify.fitting.noise import NoiseModel
 from identify.data.records import Record
+from identify.diagnosis.diagnose import diagnose, fit_baseline
+from identify.fitting.noise import NoiseModel
+from identify.fitting.parametrisation import normalised_model
 from model import TABLE1, Model, gpi
 from model.effects import accumulated_travel, first_order_lowpass
 
@@ -95,8 +95,9 @@ def _amount_for_size(clean_of, plain, size: float, upper: float) -> float:
     own parameter, not by scaling its output."""
     from scipy.optimize import brentq
 
-    return brentq(lambda amount: np.sqrt(np.mean((clean_of(amount) - plain) ** 2)) / SIGMA - size, 1e-4, upper,
-                  xtol=1e-6)  # fmt: skip
+    return brentq(
+        lambda amount: np.sqrt(np.mean((clean_of(amount) - plain) ** 2)) / SIGMA - size, 1e-4, upper, xtol=1e-6
+    )
 
 
 def alternative_record(kind: str, seed: int, size: float = 3.0) -> Record:
@@ -190,8 +191,14 @@ def format_confusion(results) -> str:
                     counts[v] += 1
                 else:
                     other += 1
-        label = case if case in HIDDEN or case == "none" else (
-            "initial_state (virgin, z0 = -20; exact reparametrisation)" if case == "initial_state" else f"{case} (outside library)"
+        label = (
+            case
+            if case in HIDDEN or case == "none"
+            else (
+                "initial_state (virgin, z0 = -20; exact reparametrisation)"
+                if case == "initial_state"
+                else f"{case} (outside library)"
+            )
         )
         lines.append(f"| {label} | " + " | ".join(str(counts[v]) for v in VERDICTS) + f" | {other} |")
     return "\n".join(lines)
@@ -202,8 +209,10 @@ def test_confusion_matrix(confusion, capsys):
         print(f"\nDiagnosis confusion matrix over seeds {SEEDS} (sigma = {SIGMA} um, effects ~2 sigma RMS):")
         print(format_confusion(confusion))
         for (case, seed), d in sorted(confusion.items()):
-            print(f"  {case:<14} seed {seed}: {_verdict(d):<14} RMS {d.rms / d.noise_sigma:.3f} sigma, "
-                  f"misfit {d.adequacy.size_ratio:.2f} sigma, {WALL_SECONDS[case, seed]:.0f} s")  # fmt: skip
+            print(
+                f"  {case:<14} seed {seed}: {_verdict(d):<14} RMS {d.rms / d.noise_sigma:.3f} sigma, "
+                f"misfit {d.adequacy.size_ratio:.2f} sigma, {WALL_SECONDS[case, seed]:.0f} s"
+            )
     for (case, seed), d in confusion.items():
         verdict = _verdict(d)
         if case in HIDDEN:
@@ -241,8 +250,13 @@ def test_no_false_alarm_on_clean_records(capsys):
 
 @pytest.mark.parametrize(
     "kind, expected",
-    [("log_creep", "creep"), ("thermal2", "thermal"), ("lag2", "lag"), ("exp_drift", "sensor_drift"),
-     ("rate_saturating", "rate_width")],
+    [
+        ("log_creep", "creep"),
+        ("thermal2", "thermal"),
+        ("lag2", "lag"),
+        ("exp_drift", "sensor_drift"),
+        ("rate_saturating", "rate_width"),
+    ],
 )
 def test_other_functional_forms_are_named_by_their_physics(kind, expected):
     d = diagnose(alternative_record(kind, seed=21), rng=np.random.default_rng(21))
@@ -300,9 +314,11 @@ def test_other_first_cycle_forms_point_to_training(kind, capsys):
     candidate that leaves structure is not named: `unexplained`, training the best candidate)."""
     d = diagnose(training_alternative_record(kind, seed=21), rng=np.random.default_rng(21))
     with capsys.disabled():
-        print(f"\n{kind}: {d.status} {d.missing}, RMS {d.rms / d.noise_sigma:.3f} -> "
-              f"{d.best.rms_after / d.noise_sigma:.3f} sigma, explained {d.best.explained:.2f}, "
-              f"adequate after {d.best.adequate_after}, {d.best.parameters}")  # fmt: skip
+        print(
+            f"\n{kind}: {d.status} {d.missing}, RMS {d.rms / d.noise_sigma:.3f} -> "
+            f"{d.best.rms_after / d.noise_sigma:.3f} sigma, explained {d.best.explained:.2f}, "
+            f"adequate after {d.best.adequate_after}, {d.best.parameters}"
+        )
     assert d.best.effect == "training", d.reason
     assert d.best.rms_after / d.noise_sigma < 1.15
     assert d.best.explained > 0.75
@@ -318,12 +334,20 @@ _ABSORBED = (
 )
 
 
-@pytest.mark.parametrize("hidden", [
-    ("lag", "sensor_drift"),
-    ("thermal", "lag"),
-    pytest.param(("creep", "thermal"), marks=pytest.mark.xfail(
-        strict=True, reason=f"{_ABSORBED}: with the first effect added the record is adequate, the second is not found")),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "hidden",
+    [
+        ("lag", "sensor_drift"),
+        ("thermal", "lag"),
+        pytest.param(
+            ("creep", "thermal"),
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason=f"{_ABSORBED}: with the first effect added the record is adequate, the second is not found",
+            ),
+        ),
+    ],
+)
 def test_two_hidden_effects_are_found_one_after_the_other(hidden):
     record = simulate(",".join(HIDDEN[h] for h in hidden), seed=31, noise_sigma=SIGMA).record
     first = diagnose(record, rng=np.random.default_rng(31))
@@ -340,8 +364,9 @@ def visible_size(spec: str, seed: int = 0) -> float:
     """RMS over the energised part of the best plain-GPI fit's residual to the noise-free
     record with the hidden effect ``spec``, in noise sigmas (the diagnosis' baseline fit)."""
     sim = simulate(spec, seed=seed, noise_sigma=0.0)
-    fit = fit_baseline(sim.record, normalised_model(Model()), NoiseModel(sigma=SIGMA, source="user"),
-                       rng=np.random.default_rng(seed))  # fmt: skip
+    fit = fit_baseline(
+        sim.record, normalised_model(Model()), NoiseModel(sigma=SIGMA, source="user"), rng=np.random.default_rng(seed)
+    )
     energised = sim.record.time >= 10.0
     return float(np.sqrt(np.mean(fit.residual[energised] ** 2)) / SIGMA)
 
@@ -350,8 +375,10 @@ def test_visible_sizes_of_the_hidden_effects(capsys):
     sizes = {case: visible_size(HIDDEN[case]) for case in HIDDEN}
     sizes["initial_state"] = visible_size("initial_state_memory=-20")
     with capsys.disabled():
-        print("\nvisible size (best plain GPI on the noise-free record, energised RMS / sigma):",
-              {k: f"{v:.3g}" for k, v in sizes.items()})  # fmt: skip
+        print(
+            "\nvisible size (best plain GPI on the noise-free record, energised RMS / sigma):",
+            {k: f"{v:.3g}" for k, v in sizes.items()},
+        )
     # the library effects at ~2 sigma against the plain GPI leave 0.45-0.70 sigma after
     # the refit (seed 0, measured at c9fe905); a band of +-40 % around that. training leaves
     # more of its 1.94 sigma (measured VISIBLE_TRAINING): the GPI cannot bend its first branch

@@ -12,8 +12,8 @@ import pytest
 
 from identify.bench import simulate
 from identify.cli import main
-from identify.fitting.posterior import BACKEND_GROUP, chain_diagnostics, import_arviz
 from identify.data.records import write_record
+from identify.fitting.posterior import BACKEND_GROUP, chain_diagnostics, import_arviz
 
 az = import_arviz()  # two test workers may import arviz at the same moment (see import_arviz)
 
@@ -83,7 +83,9 @@ def test_posterior_nc_opens_in_arviz(study_dir):
     """posterior.nc: az.summary's means are summary.json's; names, units; az.loo runs."""
     summary = json.loads((study_dir / "summary.json").read_text())
     idata = az.from_netcdf(study_dir / "posterior.nc")
-    assert {"posterior", "sample_stats", "observed_data", "log_likelihood", "posterior_predictive"} <= set(idata.groups())
+    assert {"posterior", "sample_stats", "observed_data", "log_likelihood", "posterior_predictive"} <= set(
+        idata.groups()
+    )
     table = az.summary(idata, kind="stats", round_to="none")
     varying = [p for p in summary["parameters"] if p["vary"]]
     assert list(idata.posterior.data_vars) == [p["name"] for p in varying]
@@ -99,8 +101,6 @@ def test_posterior_nc_opens_in_arviz(study_dir):
         loo = az.loo(idata, pointwise=True)
     assert np.isfinite(loo.elpd_loo)
     # the pointwise log-likelihood sums to the likelihood of each draw
-    from identify.fitting.posterior import LogPosterior  # noqa: F401  (the definition it must agree with)
-
     total = idata.log_likelihood["displacement"].sum("time")
     assert np.isfinite(total).all()
 

@@ -18,14 +18,14 @@ from model import EFFECTS, TABLE1, Effect, Model, gpi, paper_current
 from model.effects import (
     CREEP_MODES,
     LOG_CREEP_MODES_PER_DECADE,
-    delayed_lowpass,
-    incomplete_reset_strain,
-    log_creep_time_constants,
     REFERENCE_CURRENT,
     SensorDrift,
     accumulated_travel,
     creep_time_constants,
+    delayed_lowpass,
     first_order_lowpass,
+    incomplete_reset_strain,
+    log_creep_time_constants,
     thermal_rise,
     training_fade,
 )
@@ -125,9 +125,15 @@ def test_sensor_drift_with_every_term_on_batch_is_each_rows_own_output(paper_inp
     time, current = paper_input[0][::4], paper_input[1][::4]
     m = Model(["sensor_drift"])
     theta = m.default_theta()
-    on = {"sensor_drift_linear": 2.0, "sensor_drift_quadratic": -1.0, "sensor_drift_settling": 1.5,
-          "sensor_drift_settling_tau": 12.0, "sensor_drift_ambient_sine": 0.4, "sensor_drift_ambient_cosine": -0.3,
-          "sensor_drift_ambient_period": 90.0}  # fmt: skip
+    on = {
+        "sensor_drift_linear": 2.0,
+        "sensor_drift_quadratic": -1.0,
+        "sensor_drift_settling": 1.5,
+        "sensor_drift_settling_tau": 12.0,
+        "sensor_drift_ambient_sine": 0.4,
+        "sensor_drift_ambient_cosine": -0.3,
+        "sensor_drift_ambient_period": 90.0,
+    }
     for key, value in on.items():
         theta[m.names.index(key)] = value
     y = _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats=(0, 3, theta.size))
@@ -148,7 +154,9 @@ def _assert_jacobian_batch_rows_are_single(m, theta, time, current, repeats):
     y, valid = m.evaluate(rows, time, current)
     assert valid.all() and y.shape == (rows.shape[0], time.size)
     for w in range(rows.shape[0]):
-        assert np.array_equal(y[w], m(rows[w], time, current)), f"{m!r}: row {w} ({m.names[w - 1] if 0 < w <= n_par else 'repeat'})"
+        assert np.array_equal(y[w], m(rows[w], time, current)), (
+            f"{m!r}: row {w} ({m.names[w - 1] if 0 < w <= n_par else 'repeat'})"
+        )
     return y
 
 
@@ -225,7 +233,9 @@ def signature_creep(paper_input, plain_gpi):
     assert np.all(np.diff(y[i_stop:]) > 0)  # monotone approach
     # A signed amplitude: A < 0 overshoots by |A| times what is still to creep and relaxes back,
     # the same modes with the other sign (the deviation from y_g is exactly antisymmetric in A)
-    y_back = creep.output(np.array([[-amplitude, tau, decades, 0.0, 0.1, 0.0]]), time, np.zeros_like(time), y_g[None, :])[0]
+    y_back = creep.output(
+        np.array([[-amplitude, tau, decades, 0.0, 0.1, 0.0]]), time, np.zeros_like(time), y_g[None, :]
+    )[0]
     np.testing.assert_allclose(y_back - y_g, -(y - y_g), rtol=1e-12, atol=1e-11)
     assert y_back[i_stop] > step and np.all(np.diff(y_back[i_stop:]) < 0)  # beyond the step, then back
     assert abs(y_back[-1] - step) < abs(y_back[i_stop] - step)
@@ -282,7 +292,9 @@ def signature_sensor_drift(paper_input, plain_gpi):
     time, current = paper_input
     linear, quadratic = 2.0, -1.5
     m = Model(["sensor_drift"])
-    change = m(_theta(m, {"sensor_drift_linear": linear, "sensor_drift_quadratic": quadratic}), time, current) - plain_gpi
+    change = (
+        m(_theta(m, {"sensor_drift_linear": linear, "sensor_drift_quadratic": quadratic}), time, current) - plain_gpi
+    )
     s = time / 70.0
     np.testing.assert_allclose(change, linear * s + quadratic * s**2, rtol=1e-9, atol=1e-12)
     assert change[0] == 0.0
@@ -399,7 +411,9 @@ def signature_lag_dead_time(paper_input, plain_gpi):
     np.testing.assert_allclose(delayed_lowpass(time, current, 0.1, delay)[0], exact, rtol=0, atol=2e-6)
     # a pure delay reads the current by linear interpolation
     np.testing.assert_allclose(
-        delayed_lowpass(time, current, 0.0, delay)[0], np.interp(time - delay, time, current, left=current[0]), atol=1e-12
+        delayed_lowpass(time, current, 0.0, delay)[0],
+        np.interp(time - delay, time, current, left=current[0]),
+        atol=1e-12,
     )
     # continuous in the delay: d and d + 1e-7 s differ by about slope x 1e-7 (slope <= 3.2 A/s here)
     a, b = delayed_lowpass(time, current, [0.1, 0.1], [delay, delay + 1e-7])
@@ -441,7 +455,9 @@ def signature_incomplete_reset(paper_input, plain_gpi):
     time, current = paper_input
     m = Model(["incomplete_reset"])
     A, R = 6.0, 0.4
-    change = m(m.theta_from_dict({"incomplete_reset_strain": A, "incomplete_reset_retained": R}), time, current) - plain_gpi
+    change = (
+        m(m.theta_from_dict({"incomplete_reset_strain": A, "incomplete_reset_retained": R}), time, current) - plain_gpi
+    )
     np.testing.assert_allclose(change[time < 10.0], 0.0, atol=1e-12)
     excursion = np.abs(plain_gpi - plain_gpi[0])
     E = excursion.max()
@@ -461,7 +477,9 @@ def signature_incomplete_reset(paper_input, plain_gpi):
     np.testing.assert_allclose(change, _incomplete_reset_reference(current, plain_gpi, A, R, 0.0), rtol=1e-9, atol=1e-9)
     for a, r, fade in ((A, R, 0.0), (A, R, 0.05), (A, 1.0, 0.0), (-3.0, 0.0, 0.0)):
         got = incomplete_reset_strain(current, plain_gpi, [a], [r], [fade])[0]
-        np.testing.assert_allclose(got, _incomplete_reset_reference(current, plain_gpi, a, r, fade), rtol=1e-11, atol=1e-11)
+        np.testing.assert_allclose(
+            got, _incomplete_reset_reference(current, plain_gpi, a, r, fade), rtol=1e-11, atol=1e-11
+        )
     # R = 1: nothing is reset (A from the peak on); a fade lets the retained part decay with the travel
     full = incomplete_reset_strain(current, plain_gpi, [A], [1.0], [0.0])[0]
     np.testing.assert_allclose(full[peak:], A, rtol=1e-12)
@@ -500,7 +518,8 @@ def signature_thermal_two_nodes(paper_input, plain_gpi):
     params = np.array([[tau1, 0.0, 0.0, tau2, 0.0, 1.0]])  # node 2 expansion only: y - y_g = theta2
     y = thermal.output(params, time, current, y_g)[0] - 100.0
     dt = np.clip(time - t_on, 0.0, None)
-    # theta1 = 1 - exp(-t/tau1) (after a ramp over one 10 ms sample); theta2 = 1 - (tau2 e^{-t/tau2} - tau1 e^{-t/tau1})/(tau2 - tau1)
+    # theta1 = 1 - exp(-t/tau1) (after a ramp over one 10 ms sample); theta2 = 1 - (tau2 e^{-t/tau2} - tau1
+    # e^{-t/tau1})/(tau2 - tau1)
     theta2 = 1.0 - (tau2 * np.exp(-dt / tau2) - tau1 * np.exp(-dt / tau1)) / (tau2 - tau1)
     late = time > t_on + 1.0
     np.testing.assert_allclose(y[late], theta2[late], rtol=0, atol=2e-3)
@@ -511,10 +530,16 @@ def signature_thermal_two_nodes(paper_input, plain_gpi):
     assert test["thermal_sensitivity_core"] == 0.0 and test["thermal_expansion_core"] == 0.0
     rise = thermal_rise(time_p, current_p, test["thermal_tau"])[0]
     change = m(_theta(m, test), time_p, current_p) - plain_gpi
-    np.testing.assert_allclose(change, -test["thermal_sensitivity"] * rise * plain_gpi + test["thermal_expansion"] * rise,
-                               rtol=1e-12, atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(
+        change,
+        -test["thermal_sensitivity"] * rise * plain_gpi + test["thermal_expansion"] * rise,
+        rtol=1e-12,
+        atol=1e-12,
+    )
     # node 2 rises more slowly than node 1
-    values = dict(test, thermal_sensitivity=0.0, thermal_expansion=0.0, thermal_expansion_core=3.0, thermal_tau_core=100.0)
+    values = dict(
+        test, thermal_sensitivity=0.0, thermal_expansion=0.0, thermal_expansion_core=3.0, thermal_tau_core=100.0
+    )
     slow = m(_theta(m, values), time_p, current_p) - plain_gpi
     assert np.all(slow[time_p < 10.0] == 0.0)
     assert 0 < slow[time_p <= 30.0][-1] < 3.0 * rise[time_p <= 30.0][-1]
@@ -605,8 +630,9 @@ def signature_training_strain_gain(paper_input, plain_gpi):
     drive = m.effects[0].drive(np.array([[0.1, 0.0, 5.0, 1.0, 0.1]]), time, current)[0]
     y_drive = gpi(TABLE1, drive)
     fade = np.exp(-travel / 5.0)
-    np.testing.assert_allclose(m(_theta(m, both), time, current), y_drive + 0.1 * fade * (y_drive - y_drive[0]),
-                               rtol=1e-13, atol=1e-12)
+    np.testing.assert_allclose(
+        m(_theta(m, both), time, current), y_drive + 0.1 * fade * (y_drive - y_drive[0]), rtol=1e-13, atol=1e-12
+    )
 
 
 def signature_training_width(paper_input, plain_gpi):
@@ -644,7 +670,11 @@ def signature_ambient_drift(paper_input, plain_gpi):
     0 at the first sample, present in the quiet start, and periodic."""
     time, current = paper_input
     m = Model(["sensor_drift"])
-    values = {"sensor_drift_ambient_sine": 1.5, "sensor_drift_ambient_cosine": -2.0, "sensor_drift_ambient_period": 64.0}
+    values = {
+        "sensor_drift_ambient_sine": 1.5,
+        "sensor_drift_ambient_cosine": -2.0,
+        "sensor_drift_ambient_period": 64.0,
+    }
     change = m(_theta(m, values), time, current) - plain_gpi
     phase = 2.0 * np.pi * (time - time[0]) / 64.0
     np.testing.assert_allclose(change, 1.5 * np.sin(phase) - 2.0 * (1.0 - np.cos(phase)), rtol=1e-9, atol=1e-12)
@@ -700,7 +730,9 @@ def signature_rate_width_saturation(paper_input, plain_gpi):
     y = m(_theta(m, {"rate_width_coefficient": 0.2, "rate_width_saturation": 2.0}), time, current)
     assert np.array_equal(y, gpi(TABLE1, current, threshold_scale=1.0 + 0.2 * np.log1p(2.0 * rate) / 2.0))
     narrowing = m(_theta(m, {"rate_width_coefficient": -0.2, "rate_width_saturation": 2.0}), time, current)
-    assert np.array_equal(narrowing, gpi(TABLE1, current, threshold_scale=1.0 / (1.0 + 0.2 * np.log1p(2.0 * rate) / 2.0)))
+    assert np.array_equal(
+        narrowing, gpi(TABLE1, current, threshold_scale=1.0 / (1.0 + 0.2 * np.log1p(2.0 * rate) / 2.0))
+    )
     linear = m(_theta(m, {"rate_width_coefficient": 0.2}), time, current)
     near = m(_theta(m, {"rate_width_coefficient": 0.2, "rate_width_saturation": 1e-9}), time, current)
     np.testing.assert_allclose(near, linear, rtol=0, atol=1e-6)
@@ -838,10 +870,17 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
     assert _distinct_steps(jittered, MAX_DISTINCT_STEPS)[0].size == 0
     current = 5.0 * np.abs(np.sin(uniform))
     # four sets with both nodes on (run in lockstep), then the other cases one by one
-    params = np.array([[20.0, 0.08, 3.0, 300.0, -0.3, 2.0], [1e6, 0.1, 1.0, 1e-4, 0.2, 1.0],
-                       [5.0, 0.05, 1.0, 50.0, 0.1, 0.3], [0.5, 0.2, 2.0, 3000.0, 0.05, 0.4],
-                       [0.0, 0.1, 1.0, 5.0, 0.0, 0.0], [7.0, 0.1, 1.0, 0.0, 0.1, 0.5],
-                       [3.0, 0.1, 1.0, 10.0, 0.0, 0.0]])  # fmt: skip
+    params = np.array(
+        [
+            [20.0, 0.08, 3.0, 300.0, -0.3, 2.0],
+            [1e6, 0.1, 1.0, 1e-4, 0.2, 1.0],
+            [5.0, 0.05, 1.0, 50.0, 0.1, 0.3],
+            [0.5, 0.2, 2.0, 3000.0, 0.05, 0.4],
+            [0.0, 0.1, 1.0, 5.0, 0.0, 0.0],
+            [7.0, 0.1, 1.0, 0.0, 0.1, 0.5],
+            [3.0, 0.1, 1.0, 10.0, 0.0, 0.0],
+        ]
+    )
     y_g = rng.normal(size=(params.shape[0], uniform.size)).cumsum(axis=1)
     thermal = EFFECTS["thermal"]()
     for time in (uniform, jittered):
@@ -863,7 +902,8 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
 
 def test_creep_tabulated_steps_equal_the_per_change_coefficients(monkeypatch):
     """The creep kernel computes each mode's coefficients once per distinct held step
-    (:func:`model.effects._distinct_steps` with ``CREEP_STEP_HOLD``): bit for bit its direct rule (recompute whenever the
+    (:func:`model.effects._distinct_steps` with ``CREEP_STEP_HOLD``): bit for bit its direct rule (recompute whenever
+    the
     step changes by more than 1e-12 of itself), on a grid as a 1 kHz CSV gives (steps that
     differ in their last bits at most samples) with genuinely different steps in it, for the
     saturating spectrum, the logarithmic modes and the part held from a leg's end."""
@@ -880,20 +920,34 @@ def test_creep_tabulated_steps_equal_the_per_change_coefficients(monkeypatch):
     # the held step is within 1e-12 of every sample's own step
     np.testing.assert_allclose(held[index[1:]], diffs, rtol=1e-11, atol=0)
     y_g = 40.0 * np.sin(time * 3.0)[None, :] + rng.normal(size=(4, time.size)).cumsum(axis=1)
-    params = np.array([[0.05, 0.5, 2.0, 0.0, 0.1, 0.0], [0.0, 1.0, 1.0, 0.02, 0.005, 0.0],
-                       [-0.1, 0.02, 3.0, 0.01, 0.01, 0.6], [0.03, 2.0, 0.0, 0.03, 0.002, 1.0]])  # fmt: skip
+    params = np.array(
+        [
+            [0.05, 0.5, 2.0, 0.0, 0.1, 0.0],
+            [0.0, 1.0, 1.0, 0.02, 0.005, 0.0],
+            [-0.1, 0.02, 3.0, 0.01, 0.01, 0.6],
+            [0.03, 2.0, 0.0, 0.03, 0.002, 1.0],
+        ]
+    )
     creep = EFFECTS["creep"]()
     y = creep.output(params, time, np.zeros_like(time), y_g)
     # the oracle: the kernel's own Python function with the table switched off (direct rule)
-    monkeypatch.setattr(effects, "_distinct_steps", lambda t, m, hold=0.0: (np.empty(0), np.zeros(t.size, dtype=np.int64)))
+    monkeypatch.setattr(
+        effects, "_distinct_steps", lambda t, m, hold=0.0: (np.empty(0), np.zeros(t.size, dtype=np.int64))
+    )
     monkeypatch.setattr(effects, "_creep_kernel", effects._creep_kernel.py_func)
     expected = creep.output(params, time, np.zeros_like(time), y_g)
     np.testing.assert_array_equal(y, expected)
     assert np.all(np.abs(y - y_g).max(axis=1) > 1e-3)  # every set creeps visibly
 
 
-TWO_NODE_SWAPPED = {"thermal_tau": 53.73, "thermal_sensitivity": 0.374, "thermal_expansion": -31.78,
-                    "thermal_tau_core": 3.924, "thermal_sensitivity_core": -0.255, "thermal_expansion_core": 31.787}  # fmt: skip
+TWO_NODE_SWAPPED = {
+    "thermal_tau": 53.73,
+    "thermal_sensitivity": 0.374,
+    "thermal_expansion": -31.78,
+    "thermal_tau_core": 3.924,
+    "thermal_sensitivity_core": -0.255,
+    "thermal_expansion_core": 31.787,
+}
 
 
 def test_thermal_nodes_swapped_give_the_same_output_and_the_canonical_labelling_puts_the_coil_first():
@@ -952,8 +1006,14 @@ def test_training_with_every_strength_on_batch_is_each_rows_own_output(paper_inp
     time, current = paper_input[0][::4], paper_input[1][::4]
     m = Model(["training"])
     theta = m.default_theta()
-    values = {"training_deficit": 0.1, "training_threshold": 0.2, "training_travel": 3.0, "training_shape": 2.0,
-              "training_gain": 0.05, "training_width": 0.3}  # fmt: skip
+    values = {
+        "training_deficit": 0.1,
+        "training_threshold": 0.2,
+        "training_travel": 3.0,
+        "training_shape": 2.0,
+        "training_gain": 0.05,
+        "training_width": 0.3,
+    }
     for key, value in values.items():
         theta[m.names.index(key)] = value
     moves_v0 = m.names.index("training_travel") + 1

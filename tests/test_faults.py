@@ -61,17 +61,29 @@ def env() -> dict:
 
 def cli(*args, cwd, timeout=600) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "identify", *map(str, args)], cwd=cwd, env=env(), capture_output=True, text=True,
-        timeout=timeout, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
+        [sys.executable, "-m", "identify", *map(str, args)],
+        cwd=cwd,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def start(*args, cwd) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "identify", *map(str, args)], cwd=cwd, env=env(), stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # Ctrl-C even when pytest runs in the background
-    )  # fmt: skip
+        [sys.executable, "-m", "identify", *map(str, args)],
+        cwd=cwd,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        preexec_fn=lambda: signal.signal(
+            signal.SIGINT, signal.SIG_DFL
+        ),  # Ctrl-C even when pytest runs in the background
+    )
 
 
 def one_error(completed, *needles, code=2) -> str:
@@ -91,8 +103,9 @@ def digests(folder: Path) -> dict:
     """SHA-256 of every file under ``folder`` (relative path -> digest)."""
     return {
         str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-        for p in sorted(folder.rglob("*")) if p.is_file()
-    }  # fmt: skip
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def chain_arrays(folder: Path) -> dict:
@@ -283,7 +296,9 @@ def test_a_stale_lock_of_a_dead_process_is_taken_over(base, tmp_path):
 # -- 3. resumed and finished runs ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)], ids=["SIGTERM", "SIGINT"])
+@pytest.mark.parametrize(
+    "signum", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)], ids=["SIGTERM", "SIGINT"]
+)
 def test_an_interrupted_study_resumes_to_every_figure_of_the_uninterrupted_one(signum, base, tmp_path, uninterrupted):
     shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
     proc = start("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path)
@@ -335,7 +350,9 @@ def test_extending_a_finished_chain_never_damages_it_even_under_kill_9(finished,
     proc.communicate(timeout=60)
     assert {k: v for k, v in digests(run).items() if not k.startswith(".")} == before
     again = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
-    assert again.returncode == NOT_CONVERGED and "already holds this study, finished" in again.stderr, again.stderr[-3000:]
+    assert again.returncode == NOT_CONVERGED and "already holds this study, finished" in again.stderr, again.stderr[
+        -3000:
+    ]
     assert digests(run) == before and not (run / ".chain.h5.extending").exists()
     proc = start("study", "rec.csv", "--out", "finished", *longer, cwd=tmp_path)
     wait_for(lambda: _extending_steps(run) > 400, proc, "steps of the extension")
@@ -423,7 +440,12 @@ def test_a_damaged_file_is_one_error_and_damages_nothing_else(finished, tmp_path
 
 @pytest.mark.parametrize(
     "column, value, name",
-    [(3, "1e308", "displacement"), (3, "-1e200", "displacement"), (2, "1e308", "current"), (3, "1e154", "displacement")],
+    [
+        (3, "1e308", "displacement"),
+        (3, "-1e200", "displacement"),
+        (2, "1e308", "current"),
+        (3, "1e154", "displacement"),
+    ],
     ids=["displacement 1e308", "displacement -1e200", "current 1e308", "spike 1e154"],
 )
 def test_a_value_beyond_any_physical_range_is_an_error_with_line_and_column(base, tmp_path, column, value, name):
@@ -500,8 +522,8 @@ def test_exit_codes_are_documented_in_the_help(tmp_path):
 
 def test_an_unexpected_failure_is_one_line_with_exit_code_1(monkeypatch, capsys):
     from identify import cli
-
     from identify.cli import report as cmd_report
+
     def broken(args):
         raise RuntimeError("something nobody expected")
 
@@ -534,8 +556,9 @@ def test_folder_lock_semantics(tmp_path):
         "import sys\n"
         "lock = FolderLock(sys.argv[1]).acquire(); print('inherited', lock.inherited)\n"
     )
-    inherited = subprocess.run([sys.executable, "-c", probe, str(folder)], env=child_env, pass_fds=fds,
-                               capture_output=True, text=True)  # fmt: skip
+    inherited = subprocess.run(
+        [sys.executable, "-c", probe, str(folder)], env=child_env, pass_fds=fds, capture_output=True, text=True
+    )
     assert inherited.stdout.strip() == "inherited True", inherited.stderr
     stranger = subprocess.run([sys.executable, "-c", probe, str(folder)], env=env(), capture_output=True, text=True)
     assert stranger.returncode != 0 and "FolderBusyError" in stranger.stderr
@@ -570,7 +593,9 @@ def test_a_long_record_loads_in_memory_proportional_to_it_with_progress_and_an_e
         "record = load_record(sys.argv[1])\n"
         "print(len(record), status('VmHWM:') - before)\n"
     )
-    completed = subprocess.run([sys.executable, "-c", probe, "long.csv"], cwd=tmp_path, env=env(), capture_output=True, text=True)
+    completed = subprocess.run(
+        [sys.executable, "-c", probe, "long.csv"], cwd=tmp_path, env=env(), capture_output=True, text=True
+    )
     assert completed.returncode == 0, completed.stderr
     samples, growth = map(int, completed.stdout.split())
     assert samples == n and growth < 100 * n, f"loading took {growth / n:.0f} bytes per sample"
@@ -631,7 +656,9 @@ def test_ctrl_c_stops_a_batch_its_commands_and_its_queue(tmp_path):
     assert batch.returncode == 130 and "Traceback" not in err + out, (batch.returncode, err[-3000:])
     assert not [pid for pid, command in children.items() if alive(pid, command)], "processes outlived the batch"
     rows = summary_rows(tmp_path / "runs")
-    assert {k: r["status"] for k, r in rows.items()} == dict.fromkeys(("r4__default", "r5__default", "r6__default"), "interrupted")
+    assert {k: r["status"] for k, r in rows.items()} == dict.fromkeys(
+        ("r4__default", "r5__default", "r6__default"), "interrupted"
+    )
     assert "stopped by SIGINT" in rows["r4__default"]["error"] and "before it started" in rows["r6__default"]["error"]
     assert 100 <= steps(first) < 60000
     assert not (first / "batch_done.json").exists() and not (first / "batch_failed.json").exists()

@@ -80,15 +80,27 @@ def test_mat_v5_top_level_variables_and_a_struct(tmp_path, arrays):
 def test_mat_errors_name_the_file_and_the_variable(tmp_path, arrays):
     t, i, y = arrays
     cases = {
-        "missing": ({"time": t, "curent": i, "displacement": y}, r"missing variable\(s\) 'current' \(did you mean 'curent'\?\)"),
-        "matrix": ({"time": t, "current": np.stack([i, i]), "displacement": y},
-                   r"variable 'current' has shape \(2, 351\); expected a vector"),
+        "missing": (
+            {"time": t, "curent": i, "displacement": y},
+            r"missing variable\(s\) 'current' \(did you mean 'curent'\?\)",
+        ),
+        "matrix": (
+            {"time": t, "current": np.stack([i, i]), "displacement": y},
+            r"variable 'current' has shape \(2, 351\); expected a vector",
+        ),
         "text": ({"time": t, "current": "not numbers", "displacement": y}, r"variable 'current' is of type <U11"),
-        "lengths": ({"time": t, "current": i[:-1], "displacement": y}, r"the variables have different lengths: time 351, current 350, displacement 351"),
-        "nan": ({"time": t, "current": np.where(np.arange(i.size) == 40, np.nan, i), "displacement": y},
-                r"variable 'current', sample 41: nan is not a finite number"),
-        "time": ({"time": np.where(np.arange(t.size) == 5, t[3], t), "current": i, "displacement": y},
-                 r"variable 'time', sample 6: time .* is smaller than the previous time"),
+        "lengths": (
+            {"time": t, "current": i[:-1], "displacement": y},
+            r"the variables have different lengths: time 351, current 350, displacement 351",
+        ),
+        "nan": (
+            {"time": t, "current": np.where(np.arange(i.size) == 40, np.nan, i), "displacement": y},
+            r"variable 'current', sample 41: nan is not a finite number",
+        ),
+        "time": (
+            {"time": np.where(np.arange(t.size) == 5, t[3], t), "current": i, "displacement": y},
+            r"variable 'time', sample 6: time .* is smaller than the previous time",
+        ),
         "short": ({"time": t[:50], "current": i[:50], "displacement": y[:50]}, r"only 50 samples"),
     }
     for name, (contents, message) in cases.items():

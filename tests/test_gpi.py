@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from reference import classical_pi_reference, gpi_reference
 
 from model import TABLE1, THETA_NAMES, bound_overlap, classical_pi, envelope, gpi, paper_current
 from model.gpi import distinct_rows, gpi_grouped
 from model.signals import QUIET_SECONDS
-from reference import classical_pi_reference, gpi_reference
 
 N_OPERATORS = 12
 A_SLICE, B_SLICE, C_SLICE, D_SLICE = slice(3, 7), slice(7, 11), slice(11, 15), slice(15, 19)
@@ -184,14 +184,17 @@ def test_initial_excursion_is_the_memory_of_a_prior_path(reading, paper_input):
         path = np.r_[v0, v0 + excursions[w], current]
         reference = gpi_reference(thetas[w], path, reading=reading, initial_memory=levels[w])
         np.testing.assert_allclose(fast[w, 1:], reference.output[3:], rtol=0, atol=1e-9 * oracle_scale(reference))
-        assert np.array_equal(fast[w], gpi(thetas[w], current, reading=reading, initial_memory=levels[w],
-                                           initial_excursion=excursions[w]))  # fmt: skip
+        assert np.array_equal(
+            fast[w], gpi(thetas[w], current, reading=reading, initial_memory=levels[w], initial_excursion=excursions[w])
+        )
     # the excursion is seen: the raised trace persists in the wide operators
     plain = gpi(thetas[0], current, reading=reading)
     assert np.max(np.abs(fast[0] - plain)) > 1e-3 * np.ptp(plain)
     # 0 is exactly no excursion
-    assert np.array_equal(gpi(thetas, current, reading=reading, initial_memory=levels, initial_excursion=0.0),
-                          gpi(thetas, current, reading=reading, initial_memory=levels))  # fmt: skip
+    assert np.array_equal(
+        gpi(thetas, current, reading=reading, initial_memory=levels, initial_excursion=0.0),
+        gpi(thetas, current, reading=reading, initial_memory=levels),
+    )
 
 
 @pytest.mark.parametrize("reading", ["swapped", "literal"])
@@ -209,10 +212,13 @@ def test_initial_held_memory_matches_oracle_and_is_kept_until_a_motion_against_i
     for w in range(len(thetas)):
         reference = gpi_reference(thetas[w], current, reading=reading, initial_memory=levels[w], initial_held=held[w])
         np.testing.assert_allclose(fast[w], reference.output, rtol=0, atol=1e-9 * oracle_scale(reference))
-        assert np.array_equal(fast[w], gpi(thetas[w], current, reading=reading, initial_memory=levels[w],
-                                           initial_held=held[w]))  # fmt: skip
+        assert np.array_equal(
+            fast[w], gpi(thetas[w], current, reading=reading, initial_memory=levels[w], initial_held=held[w])
+        )
     assert np.array_equal(fast[3], gpi(thetas[3], current, reading=reading, initial_memory=levels[3]))
-    assert np.array_equal(gpi(TABLE1, current, reading=reading, initial_held=np.zeros(N_OPERATORS)), gpi(TABLE1, current, reading=reading))
+    assert np.array_equal(
+        gpi(TABLE1, current, reading=reading, initial_held=np.zeros(N_OPERATORS)), gpi(TABLE1, current, reading=reading)
+    )
     if reading == "swapped":  # Table 1: every memory 0.5 higher at rest, kept until a bound passes it
         plain = gpi(TABLE1, current)
         shift = fast[0] - plain
@@ -249,8 +255,12 @@ def test_shared_sets_are_each_sets_own_response_bit_for_bit(reading):
     widths[5] = 1.0  # its own width: not shared
     held = np.zeros((24, N_OPERATORS))
     held[[2, 9, 16]] = 0.4  # start beyond the bounds: not shared with rows that do not
-    for options in ({}, {"initial_memory": levels, "initial_excursion": 0.7}, {"threshold_scale": widths},
-                    {"initial_held": held}):  # fmt: skip
+    for options in (
+        {},
+        {"initial_memory": levels, "initial_excursion": 0.7},
+        {"threshold_scale": widths},
+        {"initial_held": held},
+    ):
         batch = gpi(rows, current, reading=reading, **options)
         for w in range(24):
             one = {k: (v[w] if isinstance(v, np.ndarray) else v) for k, v in options.items()}
@@ -323,9 +333,16 @@ def test_time_varying_thresholds_match_oracle(reading, paper_input):
     thetas = np.stack([TABLE1, np.array(TABLE1) * 1.03])
     assert_matches_oracle(thetas, current, reading=reading, threshold_scale=np.stack([narrowing, widening]))
     assert_matches_oracle(thetas, current, reading=reading, threshold_scale=widening)  # one row shared
-    assert np.array_equal(gpi(TABLE1, current, reading=reading, threshold_scale=np.ones_like(current)),
-                          gpi(TABLE1, current, reading=reading))
-    assert np.abs(gpi(TABLE1, current, reading=reading, threshold_scale=narrowing) - gpi(TABLE1, current, reading=reading)).max() > 1.0
+    assert np.array_equal(
+        gpi(TABLE1, current, reading=reading, threshold_scale=np.ones_like(current)),
+        gpi(TABLE1, current, reading=reading),
+    )
+    assert (
+        np.abs(
+            gpi(TABLE1, current, reading=reading, threshold_scale=narrowing) - gpi(TABLE1, current, reading=reading)
+        ).max()
+        > 1.0
+    )
 
 
 def test_kernel_tanh_is_within_a_few_ulp_odd_and_monotone():
@@ -342,12 +359,14 @@ def test_kernel_tanh_is_within_a_few_ulp_odd_and_monotone():
             out[i] = _tanh(x[i])
 
     rng = np.random.default_rng(2)
-    x = np.concatenate([
-        rng.uniform(-25.0, 25.0, 20000),
-        np.logspace(-300, 2.5, 5000),
-        0.5 + np.arange(-500, 500) * np.spacing(0.5),  # the switch between the two formulas
-        [0.0, 1e308, 710.0, 19.1, 0.5],
-    ])
+    x = np.concatenate(
+        [
+            rng.uniform(-25.0, 25.0, 20000),
+            np.logspace(-300, 2.5, 5000),
+            0.5 + np.arange(-500, 500) * np.spacing(0.5),  # the switch between the two formulas
+            [0.0, 1e308, 710.0, 19.1, 0.5],
+        ]
+    )
     x = np.concatenate([x, -x])
     fast = np.empty_like(x)
     kernel_tanh(x, fast)
@@ -539,7 +558,9 @@ def test_gpi_reduces_to_classical_pi(current, alpha, rho, tau, linear_gain):
     weights = rho * np.exp(-tau * thresholds)
     v_max = np.max(np.abs(current))
     envelope_error = eps**2 * v_max**3 / 3 + 1e-14 * (1 + v_max)
-    tolerance = (weights.sum() + abs(linear_gain)) * envelope_error + 1e-12 * (1 + weights.sum() * (v_max + thresholds[-1]))
+    tolerance = (weights.sum() + abs(linear_gain)) * envelope_error + 1e-12 * (
+        1 + weights.sum() * (v_max + thresholds[-1])
+    )
     y_gpi = gpi(theta, current)
     y_pi = classical_pi(current, thresholds, weights, linear_gain=linear_gain)
     np.testing.assert_allclose(y_gpi, y_pi, rtol=0, atol=tolerance)
@@ -608,11 +629,21 @@ def _with(index, value, theta=TABLE1):
         (TABLE1, CURRENT, {"n_operators": "12"}, r"n_operators must be an integer >= 1, got '12'"),
         (TABLE1, CURRENT, {"reading": "mirrored"}, r"reading must be one of \['literal', 'swapped'\], got 'mirrored'"),
         (TABLE1, CURRENT, {"initial_memory": np.nan}, r"initial_memory must be finite"),
-        (np.stack([TABLE1] * 3), CURRENT, {"initial_memory": [0.0, 1.0]}, r"initial_memory must be a scalar or have shape \(3,\)"),
+        (
+            np.stack([TABLE1] * 3),
+            CURRENT,
+            {"initial_memory": [0.0, 1.0]},
+            r"initial_memory must be a scalar or have shape \(3,\)",
+        ),
         (TABLE1, CURRENT, {"initial_excursion": np.inf}, r"initial_excursion must be finite"),
         (TABLE1, CURRENT, {"initial_held": np.ones(5)}, r"initial_held must be a scalar or have shape \(12,\)"),
         (TABLE1, CURRENT, {"initial_held": np.full(12, np.nan)}, r"initial_held must be finite"),
-        (TABLE1, CURRENT, {"threshold_scale": np.ones(19)}, r"threshold_scale must have shape \(20,\) or \(1, 20\).*got shape \(19,\)"),
+        (
+            TABLE1,
+            CURRENT,
+            {"threshold_scale": np.ones(19)},
+            r"threshold_scale must have shape \(20,\) or \(1, 20\).*got shape \(19,\)",
+        ),
         (TABLE1, CURRENT, {"threshold_scale": np.zeros(20)}, r"threshold_scale must be finite and > 0"),
     ],
 )

@@ -6,7 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from identify.data.records import Record
 from identify.fitting.identifiability import EXACT_RATIO, analyse_fit, analyse_identifiability
+from identify.fitting.lsq import WhitenedResiduals, fit_least_squares
+from identify.fitting.noise import NoiseModel
 from identify.fitting.parametrisation import (
     NORMALISATION,
     SCALING_PARAMETERS,
@@ -18,9 +21,6 @@ from identify.fitting.parametrisation import (
     scaling_direction,
     to_normalisation,
 )
-from identify.fitting.lsq import WhitenedResiduals, fit_least_squares
-from identify.fitting.noise import NoiseModel
-from identify.data.records import Record
 from model import TABLE1, THETA_NAMES, Model, paper_current
 
 
@@ -150,11 +150,27 @@ def test_omega_sign_flip_is_exact_and_removed_by_the_normalisation():
 #: A least-squares optimum of the plain GPI on ``simulate(fs=5.0, seed=4)`` (operator bounds
 #: crossing by 0.05 A), full precision: the optimum sits on a kink of the output, and the
 #: central-difference Jacobian straddles it at some sample.
-ON_A_KINK = [-0.1993, 5.368413917504415, 0.08811572446321304, 8.48501838879839, 0.510738605759516,
-             -0.07050528754995748, -6.027167517446105, 3.3591999552580685, 1.4119062624186147,
-             -0.9102081263168071, 3.713911057355315, 2.1045031244118095, 3.855273550938752,
-             -6.712651859418651, 24.820831651958677, 2.616140718884239, 4.486055891429685,
-             -5.657917151568709, 27.25770393811432]  # fmt: skip
+ON_A_KINK = [
+    -0.1993,
+    5.368413917504415,
+    0.08811572446321304,
+    8.48501838879839,
+    0.510738605759516,
+    -0.07050528754995748,
+    -6.027167517446105,
+    3.3591999552580685,
+    1.4119062624186147,
+    -0.9102081263168071,
+    3.713911057355315,
+    2.1045031244118095,
+    3.855273550938752,
+    -6.712651859418651,
+    24.820831651958677,
+    2.616140718884239,
+    4.486055891429685,
+    -5.657917151568709,
+    27.25770393811432,
+]
 
 
 def _kink_problem():

@@ -22,13 +22,25 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
-from identify.fitting.posterior import BACKEND_GROUP
 from identify.data.records import write_record
+from identify.fitting.posterior import BACKEND_GROUP
 
 MAX_STEPS = 1500
 #: 5 Hz record (351 samples): a step takes ~1-3 ms, so the chain is still running when signalled.
-COMMAND = ["study", "--seed", "2", "--max-steps", str(MAX_STEPS), "--check-every", "500", "--n-starts", "2",
-           "--progress", "off", "--no-report"]  # fmt: skip
+COMMAND = [
+    "study",
+    "--seed",
+    "2",
+    "--max-steps",
+    str(MAX_STEPS),
+    "--check-every",
+    "500",
+    "--n-starts",
+    "2",
+    "--progress",
+    "off",
+    "--no-report",
+]
 
 
 @pytest.fixture(scope="module")
@@ -46,9 +58,15 @@ def _study(csv, out) -> subprocess.Popen:
     env["PYTHONPATH"] = ROOT + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return subprocess.Popen(
         [sys.executable, "-m", "identify", COMMAND[0], str(csv), "--out", str(out), *COMMAND[1:]],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # Ctrl-C even when pytest runs in the background
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+        cwd=ROOT,
+        preexec_fn=lambda: signal.signal(
+            signal.SIGINT, signal.SIG_DFL
+        ),  # Ctrl-C even when pytest runs in the background
+    )
 
 
 def _steps(out) -> int:
@@ -83,10 +101,16 @@ def uninterrupted(small_csv, tmp_path_factory):
 
 @pytest.mark.parametrize(
     "signum",
-    [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow), pytest.param(signal.SIGKILL, marks=pytest.mark.slow)],
+    [
+        signal.SIGTERM,
+        pytest.param(signal.SIGINT, marks=pytest.mark.slow),
+        pytest.param(signal.SIGKILL, marks=pytest.mark.slow),
+    ],
     ids=["SIGTERM", "SIGINT", "SIGKILL"],
 )
-def test_signal_during_sampling_keeps_steps_and_the_rerun_resumes_bit_for_bit(signum, small_csv, tmp_path, uninterrupted):
+def test_signal_during_sampling_keeps_steps_and_the_rerun_resumes_bit_for_bit(
+    signum, small_csv, tmp_path, uninterrupted
+):
     out = tmp_path / "run"
     proc = _study(small_csv, out)
     deadline = time.monotonic() + 300

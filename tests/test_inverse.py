@@ -25,7 +25,12 @@ def _triangle(fs=100.0, duration=30.0, low=30.0, high=270.0, period=10.0):
 
 def _multisine(fs=100.0, duration=30.0):
     t = np.arange(0.0, duration, 1.0 / fs)
-    y = 150 + 60 * np.sin(2 * np.pi * 0.13 * t) + 40 * np.sin(2 * np.pi * 0.31 * t + 1) + 20 * np.sin(2 * np.pi * 0.71 * t + 2)
+    y = (
+        150
+        + 60 * np.sin(2 * np.pi * 0.13 * t)
+        + 40 * np.sin(2 * np.pi * 0.31 * t + 1)
+        + 20 * np.sin(2 * np.pi * 0.71 * t + 2)
+    )
     return t, y
 
 
@@ -41,7 +46,9 @@ def _inverted_exactly(model, theta, time, target, rtol):
     return result
 
 
-@pytest.mark.parametrize("effects", [[], ["creep"], ["training"], ["initial_state"], ["sensor_drift"], ["creep", "training", "sensor_drift"]])
+@pytest.mark.parametrize(
+    "effects", [[], ["creep"], ["training"], ["initial_state"], ["sensor_drift"], ["creep", "training", "sensor_drift"]]
+)
 def test_a_target_made_by_the_model_is_reproduced_to_rounding(effects):
     """The paper's input through the model, then inverted: the model on the inverse's drive
     gives the target back to rounding at every sample (dead zones, quiet start, reversals)."""
@@ -79,7 +86,9 @@ def test_a_held_initial_memory_is_inverted_to_rounding(held, slope):
     _inverted_exactly(model, theta, time, target, 1e-13)
 
 
-@pytest.mark.parametrize("effects", [[], ["thermal"], ["creep"], ["training"], ["thermal", "creep", "training", "initial_state"]])
+@pytest.mark.parametrize(
+    "effects", [[], ["thermal"], ["creep"], ["training"], ["thermal", "creep", "training", "initial_state"]]
+)
 @pytest.mark.parametrize("shape", ["triangle", "multisine"])
 def test_user_targets_are_followed_exactly(effects, shape):
     """Targets that were not made by the model (a triangle, a multi-sine) within the range."""
@@ -173,19 +182,46 @@ def test_a_lag_is_inverted_and_saturates_only_where_the_drive_must_step():
 
 #: every extra term of each general form on (beyond the test parameters, the simpler forms)
 GENERAL_FORMS = {
-    "training": {"training_deficit": 0.08, "training_threshold": 0.1, "training_travel": 6.0, "training_shape": 1.5,
-                 "training_gain": 0.06, "training_width": 0.3},
-    "creep": {"creep_amplitude": 0.03, "creep_tau": 2.0, "creep_decades": 2.0, "creep_log_rate": 0.004,
-              "creep_log_onset": 0.2, "creep_log_hold": 0.5},
-    "thermal": {"thermal_tau": 8.0, "thermal_sensitivity": 0.02, "thermal_expansion": 1.5, "thermal_tau_core": 120.0,
-                "thermal_sensitivity_core": 0.03, "thermal_expansion_core": -2.0},
-    "sensor_drift": {"sensor_drift_linear": 1.0, "sensor_drift_quadratic": -0.5, "sensor_drift_settling": 2.0,
-                     "sensor_drift_settling_tau": 12.0, "sensor_drift_ambient_sine": 0.8,
-                     "sensor_drift_ambient_cosine": -0.6, "sensor_drift_ambient_period": 64.0},
-}  # fmt: skip
+    "training": {
+        "training_deficit": 0.08,
+        "training_threshold": 0.1,
+        "training_travel": 6.0,
+        "training_shape": 1.5,
+        "training_gain": 0.06,
+        "training_width": 0.3,
+    },
+    "creep": {
+        "creep_amplitude": 0.03,
+        "creep_tau": 2.0,
+        "creep_decades": 2.0,
+        "creep_log_rate": 0.004,
+        "creep_log_onset": 0.2,
+        "creep_log_hold": 0.5,
+    },
+    "thermal": {
+        "thermal_tau": 8.0,
+        "thermal_sensitivity": 0.02,
+        "thermal_expansion": 1.5,
+        "thermal_tau_core": 120.0,
+        "thermal_sensitivity_core": 0.03,
+        "thermal_expansion_core": -2.0,
+    },
+    "sensor_drift": {
+        "sensor_drift_linear": 1.0,
+        "sensor_drift_quadratic": -0.5,
+        "sensor_drift_settling": 2.0,
+        "sensor_drift_settling_tau": 12.0,
+        "sensor_drift_ambient_sine": 0.8,
+        "sensor_drift_ambient_cosine": -0.6,
+        "sensor_drift_ambient_period": 64.0,
+    },
+}
 
 
-@pytest.mark.parametrize("effects", [["training"], ["creep"], ["thermal"], ["sensor_drift"], ["training", "creep", "thermal", "sensor_drift"]])
+@pytest.mark.parametrize(
+    "effects",
+    [["training"], ["creep"], ["thermal"], ["sensor_drift"], ["training", "creep", "thermal", "sensor_drift"]],
+)
 def test_the_general_forms_are_inverted_exactly(effects):
     """Each supported effect with every term of its general form on (training's strain part,
     creep's logarithmic part, thermal's second node, the settling and ambient drift): the model on the

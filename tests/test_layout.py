@@ -112,8 +112,10 @@ def test_no_module_imports_from_a_layer_above_it():
             if not _inside(target):
                 continue
             if layer(target) > layer(module):
-                upward.append(f"{MODULES[module].relative_to(PACKAGE.parent)}:{line} imports {target}"
-                              + (f".{name}" if name else ""))  # fmt: skip
+                upward.append(
+                    f"{MODULES[module].relative_to(PACKAGE.parent)}:{line} imports {target}"
+                    + (f".{name}" if name else "")
+                )
     assert not upward, "imports from a higher stage:\n" + "\n".join(upward)
 
 
@@ -183,9 +185,15 @@ def test_no_private_name_is_taken_from_another_module():
                     if _inside(alias.name) and alias.asname:
                         aliases[alias.asname] = alias.name
         for node in ast.walk(tree):
-            if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
-                    and node.value.id in aliases and _private(node.attr)):  # fmt: skip
-                borrowed.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {aliases[node.value.id]}.{node.attr}")
+            if (
+                isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name)
+                and node.value.id in aliases
+                and _private(node.attr)
+            ):
+                borrowed.append(
+                    f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {aliases[node.value.id]}.{node.attr}"
+                )
     assert not borrowed, "private names used outside their module:\n" + "\n".join(borrowed)
 
 
@@ -193,8 +201,11 @@ def test_model_does_not_import_identify():
     for path in sorted(MODEL.rglob("*.py")):
         tree = ast.parse(path.read_text())
         for node in ast.walk(tree):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
-                [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])  # fmt: skip
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else ([node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+            )
             assert not any(_inside(n) for n in names), f"{path}: model imports identify"
 
 
@@ -225,3 +236,35 @@ def test_the_names_the_help_shows_are_the_models():
     assert defaults.EFFECT_NAMES == tuple(model.EFFECTS)
     assert set(defaults.READINGS) == set(model.READINGS)
     assert defaults.INPUT_READINGS == tuple(model.INPUT_READINGS)
+
+
+ROOT = PACKAGE.parent
+
+
+@pytest.mark.parametrize("check", [["check", "."], ["format", "--check", "."]], ids=["lint", "format"])
+def test_the_code_passes_ruff(check):
+    """The one formatter and linter, configured in ``pyproject.toml`` (``[tool.ruff]``): the
+    whole tree is formatted and lint-clean, with no per-line skips."""
+    import shutil
+    import subprocess
+
+    ruff = shutil.which("ruff")
+    assert ruff is not None, "ruff is not installed: python -m pip install -e '.[test]'"
+    done = subprocess.run([ruff, *check], cwd=ROOT, capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+#: the per-line escapes (spelled in two parts, so this file does not hold them)
+MARKERS = ("# fmt" + ": skip", "# fmt" + ": off", "# no" + "qa")
+
+
+def test_no_formatter_skips():
+    """No per-line formatter or linter escapes (:data:`MARKERS`): the rules live in ``pyproject.toml``."""
+    marked = []
+    for path in sorted(ROOT.rglob("*.py")):
+        if any(part in {".git", "reports", "build"} or part.startswith(".") for part in path.relative_to(ROOT).parts):
+            continue
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+            if any(marker in line for marker in MARKERS):
+                marked.append(f"{path.relative_to(ROOT)}:{number}")
+    assert not marked, marked

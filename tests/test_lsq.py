@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identify.fitting.parametrisation import normalised_model
+from identify.data.records import Record
 from identify.fitting.lsq import FitResult, WhitenedResiduals, candidate_starts, difference_columns, fit_least_squares
 from identify.fitting.noise import NoiseModel, estimate_noise
-from identify.data.records import Record
+from identify.fitting.parametrisation import normalised_model
 from model import TABLE1, Model, paper_current
 
 SIGMA = 0.5  # um, the bench's default sensor noise
@@ -91,7 +91,9 @@ def test_effect_pins_survive_normalisation_sign_composition_and_json():
 
     base = Model(["thermal"])
     pinned = base.with_parameters(
-        base.parameters.replace("thermal_tau_core", value=250.0, vary=False).replace("thermal_expansion_core", vary=False)
+        base.parameters.replace("thermal_tau_core", value=250.0, vary=False).replace(
+            "thermal_expansion_core", vary=False
+        )
     )
     for model in (normalised_model(pinned), with_threshold_sign(normalised_model(pinned), 1), pinned + "lag"):
         assert not model.parameters["thermal_tau_core"].vary and model.parameters["thermal_tau_core"].value == 250.0
@@ -158,7 +160,9 @@ def test_data_driven_start_is_exact_for_a_rescaled_transducer():
     """A record in other units that is an exact scaled copy of Table 1's transducer
     (input x 20, e.g. V; output x 2 + 5 um offset): the data-scaled start reproduces it."""
     rec = simulated_record(fs=10.0, sigma=0.0, scale_in=20.0, scale_out=2.0, offset=5.0)
-    rec = Record(rec.time, rec.current, rec.displacement, source="piezo", sha256="", input_unit="V", input_name="voltage")
+    rec = Record(
+        rec.time, rec.current, rec.displacement, source="piezo", sha256="", input_unit="V", input_name="voltage"
+    )
     model = normalised_model(Model())
     starts = dict(candidate_starts(rec, model, n_starts=2))
     assert "table1" not in starts  # Table 1 is only a start for records in A and um
@@ -250,9 +254,27 @@ def classical_record(seed=3, sigma=0.05):
     time = np.arange(0.0, 6.0, 1e-3)
     volts = np.where(time < 1.0, 0.0, 150.0 * np.sin(2 * np.pi * (time - 1.0)))
     theta = TABLE1.copy()
-    values = dict(alpha=0.1993, rho=2.0, tau=0.3, a0=4.0, a1=0.004, a2=0.0, a3=0.0,
-                  b0=4.0, b1=0.004, b2=0.0, b3=0.0, c0=5.0, c1=0.006, c2=0.0, c3=0.0,
-                  d0=5.0, d1=0.006, d2=0.0, d3=0.0)  # fmt: skip
+    values = dict(
+        alpha=0.1993,
+        rho=2.0,
+        tau=0.3,
+        a0=4.0,
+        a1=0.004,
+        a2=0.0,
+        a3=0.0,
+        b0=4.0,
+        b1=0.004,
+        b2=0.0,
+        b3=0.0,
+        c0=5.0,
+        c1=0.006,
+        c2=0.0,
+        c3=0.0,
+        d0=5.0,
+        d1=0.006,
+        d2=0.0,
+        d3=0.0,
+    )
     for name, value in values.items():
         theta[Model().names.index(name)] = value
     clean = Model()(theta, time, volts)
@@ -274,7 +296,10 @@ def test_auto_threshold_sign_fits_both_signs_of_a_thin_loop_and_keeps_the_better
     fit = fit_least_squares(rec, normalised_model(Model()), n_starts=8, rng=np.random.default_rng(0))
     assert abs(fit.model.parameters["alpha"].value) == pytest.approx(0.1993)
     assert not fit.model.parameters["alpha"].vary
-    reached = {sign: float(value) for sign, value in re.findall(r"alpha ([<>]) 0 reached reduced chi-square ([0-9.e+-]+)", fit.message)}
+    reached = {
+        sign: float(value)
+        for sign, value in re.findall(r"alpha ([<>]) 0 reached reduced chi-square ([0-9.e+-]+)", fit.message)
+    }
     assert set(reached) == {"<", ">"}, fit.message  # both signs fitted and reported
     chosen = ">" if fit.model.parameters["alpha"].value > 0 else "<"
     assert reached[chosen] == min(reached.values()) or abs(reached["<"] - reached[">"]) * (rec.time.size - 18) <= 1.0
@@ -384,8 +409,7 @@ def test_a_stalled_solver_run_counts_as_converged_with_its_own_message():
     full = least_squares(residuals, [-1.2, 1.0], method="trf", ftol=1e-15, xtol=1e-15, gtol=1e-15)
     assert full.status > 0 and solver_verdict(full) == (True, str(full.message))
     rule = StallStop(window=2, chi2=10.0)
-    stalled = least_squares(residuals, [-1.2, 1.0], method="trf", ftol=1e-15, xtol=1e-15, gtol=1e-15,
-                            callback=rule)  # fmt: skip
+    stalled = least_squares(residuals, [-1.2, 1.0], method="trf", ftol=1e-15, xtol=1e-15, gtol=1e-15, callback=rule)
     assert stalled.status == STALLED and stalled.nfev < full.nfev
     success, message = solver_verdict(stalled, rule)
     assert success and message == "stalled: the chi-square fell by less than 10 over the last 2 iterations"

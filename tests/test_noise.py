@@ -10,6 +10,7 @@ import pytest
 from scipy.signal import lfilter
 from scipy.stats import multivariate_normal
 
+from identify.data.records import Record
 from identify.fitting.noise import (
     MIN_QUIET_SAMPLES,
     NoiseModel,
@@ -20,7 +21,6 @@ from identify.fitting.noise import (
     quiet_segment,
     whiten,
 )
-from identify.data.records import Record
 
 
 def ar1_noise(rng, n, sigma, rho):

@@ -10,9 +10,10 @@ import emcee
 import numpy as np
 import pytest
 
-from identify.fitting.parametrisation import normalised_model
+from identify.data.records import Record
 from identify.fitting.lsq import fit_least_squares
-from identify.fitting.noise import NoiseModel, estimate_noise, log_likelihood
+from identify.fitting.noise import estimate_noise, log_likelihood
+from identify.fitting.parametrisation import normalised_model
 from identify.fitting.posterior import (
     BACKEND_GROUP,
     MOVES,
@@ -22,9 +23,7 @@ from identify.fitting.posterior import (
     initial_walkers,
     sample_posterior,
 )
-from identify.data.records import Record
 from model import Model, paper_current
-from model.gpi import THETA_NAMES
 
 
 def short_record(seed=0, fs=5.0):
@@ -272,13 +271,20 @@ class Gaussian:
 
 
 def test_convergence_rule_and_not_converged_verdict(tmp_path):
-    start = lambda n, r: r.standard_normal((n, 3))  # noqa: E731
-    ok = sample_posterior(Gaussian(), start, tmp_path / "g.h5", np.random.default_rng(0), max_steps=5000, check_every=250)
+
+    def start(n, r):
+        return r.standard_normal((n, 3))
+
+    ok = sample_posterior(
+        Gaussian(), start, tmp_path / "g.h5", np.random.default_rng(0), max_steps=5000, check_every=250
+    )
     assert ok.converged and ok.message.startswith("converged")
     assert ok.n_steps >= 50 * ok.tau_max and ok.n_steps < 5000
     assert np.allclose(ok.quantiles((0.5,))[0], 0.0, atol=0.1)
     assert np.all(ok.ess > 1000) and 0.2 < ok.acceptance_fraction < 0.9
-    capped = sample_posterior(Gaussian(), start, tmp_path / "h.h5", np.random.default_rng(0), max_steps=60, check_every=30)
+    capped = sample_posterior(
+        Gaussian(), start, tmp_path / "h.h5", np.random.default_rng(0), max_steps=60, check_every=30
+    )
     assert not capped.converged and capped.message.startswith("NOT CONVERGED")
     assert capped.n_steps == 60
     assert capped.to_dict()["converged"] is False
@@ -287,6 +293,7 @@ def test_convergence_rule_and_not_converged_verdict(tmp_path):
 #: Records in the interval calibration (standard error of the coverage across records
 #: about 0.02 at 30; identify.bench.calibration's docstring).
 COVERAGE_RECORDS = 20
+
 
 @pytest.fixture(scope="module")
 def calibration(tmp_path_factory):
@@ -335,8 +342,9 @@ def test_posterior_agrees_with_random_walk_metropolis_on_a_gpi_record(calibratio
     Laplace-shaped proposal) within Monte Carlo error (each ~2-3 %; accept 0.92-1.08 for
     the mean ratio over parameters and 0.8-1.2 for each). The released emcee snooker move
     gave a mean ratio of about 0.85 here."""
-    from identify.bench.calibration import calibration_problem, calibration_truth
     from posterior_reference import random_walk_metropolis
+
+    from identify.bench.calibration import calibration_problem, calibration_truth
 
     rec_cov = next(r for r in calibration.records if r.seed == 1)
     problem = calibration_problem(1, calibration_truth(1))
@@ -421,7 +429,9 @@ def test_walkers_along_a_near_exact_degeneracy_do_not_stop_a_resumed_run(tmp_pat
     result = sample_posterior(Gaussian(), None, path, np.random.default_rng(1), max_steps=30, check_every=10)
     assert result.n_steps == 30
     with pytest.raises(ValueError, match="condition number"):  # a start we are given is still checked
-        sample_posterior(Gaussian(), coords, tmp_path / "fresh.h5", np.random.default_rng(1), max_steps=5, check_every=5)
+        sample_posterior(
+            Gaussian(), coords, tmp_path / "fresh.h5", np.random.default_rng(1), max_steps=5, check_every=5
+        )
 
 
 def _gaussian_variance_ratio(moves, dim=18, n_walkers=36, n_steps=4000, discard=1000):
@@ -445,7 +455,8 @@ def _gaussian_variance_ratio(moves, dim=18, n_walkers=36, n_steps=4000, discard=
 def test_the_study_moves_leave_a_gaussian_posterior_invariant():
     """The study's move schedule (DE 80 %, corrected snooker 20 %) on a correlated 18-D
     Gaussian (the GPI posterior's dimension, 36 walkers) reproduces the variances. Measured:
-    ratio 0.98 (0.99 with emcee's loop order of random draws); the standard error of the ratio here is about 0.02, so accept 0.93-1.07."""
+    ratio 0.98 (0.99 with emcee's loop order of random draws); the standard error of the ratio here is about 0.02, so
+    accept 0.93-1.07."""
     ratio = _gaussian_variance_ratio(MOVES["de"]())
     assert 0.93 <= ratio <= 1.07, ratio
 

@@ -13,10 +13,22 @@ from scipy.integrate import quad
 from identify.bench import simulate
 from identify.cli import main
 from identify.cli.common import model_from_args
-from identify.fitting.priors import Prior, PriorsError, apply_priors
 from identify.data.records import write_record
+from identify.fitting.priors import Prior, PriorsError, apply_priors
 
-STUDY = ["--max-steps", "400", "--check-every", "200", "--n-starts", "2", "--seed", "5", "--progress", "off", "--no-report"]
+STUDY = [
+    "--max-steps",
+    "400",
+    "--check-every",
+    "200",
+    "--n-starts",
+    "2",
+    "--seed",
+    "5",
+    "--progress",
+    "off",
+    "--no-report",
+]
 
 
 class _Args:
@@ -31,19 +43,52 @@ def model():
 @pytest.mark.parametrize(
     "text, message",
     [
-        ("[warp]\ndistribution = 'uniform'\nlower = 0\nupper = 1\n", r"'warp' is not a parameter of .*; its parameters: alpha, rho"),
-        ("[rho]\ndistribution = 'cauchy'\n", r"parameter 'rho': unknown distribution 'cauchy'; known: uniform, log_uniform, normal"),
-        ("[rho]\ndistribution = 'uniform'\nlower = 10\nupper = 20\n", r"parameter 'rho': bounds \[10, 20\] exclude its starting value 5\.6438"),
+        (
+            "[warp]\ndistribution = 'uniform'\nlower = 0\nupper = 1\n",
+            r"'warp' is not a parameter of .*; its parameters: alpha, rho",
+        ),
+        (
+            "[rho]\ndistribution = 'cauchy'\n",
+            r"parameter 'rho': unknown distribution 'cauchy'; known: uniform, log_uniform, normal",
+        ),
+        (
+            "[rho]\ndistribution = 'uniform'\nlower = 10\nupper = 20\n",
+            r"parameter 'rho': bounds \[10, 20\] exclude its starting value 5\.6438",
+        ),
         ("[rho]\ndistribution = 'normal'\nmu = 5\nsigma = 0\n", r"parameter 'rho': sigma must be > 0"),
         ("[rho]\ndistribution = 'normal'\nmu = 5\n", r"parameter 'rho': a normal prior needs sigma"),
-        ("[rho]\ndistribution = 'uniform'\nlower = 3\nupper = 1\n", r"parameter 'rho': lower 3\.0 must be below upper 1\.0"),
-        ("[rho]\ndistribution = 'log_uniform'\nlower = 0\nupper = 10\n", r"parameter 'rho': a log_uniform prior needs lower > 0"),
-        ("[rho]\ndistribution = 'uniform'\nlower = 1\nupper = 10\nwidth = 3\n", r"parameter 'rho': unknown key\(s\) width"),
+        (
+            "[rho]\ndistribution = 'uniform'\nlower = 3\nupper = 1\n",
+            r"parameter 'rho': lower 3\.0 must be below upper 1\.0",
+        ),
+        (
+            "[rho]\ndistribution = 'log_uniform'\nlower = 0\nupper = 10\n",
+            r"parameter 'rho': a log_uniform prior needs lower > 0",
+        ),
+        (
+            "[rho]\ndistribution = 'uniform'\nlower = 1\nupper = 10\nwidth = 3\n",
+            r"parameter 'rho': unknown key\(s\) width",
+        ),
         ("[alpha]\ndistribution = 'uniform'\nlower = -1\nupper = 1\n", r"parameter 'alpha' is pinned"),
         ("[rho\ndistribution = 'uniform'\n", r"not valid TOML: .*line 1"),
-        ("[rho]\ndistribution = 'uniform'\nlower = 'one'\nupper = 10\n", r"parameter 'rho': lower must be a finite number, got 'one'"),
+        (
+            "[rho]\ndistribution = 'uniform'\nlower = 'one'\nupper = 10\n",
+            r"parameter 'rho': lower must be a finite number, got 'one'",
+        ),
     ],
-    ids=["unknown-name", "distribution", "excludes-start", "sigma", "missing", "order", "log-lower", "key", "pinned", "toml", "text"],
+    ids=[
+        "unknown-name",
+        "distribution",
+        "excludes-start",
+        "sigma",
+        "missing",
+        "order",
+        "log-lower",
+        "key",
+        "pinned",
+        "toml",
+        "text",
+    ],
 )
 def test_a_bad_priors_file_is_one_clear_error(tmp_path, model, text, message):
     path = tmp_path / "priors.toml"
@@ -54,20 +99,35 @@ def test_a_bad_priors_file_is_one_clear_error(tmp_path, model, text, message):
 
 def test_a_good_file_sets_bounds_and_distributions(tmp_path, model):
     path = tmp_path / "priors.toml"
-    path.write_text("[thermal_tau]\ndistribution = 'truncated_normal'\nmu = 100.0\nsigma = 20.0\nlower = 20.0\nupper = 400.0\n"
-                    "[rho]\ndistribution = 'log_uniform'\nlower = 0.5\nupper = 50.0\n[c0]\ndistribution = 'normal'\nmu = 1.5\nsigma = 0.2\n")
+    path.write_text(
+        "[thermal_tau]\ndistribution = 'truncated_normal'\nmu = 100.0\nsigma = 20.0\nlower = 20.0\nupper = 400.0\n"
+        "[rho]\ndistribution = 'log_uniform'\nlower = 0.5\nupper = 50.0\n[c0]\ndistribution = 'normal'\nmu = "
+        "1.5\nsigma = 0.2\n"
+    )
     changed, priors = apply_priors(model, path)
     p = changed.parameters
-    assert (p["thermal_tau"].lower, p["thermal_tau"].upper) == (20.0, 400.0) and (p["rho"].lower, p["rho"].upper) == (0.5, 50.0)
-    assert (p["c0"].lower, p["c0"].upper) == (model.parameters["c0"].lower, model.parameters["c0"].upper)  # normal: model's bounds
+    assert (p["thermal_tau"].lower, p["thermal_tau"].upper) == (20.0, 400.0) and (p["rho"].lower, p["rho"].upper) == (
+        0.5,
+        50.0,
+    )
+    assert (p["c0"].lower, p["c0"].upper) == (
+        model.parameters["c0"].lower,
+        model.parameters["c0"].upper,
+    )  # normal: model's bounds
     assert model.parameters["rho"].lower == 1e-3  # the model passed in is unchanged
     assert priors["c0"] == Prior("normal", 1.5, 0.2, source=str(path))
 
 
-@pytest.mark.parametrize("prior, lower, upper", [(Prior("truncated_normal", 100.0, 20.0), 50.0, 400.0),
-                                                 (Prior("normal", 1.5, 0.2), -1e3, 1e3),
-                                                 (Prior("truncated_normal", 0.0, 1.0), 2.0, 3.0),
-                                                 (Prior("log_uniform"), 0.5, 50.0), (Prior("uniform"), -2.0, 5.0)])
+@pytest.mark.parametrize(
+    "prior, lower, upper",
+    [
+        (Prior("truncated_normal", 100.0, 20.0), 50.0, 400.0),
+        (Prior("normal", 1.5, 0.2), -1e3, 1e3),
+        (Prior("truncated_normal", 0.0, 1.0), 2.0, 3.0),
+        (Prior("log_uniform"), 0.5, 50.0),
+        (Prior("uniform"), -2.0, 5.0),
+    ],
+)
 def test_densities_integrate_to_one_on_their_bounds(prior, lower, upper):
     def density(x):
         return math.exp(float(prior(np.array([x]), lower, upper)[0]))
@@ -110,8 +170,15 @@ def test_a_tight_normal_prior_pulls_the_posterior_and_is_reported(bench, tmp_pat
     assert (tight["hi95"] - tight["lo95"]) < 0.3 * (free["hi95"] - free["lo95"])
     # the priors used are in summary.json: the file's for c0, the defaults for the others
     rows = {row["name"]: row for row in summary["priors"]}
-    assert rows["c0"] == {"name": "c0", "distribution": "normal", "mu": mu, "sigma": sigma, "source": str(priors),
-                          "lower": -1e3, "upper": 1e3}  # fmt: skip
+    assert rows["c0"] == {
+        "name": "c0",
+        "distribution": "normal",
+        "mu": mu,
+        "sigma": sigma,
+        "source": str(priors),
+        "lower": -1e3,
+        "upper": 1e3,
+    }
     assert rows["rho"]["distribution"] == "log_uniform" and rows["rho"]["source"] == "default"
     assert {row["source"] for row in free_summary["priors"]} == {"default"} and "alpha" not in rows
     manifest = json.loads((out / "manifest.json").read_text())
@@ -131,7 +198,9 @@ def test_study_with_a_bad_priors_file_exits_2_before_writing(bench, tmp_path, ca
     out = tmp_path / "run"
     assert main(["study", str(csv), "--out", str(out), "--priors", str(priors), *STUDY]) == 2
     err = capsys.readouterr().err
-    assert f"error: {priors}: parameter 'c0': bounds [5, 9] exclude its starting value" in err and "Traceback" not in err
+    assert (
+        f"error: {priors}: parameter 'c0': bounds [5, 9] exclude its starting value" in err and "Traceback" not in err
+    )
     assert not (out / "manifest.json").exists()
     with pytest.raises(SystemExit) as exited:  # an option error: argparse's exit, code 2
         main(["study", str(csv), "--out", str(out), "--priors", str(tmp_path / "none.toml"), *STUDY])
@@ -142,14 +211,15 @@ def test_default_bounds_follow_the_record_unit_prefixes_and_a_priors_file_wins(t
     """docs/method.md, 'Units and default bounds': a record in V (within a factor 30 of the
     paper's 5 A) keeps the input-side bounds; one in mm instead of um gets the output-side
     bounds widened 1000-fold downwards; a priors file's bounds are kept as given."""
+    from identify.data.records import Record
     from identify.fitting.noise import estimate_noise
     from identify.fitting.posterior import LogPosterior
-    from identify.data.records import Record
 
     rec = simulate(fs=5.0, seed=4).record
     amps = Record(rec.time, rec.current, rec.displacement, source="a", sha256="")
-    volts = Record(rec.time, 20.0 * rec.current, 1e-3 * rec.displacement, source="v", sha256="", input_unit="V",
-                   output_unit="mm")  # fmt: skip
+    volts = Record(
+        rec.time, 20.0 * rec.current, 1e-3 * rec.displacement, source="v", sha256="", input_unit="V", output_unit="mm"
+    )
     noise = estimate_noise(amps)
     a, v = LogPosterior(amps, model, noise), LogPosterior(volts, model, noise)
     for name in ("a1", "b1", "c1", "d1", "a0", "tau"):  # input side: V within a factor 30 of A

@@ -16,7 +16,6 @@ Tests reading ``../shared/realdata`` skip with the path when it is absent.
 from __future__ import annotations
 
 import hashlib
-import math
 import re
 from pathlib import Path
 
@@ -140,7 +139,9 @@ def test_convert_micromanipulator_reproduces_shipped_copy(tmp_path):
     source = shared_file("piezo_micromanipulator_dbo", "Test_Vi_Do_Di.dat")
     result = convert_micromanipulator(source, tmp_path / "out.csv")
     assert result.n_rows == 7432
-    assert (tmp_path / "out.csv").read_bytes() == (ROOT / REAL_RECORDS["piezo_micromanipulator_dbo"].shipped).read_bytes()
+    assert (tmp_path / "out.csv").read_bytes() == (
+        ROOT / REAL_RECORDS["piezo_micromanipulator_dbo"].shipped
+    ).read_bytes()
     raw = np.loadtxt(source)[:7432]
     record = load_record(tmp_path / "out.csv", **REAL_RECORDS["piezo_micromanipulator_dbo"].load_options)
     np.testing.assert_array_equal(record.current, raw[:, 0])
@@ -228,10 +229,26 @@ def classical_like_theta(v_peak, n_operators=12, alpha=-0.1993):
     slope = abs(alpha) * (n_operators - 1) / v_peak
     a1 = 0.004
     values = dict(
-        alpha=alpha, rho=1.0, tau=0.0, a0=slope / a1, a1=a1, a2=0.0, a3=-half_band,
-        b0=slope / a1, b1=a1, b2=0.0, b3=half_band, c0=0.5, c1=0.01, c2=0.0, c3=0.0,
-        d0=0.6, d1=0.01, d2=0.0, d3=-1.0,
-    )  # fmt: skip
+        alpha=alpha,
+        rho=1.0,
+        tau=0.0,
+        a0=slope / a1,
+        a1=a1,
+        a2=0.0,
+        a3=-half_band,
+        b0=slope / a1,
+        b1=a1,
+        b2=0.0,
+        b3=half_band,
+        c0=0.5,
+        c1=0.01,
+        c2=0.0,
+        c3=0.0,
+        d0=0.6,
+        d1=0.01,
+        d2=0.0,
+        d3=-1.0,
+    )
     return np.array([values[n] for n in THETA_NAMES])
 
 
@@ -288,9 +305,9 @@ def test_least_squares_from_the_peer_solution_improves_on_it():
     """The peer fit lies inside this project's model (21 operators + initial_state), so its
     least squares started there must end clearly lower (measured 1.99-2.19 with the
     least-squares versions of this week, 2.207 at 6853bbe, vs 2.2587)."""
-    from identify.fitting.parametrisation import to_normalisation
     from identify.fitting.lsq import fit_least_squares
     from identify.fitting.noise import estimate_noise
+    from identify.fitting.parametrisation import to_normalisation
 
     record = sma_record()
     model_ = sma_model(BASAERI_N_OPERATORS)
@@ -329,9 +346,17 @@ def baseline_residual(diagnosis: dict, record) -> np.ndarray:
 
 
 SMA_OPTIONS = [
-    "--time-column", "none", "--input-column", "v_input", "--output-column", "y_output",
-    "--input-unit", "V", "--output-unit", "unknown",
-]  # fmt: skip
+    "--time-column",
+    "none",
+    "--input-column",
+    "v_input",
+    "--output-column",
+    "y_output",
+    "--input-unit",
+    "V",
+    "--output-unit",
+    "unknown",
+]
 
 
 @pytest.mark.slow
@@ -383,12 +408,17 @@ def test_fit_least_squares_alone_against_the_peer_fit():
             fit = fit_least_squares(
                 record, sma_model(n_operators), noise=noise, n_starts=16, rng=np.random.default_rng(seed)
             )
-            assert fit.model.in_bounds(fit.theta)[0] and fit.model.evaluate(fit.theta, record.time, record.current)[1][0]
+            assert (
+                fit.model.in_bounds(fit.theta)[0] and fit.model.evaluate(fit.theta, record.time, record.current)[1][0]
+            )
             figures[n_operators] = full_rms(fit)
         best[seed] = min(figures.values())
         print(f"seed {seed}: RMS 12 operators {figures[12]:.4f}, 21 operators {figures[21]:.4f} (peer {PEER_RMSE})")
     beaten = sum(rms < PEER_RMSE for rms in best.values())
-    print(f"fit_least_squares beats the GA's {PEER_RMSE} on {beaten}/5 seeds; median best RMS {np.median(list(best.values())):.4f}")
+    print(
+        f"fit_least_squares beats the GA's {PEER_RMSE} on {beaten}/5 seeds; median best RMS "
+        f"{np.median(list(best.values())):.4f}"
+    )
     assert beaten >= 4
     assert np.median(list(best.values())) < PEER_RMSE
 
@@ -470,9 +500,12 @@ def test_diagnose_baseline_beats_a_straight_line(tmp_path, name, factor):
     diagnosis = diagnose_json(tmp_path, ROOT / REAL_RECORDS[name].shipped, PIEZO_FIT_OPTIONS[name] + ["--seed", "1"])
     energised = np.ones(len(record), dtype=bool)
     if name == "piezo_smarthysteresis":
-        energised[: 16286] = False
+        energised[:16286] = False
     line = straight_line_rms(record, energised)
-    print(f"{name}: GPI RMS {diagnosis['rms']:.4f} um, straight line {line:.4f} um; verdict {diagnosis['status']} {diagnosis['missing']}")
+    print(
+        f"{name}: GPI RMS {diagnosis['rms']:.4f} um, straight line {line:.4f} um; verdict {diagnosis['status']} "
+        f"{diagnosis['missing']}"
+    )
     assert diagnosis["rms"] < factor * line
     assert diagnosis["status"] in ("adequate", "missing_effect", "unexplained")
 

@@ -17,14 +17,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.collections import PolyCollection
+from report_fixture import FixtureSettings, build_results_folder
 from scipy.stats import norm
 
 import model
-from identify.output import plots
-from identify.output import report
-from identify.data.reversals import default_min_swing, find_reversals
 from identify.cli import main as identify_main
-from report_fixture import FixtureSettings, build_results_folder
+from identify.data.reversals import default_min_swing, find_reversals
+from identify.output import plots, report
 
 #: Relative tolerance of a number printed with report.DIGITS = 6 significant digits.
 PRINT_RTOL = 1e-5
@@ -83,7 +82,9 @@ def assert_shown(text, expected, key):
     elif isinstance(expected, bool):
         assert text == ("yes" if expected else "no"), f"{key}: {text!r} vs {expected}"
     else:
-        assert float(text) == pytest.approx(float(expected), rel=PRINT_RTOL, abs=1e-12), f"{key}: {text!r} vs {expected}"
+        assert float(text) == pytest.approx(float(expected), rel=PRINT_RTOL, abs=1e-12), (
+            f"{key}: {text!r} vs {expected}"
+        )
 
 
 def summary_value(summary, key):
@@ -191,7 +192,9 @@ def test_mixture_quantile_against_closed_forms():
     sigma = np.array([0.5])
     centres = np.array([[0.0, 3.0, -2.0]])
     # one component: the normal quantile c + sigma z_p
-    np.testing.assert_allclose(mixture_quantile(centres, sigma, 0.025), centres[0] + 0.5 * norm.ppf(0.025), atol=1e-3 * 0.5)
+    np.testing.assert_allclose(
+        mixture_quantile(centres, sigma, 0.025), centres[0] + 0.5 * norm.ppf(0.025), atol=1e-3 * 0.5
+    )
     # two far-apart unit components: 0.5 Phi(x) + 0.5 Phi(x - 20) = 0.025  =>  Phi(x) = 0.05
     two = np.array([[0.0], [20.0]])
     np.testing.assert_allclose(mixture_quantile(two, np.array([1.0, 1.0]), 0.025), norm.ppf(0.05), atol=1e-3)
@@ -217,10 +220,22 @@ def test_loop_bands_are_polygons_over_each_branch_own_samples():
     branch_list = report.branches(current.size, find_reversals(current))
     segments = [(b.start, b.stop) for b in branch_list]
     fig = plots.loops_figure(
-        current, median, median, lo, hi, segments=segments, rising=[b.rising for b in branch_list],
+        current,
+        median,
+        median,
+        lo,
+        hi,
+        segments=segments,
+        rising=[b.rising for b in branch_list],
         zoom_box=((2.0, 3.0), (100.0, 150.0)),
-    )  # fmt: skip
-    polygons = [p.vertices for ax in fig.axes[:1] for c in ax.collections if isinstance(c, PolyCollection) for p in c.get_paths()]
+    )
+    polygons = [
+        p.vertices
+        for ax in fig.axes[:1]
+        for c in ax.collections
+        if isinstance(c, PolyCollection)
+        for p in c.get_paths()
+    ]
     assert len(polygons) == len(segments)
     expected = {(a, b) for a, b in segments}
     for vertices in polygons:
@@ -270,11 +285,24 @@ def test_every_figure_is_embedded_and_written_as_png(misfit_folder, misfit_page)
 
 def test_every_table_is_present(misfit_page):
     expected = {
-        "fit-quality", "cycle-errors", "parameters", "posterior-settings", "identifiability-normalisation",
-        "identifiability-exact", "identifiability-near", "provenance",
-    }  # fmt: skip
+        "fit-quality",
+        "cycle-errors",
+        "parameters",
+        "posterior-settings",
+        "identifiability-normalisation",
+        "identifiability-exact",
+        "identifiability-near",
+        "provenance",
+    }
     assert expected <= set(misfit_page.table_ids)
-    for section in ("glance", "measurement", "fit-quality-section", "parameters-section", "diagnosis", "provenance-section"):
+    for section in (
+        "glance",
+        "measurement",
+        "fit-quality-section",
+        "parameters-section",
+        "diagnosis",
+        "provenance-section",
+    ):
         assert section in misfit_page.element_ids
     assert "interval-calibration" in misfit_page.element_ids  # which interval to quote, with the bench's coverage
 
@@ -298,14 +326,23 @@ def test_numbers_on_the_page_equal_summary_json(misfit_folder, misfit_page):
     for p in summary["parameters"]:
         for field in ("table1", "lsq", "lsq_stderr", "median", "lo95", "hi95", "tau", "ess"):
             assert f"parameters.{p['name']}.{field}" in misfit_page.values
-    for key in ("fit.rms", "fit.reduced_chi2", "fit.max_error_pct", "noise.sigma", "posterior.converged", "posterior.tau_max"):
+    for key in (
+        "fit.rms",
+        "fit.reduced_chi2",
+        "fit.max_error_pct",
+        "noise.sigma",
+        "posterior.converged",
+        "posterior.tau_max",
+    ):
         assert key in misfit_page.values
 
 
 def test_page_derived_numbers_are_consistent(misfit_folder, misfit_page):
     summary = json.loads((misfit_folder / "summary.json").read_text())
     values = misfit_page.values
-    assert float(values["derived.rms_ratio"]) == pytest.approx(summary["fit"]["rms"] / summary["noise"]["sigma"], rel=PRINT_RTOL)
+    assert float(values["derived.rms_ratio"]) == pytest.approx(
+        summary["fit"]["rms"] / summary["noise"]["sigma"], rel=PRINT_RTOL
+    )
     # the posterior-median curve and the least-squares curve are close: their max errors agree within 25 %
     assert float(values["derived.max_error_pct"]) == pytest.approx(summary["fit"]["max_error_pct"], rel=0.25)
     # the worst cycle's max error is the page's max error
@@ -338,7 +375,12 @@ def test_pinned_parameter_is_marked(misfit_folder):
 def test_provenance_shows_the_manifest(misfit_folder):
     manifest = json.loads((misfit_folder / "manifest.json").read_text())
     text = (misfit_folder / "report.html").read_text(encoding="utf-8")
-    for shown in (manifest["data"]["file"], manifest["data"]["sha256"], manifest["git"]["commit"], str(manifest["seed"])):
+    for shown in (
+        manifest["data"]["file"],
+        manifest["data"]["sha256"],
+        manifest["git"]["commit"],
+        str(manifest["seed"]),
+    ):
         assert str(shown) in text
 
 
@@ -367,7 +409,10 @@ def test_diagnosis_hook_renders_verdict_ranking_and_figures(folder_copy):
     diagnosis = {
         "status": "missing_effect",
         "missing": "thermal",
-        "ranking": [{"effect": "thermal", "rms_after": 0.51, "delta_bic": -120.0}, {"effect": "creep", "rms_after": 1.2}],
+        "ranking": [
+            {"effect": "thermal", "rms_after": 0.51, "delta_bic": -120.0},
+            {"effect": "creep", "rms_after": 1.2},
+        ],
     }
     (folder_copy / "diagnosis.json").write_text(json.dumps(diagnosis))
     (folder_copy / "diagnosis").mkdir()
@@ -480,11 +525,15 @@ def test_a_term_pinned_off_is_named_in_the_parameter_table(folder_copy):
     support; the table says so instead of 'pinned by normalisation'."""
     path = folder_copy / "summary.json"
     summary = json.loads(path.read_text())
-    summary["fit"]["terms"] = [{"effect": "thermal", "term": "core", "parameters": ["d3"], "delta_chi2": 0.6,
-                                "penalty": 26.6, "pinned": True}]  # fmt: skip
+    summary["fit"]["terms"] = [
+        {"effect": "thermal", "term": "core", "parameters": ["d3"], "delta_chi2": 0.6, "penalty": 26.6, "pinned": True}
+    ]
     entry = next(p for p in summary["parameters"] if p["name"] == "d3")
     entry["vary"] = False
     path.write_text(json.dumps(summary))
     data = report.load_report_data(folder_copy)
     html = report._parameters_html(data, report._analyse(data, 20, np.random.default_rng(0)), "")
-    assert "<td>pinned off: thermal term &#x27;core&#x27; not supported by the record (chi-square +0.6 &lt;= BIC 26.6)</td>" in html
+    assert (
+        "<td>pinned off: thermal term &#x27;core&#x27; not supported by the record (chi-square +0.6 &lt;= BIC "
+        "26.6)</td>" in html
+    )

@@ -21,8 +21,8 @@ import pytest
 
 import model
 from identify import cli
-from identify.workflows import reproduce as R
 from identify.data.records import write_record
+from identify.workflows import reproduce as R
 
 STUDY_OPTIONS = ["--max-steps", "40", "--check-every", "20", "--n-starts", "1", "--seed", "3", "--walkers", "40"]
 
@@ -38,7 +38,9 @@ def study_run(tmp_path_factory):
     y = model.Model()(model.TABLE1, time_s, current) + 0.3 * rng.standard_normal(time_s.size)
     write_record(base / "rec.csv", (time_s, current, y))
     root = str(Path(__file__).resolve().parents[1])  # this work tree's code, wherever the package is installed from
-    env = dict(os.environ, PYTHONPATH=root + (os.pathsep + os.environ["PYTHONPATH"] if os.environ.get("PYTHONPATH") else ""))
+    env = dict(
+        os.environ, PYTHONPATH=root + (os.pathsep + os.environ["PYTHONPATH"] if os.environ.get("PYTHONPATH") else "")
+    )
     completed = subprocess.run(
         [sys.executable, "-m", "identify", "study", "rec.csv", "--out", "run", *STUDY_OPTIONS],
         cwd=base,
@@ -97,7 +99,9 @@ def test_differences_are_named_with_their_size(study_run, tmp_path):
     assert [(d.file, d.path) for d in numbers] == [("summary.json", "fit.rms")]
     assert numbers[0].abs_difference == pytest.approx(0.25)
     assert versions == {"numpy": [json.loads((run / "manifest.json").read_text())["versions"]["numpy"], "0.0-test"]}
-    report = R.ReproductionReport(str(run), str(other), ["study"], "rec.csv", 0, arrays, numbers, n_numbers, versions, commit)
+    report = R.ReproductionReport(
+        str(run), str(other), ["study"], "rec.csv", 0, arrays, numbers, n_numbers, versions, commit
+    )
     assert not report.identical and report.chain_identical is False
     text = report.describe()
     assert "chain.h5:mcmc/chain: 1 element(s) differ, max |difference| 1e-09" in text
@@ -111,7 +115,9 @@ def test_changed_data_is_refused_before_anything_runs(study_run, tmp_path):
     lines[100] = lines[100][:-1] + ("1" if lines[100][-1] != "1" else "2")
     record.write_text("\n".join(lines) + "\n")
     out = tmp_path / "again"
-    with pytest.raises(R.DataChangedError, match="the data changed since the run: SHA-256 is [0-9a-f]{64}, the manifest records"):
+    with pytest.raises(
+        R.DataChangedError, match="the data changed since the run: SHA-256 is [0-9a-f]{64}, the manifest records"
+    ):
         R.reproduce(run, out)
     assert not out.exists()
     assert cli.main(["reproduce", str(run), "--out", str(out)]) == 2

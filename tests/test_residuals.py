@@ -209,8 +209,11 @@ def test_variance_and_low_frequency_tests_measure_the_structure():
     # large z (it goes into JSON), growing with the misfit
     for amplitude in (30.0, 300.0):
         huge = white + amplitude * np.sin(2 * np.pi * t / 1000)
-        zs = [low_frequency_test(huge, noise, 20).z, variance_ratio_test(huge, noise).z,
-              ljung_box(huge, 40, filter_error=6.0).z]  # fmt: skip
+        zs = [
+            low_frequency_test(huge, noise, 20).z,
+            variance_ratio_test(huge, noise).z,
+            ljung_box(huge, 40, filter_error=6.0).z,
+        ]
         assert all(np.isfinite(z) and z > 30 for z in zs)
 
 
@@ -290,6 +293,12 @@ def test_residual_profile_input_errors():
         residual_profile(time, current, np.full(time.size, np.nan), slice(0, 500), output_range=1.0)
     with pytest.raises(ValueError, match="samples, expected"):
         residual_profile(time, current, r[:-1], slice(0, 500), output_range=1.0)
-    profile = residual_profile(time, current, r + np.random.default_rng(0).standard_normal(time.size), None,
-                               output_range=1.0, noise=ARNoise(np.zeros(0), 1.0, 1.0, 10**9))  # fmt: skip
+    profile = residual_profile(
+        time,
+        current,
+        r + np.random.default_rng(0).standard_normal(time.size),
+        None,
+        output_range=1.0,
+        noise=ARNoise(np.zeros(0), 1.0, 1.0, 10**9),
+    )
     assert profile.energised.all()

@@ -14,8 +14,8 @@ import pytest
 
 from identify.bench import simulate
 from identify.cli import main
-from identify.fitting.posterior import BACKEND_GROUP
 from identify.data.records import write_record
+from identify.fitting.posterior import BACKEND_GROUP
 
 FAST = ["--max-steps", "40", "--check-every", "20", "--n-starts", "2", "--progress", "off"]
 #: Exit code of a FAST study: its 40-step chain stops at the cap, NOT CONVERGED (a finding, docs/reproducibility.md).
@@ -74,17 +74,52 @@ def test_study_writes_the_contract_folder(small_csv, tmp_path, capsys, report_ca
     assert set(summary["fit"]) >= {"rms", "max_error_pct", "reduced_chi2", "seconds"}
     ident = summary["identifiability"]
     assert ident["normalisation"] == {"alpha": -0.1993}
-    assert len(ident["exact"]) == 1 and set(ident["exact"][0]["combination"]) == {"rho", "alpha", "tau", "a0", "a3", "b0", "b3"}
+    assert len(ident["exact"]) == 1 and set(ident["exact"][0]["combination"]) == {
+        "rho",
+        "alpha",
+        "tau",
+        "a0",
+        "a3",
+        "b0",
+        "b3",
+    }
     post = summary["posterior"]
-    assert set(post) >= {"converged", "n_walkers", "n_steps", "discard", "thin", "acceptance_fraction", "tau_max", "seconds"}
+    assert set(post) >= {
+        "converged",
+        "n_walkers",
+        "n_steps",
+        "discard",
+        "thin",
+        "acceptance_fraction",
+        "tau_max",
+        "seconds",
+    }
     # 40 steps cannot converge: said plainly in the summary and on screen
     assert post["converged"] is False and post["n_steps"] == 40 and post["n_walkers"] == 36
     assert "NOT CONVERGED" in post["message"] and "NOT CONVERGED" in printed.out
     params = summary["parameters"]
     assert [p["name"] for p in params][:3] == ["alpha", "rho", "tau"] and len(params) == 19
     for p in params:
-        assert set(p) == {"name", "unit", "table1", "lsq", "lsq_stderr", "median", "lo95", "hi95", "tau", "ess", "vary",
-                          "rhat", "ess_bulk", "ess_tail", "mcse_mean", "mcse_sd", "mean", "sd"}
+        assert set(p) == {
+            "name",
+            "unit",
+            "table1",
+            "lsq",
+            "lsq_stderr",
+            "median",
+            "lo95",
+            "hi95",
+            "tau",
+            "ess",
+            "vary",
+            "rhat",
+            "ess_bulk",
+            "ess_tail",
+            "mcse_mean",
+            "mcse_sd",
+            "mean",
+            "sd",
+        }
         assert p["lo95"] <= p["median"] <= p["hi95"]
     alpha = params[0]
     assert alpha["vary"] is False and alpha["lsq_stderr"] is None and alpha["median"] == -0.1993
@@ -93,8 +128,20 @@ def test_study_writes_the_contract_folder(small_csv, tmp_path, capsys, report_ca
     assert manifest["seed"] == 5
     assert manifest["data"]["sha256"] == hashlib.sha256(small_csv.read_bytes()).hexdigest()
     settings = manifest["settings"]
-    for key in ("effects", "n_operators", "reading", "noise_sigma", "walkers", "max_steps", "check_every", "moves",
-                "n_starts", "input_column", "output_unit", "data"):  # fmt: skip
+    for key in (
+        "effects",
+        "n_operators",
+        "reading",
+        "noise_sigma",
+        "walkers",
+        "max_steps",
+        "check_every",
+        "moves",
+        "n_starts",
+        "input_column",
+        "output_unit",
+        "data",
+    ):
         assert key in settings, key
     assert settings["max_steps"] == 40
     for package in ("numpy", "scipy", "emcee", "numba", "h5py", "python"):
@@ -189,16 +236,33 @@ def test_piezo_record_with_other_columns_and_units(tmp_path, capsys):
     sim = simulate(fs=5.0, seed=8)
     rec = sim.record
     path = tmp_path / "piezo.csv"
-    lines = ["t,voltage,position"] + [f"{float(t)!r},{float(20.0 * i)!r},{float(y)!r}" for t, i, y in zip(rec.time, rec.current, rec.displacement)]
+    lines = ["t,voltage,position"] + [
+        f"{float(t)!r},{float(20.0 * i)!r},{float(y)!r}" for t, i, y in zip(rec.time, rec.current, rec.displacement)
+    ]
     path.write_text("\n".join(lines) + "\n")
-    argv = ["fit", str(path), "--time-column", "t", "--input-column", "voltage", "--output-column", "position",
-            "--input-unit", "V", "--n-starts", "3"]  # fmt: skip
+    argv = [
+        "fit",
+        str(path),
+        "--time-column",
+        "t",
+        "--input-column",
+        "voltage",
+        "--output-column",
+        "position",
+        "--input-unit",
+        "V",
+        "--n-starts",
+        "3",
+    ]
     assert main(argv) == 0
     text = capsys.readouterr().out
     assert "1/V" in text
     # units by dimensional analysis: no parameter is labelled in A for a V-driven record
-    units = {line.split()[0]: line.split()[3] for line in text.splitlines()
-             if line.split() and line.split()[0] in ("alpha", "rho", "tau", "a0", "a1", "a3", "c0")}  # fmt: skip
+    units = {
+        line.split()[0]: line.split()[3]
+        for line in text.splitlines()
+        if line.split() and line.split()[0] in ("alpha", "rho", "tau", "a0", "a1", "a3", "c0")
+    }
     assert units == {"alpha": "V", "rho": "um/V", "tau": "1/V", "a0": "V", "a1": "1/V", "a3": "V", "c0": "um"}
     rms_ratio = float(text.split("residual RMS")[1].split("=")[2].split("x")[0])
     assert rms_ratio == pytest.approx(1.0, abs=0.15)

@@ -12,11 +12,19 @@ from identify.fitting.lsq import FitResult, fit_least_squares
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
 from identify.fitting.terms import optional_terms, select_terms
-from model import EFFECTS, Effect, Model, ParameterSet, Parameter, register_effect
+from model import EFFECTS, Effect, Model, Parameter, ParameterSet, register_effect
 
 ONE_POLE = {"thermal": {"thermal_tau": 25.0, "thermal_sensitivity": 0.08, "thermal_expansion": 2.0}}
-TWO_NODES = {"thermal": {"thermal_tau": 3.0, "thermal_sensitivity": 0.03, "thermal_expansion": -3.0,
-                         "thermal_tau_core": 60.0, "thermal_sensitivity_core": 0.1, "thermal_expansion_core": 4.0}}  # fmt: skip
+TWO_NODES = {
+    "thermal": {
+        "thermal_tau": 3.0,
+        "thermal_sensitivity": 0.03,
+        "thermal_expansion": -3.0,
+        "thermal_tau_core": 60.0,
+        "thermal_sensitivity_core": 0.1,
+        "thermal_expansion_core": 4.0,
+    }
+}
 
 
 @pytest.mark.parametrize("name", list(EFFECTS))
@@ -41,10 +49,17 @@ def test_thermal_offers_node_two_moved_onto_node_one():
 
 def test_a_term_must_name_own_parameters_and_leave_a_core():
     def effect(terms):
-        return type("Toy", (Effect,), {
-            "name": "toy", "stage": "output", "terms": terms, "off": {"toy_a": 0.0, "toy_b": 1.0},
-            "parameters": ParameterSet([Parameter("toy_a", 0.0, -1, 1), Parameter("toy_b", 1.0, 0.5, 2)]),
-        })  # fmt: skip
+        return type(
+            "Toy",
+            (Effect,),
+            {
+                "name": "toy",
+                "stage": "output",
+                "terms": terms,
+                "off": {"toy_a": 0.0, "toy_b": 1.0},
+                "parameters": ParameterSet([Parameter("toy_a", 0.0, -1, 1), Parameter("toy_b", 1.0, 0.5, 2)]),
+            },
+        )
 
     with pytest.raises(ValueError, match="own parameters"):
         register_effect(effect({"x": ("lag_tau",)}))
@@ -56,12 +71,20 @@ def test_a_term_must_name_own_parameters_and_leave_a_core():
 def test_an_effect_of_alternative_forms_keeps_one():
     """An effect whose every parameter lies in a term must name two or more of them as its
     alternative forms, and a fit keeps one of them (:meth:`model.Effect.keeps_a_form`)."""
+
     def effect(forms):
-        return type("Toy", (Effect,), {
-            "name": "toy", "stage": "output", "terms": {"x": ("toy_a",), "y": ("toy_b",)}, "forms": forms,
-            "off": {"toy_a": 0.0, "toy_b": 1.0},
-            "parameters": ParameterSet([Parameter("toy_a", 0.0, -1, 1), Parameter("toy_b", 1.0, 0.5, 2)]),
-        })  # fmt: skip
+        return type(
+            "Toy",
+            (Effect,),
+            {
+                "name": "toy",
+                "stage": "output",
+                "terms": {"x": ("toy_a",), "y": ("toy_b",)},
+                "forms": forms,
+                "off": {"toy_a": 0.0, "toy_b": 1.0},
+                "parameters": ParameterSet([Parameter("toy_a", 0.0, -1, 1), Parameter("toy_b", 1.0, 0.5, 2)]),
+            },
+        )
 
     with pytest.raises(ValueError, match="'forms' must name two or more"):
         register_effect(effect(("x",)))
@@ -78,8 +101,13 @@ def test_an_effect_of_alternative_forms_keeps_one():
 
 def _fit(effects, seed=3):
     record = simulate(effects, fs=20.0, seed=seed).record
-    fit = fit_least_squares(record, normalised_model(Model(["thermal"])), noise=estimate_noise(record), n_starts=2,
-                            rng=np.random.default_rng(0))  # fmt: skip
+    fit = fit_least_squares(
+        record,
+        normalised_model(Model(["thermal"])),
+        noise=estimate_noise(record),
+        n_starts=2,
+        rng=np.random.default_rng(0),
+    )
     return record, fit
 
 
@@ -110,7 +138,9 @@ def test_one_pole_heating_pins_the_second_node_off_and_two_nodes_keep_it():
 
 def test_a_model_without_optional_terms_is_returned_as_it_is():
     record = simulate(None, fs=10.0, seed=1).record
-    fit = fit_least_squares(record, normalised_model(Model(["incomplete_reset"])), noise=estimate_noise(record), n_starts=1)
+    fit = fit_least_squares(
+        record, normalised_model(Model(["incomplete_reset"])), noise=estimate_noise(record), n_starts=1
+    )
     assert select_terms(record, fit) is fit
 
 
@@ -118,8 +148,17 @@ def test_all_terms_is_a_setting_only_when_set():
     from identify.workflows.study import _api_settings
 
     record = simulate(None, fs=10.0, seed=1).record
-    common = dict(seed=0, noise_sigma=None, n_starts=1, walkers=None, max_steps=10, check_every=5, moves="de",
-                  report=False, priors=None)  # fmt: skip
+    common = dict(
+        seed=0,
+        noise_sigma=None,
+        n_starts=1,
+        walkers=None,
+        max_steps=10,
+        check_every=5,
+        moves="de",
+        report=False,
+        priors=None,
+    )
     assert "all_terms" not in _api_settings(record, Model(), **common)
     assert _api_settings(record, Model(), **common, select_terms=False)["all_terms"] is True
 
@@ -142,9 +181,25 @@ def test_the_study_pins_an_unsupported_term_and_all_terms_keeps_it(tmp_path):
     assert "all_terms" not in read_json(tmp_path / "selected" / "manifest.json")["settings"]
 
     write_record(tmp_path / "rec.csv", (record.time, record.current, record.displacement))
-    code = identify_main(["study", str(tmp_path / "rec.csv"), "--out", str(tmp_path / "all"), "--effects", "thermal",
-                          "--all-terms", "--n-starts", "1", "--max-steps", "40", "--check-every", "20", "--no-report",
-                          "-q"])  # fmt: skip
+    code = identify_main(
+        [
+            "study",
+            str(tmp_path / "rec.csv"),
+            "--out",
+            str(tmp_path / "all"),
+            "--effects",
+            "thermal",
+            "--all-terms",
+            "--n-starts",
+            "1",
+            "--max-steps",
+            "40",
+            "--check-every",
+            "20",
+            "--no-report",
+            "-q",
+        ]
+    )
     assert code in (0, 1)  # 40 steps: converged or not, a result either way
     assert load_fit(tmp_path / "all").terms == []
     assert read_json(tmp_path / "all" / "manifest.json")["settings"]["all_terms"] is True
@@ -157,7 +212,10 @@ def test_a_first_order_lag_pins_the_dead_time_off_and_a_dead_time_is_kept():
     """lag's dead time is an optional term: a record made without one does not keep a spurious
     one (a compensation could not invert it); a record with one keeps it."""
     decisions = {}
-    for label, values in (("first order", {"lag_tau": 0.05, "lag_delay": 0.0}), ("dead time", {"lag_tau": 0.02, "lag_delay": 0.06})):
+    for label, values in (
+        ("first order", {"lag_tau": 0.05, "lag_delay": 0.0}),
+        ("dead time", {"lag_tau": 0.02, "lag_delay": 0.06}),
+    ):
         record = simulate({"lag": values}, seed=5, fs=50.0).record
         fit = fit_least_squares(record, normalised_model(Model(["lag"])), n_starts=1, rng=np.random.default_rng(0))
         (decisions[label],) = select_terms(record, fit, rng=np.random.default_rng(0)).terms
@@ -228,8 +286,13 @@ def test_select_terms_keeps_the_last_form_of_an_effect():
     """A record without creep fitted with creep: select_terms may pin one form off, never both
     (that would be the model without creep, a choice of effects, not of terms)."""
     record = simulate(None, fs=20.0, seed=5).record
-    fit = fit_least_squares(record, normalised_model(Model(["creep"])), noise=estimate_noise(record), n_starts=1,
-                            rng=np.random.default_rng(0))  # fmt: skip
+    fit = fit_least_squares(
+        record,
+        normalised_model(Model(["creep"])),
+        noise=estimate_noise(record),
+        n_starts=1,
+        rng=np.random.default_rng(0),
+    )
     selected = select_terms(record, fit, rng=np.random.default_rng(0))
     pinned = {d["term"] for d in selected.terms if d["pinned"]}
     assert len(pinned & {"saturating", "logarithmic"}) == 1, selected.terms
@@ -241,8 +304,12 @@ def test_select_terms_keeps_the_last_form_of_an_effect():
 def test_a_term_the_record_uses_is_charged():
     from identify.fitting.terms import best_form
 
-    values = {"sensor_drift_linear": 1.0, "sensor_drift_ambient_sine": 2.0, "sensor_drift_ambient_cosine": -1.5,
-              "sensor_drift_ambient_period": 64.0}  # fmt: skip
+    values = {
+        "sensor_drift_linear": 1.0,
+        "sensor_drift_ambient_sine": 2.0,
+        "sensor_drift_ambient_cosine": -1.5,
+        "sensor_drift_ambient_period": 64.0,
+    }
     record, fit = _at_truth({"sensor_drift": values})
     form = best_form(record, fit, ["sensor_drift"], n_samples=record.time.size)
     assert form["terms"] == [("sensor_drift", "settling")]  # the ambient cycle pays for itself
@@ -256,9 +323,16 @@ def test_a_one_pole_heating_on_node_two_is_the_one_node_form(monkeypatch):
     for the core node; the first labelling alone would charge it."""
     from identify.fitting.terms import best_form
 
-    one_pole_on_node_two = {"thermal": {"thermal_tau": 1.0, "thermal_sensitivity": 0.0, "thermal_expansion": 0.0,
-                                        "thermal_tau_core": 25.0, "thermal_sensitivity_core": 0.08,
-                                        "thermal_expansion_core": 2.0}}  # fmt: skip
+    one_pole_on_node_two = {
+        "thermal": {
+            "thermal_tau": 1.0,
+            "thermal_sensitivity": 0.0,
+            "thermal_expansion": 0.0,
+            "thermal_tau_core": 25.0,
+            "thermal_sensitivity_core": 0.08,
+            "thermal_expansion_core": 2.0,
+        }
+    }
     record, fit = _at_truth(one_pole_on_node_two)
     form = best_form(record, fit, ["thermal"], n_samples=record.time.size)
     assert form["terms"] == [("thermal", "core")] and form["parameters"] == 3
@@ -279,8 +353,16 @@ def test_a_term_at_a_kink_is_weighed_by_switching_it_off():
     the drive deficit, the width and the fade's shape go uncharged, the strain gain is kept."""
     from identify.fitting.terms import best_form
 
-    gain_decay = {"training": {"training_deficit": 0.0, "training_threshold": 1e-4, "training_travel": 16.8,
-                               "training_shape": 1.0, "training_gain": 0.05, "training_width": 0.0}}  # fmt: skip
+    gain_decay = {
+        "training": {
+            "training_deficit": 0.0,
+            "training_threshold": 1e-4,
+            "training_travel": 16.8,
+            "training_shape": 1.0,
+            "training_gain": 0.05,
+            "training_width": 0.0,
+        }
+    }
     record, fit = _at_truth(gain_decay)
     form = best_form(record, fit, ["training"], n_samples=record.time.size)
     assert sorted(term for _, term in form["terms"]) == ["drive", "shape", "threshold", "width"]
@@ -293,8 +375,16 @@ def test_a_training_of_its_strain_gain_alone_is_charged_for_it():
     rebuild the gain in the first-order re-optimisation (they did: every term went uncharged)."""
     from identify.fitting.terms import best_form
 
-    slow_gain = {"training": {"training_deficit": 0.0, "training_threshold": 0.0, "training_travel": 50.0,
-                              "training_shape": 0.93, "training_gain": 0.0163, "training_width": 0.0}}  # fmt: skip
+    slow_gain = {
+        "training": {
+            "training_deficit": 0.0,
+            "training_threshold": 0.0,
+            "training_travel": 50.0,
+            "training_shape": 0.93,
+            "training_gain": 0.0163,
+            "training_width": 0.0,
+        }
+    }
     record, fit = _at_truth(slow_gain, fs=20.0)
     form = best_form(record, fit, ["training"], n_samples=record.time.size)
     dropped = sorted(term for _, term in form["terms"])

@@ -52,8 +52,27 @@ def study_dir(tmp_path_factory):
     base = tmp_path_factory.mktemp("use")
     csv = _record(base / "train.csv", seed=1)
     out = base / "study"
-    code, stdout, stderr = _run(["study", csv, "--out", out, "--seed", 1, "--n-starts", 1, "--walkers", 40,
-                                 "--max-steps", 200, "--check-every", 100, "--progress", "off", "--no-report"])  # fmt: skip
+    code, stdout, stderr = _run(
+        [
+            "study",
+            csv,
+            "--out",
+            out,
+            "--seed",
+            1,
+            "--n-starts",
+            1,
+            "--walkers",
+            40,
+            "--max-steps",
+            200,
+            "--check-every",
+            100,
+            "--progress",
+            "off",
+            "--no-report",
+        ]
+    )
     assert code == 1 and "NOT CONVERGE" in stderr, stdout + stderr  # 200 steps: unconverged, exit code 1
     return out
 
@@ -196,8 +215,16 @@ def test_compensate_refuses_unreachable_and_malformed_targets(study_dir, tmp_pat
     cases = [
         (_write_target(tmp_path / "high.csv", t, y), [], ["asks for", "above the highest", "0..5 A", "t = "]),
         (_write_target(tmp_path / "low.csv", t, y - 60.0), [], ["asks for", "below the lowest", "0..5 A"]),
-        (_write_target(tmp_path / "narrow.csv", *_triangle()), ["--current-range", "0:2"], ["0..2 A", "above the highest"]),
-        (_write_target(tmp_path / "cols.csv", t, y, header="t,position"), [], ["missing column", "'time'", "'position'"]),
+        (
+            _write_target(tmp_path / "narrow.csv", *_triangle()),
+            ["--current-range", "0:2"],
+            ["0..2 A", "above the highest"],
+        ),
+        (
+            _write_target(tmp_path / "cols.csv", t, y, header="t,position"),
+            [],
+            ["missing column", "'time'", "'position'"],
+        ),
     ]
     bad_time = tmp_path / "time.csv"
     bad_time.write_text("time,displacement\n0,50\n1,60\n1,70\n")
@@ -222,7 +249,12 @@ def test_small_closed_loop_on_the_bench(study_dir):
     study = load_study(study_dir)
     truth = model.Model()
     t, tri = _triangle(duration=48.0)
-    ms = 150 + 60 * np.sin(2 * np.pi * 0.05 * t) + 35 * np.sin(2 * np.pi * 0.13 * t + 1) + 15 * np.sin(2 * np.pi * 0.31 * t + 2)
+    ms = (
+        150
+        + 60 * np.sin(2 * np.pi * 0.05 * t)
+        + 35 * np.sin(2 * np.pi * 0.13 * t + 1)
+        + 15 * np.sin(2 * np.pi * 0.31 * t + 2)
+    )
     for y in (tri, ms):
         c = compensate(study, Target(t, y), n_draws=60)
         realised = truth(model.TABLE1, t, c.current) - y
@@ -247,8 +279,10 @@ def test_predict_names_the_effect_a_new_record_reveals(study_dir, tmp_path):
     bench's test size): the validation residual is not noise, and the diagnosis names thermal."""
     rng = np.random.default_rng(11)
     m = model.Model(["thermal"])
-    theta = m.theta_from_dict(dict(zip(m.names[:19], model.TABLE1)) | {"thermal_tau": 20.0, "thermal_sensitivity": 0.08,
-                                                                      "thermal_expansion": 3.0})  # fmt: skip
+    theta = m.theta_from_dict(
+        dict(zip(m.names[:19], model.TABLE1))
+        | {"thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0}
+    )
     time, current = model.paper_current(fs=20.0)
     csv = tmp_path / "warm.csv"
     write_record(csv, (time, current, m(theta, time, current) + SIGMA * rng.standard_normal(time.size)))

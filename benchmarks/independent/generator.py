@@ -18,6 +18,7 @@ everything needed to rebuild the record: GPI parameters, input reading, sampling
 the hidden effects with their final (size-scaled) parameters, the noise description
 and the seed key of the noise stream.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,22 +33,55 @@ from scipy import signal
 # ----------------------------------------------------------------------------------
 # Paper constants
 # ----------------------------------------------------------------------------------
-PARAM_NAMES = ["alpha", "rho", "tau",
-               "a0", "a1", "a2", "a3",
-               "b0", "b1", "b2", "b3",
-               "c0", "c1", "c2", "c3",
-               "d0", "d1", "d2", "d3"]
-TABLE1 = np.array([-0.1993, 5.6438, 0.0714,
-                   8.5043, 0.5140, -0.0612, -6.1533,
-                   3.3505, 1.3916, -0.9146, 3.6876,
-                   1.5687, 6.6176, -11.5359, 25.7303,
-                   2.1349, 7.1117, -9.2777, 28.1546])
+PARAM_NAMES = [
+    "alpha",
+    "rho",
+    "tau",
+    "a0",
+    "a1",
+    "a2",
+    "a3",
+    "b0",
+    "b1",
+    "b2",
+    "b3",
+    "c0",
+    "c1",
+    "c2",
+    "c3",
+    "d0",
+    "d1",
+    "d2",
+    "d3",
+]
+TABLE1 = np.array(
+    [
+        -0.1993,
+        5.6438,
+        0.0714,
+        8.5043,
+        0.5140,
+        -0.0612,
+        -6.1533,
+        3.3505,
+        1.3916,
+        -0.9146,
+        3.6876,
+        1.5687,
+        6.6176,
+        -11.5359,
+        25.7303,
+        2.1349,
+        7.1117,
+        -9.2777,
+        28.1546,
+    ]
+)
 N_OPERATORS = 12
-DURATION = 70.0          # s
-T_ON = 10.0              # s, energising starts
-I_PEAK = 5.0             # A, peak of the undecayed command
-CATEGORIES = ["thermal", "lag", "creep", "sensor_drift", "first_cycle",
-              "training", "initial_state", "outside"]
+DURATION = 70.0  # s
+T_ON = 10.0  # s, energising starts
+I_PEAK = 5.0  # A, peak of the undecayed command
+CATEGORIES = ["thermal", "lag", "creep", "sensor_drift", "first_cycle", "training", "initial_state", "outside"]
 SUITE_KEY = {"clean": 0, "effects": 1}
 
 
@@ -110,8 +144,7 @@ def rest_level(theta, n_op=N_OPERATORS):
     return float(_tanh4(c, 0.0) + p @ virgin_memory(theta, 0.0, n_op))
 
 
-def gpi(theta, v, n_op=N_OPERATORS, z0=None, thr_scale=None, v_env=None,
-        return_state=False):
+def gpi(theta, v, n_op=N_OPERATORS, z0=None, thr_scale=None, v_env=None, return_state=False):
     """Generalized PI output y_k = Omega_k + sum_j p_j z_j(t_k).
 
     v         : input whose increments decide the branch (dv>0 rising, dv<0 falling).
@@ -236,10 +269,10 @@ def first_peak_trough(u):
     following minimum (end of the next falling run)."""
     runs = [r for r in runs_of_direction(u) if r[0] != 0]
     kp = kq = None
-    for n, (sg, a, b) in enumerate(runs):
+    for n, (sg, _a, b) in enumerate(runs):
         if sg > 0:
             kp = b
-            for sg2, a2, b2 in runs[n + 1:]:
+            for sg2, _a2, b2 in runs[n + 1 :]:
                 if sg2 < 0:
                     kq = b2
                     break
@@ -261,10 +294,22 @@ FORMS = {}
 def _form(name, category, stage, order, equation, knob, linear, lo, hi, start):
     def deco(pair):
         draw, apply = pair
-        FORMS[name] = dict(name=name, category=category, stage=stage, order=order,
-                           equation=equation, knob=knob, linear=linear, lo=lo, hi=hi,
-                           start=start, draw=draw, apply=apply)
+        FORMS[name] = dict(
+            name=name,
+            category=category,
+            stage=stage,
+            order=order,
+            equation=equation,
+            knob=knob,
+            linear=linear,
+            lo=lo,
+            hi=hi,
+            start=start,
+            draw=draw,
+            apply=apply,
+        )
         return pair
+
     return deco
 
 
@@ -283,27 +328,41 @@ def _therm1_apply(p, c):
     c["temperature"] = T
 
 
-_form("one_pole_expansion", "thermal", "output", 30,
-      "tau_th dT/dt = i^2 - T;  y += kappa*T  (thermal expansion, kappa in um/A^2)",
-      "kappa", True, 0.0, 10.0, 0.05)((_therm1_draw, _therm1_apply))
+_form(
+    "one_pole_expansion",
+    "thermal",
+    "output",
+    30,
+    "tau_th dT/dt = i^2 - T;  y += kappa*T  (thermal expansion, kappa in um/A^2)",
+    "kappa",
+    True,
+    0.0,
+    10.0,
+    0.05,
+)((_therm1_draw, _therm1_apply))
 
 
 def _therm2_draw(rng):
-    return dict(tau_c=U(rng, 2.0, 6.0), tau_cs=U(rng, 5.0, 15.0),
-                tau_sc=U(rng, 15.0, 40.0), tau_s=U(rng, 40.0, 150.0),
-                xi=U(rng, -0.4, 0.6))
+    return dict(
+        tau_c=U(rng, 2.0, 6.0),
+        tau_cs=U(rng, 5.0, 15.0),
+        tau_sc=U(rng, 15.0, 40.0),
+        tau_s=U(rng, 40.0, 150.0),
+        xi=U(rng, -0.4, 0.6),
+    )
 
 
 def _two_node(P, p, h):
-    A = np.array([[-(1 / p["tau_c"] + 1 / p["tau_cs"]), 1 / p["tau_cs"]],
-                  [1 / p["tau_sc"], -(1 / p["tau_sc"] + 1 / p["tau_s"])]])
+    A = np.array(
+        [[-(1 / p["tau_c"] + 1 / p["tau_cs"]), 1 / p["tau_cs"]], [1 / p["tau_sc"], -(1 / p["tau_sc"] + 1 / p["tau_s"])]]
+    )
     B = np.array([1 / p["tau_c"], 0.0])
     lam, V = np.linalg.eig(A)
     lam = lam.real
     V = V.real
     g = np.linalg.solve(V, B)
     modes = np.array([g[m] * (-1 / lam[m]) * lowpass1(P, -1 / lam[m], h) for m in range(2)])
-    X = V @ modes          # rows: coil temperature, sample temperature
+    X = V @ modes  # rows: coil temperature, sample temperature
     return X[0], X[1]
 
 
@@ -313,10 +372,18 @@ def _therm2_apply(p, c):
     c["temperature"] = Ts
 
 
-_form("two_node_network", "thermal", "output", 30,
-      "dTc/dt = (i^2 - Tc)/tau_c - (Tc - Ts)/tau_cs;  dTs/dt = (Tc - Ts)/tau_sc - Ts/tau_s;"
-      "  y += kappa*(Ts + xi*Tc)",
-      "kappa", True, 0.0, 10.0, 0.05)((_therm2_draw, _therm2_apply))
+_form(
+    "two_node_network",
+    "thermal",
+    "output",
+    30,
+    "dTc/dt = (i^2 - Tc)/tau_c - (Tc - Ts)/tau_cs;  dTs/dt = (Tc - Ts)/tau_sc - Ts/tau_s;  y += kappa*(Ts + xi*Tc)",
+    "kappa",
+    True,
+    0.0,
+    10.0,
+    0.05,
+)((_therm2_draw, _therm2_apply))
 
 
 def _therm3_draw(rng):
@@ -325,15 +392,24 @@ def _therm3_draw(rng):
 
 def _therm3_apply(p, c):
     T = lowpass1(c["u"] ** 2, p["tau_th"], c["h"])
-    Tref = float(np.mean(c["u"][c["t"] >= T_ON] ** 2))   # ~ steady-state temperature
+    Tref = float(np.mean(c["u"][c["t"] >= T_ON] ** 2))  # ~ steady-state temperature
     theta_n = T / Tref
     c["y"] = c["y0"] + (1.0 - p["beta"] * theta_n) * (c["y"] - c["y0"])
     c["temperature"] = theta_n
 
 
-_form("gain_vs_temperature", "thermal", "output", 12,
-      "tau_th dT/dt = i^2 - T;  y = y0 + (1 - beta*T/<i^2>)*(y_gpi - y0)  (strain response falls as the sample warms)",
-      "beta", True, 0.0, 0.5, 0.01)((_therm3_draw, _therm3_apply))
+_form(
+    "gain_vs_temperature",
+    "thermal",
+    "output",
+    12,
+    "tau_th dT/dt = i^2 - T;  y = y0 + (1 - beta*T/<i^2>)*(y_gpi - y0)  (strain response falls as the sample warms)",
+    "beta",
+    True,
+    0.0,
+    0.5,
+    0.01,
+)((_therm3_draw, _therm3_apply))
 
 
 # ---------------- lag ----------------
@@ -346,9 +422,18 @@ def _lag1_apply(p, c):
     c["u"] = np.interp(t - p["dead_time"], t, c["u"], left=c["u"][0])
 
 
-_form("dead_time", "lag", "input", 0,
-      "u(t) = i(t - Td)  (linear interpolation between samples)",
-      "dead_time", False, 0.0, 0.25, 0.02)((_lag1_draw, _lag1_apply))
+_form(
+    "dead_time",
+    "lag",
+    "input",
+    0,
+    "u(t) = i(t - Td)  (linear interpolation between samples)",
+    "dead_time",
+    False,
+    0.0,
+    0.25,
+    0.02,
+)((_lag1_draw, _lag1_apply))
 
 
 def _lag2_draw(rng):
@@ -360,9 +445,18 @@ def _lag2_apply(p, c):
     c["u"] = lowpass1(u, p["ratio"] * p["tau1"], c["h"])
 
 
-_form("two_poles", "lag", "input", 0,
-      "U(s) = I(s) / ((1 + s tau1)(1 + s ratio*tau1))  (coil L/R + eddy currents)",
-      "tau1", False, 0.0, 0.3, 0.02)((_lag2_draw, _lag2_apply))
+_form(
+    "two_poles",
+    "lag",
+    "input",
+    0,
+    "U(s) = I(s) / ((1 + s tau1)(1 + s ratio*tau1))  (coil L/R + eddy currents)",
+    "tau1",
+    False,
+    0.0,
+    0.3,
+    0.02,
+)((_lag2_draw, _lag2_apply))
 
 
 def _lag3_draw(rng):
@@ -375,9 +469,18 @@ def _lag3_apply(p, c):
     c["u"] = lowpass1(u, p["tau"], c["h"])
 
 
-_form("first_order_plus_dead_time", "lag", "input", 0,
-      "U(s) = exp(-s Td) I(s) / (1 + s tau),  Td = dead_over_tau*tau",
-      "tau", False, 0.0, 0.3, 0.02)((_lag3_draw, _lag3_apply))
+_form(
+    "first_order_plus_dead_time",
+    "lag",
+    "input",
+    0,
+    "U(s) = exp(-s Td) I(s) / (1 + s tau),  Td = dead_over_tau*tau",
+    "tau",
+    False,
+    0.0,
+    0.3,
+    0.02,
+)((_lag3_draw, _lag3_apply))
 
 
 # ---------------- creep ----------------
@@ -389,19 +492,29 @@ def _creep1_apply(p, c):
     y, t, u = c["y"], c["t"], c["u"]
     runs = [r for r in runs_of_direction(u) if r[0] != 0]
     add = np.zeros_like(y)
-    for sg, a, b in runs:
+    for _sg, a, b in runs:
         if b >= len(y) - 1:
-            continue                       # the last leg never reverses
-        dY = y[b] - y[a - 1]               # change of the output over the leg
+            continue  # the last leg never reverses
+        dY = y[b] - y[a - 1]  # change of the output over the leg
         tm = t[b]
         m = t > tm
         add[m] += dY * np.log1p((t[m] - tm) / p["t0"])
     c["y"] = y + p["gamma"] * add
 
 
-_form("log_after_reversal", "creep", "output", 20,
-      "y += gamma * sum_m dY_m * ln(1 + (t - t_m)/t0) for t > t_m  (dY_m: output change over leg m ending at reversal t_m)",
-      "gamma", True, 0.0, 1.0, 0.003)((_creep1_draw, _creep1_apply))
+_form(
+    "log_after_reversal",
+    "creep",
+    "output",
+    20,
+    "y += gamma * sum_m dY_m * ln(1 + (t - t_m)/t0) for t > t_m  (dY_m: output change over leg m ending at reversal "
+    "t_m)",
+    "gamma",
+    True,
+    0.0,
+    1.0,
+    0.003,
+)((_creep1_draw, _creep1_apply))
 
 
 def _creep2_draw(rng):
@@ -418,9 +531,18 @@ def _creep2_apply(p, c):
     c["y"] = y + p["g"] * add
 
 
-_form("exponential_spectrum", "creep", "output", 20,
-      "y += g * sum_i w_i * integral (1 - exp(-(t-s)/tau_i)) dy(s),  tau_i = tau_a*(1, 10, 100)",
-      "g", True, 0.0, 0.5, 0.005)((_creep2_draw, _creep2_apply))
+_form(
+    "exponential_spectrum",
+    "creep",
+    "output",
+    20,
+    "y += g * sum_i w_i * integral (1 - exp(-(t-s)/tau_i)) dy(s),  tau_i = tau_a*(1, 10, 100)",
+    "g",
+    True,
+    0.0,
+    0.5,
+    0.005,
+)((_creep2_draw, _creep2_apply))
 
 
 def _creep3_draw(rng):
@@ -435,9 +557,18 @@ def _creep3_apply(p, c):
     c["y"] = y + p["gamma"] * add
 
 
-_form("power_law_kernel", "creep", "output", 20,
-      "y += gamma * integral ((t - s)/t0)^n dy(s)  (Andrade-type hereditary creep, t0 = 1 s)",
-      "gamma", True, 0.0, 0.5, 0.005)((_creep3_draw, _creep3_apply))
+_form(
+    "power_law_kernel",
+    "creep",
+    "output",
+    20,
+    "y += gamma * integral ((t - s)/t0)^n dy(s)  (Andrade-type hereditary creep, t0 = 1 s)",
+    "gamma",
+    True,
+    0.0,
+    0.5,
+    0.005,
+)((_creep3_draw, _creep3_apply))
 
 
 # ---------------- sensor drift ----------------
@@ -453,9 +584,9 @@ def _drift1_apply(p, c):
     c["y"] = c["y"] + p["sign"] * p["rate"] * c["t"]
 
 
-_form("linear_drift", "sensor_drift", "sensor", 50,
-      "y += sign*rate*t  (rate in um/s)",
-      "rate", True, 0.0, 1.0, 0.02)((_drift1_draw, _drift1_apply))
+_form("linear_drift", "sensor_drift", "sensor", 50, "y += sign*rate*t  (rate in um/s)", "rate", True, 0.0, 1.0, 0.02)(
+    (_drift1_draw, _drift1_apply)
+)
 
 
 def _drift2_draw(rng):
@@ -466,15 +597,29 @@ def _drift2_apply(p, c):
     c["y"] = c["y"] + p["sign"] * p["amplitude"] * (1.0 - np.exp(-c["t"] / p["tau_w"]))
 
 
-_form("exponential_warmup", "sensor_drift", "sensor", 50,
-      "y += sign*A*(1 - exp(-t/tau_w))  (sensor electronics warming up and settling)",
-      "amplitude", True, 0.0, 30.0, 1.0)((_drift2_draw, _drift2_apply))
+_form(
+    "exponential_warmup",
+    "sensor_drift",
+    "sensor",
+    50,
+    "y += sign*A*(1 - exp(-t/tau_w))  (sensor electronics warming up and settling)",
+    "amplitude",
+    True,
+    0.0,
+    30.0,
+    1.0,
+)((_drift2_draw, _drift2_apply))
 
 
 def _drift3_draw(rng):
-    return dict(sign=_sign(rng), tau1=U(rng, 10.0, 30.0), tau2=U(rng, 20.0, 60.0),
-                amb_rel=U(rng, 0.2, 1.0), amb_period=U(rng, 60.0, 300.0),
-                amb_phase=U(rng, 0.0, 2 * np.pi))
+    return dict(
+        sign=_sign(rng),
+        tau1=U(rng, 10.0, 30.0),
+        tau2=U(rng, 20.0, 60.0),
+        amb_rel=U(rng, 0.2, 1.0),
+        amb_period=U(rng, 60.0, 300.0),
+        amb_phase=U(rng, 0.0, 2 * np.pi),
+    )
 
 
 def _drift3_apply(p, c):
@@ -488,9 +633,18 @@ def _drift3_apply(p, c):
     c["y"] = c["y"] + p["sign"] * p["beta"] * Ts
 
 
-_form("sensor_temperature", "sensor_drift", "sensor", 50,
-      "Ts = LP(tau2) LP(tau1) [i^2] + amb_rel*<i^2>*(sin(w t + phi) - sin phi);  y += sign*beta*Ts",
-      "beta", True, 0.0, 10.0, 0.1)((_drift3_draw, _drift3_apply))
+_form(
+    "sensor_temperature",
+    "sensor_drift",
+    "sensor",
+    50,
+    "Ts = LP(tau2) LP(tau1) [i^2] + amb_rel*<i^2>*(sin(w t + phi) - sin phi);  y += sign*beta*Ts",
+    "beta",
+    True,
+    0.0,
+    10.0,
+    0.1,
+)((_drift3_draw, _drift3_apply))
 
 
 # ---------------- first cycle ----------------
@@ -503,12 +657,12 @@ def _fc_extra(p, c, fading):
     E, kap, mu = p["E"], p["kappa"], p["mu"]
     extra = np.empty_like(y)
     extra[: kp + 1] = E * s[: kp + 1]
-    extra[kp + 1: kq + 1] = E * (kap + (1 - kap) * (s[kp + 1: kq + 1] - sq) / (1 - sq))
+    extra[kp + 1 : kq + 1] = E * (kap + (1 - kap) * (s[kp + 1 : kq + 1] - sq) / (1 - sq))
     off = np.full(y.size - kq - 1, kap * E)
     if fading:
         cyc = cycles(c["u"])
-        off = off * np.exp(-(cyc[kq + 1:] - cyc[kq]) / p["n_fade"])
-    extra[kq + 1:] = off - mu * E * (s[kq + 1:] - sq)
+        off = off * np.exp(-(cyc[kq + 1 :] - cyc[kq]) / p["n_fade"])
+    extra[kq + 1 :] = off - mu * E * (s[kq + 1 :] - sq)
     return extra
 
 
@@ -520,10 +674,19 @@ def _fc1_apply(p, c):
     c["y"] = c["y"] + _fc_extra(p, c, False)
 
 
-_form("retained_offset_fixed", "first_cycle", "output", 11,
-      "s=(y-y0)/Y1; virgin rise: y+=E*s; first unloading: y+=E*(kappa+(1-kappa)(s-s_q)/(1-s_q)); "
-      "later: y+=kappa*E - mu*E*(s-s_q)",
-      "E", True, 0.0, 60.0, 2.0)((_fc1_draw, _fc1_apply))
+_form(
+    "retained_offset_fixed",
+    "first_cycle",
+    "output",
+    11,
+    "s=(y-y0)/Y1; virgin rise: y+=E*s; first unloading: y+=E*(kappa+(1-kappa)(s-s_q)/(1-s_q)); "
+    "later: y+=kappa*E - mu*E*(s-s_q)",
+    "E",
+    True,
+    0.0,
+    60.0,
+    2.0,
+)((_fc1_draw, _fc1_apply))
 
 
 def _fc2_draw(rng):
@@ -534,9 +697,18 @@ def _fc2_apply(p, c):
     c["y"] = c["y"] + _fc_extra(p, c, True)
 
 
-_form("retained_offset_fading", "first_cycle", "output", 11,
-      "as retained_offset_fixed but later: y += kappa*E*exp(-(N(t)-N(t_q))/n_fade) - mu*E*(s-s_q), N = cycles",
-      "E", True, 0.0, 60.0, 2.0)((_fc2_draw, _fc2_apply))
+_form(
+    "retained_offset_fading",
+    "first_cycle",
+    "output",
+    11,
+    "as retained_offset_fixed but later: y += kappa*E*exp(-(N(t)-N(t_q))/n_fade) - mu*E*(s-s_q), N = cycles",
+    "E",
+    True,
+    0.0,
+    60.0,
+    2.0,
+)((_fc2_draw, _fc2_apply))
 
 
 # ---------------- training ----------------
@@ -549,9 +721,18 @@ def _tr1_apply(p, c):
     c["y"] = c["y0"] + g * (c["y"] - c["y0"])
 
 
-_form("gain_decay_with_cycles", "training", "output", 10,
-      "y = y0 + (1 - delta*(1 - exp(-N(t)/n_c)))*(y_gpi - y0),  N = accumulated cycles",
-      "delta", True, 0.0, 0.5, 0.01)((_tr1_draw, _tr1_apply))
+_form(
+    "gain_decay_with_cycles",
+    "training",
+    "output",
+    10,
+    "y = y0 + (1 - delta*(1 - exp(-N(t)/n_c)))*(y_gpi - y0),  N = accumulated cycles",
+    "delta",
+    True,
+    0.0,
+    0.5,
+    0.01,
+)((_tr1_draw, _tr1_apply))
 
 
 def _tr2_draw(rng):
@@ -562,9 +743,18 @@ def _tr2_apply(p, c):
     c["thr_scale"] = c["thr_scale"] * (1.0 - p["delta"] * (1.0 - np.exp(-cycles(c["u"]) / p["n_c"])))
 
 
-_form("threshold_shrink", "training", "gpi", 5,
-      "r_j(t) = alpha*j*(1 - delta*(1 - exp(-N(t)/n_c)))  (play widths narrow with cycling; weights fixed)",
-      "delta", False, 0.0, 0.95, 0.05)((_tr2_draw, _tr2_apply))
+_form(
+    "threshold_shrink",
+    "training",
+    "gpi",
+    5,
+    "r_j(t) = alpha*j*(1 - delta*(1 - exp(-N(t)/n_c)))  (play widths narrow with cycling; weights fixed)",
+    "delta",
+    False,
+    0.0,
+    0.95,
+    0.05,
+)((_tr2_draw, _tr2_apply))
 
 
 # ---------------- initial state ----------------
@@ -580,9 +770,19 @@ def _is1_apply(p, c):
     c["z0"] = z
 
 
-_form("prior_excursion", "initial_state", "gpi", 5,
-      "z_j(t0) = memory after an earlier run 0 -> v_prior -> 0 A, i.e. min(gamma_b(0)+r_j, max(gamma_a(v_prior)-r_j, z_virgin))",
-      "v_prior", False, 0.0, 5.0, 1.0)((_is1_draw, _is1_apply))
+_form(
+    "prior_excursion",
+    "initial_state",
+    "gpi",
+    5,
+    "z_j(t0) = memory after an earlier run 0 -> v_prior -> 0 A, i.e. min(gamma_b(0)+r_j, max(gamma_a(v_prior)-r_j, "
+    "z_virgin))",
+    "v_prior",
+    False,
+    0.0,
+    5.0,
+    1.0,
+)((_is1_draw, _is1_apply))
 
 
 def _is2_draw(rng):
@@ -594,9 +794,18 @@ def _is2_apply(p, c):
     c["z0"] = virgin_memory(c["theta"], 0.0) + p["delta"] * (j / N_OPERATORS) ** p["q"]
 
 
-_form("raised_memory", "initial_state", "gpi", 5,
-      "z_j(t0) = z_virgin_j + delta*(j/N)^q  (wide operators keep more of the earlier elongation)",
-      "delta", False, 0.0, 30.0, 1.0)((_is2_draw, _is2_apply))
+_form(
+    "raised_memory",
+    "initial_state",
+    "gpi",
+    5,
+    "z_j(t0) = z_virgin_j + delta*(j/N)^q  (wide operators keep more of the earlier elongation)",
+    "delta",
+    False,
+    0.0,
+    30.0,
+    1.0,
+)((_is2_draw, _is2_apply))
 
 
 # ---------------- outside ----------------
@@ -610,9 +819,18 @@ def _o1_apply(p, c):
     c["stop_level"] = ystop
 
 
-_form("hard_stop", "outside", "output", 40,
-      "y = min(y, y_stop),  y_stop = max(y_plain) - headroom  (mechanical end stop)",
-      "headroom", False, 0.0, 150.0, 5.0)((_o1_draw, _o1_apply))
+_form(
+    "hard_stop",
+    "outside",
+    "output",
+    40,
+    "y = min(y, y_stop),  y_stop = max(y_plain) - headroom  (mechanical end stop)",
+    "headroom",
+    False,
+    0.0,
+    150.0,
+    5.0,
+)((_o1_draw, _o1_apply))
 
 
 def _o2_draw(rng):
@@ -623,12 +841,12 @@ def _o2_apply(p, c):
     t, y, h = c["t"], c["y"], c["h"]
     wn = 2 * np.pi * p["f_n"]
     z = p["zeta"]
-    num, den = [wn ** 2], [1.0, 2 * z * wn, wn ** 2]
+    num, den = [wn**2], [1.0, 2 * z * wn, wn**2]
     bd, ad, _ = signal.cont2discrete((num, den), h, method="foh")
     bd = np.atleast_1d(np.squeeze(bd))
     zi = signal.lfilter_zi(bd, ad) * y[0]
     x, _ = signal.lfilter(bd, ad, y, zi=zi)
-    wd = wn * np.sqrt(1 - z ** 2)
+    wd = wn * np.sqrt(1 - z**2)
     ring = np.zeros_like(y)
     for k, sg in reversals(c["u"]):
         m = t > t[k]
@@ -637,9 +855,19 @@ def _o2_apply(p, c):
     c["y"] = x + p["amplitude"] * ring
 
 
-_form("resonance_ringing", "outside", "output", 40,
-      "y = H(s) y_gpi, H = wn^2/(s^2 + 2 zeta wn s + wn^2), plus A*sum_m sgn_m exp(-zeta wn (t-t_m)) sin(wd (t-t_m)) at input reversals",
-      "amplitude", False, 0.0, 80.0, 2.0)((_o2_draw, _o2_apply))
+_form(
+    "resonance_ringing",
+    "outside",
+    "output",
+    40,
+    "y = H(s) y_gpi, H = wn^2/(s^2 + 2 zeta wn s + wn^2), plus A*sum_m sgn_m exp(-zeta wn (t-t_m)) sin(wd (t-t_m)) at "
+    "input reversals",
+    "amplitude",
+    False,
+    0.0,
+    80.0,
+    2.0,
+)((_o2_draw, _o2_apply))
 
 
 def _o3_draw(rng):
@@ -651,9 +879,18 @@ def _o3_apply(p, c):
     c["thr_scale"] = c["thr_scale"] * (1.0 + p["beta"] * du / max(du.max(), 1e-12))
 
 
-_form("rate_dependent_width", "outside", "gpi", 5,
-      "r_j(t) = alpha*j*(1 + beta*|di/dt|/max|di/dt|)  (loop widens with input rate)",
-      "beta", False, 0.0, 6.0, 0.3)((_o3_draw, _o3_apply))
+_form(
+    "rate_dependent_width",
+    "outside",
+    "gpi",
+    5,
+    "r_j(t) = alpha*j*(1 + beta*|di/dt|/max|di/dt|)  (loop widens with input rate)",
+    "beta",
+    False,
+    0.0,
+    6.0,
+    0.3,
+)((_o3_draw, _o3_apply))
 
 
 def _o4_draw(rng):
@@ -674,9 +911,18 @@ def _o4_apply(p, c):
     c["y"] = np.array(out)
 
 
-_form("output_backlash", "outside", "output", 40,
-      "y_meas = play_b[y]:  w_k = max(y_k - b, min(y_k + b, w_{k-1}))  (mechanical play between push rod and sensor)",
-      "half_width", False, 0.0, 30.0, 1.0)((_o4_draw, _o4_apply))
+_form(
+    "output_backlash",
+    "outside",
+    "output",
+    40,
+    "y_meas = play_b[y]:  w_k = max(y_k - b, min(y_k + b, w_{k-1}))  (mechanical play between push rod and sensor)",
+    "half_width",
+    False,
+    0.0,
+    30.0,
+    1.0,
+)((_o4_draw, _o4_apply))
 
 
 def _o5_draw(rng):
@@ -690,9 +936,18 @@ def _o5_apply(p, c):
     c["y"] = y + p["sign"] * p["bow"] * span * s * (1.0 - s)
 
 
-_form("sensor_bow_nonlinearity", "outside", "sensor", 55,
-      "y_meas = y + sign*bow*span*s*(1-s), s = (y-y0)/span  (static sensor nonlinearity calibrated at both ends)",
-      "bow", True, 0.0, 0.2, 0.01)((_o5_draw, _o5_apply))
+_form(
+    "sensor_bow_nonlinearity",
+    "outside",
+    "sensor",
+    55,
+    "y_meas = y + sign*bow*span*s*(1-s), s = (y-y0)/span  (static sensor nonlinearity calibrated at both ends)",
+    "bow",
+    True,
+    0.0,
+    0.2,
+    0.01,
+)((_o5_draw, _o5_apply))
 
 
 # ----------------------------------------------------------------------------------
@@ -707,8 +962,7 @@ def simulate(fs, reading, theta_dict, effects):
     theta = _theta_array(theta_dict)
     t = time_axis(fs)
     i = commanded_current(t, reading)
-    c = dict(t=t, i=i, u=i.copy(), h=1.0 / fs, theta=theta, y0=rest_level(theta),
-             z0=None, thr_scale=np.ones(t.size))
+    c = dict(t=t, i=i, u=i.copy(), h=1.0 / fs, theta=theta, y0=rest_level(theta), z0=None, thr_scale=np.ones(t.size))
     effs = sorted(effects, key=lambda e: FORMS[e["form"]]["order"])
     for e in effs:
         if FORMS[e["form"]]["stage"] == "input":
@@ -735,8 +989,7 @@ def make_noise(rng, n, noise):
     if noise["kind"] == "white":
         return s * w
     phi = noise["phi"]
-    e = signal.lfilter([np.sqrt(1 - phi ** 2) * s], [1.0, -phi], w[1:],
-                       zi=[phi * s * w[0]])[0]
+    e = signal.lfilter([np.sqrt(1 - phi**2) * s], [1.0, -phi], w[1:], zi=[phi * s * w[0]])[0]
     return np.r_[s * w[0], e]
 
 
@@ -752,8 +1005,12 @@ def _fit_knob(form, shape, base, target, sigma, y_plain, t):
     def ratio(k):
         params = dict(shape)
         params[knob] = float(k)
-        _, _, y = simulate(base["fs"], base["input_reading"], base["gpi_theta"],
-                           [dict(category=F["category"], form=form, params=params)])
+        _, _, y = simulate(
+            base["fs"],
+            base["input_reading"],
+            base["gpi_theta"],
+            [dict(category=F["category"], form=form, params=params)],
+        )
         return visible_ratio(y, y_plain, t, sigma)
 
     if F["linear"]:
@@ -765,7 +1022,7 @@ def _fit_knob(form, shape, base, target, sigma, y_plain, t):
     if r_hi < target:
         return None
     r_lo = ratio(lo)
-    if r_lo >= target:          # the form is visible even at the knob's lower end
+    if r_lo >= target:  # the form is visible even at the knob's lower end
         return lo, r_lo
     k = F["start"]
     for _ in range(60):
@@ -796,8 +1053,13 @@ def _scaled_effect(rng, form, base, target, sigma, y_plain, t, tries=8):
         if 1.5 <= r <= 4.0:
             params = dict(shape)
             params[F["knob"]] = float(k)
-            return dict(category=F["category"], form=form, params=params,
-                        equation=F["equation"], visible_rms_over_sigma=float(r))
+            return dict(
+                category=F["category"],
+                form=form,
+                params=params,
+                equation=F["equation"],
+                visible_rms_over_sigma=float(r),
+            )
     raise RuntimeError(f"could not size form {form}")
 
 
@@ -826,35 +1088,55 @@ def clean_records(n=100, seed=0):
     specs = []
     for i in range(n):
         rng = _record_rng(seed, "clean", i)
-        spec = dict(stem=f"clean_{i:03d}", suite="clean", physics=[], forms=[],
-                    effects=[], gpi_theta=_draw_theta(rng),
-                    input_reading=str(rng.choice(["literal", "centred"])),
-                    fs=1000 if i % 5 == 4 else 100,
-                    noise=_draw_noise(rng, 0.3, 1.0),
-                    seed=dict(base=int(seed), spawn_key=[SUITE_KEY["clean"], i]),
-                    noise_spawn_key=[SUITE_KEY["clean"], i, 1],
-                    visible_rms_over_sigma=0.0)
+        spec = dict(
+            stem=f"clean_{i:03d}",
+            suite="clean",
+            physics=[],
+            forms=[],
+            effects=[],
+            gpi_theta=_draw_theta(rng),
+            input_reading=str(rng.choice(["literal", "centred"])),
+            fs=1000 if i % 5 == 4 else 100,
+            noise=_draw_noise(rng, 0.3, 1.0),
+            seed=dict(base=int(seed), spawn_key=[SUITE_KEY["clean"], i]),
+            noise_spawn_key=[SUITE_KEY["clean"], i, 1],
+            visible_rms_over_sigma=0.0,
+        )
         specs.append(spec)
     return specs
 
 
-SINGLE_FORMS = ["one_pole_expansion", "two_node_network", "gain_vs_temperature",
-                "dead_time", "two_poles", "first_order_plus_dead_time",
-                "log_after_reversal", "exponential_spectrum", "power_law_kernel",
-                "linear_drift", "exponential_warmup", "sensor_temperature",
-                "retained_offset_fixed", "retained_offset_fading",
-                "gain_decay_with_cycles", "threshold_shrink",
-                "prior_excursion", "raised_memory"]
-COMBOS = [("two_node_network", "two_poles"),
-          ("log_after_reversal", "linear_drift"),
-          ("retained_offset_fixed", "one_pole_expansion"),
-          ("dead_time", "power_law_kernel"),
-          ("gain_decay_with_cycles", "exponential_warmup"),
-          ("prior_excursion", "gain_vs_temperature"),
-          ("first_order_plus_dead_time", "retained_offset_fading"),
-          ("threshold_shrink", "exponential_spectrum")]
-OUTSIDE_FORMS = ["hard_stop", "resonance_ringing", "rate_dependent_width",
-                 "output_backlash", "sensor_bow_nonlinearity"]
+SINGLE_FORMS = [
+    "one_pole_expansion",
+    "two_node_network",
+    "gain_vs_temperature",
+    "dead_time",
+    "two_poles",
+    "first_order_plus_dead_time",
+    "log_after_reversal",
+    "exponential_spectrum",
+    "power_law_kernel",
+    "linear_drift",
+    "exponential_warmup",
+    "sensor_temperature",
+    "retained_offset_fixed",
+    "retained_offset_fading",
+    "gain_decay_with_cycles",
+    "threshold_shrink",
+    "prior_excursion",
+    "raised_memory",
+]
+COMBOS = [
+    ("two_node_network", "two_poles"),
+    ("log_after_reversal", "linear_drift"),
+    ("retained_offset_fixed", "one_pole_expansion"),
+    ("dead_time", "power_law_kernel"),
+    ("gain_decay_with_cycles", "exponential_warmup"),
+    ("prior_excursion", "gain_vs_temperature"),
+    ("first_order_plus_dead_time", "retained_offset_fading"),
+    ("threshold_shrink", "exponential_spectrum"),
+]
+OUTSIDE_FORMS = ["hard_stop", "resonance_ringing", "rate_dependent_width", "output_backlash", "sensor_bow_nonlinearity"]
 
 
 def effect_plan(per_form=3):
@@ -867,9 +1149,11 @@ def effect_plan(per_form=3):
 
 
 def _size_record(rng, i, forms):
-    base = dict(gpi_theta=_draw_theta(rng),
-                input_reading=str(rng.choice(["literal", "centred"])),
-                fs=1000 if i % 5 == 2 else 100)
+    base = dict(
+        gpi_theta=_draw_theta(rng),
+        input_reading=str(rng.choice(["literal", "centred"])),
+        fs=1000 if i % 5 == 2 else 100,
+    )
     noise = _draw_noise(rng, 0.45, 0.9)
     sigma = noise["sigma"]
     t, _, y_plain = simulate(base["fs"], base["input_reading"], base["gpi_theta"], [])
@@ -878,14 +1162,12 @@ def _size_record(rng, i, forms):
     else:
         targets = [U(rng, 1.55, 2.5) for _ in forms]
     for _attempt in range(6):
-        effs = [_scaled_effect(rng, f, base, tg, sigma, y_plain, t)
-                for f, tg in zip(forms, targets)]
+        effs = [_scaled_effect(rng, f, base, tg, sigma, y_plain, t) for f, tg in zip(forms, targets)]
         _, _, y = simulate(base["fs"], base["input_reading"], base["gpi_theta"], effs)
         r = visible_ratio(y, y_plain, t, sigma)
         if 1.5 <= r <= 4.0:
             return base, noise, effs, r
-        targets = [min(3.8, 1.3 * tg) for tg in targets] if r < 1.5 else \
-                  [max(1.55, 0.8 * tg) for tg in targets]
+        targets = [min(3.8, 1.3 * tg) for tg in targets] if r < 1.5 else [max(1.55, 0.8 * tg) for tg in targets]
     raise RuntimeError(f"could not size combination {forms}")
 
 
@@ -904,11 +1186,18 @@ def _effect_spec(seed, i, forms):
         raise RuntimeError(f"record {i}: could not size {forms}")
     cats = [FORMS[f]["category"] for f in forms]
     tag = "_".join(cats) if len(forms) > 1 else cats[0]
-    return dict(stem=f"effects_{i:03d}_{tag}", suite="effects", physics=cats,
-                forms=list(forms), effects=effs, **base, noise=noise,
-                seed=dict(base=int(seed), spawn_key=[SUITE_KEY["effects"], i]),
-                noise_spawn_key=[SUITE_KEY["effects"], i, 1],
-                visible_rms_over_sigma=r)
+    return dict(
+        stem=f"effects_{i:03d}_{tag}",
+        suite="effects",
+        physics=cats,
+        forms=list(forms),
+        effects=effs,
+        **base,
+        noise=noise,
+        seed=dict(base=int(seed), spawn_key=[SUITE_KEY["effects"], i]),
+        noise_spawn_key=[SUITE_KEY["effects"], i, 1],
+        visible_rms_over_sigma=r,
+    )
 
 
 def effect_records(seed=0, per_form=3):
@@ -937,18 +1226,26 @@ def realise(spec):
 def truth_of(spec):
     eff = {}
     for e in spec["effects"]:
-        eff[e["category"]] = dict(form=e["form"], equation=e["equation"],
-                                  visible_rms_over_sigma=e["visible_rms_over_sigma"],
-                                  **e["params"])
-    return dict(suite=spec["suite"], physics=list(spec["physics"]), forms=list(spec["forms"]),
-                effect_parameters=eff, gpi_theta=dict(spec["gpi_theta"]),
-                n_operators=N_OPERATORS, input_reading=spec["input_reading"],
-                fs=spec["fs"], noise=dict(spec["noise"]), seed=dict(spec["seed"]),
-                noise_spawn_key=list(spec["noise_spawn_key"]),
-                visible_rms_over_sigma=float(spec["visible_rms_over_sigma"]),
-                n_samples=int(round(DURATION * spec["fs"])) + 1,
-                units=dict(time="s", current="A", displacement="um"),
-                generator="benchmarks/independent/generator.py")
+        eff[e["category"]] = dict(
+            form=e["form"], equation=e["equation"], visible_rms_over_sigma=e["visible_rms_over_sigma"], **e["params"]
+        )
+    return dict(
+        suite=spec["suite"],
+        physics=list(spec["physics"]),
+        forms=list(spec["forms"]),
+        effect_parameters=eff,
+        gpi_theta=dict(spec["gpi_theta"]),
+        n_operators=N_OPERATORS,
+        input_reading=spec["input_reading"],
+        fs=spec["fs"],
+        noise=dict(spec["noise"]),
+        seed=dict(spec["seed"]),
+        noise_spawn_key=list(spec["noise_spawn_key"]),
+        visible_rms_over_sigma=float(spec["visible_rms_over_sigma"]),
+        n_samples=int(round(DURATION * spec["fs"])) + 1,
+        units=dict(time="s", current="A", displacement="um"),
+        generator="benchmarks/independent/generator.py",
+    )
 
 
 def write_record(spec, directory):
@@ -956,8 +1253,7 @@ def write_record(spec, directory):
     a = realise(spec)
     stem = os.path.join(directory, spec["stem"])
     data = np.column_stack([a["time"], a["current"], a["noiseless"] + a["noise"]])
-    np.savetxt(stem + ".csv", data, fmt="%.10g", delimiter=",",
-               header="time,current,displacement", comments="")
+    np.savetxt(stem + ".csv", data, fmt="%.10g", delimiter=",", header="time,current,displacement", comments="")
     with open(stem + ".truth.json", "w") as fh:
         json.dump(truth_of(spec), fh, indent=1)
     np.savez_compressed(stem + ".npz", **a)
@@ -966,8 +1262,7 @@ def write_record(spec, directory):
 
 def _summary(spec):
     tr = truth_of(spec)
-    keep = ["suite", "physics", "forms", "input_reading", "fs", "noise",
-            "visible_rms_over_sigma", "n_samples"]
+    keep = ["suite", "physics", "forms", "input_reading", "fs", "noise", "visible_rms_over_sigma", "n_samples"]
     return dict(stem=spec["stem"], **{k: tr[k] for k in keep})
 
 
@@ -994,8 +1289,7 @@ def main(argv=None):
             index.append(_summary(spec))
         timing["effects"] = _time.time() - t0
     with open(os.path.join(args.out, "index.json"), "w") as fh:
-        json.dump(dict(seed=args.seed, n_clean=args.n if args.suite != "effects" else 0,
-                       records=index), fh, indent=1)
+        json.dump(dict(seed=args.seed, n_clean=args.n if args.suite != "effects" else 0, records=index), fh, indent=1)
     for k, v in timing.items():
         print(f"{k}: {sum(1 for r in index if r['suite'] == k)} records in {v:.1f} s")
     return 0

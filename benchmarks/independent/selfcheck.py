@@ -7,6 +7,7 @@ paper's input rests at about -0.56 um and peaks near 296 um; a small generation
 (clean n=5 + effects) has consistent files (csv = noiseless + noise, exact time
 grid, 19 parameters, effect sizes inside 1.5-4 sigma, all categories present).
 """
+
 import argparse
 import json
 import os
@@ -15,7 +16,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import generator as g  # noqa: E402
+import generator as g
 
 
 def check_model():
@@ -47,7 +48,7 @@ def check_files(out):
         d = np.loadtxt(stem + ".csv", delimiter=",", skiprows=1)
         k = np.arange(d.shape[0])
         assert d.shape[0] == tr["n_samples"]
-        assert np.all(d[:, 0] == np.array([float("%.10g" % x) for x in k / tr["fs"]]))
+        assert np.all(d[:, 0] == np.array([float(f"{x:.10g}") for x in k / tr["fs"]]))
         assert np.allclose(d[:, 2], z["noiseless"] + z["noise"], rtol=1e-9, atol=1e-6)
         assert len(tr["gpi_theta"]) == 19 and tr["n_operators"] == 12
         f = np.array([tr["gpi_theta"][n] for n in g.PARAM_NAMES]) / g.TABLE1

@@ -151,7 +151,7 @@ class RecordCoverage:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RecordCoverage":
+    def from_dict(cls, d: dict) -> RecordCoverage:
         d = dict(d)
         d["names"] = tuple(d["names"])
         d.pop("outside_domain_fraction", None)  # kept by records written before the GPI had no wall
@@ -222,7 +222,11 @@ class CoverageResult:
         values = [r.delta_chi2 for r in self.records if r.delta_chi2 is not None]
         if not values:
             return None
-        return float(np.mean(values)), float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else math.nan, len(self.names)
+        return (
+            float(np.mean(values)),
+            float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else math.nan,
+            len(self.names),
+        )
 
     def misses(self, kind: str = "posterior") -> list[str]:
         """``"name@seed"`` for every interval that missed the truth."""
@@ -240,14 +244,17 @@ class CoverageResult:
             f"standard error across records): posterior {post:.3f} +- {post_se:.3f}, least squares {lsq:.3f} +- "
             f"{lsq_se:.3f}\n{self.n_converged}/{len(self.records)} chains converged ({min(steps)}-{max(steps)} steps, "
             f"tau {min(taus):.0f}-{max(taus):.0f}); {self.n_crossing} truths with crossing operator bounds"
-        ) + self._likelihood_ratio_line()  # fmt: skip
+        ) + self._likelihood_ratio_line()
 
     def _likelihood_ratio_line(self) -> str:
         lr = self.likelihood_ratio()
         if lr is None:
             return ""
         mean, se, dof = lr
-        return f"\nchi-square of the truth minus the optimum's: mean {mean:.1f} +- {se:.1f} (chi-square with {dof} degrees of freedom: {dof})"
+        return (
+            f"\nchi-square of the truth minus the optimum's: mean {mean:.1f} +- {se:.1f} (chi-square with {dof} "
+            f"degrees of freedom: {dof})"
+        )
 
 
 @dataclass(frozen=True)
@@ -280,9 +287,9 @@ def calibration_problem(seed: int, truth_raw, *, fs: float = 50.0, noise_sigma: 
 
     Parameters are those of :func:`interval_coverage`.
     """
-    from .synthetic import simulate
     from ..fitting.lsq import fit_least_squares
     from ..fitting.posterior import LogPosterior
+    from .synthetic import simulate
 
     record = simulate(fs=fs, seed=100 + seed, gpi_theta=truth_raw, noise_sigma=noise_sigma).record
     model = normalised_model(Model())
@@ -391,9 +398,16 @@ def interval_coverage(
                 raise ValueError(f"{done} was written for another truth; use another out_dir or delete it")
         else:
             rec = _record_coverage(
-                seed, truth_raw, expected, fs, noise_sigma, out_dir / f"chain_{seed}.h5", max_steps, check_every,
+                seed,
+                truth_raw,
+                expected,
+                fs,
+                noise_sigma,
+                out_dir / f"chain_{seed}.h5",
+                max_steps,
+                check_every,
                 progress,
-            )  # fmt: skip
+            )
             atomic_write_text(done, json.dumps(rec.to_dict(), indent=1))
         result.records.append(rec)
         if log is not None:

@@ -32,7 +32,14 @@ import numpy as np
 
 from model import Model
 
-__all__ = ["bench_targets", "best_linear_drive", "ClosedLoopCase", "ClosedLoopResult", "closed_loop", "DEFAULT_BENCH_EFFECTS"]
+__all__ = [
+    "bench_targets",
+    "best_linear_drive",
+    "ClosedLoopCase",
+    "ClosedLoopResult",
+    "closed_loop",
+    "DEFAULT_BENCH_EFFECTS",
+]
 
 #: The hidden effect of the bundled ``data/bench_default.csv`` (its sidecar's command).
 DEFAULT_BENCH_EFFECTS = "thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5"
@@ -50,8 +57,12 @@ def bench_targets(fs: float = 100.0, duration: float = 64.0) -> dict:
     t = np.arange(0.0, duration, 1.0 / fs)
     phase = (t / 16.0) % 1.0
     triangle = 30.0 + 240.0 * np.where(phase < 0.5, 2 * phase, 2 - 2 * phase)
-    multisine = (150.0 + 60.0 * np.sin(2 * np.pi * 0.05 * t) + 35.0 * np.sin(2 * np.pi * 0.13 * t + 1.0)
-                 + 15.0 * np.sin(2 * np.pi * 0.31 * t + 2.0))  # fmt: skip
+    multisine = (
+        150.0
+        + 60.0 * np.sin(2 * np.pi * 0.05 * t)
+        + 35.0 * np.sin(2 * np.pi * 0.13 * t + 1.0)
+        + 15.0 * np.sin(2 * np.pi * 0.31 * t + 2.0)
+    )
     return {"triangle": Target(t, triangle, "triangle"), "multisine": Target(t, multisine, "multisine")}
 
 
@@ -79,7 +90,12 @@ def best_linear_drive(response, time, target, current_range, start):
     def rms(p):
         return float(np.sqrt(np.mean((response(np.clip(p[0] * target + p[1], lo, hi)) - target) ** 2)))
 
-    best = minimize(rms, np.asarray(start, dtype=float), method="Nelder-Mead", options={"xatol": 1e-7, "fatol": 1e-9, "maxiter": 2000})
+    best = minimize(
+        rms,
+        np.asarray(start, dtype=float),
+        method="Nelder-Mead",
+        options={"xatol": 1e-7, "fatol": 1e-9, "maxiter": 2000},
+    )
     a, b = (float(x) for x in best.x)
     return a, b, response(np.clip(a * target + b, lo, hi)) - target
 
@@ -187,9 +203,16 @@ def closed_loop(
         for name, target in (targets or bench_targets()).items()
     ]
     result = ClosedLoopResult(
-        record=str(record), seed=seed, diagnosis_status=status, named=named, effects=list(study.model.effect_names),
-        study=str(study_dir), converged=study.converged, cases=cases, seconds=seconds,
-    )  # fmt: skip
+        record=str(record),
+        seed=seed,
+        diagnosis_status=status,
+        named=named,
+        effects=list(study.model.effect_names),
+        study=str(study_dir),
+        converged=study.converged,
+        cases=cases,
+        seconds=seconds,
+    )
     (out / "closed_loop.json").write_text(json.dumps(result.to_dict(), indent=2) + "\n")
     return result
 
@@ -197,8 +220,8 @@ def closed_loop(
 def _bench_record(out: Path, record, effects: str, seed: int):
     """``(path, Record)`` of the bench record (simulated into ``out/record.csv`` when none is
     given), refused without the truth in its JSON sidecar."""
-    from .synthetic import simulate
     from ..data.records import load_record, write_record
+    from .synthetic import simulate
 
     if record is None:
         record = out / "record.csv"
@@ -236,22 +259,36 @@ def _run_study(out: Path, record: Path, chosen: list, seed: int, study_options, 
 
     study_dir = out / "study"
     say(f"study with effects {chosen or 'none'} into {study_dir}")
-    argv = ["study", str(record), "--out", str(study_dir), "--seed", str(seed), "--progress", "off", "--no-report",
-            "--effects", ",".join(chosen) or "none", *study_options]  # fmt: skip
-    completed = subprocess.run([sys.executable, "-m", "identify", *argv], env=package_environment(), capture_output=True,
-                               text=True)  # fmt: skip
+    argv = [
+        "study",
+        str(record),
+        "--out",
+        str(study_dir),
+        "--seed",
+        str(seed),
+        "--progress",
+        "off",
+        "--no-report",
+        "--effects",
+        ",".join(chosen) or "none",
+        *study_options,
+    ]
+    completed = subprocess.run(
+        [sys.executable, "-m", "identify", *argv], env=package_environment(), capture_output=True, text=True
+    )
     not_converged = completed.returncode == 1 and "NOT CONVERGE" in completed.stderr  # a result all the same
     if completed.returncode != 0 and not not_converged:
         raise RuntimeError(f"study exited with {completed.returncode}:\n{completed.stdout}{completed.stderr}")
     return study_dir
 
 
-def _closed_loop_case(out: Path, name: str, target, study, truth, seed: int, n_draws: int, noise: tuple, start_line,
-                      say) -> ClosedLoopCase:  # fmt: skip
+def _closed_loop_case(
+    out: Path, name: str, target, study, truth, seed: int, n_draws: int, noise: tuple, start_line, say
+) -> ClosedLoopCase:
     """One target: the compensation (written to ``out/compensate-<name>``) driven through the
     truth, beside the best linear drive, with the coverage of the predicted bands."""
-    from .synthetic import sensor_noise
     from ..workflows.use import compensate, write_compensation
+    from .synthetic import sensor_noise
 
     truth_model, truth_theta = truth
     sigma, rho = noise
@@ -275,11 +312,14 @@ def _closed_loop_case(out: Path, name: str, target, study, truth, seed: int, n_d
         max_pct=100 * float(np.abs(realised).max()) / span,
         linear_rms_pct=100 * float(np.sqrt(np.mean(linear**2))) / span,
         linear_max_pct=100 * float(np.abs(linear).max()) / span,
-        linear_gain=a, linear_offset=b,
+        linear_gain=a,
+        linear_offset=b,
         credible_coverage=float(np.mean((realised >= c.error_lo) & (realised <= c.error_hi))),
         predictive_coverage=float(np.mean((measured >= c.predictive_lo) & (measured <= c.predictive_hi))),
-        predicted_rms_pct=te["rms_pct"], predicted_max_pct=te["max_abs_pct"],
+        predicted_rms_pct=te["rms_pct"],
+        predicted_max_pct=te["max_abs_pct"],
         model_samples=c.summary["model_tracking"]["samples"],
-        current_min=float(c.current.min()), current_max=float(c.current.max()),
+        current_min=float(c.current.min()),
+        current_max=float(c.current.max()),
         seconds=_time.perf_counter() - clock,
-    )  # fmt: skip
+    )

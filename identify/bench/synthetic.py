@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 import model
-from model import EFFECTS, INPUT_READINGS, READINGS, THETA_NAMES, TABLE1, Model, paper_current
+from model import EFFECTS, INPUT_READINGS, READINGS, TABLE1, THETA_NAMES, Model, paper_current
 
-from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA
 from ..data.records import Record
+from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA
 
 __all__ = [
     "Simulation",
@@ -34,7 +34,6 @@ __all__ = [
     "DEFAULT_NOISE_SIGMA",
     "DEFAULT_FS",
 ]
-
 
 
 @dataclass(frozen=True)
@@ -103,7 +102,9 @@ def parse_effect_spec(spec) -> dict[str, dict[str, float]]:
 
     def set_value(param, value, where):
         if param not in owner:
-            raise ValueError(f"{where}: unknown parameter {param!r}; the effects and their parameters are: {_known_effects()}")
+            raise ValueError(
+                f"{where}: unknown parameter {param!r}; the effects and their parameters are: {_known_effects()}"
+            )
         if param in explicit:
             raise ValueError(f"{where}: parameter {param!r} is given twice")
         try:
@@ -113,7 +114,8 @@ def parse_effect_spec(spec) -> dict[str, dict[str, float]]:
         bounds = EFFECTS[owner[param]].parameters[param]
         if not np.isfinite(number) or not (bounds.lower <= number <= bounds.upper):
             raise ValueError(
-                f"{where}: {param}={number!r} is outside its bounds [{bounds.lower}, {bounds.upper}] {bounds.unit}".rstrip()
+                f"{where}: {param}={number!r} is outside its bounds [{bounds.lower}, {bounds.upper}] "
+                f"{bounds.unit}".rstrip()
             )
         switch_on(owner[param])
         explicit[param] = number
@@ -144,7 +146,10 @@ def parse_effect_spec(spec) -> dict[str, dict[str, float]]:
             elif item in EFFECTS:
                 switch_on(item)
             else:
-                raise ValueError(f"{where}: unknown effect or missing '=value'; the effects and their parameters are: {_known_effects()}")
+                raise ValueError(
+                    f"{where}: unknown effect or missing '=value'; the effects and their parameters are: "
+                    f"{_known_effects()}"
+                )
     for param, value in explicit.items():
         chosen[owner[param]][param] = value
     return {name: chosen[name] for name in EFFECTS if name in chosen}

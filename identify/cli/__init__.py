@@ -11,4 +11,13 @@ numba or matplotlib at module level.
 from ..commands import COMMANDS, PARENT_VARIABLE
 from .app import DEBUG_VARIABLE, EXIT_CODES, build_parser, input_errors, main, version
 
-__all__ = ["COMMANDS", "PARENT_VARIABLE", "DEBUG_VARIABLE", "EXIT_CODES", "build_parser", "input_errors", "main", "version"]
+__all__ = [
+    "COMMANDS",
+    "PARENT_VARIABLE",
+    "DEBUG_VARIABLE",
+    "EXIT_CODES",
+    "build_parser",
+    "input_errors",
+    "main",
+    "version",
+]

@@ -71,9 +71,12 @@ def build_parser() -> argparse.ArgumentParser:
     for name, module in COMMANDS.items():
         mod = importlib.import_module(module)
         p = sub.add_parser(
-            name, help=mod.HELP, description=mod.HELP, epilog=_exit_code_text(),
+            name,
+            help=mod.HELP,
+            description=mod.HELP,
+            epilog=_exit_code_text(),
             formatter_class=argparse.RawDescriptionHelpFormatter,
-        )  # fmt: skip
+        )
         p.set_defaults(_module=module)
         add_command_arguments(p, mod)
     return parser
@@ -82,10 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
 def input_errors() -> tuple:
     """Exception types that mean bad input or usage (exit code 2)."""
     from ..data.locks import FolderBusyError
-    from .options import OptionError
     from ..data.records import RecordError
     from ..fitting.priors import PriorsError
     from ..output.results import DamagedResultsError, RunMismatchError
+    from .options import OptionError
 
     return (FolderBusyError, OptionError, PriorsError, RecordError, DamagedResultsError, RunMismatchError)
 

@@ -15,7 +15,10 @@ def add_arguments(parser) -> None:
     """Options of the ``batch`` command."""
     parser.add_argument("config", help="batch configuration (TOML); see examples/ and docs/batch.md")
     parser.add_argument(
-        "--workers", type=options.positive_int, default=None, help="jobs at the same time (overrides the config's 'workers')"
+        "--workers",
+        type=options.positive_int,
+        default=None,
+        help="jobs at the same time (overrides the config's 'workers')",
     )
     parser.add_argument(
         "--executor", default=None, help="executor name (overrides the config's 'executor'): local | dask"
@@ -73,7 +76,10 @@ def run(args) -> int:
         elif r.not_converged:
             print(f"  NOT CONVERGED {r.key}: {r.verdict}", file=sys.stderr)
     if result.n_interrupted:
-        print(f"interrupted: {result.n_interrupted} run(s) stopped or cancelled, their completed work kept; "
-              f"rerun 'python -m identify batch {args.config}' to resume them", file=sys.stderr)  # fmt: skip
+        print(
+            f"interrupted: {result.n_interrupted} run(s) stopped or cancelled, their completed work kept; "
+            f"rerun 'python -m identify batch {args.config}' to resume them",
+            file=sys.stderr,
+        )
         return 130
     return 1 if result.n_failed or result.n_not_converged else 0

@@ -29,30 +29,40 @@ NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet", "verb
 def add_record_arguments(parser: argparse.ArgumentParser) -> None:
     """DATA and the column/unit options passed to :func:`identify.data.records.load_record`."""
     parser.add_argument("data", help="measurement CSV (header time,current,displacement by default)")
-    group = parser.add_argument_group("record columns and units (for records from other rigs, e.g. a piezo in V and um)")
+    group = parser.add_argument_group(
+        "record columns and units (for records from other rigs, e.g. a piezo in V and um)"
+    )
     group.add_argument("--time-column", default="time", help="time column [s] (default: time; 'none' = no time column)")
     group.add_argument("--input-column", default="current", help="drive column (default: current)")
     group.add_argument("--output-column", default="displacement", help="output column (default: displacement)")
     group.add_argument("--input-unit", default="A", help="unit of the drive column (default: A)")
     group.add_argument("--output-unit", default="um", help="unit of the output column (default: um)")
     group.add_argument(
-        "--every", type=options.positive_int, default=1, metavar="N",
+        "--every",
+        type=options.positive_int,
+        default=1,
+        metavar="N",
         help="keep every N-th sample and every input reversal (default 1: all); for long, densely sampled "
         "records, e.g. --every 10 on a 5 kHz record of a 1 Hz drive",
-    )  # fmt: skip
+    )
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     """Effects, operators, reading, noise, seed and starts."""
     parser.add_argument(
-        "--effects", default="",
+        "--effects",
+        default="",
         help="comma-separated effects added to the GPI (e.g. thermal,creep); default none",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--n-operators", type=options.n_operators, default=12,
+        "--n-operators",
+        type=options.n_operators,
+        default=12,
         help=f"number of play operators N, 1-{options.MAX_OPERATORS} (default 12, the paper's)",
-    )  # fmt: skip
-    parser.add_argument("--reading", default="swapped", choices=("swapped", "literal"), help="reading of eqs. (5)-(7) (default swapped)")
+    )
+    parser.add_argument(
+        "--reading", default="swapped", choices=("swapped", "literal"), help="reading of eqs. (5)-(7) (default swapped)"
+    )
     parser.add_argument(
         "--noise-sigma",
         default=None,
@@ -61,8 +71,15 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
         help="sensor noise std in the output unit, or 'free' to identify it; default: estimated from the "
         "record's unenergised start",
     )
-    parser.add_argument("--seed", type=options.seed, default=0, help="seed of the one random generator, >= 0 (default 0)")
-    parser.add_argument("--n-starts", type=options.positive_int, default=DEFAULT_N_STARTS, help="least-squares starts (default: %(default)s)")
+    parser.add_argument(
+        "--seed", type=options.seed, default=0, help="seed of the one random generator, >= 0 (default 0)"
+    )
+    parser.add_argument(
+        "--n-starts",
+        type=options.positive_int,
+        default=DEFAULT_N_STARTS,
+        help="least-squares starts (default: %(default)s)",
+    )
 
 
 def record_from_args(args, *, hint=True):
@@ -78,7 +95,11 @@ def record_from_args(args, *, hint=True):
     from ..data.records import keep_every, load_record, suggest_every
 
     time_column = None if str(args.time_column).lower() == "none" else args.time_column
-    names = [("--time-column", time_column), ("--input-column", args.input_column), ("--output-column", args.output_column)]
+    names = [
+        ("--time-column", time_column),
+        ("--input-column", args.input_column),
+        ("--output-column", args.output_column),
+    ]
     given = [(flag, name) for flag, name in names if name is not None]
     for i, (flag, name) in enumerate(given):
         for other, other_name in given[i + 1 :]:

@@ -24,10 +24,8 @@ finished study), nothing written.
 from __future__ import annotations
 
 import argparse
-import sys
 
 from . import options
-from ..logs import say
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -36,13 +34,24 @@ HELP = "inverse of the identified model: the drive current that makes it follow 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", metavar="DIR", help="results folder of a finished `python -m identify study`")
-    parser.add_argument("--target", required=True, metavar="TARGET.csv", help="desired trajectory, CSV time,displacement")
-    parser.add_argument("--out", default=None, metavar="OUT", help="output folder (default DIR/compensate-<TARGET stem>)")
     parser.add_argument(
-        "--current-range", default=None, metavar="LO:HI",
+        "--target", required=True, metavar="TARGET.csv", help="desired trajectory, CSV time,displacement"
+    )
+    parser.add_argument(
+        "--out", default=None, metavar="OUT", help="output folder (default DIR/compensate-<TARGET stem>)"
+    )
+    parser.add_argument(
+        "--current-range",
+        default=None,
+        metavar="LO:HI",
         help="limits of the drive (default 0:5 for a study in A, the rig's; else the training record's drive range)",
-    )  # fmt: skip
-    parser.add_argument("--draws", type=options.integer(2, None, "an integer >= 2"), default=200, help="posterior draws inverted and driven (default 200)")
+    )
+    parser.add_argument(
+        "--draws",
+        type=options.integer(2, None, "an integer >= 2"),
+        default=200,
+        help="posterior draws inverted and driven (default 200)",
+    )
     parser.add_argument("--seed", type=options.seed, default=0, help="seed choosing the draws (default 0)")
 
 
@@ -51,8 +60,8 @@ def run(args) -> int:
 
     import numpy as np
 
-    from .predict import compute_and_write, parse_span, timed_progress
     from ..workflows.use import compensate, load_study, load_target, write_compensation
+    from .predict import compute_and_write, parse_span, timed_progress
 
     started, progress = timed_progress()
 
@@ -61,8 +70,14 @@ def run(args) -> int:
         study = load_study(args.dir)
         target = load_target(args.target, output_column=study.record.output_name)
         progress(f"inverting the model of {study.path} for {target.source} ({target.time.size} samples)")
-        return compensate(study, target, current_range=limits, n_draws=args.draws,
-                          rng=np.random.default_rng(args.seed), progress=progress)  # fmt: skip
+        return compensate(
+            study,
+            target,
+            current_range=limits,
+            n_draws=args.draws,
+            rng=np.random.default_rng(args.seed),
+            progress=progress,
+        )
 
     done = compute_and_write(args, args.target, "compensate", compute, write_compensation)
     if done is None:
@@ -70,14 +85,20 @@ def run(args) -> int:
     result, out = done
     s = result.summary
     te, unit = s["tracking_error"], s["unit"]
-    print(f"feedforward current {s['current']['min']:.4g} to {s['current']['max']:.4g} {s['input_unit']} "
-          f"(limits {result.current_range[0]:g}:{result.current_range[1]:g})")  # fmt: skip
-    print(f"predicted tracking error: RMS {te['rms']['median']:.3g} {unit} [95 %: {te['rms']['lo95']:.3g}, "
-          f"{te['rms']['hi95']:.3g}] = {te['rms_pct']['median']:.3g} % of the target's range; max |error| "
-          f"{te['max_abs']['median']:.3g} {unit} = {te['max_abs_pct']['median']:.3g} %")  # fmt: skip
+    print(
+        f"feedforward current {s['current']['min']:.4g} to {s['current']['max']:.4g} {s['input_unit']} "
+        f"(limits {result.current_range[0]:g}:{result.current_range[1]:g})"
+    )
+    print(
+        f"predicted tracking error: RMS {te['rms']['median']:.3g} {unit} [95 %: {te['rms']['lo95']:.3g}, "
+        f"{te['rms']['hi95']:.3g}] = {te['rms_pct']['median']:.3g} % of the target's range; max |error| "
+        f"{te['max_abs']['median']:.3g} {unit} = {te['max_abs_pct']['median']:.3g} %"
+    )
     counts = s["model_tracking"]["samples"]
-    print(f"median model on its own inverse: {counts['exact']} samples exact, {counts['saturated']} at a current limit, "
-          f"{counts['branch']} in an Omega gap (max {s['model_tracking']['max_abs']:.3g} {unit})")  # fmt: skip
+    print(
+        f"median model on its own inverse: {counts['exact']} samples exact, {counts['saturated']} at a current limit, "
+        f"{counts['branch']} in an Omega gap (max {s['model_tracking']['max_abs']:.3g} {unit})"
+    )
     for note in result.notes:
         print(f"note: {note}")
     print(f"wrote {out / 'compensation.csv'} and {out / 'compensation.json'} ({time.perf_counter() - started:.1f} s)")

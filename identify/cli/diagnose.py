@@ -22,8 +22,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import options
 from ..logs import say
+from . import options
 
 __all__ = ["HELP", "add_arguments", "parse_window", "run", "write_outputs"]
 
@@ -40,14 +40,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--json", default=None, type=options.file_path, metavar="OUT.json", help="write the diagnosis as JSON here"
     )
     parser.add_argument(
-        "--out", default=None, type=options.folder_path, metavar="DIR",
+        "--out",
+        default=None,
+        type=options.folder_path,
+        metavar="DIR",
         help="write DIR/diagnosis.json and the figures DIR/diagnosis/*.png (DIR is locked while they are written)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--drop-window", default=None, metavar="START:STOP",
+        "--drop-window",
+        default=None,
+        metavar="START:STOP",
         help="leave the samples with START <= time < STOP [s] out (e.g. a switch-on ringing no rate-independent "
         "model fits; see identify.data.realdata.drop_window)",
-    )  # fmt: skip
+    )
 
 
 def parse_window(text: str) -> tuple[float, float]:
@@ -68,9 +73,9 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
     """
     from pathlib import Path
 
+    from ..data.fileio import atomic_write
     from ..output.diagnosis_plots import diagnosis_figures
     from ..output.report import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
-    from ..data.fileio import atomic_write
     from ..output.results import write_json
 
     content = diagnosis.to_dict()
@@ -115,10 +120,10 @@ def _run(args) -> int:
 
     import numpy as np
 
-    from .common import model_from_args, noise_from_args, record_from_args
+    from ..data.records import RecordError
     from ..diagnosis.diagnose import diagnose
     from ..fitting.noise import NoQuietSegmentError
-    from ..data.records import RecordError
+    from .common import model_from_args, noise_from_args, record_from_args
 
     try:
         record = record_from_args(args)
@@ -138,8 +143,9 @@ def _run(args) -> int:
 
     progress(f"diagnosing {model!r} on {record.source} ({len(record.time)} samples)")
     try:
-        result = diagnose(record, model, noise=noise, n_starts=args.n_starts, rng=np.random.default_rng(args.seed),
-                          progress=progress)  # fmt: skip
+        result = diagnose(
+            record, model, noise=noise, n_starts=args.n_starts, rng=np.random.default_rng(args.seed), progress=progress
+        )
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -5,9 +5,23 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..workflows.fit import LONG_RECORD_SAMPLES, FitFailedError, fit_or_explain, format_fit_table, print_record_notes, say
+from ..workflows.fit import (
+    LONG_RECORD_SAMPLES,
+    FitFailedError,
+    fit_or_explain,
+    format_fit_table,
+    print_record_notes,
+    say,
+)
 from . import options
-from .common import add_model_arguments, add_record_arguments, model_from_args, noise_from_args, record_from_args, settings_from_args
+from .common import (
+    add_model_arguments,
+    add_record_arguments,
+    model_from_args,
+    noise_from_args,
+    record_from_args,
+    settings_from_args,
+)
 
 __all__ = ["HELP", "add_arguments", "run", "FIT_OUT_FILES"]
 
@@ -24,9 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--free-alpha", action="store_true", help="do not pin alpha (the normalisation); the fit is then degenerate"
     )
     parser.add_argument(
-        "--json", default=None, type=options.file_path, metavar="OUT.json",
+        "--json",
+        default=None,
+        type=options.file_path,
+        metavar="OUT.json",
         help="also write the fit (FitResult.to_dict) here (a file; its folder is created)",
-    )  # fmt: skip
+    )
     parser.add_argument(
         "--out",
         default=None,
@@ -54,8 +71,11 @@ def _fit_exit_code(fit) -> int:
 
     if fit.success:
         return 0
-    say(f"exit code {EXIT_FINDING}: the least-squares solver did NOT converge ({fit.message}); "
-        "try more --n-starts or another --seed", logging.WARNING)  # fmt: skip
+    say(
+        f"exit code {EXIT_FINDING}: the least-squares solver did NOT converge ({fit.message}); "
+        "try more --n-starts or another --seed",
+        logging.WARNING,
+    )
     return EXIT_FINDING
 
 
@@ -69,8 +89,19 @@ def run(args) -> int:
 
     from ..data.locks import FolderLock
     from ..fitting.noise import NoQuietSegmentError
-    from ..output.results import FILES, build_manifest, check_resumable, finish_manifest, last_status, load_fit, now_iso
-    from ..output.results import remove_run, write_data, write_fit, write_json
+    from ..output.results import (
+        FILES,
+        build_manifest,
+        check_resumable,
+        finish_manifest,
+        last_status,
+        load_fit,
+        now_iso,
+        remove_run,
+        write_data,
+        write_fit,
+        write_json,
+    )
 
     started, t_start = now_iso(), _time.perf_counter()
     out = Path(args.out) if args.out else None
@@ -86,15 +117,19 @@ def run(args) -> int:
             model = model_from_args(args, normalise=not args.free_alpha)
             noise = noise_from_args(args, record)
             if out is not None:
-                manifest = build_manifest(seed=args.seed, record=record, settings=_fit_settings(args), started=started, task="fit")
+                manifest = build_manifest(
+                    seed=args.seed, record=record, settings=_fit_settings(args), started=started, task="fit"
+                )
                 if not args.force:
                     # 'verbose' was a setting of fit before -v/-q (identify.logs): not compared
                     old = check_resumable(out, manifest, ignore=("verbose",))
                     if old is not None and last_status(old) == "done" and (out / FILES["fit"]).exists():
                         fit = load_fit(out)
                         print(format_fit_table(fit, record))
-                        say(f"{out} already holds this fit (same data, seed and settings): reused, nothing rewritten "
-                            "(--force to fit again)")  # fmt: skip
+                        say(
+                            f"{out} already holds this fit (same data, seed and settings): reused, nothing rewritten "
+                            "(--force to fit again)"
+                        )
                         if args.json:
                             Path(args.json).parent.mkdir(parents=True, exist_ok=True)
                             write_json(args.json, fit.to_dict())
@@ -118,9 +153,12 @@ def run(args) -> int:
             write_data(out, record)
             write_fit(out, fit)
             manifest = finish_manifest(
-                manifest, started=started, seconds=_time.perf_counter() - t_start, status="done",
+                manifest,
+                started=started,
+                seconds=_time.perf_counter() - t_start,
+                status="done",
                 phases={"least_squares": fit.seconds},
-            )  # fmt: skip
+            )
             write_json(out / FILES["manifest"], manifest)
             say(f"wrote {out / FILES['fit']} and {out / FILES['manifest']}")
         return _fit_exit_code(fit)

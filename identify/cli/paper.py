@@ -18,17 +18,27 @@ HELP = "simulate Table 1 on the paper's input: Figs. 5, 6, 8 and the evidence fo
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``paper`` options to ``parser``."""
     parser.add_argument(
-        "--out", required=True, type=options.folder_path, metavar="DIR", help="folder to write the figures and paper.md into"
+        "--out",
+        required=True,
+        type=options.folder_path,
+        metavar="DIR",
+        help="folder to write the figures and paper.md into",
     )
-    parser.add_argument("--fs", type=float, default=100.0, metavar="HZ", help="sampling rate of the input in Hz (default 100)")
     parser.add_argument(
-        "--input", choices=INPUT_READINGS, default="literal",
+        "--fs", type=float, default=100.0, metavar="HZ", help="sampling rate of the input in Hz (default 100)"
+    )
+    parser.add_argument(
+        "--input",
+        choices=INPUT_READINGS,
+        default="literal",
         help="reading of eq. (16)'s decay: literal (as printed, default) or centred (as the text says)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--reading", choices=sorted(READINGS), default="swapped",
+        "--reading",
+        choices=sorted(READINGS),
+        default="swapped",
         help="reading of eq. (5): swapped (rising along eq. (6), default) or literal (rising along eq. (7))",
-    )  # fmt: skip
+    )
 
 
 def run(args) -> int:

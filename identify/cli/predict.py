@@ -23,8 +23,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import options
 from ..logs import say
+from . import options
 
 __all__ = ["HELP", "add_arguments", "run", "parse_span", "timed_progress", "compute_and_write"]
 
@@ -35,15 +35,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", metavar="DIR", help="results folder of a finished `python -m identify study`")
     parser.add_argument("data", metavar="NEW.csv", help="record of the same rig (the study's columns and units)")
     parser.add_argument("--out", default=None, metavar="OUT", help="output folder (default DIR/predict-<NEW stem>)")
-    parser.add_argument("--window", default=None, metavar="T0:T1", help="score only T0 <= time <= T1 [s]; the model still runs from the record's start")
-    parser.add_argument("--draws", type=options.integer(2, None, "an integer >= 2"), default=200, help="posterior draws pushed through the model (default 200)")
-    parser.add_argument("--seed", type=options.seed, default=0, help="seed choosing the draws (and of a diagnosis; default 0)")
     parser.add_argument(
-        "--diagnosis", choices=("auto", "adequacy"), default="auto",
+        "--window",
+        default=None,
+        metavar="T0:T1",
+        help="score only T0 <= time <= T1 [s]; the model still runs from the record's start",
+    )
+    parser.add_argument(
+        "--draws",
+        type=options.integer(2, None, "an integer >= 2"),
+        default=200,
+        help="posterior draws pushed through the model (default 200)",
+    )
+    parser.add_argument(
+        "--seed", type=options.seed, default=0, help="seed choosing the draws (and of a diagnosis; default 0)"
+    )
+    parser.add_argument(
+        "--diagnosis",
+        choices=("auto", "adequacy"),
+        default="auto",
         help="auto (default): when the validation residual is not noise, search which effect the record reveals; "
         "adequacy: only test whether it is noise",
-    )  # fmt: skip
-    parser.add_argument("--n-starts", type=options.positive_int, default=6, help="least-squares starts of a diagnosis (default 6)")
+    )
+    parser.add_argument(
+        "--n-starts", type=options.positive_int, default=6, help="least-squares starts of a diagnosis (default 6)"
+    )
     group = parser.add_argument_group("record columns and units (default: the study's)")
     for option in ("time-column", "input-column", "output-column", "input-unit", "output-unit"):
         group.add_argument(f"--{option}", default=None)
@@ -101,12 +117,25 @@ def run(args) -> int:
         window = parse_span(args.window, "--window") if args.window else None
         study = load_study(args.dir)
         record = load_record_for_study(
-            args.data, study, time_column=args.time_column, input_column=args.input_column,
-            output_column=args.output_column, input_unit=args.input_unit, output_unit=args.output_unit,
-        )  # fmt: skip
+            args.data,
+            study,
+            time_column=args.time_column,
+            input_column=args.input_column,
+            output_column=args.output_column,
+            input_unit=args.input_unit,
+            output_unit=args.output_unit,
+        )
         progress(f"predicting {record.source} ({len(record)} samples) with the study {study.path}")
-        return predict(study, record, window=window, n_draws=args.draws, rng=np.random.default_rng(args.seed),
-                       diagnosis=args.diagnosis, n_starts=args.n_starts, progress=progress)  # fmt: skip
+        return predict(
+            study,
+            record,
+            window=window,
+            n_draws=args.draws,
+            rng=np.random.default_rng(args.seed),
+            diagnosis=args.diagnosis,
+            n_starts=args.n_starts,
+            progress=progress,
+        )
 
     done = compute_and_write(args, args.data, "predict", compute, write_prediction)
     if done is None:
@@ -114,11 +143,16 @@ def run(args) -> int:
     prediction, out = done
     unit = prediction.record.output_unit
     t = prediction.training
-    print(f"validation: RMS {prediction.rms:.4g} {unit} = {prediction.rms / prediction.noise_sigma:.3f} sigma "
-          f"(training {t['rms']:.4g} {unit}), max error {prediction.max_error_pct:.3g} % of the range "
-          f"(training {t['max_error_pct']:.3g} %), {100 * prediction.inside_predictive_band:.1f} % inside the 95 % "
-          "predictive band")  # fmt: skip
-    print(f"verdict: {prediction.verdict}" + (f" -> the record reveals '{prediction.missing}'" if prediction.missing else ""))
+    print(
+        f"validation: RMS {prediction.rms:.4g} {unit} = {prediction.rms / prediction.noise_sigma:.3f} sigma "
+        f"(training {t['rms']:.4g} {unit}), max error {prediction.max_error_pct:.3g} % of the range "
+        f"(training {t['max_error_pct']:.3g} %), {100 * prediction.inside_predictive_band:.1f} % inside the 95 % "
+        "predictive band"
+    )
+    print(
+        f"verdict: {prediction.verdict}"
+        + (f" -> the record reveals '{prediction.missing}'" if prediction.missing else "")
+    )
     for note in prediction.notes:
         print(f"note: {note}")
     print(f"wrote {out / 'prediction.json'} and {out / 'prediction.html'} ({time.perf_counter() - started:.1f} s)")

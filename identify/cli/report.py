@@ -29,10 +29,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "dir", metavar="DIR", type=options.existing_folder, help="results folder written by `python -m identify study`"
     )
     parser.add_argument(
-        "--draws", type=options.integer(2, None, "an integer >= 2"), default=200,
+        "--draws",
+        type=options.integer(2, None, "an integer >= 2"),
+        default=200,
         help="posterior draws pushed through the model for the bands, >= 2 (default 200)",
-    )  # fmt: skip
-    parser.add_argument("--seed", type=options.seed, default=0, help="seed of the generator choosing the draws, >= 0 (default 0)")
+    )
+    parser.add_argument(
+        "--seed", type=options.seed, default=0, help="seed of the generator choosing the draws, >= 0 (default 0)"
+    )
 
 
 def run(args) -> int:

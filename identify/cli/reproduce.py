@@ -13,21 +13,27 @@ HELP = "rerun a finished run from its manifest.json (data hash checked) and say 
 
 def add_arguments(parser) -> None:
     """Options of the ``reproduce`` command."""
-    parser.add_argument("directory", type=options.existing_folder, help="results folder of the run (holds manifest.json)")
     parser.add_argument(
-        "--out", default=None, type=options.folder_path,
+        "directory", type=options.existing_folder, help="results folder of the run (holds manifest.json)"
+    )
+    parser.add_argument(
+        "--out",
+        default=None,
+        type=options.folder_path,
         help="a new folder for the rerun (default: DIR-reproduced); never an existing study",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--data", default=None, type=options.existing_file,
+        "--data",
+        default=None,
+        type=options.existing_file,
         help="the run's data file, if it moved (its SHA-256 must still match the manifest)",
-    )  # fmt: skip
+    )
 
 
 def run(args) -> int:
     """Exit code 0: reproduced exactly; 1: it differs (printed what); 2: cannot rerun (manifest, data,
     damaged results, an existing --out folder)."""
-    from ..workflows.reproduce import DataChangedError, ManifestError, REPORT_FILE, reproduce
+    from ..workflows.reproduce import REPORT_FILE, DataChangedError, ManifestError, reproduce
 
     try:
         report = reproduce(args.directory, args.out, data=args.data)

@@ -26,33 +26,46 @@ HELP = "simulate a bench measurement (paper input, Table 1 transducer, hidden ef
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the ``simulate`` options to ``parser``."""
     parser.add_argument(
-        "--out", required=True, type=lambda text: Path(options.file_path(text)),
+        "--out",
+        required=True,
+        type=lambda text: Path(options.file_path(text)),
         help="CSV file to write; the truth goes to the same stem .json",
-    )  # fmt: skip
+    )
     parser.add_argument(
         "--effects",
         default="",
         metavar="SPEC",
         help=(
             "comma-separated hidden effects: a name switches an effect on with its test parameters, "
-            "PARAM=VALUE sets one parameter, e.g. thermal,creep_amplitude=0.02. Effects: "
-            + ", ".join(EFFECT_NAMES)
+            "PARAM=VALUE sets one parameter, e.g. thermal,creep_amplitude=0.02. Effects: " + ", ".join(EFFECT_NAMES)
         ),
     )
     parser.add_argument(
-        "--noise", type=float, default=DEFAULT_NOISE_SIGMA, metavar="SIGMA",
+        "--noise",
+        type=float,
+        default=DEFAULT_NOISE_SIGMA,
+        metavar="SIGMA",
         help=f"sensor noise standard deviation in um (default {DEFAULT_NOISE_SIGMA})",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--noise-rho", type=float, default=0.0, metavar="RHO",
+        "--noise-rho",
+        type=float,
+        default=0.0,
+        metavar="RHO",
         help="lag-1 autocorrelation of AR(1) noise, -1 < RHO < 1 (default 0: white)",
-    )  # fmt: skip
-    parser.add_argument("--fs", type=float, default=DEFAULT_FS, metavar="HZ", help=f"sampling rate in Hz (default {DEFAULT_FS:g})")
+    )
     parser.add_argument(
-        "--input", choices=INPUT_READINGS, default="literal",
+        "--fs", type=float, default=DEFAULT_FS, metavar="HZ", help=f"sampling rate in Hz (default {DEFAULT_FS:g})"
+    )
+    parser.add_argument(
+        "--input",
+        choices=INPUT_READINGS,
+        default="literal",
         help="reading of the paper's eq. (16) decay (default literal)",
-    )  # fmt: skip
-    parser.add_argument("--seed", type=options.seed, default=0, metavar="N", help="seed of the noise generator, >= 0 (default 0)")
+    )
+    parser.add_argument(
+        "--seed", type=options.seed, default=0, metavar="N", help="seed of the noise generator, >= 0 (default 0)"
+    )
 
 
 def run(args) -> int:
@@ -63,7 +76,10 @@ def run(args) -> int:
 
     out = Path(args.out)
     if out.suffix.lower() != ".csv":
-        print(f"simulate: error: --out must name a .csv file (the truth goes beside it as .json), got {out}", file=sys.stderr)
+        print(
+            f"simulate: error: --out must name a .csv file (the truth goes beside it as .json), got {out}",
+            file=sys.stderr,
+        )
         return 2
     try:
         simulation = simulate(
@@ -100,5 +116,11 @@ def _command_line(args) -> str:
     parts = ["python -m identify simulate", f"--out {args.out}"]
     if args.effects:
         parts.append(f"--effects {args.effects}")
-    parts += [f"--noise {args.noise:g}", f"--noise-rho {args.noise_rho:g}", f"--fs {args.fs:g}", f"--input {args.input}", f"--seed {args.seed}"]
+    parts += [
+        f"--noise {args.noise:g}",
+        f"--noise-rho {args.noise_rho:g}",
+        f"--fs {args.fs:g}",
+        f"--input {args.input}",
+        f"--seed {args.seed}",
+    ]
     return " ".join(parts)

@@ -25,40 +25,60 @@ HELP = "whole study (noise, least squares, identifiability, emcee posterior, rep
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_record_arguments(parser)
     parser.add_argument(
-        "--out", required=True, type=options.folder_path, metavar="DIR",
+        "--out",
+        required=True,
+        type=options.folder_path,
+        metavar="DIR",
         help="results folder (created; a rerun resumes; locked while the study runs)",
-    )  # fmt: skip
+    )
     add_model_arguments(parser)
     parser.add_argument(
-        "--walkers", type=options.positive_int, default=None,
+        "--walkers",
+        type=options.positive_int,
+        default=None,
         help="emcee walkers: an even number >= 2 x the sampled parameters (default: 2 x dimension, even, >= 32)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--max-steps", type=options.positive_int, default=DEFAULT_MAX_STEPS,
-        help=f"cap on the chain length, >= 1 (default {DEFAULT_MAX_STEPS}); raise it to extend a chain that did not converge",
-    )  # fmt: skip
-    parser.add_argument(
-        "--check-every", type=options.positive_int, default=DEFAULT_CHECK_EVERY,
-        help=f"convergence check interval in steps, >= 1 (default {DEFAULT_CHECK_EVERY})"
     )
     parser.add_argument(
-        "--priors", default=None, type=options.existing_file, metavar="FILE.toml",
+        "--max-steps",
+        type=options.positive_int,
+        default=DEFAULT_MAX_STEPS,
+        help=f"cap on the chain length, >= 1 (default {DEFAULT_MAX_STEPS}); raise it to extend a chain that did not "
+        "converge",
+    )
+    parser.add_argument(
+        "--check-every",
+        type=options.positive_int,
+        default=DEFAULT_CHECK_EVERY,
+        help=f"convergence check interval in steps, >= 1 (default {DEFAULT_CHECK_EVERY})",
+    )
+    parser.add_argument(
+        "--priors",
+        default=None,
+        type=options.existing_file,
+        metavar="FILE.toml",
         help="priors of some parameters (distribution and bounds, TOML; docs/method.md 'Priors file'); "
         "the others keep the defaults",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--all-terms", action="store_true",
+        "--all-terms",
+        action="store_true",
         help="sample every optional effect term (default: pin off, after the least squares, those the record "
         "does not support by BIC, e.g. a two-node thermal's second node; docs/effects.md 'Optional terms')",
-    )  # fmt: skip
-    parser.add_argument("--moves", default="de", choices=("de", "stretch"), help="emcee moves (default de: differential evolution)")
-    parser.add_argument("--force", action="store_true", help="discard a different (or damaged) run already in DIR")
-    parser.add_argument("--no-report", action="store_true", help="skip the report (report.html); write it later with 'report DIR'")
+    )
     parser.add_argument(
-        "--progress", choices=("auto", "on", "off"), default="auto",
+        "--moves", default="de", choices=("de", "stretch"), help="emcee moves (default de: differential evolution)"
+    )
+    parser.add_argument("--force", action="store_true", help="discard a different (or damaged) run already in DIR")
+    parser.add_argument(
+        "--no-report", action="store_true", help="skip the report (report.html); write it later with 'report DIR'"
+    )
+    parser.add_argument(
+        "--progress",
+        choices=("auto", "on", "off"),
+        default="auto",
         help="the chain's progress: auto (default) = a bar with the projected steps (50 tau) in a terminal, "
         "else a log line every 10 s (IDENTIFY_PROGRESS_SECONDS); on = the bar; off = neither (-q implies off)",
-    )  # fmt: skip
+    )
 
 
 def run(args) -> int:
@@ -100,13 +120,29 @@ def run_study(args) -> int:
         if progress is None and getattr(args, "quiet", 0):
             progress = False  # -q: no bar and no progress lines
         result = study(
-            record, model, out=out, seed=args.seed, noise_sigma=args.noise_sigma, n_starts=args.n_starts,
-            walkers=args.walkers, max_steps=args.max_steps, check_every=args.check_every, moves=args.moves,
-            priors=args.priors, select_terms=not args.all_terms, force=args.force, report=not args.no_report, progress=progress,
-            settings=settings_from_args(args), lock=False,
-        )  # fmt: skip
+            record,
+            model,
+            out=out,
+            seed=args.seed,
+            noise_sigma=args.noise_sigma,
+            n_starts=args.n_starts,
+            walkers=args.walkers,
+            max_steps=args.max_steps,
+            check_every=args.check_every,
+            moves=args.moves,
+            priors=args.priors,
+            select_terms=not args.all_terms,
+            force=args.force,
+            report=not args.no_report,
+            progress=progress,
+            settings=settings_from_args(args),
+            lock=False,
+        )
         if not result.converged:  # a warning: -q keeps it
-            say(f"exit code {EXIT_FINDING}: the chain did NOT CONVERGE (raise --max-steps to extend it)", logging.WARNING)
+            say(
+                f"exit code {EXIT_FINDING}: the chain did NOT CONVERGE (raise --max-steps to extend it)",
+                logging.WARNING,
+            )
         return result.exit_code
     finally:
         lock.release()

@@ -189,7 +189,7 @@ class FolderLock:
         self.inherited = True
         return True
 
-    def acquire(self) -> "FolderLock":
+    def acquire(self) -> FolderLock:
         """Take the lock, or raise :class:`FolderBusyError` at once (never waits)."""
         if self._fd is not None or self.inherited:
             return self
@@ -288,7 +288,7 @@ class FolderLock:
         env[INHERIT_VARIABLE] = f"{self._fd}:{self.path.resolve()}"
         return env, (self._fd,)
 
-    def __enter__(self) -> "FolderLock":
+    def __enter__(self) -> FolderLock:
         return self.acquire()
 
     def __exit__(self, *exc) -> None:

@@ -103,7 +103,9 @@ def _read_v73(path: Path, wanted) -> tuple[dict, str]:
             if all(name in datasets for name in wanted):
                 return {k: np.asarray(datasets[k][()]) for k in wanted}, "variables (v7.3)"
             groups = [k for k in f.keys() if isinstance(f[k], h5py.Group) and not k.startswith("#")]
-            holding = [g for g in groups if all(name in f[g] and isinstance(f[g][name], h5py.Dataset) for name in wanted)]
+            holding = [
+                g for g in groups if all(name in f[g] and isinstance(f[g][name], h5py.Dataset) for name in wanted)
+            ]
             if len(holding) == 1:
                 g = f[holding[0]]
                 return {k: np.asarray(g[k][()]) for k in wanted}, f"fields of struct {holding[0]!r} (v7.3)"

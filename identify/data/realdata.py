@@ -145,8 +145,14 @@ def _read_registry(path: Path) -> dict:
     records = {}
     for name, entry in toml_module().loads(path.read_text(encoding="utf-8")).items():
         columns = entry["columns"]
-        load_options = dict(CONVERTED_COLUMNS) if columns == "converted" else {k: (None if v is False else v) for k, v in columns.items()}
-        records[name] = RealRecord(name, entry["licence"], entry.get("shipped"), load_options, tuple(entry["assumptions"]))
+        load_options = (
+            dict(CONVERTED_COLUMNS)
+            if columns == "converted"
+            else {k: (None if v is False else v) for k, v in columns.items()}
+        )
+        records[name] = RealRecord(
+            name, entry["licence"], entry.get("shipped"), load_options, tuple(entry["assumptions"])
+        )
     return records
 
 
@@ -377,7 +383,9 @@ def drop_window(record, start, stop):
     inside = (time >= start) & (time < stop)
     n_dropped = int(inside.sum())
     if n_dropped == 0 or n_dropped == time.size:
-        raise ValueError(f"the window [{start}, {stop}) s holds {n_dropped} of {time.size} samples; nothing sensible to drop")
+        raise ValueError(
+            f"the window [{start}, {stop}) s holds {n_dropped} of {time.size} samples; nothing sensible to drop"
+        )
     keep = ~inside
     note = (
         f"samples with {start:g} <= time < {stop:g} s dropped ({n_dropped} samples): "
@@ -463,11 +471,23 @@ def basaeri_theta(parameters=BASAERI_PARAMETERS, n_operators=BASAERI_N_OPERATORS
             -step,
             p[8] * math.exp(-p[9] * step * n_operators),
             p[9],
-            p[4], p[5], p[6], p[7] - shift,
-            p[0], p[1], p[2], p[3] + shift,
-            0.0, 1.0, 0.0, offset,
-            0.0, 1.0, 0.0, offset,
+            p[4],
+            p[5],
+            p[6],
+            p[7] - shift,
+            p[0],
+            p[1],
+            p[2],
+            p[3] + shift,
+            0.0,
+            1.0,
+            0.0,
+            offset,
+            0.0,
+            1.0,
+            0.0,
+            offset,
         ]
-    )  # fmt: skip
+    )
     initial_memory = 1e6 * (1.0 + abs(p[0]) + abs(p[3]) + shift)
     return theta, float(initial_memory)

@@ -27,9 +27,9 @@ import difflib
 import hashlib
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 
@@ -38,9 +38,18 @@ from .matfile import MAT_SUFFIX, MatFileError, read_mat_variables
 from .reversals import find_reversals
 
 __all__ = [
-    "Record", "RecordError", "load_record", "write_record", "sidecar_path", "keep_every", "thinning_indices",
-    "suggest_every", "DEFAULT_COLUMNS", "MAX_ABS_VALUE", "MAX_ABS_TIME",
-]  # fmt: skip
+    "Record",
+    "RecordError",
+    "load_record",
+    "write_record",
+    "sidecar_path",
+    "keep_every",
+    "thinning_indices",
+    "suggest_every",
+    "DEFAULT_COLUMNS",
+    "MAX_ABS_VALUE",
+    "MAX_ABS_TIME",
+]
 
 #: The default header: time [s], drive [A], output [um].
 DEFAULT_COLUMNS = ("time", "current", "displacement")
@@ -191,8 +200,11 @@ def _hash_and_check_text(path: Path):
                     decoder.decode(chunk)
                 except UnicodeDecodeError as exc:
                     line = newlines + exc.object[: exc.start].count(b"\n") + 1
-                    raise _fail(path, line, f"not UTF-8 text (byte {size - len(chunk) + exc.start}); "
-                                "a record is a plain-text CSV file") from None  # fmt: skip
+                    raise _fail(
+                        path,
+                        line,
+                        f"not UTF-8 text (byte {size - len(chunk) + exc.start}); a record is a plain-text CSV file",
+                    ) from None
                 newlines += chunk.count(b"\n")
                 nonblank = nonblank or bool(chunk.strip())
             try:
@@ -274,7 +286,9 @@ def load_record(
         raise ValueError(f"min_samples must be an integer >= 2, got {min_samples!r}")
     digest, size, nonblank = _hash_and_check_text(path)
     if not nonblank:
-        raise _fail(path, None, "the file is empty; expected a header line such as 'time,current,displacement' and data rows")
+        raise _fail(
+            path, None, "the file is empty; expected a header line such as 'time,current,displacement' and data rows"
+        )
 
     notes: list[str] = []
     with open(path, encoding="utf-8-sig", newline=None) as fh:
@@ -458,7 +472,9 @@ def _row_error(path: Path, number: int, cells: list, layout: _Layout, columns: l
     not a number (None if every cell parses after all)."""
     n_columns = len(layout.names)
     if len(cells) != n_columns:
-        return _fail(path, number, f"{len(cells)} cells, but the header has {n_columns} columns ({','.join(layout.names)})")
+        return _fail(
+            path, number, f"{len(cells)} cells, but the header has {n_columns} columns ({','.join(layout.names)})"
+        )
     for name, j, _values in columns:
         cell = cells[j].strip()
         if not cell:
@@ -498,10 +514,11 @@ def _checked_arrays(path: Path, columns: list, time_column, line_of) -> dict:
             if not math.isfinite(value):
                 raise _fail(path, line_of(k), f"{where}: {value!r} is not a finite number (NaN or infinity)")
             raise _fail(
-                path, line_of(k),
+                path,
+                line_of(k),
                 f"{where}: {value:.6g} is beyond any physical range (|value| > {limit:.0e} in any unit); "
                 "a corrupted value? Correct or remove that line",
-            )  # fmt: skip
+            )
         arrays[name] = arr
     return arrays
 
@@ -583,13 +600,21 @@ def _mat_vector(path, name, value, limit) -> np.ndarray:
         k = int(np.argmax(bad))
         value = float(arr[k])
         if not np.isfinite(value):
-            raise _fail(path, None, f"variable {name!r}, sample {k + 1}: {value!r} is not a finite number (NaN or infinity)")
-        raise _fail(path, None, f"variable {name!r}, sample {k + 1}: {value:.6g} is beyond any physical range "
-                    f"(|value| > {limit:.0e} in any unit); a corrupted value?")  # fmt: skip
+            raise _fail(
+                path, None, f"variable {name!r}, sample {k + 1}: {value!r} is not a finite number (NaN or infinity)"
+            )
+        raise _fail(
+            path,
+            None,
+            f"variable {name!r}, sample {k + 1}: {value:.6g} is beyond any physical range "
+            f"(|value| > {limit:.0e} in any unit); a corrupted value?",
+        )
     return arr
 
 
-def _load_mat_record(path: Path, time_column, input_column, output_column, input_unit, output_unit, min_samples) -> Record:
+def _load_mat_record(
+    path: Path, time_column, input_column, output_column, input_unit, output_unit, min_samples
+) -> Record:
     """The ``.mat`` branch of :func:`load_record`: the same arguments and checks, by variable.
 
     The file is read by :func:`identify.data.matfile.read_mat_variables` (top-level
@@ -615,17 +640,29 @@ def _load_mat_record(path: Path, time_column, input_column, output_column, input
     if missing:
         present = sorted(variables)
         hints = "; ".join(f"{m!r}{_suggest(m, present)}" for m in missing)
-        raise _fail(path, None, f"missing variable(s) {hints}. Variables present: {', '.join(map(repr, present)) or 'none'}. "
-                    "Pass the names (--time-column/--input-column/--output-column; 'none' for no time).")  # fmt: skip
+        raise _fail(
+            path,
+            None,
+            f"missing variable(s) {hints}. Variables present: {', '.join(map(repr, present)) or 'none'}. "
+            "Pass the names (--time-column/--input-column/--output-column; 'none' for no time).",
+        )
     arrays = {
-        name: _mat_vector(path, name, variables[name], MAX_ABS_TIME if name == time_column else MAX_ABS_VALUE) for name in wanted
+        name: _mat_vector(path, name, variables[name], MAX_ABS_TIME if name == time_column else MAX_ABS_VALUE)
+        for name in wanted
     }
     lengths = {name: arr.size for name, arr in arrays.items()}
     if len(set(lengths.values())) != 1:
-        raise _fail(path, None, "the variables have different lengths: " + ", ".join(f"{k} {v}" for k, v in lengths.items()))
+        raise _fail(
+            path, None, "the variables have different lengths: " + ", ".join(f"{k} {v}" for k, v in lengths.items())
+        )
     n = next(iter(lengths.values()))
     if n < min_samples:
-        raise _fail(path, None, f"only {n} samples, fewer than the {min_samples} required (a record needs a quiet start and several cycles)")
+        raise _fail(
+            path,
+            None,
+            f"only {n} samples, fewer than the {min_samples} required (a record needs a quiet start and several "
+            "cycles)",
+        )
     notes = [f"read {', '.join(wanted)} from the MATLAB file's {where}"]
     if time_column is None:
         time = np.arange(n, dtype=float)
@@ -635,19 +672,31 @@ def _load_mat_record(path: Path, time_column, input_column, output_column, input
         step = _first_step_back(time)
         if step is not None:
             k, kind = step
-            raise _fail(path, None, f"variable {time_column!r}, sample {k + 2}: time {float(time[k + 1])!r} {kind} the previous "
-                        f"time {float(time[k])!r}; times must strictly increase")  # fmt: skip
+            raise _fail(
+                path,
+                None,
+                f"variable {time_column!r}, sample {k + 2}: time {float(time[k + 1])!r} {kind} the previous "
+                f"time {float(time[k])!r}; times must strictly increase",
+            )
     return Record(
-        time=time, current=arrays[input_column], displacement=arrays[output_column], source=str(path), sha256=digest,
-        input_name=input_column, input_unit=input_unit, output_name=output_column, output_unit=output_unit,
-        notes=tuple(notes), time_name=time_column if time_column is not None else "time",
-    )  # fmt: skip
+        time=time,
+        current=arrays[input_column],
+        displacement=arrays[output_column],
+        source=str(path),
+        sha256=digest,
+        input_name=input_column,
+        input_unit=input_unit,
+        output_name=output_column,
+        output_unit=output_unit,
+        notes=tuple(notes),
+        time_name=time_column if time_column is not None else "time",
+    )
 
 
 def _csv_bytes(columns, arrays) -> bytes:
     out = [",".join(columns)]
     stacked = np.column_stack(arrays)
-    out.extend("%.17g,%.17g,%.17g" % tuple(row) for row in stacked.tolist())
+    out.extend(f"{a:.17g},{b:.17g},{c:.17g}" for a, b, c in stacked.tolist())
     return ("\n".join(out) + "\n").encode("ascii")
 
 
@@ -688,7 +737,9 @@ def write_record(path, record_or_arrays, sidecar: dict | None = None) -> None:
         else:
             arrays = list(record_or_arrays)
             if len(arrays) != 3:
-                raise ValueError(f"write_record expects a Record or 3 arrays (time, current, displacement), got {len(arrays)}")
+                raise ValueError(
+                    f"write_record expects a Record or 3 arrays (time, current, displacement), got {len(arrays)}"
+                )
         record = Record(*arrays, source=str(path), sha256="")
     side_bytes = None
     if sidecar is not None:
@@ -780,7 +831,10 @@ def keep_every(record: Record, every: int) -> Record:
 
     n = len(record)
     keep = thinning_indices(record.current, every)
-    note = f"thinned (--every {every}): kept every {every}th sample, every input reversal and the last sample: {keep.size} of {n} samples"
+    note = (
+        f"thinned (--every {every}): kept every {every}th sample, every input reversal and the last sample: "
+        f"{keep.size} of {n} samples"
+    )
     return replace(
         record,
         time=record.time[keep],
@@ -794,7 +848,9 @@ def keep_every(record: Record, every: int) -> Record:
 SAMPLES_PER_HALF_CYCLE = 250
 
 
-def suggest_every(record: Record, *, min_samples=20000, per_half_cycle=SAMPLES_PER_HALF_CYCLE) -> tuple[int, float] | None:
+def suggest_every(
+    record: Record, *, min_samples=20000, per_half_cycle=SAMPLES_PER_HALF_CYCLE
+) -> tuple[int, float] | None:
     """A ``--every N`` for a record far longer than the rate-independent GPI needs, or None.
 
     The GPI's output depends only on the input's sequence of extrema, so a few hundred

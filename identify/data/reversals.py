@@ -11,7 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["as_1d", "Reversals", "default_min_swing", "find_reversals", "branch_direction", "time_since_reversal", "input_rate"]
+__all__ = [
+    "as_1d",
+    "Reversals",
+    "default_min_swing",
+    "find_reversals",
+    "branch_direction",
+    "time_since_reversal",
+    "input_rate",
+]
 
 
 def as_1d(name, values, size=None) -> np.ndarray:
@@ -25,7 +33,6 @@ def as_1d(name, values, size=None) -> np.ndarray:
         k = int(np.flatnonzero(~np.isfinite(arr))[0])
         raise ValueError(f"{name} has a non-finite value at sample {k}")
     return arr
-
 
 
 # -- reversals and the input's geometry ----------------------------------------------------

@@ -184,9 +184,9 @@ from __future__ import annotations
 import itertools
 import math
 import time as _time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -327,7 +327,11 @@ class Thresholds:
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not 0.0 <= value <= 1.0:
                 raise ValueError(f"Thresholds.{name} must lie in [0, 1], got {value!r}")
-        if isinstance(self.max_refits, bool) or not isinstance(self.max_refits, (int, np.integer)) or self.max_refits < 0:
+        if (
+            isinstance(self.max_refits, bool)
+            or not isinstance(self.max_refits, (int, np.integer))
+            or self.max_refits < 0
+        ):
             raise ValueError(f"Thresholds.max_refits must be an integer >= 0, got {self.max_refits!r}")
 
     def to_dict(self) -> dict:
@@ -562,7 +566,13 @@ def exact_reparametrisation(record, model: Model, theta, effect_name: str, rtol:
     rows, mapped = [], []
     for parameter in effect.parameters:
         lo, hi = float(parameter.lower), float(parameter.upper)
-        values = [lo, hi, lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo), effect.get_test_parameters().get(parameter.name, lo)]
+        values = [
+            lo,
+            hi,
+            lo + 0.25 * (hi - lo),
+            hi - 0.25 * (hi - lo),
+            effect.get_test_parameters().get(parameter.name, lo),
+        ]
         for value in values:
             theta_e = base.copy()
             theta_e[model_e.names.index(parameter.name)] = value
@@ -580,6 +590,7 @@ def exact_reparametrisation(record, model: Model, theta, effect_name: str, rtol:
 
 
 # -- screening --------------------------------------------------------------------------
+
 
 def _training_grid(model_e: Model, record) -> list[dict]:
     """Screening grid of ``training``: its amplitudes off, its fade on a grid.
@@ -744,7 +755,7 @@ def screening_grid(model_e: Model, effect_name: str, base_theta, record, n_value
     cols = model_e.effect_slice(effect_name)
     names = model_e.names[cols]
     axes = []
-    for offset, name in enumerate(names):
+    for offset, _name in enumerate(names):
         column = cols.start + offset
         parameter = model_e.parameters[column]
         off_value = float(base_theta[column])
@@ -762,12 +773,14 @@ def screening_grid(model_e: Model, effect_name: str, base_theta, record, n_value
             if change2 is not None:
                 scale = float(np.linalg.norm(change2))
                 linear = scale > 0 and float(np.linalg.norm(change2 - 2.0 * change)) < 1e-3 * scale
-        axes.append([off_value] if linear else _axis_values(parameter, off_value, record.time, n_values, include_off=True))
+        axes.append(
+            [off_value] if linear else _axis_values(parameter, off_value, record.time, n_values, include_off=True)
+        )
     # cap the product by thinning the longest axes
     while np.prod([len(a) for a in axes]) > _MAX_GRID:
         longest = int(np.argmax([len(a) for a in axes]))
         a = axes[longest]
-        axes[longest] = a[:: 2] if len(a) > 2 else a[:1]
+        axes[longest] = a[::2] if len(a) > 2 else a[:1]
     points = [dict(zip(names, map(float, combo))) for combo in itertools.product(*axes)]
     off_point = {n: float(effect.off[n]) for n in names}
     return [off_point] + [p for p in points if p != off_point]
@@ -926,9 +939,11 @@ def _screen_one_impl(record, model: Model, theta0, noise: NoiseModel, effect_nam
         step_eff = np.zeros(effect_free.size)
         if acting.any():
             sol = lsq_linear(
-                j_perp[:, acting] / norms[acting], -w_perp,
-                bounds=(lower[acting] * norms[acting], upper[acting] * norms[acting]), method="bvls",
-            )  # fmt: skip
+                j_perp[:, acting] / norms[acting],
+                -w_perp,
+                bounds=(lower[acting] * norms[acting], upper[acting] * norms[acting]),
+                method="bvls",
+            )
             step_eff[acting] = sol.x / norms[acting]
         remaining = w_perp + j_perp @ step_eff
         chi2_after = float(remaining @ remaining)
@@ -1068,7 +1083,9 @@ class CandidateResult:
         return {
             "n_eff": float(self.n_eff),
             "z_after": {k: float(v) for k, v in self.z_after.items()},
-            "parameter_stderr": {k: (None if not np.isfinite(v) else float(v)) for k, v in self.parameter_stderr.items()},
+            "parameter_stderr": {
+                k: (None if not np.isfinite(v) else float(v)) for k, v in self.parameter_stderr.items()
+            },
             "screening": None if self.screening is None else self.screening.to_dict(),
             "uncharged_terms": list(self.uncharged_terms),
         }
@@ -1205,14 +1222,18 @@ class Diagnosis:
             for c in self.pairs_tried:
                 lines.append(
                     f"  {c.effect:<28} RMS after {c.rms_after:.4g} {unit}, dBIC {c.delta_bic:9.1f}, "
-                    f"explains {100 * c.explained:5.1f} % of the excess" + (", adequate after" if c.adequate_after else "")
+                    f"explains {100 * c.explained:5.1f} % of the excess"
+                    + (", adequate after" if c.adequate_after else "")
                 )
         others = [c for c in self.ranking if not c.refitted and not c.note]
         unidentifiable = [c.effect for c in self.ranking if c.note]
         if unidentifiable:
             lines.append("not identifiable (exact reparametrisations of the model): " + ", ".join(unidentifiable))
         if others:
-            lines.append("other candidates (screening only): " + ", ".join(f"{c.effect} ({100 * c.explained:.0f} %)" for c in others))
+            lines.append(
+                "other candidates (screening only): "
+                + ", ".join(f"{c.effect} ({100 * c.explained:.0f} %)" for c in others)
+            )
         return "\n".join(lines)
 
 
@@ -1393,10 +1414,14 @@ def _working_copy(record, noise: NoiseModel, reversal_index) -> _Working:
     around = min(around, SCREENING_SAMPLES // (4 * max(1, len(reversal_index))))
     keep = thinning_indices(record.current, step, reversal_index, around=around)
     small = Record(
-        record.time[keep], record.current[keep], record.displacement[keep],
-        source=f"{record.source} (every {step}th sample, for screening)", sha256="",
-        input_unit=record.input_unit, output_unit=record.output_unit,
-    )  # fmt: skip
+        record.time[keep],
+        record.current[keep],
+        record.displacement[keep],
+        source=f"{record.source} (every {step}th sample, for screening)",
+        sha256="",
+        input_unit=record.input_unit,
+        output_unit=record.output_unit,
+    )
     quiet = None
     if noise.quiet is not None:
         quiet = slice(0, int(np.searchsorted(keep, noise.quiet.indices(n)[1])))
@@ -1462,7 +1487,7 @@ def _refit_no_worse_than_nested(record, base_fit, base_chi2, model_e, start, fre
     for chi2_m, fit_m in members:
         if 0 < chi2_m < chi2_e and _n_eff(w) * math.log(chi2_e / chi2_m) > MEMBER_SHORTFALL_BIC:
             references.append((chi2_m, fit_m))
-    for chi2_ref, fit_ref in sorted(references, key=lambda r: r[0]):
+    for _chi2_ref, fit_ref in sorted(references, key=lambda r: r[0]):
         nested = _nested_start(fit_ref, model_e)
         if nested is not None:
             fit_n = _finish(record, nested[0], base_fit.noise, nested[1][free], rng)
@@ -1491,7 +1516,18 @@ def _nested_start(fit_ref, model_e: Model) -> tuple[Model, np.ndarray] | None:
 
 
 def _evaluate_candidate(
-    record, base_fit, base_chi2, base_adequacy, name, model_e, start, screening, quiet, noise_ref, thresholds, rng,
+    record,
+    base_fit,
+    base_chi2,
+    base_adequacy,
+    name,
+    model_e,
+    start,
+    screening,
+    quiet,
+    noise_ref,
+    thresholds,
+    rng,
     members=(),
 ) -> CandidateResult:
     residuals = WhitenedResiduals(record, model_e, base_fit.noise)
@@ -1507,9 +1543,22 @@ def _evaluate_candidate(
     params = {n: float(fit_e.theta[model_e.names.index(n)]) for n in new_names}
     stderr = {n: float(fit_e.stderr[model_e.names.index(n)]) for n in new_names}
     return CandidateResult(
-        name, screening, True, fit_e.rms, fit_e.max_error_pct, float(delta_bic), float(n_eff), explained,
-        adequacy_e.adequate, adequacy_e.z, params, stderr, fit_e, profile_e, uncharged_terms=uncharged,
-    )  # fmt: skip
+        name,
+        screening,
+        True,
+        fit_e.rms,
+        fit_e.max_error_pct,
+        float(delta_bic),
+        float(n_eff),
+        explained,
+        adequacy_e.adequate,
+        adequacy_e.z,
+        params,
+        stderr,
+        fit_e,
+        profile_e,
+        uncharged_terms=uncharged,
+    )
 
 
 def _delta_bic(record, base_fit: FitResult, base_chi2: float, fit_e: FitResult, chi2_e: float, n_eff: float):
@@ -1534,14 +1583,26 @@ def _delta_bic(record, base_fit: FitResult, base_chi2: float, fit_e: FitResult, 
     return float(delta_bic), [f"{effect}.{term}" for effect, term in form["terms"]]
 
 
-def _evaluate_in_round(s: _Setting, rnd: _Round, name: str, model_e: Model, start, screening,
-                       members=()) -> CandidateResult:  # fmt: skip
+def _evaluate_in_round(
+    s: _Setting, rnd: _Round, name: str, model_e: Model, start, screening, members=()
+) -> CandidateResult:
     """:func:`_evaluate_candidate` of ``name`` (``model_e`` finished from the full vector
     ``start``) against the round's baseline, with the diagnosis' settings."""
     return _evaluate_candidate(
-        s.record, rnd.fit, rnd.chi2_0, rnd.adequacy, name, model_e, start, screening, s.quiet, s.noise_ref,
-        s.thresholds, s.rng, members,
-    )  # fmt: skip
+        s.record,
+        rnd.fit,
+        rnd.chi2_0,
+        rnd.adequacy,
+        name,
+        model_e,
+        start,
+        screening,
+        s.quiet,
+        s.noise_ref,
+        s.thresholds,
+        s.rng,
+        members,
+    )
 
 
 def _same_threshold_sign(model_a: Model, model_b: Model) -> bool:
@@ -1561,18 +1622,33 @@ def _plain_of(model_e: Model, base: Model) -> Model:
 CANDIDATE_ERRORS = (ValueError, ArithmeticError)
 
 
-def _failed_candidate(name: str, screening, fit: FitResult, n_eff: float, stage: str, exc: Exception) -> CandidateResult:
+def _failed_candidate(
+    name: str, screening, fit: FitResult, n_eff: float, stage: str, exc: Exception
+) -> CandidateResult:
     """A ranking entry for a candidate whose refit could not start or failed: no gain
     (delta BIC = -k ln n_eff, the cost of its parameters), the reason in ``note``."""
     k = sum(len(get_effect(n).parameters) for n in name.split("+"))
     return CandidateResult(
-        name, screening, False, float(fit.rms), None, float(-k * math.log(n_eff)), float(n_eff), 0.0, None,
+        name,
+        screening,
+        False,
+        float(fit.rms),
+        None,
+        float(-k * math.log(n_eff)),
+        float(n_eff),
+        0.0,
+        None,
         note=f"{stage} failed: {exc}",
     )
 
 
-def _attempt(action: Callable[[], object], say: Callable[[str], None], what: str, failed: dict | None = None,
-             failure: tuple | None = None):  # fmt: skip
+def _attempt(
+    action: Callable[[], object],
+    say: Callable[[str], None],
+    what: str,
+    failed: dict | None = None,
+    failure: tuple | None = None,
+):
     """``action()``, or ``None`` when it raises one of :data:`CANDIDATE_ERRORS`.
 
     One candidate's failing screening or refit never stops the diagnosis: the failure is
@@ -1597,7 +1673,12 @@ def _explained(before: float, after: float) -> float:
 
 
 def fit_baseline(
-    record, model: Model, noise: NoiseModel, *, n_starts: int = 6, rng: np.random.Generator | None = None,
+    record,
+    model: Model,
+    noise: NoiseModel,
+    *,
+    n_starts: int = 6,
+    rng: np.random.Generator | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> FitResult:
     """The diagnosis' baseline fit: least squares finished by a trust-region polish, both threshold signs.
@@ -1634,8 +1715,15 @@ def _best_baseline(record, baselines) -> FitResult:
     return min(baselines, key=lambda f: float(np.sum(_whitened(record, f) ** 2)))
 
 
-def _fit_baselines(record, model: Model, noise: NoiseModel, *, n_starts: int = 6, rng: np.random.Generator | None = None,
-                   progress: Callable[[str], None] | None = None) -> list:  # fmt: skip
+def _fit_baselines(
+    record,
+    model: Model,
+    noise: NoiseModel,
+    *,
+    n_starts: int = 6,
+    rng: np.random.Generator | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list:
     """The baselines of :func:`fit_baseline`, one per threshold sign (one when alpha is free
     or the reading literal): ``[FitResult]``."""
     say = progress or (lambda message: None)
@@ -1649,7 +1737,9 @@ def _fit_baselines(record, model: Model, noise: NoiseModel, *, n_starts: int = 6
             one = fit_least_squares(record, sign_model, noise=noise, n_starts=n_starts, rng=rng, **options)
             one = _finish(record, one.model, noise, one.theta[one.vary], rng, fit=one)
         else:
-            small_fit = fit_least_squares(work.record, sign_model, noise=work.noise, n_starts=n_starts, rng=rng, **options)
+            small_fit = fit_least_squares(
+                work.record, sign_model, noise=work.noise, n_starts=n_starts, rng=rng, **options
+            )
             say(f"polishing on the whole record ({len(record)} samples)")
             one = _finish(record, small_fit.model, noise, small_fit.theta[small_fit.vary], rng)
         baselines.append(one)
@@ -1781,12 +1871,19 @@ def _start_round(s: _Setting, fit: FitResult) -> _Round:
 def _screen(s: _Setting, rnd: _Round) -> list:
     """Step 1: every candidate screened on the working copy (:func:`_screen_one`), by falling chi-square drop."""
     work, fit = s.work, rnd.fit
-    s.say(f"screening {len(s.candidates)} candidate effects" + (f" (on every {work.step}th sample)" if work.step > 1 else ""))
+    s.say(
+        f"screening {len(s.candidates)} candidate effects"
+        + (f" (on every {work.step}th sample)" if work.step > 1 else "")
+    )
     screened = []
     for name in s.candidates:
-        one = _attempt(lambda: _screen_one(work.record, fit.model, fit.theta, work.noise, name), s.say,
-                       f"screening of '{name}' failed", rnd.failed,
-                       (name, None, fit, rnd.n_eff_small, "screening"))  # fmt: skip
+        one = _attempt(
+            lambda: _screen_one(work.record, fit.model, fit.theta, work.noise, name),
+            s.say,
+            f"screening of '{name}' failed",
+            rnd.failed,
+            (name, None, fit, rnd.n_eff_small, "screening"),
+        )
         if one is not None:
             screened.append(one)
     screened.sort(key=lambda r: -r.chi2_drop)
@@ -1808,8 +1905,9 @@ def _screening_values(model_e: Model, screening: ScreeningResult) -> dict:
     return _effect_values(model_e, screening.start, screening.effect)
 
 
-def _short_refit_from_screening(work: _Working, fit: FitResult, model_e: Model, screening: ScreeningResult, values: dict,
-                                carried=()):  # fmt: skip
+def _short_refit_from_screening(
+    work: _Working, fit: FitResult, model_e: Model, screening: ScreeningResult, values: dict, carried=()
+):
     """Short refit of ``model_e`` on the working copy from the screening's start, grid and best
     step (and ``carried``: full vectors of ``model_e`` an earlier round reached with this candidate).
 
@@ -1863,9 +1961,13 @@ def _short_refits(s: _Setting, rnd: _Round) -> dict:
         model_e = rnd.fit.model + one.effect
         values = _screening_values(model_e, one)
         carried = _carried_starts(rnd, model_e, one.effect)
-        result = _attempt(lambda: _short_refit_from_screening(s.work, rnd.fit, model_e, one, values, carried), s.say,
-                          f"short refit with '{one.effect}' failed", rnd.failed,
-                          (one.effect, one, rnd.fit, rnd.n_eff_small, "short refit"))  # fmt: skip
+        result = _attempt(
+            lambda: _short_refit_from_screening(s.work, rnd.fit, model_e, one, values, carried),
+            s.say,
+            f"short refit with '{one.effect}' failed",
+            rnd.failed,
+            (one.effect, one, rnd.fit, rnd.n_eff_small, "short refit"),
+        )
         if result is not None and _short_of_screening(s, rnd, one, result[0]):
             result = _fresh_if_better(s, rnd, model_e, one, result)
         if result is not None:
@@ -1907,9 +2009,11 @@ def _fresh_if_better(s: _Setting, rnd: _Round, model_e: Model, screening: Screen
     """
     work = s.work
     s.say(f"fitting '{screening.effect}' from scratch (its short refit stayed above the screening's prediction)")
-    fresh = _attempt(lambda: fit_least_squares(work.record, model_e, noise=work.noise, n_starts=FRESH_STARTS,
-                                               n_polish=1, rng=s.rng),
-                     s.say, "not possible")  # fmt: skip
+    fresh = _attempt(
+        lambda: fit_least_squares(work.record, model_e, noise=work.noise, n_starts=FRESH_STARTS, n_polish=1, rng=s.rng),
+        s.say,
+        "not possible",
+    )
     if fresh is None:
         return result
     residuals = WhitenedResiduals(work.record, fresh.model, work.noise)
@@ -1931,8 +2035,9 @@ def _fresh_other_sign(s: _Setting, rnd: _Round) -> tuple[list, dict]:
     for name, fresh in rnd.fresh.items():
         s.say(f"refitting with '{name}' from its fresh fit with the other threshold sign")
         screening = _screening_of(rnd, name)
-        result = _attempt(lambda: _evaluate_in_round(s, rnd, name, fresh.model, fresh.theta, screening), s.say,
-                          "not possible")  # fmt: skip
+        result = _attempt(
+            lambda: _evaluate_in_round(s, rnd, name, fresh.model, fresh.theta, screening), s.say, "not possible"
+        )
         if result is not None:
             retried[name] = result
     return _keep_higher(rnd.refitted, retried)
@@ -1969,8 +2074,11 @@ def _refit_best(s: _Setting, rnd: _Round) -> list:
         screening = _screening_of(rnd, name)
         result = _attempt(
             lambda: _evaluate_in_round(s, rnd, name, fit.model + name, short[name][1], screening),
-            s.say, f"refit with '{name}' failed", rnd.failed, (name, screening, fit, rnd.n_eff_small, "refit"),
-        )  # fmt: skip
+            s.say,
+            f"refit with '{name}' failed",
+            rnd.failed,
+            (name, screening, fit, rnd.n_eff_small, "refit"),
+        )
         if result is not None:
             refitted.append(result)
     refitted.sort(key=lambda c: -c.delta_bic)
@@ -2021,13 +2129,19 @@ def _other_sign_refits(s: _Setting, rnd: _Round, names) -> list:
     for name in names:
         s.say(f"refitting with '{name}' from scratch with the other threshold sign (alpha {other})")
         # e.g. no start of that sign gives a finite output
-        small = _attempt(lambda: fit_least_squares(work.record, fit.model + name, noise=work.noise,
-                                                   n_starts=s.n_starts, rng=s.rng, threshold_sign=other),
-                         s.say, "not possible")  # fmt: skip
+        small = _attempt(
+            lambda: fit_least_squares(
+                work.record, fit.model + name, noise=work.noise, n_starts=s.n_starts, rng=s.rng, threshold_sign=other
+            ),
+            s.say,
+            "not possible",
+        )
         if small is None or not _other_sign_start_lower(s, rnd, name, small.model, small.theta, other):
             continue
         screening = _screening_of(rnd, name)
-        result = _attempt(lambda: _evaluate_in_round(s, rnd, name, small.model, small.theta, screening), s.say, "not possible")
+        result = _attempt(
+            lambda: _evaluate_in_round(s, rnd, name, small.model, small.theta, screening), s.say, "not possible"
+        )
         if result is not None:
             results.append(result)
     return results
@@ -2063,8 +2177,10 @@ def _other_sign_start_lower(s: _Setting, rnd: _Round, name: str, model_e: Model,
     chi2 = _whole_record_chi2(s, rnd, model_e, theta)
     if chi2 < bar - SHARED_BASIN_GAIN:
         return True
-    s.say(f"with alpha {sign} '{name}' starts no lower on the whole record (chi-square {chi2:.6g} against "
-          f"{bar:.6g} in the baseline's sign); not refitted there")  # fmt: skip
+    s.say(
+        f"with alpha {sign} '{name}' starts no lower on the whole record (chi-square {chi2:.6g} against "
+        f"{bar:.6g} in the baseline's sign); not refitted there"
+    )
     return False
 
 
@@ -2177,8 +2293,11 @@ def _tied_sign_refits(s: _Setting, rnd: _Round, tied: FitResult) -> tuple[list, 
             continue
         model_e = tied.model + name
         extra = [_screening_values(fit.model + name, one)]
-        result = _attempt(lambda: _short_refit_from_gpi(s, rnd, name, tied, model_e, extra), s.say,
-                          f"short refit with '{name}' and alpha {sign} not possible")  # fmt: skip
+        result = _attempt(
+            lambda: _short_refit_from_gpi(s, rnd, name, tied, model_e, extra),
+            s.say,
+            f"short refit with '{name}' and alpha {sign} not possible",
+        )
         if result is not None and result[0] < rnd.short[name][0] - SHARED_BASIN_GAIN:
             short[name] = result
     retried = {}
@@ -2187,8 +2306,11 @@ def _tied_sign_refits(s: _Setting, rnd: _Round, tied: FitResult) -> tuple[list, 
             continue
         s.say(f"refitting with '{name}' and alpha {sign}")
         model_e = tied.model + name
-        result = _attempt(lambda: _evaluate_in_round(s, rnd, name, model_e, short[name][1], _screening_of(rnd, name)),
-                          s.say, "not possible")  # fmt: skip
+        result = _attempt(
+            lambda: _evaluate_in_round(s, rnd, name, model_e, short[name][1], _screening_of(rnd, name)),
+            s.say,
+            "not possible",
+        )
         if result is not None:
             retried[name] = result
     refitted, replaced = _keep_higher(rnd.refitted, retried)
@@ -2249,8 +2371,11 @@ def _shared_basin_refits(s: _Setting, rnd: _Round, candidates: list) -> list:
             refitted.append(c)
             continue
         model_e = c.fit.model
-        short = _attempt(lambda: _short_refit(work.record, model_e, work.noise, [[start]]), s.say,
-                         f"no short refit of '{c.effect}' from the GPI of '{donor.effect}'")  # fmt: skip
+        short = _attempt(
+            lambda: _short_refit(work.record, model_e, work.noise, [[start]]),
+            s.say,
+            f"no short refit of '{c.effect}' from the GPI of '{donor.effect}'",
+        )
         if short is None:
             refitted.append(c)
             continue
@@ -2260,8 +2385,11 @@ def _shared_basin_refits(s: _Setting, rnd: _Round, candidates: list) -> list:
             refitted.append(c)
             continue
         s.say(f"refitting '{c.effect}' from the GPI of '{donor.effect}'")
-        again = _attempt(lambda: _evaluate_in_round(s, rnd, c.effect, model_e, short[1], c.screening), s.say,
-                         f"refit of '{c.effect}' from the GPI of '{donor.effect}' failed")  # fmt: skip
+        again = _attempt(
+            lambda: _evaluate_in_round(s, rnd, c.effect, model_e, short[1], c.screening),
+            s.say,
+            f"refit of '{c.effect}' from the GPI of '{donor.effect}' failed",
+        )
         refitted.append(again if again is not None and again.fit.chi2 < c.fit.chi2 else c)
     refitted.sort(key=lambda c: -c.delta_bic)
     return refitted
@@ -2281,8 +2409,11 @@ def _reparametrisation_paths(s: _Setting, rnd: _Round) -> list:
         s.say(f"short refit through '{name}' (its exact reparametrisation: a path for the baseline)")
         model_e = _through_reparametrisation(fit.model, name)
         grid = screening_grid(model_e, name, _embed(fit.model, fit.theta, model_e), work.record)
-        result = _attempt(lambda: _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, fit, model_e, grid)),
-                          s.say, "not possible")  # fmt: skip
+        result = _attempt(
+            lambda: _short_refit(work.record, model_e, work.noise, _refit_starts(work.record, fit, model_e, grid)),
+            s.say,
+            "not possible",
+        )
         if result is None:
             continue
         _, theta_e = result
@@ -2303,19 +2434,26 @@ def _challenge_baseline(s: _Setting, rnd: _Round) -> FitResult | None:
     """
     fit, work = rnd.fit, s.work
     s.say("challenging the baseline from the candidates' GPI parameters")
-    same_starts = [_embed(c.fit.model, c.fit.theta, fit.model, drop_extra=True) for c in rnd.refitted
-                   if _same_threshold_sign(c.fit.model, fit.model)] + rnd.reparametrised  # fmt: skip
+    same_starts = [
+        _embed(c.fit.model, c.fit.theta, fit.model, drop_extra=True)
+        for c in rnd.refitted
+        if _same_threshold_sign(c.fit.model, fit.model)
+    ] + rnd.reparametrised
     challenger_groups = [(fit.model, same_starts)] + [
         (plain, [_embed(c.fit.model, c.fit.theta, plain, drop_extra=True)])
-        for c in rnd.refitted if not _same_threshold_sign(c.fit.model, fit.model)
+        for c in rnd.refitted
+        if not _same_threshold_sign(c.fit.model, fit.model)
         for plain in [_plain_of(c.fit.model, fit.model)]
-    ]  # fmt: skip
+    ]
     challenges = []
     for plain, starts in challenger_groups:
         if not starts:
             continue
-        result = _attempt(lambda: _short_refit(work.record, plain, work.noise, [starts]), s.say,
-                          "a challenger of the baseline could not start")  # fmt: skip
+        result = _attempt(
+            lambda: _short_refit(work.record, plain, work.noise, [starts]),
+            s.say,
+            "a challenger of the baseline could not start",
+        )
         if result is not None:
             challenges.append((result, plain))
     if not challenges:
@@ -2390,12 +2528,19 @@ def _unrefitted_candidates(rnd: _Round) -> list:
         excess_small = chi2_0_small - rnd.w_small.size
         others.append(
             CandidateResult(
-                s.effect, s, False, fit.rms * math.sqrt(chi2_after / chi2_0_small), None,
-                float(_working_copy_delta_bic(rnd, chi2_after, k)), float(n_eff_small),
+                s.effect,
+                s,
+                False,
+                fit.rms * math.sqrt(chi2_after / chi2_0_small),
+                None,
+                float(_working_copy_delta_bic(rnd, chi2_after, k)),
+                float(n_eff_small),
                 _explained(excess_small, excess_small - (chi2_0_small - chi2_after)) if excess_small > 0 else 0.0,
-                None, {}, _effect_values(model_e, theta_after, s.effect),
+                None,
+                {},
+                _effect_values(model_e, theta_after, s.effect),
             )
-        )  # fmt: skip
+        )
     others.sort(key=lambda c: -c.delta_bic)
     return others
 
@@ -2407,12 +2552,19 @@ def _not_identifiable(redundant, rnd: _Round) -> list:
         k = len(get_effect(name).parameters)
         entries.append(
             CandidateResult(
-                name, None, False, float(rnd.fit.rms), None, float(-k * math.log(rnd.n_eff_small)),
-                float(rnd.n_eff_small), 0.0, None,
+                name,
+                None,
+                False,
+                float(rnd.fit.rms),
+                None,
+                float(-k * math.log(rnd.n_eff_small)),
+                float(rnd.n_eff_small),
+                0.0,
+                None,
                 note="not identifiable: an exact reparametrisation of the fitted model (adding it changes nothing the "
                 "model's own parameters cannot; see identify.diagnosis.diagnose.GPI_EQUIVALENTS)",
             )
-        )  # fmt: skip
+        )
     return entries
 
 
@@ -2444,9 +2596,11 @@ def _targeted_check(s: _Setting, rnd: _Round, others: list, ranking: list) -> tu
     def nameable(confirmed):
         top = confirmed[0] if confirmed else None
         ok = top is not None and (
-            top.delta_bic > thresholds.bic_significant and top.adequate_after and _practical(fit, top, thresholds)
+            top.delta_bic > thresholds.bic_significant
+            and top.adequate_after
+            and _practical(fit, top, thresholds)
             and _excess_over_noise(fit) >= thresholds.structure_floor
-        )  # fmt: skip
+        )
         return top if ok else None
 
     confirmed = []
@@ -2460,7 +2614,10 @@ def _targeted_check(s: _Setting, rnd: _Round, others: list, ranking: list) -> tu
         done = {c.effect for c in promising}
         for c in eligible:
             if c.effect not in done and c.delta_bic > 0.0:
-                s.say(f"targeted check: refitting with '{c.effect}' as a possible rival (screening delta BIC {c.delta_bic:.0f})")
+                s.say(
+                    f"targeted check: refitting with '{c.effect}' as a possible rival (screening delta BIC "
+                    f"{c.delta_bic:.0f})"
+                )
                 result = _attempt(lambda c=c: refit(c), s.say, f"targeted refit with '{c.effect}' failed")
                 if result is not None:
                     confirmed.append(result)
@@ -2482,7 +2639,8 @@ def _targeted_verdict(s: _Setting, rnd: _Round, targeted: CandidateResult, tests
     reason = (
         f"{tests_text} But adding '{targeted.effect}' lowers the chi-square far beyond its extra parameters' cost "
         f"(delta BIC {targeted.delta_bic:.0f} > {thresholds.bic_significant:g}) and matters against the noise: "
-        f"RMS {fit.rms:.4g} -> {targeted.rms_after:.4g} ({100 * change:.1f} % >= {100 * thresholds.practical_rms_change:g} %), "
+        f"RMS {fit.rms:.4g} -> {targeted.rms_after:.4g} ({100 * change:.1f} % >= "
+        f"{100 * thresholds.practical_rms_change:g} %), "
         f"structure of {size:.2f} sigma explained (>= the {thresholds.structure_floor:g} sigma floor): a small "
         f"effect that the targeted test sees and the omnibus tests do not."
     )
@@ -2509,8 +2667,7 @@ def _adequate_verdict(s: _Setting, rnd: _Round, ranking: list, tests_text: str) 
             reason += (
                 f" The targeted refits of '{small[0].effect}' (delta BIC {small[0].delta_bic:.0f}) and "
                 f"'{rival.effect}' ({rival.delta_bic:.0f}) are {_apart_text(s.record, small[0], rival, thresholds)}, "
-                f"so neither is named."
-                + _telling_apart(small[0].effect, rival.effect)
+                f"so neither is named." + _telling_apart(small[0].effect, rival.effect)
             )
         else:
             reason += (
@@ -2548,7 +2705,8 @@ def _practical_beyond(single: CandidateResult, pair: CandidateResult, sigma: flo
 
 
 def _pair_beats(best: CandidateResult, pair, thresholds: Thresholds, fit: FitResult) -> bool:
-    """Does ``pair`` decide beside the best single candidate ``best`` (of the baseline ``fit``)? Its delta BIC must exceed
+    """Does ``pair`` decide beside the best single candidate ``best`` (of the baseline ``fit``)? Its delta BIC must
+    exceed
     :func:`_pair_bar`; beside a single that already leaves a residual consistent with the noise,
     what the pair adds must also matter against the noise (:func:`_practical_beyond`), as a
     targeted finding must: an effect that moves the RMS by less than 1 % is no finding, and
@@ -2584,8 +2742,11 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     pool = _pair_pool(rnd, thresholds)
     shapes = {}
     for entry in pool:
-        values = _attempt(lambda entry=entry: _shape_values(work, fit, entry), s.say,
-                          f"the shape parameters of '{entry[0]}' could not be probed")  # fmt: skip
+        values = _attempt(
+            lambda entry=entry: _shape_values(work, fit, entry),
+            s.say,
+            f"the shape parameters of '{entry[0]}' could not be probed",
+        )
         if values is not None:
             shapes[entry[0]] = values
     shorts = []
@@ -2606,8 +2767,11 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
 
     shorts.sort(key=short_bic, reverse=True)
     top_bic = short_bic(shorts[0])
-    chosen = [item for i, item in enumerate(shorts)
-              if i < thresholds.max_refits or short_bic(item) >= top_bic - thresholds.bic_significant]  # fmt: skip
+    chosen = [
+        item
+        for i, item in enumerate(shorts)
+        if i < thresholds.max_refits or short_bic(item) >= top_bic - thresholds.bic_significant
+    ]
     member_chi2 = {}
     for c in rnd.refitted:
         if c.fit is not None and c.effect not in member_chi2:
@@ -2616,14 +2780,20 @@ def _try_pairs(s: _Setting, rnd: _Round) -> tuple[list, set | None, list]:
     adequate = {c.effect for c in rnd.refitted if c.adequate_after}
 
     def refit(model_pair, start, one, other):
-        alt = _attempt(lambda: _short_pair_from_flipped_single(s, fit, one, other, member_chi2, adequate),
-                       s.say, "the pair refit with the other threshold sign failed")  # fmt: skip
+        alt = _attempt(
+            lambda: _short_pair_from_flipped_single(s, fit, one, other, member_chi2, adequate),
+            s.say,
+            "the pair refit with the other threshold sign failed",
+        )
         if alt is not None:
             _, model_pair, start = alt
         s.say(f"refitting with '{one[0]}' and '{other[0]}' together")
         members = [member_chi2[n] for n in (one[0], other[0]) if n in member_chi2]
-        return _attempt(lambda: _evaluate_in_round(s, rnd, f"{one[0]}+{other[0]}", model_pair, start, None, members),
-                        s.say, "the pair refit failed")  # fmt: skip
+        return _attempt(
+            lambda: _evaluate_in_round(s, rnd, f"{one[0]}+{other[0]}", model_pair, start, None, members),
+            s.say,
+            "the pair refit failed",
+        )
 
     for _, model_pair, start, one, other in chosen:
         result = refit(model_pair, start, one, other)
@@ -2693,8 +2863,12 @@ def _swapped_pairs(refitted: dict, pairs_tried: list, shorts: list, thresholds: 
     of 70001 samples."""
     best_single = max(refitted.values(), key=lambda c: c.delta_bic, default=None)
     best = pairs_tried[0] if pairs_tried else None
-    if (best is None or best_single is None or not best.adequate_after
-            or best.delta_bic <= _pair_bar(best_single, thresholds)):  # fmt: skip
+    if (
+        best is None
+        or best_single is None
+        or not best.adequate_after
+        or best.delta_bic <= _pair_bar(best_single, thresholds)
+    ):
         return []
     members = best.effect.split("+")
     if not all(n in refitted for n in members):
@@ -2704,7 +2878,9 @@ def _swapped_pairs(refitted: dict, pairs_tried: list, shorts: list, thresholds: 
     # as strong alone as the weaker member, and behind the named one by less than the pair gains over it
     bar = max(refitted[weak].delta_bic, 2.0 * refitted[strong].delta_bic - best.delta_bic)
     tried = {frozenset(p.effect.split("+")) for p in pairs_tried}
-    rivals = sorted((c for n, c in refitted.items() if n not in members and c.delta_bic >= bar), key=lambda c: -c.delta_bic)
+    rivals = sorted(
+        (c for n, c in refitted.items() if n not in members and c.delta_bic >= bar), key=lambda c: -c.delta_bic
+    )
     swaps = []
     for c in rivals:
         wanted = frozenset((c.effect, weak))
@@ -2729,15 +2905,18 @@ def _swap_start(best: CandidateResult, singles: dict, model_pair: Model, start) 
     `training` is named, where `thermal` was."""
     new = next((n for n in model_pair.effect_names if n not in best.fit.model.effect_names), None)
     single = singles.get(new)
-    if single is None or not (_same_threshold_sign(best.fit.model, single.fit.model)
-                              and _same_threshold_sign(best.fit.model, model_pair)):  # fmt: skip
+    if single is None or not (
+        _same_threshold_sign(best.fit.model, single.fit.model) and _same_threshold_sign(best.fit.model, model_pair)
+    ):
         return start
     kept = _embed(best.fit.model, best.fit.theta, model_pair, drop_extra=True)
     point = _with_values(model_pair, kept, _effect_values(single.fit.model, single.fit.theta, new))
     return point if model_pair.in_bounds(point)[0] else start
 
 
-def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, common, thresholds, record=None) -> _Verdict:
+def _pair_verdict(
+    rnd: _Round, best: CandidateResult, rival, pairs_tried: list, common, thresholds, record=None
+) -> _Verdict:
     """Verdict from the best single candidate and the best pair (the model with the higher
     delta BIC decides: BIC charges the second effect's parameters, so a pair wins only when
     both effects are needed); ``unexplained`` when neither can be named.
@@ -2773,7 +2952,9 @@ def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, 
         # explained by thermal + creep)
         members = [n for n in top.effect.split("+") if common is None or n in common]
         # delta BIC alone: the whole-record refit's, else the working copy's short refit's
-        single = {c.effect: c.delta_bic for c in _unrefitted_candidates(rnd)} | {c.effect: c.delta_bic for c in refitted}
+        single = {c.effect: c.delta_bic for c in _unrefitted_candidates(rnd)} | {
+            c.effect: c.delta_bic for c in refitted
+        }
         first = max(members, key=lambda n: single.get(n, -math.inf))
         second_name = [n for n in top.effect.split("+") if n != first][0]
         verdict.status, verdict.missing = "missing_effect", first
@@ -2789,12 +2970,17 @@ def _pair_verdict(rnd: _Round, best: CandidateResult, rival, pairs_tried: list, 
 def _pairs_apart_text(record, competitive: list, thresholds: Thresholds) -> str:
     """Why the pairs ``competitive`` (best first) are not told apart from the best, as a clause."""
     best = competitive[0]
-    far = [(p, _gap_z(record, best, p)[1]) for p in competitive[1:]
-           if p.delta_bic <= best.delta_bic - thresholds.bic_significant]  # fmt: skip
+    far = [
+        (p, _gap_z(record, best, p)[1])
+        for p in competitive[1:]
+        if p.delta_bic <= best.delta_bic - thresholds.bic_significant
+    ]
     text = f"within {thresholds.bic_significant:g} in delta BIC"
     if far:
-        text += " or " + ", ".join(f"'{p.effect}' {_below_text(z, thresholds.gap_z)}" for p, z in far) + (
-            f" noise standard deviations of the gap (< {thresholds.gap_z:g})"
+        text += (
+            " or "
+            + ", ".join(f"'{p.effect}' {_below_text(z, thresholds.gap_z)}" for p, z in far)
+            + (f" noise standard deviations of the gap (< {thresholds.gap_z:g})")
         )
     return text
 
@@ -2812,7 +2998,8 @@ def _why_first(first: str, members: list, single: dict, pairs_tried: list, thres
             f"Add '{first}', the effect common to every pair the record cannot tell from the best ({listed}: "
             + _pairs_apart_text(record, competitive, thresholds)
             + "), and diagnose again; these pairs do not tell which other effect is missing ("
-            + " or ".join(f"'{n}'" for n in partners) + ")."
+            + " or ".join(f"'{n}'" for n in partners)
+            + ")."
         )
     other = [n for n in members if n != first]
     if other and first in single and other[0] in single:
@@ -2823,8 +3010,18 @@ def _why_first(first: str, members: list, single: dict, pairs_tried: list, thres
     return f"Add '{first}' and diagnose again."
 
 
-def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, ambiguous_pairs, pairs_tried,
-                        tests_text: str, thresholds: Thresholds, record=None) -> str:  # fmt: skip
+def _unexplained_reason(
+    rnd: _Round,
+    best,
+    rival,
+    significant: bool,
+    common,
+    ambiguous_pairs,
+    pairs_tried,
+    tests_text: str,
+    thresholds: Thresholds,
+    record=None,
+) -> str:
     """Why nothing is named: no candidate helps, ambiguous pairs, two rival singles, or none leaves the noise."""
     adequacy = rnd.adequacy
     where = _where_summary(rnd.profile)
@@ -2846,9 +3043,11 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
     if common is not None and not common and len(ambiguous_pairs) > 1:
         singles = "no single candidate leaves the noise"
         if best.adequate_after and rival is not None:  # an adequate best single, but with a rival
-            singles = (f"'{best.effect}' alone leaves a residual consistent with the noise (delta BIC "
-                       f"{best.delta_bic:.0f}) but the record cannot tell it from '{rival.effect}' "
-                       f"({rival.delta_bic:.0f})")  # fmt: skip
+            singles = (
+                f"'{best.effect}' alone leaves a residual consistent with the noise (delta BIC "
+                f"{best.delta_bic:.0f}) but the record cannot tell it from '{rival.effect}' "
+                f"({rival.delta_bic:.0f})"
+            )
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma); {singles}, and pairs with no effect "
@@ -2859,17 +3058,24 @@ def _unexplained_reason(rnd: _Round, best, rival, significant: bool, common, amb
     if rival is not None and significant:
         pair = pairs_tried[0] if pairs_tried else None
         pair_text = ""
-        if (pair is not None and best.adequate_after and best.delta_bic < pair.delta_bic
-                and not _pair_beats(best, pair, thresholds, rnd.fit)):  # fmt: skip
-            pair_text = f" The best pair, '{pair.effect}' ({pair.delta_bic:.0f}), " + _pair_too_small_text(
-                best, pair, thresholds, rnd.fit.noise.sigma
-            ) + ", so it does not decide either."
+        if (
+            pair is not None
+            and best.adequate_after
+            and best.delta_bic < pair.delta_bic
+            and not _pair_beats(best, pair, thresholds, rnd.fit)
+        ):
+            pair_text = (
+                f" The best pair, '{pair.effect}' ({pair.delta_bic:.0f}), "
+                + _pair_too_small_text(best, pair, thresholds, rnd.fit.noise.sigma)
+                + ", so it does not decide either."
+            )
         return (
             f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
             f"{adequacy.size_ratio:.2f} sigma), and two candidates explain it about equally well: "
             f"'{best.effect}' (delta BIC {best.delta_bic:.0f}) and '{rival.effect}' ({rival.delta_bic:.0f}), "
             f"{_apart_text(record, best, rival, thresholds)}, so "
-            f"neither is named.{pair_text}{_telling_apart(best.effect, rival.effect)} Candidates: {candidates_text}. {where}"
+            f"neither is named.{pair_text}{_telling_apart(best.effect, rival.effect)} Candidates: {candidates_text}. "
+            f"{where}"
         )
     return (
         f"The residual is not noise ({', '.join(adequacy.failed)} test; non-noise part "
@@ -2946,27 +3152,44 @@ def _pair_beats_adequate_single(
     if beaten and common is not None and not common:
         return paired, common, ambiguous_pairs  # unexplained: the best pairs disagree
     if not beaten:
-        without = [p for p in pairs_tried if best.effect not in p.effect.split("+")
-                   and (p.delta_bic > best.delta_bic or _tied(s.record, best, p, thresholds))]  # fmt: skip
+        without = [
+            p
+            for p in pairs_tried
+            if best.effect not in p.effect.split("+")
+            and (p.delta_bic > best.delta_bic or _tied(s.record, best, p, thresholds))
+        ]
         if without:
-            return _Verdict("unexplained", None, _single_or_pairs_reason(rnd, best, without, pairs_tried, thresholds, s.record),
-                            pair, pairs_tried), common, ambiguous_pairs  # fmt: skip
+            return (
+                _Verdict(
+                    "unexplained",
+                    None,
+                    _single_or_pairs_reason(rnd, best, without, pairs_tried, thresholds, s.record),
+                    pair,
+                    pairs_tried,
+                ),
+                common,
+                ambiguous_pairs,
+            )
     single.pair, single.pairs_tried = pair, pairs_tried
     return single, common, ambiguous_pairs
 
 
-def _single_or_pairs_reason(rnd: _Round, best: CandidateResult, without: list, pairs_tried: list,
-                            thresholds: Thresholds, record) -> str:  # fmt: skip
+def _single_or_pairs_reason(
+    rnd: _Round, best: CandidateResult, without: list, pairs_tried: list, thresholds: Thresholds, record
+) -> str:
     """Why an adequate single candidate is not named when pairs without its effect fit about as
     well (:func:`_pair_beats_adequate_single`)."""
     listed = []
     for p in without:
         if p.delta_bic > best.delta_bic:
-            listed.append(f"'{p.effect}' {p.delta_bic:.0f}: " + _pair_too_small_text(best, p, thresholds, rnd.fit.noise.sigma))
+            listed.append(
+                f"'{p.effect}' {p.delta_bic:.0f}: " + _pair_too_small_text(best, p, thresholds, rnd.fit.noise.sigma)
+            )
         else:
             listed.append(f"'{p.effect}' {p.delta_bic:.0f}: {_apart_text(record, best, p, thresholds)}")
     return (
-        f"The residual is not noise ({_tests_text(rnd.adequacy, thresholds)}). '{best.effect}' alone leaves a residual consistent with the noise "
+        f"The residual is not noise ({_tests_text(rnd.adequacy, thresholds)}). '{best.effect}' alone leaves a "
+        "residual consistent with the noise "
         f"(delta BIC {best.delta_bic:.0f}), but pairs without it fit about as well ("
         + "; ".join(listed)
         + "), so the data do not say which effect is missing and none is named. "
@@ -2985,21 +3208,30 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
     rival = _rival(best, refitted, thresholds, s.record) if best is not None else None
     if significant and best.adequate_after and rival is None:
         if _practical(rnd.fit, best, thresholds):
-            verdict = _Verdict("missing_effect", best.effect, (
-                f"Adding '{best.effect}' explains {100 * best.explained:.0f} % of the misfit "
-                f"(delta BIC {best.delta_bic:.0f}) and leaves a residual consistent with the noise."
-            ))  # fmt: skip
+            verdict = _Verdict(
+                "missing_effect",
+                best.effect,
+                (
+                    f"Adding '{best.effect}' explains {100 * best.explained:.0f} % of the misfit "
+                    f"(delta BIC {best.delta_bic:.0f}) and leaves a residual consistent with the noise."
+                ),
+            )
             if thresholds.try_pairs:
                 verdict, common, ambiguous_pairs = _pair_beats_adequate_single(s, rnd, best, verdict)
         else:  # the best candidate absorbs a small structure that does not matter against the noise
             change, size = _practical_size(rnd.fit, best)
-            verdict = _Verdict("adequate", None, (
-                f"The residual is at the noise level up to a small misfit ({tests_text[0].lower()}{tests_text[1:]}); "
-                f"the best candidate, '{best.effect}' (delta BIC {best.delta_bic:.0f}), would change the RMS by "
-                f"{100 * change:.2f} % and explain {size:.2f} sigma of structure: below the practical size "
-                f"({100 * thresholds.practical_rms_change:g} % and {thresholds.structure_floor:g} sigma), so it is "
-                f"not a finding and nothing is named."
-            ))  # fmt: skip
+            verdict = _Verdict(
+                "adequate",
+                None,
+                (
+                    "The residual is at the noise level up to a small misfit "
+                    f"({tests_text[0].lower()}{tests_text[1:]}); "
+                    f"the best candidate, '{best.effect}' (delta BIC {best.delta_bic:.0f}), would change the RMS by "
+                    f"{100 * change:.2f} % and explain {size:.2f} sigma of structure: below the practical size "
+                    f"({100 * thresholds.practical_rms_change:g} % and {thresholds.structure_floor:g} sigma), so it is "
+                    f"not a finding and nothing is named."
+                ),
+            )
     elif significant and thresholds.try_pairs and best.explained >= thresholds.explained_minor:
         # No single candidate leaves the noise (or two do about equally well), so the best one
         # alone cannot be trusted: pairs are tried
@@ -3007,7 +3239,16 @@ def _inadequate_verdict(s: _Setting, rnd: _Round, tests_text: str) -> _Verdict:
         verdict = _pair_verdict(rnd, best, rival, pairs_tried, common, thresholds, s.record)
     if verdict.status == "unexplained" and not verdict.reason:
         verdict.reason = _unexplained_reason(
-            rnd, best, rival, significant, common, ambiguous_pairs, verdict.pairs_tried, tests_text, thresholds, s.record
+            rnd,
+            best,
+            rival,
+            significant,
+            common,
+            ambiguous_pairs,
+            verdict.pairs_tried,
+            tests_text,
+            thresholds,
+            s.record,
         )
     return verdict
 
@@ -3223,8 +3464,9 @@ def diagnose(
     redundant = [name for name in candidates if exact_reparametrisation(record, fit.model, fit.theta, name)]
     candidates = [name for name in candidates if name not in redundant]
     quiet, noise_ref = _noise_reference(record, fit, noise, quiet)
-    setting = _Setting(record, work, quiet, noise_ref, thresholds, n_starts, rng, say, candidates, redundant,
-                       sign_baselines)  # fmt: skip
+    setting = _Setting(
+        record, work, quiet, noise_ref, thresholds, n_starts, rng, say, candidates, redundant, sign_baselines
+    )
     rnd = _diagnosis_rounds(setting, fit)
     others = _unrefitted_candidates(rnd)
     ranking = rnd.refitted + others + _not_identifiable(redundant, rnd) + list(rnd.failed.values())
@@ -3282,30 +3524,36 @@ def _gap_table(record, candidates) -> list:
     rows = []
     for other in fitted[1:]:
         sd = _gap_sd_of_whitened(best, _whitened(record, other.fit), fitted[0].n_eff)
-        rows.append({"better": fitted[0].effect, "other": other.effect,
-                     "gap": float(fitted[0].delta_bic - other.delta_bic), "noise_sd": float(sd)})  # fmt: skip
+        rows.append(
+            {
+                "better": fitted[0].effect,
+                "other": other.effect,
+                "gap": float(fitted[0].delta_bic - other.delta_bic),
+                "noise_sd": float(sd),
+            }
+        )
     return rows
 
 
 def gap_noise_sd(record, better: CandidateResult, other: CandidateResult) -> float:
     r"""Standard deviation that the record's noise gives the gap between two refitted
-    candidates' delta BICs (``better``'s minus ``other``'s), in delta BIC units.
+        candidates' delta BICs (``better``'s minus ``other``'s), in delta BIC units.
 
-    With :math:`w_b, w_o` the two fits' whitened residuals and :math:`d = w_o - w_b` the
-    difference of their predictions (whitened), the chi-square gap is
-    :math:`\sum (w_o^2 - w_b^2) = \sum d^2 + 2 \sum d\, w_b`: for fixed predictions its noise
-    part :math:`2 \sum d\, e` has the standard deviation :math:`2 \sigma_w \lVert d 
-Vert`
-    (:math:`\sigma_w^2 = \chi^2_b / n`, the whitened noise's variance), and the delta BICs,
-    :math:`n_\mathrm{eff} \ln(\chi^2_0/\chi^2)`, carry it scaled by
-    :math:`n_\mathrm{eff} / \chi^2_b`. This is the comparison of two non-nested models by the
-    spread of their pointwise fit differences (Vuong 1989), with the noise's own variance for
-    the spread. When one model is the truth, the gap is about :math:`\lVert d 
-Vert^2` and
-    the ratio gap / sd is :math:`\lVert d 
-Vert / 2`; when two approximations that differ
-    widely fit about equally well, the ratio is small, and another realisation of the same
-    noise could reverse their order, however large the gap is beside 10.
+        With :math:`w_b, w_o` the two fits' whitened residuals and :math:`d = w_o - w_b` the
+        difference of their predictions (whitened), the chi-square gap is
+        :math:`\sum (w_o^2 - w_b^2) = \sum d^2 + 2 \sum d\, w_b`: for fixed predictions its noise
+        part :math:`2 \sum d\, e` has the standard deviation :math:`2 \sigma_w \lVert d
+    Vert`
+        (:math:`\sigma_w^2 = \chi^2_b / n`, the whitened noise's variance), and the delta BICs,
+        :math:`n_\mathrm{eff} \ln(\chi^2_0/\chi^2)`, carry it scaled by
+        :math:`n_\mathrm{eff} / \chi^2_b`. This is the comparison of two non-nested models by the
+        spread of their pointwise fit differences (Vuong 1989), with the noise's own variance for
+        the spread. When one model is the truth, the gap is about :math:`\lVert d
+    Vert^2` and
+        the ratio gap / sd is :math:`\lVert d
+    Vert / 2`; when two approximations that differ
+        widely fit about equally well, the ratio is small, and another realisation of the same
+        noise could reverse their order, however large the gap is beside 10.
     """
     return _gap_sd_of_whitened(_whitened(record, better.fit), _whitened(record, other.fit), better.n_eff)
 
@@ -3475,8 +3723,10 @@ def _pair_pool(rnd: _Round, thresholds) -> list:
     # one refitted with the other threshold sign (_retry_other_sign) is not nested in the pairs
     # of the baseline's sign: the refit in the baseline's sign that it replaced enters instead
     # (rnd.replaced), else its short refit (below)
-    nested = [c if c.fit is not None and _same_threshold_sign(c.fit.model, fit.model) else rnd.replaced.get(c.effect)
-              for c in rnd.refitted]  # fmt: skip
+    nested = [
+        c if c.fit is not None and _same_threshold_sign(c.fit.model, fit.model) else rnd.replaced.get(c.effect)
+        for c in rnd.refitted
+    ]
     for c in sorted([c for c in nested if c is not None], key=lambda c: -c.delta_bic):
         if c.delta_bic > 0.0 and c.effect not in seen:
             model_e = fit.model + c.effect
@@ -3528,7 +3778,7 @@ def _short_pair(work, fit, one, other, shapes=None) -> tuple[float, Model, np.nd
     model_pair = fit.model + [one[0], other[0]]
     shapes = {} if shapes is None else shapes
     starts, values = [], {}
-    for (name_a, model_a, theta_a), (name_b, model_b, theta_b) in ((one, other), (other, one)):
+    for (_name_a, model_a, theta_a), (name_b, model_b, theta_b) in ((one, other), (other, one)):
         b_values = _effect_values(model_b, theta_b, name_b)
         values |= b_values
         member = _embed(model_a, theta_a, model_pair)
@@ -3564,8 +3814,14 @@ def _short_pair_from_flipped_single(s: _Setting, fit: FitResult, one, other, mem
     baseline's sign, 155 from creep's fit of the other sign, with a lower short refit.
     """
     names = (one[0], other[0])
-    flipped = min(((member_fits[n][0], n) for n in names if n in member_fits and n in adequate
-                   and not _same_threshold_sign(member_fits[n][1].model, fit.model)), default=None)  # fmt: skip
+    flipped = min(
+        (
+            (member_fits[n][0], n)
+            for n in names
+            if n in member_fits and n in adequate and not _same_threshold_sign(member_fits[n][1].model, fit.model)
+        ),
+        default=None,
+    )
     if flipped is None:
         return None
     name_m = flipped[1]
@@ -3573,7 +3829,9 @@ def _short_pair_from_flipped_single(s: _Setting, fit: FitResult, one, other, mem
     partner, partner_model, partner_theta = other if name_m == one[0] else one
     if partner in member_fits and _same_threshold_sign(member_fits[partner][1].model, fit_m.model):
         partner_model, partner_theta = member_fits[partner][1].model, member_fits[partner][1].theta
-    s.say(f"short refit with '{names[0]}' and '{names[1]}' together with the other threshold sign, from '{name_m}' there")
+    s.say(
+        f"short refit with '{names[0]}' and '{names[1]}' together with the other threshold sign, from '{name_m}' there"
+    )
     model_pair = _plain_of(fit_m.model, fit.model) + list(names)
     alone = _embed(fit_m.model, fit_m.theta, model_pair)
     both = _with_values(model_pair, alone, _effect_values(partner_model, partner_theta, partner))

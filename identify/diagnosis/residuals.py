@@ -207,7 +207,10 @@ class CycleStatistics:
         return int(self.start.size)
 
     def to_dict(self) -> dict:
-        return {k: [float(x) for x in getattr(self, k)] for k in ("t_start", "t_stop", "rms", "max_abs", "mean", "max_error_pct")}
+        return {
+            k: [float(x) for x in getattr(self, k)]
+            for k in ("t_start", "t_stop", "rms", "max_abs", "mean", "max_error_pct")
+        }
 
 
 def cycle_statistics(time, residual, reversals: Reversals, output_range) -> CycleStatistics:
@@ -583,7 +586,10 @@ def _log_sf_chi2_sum(q: float, m: int, scale: float, dof: int) -> float:
     u = half * (_LEGENDRE_NODES + 1.0)
     y = u * u
     log_terms = (
-        stats.chi2.logpdf(y, dof) + np.log(2.0 * u) + stats.chi2.logsf(q - scale * y, m) + np.log(half * _LEGENDRE_WEIGHTS)
+        stats.chi2.logpdf(y, dof)
+        + np.log(2.0 * u)
+        + stats.chi2.logsf(q - scale * y, m)
+        + np.log(half * _LEGENDRE_WEIGHTS)
     )
     return float(min(np.logaddexp(special.logsumexp(log_terms), stats.chi2.logsf(top, dof)), 0.0))
 
@@ -931,13 +937,34 @@ def residual_profile(
     filter_dof = max(noise.order, 1)  # the whitening filter's estimated coefficients (at least one: the order choice)
     tests = {
         "variance": variance_ratio_test(r_en, noise, n_fitted),
-        "ljung_box": ljung_box(noise.whiten(r), n_lags, filter_error=t.size / noise.n_samples * filter_dof, filter_dof=filter_dof),
+        "ljung_box": ljung_box(
+            noise.whiten(r), n_lags, filter_error=t.size / noise.n_samples * filter_dof, filter_dof=filter_dof
+        ),
         "low_frequency": low_frequency_test(r, noise, block),
     }
     rms = float(np.sqrt(np.mean(r_en**2)))
     max_abs = float(np.abs(r_en).max())
     return ResidualProfile(
-        t, v, r, energised, reversals, direction, rate, since, rising, falling, by_rate, by_since,
-        cycles, extrema, lags, residual_acf, quiet_acf, noise, tests, rms, max_abs,
+        t,
+        v,
+        r,
+        energised,
+        reversals,
+        direction,
+        rate,
+        since,
+        rising,
+        falling,
+        by_rate,
+        by_since,
+        cycles,
+        extrema,
+        lags,
+        residual_acf,
+        quiet_acf,
+        noise,
+        tests,
+        rms,
+        max_abs,
         100.0 * max_abs / float(output_range),
-    )  # fmt: skip
+    )

@@ -60,8 +60,8 @@ themselves); or any callable ``f(log_post)`` returning an object with ``forward`
 
 from __future__ import annotations
 
-import numpy as np
 import emcee
+import numpy as np
 
 from model import THETA_NAMES
 
@@ -154,8 +154,11 @@ class GPICoordinates:
                     blocks.append(node)
         self.blocks = tuple(blocks)
         #: The thermal blocks in use: (index into ``_thermal_scales``, time constant, gains).
-        self._thermal = [(k, tau_name, gains) for k, (node, (tau_name, *gains)) in enumerate(_THERMAL_NODES.items())
-                         if node in self.blocks]  # fmt: skip
+        self._thermal = [
+            (k, tau_name, gains)
+            for k, (node, (tau_name, *gains)) in enumerate(_THERMAL_NODES.items())
+            if node in self.blocks
+        ]
 
     @classmethod
     def for_model(cls, model, time, current, names=None, lower=None):
@@ -391,8 +394,9 @@ class GPICoordinates:
         for n in ("a1", "b1", "c1", "d1", "rho", "a0", "b0"):
             lower[names.index(n)] = 1e-3
         x = np.array([TABLE1[THETA_NAMES.index(n)] for n in names])
-        return dict(names=names, template=TABLE1, n_operators=12, input_range=(0.0, 5.0), lower=lower,
-                    tau_bounds=(-5.0, 5.0)), x  # fmt: skip
+        return dict(
+            names=names, template=TABLE1, n_operators=12, input_range=(0.0, 5.0), lower=lower, tau_bounds=(-5.0, 5.0)
+        ), x
 
 
 def _identity(log_post):
@@ -435,7 +439,9 @@ class CoordinateMove(emcee.moves.RedBlueMove):
     """
 
     def __init__(self, move, coordinates):
-        super().__init__(nsplits=move.nsplits, randomize_split=move.randomize_split, live_dangerously=move.live_dangerously)
+        super().__init__(
+            nsplits=move.nsplits, randomize_split=move.randomize_split, live_dangerously=move.live_dangerously
+        )
         self.move = move
         self.coordinates = coordinates
         self._x = self._u = self._log_det = None  # the ensemble, its coordinates and log-determinants

@@ -53,7 +53,6 @@ NEAR_RATIO = 1e-8
 NEAR_RELATIVE_STD = 0.05
 
 
-
 @dataclass(frozen=True)
 class Direction:
     """One eigen-direction of the scaled Fisher information.
@@ -83,7 +82,10 @@ class Direction:
     def describe(self) -> str:
         """E.g. ``"+0.41 rho -0.41 alpha ... (lambda = 3.2e-12, rel. std inf)"``."""
         terms = " ".join(f"{w:+.2f} {n}" for n, w in self.combination.items())
-        return f"{terms}  (lambda = {self.eigenvalue:.3g}, lambda/lambda_max = {self.ratio:.2g}, rel. std {self.relative_std:.3g})"
+        return (
+            f"{terms}  (lambda = {self.eigenvalue:.3g}, lambda/lambda_max = {self.ratio:.2g}, rel. std "
+            f"{self.relative_std:.3g})"
+        )
 
     def to_dict(self) -> dict:
         return {
@@ -197,7 +199,9 @@ def analyse_identifiability(
     theta = np.asarray(theta, dtype=float)
     names = tuple(names)
     if jac.ndim != 2 or jac.shape[1] != len(names) or theta.shape != (len(names),):
-        raise ValueError(f"jacobian (T, P) and theta (P,) must match {len(names)} names; got {jac.shape}, {theta.shape}")
+        raise ValueError(
+            f"jacobian (T, P) and theta (P,) must match {len(names)} names; got {jac.shape}, {theta.shape}"
+        )
     scales, fisher = _scaled_fisher(jac, theta)
     eigenvalues, eigenvectors = np.linalg.eigh(fisher)
     lam_max = float(eigenvalues[-1])

@@ -35,8 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["MAX_POINTWISE", "FILE", "write_inference_data", "write_chain_attributes", "sampled_units",
-           "pointwise_log_likelihood"]  # fmt: skip
+__all__ = [
+    "MAX_POINTWISE",
+    "FILE",
+    "write_inference_data",
+    "write_chain_attributes",
+    "sampled_units",
+    "pointwise_log_likelihood",
+]
 
 #: Largest number of draws x record samples in the pointwise groups (float64: 32 MB each).
 MAX_POINTWISE = 4_000_000
@@ -131,8 +137,13 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
         observed_data={"displacement": data},
         coords={"time": time},
         dims={"displacement": ["time"]},
-        attrs={"source": "msma-gpi study", "input_unit": record.input_unit, "output_unit": unit_out,
-               "discard": int(posterior.discard), "thin": int(posterior.thin)},  # fmt: skip
+        attrs={
+            "source": "msma-gpi study",
+            "input_unit": record.input_unit,
+            "output_unit": unit_out,
+            "discard": int(posterior.discard),
+            "thin": int(posterior.thin),
+        },
     )
     pointwise_groups = az.from_dict(
         log_likelihood={"displacement": pointwise.reshape(shape)},

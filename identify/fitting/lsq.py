@@ -303,15 +303,20 @@ class FitResult:
             "message": str(self.message),
             "seconds": float(self.seconds),
             "starts": [
-                {"label": s.label, "chi2": _float(s.chi2), "n_evaluations": s.n_evaluations,
-                 "success": s.success, "message": s.message}
+                {
+                    "label": s.label,
+                    "chi2": _float(s.chi2),
+                    "n_evaluations": s.n_evaluations,
+                    "success": s.success,
+                    "message": s.message,
+                }
                 for s in self.starts
             ],
             "terms": [dict(t) for t in self.terms],
-        }  # fmt: skip
+        }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "FitResult":
+    def from_dict(cls, d: dict) -> FitResult:
         """Inverse of :meth:`to_dict` (the model is rebuilt with the same pins)."""
         theta = _array(d["theta"])
         vary = np.asarray(d["vary"], dtype=bool)
@@ -326,7 +331,9 @@ class FitResult:
             settings.append(p.with_(value=value, vary=bool(vary[i]), lower=float(lower[i]), upper=float(upper[i])))
         model = base.with_parameters(settings)
         starts = [
-            StartOutcome(s["label"], _unfloat(s["chi2"], math.inf), int(s["n_evaluations"]), bool(s["success"]), s["message"])
+            StartOutcome(
+                s["label"], _unfloat(s["chi2"], math.inf), int(s["n_evaluations"]), bool(s["success"]), s["message"]
+            )
             for s in d.get("starts", [])
         ]
         return cls(
@@ -749,12 +756,13 @@ def solver_verdict(sol, stall: StallStop | None = None) -> tuple[bool, str]:
     :class:`StallStop` the run was given; default the default rule)."""
     if sol.status == STALLED:
         stall = StallStop() if stall is None else stall
-        return True, (f"stalled: the chi-square fell by less than {stall.chi2:g} over the last "
-                      f"{stall.window} iterations")  # fmt: skip
+        return True, (
+            f"stalled: the chi-square fell by less than {stall.chi2:g} over the last {stall.window} iterations"
+        )
     return bool(sol.success), str(sol.message)
 
 
-def bounded_solve(residuals: "WhitenedResiduals", x0, max_nfev, method=SOLVER_METHOD, tolerance=TOLERANCE):
+def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METHOD, tolerance=TOLERANCE):
     """One bounded solver run on ``residuals`` from free vector ``x0``: ``method`` with
     Jacobian scaling, relative tolerances ``tolerance`` and the stall rule (:class:`StallStop`).
     The diagnosis' short refits and polishes run it too."""
@@ -773,7 +781,7 @@ def bounded_solve(residuals: "WhitenedResiduals", x0, max_nfev, method=SOLVER_ME
     )
 
 
-def _converged(residuals: "WhitenedResiduals", sol, note: str = "") -> "_PolishedStart":
+def _converged(residuals: WhitenedResiduals, sol, note: str = "") -> _PolishedStart:
     """``sol`` run on to convergence with :data:`SOLVER_METHOD` when it stopped at its
     evaluation cap (status 0), as a :class:`_PolishedStart` (``note`` appended to the message)."""
     if sol.status == 0:
@@ -782,7 +790,7 @@ def _converged(residuals: "WhitenedResiduals", sol, note: str = "") -> "_Polishe
     return _PolishedStart(np.asarray(sol.x, dtype=float), 2.0 * float(sol.cost), success, f"{message}{note}")
 
 
-def _gpi_at_bound(residuals: "WhitenedResiduals", x) -> list[str]:
+def _gpi_at_bound(residuals: WhitenedResiduals, x) -> list[str]:
     """Names of the free GPI parameters of free vector ``x`` that sit on a box bound."""
     n_gpi = len(THETA_NAMES)
     names = []
@@ -807,7 +815,16 @@ class _PolishedStart:
 
 
 def fit_least_squares(
-    record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=N_POLISH, threshold_sign="auto"
+    record,
+    model: Model,
+    *,
+    noise=None,
+    start=None,
+    n_starts=8,
+    rng=None,
+    verbose=False,
+    n_polish=N_POLISH,
+    threshold_sign="auto",
 ) -> FitResult:
     """Least-squares fit of ``model`` to ``record`` (method in the module docstring).
 
@@ -846,6 +863,7 @@ def fit_least_squares(
             failures.append(f"alpha {'>' if sign > 0 else '<'} 0: {exc}")
     if not fits:
         raise ValueError("; ".join(failures))
+
     # Compare the whitened chi-square in the caller's noise units: with a free sigma each
     # fit's reduced chi-square is 1 by construction, so rescale by its own sigma estimate.
     def mean_square(f):
@@ -871,7 +889,9 @@ def fit_least_squares(
     return best
 
 
-def _fit_one_sign(record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=N_POLISH) -> FitResult:
+def _fit_one_sign(
+    record, model: Model, *, noise=None, start=None, n_starts=8, rng=None, verbose=False, n_polish=N_POLISH
+) -> FitResult:
     """Least-squares fit of ``model`` as given (its pinned parameters, alpha's sign included).
 
     The steps: the checks (:func:`_checked_residuals`), the starts
@@ -970,8 +990,11 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
                 screened.append((label, sol, residuals.n_evaluations - before))
                 alternate.append(sol_alternate)
                 origins.append(x0)
-                _log.log(log.level, f"  screen {label:<14} chi2 = {2 * sol.cost:.6g} ({SOLVER_METHOD}), "
-                                    f"{2 * sol_alternate.cost:.6g} ({ALTERNATE_METHOD})")  # fmt: skip
+                _log.log(
+                    log.level,
+                    f"  screen {label:<14} chi2 = {2 * sol.cost:.6g} ({SOLVER_METHOD}), "
+                    f"{2 * sol_alternate.cost:.6g} ({ALTERNATE_METHOD})",
+                )
             # Phase 2: run the most promising ends to convergence: the n_polish best after
             # dogbox's screening, and the N_POLISH_ALTERNATE best after trf's.
             order = sorted(range(len(screened)), key=lambda k: screened[k][1].cost)
@@ -990,7 +1013,9 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
                     before = residuals.n_evaluations
                     end = _converged(residuals, alternate[k], f" (run on from {ALTERNATE_METHOD}'s screening)")
                     screening = 0 if k in polish else n_eval  # the screening's evaluations, counted once
-                    log.keep(f"{label} ({ALTERNATE_METHOD} screening)", end, screening + residuals.n_evaluations - before)
+                    log.keep(
+                        f"{label} ({ALTERNATE_METHOD} screening)", end, screening + residuals.n_evaluations - before
+                    )
             _polish_at_bound(residuals, screened, origins, polish, log)
             _polish_in_coordinates(residuals, log)
     finally:
@@ -1006,8 +1031,7 @@ def _polish_at_bound(residuals, screened, origins, polish, log: _StartLog) -> No
     gpi_at_bound = _gpi_at_bound(residuals, log.best.x)
     if not gpi_at_bound:
         return
-    note = (f" ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum "
-            f"had {', '.join(gpi_at_bound)} on a bound)")  # fmt: skip
+    note = f" ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum had {', '.join(gpi_at_bound)} on a bound)"
     for k in sorted(polish):
         before = residuals.n_evaluations
         sol = bounded_solve(residuals, origins[k], POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
@@ -1076,8 +1100,18 @@ def _polish_in_coordinates(residuals: WhitenedResiduals, log: _StartLog) -> None
             continue
         if not np.isfinite(u0).all():
             continue
-        sol = least_squares(in_u, u0, jac=in_u.jacobian, method=ALTERNATE_METHOD, x_scale="jac", ftol=TOLERANCE,
-                            xtol=TOLERANCE, gtol=TOLERANCE, max_nfev=POLISH_EVALUATIONS, callback=StallStop())  # fmt: skip
+        sol = least_squares(
+            in_u,
+            u0,
+            jac=in_u.jacobian,
+            method=ALTERNATE_METHOD,
+            x_scale="jac",
+            ftol=TOLERANCE,
+            xtol=TOLERANCE,
+            gtol=TOLERANCE,
+            max_nfev=POLISH_EVALUATIONS,
+            callback=StallStop(),
+        )
         x, inside = in_u.parameters(sol.x)
         if not inside[0]:
             continue
@@ -1088,7 +1122,7 @@ def _polish_in_coordinates(residuals: WhitenedResiduals, log: _StartLog) -> None
             log.keep(f"{label} (coordinates)", polished, residuals.n_evaluations - before)
 
 
-def _canonical(residuals: "WhitenedResiduals", x) -> np.ndarray:
+def _canonical(residuals: WhitenedResiduals, x) -> np.ndarray:
     """Free vector ``x`` in the model's canonical labelling (:meth:`model.Model.canonical_theta`,
     e.g. a two-node ``thermal`` with the faster node first): the same output, so the same
     optimum, in the half of the parameter space the posterior samples."""
@@ -1100,8 +1134,9 @@ def _canonical(residuals: "WhitenedResiduals", x) -> np.ndarray:
     return mapped if np.isfinite(residuals(mapped)).all() else x
 
 
-def _fit_result(record, model: Model, residuals, noise: NoiseModel, best: _PolishedStart, outcomes, n_starts: int,
-                t0: float) -> FitResult:  # fmt: skip
+def _fit_result(
+    record, model: Model, residuals, noise: NoiseModel, best: _PolishedStart, outcomes, n_starts: int, t0: float
+) -> FitResult:
     """The :class:`FitResult` at ``best``: a free sigma estimated from the chi-square, the
     covariance from the central Jacobian, the residual, RMS and maximum error on the energised part."""
     free = residuals.free

@@ -187,7 +187,7 @@ class NoiseModel:
         """True when sigma is a free parameter of the identification."""
         return self.source == "free"
 
-    def with_sigma(self, sigma: float) -> "NoiseModel":
+    def with_sigma(self, sigma: float) -> NoiseModel:
         """A copy with ``sigma`` replaced (e.g. the least-squares estimate of a free sigma)."""
         return replace(self, sigma=float(sigma))
 
@@ -235,7 +235,7 @@ class NoiseModel:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "NoiseModel":
+    def from_dict(cls, d: dict) -> NoiseModel:
         """Inverse of :meth:`to_dict`."""
         quiet = d.get("quiet")
         sigma = d.get("sigma")
@@ -331,8 +331,10 @@ def estimate_noise(record, *, noise_sigma=None, current_tolerance=None, min_quie
     n = quiet.stop
     where = getattr(record, "source", "the record")
     if n < min_quiet:
-        found = "no unenergised start (the first sample already carries drive)" if n == 0 else (
-            f"an unenergised start of only {n} samples (at least {min_quiet} needed)"
+        found = (
+            "no unenergised start (the first sample already carries drive)"
+            if n == 0
+            else (f"an unenergised start of only {n} samples (at least {min_quiet} needed)")
         )
         raise NoQuietSegmentError(
             f"{where}: cannot estimate the sensor noise: the record has {found}; the noise is "
@@ -573,14 +575,14 @@ def _whitened_sum_of_squares(data, model_rows, rows, rho, out):
             t3 += q3
         out[i], out[i + 1], out[i + 2], out[i + 3] = t0, t1, t2, t3
         i += 4
-    for i in range(i, n_rows):
-        r = rows[i]
+    for rest in range(i, n_rows):
+        r = rows[rest]
         previous = data[0] - model_rows[r, 0]
         total = previous * previous
         for k in range(1, n_samples):
             previous, term = _innovation_term(data[k], model_rows[r, k], previous, rho, scale)
             total += term
-        out[i] = total
+        out[rest] = total
 
 
 @njit(cache=True)
@@ -634,4 +636,3 @@ def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None
     else:
         _whitened_sum_of_squares_uneven(data, model_rows, rows, correlations, sum_of_squares)
     return _gaussian_log_likelihood(sum_of_squares / sig**2, data.shape[0], sig, noise.rho, correlations)
-

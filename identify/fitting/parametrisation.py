@@ -68,6 +68,7 @@ NORMALISATION = {"alpha": float(GPI_PARAMETERS["alpha"].value)}
 #: Lower bounds that remove the Omega envelopes' sign symmetry: parameter -> lower bound.
 SIGN_CONSTRAINTS = {"c1": 1e-3, "d1": 1e-3}
 
+
 def gpi_scaling(theta, k) -> np.ndarray:
     """Apply the exact degeneracy: ``theta`` with the 7 scaling parameters times ``k**power``.
 
@@ -249,14 +250,19 @@ def in_record_units(model: Model, record) -> Model:
     alpha_free = bool(model.parameters["alpha"].vary)
     parameters = model.parameters
     for p in model.parameters:
-        declared = {(defaults[p.name].lower, defaults[p.name].upper), (normalised[p.name].lower, normalised[p.name].upper)}
+        declared = {
+            (defaults[p.name].lower, defaults[p.name].upper),
+            (normalised[p.name].lower, normalised[p.name].upper),
+        }
         if (p.lower, p.upper) not in declared:
             continue
         if p.name in THETA_NAMES:
             power_in = -1 if p.name in _PER_INPUT else 0
             power_out = 1 if p.name in _OUTPUT else 0
             if alpha_free:
-                power_in += 1 if p.name in _INPUT_IF_FREE else (-1 if p.name in _PER_INPUT_IF_FREE or p.name == "rho" else 0)
+                power_in += (
+                    1 if p.name in _INPUT_IF_FREE else (-1 if p.name in _PER_INPUT_IF_FREE or p.name == "rho" else 0)
+                )
         else:
             power_in, power_out = _UNIT_POWERS.get(p.unit, (0, 0))
         factor = f_in**power_in * f_out**power_out

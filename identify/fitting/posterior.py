@@ -24,7 +24,8 @@ Log-posterior
 :class:`LogPosterior` is evaluated for all walkers at once (emcee ``vectorize=True``:
 ONE model call per step). It returns ``-inf`` for a walker outside the bounds *before*
 evaluating the model, and for one whose model output is not finite (the GPI itself is
-defined for every parameter set: :mod:`model.gpi`, "The whole domain"); it never raises and never returns NaN (a model error for the batch
+defined for every parameter set: :mod:`model.gpi`, "The whole domain"); it never raises and never returns NaN (a model
+error for the batch
 falls back to one row at a time; rows that still fail get ``-inf`` and are counted in
 :attr:`LogPosterior.n_errors`). The likelihood is :func:`identify.fitting.noise.log_likelihood`,
 evaluated in one fused pass (:func:`identify.fitting.noise.log_likelihood_of_rows`).
@@ -84,9 +85,9 @@ from model import Model
 from ..data.hdf5 import LOCK_WAIT_SECONDS, open_hdf5
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
+from .noise import NoiseModel, log_likelihood_of_rows
 from .parametrisation import in_record_units
 from .threads import fastest_thread_count
-from .noise import NoiseModel, log_likelihood_of_rows
 
 __all__ = [
     "ChainFileError",
@@ -138,7 +139,9 @@ class ChainBackend(emcee.backends.HDFBackend):
 
     def open(self, mode="r"):
         if self.read_only and mode != "r":
-            raise RuntimeError("The backend has been loaded in read-only mode. Set `read_only = False` to make changes.")
+            raise RuntimeError(
+                "The backend has been loaded in read-only mode. Set `read_only = False` to make changes."
+            )
         f = open_hdf5(self.filename, mode, wait=self.lock_wait)
         if not self.dtype_set and self.name in f:
             g = f[self.name]
@@ -191,9 +194,12 @@ class BufferedHDFBackend(ChainBackend):
             g.create_dataset("accepted", data=np.zeros(nwalkers))
             packed = dict(compression="gzip", compression_opts=CHAIN_GZIP_LEVEL, shuffle=True, dtype=self.dtype)
             g.create_dataset(
-                "chain", (0, nwalkers, ndim), maxshape=(None, nwalkers, ndim),
-                chunks=(CHAIN_CHUNK_STEPS, nwalkers, ndim), **packed,
-            )  # fmt: skip
+                "chain",
+                (0, nwalkers, ndim),
+                maxshape=(None, nwalkers, ndim),
+                chunks=(CHAIN_CHUNK_STEPS, nwalkers, ndim),
+                **packed,
+            )
             g.create_dataset(
                 "log_prob", (0, nwalkers), maxshape=(None, nwalkers), chunks=(CHAIN_CHUNK_STEPS, nwalkers), **packed
             )
@@ -262,9 +268,11 @@ def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
             steps = int(g.attrs["iteration"])
             chain, log_prob, accepted = g["chain"], g["log_prob"], g["accepted"]
             if (
-                chain.shape[1:] != (n_walkers, n_dim) or log_prob.shape[1:] != (n_walkers,)
-                or accepted.shape != (n_walkers,) or not 0 <= steps <= min(chain.shape[0], log_prob.shape[0])
-            ):  # fmt: skip
+                chain.shape[1:] != (n_walkers, n_dim)
+                or log_prob.shape[1:] != (n_walkers,)
+                or accepted.shape != (n_walkers,)
+                or not 0 <= steps <= min(chain.shape[0], log_prob.shape[0])
+            ):
                 raise ChainFileError(
                     f"{path} is damaged (inconsistent shapes: {steps} steps, chain {chain.shape}, "
                     f"log_prob {log_prob.shape}, accepted {accepted.shape})"
@@ -400,7 +408,8 @@ class LogPosterior:
         upper = list(model.parameters.upper[self.free])
         kinds = default_priors(model)
         kinds.update(priors or {})
-        #: the priors given (``{name: name or callable}``, e.g. :class:`identify.fitting.priors.Prior`); the rest are defaults
+        #: the priors given (``{name: name or callable}``, e.g. :class:`identify.fitting.priors.Prior`); the rest are
+        # defaults
         self.priors_used = dict(priors or {})
         unknown = set(priors or {}) - set(model.names) - {"noise_log_sigma"}
         if unknown:
@@ -439,8 +448,9 @@ class LogPosterior:
         )
         self._prior_constant = sum(
             -math.log(hi - lo) if fn is _uniform_logpdf else -math.log(math.log(hi / lo))
-            for fn, lo, hi, b in zip(self._prior_fns, self.lower, self.upper, builtin) if b
-        )  # fmt: skip
+            for fn, lo, hi, b in zip(self._prior_fns, self.lower, self.upper, builtin)
+            if b
+        )
         self._other_priors = [(j, fn) for j, (fn, b) in enumerate(zip(self._prior_fns, builtin)) if not b]
         self.n_errors = 0
 
@@ -505,7 +515,9 @@ class LogPosterior:
             if valid.any():
                 rows = ok[valid]
                 sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
-                out[rows] += log_likelihood_of_rows(self.data, y, np.flatnonzero(valid), self.noise, sigma, time=self._uneven_time)
+                out[rows] += log_likelihood_of_rows(
+                    self.data, y, np.flatnonzero(valid), self.noise, sigma, time=self._uneven_time
+                )
             out[ok[~valid]] = -np.inf
         out[~np.isfinite(out)] = -np.inf
         return float(out[0]) if x_in.ndim == 1 else out
@@ -754,7 +766,13 @@ def chain_diagnostics(draws) -> dict[str, np.ndarray]:
     # array fails with numpy 2); full precision, one variable per parameter
     data = {f"p{d}": np.ascontiguousarray(draws[:, :, d].T) for d in range(n_dim)}  # (chain, draw)
     table = az.summary(az.convert_to_dataset(data), kind="diagnostics", round_to="none")
-    columns = {"rhat": "r_hat", "ess_bulk": "ess_bulk", "ess_tail": "ess_tail", "mcse_mean": "mcse_mean", "mcse_sd": "mcse_sd"}
+    columns = {
+        "rhat": "r_hat",
+        "ess_bulk": "ess_bulk",
+        "ess_tail": "ess_tail",
+        "mcse_mean": "mcse_mean",
+        "mcse_sd": "mcse_sd",
+    }
     for key, column in columns.items():
         out[key] = np.array([float(table.loc[f"p{d}", column]) for d in range(n_dim)])
     return out
@@ -775,8 +793,9 @@ def _diagnostics_verdict(diag) -> tuple[bool, str]:
     if not (np.isfinite(rhat).all() and np.isfinite(ess).all()):
         return False, "R-hat and ESS not available (too few draws)"
     ok = bool(np.max(rhat) < RHAT_MAX and np.min(ess) >= ESS_BULK_MIN)
-    words = (f"R-hat max {np.max(rhat):.4f} (need < {RHAT_MAX:g}), "
-             f"bulk ESS min {np.min(ess):.0f} (need >= {ESS_BULK_MIN:g})")  # fmt: skip
+    words = (
+        f"R-hat max {np.max(rhat):.4f} (need < {RHAT_MAX:g}), bulk ESS min {np.min(ess):.0f} (need >= {ESS_BULK_MIN:g})"
+    )
     return ok, words
 
 
@@ -865,9 +884,20 @@ def _check_due(chain, check_every, tau_factor, cache) -> bool:
     return not (math.isfinite(tau_max) and n < tau_factor * tau_max)
 
 
-def posterior_from_backend(path, names, *, converged=None, message="", tau_factor=50.0, tau_rtol=0.05,
-                           check_every=None, seconds=0.0, n_errors=0, tau_cache=None,
-                           diagnostics_cache=None) -> PosteriorResult:
+def posterior_from_backend(
+    path,
+    names,
+    *,
+    converged=None,
+    message="",
+    tau_factor=50.0,
+    tau_rtol=0.05,
+    check_every=None,
+    seconds=0.0,
+    n_errors=0,
+    tau_cache=None,
+    diagnostics_cache=None,
+) -> PosteriorResult:
     """Summarise the chain stored in ``path`` (HDF5 backend, group :data:`BACKEND_GROUP`).
 
     ``converged``/``message`` default to the convergence rule applied to the stored
@@ -897,10 +927,22 @@ def posterior_from_backend(path, names, *, converged=None, message="", tau_facto
     ess = n_walkers * (n_steps - discard) / tau
     acceptance = float(np.mean(backend.accepted / n_steps))
     return PosteriorResult(
-        names=tuple(names), converged=bool(converged), message=message, n_walkers=n_walkers,
-        n_steps=n_steps, discard=discard, thin=thin, acceptance_fraction=acceptance, tau=tau,
-        ess=ess, samples=samples, log_prob=log_prob, seconds=seconds, n_errors=n_errors, **diag,
-    )  # fmt: skip
+        names=tuple(names),
+        converged=bool(converged),
+        message=message,
+        n_walkers=n_walkers,
+        n_steps=n_steps,
+        discard=discard,
+        thin=thin,
+        acceptance_fraction=acceptance,
+        tau=tau,
+        ess=ess,
+        samples=samples,
+        log_prob=log_prob,
+        seconds=seconds,
+        n_errors=n_errors,
+        **diag,
+    )
 
 
 def sample_posterior(
@@ -976,14 +1018,20 @@ def sample_posterior(
     start_rng = rng.spawn(1)[0]
     backend, n_walkers, resuming = _open_chain(path, log_post.ndim, n_walkers)
     sampler = emcee.EnsembleSampler(
-        n_walkers, log_post.ndim, log_post, vectorize=True, backend=backend,
+        n_walkers,
+        log_post.ndim,
+        log_post,
+        vectorize=True,
+        backend=backend,
         moves=_moves_in(MOVES[moves](), coordinates_for(coordinates, log_post)),
-    )  # fmt: skip
+    )
     state = _start_state(sampler, initial, resuming, start_rng, emcee_seed, log)
 
     from .progress import ChainProgress, progress_mode
 
-    bar = ChainProgress(done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress))
+    bar = ChainProgress(
+        done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress)
+    )
     import numba
 
     threads_before = numba.get_num_threads()
@@ -996,8 +1044,9 @@ def sample_posterior(
             done = backend.iteration
             if chain.n_steps != done:  # pragma: no cover - a bookkeeping error must not go unnoticed
                 raise RuntimeError(f"in-memory chain has {chain.n_steps} steps, the backend {done}")
-            stop, converged, message = _check(chain.view(), max_steps, check_every, tau_factor, tau_rtol, tau_cache,
-                                              bar, log, diagnostics_cache)  # fmt: skip
+            stop, converged, message = _check(
+                chain.view(), max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, log, diagnostics_cache
+            )
             if stop:
                 break
             fastest_thread_count(log_post, np.asarray(state.coords))
@@ -1010,10 +1059,18 @@ def sample_posterior(
         backend.flush()  # also on Ctrl-C: no completed step is lost
         bar.close()
     return posterior_from_backend(
-        path, log_post.names, converged=converged, message=message, tau_factor=tau_factor,
-        tau_rtol=tau_rtol, check_every=check_every, seconds=_time.perf_counter() - t0,
-        n_errors=log_post.n_errors, tau_cache=tau_cache, diagnostics_cache=diagnostics_cache,
-    )  # fmt: skip
+        path,
+        log_post.names,
+        converged=converged,
+        message=message,
+        tau_factor=tau_factor,
+        tau_rtol=tau_rtol,
+        check_every=check_every,
+        seconds=_time.perf_counter() - t0,
+        n_errors=log_post.n_errors,
+        tau_cache=tau_cache,
+        diagnostics_cache=diagnostics_cache,
+    )
 
 
 def _open_chain(path, ndim, n_walkers):
@@ -1101,8 +1158,11 @@ def _check(chain, max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, 
         if diag_ok:
             return True, True, "converged: " + msg + "; " + diag_msg
     if done >= max_steps:
-        return True, False, f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg + (
-            "; " + diag_msg if diag_msg else "")  # fmt: skip
+        return (
+            True,
+            False,
+            f"NOT CONVERGED: stopped at the cap of {max_steps} steps; " + msg + ("; " + diag_msg if diag_msg else ""),
+        )
     return False, False, ""
 
 
@@ -1153,4 +1213,3 @@ def _stop_between_steps():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-

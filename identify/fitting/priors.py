@@ -150,10 +150,14 @@ def read_priors_file(path) -> dict[str, dict]:
             raise PriorsError(f"{path}: {name!r} must be a table ([{name}] with distribution = ...), got {table!r}")
         kind = table.get("distribution")
         if kind not in DISTRIBUTIONS:
-            raise PriorsError(f"{path}: parameter {name!r}: unknown distribution {kind!r}; known: {', '.join(DISTRIBUTIONS)}")
+            raise PriorsError(
+                f"{path}: parameter {name!r}: unknown distribution {kind!r}; known: {', '.join(DISTRIBUTIONS)}"
+            )
         unknown = sorted(set(table) - _KEYS)
         if unknown:
-            raise PriorsError(f"{path}: parameter {name!r}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(_KEYS))}")
+            raise PriorsError(
+                f"{path}: parameter {name!r}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(_KEYS))}"
+            )
         missing = [k for k in DISTRIBUTIONS[kind] if k not in table]
         if missing:
             raise PriorsError(f"{path}: parameter {name!r}: a {kind} prior needs {', '.join(missing)}")
@@ -165,15 +169,20 @@ def read_priors_file(path) -> dict[str, dict]:
         if ("lower" in values) != ("upper" in values):
             raise PriorsError(f"{path}: parameter {name!r}: give both lower and upper, or neither")
         if "lower" in values and not values["lower"] < values["upper"]:
-            raise PriorsError(f"{path}: parameter {name!r}: lower {values['lower']!r} must be below upper {values['upper']!r}")
+            raise PriorsError(
+                f"{path}: parameter {name!r}: lower {values['lower']!r} must be below upper {values['upper']!r}"
+            )
         if kind == "log_uniform" and not values["lower"] > 0:
-            raise PriorsError(f"{path}: parameter {name!r}: a log_uniform prior needs lower > 0, got {values['lower']!r}")
+            raise PriorsError(
+                f"{path}: parameter {name!r}: a log_uniform prior needs lower > 0, got {values['lower']!r}"
+            )
         tables[name] = {"distribution": kind, **values}
     return tables
 
 
 def apply_priors(model, path, start=None, start_name="starting value"):
-    """The model with the file's bounds, and the ``priors`` mapping for :class:`identify.fitting.posterior.LogPosterior`.
+    """The model with the file's bounds, and the ``priors`` mapping for
+    :class:`identify.fitting.posterior.LogPosterior`.
 
     Parameters
     ----------
@@ -211,7 +220,9 @@ def apply_priors(model, path, start=None, start_name="starting value"):
             raise PriorsError(f"{path}: {name!r} is not a parameter of {model!r}; its parameters: {', '.join(names)}")
         p = parameters[name]
         if not p.vary:
-            raise PriorsError(f"{path}: parameter {name!r} is pinned at {p.value:g} (the normalisation); it takes no prior")
+            raise PriorsError(
+                f"{path}: parameter {name!r} is pinned at {p.value:g} (the normalisation); it takes no prior"
+            )
         lower, upper = table.get("lower", p.lower), table.get("upper", p.upper)
         value = p.value if start is None else float(start[names.index(name)])
         if not lower <= value <= upper:
@@ -220,7 +231,9 @@ def apply_priors(model, path, start=None, start_name="starting value"):
                 f"({'the model default' if start is None else 'where the sampler starts'}); widen them to include it"
             )
         if "mu" in table and not lower <= table["mu"] <= upper:
-            raise PriorsError(f"{path}: parameter {name!r}: mu {table['mu']:g} lies outside the bounds [{lower:g}, {upper:g}]")
+            raise PriorsError(
+                f"{path}: parameter {name!r}: mu {table['mu']:g} lies outside the bounds [{lower:g}, {upper:g}]"
+            )
         parameters = parameters.replace(name, lower=lower, upper=upper)
         priors[name] = Prior(table["distribution"], table.get("mu"), table.get("sigma"), source=str(path))
     return with_parameters(model, parameters), priors

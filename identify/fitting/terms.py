@@ -54,8 +54,11 @@ def optional_terms(model, effects=None) -> list[tuple[str, str, tuple[str, ...]]
 def _off_terms(model, effect) -> set[str]:
     """The terms of ``model``'s effect (class ``effect``) pinned at their off values."""
     parameters = model.parameters
-    return {term for term, names in effect.terms.items()
-            if all(not parameters[n].vary and parameters[n].value == effect.off[n] for n in names)}  # fmt: skip
+    return {
+        term
+        for term, names in effect.terms.items()
+        if all(not parameters[n].vary and parameters[n].value == effect.off[n] for n in names)
+    }
 
 
 def keeps_every_effect(model, switched_off) -> bool:
@@ -65,7 +68,9 @@ def keeps_every_effect(model, switched_off) -> bool:
     for effect_name, term in switched_off:
         by_effect.setdefault(effect_name, set()).add(term)
     effects = {e.name: type(e) for e in model.effects}
-    return all(effects[name].keeps_a_form(terms | _off_terms(model, effects[name])) for name, terms in by_effect.items())
+    return all(
+        effects[name].keeps_a_form(terms | _off_terms(model, effects[name])) for name, terms in by_effect.items()
+    )
 
 
 def _whitened_chi2(residual, noise, time) -> float:
@@ -162,19 +167,29 @@ def select_terms(record, fit, *, rng=None, log=None):
         if cheapest["delta_chi2"] > cheapest["penalty"]:  # the cheapest removal costs more than its parameters
             for d, _, _ in tried:
                 decisions.append(d)
-                say(f"{d['effect']} term '{d['term']}' kept: pinning it off raises chi-square by {d['delta_chi2']:.1f} "
-                    f"> BIC penalty {d['penalty']:.1f} ({len(d['parameters'])} parameters)")  # fmt: skip
+                say(
+                    f"{d['effect']} term '{d['term']}' kept: pinning it off raises chi-square by {d['delta_chi2']:.1f} "
+                    f"> BIC penalty {d['penalty']:.1f} ({len(d['parameters'])} parameters)"
+                )
             break
         decisions.append({**cheapest, "pinned": True})
-        say(f"{cheapest['effect']} term '{cheapest['term']}' pinned off ({', '.join(cheapest['parameters'])}): the "
+        say(
+            f"{cheapest['effect']} term '{cheapest['term']}' pinned off ({', '.join(cheapest['parameters'])}): the "
             f"record does not support it (chi-square {cheapest['delta_chi2']:+.1f} <= BIC penalty "
-            f"{cheapest['penalty']:.1f} for {len(cheapest['parameters'])} parameters)")  # fmt: skip
+            f"{cheapest['penalty']:.1f} for {len(cheapest['parameters'])} parameters)"
+        )
         current, chi2_ref = reduced, chi2
     if current is fit and decisions == list(fit.terms):
         return fit
     # the refits polish the multistart's end: its starts are still the search that found it
-    return replace(current, terms=decisions, n_starts=fit.n_starts, starts=list(fit.starts), n_agree=fit.n_agree,
-                   seconds=fit.seconds + (time.perf_counter() - t0))
+    return replace(
+        current,
+        terms=decisions,
+        n_starts=fit.n_starts,
+        starts=list(fit.starts),
+        n_agree=fit.n_agree,
+        seconds=fit.seconds + (time.perf_counter() - t0),
+    )
 
 
 def _dead_columns(residuals, theta, candidates) -> tuple[np.ndarray, set[int]]:
@@ -261,8 +276,13 @@ def best_form(record, fit, effects, n_samples, jacobian=None):
     free = [int(j) for j in residuals.free]
     effects_by_name = {e.name: type(e) for e in model.effects}
     # the weighed effects' free parameters: with some terms off, one of them may act no more
-    weighed = {model.names.index(n) for e in model.effects if e.name in set(effects)
-               for n in e.parameters.names if model.parameters[n].vary}  # fmt: skip
+    weighed = {
+        model.names.index(n)
+        for e in model.effects
+        if e.name in set(effects)
+        for n in e.parameters.names
+        if model.parameters[n].vary
+    }
     options = [effects_by_name[effect].term_reductions(term) for effect, term, _ in terms]
     if jacobian is None:
         jacobian = residuals.central_jacobian(theta[residuals.free])
@@ -291,7 +311,9 @@ def best_form(record, fit, effects, n_samples, jacobian=None):
         off_columns = {model.names.index(n) for n in values} | dead
         rest = [j for j, column in enumerate(free) if column not in off_columns]
         projection = jacobian[:, rest].T @ w_s
-        absorbed = float(projection @ np.linalg.pinv(info[np.ix_(rest, rest)], rcond=1e-15, hermitian=True) @ projection)
+        absorbed = float(
+            projection @ np.linalg.pinv(info[np.ix_(rest, rest)], rcond=1e-15, hermitian=True) @ projection
+        )
         return max(float(w_s @ w_s) - absorbed - chi2, 0.0)
 
     def gain(k, delta) -> float:

@@ -88,6 +88,7 @@ def mixture_quantile(centres, sigmas, probability, tolerance=1e-6):
     if not 0.0 < probability < 1.0:
         raise ValueError(f"probability must lie in (0, 1), got {probability}")
     out = np.empty(centres.shape[1])
-    _mixture_quantile_kernel(centres, sigmas, float(probability), float(ndtri(probability)),
-                             float(tolerance) * float(sigmas.min()), out)  # fmt: skip
+    _mixture_quantile_kernel(
+        centres, sigmas, float(probability), float(ndtri(probability)), float(tolerance) * float(sigmas.min()), out
+    )
     return out

@@ -98,9 +98,16 @@ def residual_branches_figure(profile, *, input_unit="A", output_unit="um"):
         ax.plot(x[keep], y[keep], ".", ms=1.5, color=colour, alpha=0.25)
         ok = binned.count > 0
         ax.errorbar(
-            binned.centres[ok], binned.mean[ok], yerr=2 * np.nan_to_num(binned.sem[ok]), color=colour, lw=2,
-            marker="o", ms=4, capsize=2, label=f"{label} branch: binned mean ± 2 s.e.",
-        )  # fmt: skip
+            binned.centres[ok],
+            binned.mean[ok],
+            yerr=2 * np.nan_to_num(binned.sem[ok]),
+            color=colour,
+            lw=2,
+            marker="o",
+            ms=4,
+            capsize=2,
+            label=f"{label} branch: binned mean ± 2 s.e.",
+        )
     ax.axhline(0.0, color="0.3", lw=0.8)
     ax.set_xlabel(axis_label("input current", input_unit))
     ax.set_ylabel(axis_label("residual", output_unit))
@@ -120,9 +127,15 @@ def residual_rate_figure(profile, *, input_unit="A", output_unit="um"):
     ):
         ok = binned.count > 0
         ax.errorbar(
-            binned.centres[ok], binned.mean[ok], yerr=2 * np.nan_to_num(binned.sem[ok]), color="tab:purple",
-            marker="o", ms=4, capsize=2, label="mean ± 2 s.e.",
-        )  # fmt: skip
+            binned.centres[ok],
+            binned.mean[ok],
+            yerr=2 * np.nan_to_num(binned.sem[ok]),
+            color="tab:purple",
+            marker="o",
+            ms=4,
+            capsize=2,
+            label="mean ± 2 s.e.",
+        )
         ax.plot(binned.centres[ok], binned.rms[ok], color="tab:orange", marker="s", ms=3, label="RMS")
         ax.axhline(profile.noise.sigma, color=NOISE_COLOUR, ls=":", label="noise σ")
         ax.axhline(0.0, color="0.3", lw=0.8)
@@ -158,10 +171,19 @@ def cycles_figure(profile, *, output_unit="um"):
     peaks = ext.kind > 0
     ax.plot(ext.time[peaks], ext.residual[peaks], "^-", color=RISING_COLOUR, label="at input peaks")
     ax.plot(ext.time[~peaks], ext.residual[~peaks], "v-", color=FALLING_COLOUR, label="at input troughs")
-    ax.axhspan(-2 * profile.noise.sigma / np.sqrt(5), 2 * profile.noise.sigma / np.sqrt(5), color=NOISE_COLOUR,
-               alpha=0.25, label="±2σ/√5 (5-sample mean)")  # fmt: skip
+    ax.axhspan(
+        -2 * profile.noise.sigma / np.sqrt(5),
+        2 * profile.noise.sigma / np.sqrt(5),
+        color=NOISE_COLOUR,
+        alpha=0.25,
+        label="±2σ/√5 (5-sample mean)",
+    )
     ax.axhline(0.0, color="0.3", lw=0.8)
-    ax.set(xlabel=axis_label("time", "s"), ylabel=axis_label("residual", output_unit), title="Residual at the reversals, cycle by cycle")
+    ax.set(
+        xlabel=axis_label("time", "s"),
+        ylabel=axis_label("residual", output_unit),
+        title="Residual at the reversals, cycle by cycle",
+    )
     ax.legend(loc="best", fontsize=9)
     return fig
 
@@ -174,14 +196,27 @@ def residual_autocorrelation_figure(profile):
     n = int(profile.energised.sum())
     ax.plot(profile.lags, profile.residual_acf, "o-", ms=3, color=BEFORE_COLOUR, label="residual (energised part)")
     ax.plot(profile.lags, profile.quiet_acf, "s-", ms=3, color=NOISE_COLOUR, label="quiet segment (noise)")
-    ax.plot(profile.lags, profile.noise.autocorrelation(int(profile.lags[-1])), ":", color="tab:blue",
-            label=f"AR({profile.noise.order}) noise model")  # fmt: skip
+    ax.plot(
+        profile.lags,
+        profile.noise.autocorrelation(int(profile.lags[-1])),
+        ":",
+        color="tab:blue",
+        label=f"AR({profile.noise.order}) noise model",
+    )
     band = 2.0 / np.sqrt(max(n, 1))
     ax.axhspan(-band, band, color=NOISE_COLOUR, alpha=0.2, label="±2/√n")
     tests = profile.tests
     text = "\n".join(f"{name}: z = {t.z:.1f}" for name, t in tests.items())
-    ax.text(0.98, 0.95, text, transform=ax.transAxes, ha="right", va="top", fontsize=9,
-            bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"})  # fmt: skip
+    ax.text(
+        0.98,
+        0.95,
+        text,
+        transform=ax.transAxes,
+        ha="right",
+        va="top",
+        fontsize=9,
+        bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"},
+    )
     ax.set_xlabel(axis_label("lag", "samples"))
     ax.set_ylabel("autocorrelation [-]")
     ax.set_title("Is the residual noise? Autocorrelation vs the quiet segment")
@@ -190,8 +225,17 @@ def residual_autocorrelation_figure(profile):
 
 
 @styled
-def before_after_loops_figure(current, displacement, model_before, model_after, energised, *, after_label="after",
-                              input_unit="A", output_unit="um"):  # fmt: skip
+def before_after_loops_figure(
+    current,
+    displacement,
+    model_before,
+    model_after,
+    energised,
+    *,
+    after_label="after",
+    input_unit="A",
+    output_unit="um",
+):
     """Hysteresis loops: measurement, model before and after adding the effect, overlaid.
 
     Parameters
@@ -216,8 +260,7 @@ def before_after_loops_figure(current, displacement, model_before, model_after, 
     ax.legend(loc="upper left")
     ax = axes[1]
     ax.plot(x, (displacement - model_before)[energised], ".", ms=1.5, color=BEFORE_COLOUR, alpha=0.4, label="before")
-    ax.plot(x, (displacement - model_after)[energised], ".", ms=1.5, color=AFTER_COLOUR, alpha=0.4,
-            label=after_label)  # fmt: skip
+    ax.plot(x, (displacement - model_after)[energised], ".", ms=1.5, color=AFTER_COLOUR, alpha=0.4, label=after_label)
     ax.axhline(0.0, color="0.3", lw=0.8)
     ax.set_xlabel(axis_label("input current", input_unit))
     ax.set_ylabel(axis_label("residual", output_unit))
@@ -227,8 +270,9 @@ def before_after_loops_figure(current, displacement, model_before, model_after, 
 
 
 @styled
-def before_after_error_figure(time, residual_before, residual_after, noise_sigma, *, after_label="after",
-                              output_unit="um"):  # fmt: skip
+def before_after_error_figure(
+    time, residual_before, residual_after, noise_sigma, *, after_label="after", output_unit="um"
+):
     """Error against time before and after adding the effect, with the noise band."""
     fig = new_figure(11, 4.2)
     ax = fig.add_subplot()
@@ -251,8 +295,9 @@ def ranking_figure(diagnosis, *, output_unit="um"):
     max_pct = [diagnosis.max_error_pct] + [
         c.max_error_pct_after if c.max_error_pct_after is not None else np.nan for c in ranking
     ]
-    colours = ["0.5"] + [AFTER_COLOUR if c.effect == diagnosis.missing else ("tab:olive" if c.refitted else "0.75")
-                         for c in ranking]  # fmt: skip
+    colours = ["0.5"] + [
+        AFTER_COLOUR if c.effect == diagnosis.missing else ("tab:olive" if c.refitted else "0.75") for c in ranking
+    ]
     fig = new_figure(12, 4.2)
     axes = fig.subplots(1, 4)
     ax = axes[0]
@@ -282,7 +327,9 @@ def ranking_figure(diagnosis, *, output_unit="um"):
         ax.legend(loc="best", fontsize=9)
     for ax in axes:
         ax.tick_params(axis="x", rotation=45)
-    fig.suptitle(f"Candidates (verdict: {diagnosis.status}" + (f", missing: {diagnosis.missing})" if diagnosis.missing else ")"))
+    fig.suptitle(
+        f"Candidates (verdict: {diagnosis.status}" + (f", missing: {diagnosis.missing})" if diagnosis.missing else ")")
+    )
     return fig
 
 
@@ -327,11 +374,21 @@ def diagnosis_figures(diagnosis, record) -> dict:
         after = data - best.fit.residual
         label = "GPI + " + " + ".join(best.fit.model.effect_names)
         figures["7_before_after_loops"] = before_after_loops_figure(
-            record.current, data, before, after, profile.energised, after_label=label, input_unit=in_unit,
+            record.current,
+            data,
+            before,
+            after,
+            profile.energised,
+            after_label=label,
+            input_unit=in_unit,
             output_unit=out_unit,
-        )  # fmt: skip
+        )
         figures["8_before_after_error"] = before_after_error_figure(
-            record.time, diagnosis.fit.residual, best.fit.residual, diagnosis.noise_sigma, after_label=label,
+            record.time,
+            diagnosis.fit.residual,
+            best.fit.residual,
+            diagnosis.noise_sigma,
+            after_label=label,
             output_unit=out_unit,
-        )  # fmt: skip
+        )
     return figures

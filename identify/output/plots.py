@@ -151,13 +151,34 @@ def displacement_figure(
     else:
         keep = np.ones(time.shape, dtype=bool)
     t = time[keep]
-    ax.fill_between(t, predictive_lo[keep], predictive_hi[keep], color=PREDICTIVE_COLOUR, alpha=0.25, lw=0,
-                    label="95 % predictive band (model + noise)")  # fmt: skip
-    ax.fill_between(t, credible_lo[keep], credible_hi[keep], color=MODEL_COLOUR, alpha=0.45, lw=0,
-                    label="95 % credible band (model)")  # fmt: skip
+    ax.fill_between(
+        t,
+        predictive_lo[keep],
+        predictive_hi[keep],
+        color=PREDICTIVE_COLOUR,
+        alpha=0.25,
+        lw=0,
+        label="95 % predictive band (model + noise)",
+    )
+    ax.fill_between(
+        t,
+        credible_lo[keep],
+        credible_hi[keep],
+        color=MODEL_COLOUR,
+        alpha=0.45,
+        lw=0,
+        label="95 % credible band (model)",
+    )
     marker = "." if window is not None else None
-    ax.plot(t, measured[keep], color=MEASUREMENT_COLOUR, lw=0.8 if window is None else 0.6, marker=marker, ms=3,
-            label="measurement")  # fmt: skip
+    ax.plot(
+        t,
+        measured[keep],
+        color=MEASUREMENT_COLOUR,
+        lw=0.8 if window is None else 0.6,
+        marker=marker,
+        ms=3,
+        label="measurement",
+    )
     ax.plot(t, median[keep], color=MODEL_COLOUR, lw=1.2, label="model (posterior median)")
     ax.set_xlabel(axis_label("time", "s"))
     ax.set_ylabel(axis_label(output_name, output_unit))
@@ -202,9 +223,17 @@ def error_figure(
     """
     fig = new_figure(10, 4.8)
     ax = fig.add_subplot()
-    ax.axhspan(-2 * noise_sigma, 2 * noise_sigma, color=NOISE_COLOUR, alpha=0.15, lw=0,
-               label=f"±2σ sensor noise (σ = {noise_sigma:.3g} {unit_label(output_unit)})")  # fmt: skip
-    ax.fill_between(time, error_lo, error_hi, color=MODEL_COLOUR, alpha=0.35, lw=0, label="95 % credible band of the error")
+    ax.axhspan(
+        -2 * noise_sigma,
+        2 * noise_sigma,
+        color=NOISE_COLOUR,
+        alpha=0.15,
+        lw=0,
+        label=f"±2σ sensor noise (σ = {noise_sigma:.3g} {unit_label(output_unit)})",
+    )
+    ax.fill_between(
+        time, error_lo, error_hi, color=MODEL_COLOUR, alpha=0.35, lw=0, label="95 % credible band of the error"
+    )
     ax.plot(time, error_median, color=MEASUREMENT_COLOUR, lw=0.7, label="measurement − model (posterior median)")
     ax.axhline(0.0, color="grey", lw=0.8)
     if energised_from is not None and energised_from > time[0]:
@@ -226,8 +255,14 @@ def _branch_polygons(x, lower, upper, segments):
     polygons = []
     for start, stop in segments:
         xs = x[start : stop + 1]
-        polygons.append(np.concatenate([np.column_stack([xs, upper[start : stop + 1]]),
-                                        np.column_stack([xs[::-1], lower[start : stop + 1][::-1]])]))  # fmt: skip
+        polygons.append(
+            np.concatenate(
+                [
+                    np.column_stack([xs, upper[start : stop + 1]]),
+                    np.column_stack([xs[::-1], lower[start : stop + 1][::-1]]),
+                ]
+            )
+        )
     return polygons
 
 
@@ -237,8 +272,14 @@ def _draw_loops(ax, current, measured, median, credible_lo, credible_hi, segment
         chosen = [s for s, r in zip(segments, rising) if r == direction]
         if not chosen:
             continue
-        ax.add_collection(PolyCollection(_branch_polygons(current, credible_lo, credible_hi, chosen),
-                                         facecolors=colour, edgecolors="none", alpha=0.35))  # fmt: skip
+        ax.add_collection(
+            PolyCollection(
+                _branch_polygons(current, credible_lo, credible_hi, chosen),
+                facecolors=colour,
+                edgecolors="none",
+                alpha=0.35,
+            )
+        )
         lines = [np.column_stack([current[a : b + 1], median[a : b + 1]]) for a, b in chosen]
         ax.add_collection(LineCollection(lines, colors=colour, linewidths=1.0))
     ax.plot(current, measured, color=MEASUREMENT_COLOUR, lw=0.5, alpha=0.8)

@@ -53,14 +53,11 @@ import numpy as np
 
 from ..data.fileio import atomic_write_bytes
 from ..data.reversals import Reversals, find_reversals
-
-from . import plots
-from .bands import mixture_quantile
-from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
-
-from . import results
 from ..fitting.noise import energised_mask
 from ..fitting.posterior import BENCH_COVERAGE, ChainBackend
+from . import plots, results
+from .bands import mixture_quantile
+from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
 
 __all__ = [
     "write_report",
@@ -112,10 +109,12 @@ DPI = {"default": 100, "corner": 80}
 #: figure file stem -> alt text (also the caption's heading), in page order.
 FIGURES = {
     "fig5_input": "Input vs time (paper Fig. 5)",
-    "fig6_displacement": "Displacement vs time: measurement, posterior median model, 95% credible and predictive bands (paper Fig. 6)",
+    "fig6_displacement": "Displacement vs time: measurement, posterior median model, 95% credible and predictive "
+    "bands (paper Fig. 6)",
     "fig6_zoom": "Displacement vs time, zoom on the worst region",
     "fig7_error": "Model error vs time with the 2-sigma noise band (paper Fig. 7)",
-    "fig8_loops": "Hysteresis loops: displacement vs current with the 95% credible band along each branch (paper Fig. 8)",
+    "fig8_loops": "Hysteresis loops: displacement vs current with the 95% credible band along each branch (paper Fig. "
+    "8)",
     "corner": "Corner plot of the posterior of the varying parameters",
     "traces": "Walker traces with the burn-in marked",
     "autocorrelation": "Integrated autocorrelation time vs chain length with the N/50 line",
@@ -209,7 +208,9 @@ def load_report_data(result_dir) -> ReportData:
         raise ResultsError(f"{directory / results.FILES['data']}: the output is constant over the energised part")
     noise_sigma = summary["noise"].get("sigma")
     if noise_sigma is None or not (math.isfinite(noise_sigma) and noise_sigma > 0):
-        raise ResultsError(f"{directory / results.FILES['summary']}: noise sigma must be finite and > 0, got {noise_sigma}")
+        raise ResultsError(
+            f"{directory / results.FILES['summary']}: noise sigma must be finite and > 0, got {noise_sigma}"
+        )
     return ReportData(directory, study, diagnosis, energised, float(noise_sigma))
 
 
@@ -267,7 +268,9 @@ def read_chain(data: ReportData, max_rows: int = MAX_CHAIN_ROWS) -> ChainSample:
     path = data.directory / results.FILES["chain"]
     if not path.exists():
         raise ResultsError(f"{path}: missing (the posterior chain written by `study`)")
-    backend = ChainBackend(str(path), name="mcmc", read_only=True)  # takes no file lock: a running study is not disturbed
+    backend = ChainBackend(
+        str(path), name="mcmc", read_only=True
+    )  # takes no file lock: a running study is not disturbed
     try:
         n_steps = int(backend.iteration)
     except (KeyError, OSError) as exc:
@@ -279,7 +282,9 @@ def read_chain(data: ReportData, max_rows: int = MAX_CHAIN_ROWS) -> ChainSample:
     thin = max(1, math.ceil(n_steps / max_rows))
     chain = backend.get_chain(thin=thin)
     if chain.shape[2] != len(names):
-        raise ResultsError(f"{path}: the chain has {chain.shape[2]} coordinates, expected {len(names)} ({', '.join(names)})")
+        raise ResultsError(
+            f"{path}: the chain has {chain.shape[2]} coordinates, expected {len(names)} ({', '.join(names)})"
+        )
     log_prob = backend.get_log_prob(thin=thin)
     steps = np.arange(1, chain.shape[0] + 1) * thin
     discard = int(data.summary["posterior"].get("discard") or 0)
@@ -364,14 +369,20 @@ def model_bands(data: ReportData, draws: PosteriorDraws, *, level: float = 0.95)
     batch = np.vstack([draws.theta, data.fit.theta[None, :]])
     curves, valid = data.model.evaluate(batch, record.time, record.current)
     if not valid[-1]:
-        raise ResultsError(f"{data.directory / results.FILES['fit']}: the least-squares vector gives a non-finite model output")
+        raise ResultsError(
+            f"{data.directory / results.FILES['fit']}: the least-squares vector gives a non-finite model output"
+        )
     inside = valid[:-1]
     if not inside.any():
-        raise ResultsError(f"{data.directory / results.FILES['chain']}: every posterior draw gives a non-finite model output")
+        raise ResultsError(
+            f"{data.directory / results.FILES['chain']}: every posterior draw gives a non-finite model output"
+        )
     model_curves = curves[:-1][inside]
     tail = 0.5 * (1.0 - level)
     lo, median, hi = np.quantile(model_curves, [tail, 0.5, 1.0 - tail], axis=0)
-    sigmas = draws.noise_sigma[inside] if draws.noise_sigma is not None else np.full(model_curves.shape[0], data.noise_sigma)
+    sigmas = (
+        draws.noise_sigma[inside] if draws.noise_sigma is not None else np.full(model_curves.shape[0], data.noise_sigma)
+    )
     predictive_lo = mixture_quantile(model_curves, sigmas, tail)
     predictive_hi = mixture_quantile(model_curves, sigmas, 1.0 - tail)
     return ModelBands(median, lo, hi, predictive_lo, predictive_hi, curves[-1], int(inside.sum()), int((~inside).sum()))
@@ -621,45 +632,90 @@ def _figures(data: ReportData, analysis: _Analysis, rng: np.random.Generator):
     y_names = dict(output_name=record.output_name, output_unit=record.output_unit)
     band_arrays = (bands.median, bands.credible_lo, bands.credible_hi, bands.predictive_lo, bands.predictive_hi)
 
-    yield "fig5_input", plots.input_figure(time, current, reversals=analysis.reversals, **x_names), (
-        f"The drive as recorded; dots mark the {analysis.reversals.size} input reversals at which the record is split "
-        "into branches."
+    yield (
+        "fig5_input",
+        plots.input_figure(time, current, reversals=analysis.reversals, **x_names),
+        (
+            f"The drive as recorded; dots mark the {analysis.reversals.size} input reversals at which the record is "
+            "split "
+            "into branches."
+        ),
     )
-    yield "fig6_displacement", plots.displacement_figure(time, measured, *band_arrays, **y_names), (
-        f"Black: measurement. Red: pointwise median of {bands.n_draws} posterior draws pushed through the model, with "
-        f"its 95 % credible band (the uncertainty of the model curve; typical half-width "
-        f"{analysis.credible_half_width:.3g} {unit}). Orange: 95 % predictive band, model plus sensor noise "
-        f"(typical half-width {analysis.band_half_width:.3g} {unit}); {analysis.inside_predictive_pct:.1f} % of the "
-        "energised measured samples lie inside it (about 95 % when the model is adequate)."
+    yield (
+        "fig6_displacement",
+        plots.displacement_figure(time, measured, *band_arrays, **y_names),
+        (
+            f"Black: measurement. Red: pointwise median of {bands.n_draws} posterior draws pushed through the model, "
+            "with "
+            f"its 95 % credible band (the uncertainty of the model curve; typical half-width "
+            f"{analysis.credible_half_width:.3g} {unit}). Orange: 95 % predictive band, model plus sensor noise "
+            f"(typical half-width {analysis.band_half_width:.3g} {unit}); {analysis.inside_predictive_pct:.1f} % of "
+            "the "
+            "energised measured samples lie inside it (about 95 % when the model is adequate)."
+        ),
     )
     window = (float(time[analysis.zoom.start]), float(time[analysis.zoom.stop - 1]))
-    yield "fig6_zoom", plots.displacement_figure(
-        time, measured, *band_arrays, window=window, title=f"Zoom on the worst region: {window[0]:.4g}–{window[1]:.4g} s",
-        **y_names,
-    ), (
-        f"The samples around the largest error (t = {time[worst]:.4g} s), in a window just wide enough for the model to "
-        f"move {ZOOM_BAND_MULTIPLE:g} × the predictive band's half-width, so that the bands are visible."
-    )  # fmt: skip
+    yield (
+        "fig6_zoom",
+        plots.displacement_figure(
+            time,
+            measured,
+            *band_arrays,
+            window=window,
+            title=f"Zoom on the worst region: {window[0]:.4g}–{window[1]:.4g} s",
+            **y_names,
+        ),
+        (
+            f"The samples around the largest error (t = {time[worst]:.4g} s), in a window just wide enough for the "
+            "model to "
+            f"move {ZOOM_BAND_MULTIPLE:g} × the predictive band's half-width, so that the bands are visible."
+        ),
+    )
     energised_from = None if data.energised[0] else float(time[np.argmax(data.energised)])
-    yield "fig7_error", plots.error_figure(
-        time, analysis.error, measured - bands.credible_hi, measured - bands.credible_lo, noise_sigma=data.noise_sigma,
-        max_error_pct=analysis.max_error_pct, max_error_index=worst, output_unit=record.output_unit,
-        energised_from=energised_from,
-    ), (
-        "Measurement minus the posterior-median model. Where the error leaves the blue ±2σ band systematically, the "
-        "model misses something; the paper quotes this maximum as “less than 3 %” of the maximal displacement."
-    )  # fmt: skip
-    yield "fig8_loops", plots.loops_figure(
-        current, measured, bands.median, bands.credible_lo, bands.credible_hi,
-        segments=[(b.start, b.stop) for b in analysis.branch_list], rising=[b.rising for b in analysis.branch_list],
-        zoom_box=analysis.zoom_box, **x_names, **y_names,
-    ), (
-        f"The record is split at the input reversals into {len(analysis.branch_list)} monotone branches (rising red, "
-        "falling blue); each branch's 95 % credible band is a polygon over that branch's own current samples, so rising, "
-        "falling and minor loops keep their own bands (never a sorted current grid, which would mix branches of a "
-        f"system with memory). The band is {2 * analysis.credible_half_width:.3g} {unit} wide typically, so it shows "
-        "only in the zoom (right: the green box around the largest error, at the full plot's aspect)."
-    )  # fmt: skip
+    yield (
+        "fig7_error",
+        plots.error_figure(
+            time,
+            analysis.error,
+            measured - bands.credible_hi,
+            measured - bands.credible_lo,
+            noise_sigma=data.noise_sigma,
+            max_error_pct=analysis.max_error_pct,
+            max_error_index=worst,
+            output_unit=record.output_unit,
+            energised_from=energised_from,
+        ),
+        (
+            "Measurement minus the posterior-median model. Where the error leaves the blue ±2σ band systematically, "
+            "the "
+            "model misses something; the paper quotes this maximum as “less than 3 %” of the maximal displacement."
+        ),
+    )
+    yield (
+        "fig8_loops",
+        plots.loops_figure(
+            current,
+            measured,
+            bands.median,
+            bands.credible_lo,
+            bands.credible_hi,
+            segments=[(b.start, b.stop) for b in analysis.branch_list],
+            rising=[b.rising for b in analysis.branch_list],
+            zoom_box=analysis.zoom_box,
+            **x_names,
+            **y_names,
+        ),
+        (
+            f"The record is split at the input reversals into {len(analysis.branch_list)} monotone branches (rising "
+            "red, "
+            "falling blue); each branch's 95 % credible band is a polygon over that branch's own current samples, so "
+            "rising, "
+            "falling and minor loops keep their own bands (never a sorted current grid, which would mix branches of a "
+            f"system with memory). The band is {2 * analysis.credible_half_width:.3g} {unit} wide typically, so it "
+            "shows "
+            "only in the zoom (right: the green box around the largest error, at the full plot's aspect)."
+        ),
+    )
 
     units = {p.name: p.unit for p in data.model.parameters}
     labels = [
@@ -671,24 +727,37 @@ def _figures(data: ReportData, analysis: _Analysis, rng: np.random.Generator):
     kept = chain.chain[chain.kept].reshape(-1, chain.chain.shape[2])
     if kept.shape[0] > MAX_CORNER_SAMPLES:
         kept = kept[rng.choice(kept.shape[0], MAX_CORNER_SAMPLES, replace=False)]
-    yield "corner", plots.corner_figure(kept, labels, reference=reference), (
-        f"{kept.shape[0]} samples after the burn-in of {chain.discard} steps. Narrow diagonal ridges are the "
-        "near-degenerate combinations listed under identifiability."
+    yield (
+        "corner",
+        plots.corner_figure(kept, labels, reference=reference),
+        (
+            f"{kept.shape[0]} samples after the burn-in of {chain.discard} steps. Narrow diagonal ridges are the "
+            "near-degenerate combinations listed under identifiability."
+        ),
     )
     step = max(1, math.ceil(chain.chain.shape[0] / MAX_TRACE_ROWS))
-    yield "traces", plots.trace_figure(
-        chain.chain[::step], chain.log_prob[::step], labels, steps=chain.steps[::step], discard=chain.discard
-    ), (
-        "Each line is one walker. A well-mixed chain looks like stationary noise after the shaded burn-in; trends or "
-        "stuck walkers mean the chain is too short."
+    yield (
+        "traces",
+        plots.trace_figure(
+            chain.chain[::step], chain.log_prob[::step], labels, steps=chain.steps[::step], discard=chain.discard
+        ),
+        (
+            "Each line is one walker. A well-mixed chain looks like stationary noise after the shaded burn-in; trends "
+            "or "
+            "stuck walkers mean the chain is too short."
+        ),
     )
     lengths, tau = analysis.autocorrelation
-    yield "autocorrelation", plots.autocorrelation_figure(
-        lengths, tau, list(chain.names), tau_reported=data.summary["posterior"].get("tau_max")
-    ), (
-        "Estimated from growing prefixes of the chain after the burn-in (emcee's walker-averaged estimator"
-        + (f", chain read every {chain.thin} steps" if chain.thin > 1 else "")
-        + "). The chain is long enough when every curve has flattened and lies below the dashed N/50 line."
+    yield (
+        "autocorrelation",
+        plots.autocorrelation_figure(
+            lengths, tau, list(chain.names), tau_reported=data.summary["posterior"].get("tau_max")
+        ),
+        (
+            "Estimated from growing prefixes of the chain after the burn-in (emcee's walker-averaged estimator"
+            + (f", chain read every {chain.thin} steps" if chain.thin > 1 else "")
+            + "). The chain is long enough when every curve has flattened and lies below the dashed N/50 line."
+        ),
     )
 
 
@@ -748,8 +817,10 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     )
     if data.noise_is_free:
         parts.append(
-            f'<div class="note" id="fit-free-noise"><b>σ was estimated from the residual itself</b> (no quiet segment), so '
-            f"RMS ≈ σ by construction and cannot reveal a misfit; judge the fit by the figures and the diagnosis. {sentence}</div>"
+            '<div class="note" id="fit-free-noise"><b>σ was estimated from the residual itself</b> (no quiet '
+            "segment), so "
+            "RMS ≈ σ by construction and cannot reveal a misfit; judge the fit by the figures and the diagnosis. "
+            f"{sentence}</div>"
         )
     elif misfit:
         parts.append(
@@ -802,21 +873,47 @@ def _fit_quality_html(data: ReportData, analysis: _Analysis) -> str:
     worst = analysis.worst
     rows = [
         [text_cell(f"residual RMS, least squares [{unit}]"), number_cell(fit["rms"], "fit.rms")],
-        [text_cell(f"sensor noise σ [{unit}] (from: {noise.get('source')}, {noise.get('kind')})"), number_cell(noise["sigma"], "noise.sigma")],
+        [
+            text_cell(f"sensor noise σ [{unit}] (from: {noise.get('source')}, {noise.get('kind')})"),
+            number_cell(noise["sigma"], "noise.sigma"),
+        ],
         [text_cell("lag-1 autocorrelation of the noise ρ"), number_cell(noise.get("rho"), "noise.rho")],
         [text_cell("quiet samples used for the noise"), number_cell(noise.get("n_quiet"), "noise.n_quiet")],
-        [text_cell("RMS / σ"), number_cell(ratio, "derived.rms_ratio", css="alert" if ratio > RMS_RATIO_LIMIT else None)],
-        [text_cell("reduced χ²"), number_cell(fit.get("reduced_chi2"), "fit.reduced_chi2",
-                                    css="alert" if (fit.get("reduced_chi2") or 0) > REDUCED_CHI2_LIMIT else None)],
-        [text_cell("max error, least squares [% of displacement range]"), number_cell(fit.get("max_error_pct"), "fit.max_error_pct")],
-        [text_cell("max error, posterior median [% of displacement range]"), number_cell(analysis.max_error_pct, "derived.max_error_pct")],
-        [text_cell(f"max |error|, posterior median [{unit}]"), number_cell(abs(float(analysis.error[worst])), "derived.max_abs_error")],
+        [
+            text_cell("RMS / σ"),
+            number_cell(ratio, "derived.rms_ratio", css="alert" if ratio > RMS_RATIO_LIMIT else None),
+        ],
+        [
+            text_cell("reduced χ²"),
+            number_cell(
+                fit.get("reduced_chi2"),
+                "fit.reduced_chi2",
+                css="alert" if (fit.get("reduced_chi2") or 0) > REDUCED_CHI2_LIMIT else None,
+            ),
+        ],
+        [
+            text_cell("max error, least squares [% of displacement range]"),
+            number_cell(fit.get("max_error_pct"), "fit.max_error_pct"),
+        ],
+        [
+            text_cell("max error, posterior median [% of displacement range]"),
+            number_cell(analysis.max_error_pct, "derived.max_error_pct"),
+        ],
+        [
+            text_cell(f"max |error|, posterior median [{unit}]"),
+            number_cell(abs(float(analysis.error[worst])), "derived.max_abs_error"),
+        ],
         [text_cell("time of the max error [s]"), number_cell(float(record.time[worst]), "derived.time_of_max")],
-        [text_cell("measured samples inside the 95 % predictive band [%]"), number_cell(analysis.inside_predictive_pct, "derived.inside_predictive_pct")],
+        [
+            text_cell("measured samples inside the 95 % predictive band [%]"),
+            number_cell(analysis.inside_predictive_pct, "derived.inside_predictive_pct"),
+        ],
         [text_cell("least-squares time [s]"), number_cell(fit.get("seconds"), "fit.seconds")],
-    ]  # fmt: skip
+    ]
     parts = ['<h2 id="fit-quality-section">2. Fit quality</h2>']
-    parts.append(html_table("fit-quality", ["quantity", "value"], rows, caption="Fit quality (energised part of the record)"))
+    parts.append(
+        html_table("fit-quality", ["quantity", "value"], rows, caption="Fit quality (energised part of the record)")
+    )
     parts.append(
         f"<p>“Far above the noise” means RMS &gt; {RMS_RATIO_LIMIT} σ or reduced χ² &gt; {REDUCED_CHI2_LIMIT}. "
         "Least-squares numbers are those of <code>summary.json</code>; the posterior-median numbers are computed here "
@@ -827,24 +924,39 @@ def _fit_quality_html(data: ReportData, analysis: _Analysis) -> str:
     worst_cycle = max(analysis.cycles, key=lambda c: c.max_abs_error) if analysis.cycles else None
     for i, c in enumerate(analysis.cycles):
         key = f"cycles.{c.index}"
-        rows.append([
-            number_cell(c.index, f"{key}.index"), number_cell(c.time_start, f"{key}.time_start", 4), number_cell(c.time_end, f"{key}.time_end", 4),
-            number_cell(c.input_peak, f"{key}.input_peak", 4), number_cell(c.rms, f"{key}.rms", 4),
-            number_cell(c.max_abs_error, f"{key}.max_abs_error", 4), number_cell(c.max_error_pct, f"{key}.max_error_pct", 4),
-            number_cell(c.time_of_max, f"{key}.time_of_max", 4),
-        ])  # fmt: skip
+        rows.append(
+            [
+                number_cell(c.index, f"{key}.index"),
+                number_cell(c.time_start, f"{key}.time_start", 4),
+                number_cell(c.time_end, f"{key}.time_end", 4),
+                number_cell(c.input_peak, f"{key}.input_peak", 4),
+                number_cell(c.rms, f"{key}.rms", 4),
+                number_cell(c.max_abs_error, f"{key}.max_abs_error", 4),
+                number_cell(c.max_error_pct, f"{key}.max_error_pct", 4),
+                number_cell(c.time_of_max, f"{key}.time_of_max", 4),
+            ]
+        )
         if c is worst_cycle:
             classes[i] = "worst"
     parts.append(
         html_table(
             "cycle-errors",
-            ["cycle", "start [s]", "end [s]", f"input peak [{in_unit}]", f"RMS [{unit}]", f"max |error| [{unit}]",
-             "max error [%]", "at [s]"],
+            [
+                "cycle",
+                "start [s]",
+                "end [s]",
+                f"input peak [{in_unit}]",
+                f"RMS [{unit}]",
+                f"max |error| [{unit}]",
+                "max error [%]",
+                "at [s]",
+            ],
             rows,
-            caption="Error per input cycle (split at the input's minima; posterior-median model; worst cycle highlighted)",
+            caption="Error per input cycle (split at the input's minima; posterior-median model; worst cycle "
+            "highlighted)",
             row_classes=classes,
         )
-    )  # fmt: skip
+    )
     return "\n".join(parts)
 
 
@@ -858,7 +970,9 @@ def _calibration_reading(coverage: dict) -> str:
     short = [(name, value) for name, value in (("posterior", post), ("least-squares", lsq)) if value < nominal - 0.02]
     if not short:
         return "Both are calibrated there; the posterior also carries the non-Gaussian shape and the correlations."
-    reading = "; ".join(f"a {name} 95 % interval holds the truth about {value:.0%} of the time" for name, value in short)
+    reading = "; ".join(
+        f"a {name} 95 % interval holds the truth about {value:.0%} of the time" for name, value in short
+    )
     return (
         f"That is less than nominal: {reading} (most misses in the curved block rho, tau, a0-a3; docs/benchmarks.md)."
     )
@@ -872,42 +986,77 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
         status = "varies" if p.get("vary") else "pinned by normalisation"
         if p["name"] in terms_off:
             t = terms_off[p["name"]]
-            status = (f"pinned off: {t['effect']} term '{t['term']}' not supported by the record "
-                      f"(chi-square {t['delta_chi2']:+.1f} <= BIC {t['penalty']:.1f})")  # fmt: skip
+            status = (
+                f"pinned off: {t['effect']} term '{t['term']}' not supported by the record "
+                f"(chi-square {t['delta_chi2']:+.1f} <= BIC {t['penalty']:.1f})"
+            )
         key = f"parameters.{p['name']}"
-        rows.append([
-            text_cell(p["name"]), text_cell(plots.unit_label(p.get("unit") or "")), number_cell(p.get("table1"), f"{key}.table1"),
-            number_cell(p.get("lsq"), f"{key}.lsq"), number_cell(p.get("lsq_stderr"), f"{key}.lsq_stderr"),
-            number_cell(p.get("median"), f"{key}.median"), number_cell(p.get("lo95"), f"{key}.lo95"), number_cell(p.get("hi95"), f"{key}.hi95"),
-            number_cell(p.get("tau"), f"{key}.tau"), number_cell(p.get("ess"), f"{key}.ess"),
-            *[number_cell(p.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS],
-            text_cell(status),
-        ])  # fmt: skip
+        rows.append(
+            [
+                text_cell(p["name"]),
+                text_cell(plots.unit_label(p.get("unit") or "")),
+                number_cell(p.get("table1"), f"{key}.table1"),
+                number_cell(p.get("lsq"), f"{key}.lsq"),
+                number_cell(p.get("lsq_stderr"), f"{key}.lsq_stderr"),
+                number_cell(p.get("median"), f"{key}.median"),
+                number_cell(p.get("lo95"), f"{key}.lo95"),
+                number_cell(p.get("hi95"), f"{key}.hi95"),
+                number_cell(p.get("tau"), f"{key}.tau"),
+                number_cell(p.get("ess"), f"{key}.ess"),
+                *[number_cell(p.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS],
+                text_cell(status),
+            ]
+        )
         if not p.get("vary"):
             classes[i] = "pinned"
     noise_posterior = summary["noise"].get("posterior")
     if noise_posterior:
         key = "noise.posterior"
-        rows.append([
-            text_cell("noise σ"), text_cell(plots.unit_label(data.record.output_unit)), number_cell(None), number_cell(summary["noise"]["sigma"], "noise.sigma"),
-            number_cell(None), number_cell(noise_posterior.get("median"), f"{key}.median"), number_cell(noise_posterior.get("lo95"), f"{key}.lo95"),
-            number_cell(noise_posterior.get("hi95"), f"{key}.hi95"), number_cell(noise_posterior.get("tau"), f"{key}.tau"),
-            number_cell(noise_posterior.get("ess"), f"{key}.ess"),
-            *[number_cell(noise_posterior.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS], text_cell("varies (free noise)"),
-        ])  # fmt: skip
+        rows.append(
+            [
+                text_cell("noise σ"),
+                text_cell(plots.unit_label(data.record.output_unit)),
+                number_cell(None),
+                number_cell(summary["noise"]["sigma"], "noise.sigma"),
+                number_cell(None),
+                number_cell(noise_posterior.get("median"), f"{key}.median"),
+                number_cell(noise_posterior.get("lo95"), f"{key}.lo95"),
+                number_cell(noise_posterior.get("hi95"), f"{key}.hi95"),
+                number_cell(noise_posterior.get("tau"), f"{key}.tau"),
+                number_cell(noise_posterior.get("ess"), f"{key}.ess"),
+                *[number_cell(noise_posterior.get(k), f"{key}.{k}") for k in _DIAGNOSTIC_COLUMNS],
+                text_cell("varies (free noise)"),
+            ]
+        )
     parts = ['<h2 id="parameters-section">3. Parameters</h2>']
     parts.append(
         html_table(
             "parameters",
-            ["parameter", "unit", "Table 1", "least squares", "± std. error", "posterior median", "2.5 %", "97.5 %",
-             "τ [steps]", "ESS", "R-hat", "bulk ESS", "tail ESS", "MCSE (mean)", "status"],
+            [
+                "parameter",
+                "unit",
+                "Table 1",
+                "least squares",
+                "± std. error",
+                "posterior median",
+                "2.5 %",
+                "97.5 %",
+                "τ [steps]",
+                "ESS",
+                "R-hat",
+                "bulk ESS",
+                "tail ESS",
+                "MCSE (mean)",
+                "status",
+            ],
             rows,
-            caption="Parameters: the paper's Table 1 (— for effects), least squares, posterior median and 95 % interval; "
+            caption="Parameters: the paper's Table 1 (— for effects), least squares, posterior median and 95 % "
+            "interval; "
             "ESS = walkers x steps after burn-in / τ; R-hat, bulk and tail ESS and MCSE are ArviZ's "
             "(walkers as chains, after burn-in and thinning)",
             row_classes=classes,
         )
-    )  # fmt: skip
+    )
     parts.append(_priors_html(summary.get("priors"), summary["parameters"]))
     parts.append(
         '<p class="note" id="interval-calibration">How far to trust the intervals: on the virtual bench '
@@ -924,13 +1073,25 @@ def _parameters_html(data: ReportData, analysis: _Analysis, figures_html: str) -
         [text_cell("steps"), number_cell(posterior.get("n_steps"), "posterior.n_steps")],
         [text_cell("burn-in discarded [steps]"), number_cell(posterior.get("discard"), "posterior.discard")],
         [text_cell("thin (summaries)"), number_cell(posterior.get("thin"), "posterior.thin")],
-        [text_cell("mean acceptance fraction"), number_cell(posterior.get("acceptance_fraction"), "posterior.acceptance_fraction")],
-        [text_cell("largest autocorrelation time τ [steps]"), number_cell(posterior.get("tau_max"), "posterior.tau_max")],
-        [text_cell("steps / τ_max (need ≥ 50)"), number_cell(
-            posterior["n_steps"] / posterior["tau_max"] if posterior.get("tau_max") else None, "derived.steps_per_tau", 4)],
+        [
+            text_cell("mean acceptance fraction"),
+            number_cell(posterior.get("acceptance_fraction"), "posterior.acceptance_fraction"),
+        ],
+        [
+            text_cell("largest autocorrelation time τ [steps]"),
+            number_cell(posterior.get("tau_max"), "posterior.tau_max"),
+        ],
+        [
+            text_cell("steps / τ_max (need ≥ 50)"),
+            number_cell(
+                posterior["n_steps"] / posterior["tau_max"] if posterior.get("tau_max") else None,
+                "derived.steps_per_tau",
+                4,
+            ),
+        ],
         [text_cell("converged"), number_cell(converged, "posterior.converged", css="ok" if converged else "alert")],
         [text_cell("sampling time [s]"), number_cell(posterior.get("seconds"), "posterior.seconds")],
-    ]  # fmt: skip
+    ]
     parts.append(html_table("posterior-settings", ["quantity", "value"], rows, caption="Posterior sampling (emcee)"))
     parts.append(figures_html)
     parts.append(_identifiability_html(summary.get("identifiability")))
@@ -945,19 +1106,28 @@ def _priors_html(priors, parameters) -> str:
     rows, classes = [], {}
     for i, prior in enumerate(priors):
         given = prior.get("source") != "default"
-        rows.append([
-            text_cell(prior["name"]), text_cell(plots.unit_label(units.get(prior["name"], ""))), text_cell(prior["distribution"]),
-            number_cell(prior.get("lower")), number_cell(prior.get("upper")), number_cell(prior.get("mu")), number_cell(prior.get("sigma")),
-            text_cell(prior.get("source", "")),
-        ])  # fmt: skip
+        rows.append(
+            [
+                text_cell(prior["name"]),
+                text_cell(plots.unit_label(units.get(prior["name"], ""))),
+                text_cell(prior["distribution"]),
+                number_cell(prior.get("lower")),
+                number_cell(prior.get("upper")),
+                number_cell(prior.get("mu")),
+                number_cell(prior.get("sigma")),
+                text_cell(prior.get("source", "")),
+            ]
+        )
         if given:
             classes[i] = "given-prior"
     return html_table(
-        "priors", ["parameter", "unit", "distribution", "lower", "upper", "μ", "σ", "source"], rows,
+        "priors",
+        ["parameter", "unit", "distribution", "lower", "upper", "μ", "σ", "source"],
+        rows,
         caption="Priors of the sampled parameters: the defaults (uniform, or log-uniform for positive scale "
         "parameters spanning two decades) and those of a priors file (study --priors), on the bounds shown",
         row_classes=classes,
-    )  # fmt: skip
+    )
 
 
 def _identifiability_html(identifiability) -> str:
@@ -973,23 +1143,40 @@ def _identifiability_html(identifiability) -> str:
     )
     condition = identifiability.get("condition_number")
     if condition is not None:
-        parts.append(f'<p>Condition number of the scaled Fisher information: <span data-key="identifiability.condition_number">'
-                     f"{number_text(condition)}</span>.</p>")  # fmt: skip
+        parts.append(
+            f'<p>Condition number of the scaled Fisher information: <span data-key="identifiability.condition_number">'
+            f"{number_text(condition)}</span>.</p>"
+        )
     normalisation = identifiability.get("normalisation") or {}
     rows = [[text_cell(k), number_cell(v, f"identifiability.normalisation.{k}")] for k, v in normalisation.items()]
-    parts.append(html_table("identifiability-normalisation", ["pinned parameter", "value"], rows or [[text_cell("(none)"), text_cell("")]],
-                        caption="Normalisation used"))  # fmt: skip
+    parts.append(
+        html_table(
+            "identifiability-normalisation",
+            ["pinned parameter", "value"],
+            rows or [[text_cell("(none)"), text_cell("")]],
+            caption="Normalisation used",
+        )
+    )
     for kind, caption in (("exact", "Exact degeneracies"), ("near", "Near-degenerate combinations")):
         rows = []
         for i, item in enumerate(identifiability.get(kind) or []):
             item = item if isinstance(item, dict) else {"combination": item}
             key = f"identifiability.{kind}.{i}"
-            rows.append([number_cell(item.get("eigenvalue"), f"{key}.eigenvalue"), number_cell(item.get("relative_std"), f"{key}.relative_std"),
-                         text_cell(_combination_text(item.get("combination")))])  # fmt: skip
+            rows.append(
+                [
+                    number_cell(item.get("eigenvalue"), f"{key}.eigenvalue"),
+                    number_cell(item.get("relative_std"), f"{key}.relative_std"),
+                    text_cell(_combination_text(item.get("combination"))),
+                ]
+            )
         parts.append(
-            html_table(f"identifiability-{kind}", ["eigenvalue", "relative std.", "combination (weights)"],
-                   rows or [[text_cell("(none)"), text_cell(""), text_cell("")]], caption=caption)
-        )  # fmt: skip
+            html_table(
+                f"identifiability-{kind}",
+                ["eigenvalue", "relative std.", "combination (weights)"],
+                rows or [[text_cell("(none)"), text_cell(""), text_cell("")]],
+                caption=caption,
+            )
+        )
     return "\n".join(parts)
 
 
@@ -1016,7 +1203,9 @@ def _diagnosis_html(data: ReportData) -> str:
             "unexplained": "structure remains in the residual that no effect of the library explains.",
         }.get(status, "")
         css = "ok" if status == "adequate" else "alert"
-        parts.append(f'<div class="{css}" id="diagnosis-verdict">Verdict: <b>{html.escape(status)}</b>: {verdict}</div>')
+        parts.append(
+            f'<div class="{css}" id="diagnosis-verdict">Verdict: <b>{html.escape(status)}</b>: {verdict}</div>'
+        )
         ranking = diagnosis.get("ranking") or []
         if ranking:
             columns = ["effect", "rms_after"] + sorted({k for r in ranking for k in r} - {"effect", "rms_after"})
@@ -1032,11 +1221,19 @@ def _diagnosis_html(data: ReportData) -> str:
                     else:
                         row.append(text_cell("—" if value is None else value))
                 rows.append(row)
-            parts.append(html_table("diagnosis-ranking", [html.escape(c) for c in columns], rows,
-                                caption="Candidate effects, best first (rms_after: residual RMS with the effect added)"))  # fmt: skip
+            parts.append(
+                html_table(
+                    "diagnosis-ranking",
+                    [html.escape(c) for c in columns],
+                    rows,
+                    caption="Candidate effects, best first (rms_after: residual RMS with the effect added)",
+                )
+            )
     for path in pngs:
         alt = f"Diagnosis: {path.stem.replace('_', ' ')}"
-        parts.append(embedded_figure(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From {DIAGNOSIS_FIGURES}/{path.name}."))
+        parts.append(
+            embedded_figure(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From {DIAGNOSIS_FIGURES}/{path.name}.")
+        )
     return "\n".join(parts)
 
 
@@ -1061,9 +1258,19 @@ def _effect_parameters_cell(parameters: dict) -> str:
 
 def _provenance_html(data: ReportData, analysis: _Analysis, seconds: float) -> str:
     converged = bool(data.summary["posterior"].get("converged"))
-    rows = [[text_cell("convergence"), text_cell("converged" if converged else "NOT CONVERGED", css="ok" if converged else "alert")]]
+    rows = [
+        [
+            text_cell("convergence"),
+            text_cell("converged" if converged else "NOT CONVERGED", css="ok" if converged else "alert"),
+        ]
+    ]
     rows += [[text_cell(name), text_cell(value)] for name, value in _flatten(data.manifest)]
-    rows.append([text_cell("record stored in the results folder"), text_cell(f"{results.FILES['data']} (sha256 {data.record.sha256})")])
+    rows.append(
+        [
+            text_cell("record stored in the results folder"),
+            text_cell(f"{results.FILES['data']} (sha256 {data.record.sha256})"),
+        ]
+    )
     rows.append([text_cell("report: posterior draws for the bands"), number_cell(analysis.bands.n_draws)])
     rows.append([text_cell("report: generated in [s]"), number_cell(seconds, digits=3)])
     rows.append([text_cell("report: generated at (UTC)"), text_cell(results.now_iso())])
@@ -1083,9 +1290,11 @@ def _page(data: ReportData, analysis: _Analysis, figure_html: dict, seconds: flo
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
         f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
-        f"<p>Model: GPI with {data.model.n_operators} play operators, reading <code>{html.escape(data.model.reading)}</code>, "
+        f"<p>Model: GPI with {data.model.n_operators} play operators, reading "
+        f"<code>{html.escape(data.model.reading)}</code>, "
         f"effects: {html.escape(effects)}. Record: {len(record.time)} samples over "
-        f"{record.time[-1] - record.time[0]:.4g} s. Results folder: <code>{html.escape(str(data.directory))}</code>.</p>",
+        f"{record.time[-1] - record.time[0]:.4g} s. Results folder: "
+        f"<code>{html.escape(str(data.directory))}</code>.</p>",
         _glance_html(data, analysis),
         '<h2 id="measurement">1. Measurement vs model</h2>',
         *(figure_html[s] for s in ("fig5_input", "fig6_displacement", "fig6_zoom", "fig7_error", "fig8_loops")),

@@ -294,11 +294,15 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
         elif name in post_index:
             j = post_index[name]
             entry.update(
-                lo95=float(quantiles[0, j]), median=float(quantiles[1, j]), hi95=float(quantiles[2, j]),
-                tau=float(posterior.tau[j]), ess=float(posterior.ess[j]),
-                mean=float(np.mean(posterior.samples[:, j])), sd=float(np.std(posterior.samples[:, j], ddof=1)),
+                lo95=float(quantiles[0, j]),
+                median=float(quantiles[1, j]),
+                hi95=float(quantiles[2, j]),
+                tau=float(posterior.tau[j]),
+                ess=float(posterior.ess[j]),
+                mean=float(np.mean(posterior.samples[:, j])),
+                sd=float(np.std(posterior.samples[:, j], ddof=1)),
                 **{k: posterior.diagnostic(k, j) for k in DIAGNOSTICS},
-            )  # fmt: skip
+            )
         parameters.append(entry)
     noise = {
         "sigma": fit.noise.sigma,
@@ -310,8 +314,14 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
     if posterior is not None and "noise_log_sigma" in post_index:
         j = post_index["noise_log_sigma"]
         lo, med, hi = np.exp(quantiles[:, j])
-        noise["posterior"] = {"median": med, "lo95": lo, "hi95": hi, "tau": posterior.tau[j], "ess": posterior.ess[j],
-                              **{k: posterior.diagnostic(k, j) for k in DIAGNOSTICS}}
+        noise["posterior"] = {
+            "median": med,
+            "lo95": lo,
+            "hi95": hi,
+            "tau": posterior.tau[j],
+            "ess": posterior.ess[j],
+            **{k: posterior.diagnostic(k, j) for k in DIAGNOSTICS},
+        }
     ident = None
     if identifiability is not None:
         ident = identifiability.to_dict()
@@ -412,8 +422,11 @@ def git_commit(path=None) -> dict:
     try:
         status = subprocess.run(
             ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True, text=True, timeout=10, check=True,
-        ).stdout  # fmt: skip
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout
     except (OSError, subprocess.SubprocessError):
         return {"commit": None, "dirty": None}
     return {"commit": sha, "dirty": bool(status.strip())}

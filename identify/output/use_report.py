@@ -11,13 +11,12 @@ for a compensation, the CSV files. Nothing here computes a fit, a band or an inv
 from __future__ import annotations
 
 import html
-import io
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
+from ..data.reversals import find_reversals
 from . import plots
 from .diagnosis_plots import (
     cycles_figure,
@@ -27,15 +26,14 @@ from .diagnosis_plots import (
     residual_rate_figure,
     residual_time_figure,
 )
-from .plots import axis_label, new_figure, styled, unit_label
 from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
+from .plots import axis_label, new_figure, styled, unit_label
 from .report import (
     branches,
     loop_zoom_box,
     zoom_samples,
 )
 from .results import jsonable, now_iso
-from ..data.reversals import find_reversals
 
 __all__ = [
     "prediction_files",
@@ -97,9 +95,11 @@ def _page(title, body_parts) -> bytes:
 def _notes_html(notes) -> str:
     if not notes:
         return ""
-    return '<div class="note" id="notes"><b>Keep in mind:</b><ul>' + "".join(
-        f"<li>{html.escape(str(n))}</li>" for n in notes
-    ) + "</ul></div>"
+    return (
+        '<div class="note" id="notes"><b>Keep in mind:</b><ul>'
+        + "".join(f"<li>{html.escape(str(n))}</li>" for n in notes)
+        + "</ul></div>"
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -121,61 +121,125 @@ def _prediction_figures(p):
     reversals = turns.index
     half = 0.5 * float(np.median((b.predictive_hi - b.predictive_lo)[p.energised]))
     zoom = zoom_samples(b.median, worst, half)
-    yield "input", plots.input_figure(time, current, reversals=reversals, **x_names), (
-        f"The new record's drive in the scored window ({p.window[0]:.4g}-{p.window[1]:.4g} s); dots: its "
-        f"{reversals.size} reversals."
+    yield (
+        "input",
+        plots.input_figure(time, current, reversals=reversals, **x_names),
+        (
+            f"The new record's drive in the scored window ({p.window[0]:.4g}-{p.window[1]:.4g} s); dots: its "
+            f"{reversals.size} reversals."
+        ),
     )
-    yield "displacement", plots.displacement_figure(
-        time, measured, *band_arrays, title="Measured vs predicted displacement (no refit)", **y_names
-    ), (
-        f"Black: the new measurement. Red: pointwise median of {b.n_draws} posterior draws of the study's model on this "
-        f"record's drive, with the 95 % credible band. Orange: 95 % predictive band (model plus sensor noise, σ = "
-        f"{p.noise_sigma:.3g} {unit_label(unit)}); {100 * p.inside_predictive_band:.1f} % of the scored samples lie "
-        "inside it (about 95 % when the model predicts this record as well as it fitted its own)."
+    yield (
+        "displacement",
+        plots.displacement_figure(
+            time, measured, *band_arrays, title="Measured vs predicted displacement (no refit)", **y_names
+        ),
+        (
+            f"Black: the new measurement. Red: pointwise median of {b.n_draws} posterior draws of the study's model "
+            "on this "
+            f"record's drive, with the 95 % credible band. Orange: 95 % predictive band (model plus sensor noise, σ = "
+            f"{p.noise_sigma:.3g} {unit_label(unit)}); {100 * p.inside_predictive_band:.1f} % of the scored samples "
+            "lie "
+            "inside it (about 95 % when the model predicts this record as well as it fitted its own)."
+        ),
     )
     window = (float(time[zoom.start]), float(time[zoom.stop - 1]))
-    yield "zoom", plots.displacement_figure(
-        time, measured, *band_arrays, window=window, title=f"Zoom on the worst region: {window[0]:.4g}–{window[1]:.4g} s",
-        **y_names,
-    ), f"The samples around the largest prediction error (t = {time[worst]:.4g} s)."  # fmt: skip
+    yield (
+        "zoom",
+        plots.displacement_figure(
+            time,
+            measured,
+            *band_arrays,
+            window=window,
+            title=f"Zoom on the worst region: {window[0]:.4g}–{window[1]:.4g} s",
+            **y_names,
+        ),
+        f"The samples around the largest prediction error (t = {time[worst]:.4g} s).",
+    )
     energised_from = None if p.energised[0] else float(time[np.argmax(p.energised)])
-    yield "error", plots.error_figure(
-        time, error, measured - b.credible_hi, measured - b.credible_lo, noise_sigma=p.noise_sigma,
-        max_error_pct=p.max_error_pct, max_error_index=worst, output_unit=unit, energised_from=energised_from,
-    ), (
-        "Measurement minus the posterior-median prediction. Inside the blue ±2σ band the prediction is as good as the "
-        "sensor; systematic excursions are what the model does not carry over to this record."
-    )  # fmt: skip
+    yield (
+        "error",
+        plots.error_figure(
+            time,
+            error,
+            measured - b.credible_hi,
+            measured - b.credible_lo,
+            noise_sigma=p.noise_sigma,
+            max_error_pct=p.max_error_pct,
+            max_error_index=worst,
+            output_unit=unit,
+            energised_from=energised_from,
+        ),
+        (
+            "Measurement minus the posterior-median prediction. Inside the blue ±2σ band the prediction is as good as "
+            "the "
+            "sensor; systematic excursions are what the model does not carry over to this record."
+        ),
+    )
     box = loop_zoom_box(current, measured, _BandView(b.predictive_lo, b.predictive_hi), zoom, p.energised)
-    yield "loops", plots.loops_figure(
-        current, measured, b.median, b.credible_lo, b.credible_hi, segments=[(r.start, r.stop) for r in branch_list],
-        rising=[r.rising for r in branch_list], zoom_box=box, **x_names, **y_names,
-    ), (
-        f"The record split at its input reversals into {len(branch_list)} branches (rising red, falling blue), each with "
-        "the 95 % credible band over its own samples; right: zoom on the largest error."
-    )  # fmt: skip
+    yield (
+        "loops",
+        plots.loops_figure(
+            current,
+            measured,
+            b.median,
+            b.credible_lo,
+            b.credible_hi,
+            segments=[(r.start, r.stop) for r in branch_list],
+            rising=[r.rising for r in branch_list],
+            zoom_box=box,
+            **x_names,
+            **y_names,
+        ),
+        (
+            f"The record split at its input reversals into {len(branch_list)} branches (rising red, falling blue), "
+            "each with "
+            "the 95 % credible band over its own samples; right: zoom on the largest error."
+        ),
+    )
     profile = p.profile
     in_unit = record.input_unit
-    yield "where_1_residual_vs_time", residual_time_figure(profile, output_unit=unit, title="Where it fails: validation residual vs time"), (
-        "The least-squares prediction's residual (the diagnosis' convention) with the reversals dashed, the ±2σ noise "
-        "band and the RMS per cycle."
+    yield (
+        "where_1_residual_vs_time",
+        residual_time_figure(profile, output_unit=unit, title="Where it fails: validation residual vs time"),
+        (
+            "The least-squares prediction's residual (the diagnosis' convention) with the reversals dashed, the ±2σ "
+            "noise "
+            "band and the RMS per cycle."
+        ),
     )
-    yield "where_2_residual_vs_current", residual_branches_figure(profile, input_unit=in_unit, output_unit=unit), (
-        "Binned residual against the drive, rising and falling branches apart: a branch-dependent offset is a hysteresis "
-        "misfit, a drive-dependent trend a static one."
+    yield (
+        "where_2_residual_vs_current",
+        residual_branches_figure(profile, input_unit=in_unit, output_unit=unit),
+        (
+            "Binned residual against the drive, rising and falling branches apart: a branch-dependent offset is a "
+            "hysteresis "
+            "misfit, a drive-dependent trend a static one."
+        ),
     )
-    yield "where_3_residual_vs_rate", residual_rate_figure(profile, input_unit=in_unit, output_unit=unit), (
-        "Binned residual against the drive's rate and the time since the last reversal: rate dependence (lag) or slow "
-        "relaxation (creep) show here."
+    yield (
+        "where_3_residual_vs_rate",
+        residual_rate_figure(profile, input_unit=in_unit, output_unit=unit),
+        (
+            "Binned residual against the drive's rate and the time since the last reversal: rate dependence (lag) or "
+            "slow "
+            "relaxation (creep) show here."
+        ),
     )
-    yield "where_4_cycles", cycles_figure(profile, output_unit=unit), "Per-cycle error and the level at every peak and trough."
-    yield "where_5_autocorrelation", residual_autocorrelation_figure(profile), (
-        "Autocorrelation of the residual against the noise reference's: slow structure keeps it high."
+    yield (
+        "where_4_cycles",
+        cycles_figure(profile, output_unit=unit),
+        "Per-cycle error and the level at every peak and trough.",
+    )
+    yield (
+        "where_5_autocorrelation",
+        residual_autocorrelation_figure(profile),
+        ("Autocorrelation of the residual against the noise reference's: slow structure keeps it high."),
     )
 
 
 def _prediction_tables(p) -> str:
-    study, training = p.study, p.training
+    training = p.training
     unit = unit_label(p.record.output_unit)
     sigma_v, sigma_t = p.noise_sigma, training["noise_sigma"]
 
@@ -183,68 +247,136 @@ def _prediction_tables(p) -> str:
         return None if a is None or not b else a / b
 
     rows = [
-        [text_cell("samples scored (energised)"), number_cell(training["n_samples"], "training.n_samples"),
-         number_cell(int(p.energised.sum()), "validation.n_scored")],
-        [text_cell(f"sensor noise σ [{unit}]"), number_cell(sigma_t, "training.noise_sigma"), number_cell(sigma_v, "validation.noise_sigma")],
-        [text_cell(f"RMS error, posterior median [{unit}]"), number_cell(training["rms"], "training.rms"), number_cell(p.rms, "validation.rms")],
-        [text_cell("RMS / σ"), number_cell(ratio(training["rms"], sigma_t), "training.rms_ratio"),
-         number_cell(ratio(p.rms, sigma_v), "validation.rms_ratio", css="alert" if p.rms > 1.2 * sigma_v else "ok")],
-        [text_cell(f"RMS error, least squares [{unit}]"), number_cell(training["rms_lsq"], "training.rms_lsq"),
-         number_cell(p.rms_lsq, "validation.rms_lsq")],
-        [text_cell("max error, posterior median [% of range]"), number_cell(training["max_error_pct"], "training.max_error_pct"),
-         number_cell(p.max_error_pct, "validation.max_error_pct")],
-        [text_cell("max error, least squares [% of range]"), number_cell(training["max_error_pct_lsq"], "training.max_error_pct_lsq"),
-         number_cell(p.max_error_pct_lsq, "validation.max_error_pct_lsq")],
-        [text_cell("inside the 95 % predictive band [%]"),
-         number_cell(100 * training["inside_predictive_band"], "training.inside_predictive_band_pct"),
-         number_cell(100 * p.inside_predictive_band, "validation.inside_predictive_band_pct")],
-        [text_cell("reduced χ² of the fit"), number_cell(training.get("reduced_chi2"), "training.reduced_chi2"), text_cell("— (no fit)")],
-    ]  # fmt: skip
+        [
+            text_cell("samples scored (energised)"),
+            number_cell(training["n_samples"], "training.n_samples"),
+            number_cell(int(p.energised.sum()), "validation.n_scored"),
+        ],
+        [
+            text_cell(f"sensor noise σ [{unit}]"),
+            number_cell(sigma_t, "training.noise_sigma"),
+            number_cell(sigma_v, "validation.noise_sigma"),
+        ],
+        [
+            text_cell(f"RMS error, posterior median [{unit}]"),
+            number_cell(training["rms"], "training.rms"),
+            number_cell(p.rms, "validation.rms"),
+        ],
+        [
+            text_cell("RMS / σ"),
+            number_cell(ratio(training["rms"], sigma_t), "training.rms_ratio"),
+            number_cell(ratio(p.rms, sigma_v), "validation.rms_ratio", css="alert" if p.rms > 1.2 * sigma_v else "ok"),
+        ],
+        [
+            text_cell(f"RMS error, least squares [{unit}]"),
+            number_cell(training["rms_lsq"], "training.rms_lsq"),
+            number_cell(p.rms_lsq, "validation.rms_lsq"),
+        ],
+        [
+            text_cell("max error, posterior median [% of range]"),
+            number_cell(training["max_error_pct"], "training.max_error_pct"),
+            number_cell(p.max_error_pct, "validation.max_error_pct"),
+        ],
+        [
+            text_cell("max error, least squares [% of range]"),
+            number_cell(training["max_error_pct_lsq"], "training.max_error_pct_lsq"),
+            number_cell(p.max_error_pct_lsq, "validation.max_error_pct_lsq"),
+        ],
+        [
+            text_cell("inside the 95 % predictive band [%]"),
+            number_cell(100 * training["inside_predictive_band"], "training.inside_predictive_band_pct"),
+            number_cell(100 * p.inside_predictive_band, "validation.inside_predictive_band_pct"),
+        ],
+        [
+            text_cell("reduced χ² of the fit"),
+            number_cell(training.get("reduced_chi2"), "training.reduced_chi2"),
+            text_cell("— (no fit)"),
+        ],
+    ]
     return html_table(
-        "validation-vs-training", ["quantity", "training (the study's record)", "validation (this record)"], rows,
+        "validation-vs-training",
+        ["quantity", "training (the study's record)", "validation (this record)"],
+        rows,
         caption="Validation beside training: the same posterior draws on both records; nothing refitted",
-    )  # fmt: skip
+    )
 
 
 def _verdict_html(p) -> str:
     parts = ['<h2 id="verdict">3. Is the misfit noise? The diagnosis\' verdict</h2>']
     adequacy = p.adequacy
     text = {
-        "adequate": "the validation residual is consistent with the sensor noise: the model carries over to this record.",
-        "missing_effect": f"the record reveals the effect <b>{html.escape(str(p.missing))}</b>, which the study's model "
-        f"lacks; identify it again with <code>--effects {html.escape(','.join(list(p.study.model.effect_names) + [str(p.missing)]))}</code>.",
+        "adequate": "the validation residual is consistent with the sensor noise: the model carries over to this "
+        "record.",
+        "missing_effect": f"the record reveals the effect <b>{html.escape(str(p.missing))}</b>, which the study's "
+        "model "
+        "lacks; identify it again with <code>--effects "
+        f"{html.escape(','.join(list(p.study.model.effect_names) + [str(p.missing)]))}</code>.",
         "unexplained": "structure remains in the validation residual that no effect of the library explains.",
-        "parameters_differ": "the validation residual is not noise, yet no effect is missing: refitted on this record the "
+        "parameters_differ": "the validation residual is not noise, yet no effect is missing: refitted on this record "
+        "the "
         "same model is adequate, so the study's parameters do not carry over (they drifted between the records, or the "
         "study's record did not determine them where this one needs them).",
         "not_adequate": "the validation residual is not the sensor noise (the candidate search was not run: "
         "<code>--diagnosis adequacy</code>).",
     }[p.verdict]
     css = "ok" if p.verdict == "adequate" else "alert"
-    parts.append(f'<div class="{css}" id="prediction-verdict">Verdict: <b data-key="verdict">{html.escape(p.verdict)}</b>: {text}</div>')
+    parts.append(
+        f'<div class="{css}" id="prediction-verdict">Verdict: <b data-key="verdict">{html.escape(p.verdict)}</b>: '
+        f"{text}</div>"
+    )
     a = adequacy.to_dict()
     from ..diagnosis.diagnose import Thresholds
 
     z_critical = Thresholds().z_critical
-    rows = [[text_cell(name), number_cell(z, f"adequacy.z.{name}", css="alert" if z > z_critical else None)] for name, z in a["z"].items()]
-    rows.append([text_cell(f"structure RMS (slow part) [{unit_label(p.record.output_unit)}]"), number_cell(a["structure_rms"], "adequacy.structure_rms")])
-    rows.append([text_cell(f"excess RMS over the noise [{unit_label(p.record.output_unit)}]"), number_cell(a["excess_rms"], "adequacy.excess_rms")])
-    parts.append(html_table("adequacy-tests", ["noise test", "standardised excess z"], rows,
-                        caption=f"Noise tests on the least-squares validation residual: adequate unless a test has z > "
-                                f"{z_critical:g} and the misfit it sees is at least {Thresholds().structure_floor:g} σ"))  # fmt: skip
+    rows = [
+        [text_cell(name), number_cell(z, f"adequacy.z.{name}", css="alert" if z > z_critical else None)]
+        for name, z in a["z"].items()
+    ]
+    rows.append(
+        [
+            text_cell(f"structure RMS (slow part) [{unit_label(p.record.output_unit)}]"),
+            number_cell(a["structure_rms"], "adequacy.structure_rms"),
+        ]
+    )
+    rows.append(
+        [
+            text_cell(f"excess RMS over the noise [{unit_label(p.record.output_unit)}]"),
+            number_cell(a["excess_rms"], "adequacy.excess_rms"),
+        ]
+    )
+    parts.append(
+        html_table(
+            "adequacy-tests",
+            ["noise test", "standardised excess z"],
+            rows,
+            caption=f"Noise tests on the least-squares validation residual: adequate unless a test has z > "
+            f"{z_critical:g} and the misfit it sees is at least {Thresholds().structure_floor:g} σ",
+        )
+    )
     if p.diagnosis is not None:
         d = p.diagnosis
         parts.append(f"<p>{html.escape(d.reason)}</p>")
         rows = []
         for c in d.ranking:
             c = c.to_dict()
-            rows.append([text_cell(c.get("effect")), number_cell(c.get("rms_after"), f"diagnosis.{c.get('effect')}.rms_after"),
-                         number_cell(c.get("delta_bic"), f"diagnosis.{c.get('effect')}.delta_bic"),
-                         number_cell(c.get("explained_fraction"), f"diagnosis.{c.get('effect')}.explained_fraction"),
-                         text_cell("yes" if c.get("adequate_after") else "no")])  # fmt: skip
+            rows.append(
+                [
+                    text_cell(c.get("effect")),
+                    number_cell(c.get("rms_after"), f"diagnosis.{c.get('effect')}.rms_after"),
+                    number_cell(c.get("delta_bic"), f"diagnosis.{c.get('effect')}.delta_bic"),
+                    number_cell(c.get("explained_fraction"), f"diagnosis.{c.get('effect')}.explained_fraction"),
+                    text_cell("yes" if c.get("adequate_after") else "no"),
+                ]
+            )
         if rows:
-            parts.append(html_table("diagnosis-ranking", ["effect", "RMS after", "ΔBIC", "explained fraction", "adequate after"],
-                                rows, caption="Candidate effects on the validation window, best first (refitted on it)"))  # fmt: skip
+            parts.append(
+                html_table(
+                    "diagnosis-ranking",
+                    ["effect", "RMS after", "ΔBIC", "explained fraction", "adequate after"],
+                    rows,
+                    caption="Candidate effects on the validation window, best first (refitted on it)",
+                )
+            )
     return "\n".join(parts)
 
 
@@ -264,8 +396,14 @@ def prediction_files(p) -> dict:
         for stem, figure in diagnosis_figures(p.diagnosis, window_record).items():
             png = png_bytes(figure, 100)
             files[f"diagnosis/{stem}.png"] = png
-            diagnosis_html.append(embedded_figure(f"diagnosis-{stem}", f"Diagnosis of the validation window: {stem.replace('_', ' ')}",
-                                               png, f"From diagnosis/{stem}.png."))  # fmt: skip
+            diagnosis_html.append(
+                embedded_figure(
+                    f"diagnosis-{stem}",
+                    f"Diagnosis of the validation window: {stem.replace('_', ' ')}",
+                    png,
+                    f"From diagnosis/{stem}.png.",
+                )
+            )
     files["prediction.json"] = _json_bytes(p.to_dict())
     study = p.study
     unit = unit_label(p.record.output_unit)
@@ -278,10 +416,11 @@ def prediction_files(p) -> dict:
         f"<code>{html.escape(str(p.record.source))}</code>, window {p.window[0]:.6g}–{p.window[1]:.6g} s "
         f"({p.stop - p.start} samples, the model run from the record's first sample). Nothing is refitted.</p>",
         '<h2 id="glance">At a glance</h2>',
-        f'<div class="{glance_css}" id="glance-box">Validation RMS <b data-key="rms">{number_text(p.rms, 4)}</b> {unit} '
+        f'<div class="{glance_css}" id="glance-box">Validation RMS <b data-key="rms">{number_text(p.rms, 4)}</b> '
+        f"{unit} "
         f"= {p.rms / p.noise_sigma:.3g} σ (training {number_text(p.training['rms'], 4)} {unit}); max error "
-        f"<b data-key=\"max_error_pct\">{number_text(p.max_error_pct, 4)}</b> % of the range (training "
-        f"{number_text(p.training['max_error_pct'], 4)} %); <span data-key=\"inside_predictive_band\">"
+        f'<b data-key="max_error_pct">{number_text(p.max_error_pct, 4)}</b> % of the range (training '
+        f'{number_text(p.training["max_error_pct"], 4)} %); <span data-key="inside_predictive_band">'
         f"{100 * p.inside_predictive_band:.1f}</span> % inside the 95 % predictive band; verdict "
         f"<b>{html.escape(p.verdict)}</b>{' (' + html.escape(str(p.missing)) + ')' if p.missing else ''}.</div>",
         _notes_html(p.notes),
@@ -293,17 +432,28 @@ def prediction_files(p) -> dict:
         _verdict_html(p),
         *diagnosis_html,
         '<h2 id="provenance">4. Provenance</h2>',
-        html_table("provenance", ["item", "value"], [
-            [text_cell("study folder"), text_cell(str(study.path))],
-            [text_cell("study data"), text_cell(f"{study.manifest.get('data', {}).get('file')} (sha256 {study.manifest.get('data', {}).get('sha256')})")],
-            [text_cell("study converged"), text_cell("yes" if study.converged else "NOT CONVERGED")],
-            [text_cell("record"), text_cell(f"{p.record.source} (sha256 {p.record.sha256 or '—'})")],
-            [text_cell("posterior draws"), number_cell(p.bands.n_draws)],
-            [text_cell("draws outside the model's domain"), number_cell(p.bands.n_outside)],
-            *([[text_cell(f"time: {k} [s]"), number_cell(v, digits=3)] for k, v in p.seconds.items()]),
-            [text_cell("written at (UTC)"), text_cell(now_iso())],
-        ], caption="Provenance"),
-    ]  # fmt: skip
+        html_table(
+            "provenance",
+            ["item", "value"],
+            [
+                [text_cell("study folder"), text_cell(str(study.path))],
+                [
+                    text_cell("study data"),
+                    text_cell(
+                        f"{study.manifest.get('data', {}).get('file')} (sha256 "
+                        f"{study.manifest.get('data', {}).get('sha256')})"
+                    ),
+                ],
+                [text_cell("study converged"), text_cell("yes" if study.converged else "NOT CONVERGED")],
+                [text_cell("record"), text_cell(f"{p.record.source} (sha256 {p.record.sha256 or '—'})")],
+                [text_cell("posterior draws"), number_cell(p.bands.n_draws)],
+                [text_cell("draws outside the model's domain"), number_cell(p.bands.n_outside)],
+                *([[text_cell(f"time: {k} [s]"), number_cell(v, digits=3)] for k, v in p.seconds.items()]),
+                [text_cell("written at (UTC)"), text_cell(now_iso())],
+            ],
+            caption="Provenance",
+        ),
+    ]
     title = f"Prediction report — {Path(str(p.record.source)).name} with the study {study.path.name}"
     files["prediction.html"] = _page(title, body)
     return files
@@ -313,12 +463,21 @@ def prediction_files(p) -> dict:
 # compensation
 # --------------------------------------------------------------------------------------
 @styled
-def compensation_target_figure(time, target, model_output, band_lo, band_hi, *, output_name="displacement", output_unit="um"):
+def compensation_target_figure(
+    time, target, model_output, band_lo, band_hi, *, output_name="displacement", output_unit="um"
+):
     """Target, the median model's output on the feedforward current, and the posterior's 95 % band of it."""
     fig = new_figure(10, 4.4)
     ax = fig.add_subplot()
-    ax.fill_between(time, band_lo, band_hi, color=plots.MODEL_COLOUR, alpha=0.35, lw=0,
-                    label="95 % credible band: posterior draws on the feedforward current")  # fmt: skip
+    ax.fill_between(
+        time,
+        band_lo,
+        band_hi,
+        color=plots.MODEL_COLOUR,
+        alpha=0.35,
+        lw=0,
+        label="95 % credible band: posterior draws on the feedforward current",
+    )
     ax.plot(time, target, color=plots.MEASUREMENT_COLOUR, lw=1.6, label="target")
     ax.plot(time, model_output, color=plots.MODEL_COLOUR, lw=0.9, ls="--", label="median model on its feedforward")
     ax.set_xlabel(axis_label("time", "s"))
@@ -348,24 +507,38 @@ def compensation_current_figure(time, current, lo, hi, limits, *, input_name="cu
 
 
 @styled
-def compensation_error_figure(time, median, lo, hi, predictive_lo, predictive_hi, self_error, *, noise_sigma, output_unit="um"):
+def compensation_error_figure(
+    time, median, lo, hi, predictive_lo, predictive_hi, self_error, *, noise_sigma, output_unit="um"
+):
     """Predicted tracking error: posterior median, 95 % credible and predictive bands, the median model's own."""
     fig = new_figure(10, 4.4)
     ax = fig.add_subplot()
-    ax.fill_between(time, predictive_lo, predictive_hi, color=plots.PREDICTIVE_COLOUR, alpha=0.25, lw=0,
-                    label=f"95 % predictive band (as measured, σ = {noise_sigma:.3g})")  # fmt: skip
+    ax.fill_between(
+        time,
+        predictive_lo,
+        predictive_hi,
+        color=plots.PREDICTIVE_COLOUR,
+        alpha=0.25,
+        lw=0,
+        label=f"95 % predictive band (as measured, σ = {noise_sigma:.3g})",
+    )
     ax.fill_between(time, lo, hi, color=plots.MODEL_COLOUR, alpha=0.45, lw=0, label="95 % credible band (displacement)")
     ax.plot(time, median, color=plots.MODEL_COLOUR, lw=0.9, label="posterior median")
     ax.plot(time, self_error, color="black", lw=0.8, label="median model on its own inverse")
     ax.axhline(0.0, color="grey", lw=0.8)
-    ax.set(xlabel=axis_label("time", "s"), ylabel=axis_label("tracking error (model − target)", output_unit),
-           title="Predicted tracking error of the feedforward current")  # fmt: skip
+    ax.set(
+        xlabel=axis_label("time", "s"),
+        ylabel=axis_label("tracking error (model − target)", output_unit),
+        title="Predicted tracking error of the feedforward current",
+    )
     ax.legend(loc="best", fontsize=9)
     return fig
 
 
 @styled
-def compensation_loop_figure(target, current, *, input_name="current", input_unit="A", output_name="displacement", output_unit="um"):
+def compensation_loop_figure(
+    target, current, *, input_name="current", input_unit="A", output_name="displacement", output_unit="um"
+):
     """The inverse hysteresis: current against the target displacement."""
     fig = new_figure(7, 6)
     ax = fig.add_subplot()
@@ -384,7 +557,8 @@ def _csv(header, columns, formats) -> bytes:
 
 
 def compensation_files(c) -> dict:
-    """``{name: bytes}``: ``compensation.csv`` (``time,current``), ``compensation.json``, the bands CSV, page, figures."""
+    """``{name: bytes}``: ``compensation.csv`` (``time,current``), ``compensation.json``, the bands CSV, page,
+    figures."""
     study = c.study
     record = study.record
     unit, in_unit = record.output_unit, record.input_unit
@@ -392,34 +566,89 @@ def compensation_files(c) -> dict:
     files: dict[str, bytes] = {}
     files["compensation.csv"] = _csv(["time", "current"], [t, c.current], ["%.17g", "%.17g"])
     files["compensation_bands.csv"] = _csv(
-        ["time", "target", "current", "current_lo95", "current_hi95", "model_output", "status", "error_median",
-         "error_lo95", "error_hi95", "measured_error_lo95", "measured_error_hi95"],
-        [t, y, c.current, c.current_lo, c.current_hi, c.model_output, c.status, c.error_median, c.error_lo, c.error_hi,
-         c.predictive_lo, c.predictive_hi],
+        [
+            "time",
+            "target",
+            "current",
+            "current_lo95",
+            "current_hi95",
+            "model_output",
+            "status",
+            "error_median",
+            "error_lo95",
+            "error_hi95",
+            "measured_error_lo95",
+            "measured_error_hi95",
+        ],
+        [
+            t,
+            y,
+            c.current,
+            c.current_lo,
+            c.current_hi,
+            c.model_output,
+            c.status,
+            c.error_median,
+            c.error_lo,
+            c.error_hi,
+            c.predictive_lo,
+            c.predictive_hi,
+        ],
         ["%.17g"] * 6 + ["%d"] + ["%.17g"] * 5,
-    )  # fmt: skip
+    )
     files["compensation.json"] = _json_bytes(c.to_dict())
     figures = {
-        "comp_target": (compensation_target_figure(t, y, c.model_output, y + c.error_lo, y + c.error_hi,
-                                                   output_name=record.output_name, output_unit=unit),
-                        "Black: the target. Red: the band of the true displacement the posterior predicts when the "
-                        "feedforward current drives the transducer; dashed: the median model itself (on the target where "
-                        "its inverse is exact)."),
-        "comp_current": (compensation_current_figure(t, c.current, c.current_lo, c.current_hi, c.current_range,
-                                                     input_name=record.input_name, input_unit=in_unit, status=c.status),
-                         "The current to apply (compensation.csv). The band: every posterior draw inverted on its own; "
-                         "its width is how precisely the identification determines the feedforward."),
-        "comp_error": (compensation_error_figure(t, c.error_median, c.error_lo, c.error_hi, c.predictive_lo,
-                                                 c.predictive_hi, c.model_output - y, noise_sigma=c.summary["noise_sigma"],
-                                                 output_unit=unit),
-                       "Tracking error the posterior predicts for the feedforward current (identification error only: "
-                       "the inverse of each model is exact). Credible band: the true displacement; predictive band: a "
-                       "sensor with the study's noise."),
-        "comp_loop": (compensation_loop_figure(y, c.current, input_name=record.input_name, input_unit=in_unit,
-                                               output_name=record.output_name, output_unit=unit),
-                      "The current against the target: the inverse of the hysteresis loop; the steps at the target's "
-                      "reversals take back Omega's branch switch."),
-    }  # fmt: skip
+        "comp_target": (
+            compensation_target_figure(
+                t, y, c.model_output, y + c.error_lo, y + c.error_hi, output_name=record.output_name, output_unit=unit
+            ),
+            "Black: the target. Red: the band of the true displacement the posterior predicts when the "
+            "feedforward current drives the transducer; dashed: the median model itself (on the target where "
+            "its inverse is exact).",
+        ),
+        "comp_current": (
+            compensation_current_figure(
+                t,
+                c.current,
+                c.current_lo,
+                c.current_hi,
+                c.current_range,
+                input_name=record.input_name,
+                input_unit=in_unit,
+                status=c.status,
+            ),
+            "The current to apply (compensation.csv). The band: every posterior draw inverted on its own; "
+            "its width is how precisely the identification determines the feedforward.",
+        ),
+        "comp_error": (
+            compensation_error_figure(
+                t,
+                c.error_median,
+                c.error_lo,
+                c.error_hi,
+                c.predictive_lo,
+                c.predictive_hi,
+                c.model_output - y,
+                noise_sigma=c.summary["noise_sigma"],
+                output_unit=unit,
+            ),
+            "Tracking error the posterior predicts for the feedforward current (identification error only: "
+            "the inverse of each model is exact). Credible band: the true displacement; predictive band: a "
+            "sensor with the study's noise.",
+        ),
+        "comp_loop": (
+            compensation_loop_figure(
+                y,
+                c.current,
+                input_name=record.input_name,
+                input_unit=in_unit,
+                output_name=record.output_name,
+                output_unit=unit,
+            ),
+            "The current against the target: the inverse of the hysteresis loop; the steps at the target's "
+            "reversals take back Omega's branch switch.",
+        ),
+    }
     figure_html = []
     for stem, (figure, caption) in figures.items():
         png = png_bytes(figure, 100)
@@ -429,25 +658,56 @@ def compensation_files(c) -> dict:
     te, mt = s["tracking_error"], s["model_tracking"]
     u = unit_label(unit)
     rows = [
-        [text_cell(f"tracking error RMS [{u}]"), number_cell(te["rms"]["median"], "tracking_error.rms.median"),
-         number_cell(te["rms"]["lo95"], "tracking_error.rms.lo95"), number_cell(te["rms"]["hi95"], "tracking_error.rms.hi95")],
-        [text_cell("tracking error RMS [% of the target's range]"), number_cell(te["rms_pct"]["median"], "tracking_error.rms_pct.median"),
-         number_cell(te["rms_pct"]["lo95"], "tracking_error.rms_pct.lo95"), number_cell(te["rms_pct"]["hi95"], "tracking_error.rms_pct.hi95")],
-        [text_cell(f"max |tracking error| [{u}]"), number_cell(te["max_abs"]["median"], "tracking_error.max_abs.median"),
-         number_cell(te["max_abs"]["lo95"], "tracking_error.max_abs.lo95"), number_cell(te["max_abs"]["hi95"], "tracking_error.max_abs.hi95")],
-        [text_cell("max |tracking error| [% of the target's range]"), number_cell(te["max_abs_pct"]["median"], "tracking_error.max_abs_pct.median"),
-         number_cell(te["max_abs_pct"]["lo95"], "tracking_error.max_abs_pct.lo95"), number_cell(te["max_abs_pct"]["hi95"], "tracking_error.max_abs_pct.hi95")],
-    ]  # fmt: skip
+        [
+            text_cell(f"tracking error RMS [{u}]"),
+            number_cell(te["rms"]["median"], "tracking_error.rms.median"),
+            number_cell(te["rms"]["lo95"], "tracking_error.rms.lo95"),
+            number_cell(te["rms"]["hi95"], "tracking_error.rms.hi95"),
+        ],
+        [
+            text_cell("tracking error RMS [% of the target's range]"),
+            number_cell(te["rms_pct"]["median"], "tracking_error.rms_pct.median"),
+            number_cell(te["rms_pct"]["lo95"], "tracking_error.rms_pct.lo95"),
+            number_cell(te["rms_pct"]["hi95"], "tracking_error.rms_pct.hi95"),
+        ],
+        [
+            text_cell(f"max |tracking error| [{u}]"),
+            number_cell(te["max_abs"]["median"], "tracking_error.max_abs.median"),
+            number_cell(te["max_abs"]["lo95"], "tracking_error.max_abs.lo95"),
+            number_cell(te["max_abs"]["hi95"], "tracking_error.max_abs.hi95"),
+        ],
+        [
+            text_cell("max |tracking error| [% of the target's range]"),
+            number_cell(te["max_abs_pct"]["median"], "tracking_error.max_abs_pct.median"),
+            number_cell(te["max_abs_pct"]["lo95"], "tracking_error.max_abs_pct.lo95"),
+            number_cell(te["max_abs_pct"]["hi95"], "tracking_error.max_abs_pct.hi95"),
+        ],
+    ]
     counts = mt["samples"]
     inverse_rows = [
-        [text_cell(f"median model on its own inverse: RMS / max [{u}]"), text_cell(f"{number_text(mt['rms'], 3)} / {number_text(mt['max_abs'], 3)}")],
-        [text_cell("samples exact / at a current limit / in an Omega gap"), text_cell(f"{counts['exact']} / {counts['saturated']} / {counts['branch']}")],
-        [text_cell(f"feedforward current range [{unit_label(in_unit)}]"), text_cell(f"{s['current']['min']:.4g} – {s['current']['max']:.4g}")],
-        [text_cell(f"half-width of the draws' current band, median [{unit_label(in_unit)}]"), number_cell(s["current"]["draws_band_half_width_median"])],
+        [
+            text_cell(f"median model on its own inverse: RMS / max [{u}]"),
+            text_cell(f"{number_text(mt['rms'], 3)} / {number_text(mt['max_abs'], 3)}"),
+        ],
+        [
+            text_cell("samples exact / at a current limit / in an Omega gap"),
+            text_cell(f"{counts['exact']} / {counts['saturated']} / {counts['branch']}"),
+        ],
+        [
+            text_cell(f"feedforward current range [{unit_label(in_unit)}]"),
+            text_cell(f"{s['current']['min']:.4g} – {s['current']['max']:.4g}"),
+        ],
+        [
+            text_cell(f"half-width of the draws' current band, median [{unit_label(in_unit)}]"),
+            number_cell(s["current"]["draws_band_half_width_median"]),
+        ],
         [text_cell("posterior draws (outside the domain)"), text_cell(f"{s['n_draws']} ({s['n_outside']})")],
-        [text_cell("model steps evaluated per sample (median inverse)"), number_cell(s["inverse"]["evaluations_per_sample"], digits=3)],
+        [
+            text_cell("model steps evaluated per sample (median inverse)"),
+            number_cell(s["inverse"]["evaluations_per_sample"], digits=3),
+        ],
         *([[text_cell(f"time: {k} [s]"), number_cell(v, digits=3)] for k, v in c.seconds.items()]),
-    ]  # fmt: skip
+    ]
     effects = ", ".join(study.model.effect_names) or "none"
     body = [
         f"<p>Study <code>{html.escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
@@ -457,10 +717,16 @@ def compensation_files(c) -> dict:
         "(<code>model.inverse</code>: a root find per sample carried forward with the model's state); the tracking "
         "error below is what the posterior predicts when that current drives the transducer.</p>",
         _notes_html(c.notes),
-        html_table("tracking-error", ["quantity", "median over draws", "2.5 %", "97.5 %"], rows,
-               caption="Predicted tracking error (posterior draws driven by the feedforward current)"),
+        html_table(
+            "tracking-error",
+            ["quantity", "median over draws", "2.5 %", "97.5 %"],
+            rows,
+            caption="Predicted tracking error (posterior draws driven by the feedforward current)",
+        ),
         html_table("inverse", ["quantity", "value"], inverse_rows, caption="The inverse"),
         *figure_html,
-    ]  # fmt: skip
-    files["compensation.html"] = _page(f"Compensation — {Path(c.target.source).name} with the study {study.path.name}", body)
+    ]
+    files["compensation.html"] = _page(
+        f"Compensation — {Path(c.target.source).name} with the study {study.path.name}", body
+    )
     return files

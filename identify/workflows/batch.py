@@ -313,7 +313,7 @@ class JobResult:
         return self.status in ("ok", "skipped") and "not converged" in self.verdict.lower()
 
     @classmethod
-    def from_dict(cls, d: dict) -> "JobResult":
+    def from_dict(cls, d: dict) -> JobResult:
         known = {f for f in cls.__dataclass_fields__}
         return cls(**{k: v for k, v in d.items() if k in known})
 
@@ -507,7 +507,9 @@ def _execution(data: dict, source: Path) -> tuple:
 
     timeout = data.get("timeout")
     if timeout is not None and (
-        isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not (math.isfinite(timeout) and timeout > 0)
+        isinstance(timeout, bool)
+        or not isinstance(timeout, (int, float))
+        or not (math.isfinite(timeout) and timeout > 0)
     ):
         raise BatchConfigError(f"{source}: timeout must be a positive number of seconds, got {timeout!r}")
     return workers, executor, executor_options, timeout
@@ -648,7 +650,8 @@ def _output_words(parser, out_dir: Path, config) -> list[str]:
     if _option_action(parser, "--json") is not None:
         return ["--json", str(out_dir / _JSON_NAMES[config.task])]
     raise BatchConfigError(
-        f"{config.source}: 'python -m identify {config.task}' has neither --out nor --json: a batch cannot collect its results"
+        f"{config.source}: 'python -m identify {config.task}' has neither --out nor --json: a batch cannot collect "
+        "its results"
     )
 
 
@@ -685,7 +688,11 @@ def expand_jobs(config: BatchConfig) -> list[Job]:
         for variant in config.variants:
             merged: dict = {}
             origin: dict = {}
-            for where, table in (("options", config.options), (f"records[{record.name}]", record.options), (f"variants[{variant.name}]", variant.options)):
+            for where, table in (
+                ("options", config.options),
+                (f"records[{record.name}]", record.options),
+                (f"variants[{variant.name}]", variant.options),
+            ):
                 for k, v in table.items():
                     merged[k] = v
                     origin[k] = where
@@ -699,13 +706,16 @@ def expand_jobs(config: BatchConfig) -> list[Job]:
                     parser.parse_args([str(record.path), *out_words, *words])
                 except _ArgumentError as exc:
                     raise BatchConfigError(
-                        f"{config.source}: {origin[k]}.{k} = {v!r}: not accepted by 'python -m identify {config.task}': {exc}"
+                        f"{config.source}: {origin[k]}.{k} = {v!r}: not accepted by 'python -m identify "
+                        f"{config.task}': {exc}"
                     ) from None
                 argv.extend(words)
             try:
                 parser.parse_args(argv[1:])
             except _ArgumentError as exc:  # e.g. two options that exclude each other
-                raise BatchConfigError(f"{config.source}: job {key}: 'python -m identify {config.task}' rejects the options: {exc}") from None
+                raise BatchConfigError(
+                    f"{config.source}: job {key}: 'python -m identify {config.task}' rejects the options: {exc}"
+                ) from None
             stable = [w.replace(str(out_dir), "<out>") for w in argv]
             fingerprint = hashlib.sha256(
                 json.dumps({"argv": stable, "record_sha256": _file_sha256(record.path)}, sort_keys=True).encode()
@@ -979,9 +989,14 @@ def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
         log.flush()
         try:
             proc = subprocess.Popen(
-                command, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
-                pass_fds=pass_fds, start_new_session=True,
-            )  # fmt: skip
+                command,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env=env,
+                pass_fds=pass_fds,
+                start_new_session=True,
+            )
         except OSError as exc:
             proc = None
             error = f"could not start the command: {exc}"
@@ -1014,9 +1029,11 @@ def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
         error = f"timed out after {job.timeout:g} s (the config's timeout); stopped"
     elif (stopped == "stop" and returncode != 0) or returncode == 130:
         return JobResult(
-            **base, status="interrupted", seconds=seconds,
+            **base,
+            status="interrupted",
+            seconds=seconds,
             error="interrupted (its completed work is kept); rerun the batch to resume it",
-        )  # fmt: skip
+        )
     elif returncode not in (0, None) and not (returncode == 1 and _is_finding(log_text)):
         error = _error_from_log(log_text, returncode)
     result = None
@@ -1192,9 +1209,21 @@ class DaskExecutor:
 # -- summary ----------------------------------------------------------------------------------
 
 _COLUMNS = (
-    "key", "record", "variant", "task", "status", "rms", "max_error_pct", "statistic_name", "statistic",
-    "verdict", "seconds", "error", "report", "notes",
-)  # fmt: skip
+    "key",
+    "record",
+    "variant",
+    "task",
+    "status",
+    "rms",
+    "max_error_pct",
+    "statistic_name",
+    "statistic",
+    "verdict",
+    "seconds",
+    "error",
+    "report",
+    "notes",
+)
 
 
 def _fmt(value, digits=4) -> str:
@@ -1208,9 +1237,12 @@ def _fmt(value, digits=4) -> str:
 def _status_counts(results) -> str:
     """``"6 runs: 3 ok, 1 finished earlier (skipped), 1 failed, 1 pending."``"""
     labels = (
-        ("ok", "ok"), ("skipped", "finished earlier (skipped)"), ("failed", "failed"),
-        ("interrupted", "interrupted (rerun to resume)"), ("pending", "pending"),
-    )  # fmt: skip
+        ("ok", "ok"),
+        ("skipped", "finished earlier (skipped)"),
+        ("failed", "failed"),
+        ("interrupted", "interrupted (rerun to resume)"),
+        ("pending", "pending"),
+    )
     parts = [f"{sum(r.status == key for r in results)} {label}" for key, label in labels]
     parts = [p for p in parts if not p.startswith("0 ")] or ["none"]
     n_not_converged = sum(r.not_converged for r in results)
@@ -1239,7 +1271,9 @@ def write_summary(out, results: list[JobResult], config: BatchConfig | None = No
     writer.writerow(_COLUMNS)
     for r in results:
         row = r.to_dict()
-        writer.writerow([("" if row[c] is None else (repr(row[c]) if isinstance(row[c], float) else row[c])) for c in _COLUMNS])
+        writer.writerow(
+            [("" if row[c] is None else (repr(row[c]) if isinstance(row[c], float) else row[c])) for c in _COLUMNS]
+        )
     atomic_write(out / "summary.csv", buffer.getvalue())
 
     title = f"Batch {config.task} runs from {config.source.name}" if config else "Batch runs"
@@ -1267,7 +1301,8 @@ def write_summary(out, results: list[JobResult], config: BatchConfig | None = No
         stat = f"{esc(r.statistic_name)} = {_fmt(r.statistic)}" if r.statistic is not None else ""
         rows.append(
             f"<tr{css}><td>{name}{log}</td><td>{esc(r.record)}</td><td>{esc(r.variant)}</td><td>{esc(r.status)}</td>"
-            f"<td>{_fmt(r.rms)} {esc(r.output_unit) if r.rms is not None else ''}</td><td>{_fmt(r.max_error_pct, 3)}</td>"
+            f"<td>{_fmt(r.rms)} {esc(r.output_unit) if r.rms is not None else ''}</td>"
+            f"<td>{_fmt(r.max_error_pct, 3)}</td>"
             f"<td>{stat}</td><td>{esc(r.verdict)}</td><td>{r.seconds:.1f}</td><td>{esc(r.error or r.notes)}</td></tr>"
         )
     page = f"""<!DOCTYPE html>
@@ -1405,14 +1440,23 @@ def _run_batch_locked(config: BatchConfig, *, progress, rerun, stream, lock) -> 
                 for job, outcome in executor.submit_all(run_job, pending):
                     if outcome is None:  # cancelled before it started
                         outcome = JobResult(
-                            job.key, job.task, job.record, job.variant, status="interrupted",
-                            error=f"cancelled by {stop.requested or 'the batch'} before it started; rerun the batch to run it",
-                        )  # fmt: skip
+                            job.key,
+                            job.task,
+                            job.record,
+                            job.variant,
+                            status="interrupted",
+                            error=f"cancelled by {stop.requested or 'the batch'} before it started; rerun the batch "
+                            "to run it",
+                        )
                     elif isinstance(outcome, BaseException):
                         outcome = JobResult(
-                            job.key, job.task, job.record, job.variant, status="failed",
+                            job.key,
+                            job.task,
+                            job.record,
+                            job.variant,
+                            status="failed",
                             error=f"the job's worker failed: {type(outcome).__name__}: {outcome}",
-                        )  # fmt: skip
+                        )
                         atomic_write(
                             Path(job.out_dir) / FAILED_MARKER,
                             json.dumps({"fingerprint": job.fingerprint, "result": outcome.to_dict()}, indent=2) + "\n",

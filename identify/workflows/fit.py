@@ -111,7 +111,11 @@ def format_fit_table(fit, record=None) -> str:
         lines.append(f"{name:<24} {fit.theta[i]:13.6g} {stderr:>11}  {units[i]:<8} {table1:>10}")
     out_unit = getattr(record, "output_unit", "um") if record is not None else "um"
     noise = fit.noise
-    sigma_note = {"quiet_segment": f"from {noise.n_quiet} quiet samples", "user": "user-given", "free": "estimated (free)"}[noise.source]
+    sigma_note = {
+        "quiet_segment": f"from {noise.n_quiet} quiet samples",
+        "user": "user-given",
+        "free": "estimated (free)",
+    }[noise.source]
     ratio = fit.rms / noise.sigma if noise.sigma > 0 else math.nan
     lines += [
         "-" * 72,

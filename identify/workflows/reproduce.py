@@ -62,7 +62,9 @@ __all__ = [
 ]
 
 #: JSON keys whose values are wall times or timestamps: never compared.
-TIMING_KEYS = frozenset({"seconds", "started", "finished", "start_time", "end_time", "time_seconds", "wall_seconds", "runs"})
+TIMING_KEYS = frozenset(
+    {"seconds", "started", "finished", "start_time", "end_time", "time_seconds", "wall_seconds", "runs"}
+)
 #: The verdict file written into the new folder.
 REPORT_FILE = "reproduction.json"
 #: JSON result files compared number by number (those present in either folder).
@@ -211,7 +213,9 @@ class ReproductionReport:
 
     @property
     def max_chain_difference(self) -> float | None:
-        values = [a.max_abs_difference for a in self.arrays if a.file == "chain.h5" and a.max_abs_difference is not None]
+        values = [
+            a.max_abs_difference for a in self.arrays if a.file == "chain.h5" and a.max_abs_difference is not None
+        ]
         return max(values) if values else None
 
     @property
@@ -221,21 +225,27 @@ class ReproductionReport:
         Text metadata arrays (e.g. the data file's name in ``data.npz`` after ``--data``)
         are listed when they differ but do not count.
         """
-        return (self.returncode == self.expected_returncode and all(a.identical for a in self.arrays if a.numeric)
-                and not self.numbers)  # fmt: skip
+        return (
+            self.returncode == self.expected_returncode
+            and all(a.identical for a in self.arrays if a.numeric)
+            and not self.numbers
+        )
 
     def describe(self) -> str:
         """Plain-words verdict: what matched, what differs and by how much, and likely causes."""
         lines = [f"reproduce {self.original} -> {self.rerun}", f"  data {self.data_file}: SHA-256 matches the manifest"]
         if self.returncode != self.expected_returncode:
-            lines.append(f"  the rerun FAILED with exit code {self.returncode}, the original's was {self.expected_returncode} "
-                         f"(see {self.rerun}/reproduce.log)")  # fmt: skip
+            lines.append(
+                f"  the rerun FAILED with exit code {self.returncode}, the original's was {self.expected_returncode} "
+                f"(see {self.rerun}/reproduce.log)"
+            )
         metadata = [a for a in self.arrays if not a.numeric and not a.identical]
         if self.identical:
             what = "chain.h5 bit-identical, " if self.chain_identical else ""
             n_numeric = sum(a.numeric for a in self.arrays)
             lines.append(
-                f"  IDENTICAL: {what}{n_numeric} numeric array(s) and {self.n_numbers_compared} result value(s) all equal"
+                f"  IDENTICAL: {what}{n_numeric} numeric array(s) and {self.n_numbers_compared} result value(s) all "
+                "equal"
             )
             for a in metadata:
                 lines.append("    metadata differs (not a result): " + a.describe())
@@ -265,7 +275,11 @@ class ReproductionReport:
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        d.update(identical=self.identical, chain_identical=self.chain_identical, max_chain_difference=self.max_chain_difference)
+        d.update(
+            identical=self.identical,
+            chain_identical=self.chain_identical,
+            max_chain_difference=self.max_chain_difference,
+        )
         return d
 
 
@@ -287,7 +301,9 @@ def read_manifest(directory) -> dict:
     try:
         manifest = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise ManifestError(f"{path}: missing; only a folder written by a run with a manifest can be reproduced") from None
+        raise ManifestError(
+            f"{path}: missing; only a folder written by a run with a manifest can be reproduced"
+        ) from None
     except (OSError, ValueError) as exc:
         raise ManifestError(f"{path}: unreadable or not valid JSON ({exc})") from None
     data = manifest.get("data") if isinstance(manifest, dict) else None
@@ -485,8 +501,10 @@ def original_returncode(directory) -> int:
     from ..defaults import EXIT_FINDING
 
     directory = Path(directory)
-    for name, verdict in (("summary.json", lambda d: (d.get("posterior") or {}).get("converged")),
-                          ("fit.json", lambda d: d.get("success"))):  # fmt: skip
+    for name, verdict in (
+        ("summary.json", lambda d: (d.get("posterior") or {}).get("converged")),
+        ("fit.json", lambda d: d.get("success")),
+    ):
         try:
             data = json.loads((directory / name).read_text(encoding="utf-8"))
         except (OSError, ValueError):
@@ -502,7 +520,9 @@ def original_returncode(directory) -> int:
 def compare_arrays(file: str, name: str, a, b) -> ArrayComparison:
     """Compare two arrays bit for bit; the largest absolute difference when they differ."""
     if a is None or b is None:
-        return ArrayComparison(file, name, False, None if a is None else tuple(a.shape), None if b is None else tuple(b.shape))
+        return ArrayComparison(
+            file, name, False, None if a is None else tuple(a.shape), None if b is None else tuple(b.shape)
+        )
     a, b = np.asarray(a), np.asarray(b)
     shape_a, shape_b = tuple(a.shape), tuple(b.shape)
     if shape_a != shape_b or a.dtype != b.dtype:
@@ -520,10 +540,14 @@ def compare_arrays(file: str, name: str, a, b) -> ArrayComparison:
     if a.dtype.kind in "biu":
         identical = np.array_equal(a, b)
         diff = np.abs(a.astype(float) - b.astype(float))
-        return ArrayComparison(file, name, identical, shape_a, shape_b, float(diff.max()) if diff.size else 0.0, int((a != b).sum()))
+        return ArrayComparison(
+            file, name, identical, shape_a, shape_b, float(diff.max()) if diff.size else 0.0, int((a != b).sum())
+        )
     identical = a.tobytes() == b.tobytes()
     values = (str(a), str(b)) if (a.ndim == 0 and not identical) else None
-    return ArrayComparison(file, name, identical, shape_a, shape_b, None, 0 if identical else int(a.size), False, values)
+    return ArrayComparison(
+        file, name, identical, shape_a, shape_b, None, 0 if identical else int(a.size), False, values
+    )
 
 
 def _h5_datasets(path: Path) -> dict:
@@ -539,6 +563,7 @@ def _h5_datasets(path: Path) -> dict:
                 out[name] = obj[()]
 
         f.visititems(visit)
+
         # attributes (e.g. the emcee iteration count) count as scalars
         def visit_attrs(name, obj):
             for key, value in obj.attrs.items():
@@ -594,6 +619,7 @@ def _versions_and_commit(manifest_a: dict, manifest_b: dict):
     ga, gb = manifest_a.get("git") or {}, manifest_b.get("git") or {}
     commit = None
     if (ga.get("commit"), ga.get("dirty")) != (gb.get("commit"), gb.get("dirty")):
+
         def fmt(g):
             return f"{g.get('commit')}{' (uncommitted changes)' if g.get('dirty') else ''}"
 
@@ -624,9 +650,7 @@ def compare_runs(original, rerun) -> tuple[list, int, list, dict, list | None]:
         for name in list(da) + [n for n in db if n not in da]:
             arrays.append(compare_arrays(file, name, da.get(name), db.get(name)))
     n_numbers, numbers = 0, []
-    json_files = list(_JSON_FILES) + sorted(
-        {p.name for p in original.glob("diagnos*.json")} - set(_JSON_FILES)
-    )
+    json_files = list(_JSON_FILES) + sorted({p.name for p in original.glob("diagnos*.json")} - set(_JSON_FILES))
     for file in json_files:
         pa, pb = original / file, rerun / file
         if not pa.exists() and not pb.exists():
@@ -719,9 +743,11 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     if out == directory:
         raise OutputExistsError("--out must be a new folder, not the run being reproduced")
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        what = "is a file" if not out.is_dir() else (
-            "holds a study (manifest.json)" if (out / "manifest.json").exists() else "is not empty"
-        )  # fmt: skip
+        what = (
+            "is a file"
+            if not out.is_dir()
+            else ("holds a study (manifest.json)" if (out / "manifest.json").exists() else "is not empty")
+        )
         raise OutputExistsError(
             f"{out} {what}: a reproduction writes into a new folder and never into an existing one. "
             "Remove it, or pass --out NEWDIR"

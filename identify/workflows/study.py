@@ -43,7 +43,15 @@ from pathlib import Path
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, DEFAULT_N_STARTS, EXIT_FINDING, EXIT_OK
 from .fit import LONG_RECORD_SAMPLES, fit_or_explain, format_fit_table, say
 
-__all__ = ["study", "StudyResult", "RESUMABLE_SETTINGS", "check_walkers", "check_priors", "priors_settings", "sampled_dimension"]
+__all__ = [
+    "study",
+    "StudyResult",
+    "RESUMABLE_SETTINGS",
+    "check_walkers",
+    "check_priors",
+    "priors_settings",
+    "sampled_dimension",
+]
 
 #: Settings that may differ when a run is resumed (``max_steps`` is checked against the
 #: stored chain instead, :func:`identify.output.results.check_resumable`).
@@ -161,8 +169,21 @@ def _default_model(model):
     return normalised_model(model) if alpha_free else model
 
 
-def _api_settings(record, model, *, seed, noise_sigma, n_starts, walkers, max_steps, check_every, moves, report, priors,
-                  select_terms=True):
+def _api_settings(
+    record,
+    model,
+    *,
+    seed,
+    noise_sigma,
+    n_starts,
+    walkers,
+    max_steps,
+    check_every,
+    moves,
+    report,
+    priors,
+    select_terms=True,
+):
     """The manifest's settings for a call from Python, with the keys the command line records."""
     return {
         **({} if select_terms else {"all_terms": True}),  # recorded when set (runs before it had every term)
@@ -292,14 +313,41 @@ def study(
     check_walkers(walkers, model, noise_sigma)
     check_priors(priors, model)
     if settings is None:
-        settings = _api_settings(record, model, seed=seed, noise_sigma=noise_sigma, n_starts=n_starts, walkers=walkers,
-                                 max_steps=max_steps, check_every=check_every, moves=moves, report=report,
-                                 priors=priors, select_terms=select_terms)  # fmt: skip
+        settings = _api_settings(
+            record,
+            model,
+            seed=seed,
+            noise_sigma=noise_sigma,
+            n_starts=n_starts,
+            walkers=walkers,
+            max_steps=max_steps,
+            check_every=check_every,
+            moves=moves,
+            report=report,
+            priors=priors,
+            select_terms=select_terms,
+        )
     if quiet and progress is None:
         progress = False  # quiet: no bar and no progress lines
-    run = _Run(Path(out), record, model, settings, seed=seed, noise_sigma=noise_sigma, n_starts=n_starts,
-               walkers=walkers, max_steps=max_steps, check_every=check_every, moves=moves, priors=priors,
-               select_terms=select_terms, force=force, report=report, progress=progress, quiet=quiet)  # fmt: skip
+    run = _Run(
+        Path(out),
+        record,
+        model,
+        settings,
+        seed=seed,
+        noise_sigma=noise_sigma,
+        n_starts=n_starts,
+        walkers=walkers,
+        max_steps=max_steps,
+        check_every=check_every,
+        moves=moves,
+        priors=priors,
+        select_terms=select_terms,
+        force=force,
+        report=report,
+        progress=progress,
+        quiet=quiet,
+    )
     if not lock:
         return run.execute()
     with FolderLock(run.out, command=f"identify.study({str(record.source)!r}, out={str(out)!r})") as held:
@@ -378,8 +426,9 @@ class _Run:
         self.t_start, self.started = _time.perf_counter(), now_iso()
         # everything that can be checked is checked before the first write
         self.noise = estimate_noise(self.record, noise_sigma=self.options["noise_sigma"])
-        self.manifest = build_manifest(seed=self.options["seed"], record=self.record, settings=self.settings,
-                                       started=self.started, task="study")  # fmt: skip
+        self.manifest = build_manifest(
+            seed=self.options["seed"], record=self.record, settings=self.settings, started=self.started, task="study"
+        )
         (self.out / _EXTENDING).unlink(missing_ok=True)  # an extension's copy left by a crash; chain.h5 is intact
         state = self.inspect_folder()
         if state is None:
@@ -478,9 +527,17 @@ class _Run:
                 status, error = "failed", f"{type(exc).__name__}: {exc}"
             raise
         finally:
-            if self.wrote_manifest and not (extending and status == "failed"):  # a failed extension leaves all as it was
-                manifest = finish_manifest(self.manifest, started=self.started, seconds=_time.perf_counter() - self.t_start,
-                                           status=status, phases=self.phases, error=error)  # fmt: skip
+            if self.wrote_manifest and not (
+                extending and status == "failed"
+            ):  # a failed extension leaves all as it was
+                manifest = finish_manifest(
+                    self.manifest,
+                    started=self.started,
+                    seconds=_time.perf_counter() - self.t_start,
+                    status=status,
+                    phases=self.phases,
+                    error=error,
+                )
                 write_json(self.out / FILES["manifest"], manifest)
         self.log("times: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in self.phases.items()))
         self.log(f"study finished in {_time.perf_counter() - self.t_start:.1f} s: {self.out}")
@@ -498,8 +555,9 @@ class _Run:
         else:
             self.log(f"least squares: {model!r}, {self.options['n_starts']} starts ...")
             verbose = len(record) >= LONG_RECORD_SAMPLES
-            fit = fit_or_explain(record, model, noise=self.noise, n_starts=self.options["n_starts"], rng=lsq_rng,
-                                 verbose=verbose)  # fmt: skip
+            fit = fit_or_explain(
+                record, model, noise=self.noise, n_starts=self.options["n_starts"], rng=lsq_rng, verbose=verbose
+            )
             if self.options["select_terms"]:
                 from ..fitting.terms import select_terms
 
@@ -541,8 +599,9 @@ class _Run:
         if opts["priors"] is not None:
             from ..fitting.priors import apply_priors
 
-            post_model, priors = apply_priors(fit.model, opts["priors"], start=fit.theta,
-                                              start_name="least-squares estimate")  # fmt: skip
+            post_model, priors = apply_priors(
+                fit.model, opts["priors"], start=fit.theta, start_name="least-squares estimate"
+            )
             self.log(f"priors: {', '.join(f'{n} {p.distribution}' for n, p in priors.items())} from {opts['priors']}")
         log_post = LogPosterior(record, post_model, fit.noise, priors=priors)
         free = log_post.free
@@ -554,14 +613,23 @@ class _Run:
             cov = np.pad(cov, ((0, 1), (0, 1)))
             cov[-1, -1] = 1.0 / (2.0 * dof)
         n_walkers = opts["walkers"] or default_n_walkers(log_post.ndim)
-        self.log(f"posterior: {n_walkers} walkers x {log_post.ndim} parameters, up to {opts['max_steps']} steps "
-                 f"({opts['moves']} moves)")  # fmt: skip
+        self.log(
+            f"posterior: {n_walkers} walkers x {log_post.ndim} parameters, up to {opts['max_steps']} steps "
+            f"({opts['moves']} moves)"
+        )
         with _chain_to_extend(out / FILES["chain"], state) as chain_path:
             posterior = sample_posterior(
-                log_post, lambda n, r: initial_walkers(log_post, mean, cov, n, r), chain_path, posterior_rng,
-                n_walkers=n_walkers, max_steps=opts["max_steps"], check_every=opts["check_every"],
-                moves=opts["moves"], progress=opts["progress"], log=self.log,
-            )  # fmt: skip
+                log_post,
+                lambda n, r: initial_walkers(log_post, mean, cov, n, r),
+                chain_path,
+                posterior_rng,
+                n_walkers=n_walkers,
+                max_steps=opts["max_steps"],
+                check_every=opts["check_every"],
+                moves=opts["moves"],
+                progress=opts["progress"],
+                log=self.log,
+            )
         summary = build_summary(record, fit, ident, posterior)
         summary["priors"] = prior_table(log_post)
         write_summary(out, summary)
@@ -571,7 +639,8 @@ class _Run:
         self.show(f"posterior: {posterior.message}")
         self.show(
             f"acceptance fraction {posterior.acceptance_fraction:.3f}; tau_max {posterior.tau_max:.1f} steps; "
-            f"{posterior.samples.shape[0]} samples after discarding {posterior.discard} and thinning by {posterior.thin}"
+            f"{posterior.samples.shape[0]} samples after discarding {posterior.discard} and thinning by "
+            f"{posterior.thin}"
         )
         return posterior, summary
 

@@ -38,10 +38,10 @@ import numpy as np
 from model import Model
 from model.inverse import DEFAULT_CURRENT_RANGE, STATUS_BRANCH, STATUS_EXACT, STATUS_NAMES, STATUS_SATURATED, invert
 
+from ..data.records import Record, RecordError, load_record
+from ..fitting.noise import MIN_QUIET_SAMPLES, NoiseModel, estimate_noise, quiet_segment
 from ..output import results
 from ..output.report import ModelBands
-from ..fitting.noise import MIN_QUIET_SAMPLES, NoiseModel, estimate_noise, quiet_segment
-from ..data.records import Record, RecordError, load_record
 
 __all__ = [
     "UseError",
@@ -160,7 +160,9 @@ def load_study(directory) -> Study:
         raise UseError(f"{path}: no such study folder")
     for role in ("data", "fit"):
         if not (path / results.FILES[role]).exists():
-            raise UseError(f"{path}: {results.FILES[role]} is missing: not a results folder of `python -m identify study`")
+            raise UseError(
+                f"{path}: {results.FILES[role]} is missing: not a results folder of `python -m identify study`"
+            )
     summary_path = path / results.FILES["summary"]
     if not summary_path.exists():
         raise UseError(
@@ -187,7 +189,9 @@ def load_study(directory) -> Study:
     fit = study.fit
     columns = np.flatnonzero(fit.vary)
     if flat.shape[1] < columns.size:
-        raise UseError(f"{study.chain_path}: the chain has {flat.shape[1]} coordinates for {columns.size} free parameters")
+        raise UseError(
+            f"{study.chain_path}: the chain has {flat.shape[1]} coordinates for {columns.size} free parameters"
+        )
     samples = np.repeat(fit.theta[None, :], flat.shape[0], axis=0)
     samples[:, columns] = flat[:, : columns.size]
     sample_sigma = np.exp(flat[:, -1]) if names and names[-1] == "noise_log_sigma" else None
@@ -221,9 +225,11 @@ def load_record_for_study(path, study: Study, **columns) -> Record:
     try:
         record = load_record(path, min_samples=MIN_WINDOW_SAMPLES, **options)
     except RecordError as exc:
-        raise UseError(f"{exc} (the study {study.path} was identified on columns "
-                       f"{study.record.input_name} [{study.record.input_unit}] -> {study.record.output_name} "
-                       f"[{study.record.output_unit}])") from None  # fmt: skip
+        raise UseError(
+            f"{exc} (the study {study.path} was identified on columns "
+            f"{study.record.input_name} [{study.record.input_unit}] -> {study.record.output_name} "
+            f"[{study.record.output_unit}])"
+        ) from None
     check_units(record, study)
     return record
 
@@ -236,7 +242,8 @@ def check_units(record: Record, study: Study) -> None:
     ):
         if mine != theirs:
             raise UseError(
-                f"{record.source}: its {what} is in {mine!r} but the study {study.path} was identified with the {what} in "
+                f"{record.source}: its {what} is in {mine!r} but the study {study.path} was identified with the "
+                f"{what} in "
                 f"{theirs!r}; convert the record (the model's parameters are in the study's units)"
             )
 
@@ -249,7 +256,9 @@ def check_units(record: Record, study: Study) -> None:
 Bands = ModelBands
 
 
-def bands_of(model: Model, draws, lsq_theta, time, drive, sigma, *, level=0.95, what="the record", curves_out=None) -> Bands:
+def bands_of(
+    model: Model, draws, lsq_theta, time, drive, sigma, *, level=0.95, what="the record", curves_out=None
+) -> Bands:
     """Push the draws and the least-squares vector through ``model`` in one call and summarise.
 
     Parameters
@@ -267,8 +276,10 @@ def bands_of(model: Model, draws, lsq_theta, time, drive, sigma, *, level=0.95, 
     batch = np.vstack([draws, np.asarray(lsq_theta)[None, :]])
     curves, valid = model.evaluate(batch, time, drive)
     if not valid[-1]:
-        raise UseError(f"the study's least-squares model is outside its domain on {what} (operator bounds cross or a "
-                       "non-finite output): the drive leaves the range the model was identified on")  # fmt: skip
+        raise UseError(
+            f"the study's least-squares model is outside its domain on {what} (operator bounds cross or a "
+            "non-finite output): the drive leaves the range the model was identified on"
+        )
     inside = valid[:-1]
     if not inside.any():
         raise UseError(f"every posterior draw is outside the model's domain on {what}")
@@ -398,9 +409,14 @@ class Prediction:
             "time_of_max": self.time_of_max,
             "rms_over_sigma": self.rms / self.noise_sigma,
             "training": self.training,
-            "window": {"start": self.window[0], "stop": self.window[1], "first_sample": self.start,
-                       "n_samples": self.stop - self.start, "n_scored": int(self.energised.sum()),
-                       "model_run_from_sample": 0},  # fmt: skip
+            "window": {
+                "start": self.window[0],
+                "stop": self.window[1],
+                "first_sample": self.start,
+                "n_samples": self.stop - self.start,
+                "n_scored": int(self.energised.sum()),
+                "model_run_from_sample": 0,
+            },
             "noise": self.noise.to_dict(),
             "adequacy": self.adequacy.to_dict(),
             "where": self.profile.to_dict(),
@@ -413,8 +429,12 @@ class Prediction:
                 "converged": study.converged,
                 "units": study.units,
             },
-            "record": {"file": str(self.record.source), "sha256": self.record.sha256, "n_samples": len(self.record),
-                       "notes": list(self.record.notes)},  # fmt: skip
+            "record": {
+                "file": str(self.record.source),
+                "sha256": self.record.sha256,
+                "n_samples": len(self.record),
+                "notes": list(self.record.notes),
+            },
             "notes": list(self.notes),
             "seconds": dict(self.seconds),
         }
@@ -431,7 +451,8 @@ def _window_indices(record: Record, window) -> tuple[int, int, tuple]:
     inside = np.flatnonzero((time >= t0) & (time <= t1))
     if inside.size < MIN_WINDOW_SAMPLES:
         raise UseError(
-            f"{record.source}: the window {t0:g}:{t1:g} s holds {inside.size} samples (at least {MIN_WINDOW_SAMPLES} needed); "
+            f"{record.source}: the window {t0:g}:{t1:g} s holds {inside.size} samples (at least {MIN_WINDOW_SAMPLES} "
+            "needed); "
             f"the record spans {time[0]:g} to {time[-1]:g} s"
         )
     return int(inside[0]), int(inside[-1]) + 1, (t0, t1)
@@ -519,7 +540,9 @@ def predict(
     energised_all[quiet] = False
     energised = energised_all[start:stop]
     if not energised.any():
-        raise UseError(f"{record.source}: the window {window[0]:g}:{window[1]:g} s holds no energised sample (the drive is zero)")
+        raise UseError(
+            f"{record.source}: the window {window[0]:g}:{window[1]:g} s holds no energised sample (the drive is zero)"
+        )
     noise = _noise_for(record, study)
     notes = _prediction_notes(study, record, noise, start, stop)
     v = _validation(study, record, noise, start, stop, energised, n_draws, rng, notes, say)
@@ -541,13 +564,33 @@ def predict(
         seconds["diagnosis"] = _time.perf_counter() - clock
     time, post, lsq = v.time, v.post, v.lsq
     return Prediction(
-        study=study, record=record, window=window, start=start, stop=stop, time=time, current=v.current,
-        measured=v.measured, energised=energised, bands=v.bands, rms=post["rms"], max_error_pct=post["max_error_pct"],
-        max_abs_error=post["max_abs_error"], time_of_max=float(time[post["worst"]]), rms_lsq=lsq["rms"],
-        max_error_pct_lsq=lsq["max_error_pct"], inside_predictive_band=float(v.inside[energised].mean()), noise=noise,
-        training=training, profile=profile, adequacy=adequacy, diagnosis=found, verdict=verdict, missing=missing,
-        notes=notes, seconds=seconds,
-    )  # fmt: skip
+        study=study,
+        record=record,
+        window=window,
+        start=start,
+        stop=stop,
+        time=time,
+        current=v.current,
+        measured=v.measured,
+        energised=energised,
+        bands=v.bands,
+        rms=post["rms"],
+        max_error_pct=post["max_error_pct"],
+        max_abs_error=post["max_abs_error"],
+        time_of_max=float(time[post["worst"]]),
+        rms_lsq=lsq["rms"],
+        max_error_pct_lsq=lsq["max_error_pct"],
+        inside_predictive_band=float(v.inside[energised].mean()),
+        noise=noise,
+        training=training,
+        profile=profile,
+        adequacy=adequacy,
+        diagnosis=found,
+        verdict=verdict,
+        missing=missing,
+        notes=notes,
+        seconds=seconds,
+    )
 
 
 def _say(progress):
@@ -589,17 +632,24 @@ def _prediction_notes(study: Study, record: Record, noise: NoiseModel, start: in
             f"({lo_train:.4g} to {hi_train:.4g}): the model extrapolates there"
         )
     if start > 0:
-        notes.append(f"the model runs from the record's first sample (t = {record.time[0]:g} s); only the window is scored")
+        notes.append(
+            f"the model runs from the record's first sample (t = {record.time[0]:g} s); only the window is scored"
+        )
     for name, text in (
-        ("sensor_drift", "sensor_drift is per record (normalised time): the study's drift is applied to this record's span"),
+        (
+            "sensor_drift",
+            "sensor_drift is per record (normalised time): the study's drift is applied to this record's span",
+        ),
         ("thermal", "thermal starts cold (no heating before the record's first sample)"),
         ("training", "training starts from the virgin state at the record's first sample"),
     ):
         if name in study.model.effect_names:
             notes.append(text)
     if noise.source == "user":
-        notes.append(f"no quiet start of {MIN_QUIET_SAMPLES}+ samples in this record: the study's noise sigma "
-                     f"{noise.sigma:.4g} {record.output_unit} is used")  # fmt: skip
+        notes.append(
+            f"no quiet start of {MIN_QUIET_SAMPLES}+ samples in this record: the study's noise sigma "
+            f"{noise.sigma:.4g} {record.output_unit} is used"
+        )
     return notes
 
 
@@ -619,20 +669,30 @@ class _Validation:
     inside: np.ndarray
 
 
-def _validation(study: Study, record: Record, noise: NoiseModel, start: int, stop: int, energised, n_draws, rng, notes,
-                say) -> _Validation:  # fmt: skip
+def _validation(
+    study: Study, record: Record, noise: NoiseModel, start: int, stop: int, energised, n_draws, rng, notes, say
+) -> _Validation:
     """Posterior draws and the least-squares vector through the model from the record's first
     sample (history included), scored on the window ``start:stop``."""
     draws, draw_sigma = study.draws(n_draws, rng)
     sigma = draw_sigma if draw_sigma is not None else noise.sigma
     say(f"pushing {draws.shape[0]} posterior draws through the model ({stop} samples)")
-    full = bands_of(study.model, draws, study.fit.theta, record.time[:stop], record.current[:stop], sigma,
-                    what=str(record.source))  # fmt: skip
+    full = bands_of(
+        study.model, draws, study.fit.theta, record.time[:stop], record.current[:stop], sigma, what=str(record.source)
+    )
     cut = slice(start, stop)
-    bands = Bands(*(getattr(full, f)[cut] for f in ("median", "credible_lo", "credible_hi", "predictive_lo",
-                                                     "predictive_hi", "lsq")), full.n_draws, full.n_outside)  # fmt: skip
+    bands = Bands(
+        *(
+            getattr(full, f)[cut]
+            for f in ("median", "credible_lo", "credible_hi", "predictive_lo", "predictive_hi", "lsq")
+        ),
+        full.n_draws,
+        full.n_outside,
+    )
     if full.n_outside:
-        notes.append(f"{full.n_outside} of {draws.shape[0]} draws are outside the model's domain on this record and were dropped")
+        notes.append(
+            f"{full.n_outside} of {draws.shape[0]} draws are outside the model's domain on this record and were dropped"
+        )
     time, current, measured = record.time[cut], record.current[cut], record.displacement[cut]
     output_range = float(np.ptp(measured[energised]))
     if not output_range > 0:
@@ -648,8 +708,15 @@ def _training_figures(study: Study, draws, draw_sigma) -> dict:
     train = study.record
     train_energised = np.ones(len(train), dtype=bool)
     train_energised[quiet_segment(train.current)] = False
-    train_bands = bands_of(study.model, draws, study.fit.theta, train.time, train.current,
-                           draw_sigma if draw_sigma is not None else study.noise.sigma, what="the training record")  # fmt: skip
+    train_bands = bands_of(
+        study.model,
+        draws,
+        study.fit.theta,
+        train.time,
+        train.current,
+        draw_sigma if draw_sigma is not None else study.noise.sigma,
+        what="the training record",
+    )
     train_range = float(np.ptp(train.displacement[train_energised]))
     train_post = _errors(train.displacement, train_bands.median, train_energised, train_range)
     train_inside = (train.displacement >= train_bands.predictive_lo) & (train.displacement <= train_bands.predictive_hi)
@@ -680,22 +747,33 @@ def _residual_check(v: _Validation, noise: NoiseModel, quiet: slice, start: int)
         noise_ref = fit_ar_noise(residual_lsq[: quiet.stop])
     else:
         noise_ref = ARNoise(np.zeros(0), float(noise.sigma), float(noise.sigma), 10**9)
-    profile = residual_profile(v.time, v.current, residual_lsq, quiet_w, output_range=float(np.ptp(v.measured)), noise=noise_ref)
+    profile = residual_profile(
+        v.time, v.current, residual_lsq, quiet_w, output_range=float(np.ptp(v.measured)), noise=noise_ref
+    )
     return profile, assess_adequacy(profile)
 
 
-def _diagnose_window(study: Study, record: Record, v: _Validation, noise: NoiseModel, start: int, window, n_starts, rng,
-                     notes, say):  # fmt: skip
+def _diagnose_window(
+    study: Study, record: Record, v: _Validation, noise: NoiseModel, start: int, window, n_starts, rng, notes, say
+):
     """``(diagnosis, verdict, missing)``: which effect the window reveals, the study's
     least-squares vector as the baseline; ``parameters_differ`` when a refitted baseline is
     adequate there."""
     from ..diagnosis.diagnose import diagnose
 
     time, current, measured = v.time, v.current, v.measured
-    window_record = replace(record, time=time, current=current, displacement=measured,
-                            notes=(*record.notes, f"window {window[0]:g}:{window[1]:g} s"))  # fmt: skip
-    diag_noise = noise if (noise.quiet is not None and start == 0) else NoiseModel(
-        sigma=float(noise.sigma), rho=0.0, kind="white", source="user")  # fmt: skip
+    window_record = replace(
+        record,
+        time=time,
+        current=current,
+        displacement=measured,
+        notes=(*record.notes, f"window {window[0]:g}:{window[1]:g} s"),
+    )
+    diag_noise = (
+        noise
+        if (noise.quiet is not None and start == 0)
+        else NoiseModel(sigma=float(noise.sigma), rho=0.0, kind="white", source="user")
+    )
     own = study.model(study.fit.theta, time, current)  # the diagnosis runs the model on the window alone
     baseline = _baseline_fit(study.fit, window_record, own, diag_noise)
     say("the validation residual is not noise: diagnosing which effect the record reveals")
@@ -725,11 +803,16 @@ def _baseline_fit(fit, record: Record, model_output, noise: NoiseModel):
     w = whitened(fit.theta[whitened.free])
     dof = max(len(record) - int(fit.vary.sum()), 1)
     return replace(
-        fit, residual=residual, noise=noise,
+        fit,
+        residual=residual,
+        noise=noise,
         rms=float(np.sqrt(np.mean(residual[energised] ** 2))),
         max_error_pct=float(100.0 * np.abs(residual[energised]).max() / output_range),
-        reduced_chi2=float(w @ w) / dof, n_starts=0, message="the study's least-squares vector (not refitted)", seconds=0.0,
-    )  # fmt: skip
+        reduced_chi2=float(w @ w) / dof,
+        n_starts=0,
+        message="the study's least-squares vector (not refitted)",
+        seconds=0.0,
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -773,7 +856,11 @@ def load_target(path, *, time_column: str = "time", output_column: str = "displa
         raise UseError(f"{path}: no such target file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise UseError(f"{path}: cannot read the target file ({exc})") from None
-    lines = [(n, line) for n, line in enumerate(text.splitlines(), start=1) if line.strip() and not line.lstrip().startswith("#")]
+    lines = [
+        (n, line)
+        for n, line in enumerate(text.splitlines(), start=1)
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
     if not lines:
         raise UseError(f"{path}: empty; expected a header '{time_column},{output_column}' and one row per sample")
     header_line, header_text = lines[0]
@@ -782,7 +869,8 @@ def load_target(path, *, time_column: str = "time", output_column: str = "displa
     if missing:
         raise UseError(
             f"{path}, line {header_line}: missing column(s) {', '.join(map(repr, missing))}; columns present: "
-            f"{', '.join(map(repr, header))} (a target is CSV '{time_column},{output_column}', in s and the study's output unit)"
+            f"{', '.join(map(repr, header))} (a target is CSV '{time_column},{output_column}', in s and the study's "
+            "output unit)"
         )
     jt, jy = header.index(time_column), header.index(output_column)
     t, y = [], []
@@ -858,15 +946,26 @@ class Compensation:
     def to_dict(self) -> dict:
         study = self.study
         out = dict(self.summary)
-        out.update({
-            "current_range": list(self.current_range),
-            "study": {"path": str(study.path), "model": study.model.to_dict(), "converged": study.converged,
-                      "units": study.units, "data": study.manifest.get("data", {})},
-            "target": {"file": self.target.source, "n_samples": int(self.target.time.size),
-                       "min": float(self.target.displacement.min()), "max": float(self.target.displacement.max())},
-            "notes": list(self.notes),
-            "seconds": dict(self.seconds),
-        })  # fmt: skip
+        out.update(
+            {
+                "current_range": list(self.current_range),
+                "study": {
+                    "path": str(study.path),
+                    "model": study.model.to_dict(),
+                    "converged": study.converged,
+                    "units": study.units,
+                    "data": study.manifest.get("data", {}),
+                },
+                "target": {
+                    "file": self.target.source,
+                    "n_samples": int(self.target.time.size),
+                    "min": float(self.target.displacement.min()),
+                    "max": float(self.target.displacement.max()),
+                },
+                "notes": list(self.notes),
+                "seconds": dict(self.seconds),
+            }
+        )
         return results.jsonable(out)
 
 
@@ -909,7 +1008,8 @@ def reachable_range(model: Model, theta, time, current_range) -> tuple[float, fl
 
 
 def default_current_range(study: Study) -> tuple[float, float]:
-    """The rig's 0-5 A for a study in A (:data:`model.inverse.DEFAULT_CURRENT_RANGE`), else the training drive's range."""
+    """The rig's 0-5 A for a study in A (:data:`model.inverse.DEFAULT_CURRENT_RANGE`), else the training drive's
+    range."""
     if study.record.input_unit == "A":
         return DEFAULT_CURRENT_RANGE
     return float(np.min(study.record.current)), float(np.max(study.record.current))
@@ -966,7 +1066,12 @@ def compensate(
     """
     say, seconds = _say(progress), {}
     study, target, rng = _prepared(
-        study, target, Target, lambda path, study: load_target(path, output_column=study.record.output_name), n_draws, rng
+        study,
+        target,
+        Target,
+        lambda path, study: load_target(path, output_column=study.record.output_name),
+        n_draws,
+        rng,
     )
     lo, hi = default_current_range(study) if current_range is None else (float(x) for x in current_range)
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
@@ -979,19 +1084,33 @@ def compensate(
     counts = summary["model_tracking"]["samples"]
     if counts["branch"] or counts["saturated"]:
         notes.append(
-            f"the median model misses the target at {counts['branch'] + counts['saturated']} samples (Omega switch gaps "
+            f"the median model misses the target at {counts['branch'] + counts['saturated']} samples (Omega switch "
+            "gaps "
             f"{counts['branch']}, current limit {counts['saturated']}; max {np.abs(med.error).max():.3g} "
             f"{study.record.output_unit})"
         )
     current_lo, current_median, current_hi = np.quantile(t.each.current, [0.025, 0.5, 0.975], axis=0)
     bands = t.bands
     return Compensation(
-        study=study, target=target, current=med.current, status=med.status, model_output=med.output,
-        current_lo=current_lo, current_hi=current_hi, current_median=current_median, error_median=t.error_median,
-        error_lo=bands.credible_lo - y_target, error_hi=bands.credible_hi - y_target,
-        predictive_lo=bands.predictive_lo - y_target, predictive_hi=bands.predictive_hi - y_target,
-        lsq_error=bands.lsq - y_target, summary=summary, current_range=(lo, hi), notes=notes, seconds=seconds,
-    )  # fmt: skip
+        study=study,
+        target=target,
+        current=med.current,
+        status=med.status,
+        model_output=med.output,
+        current_lo=current_lo,
+        current_hi=current_hi,
+        current_median=current_median,
+        error_median=t.error_median,
+        error_lo=bands.credible_lo - y_target,
+        error_hi=bands.credible_hi - y_target,
+        predictive_lo=bands.predictive_lo - y_target,
+        predictive_hi=bands.predictive_hi - y_target,
+        lsq_error=bands.lsq - y_target,
+        summary=summary,
+        current_range=(lo, hi),
+        notes=notes,
+        seconds=seconds,
+    )
 
 
 def _compensation_notes(study: Study) -> list[str]:
@@ -1008,8 +1127,10 @@ def _compensation_notes(study: Study) -> list[str]:
     if "training" in model.effect_names:
         notes.append("training: the compensation assumes the virgin first cycle the model identified")
     if "lag" in model.effect_names:
-        notes.append("lag: the current leads the drive; at an Omega switch the drive must cross a dead zone at once, "
-                     "which a lag cannot: the current saturates for a few samples there (flagged)")  # fmt: skip
+        notes.append(
+            "lag: the current leads the drive; at an Omega switch the drive must cross a dead zone at once, "
+            "which a lag cannot: the current saturates for a few samples there (flagged)"
+        )
     return notes
 
 
@@ -1030,16 +1151,20 @@ def _invert_median(study: Study, target: Target, limits: tuple[float, float], se
     seconds["inverse_median"] = _time.perf_counter() - clock
     tolerance = max(REACH_TOLERANCE * max(span, 1.0), med.ytol)
     y_low, y_high = reachable_range(model, median_theta, time, (lo, hi))
-    beyond = ((med.current >= hi) & (y_target > y_high + tolerance)) | ((med.current <= lo) & (y_target < y_low - tolerance))
+    beyond = ((med.current >= hi) & (y_target > y_high + tolerance)) | (
+        (med.current <= lo) & (y_target < y_low - tolerance)
+    )
     unreachable = (med.status == STATUS_SATURATED) & beyond
     if unreachable.any():
         k = int(np.flatnonzero(unreachable)[0])
         side = "above the highest" if y_target[k] > y_high else "below the lowest"
         raise UseError(
             f"{target.source}: the target leaves the displacement the model reaches with the current in {lo:g}..{hi:g} "
-            f"{in_unit} ({y_low:.6g} to {y_high:.6g} {unit} over a sweep between the limits): at t = {time[k]:.6g} s it "
+            f"{in_unit} ({y_low:.6g} to {y_high:.6g} {unit} over a sweep between the limits): at t = {time[k]:.6g} s "
+            "it "
             f"asks for {y_target[k]:.6g} {unit}, {side}; the model gives {med.output[k]:.6g} {unit} there at the "
-            f"{'upper' if med.current[k] >= hi else 'lower'} limit ({int(unreachable.sum())} such samples; the target spans "
+            f"{'upper' if med.current[k] >= hi else 'lower'} limit ({int(unreachable.sum())} such samples; the target "
+            "spans "
             f"{y_target.min():.6g} to {y_target.max():.6g} {unit}). Shrink the target or widen --current-range"
         )
     return med
@@ -1070,8 +1195,16 @@ def _tracking(study: Study, target: Target, med, limits, n_draws, rng, seconds: 
     clock = _time.perf_counter()
     sigma = draw_sigma if draw_sigma is not None else study.noise.sigma
     kept: list = []
-    bands = bands_of(model, draws, _compensation_theta(model, study.fit.theta), time, med.current, sigma,
-                     what=f"the compensation current of {target.source}", curves_out=kept)  # fmt: skip
+    bands = bands_of(
+        model,
+        draws,
+        _compensation_theta(model, study.fit.theta),
+        time,
+        med.current,
+        sigma,
+        what=f"the compensation current of {target.source}",
+        curves_out=kept,
+    )
     errors = kept[0] - y_target[None, :]
     seconds["tracking"] = _time.perf_counter() - clock
     return _Tracking(int(draws.shape[0]), each, bands, errors, bands.median - y_target)
@@ -1087,13 +1220,16 @@ def _compensation_summary(study: Study, target: Target, med, t: _Tracking) -> di
     max_d = np.abs(errors).max(axis=1)
     self_error = med.error
     counts = {STATUS_NAMES[s]: int((med.status == s).sum()) for s in (STATUS_EXACT, STATUS_SATURATED, STATUS_BRANCH)}
-    draw_counts = {STATUS_NAMES[s]: int((each.status == s).sum()) for s in (STATUS_EXACT, STATUS_SATURATED, STATUS_BRANCH)}
+    draw_counts = {
+        STATUS_NAMES[s]: int((each.status == s).sum()) for s in (STATUS_EXACT, STATUS_SATURATED, STATUS_BRANCH)
+    }
     pct = 100.0 / span if span > 0 else math.nan
     lsq_error = bands.lsq - y_target
     return {
         "tracking_error": {
-            "what": "posterior draws driven by the median's feedforward current, model minus target; RMS and max |error| "
-                    "per draw, their median and 95 % interval",
+            "what": "posterior draws driven by the median's feedforward current, model minus target; RMS and max "
+            "|error| "
+            "per draw, their median and 95 % interval",
             "rms": _interval(rms_d),
             "max_abs": _interval(max_d),
             "rms_pct": _interval(rms_d * pct),
@@ -1111,8 +1247,9 @@ def _compensation_summary(study: Study, target: Target, med, t: _Tracking) -> di
         "current": {
             "min": float(med.current.min()),
             "max": float(med.current.max()),
-            "draws_band_half_width_median": float(np.median(0.5 * (np.quantile(each.current, 0.975, axis=0)
-                                                                    - np.quantile(each.current, 0.025, axis=0)))),
+            "draws_band_half_width_median": float(
+                np.median(0.5 * (np.quantile(each.current, 0.975, axis=0) - np.quantile(each.current, 0.025, axis=0)))
+            ),
             "draw_samples": draw_counts,
         },
         "target_range": span,
