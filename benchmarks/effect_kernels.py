@@ -11,10 +11,10 @@ uniform grid (``k * 2**-10`` s) has one step. The filters of the effects (``ther
 nodes, ``creep``'s modes, ``lag``) need ``exp(-step / tau)`` per step and mode, so a kernel
 that recomputes them whenever the step changes pays for the CSV grid, one that tabulates
 them per distinct step does not. Prints, per effect, the best time of ``Model([effect])``'s
-evaluation (the GPI and the effect; the plain GPI first, for reference) for ``W`` parameter sets (the effect's test
-parameters, its time constants scaled over a
-decade; creep's logarithmic modes on too) on the paper's input on both grids, and their
-ratio (1.0: the grid does not matter).
+evaluation (the GPI and the effect; the plain GPI first, for reference) for ``W`` parameter
+sets (the effect's test parameters, its time constants scaled over a decade; creep's
+logarithmic modes on too) on the paper's input on both grids, and their ratio (1.0: the grid
+does not matter).
 """
 
 from __future__ import annotations

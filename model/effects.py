@@ -1638,14 +1638,13 @@ class Creep(Effect):
     until the twinning stress balances them; thermally activated boundary motion gives
     the logarithmic law.
 
-    Trade-offs with the other effects: a fast saturating creep (:math:`\tau` of a few
-    sample steps) acts like a lag of the output (:math:`A > 0`) or a lead (:math:`A < 0`).
-    Trade-offs within the effect: :math:`\tau` with :math:`d` (a wide spectrum with a
-    shorter centre resembles a narrower one with a longer centre over a record), and
-    :math:`A` with :math:`\gamma` where the saturating spectrum is wide (both logarithmic
-    within the span), and :math:`q` with :math:`t_0` (both delay the growth after a
-    reversal; :math:`q` has no effect while :math:`\gamma = 0`). Measured Jacobian rank with the GPI on the paper's
-    input:
+    Trade-offs with the other effects: a fast saturating creep (:math:`\tau` of a few sample
+    steps) acts like a lag of the output (:math:`A > 0`) or a lead (:math:`A < 0`). Trade-offs
+    within the effect: :math:`\tau` with :math:`d` (a wide spectrum with a shorter centre
+    resembles a narrower one with a longer centre over a record), and :math:`A` with
+    :math:`\gamma` where the saturating spectrum is wide (both logarithmic within the span), and
+    :math:`q` with :math:`t_0` (both delay the growth after a reversal; :math:`q` has no effect
+    while :math:`\gamma = 0`). Measured Jacobian rank with the GPI on the paper's input:
     ``docs/effects.md``.
 
     Parameters: ``creep_amplitude`` (fraction of a step that creeps, -0.5-0.5; < 0

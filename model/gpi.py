@@ -748,8 +748,8 @@ def gpi(
     ------
     ValueError
         Malformed input only: non-finite or wrongly shaped ``theta``/``current``/
-        ``initial_memory``/``initial_excursion``/``initial_held``, fewer than 2 samples, ``n_operators < 1``, an
-        unknown reading.
+        ``initial_memory``/``initial_excursion``/``initial_held``, fewer than 2 samples,
+        ``n_operators < 1``, an unknown reading.
     """
     theta2, current2, n_operators, rising_is_a, z0, single = _prepare(
         theta, current, n_operators, reading, initial_memory

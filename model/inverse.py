@@ -69,20 +69,19 @@ Effects with dynamics
 its own state in the per-sample step: the current found at sample ``k`` is the one whose
 *filtered* drive (lag) and whose heating (thermal, both nodes) give the target; creep's
 modes (the saturating spectrum and the logarithmic ones, these with the part held to the
-leg's end) are advanced with the strain found. A lag's dead time (``lag_delay`` not 0) is refused: the current at a
-sample acts on
-the output only a dead time later, which no per-sample step can reach. A lag is inverted exactly too, which means the
-current leads the drive
-(:math:`i \approx u + \tau_L \dot u`) and steps where the drive has a kink; the exact step
-of a first-order filter with an input linear between samples has a zero near -1 in the
-sample domain, so a step in :math:`u` makes :math:`i` ring with alternating sign, decaying as
-:math:`(-1 + h/3\tau_L)^k`: real, but the current limits may bind. ``training`` (its drive, width and strain parts) and
-``initial_state`` (its level, prior excursion and held memory) are inverted as identified (the
-compensation starts from the model's initial state). ``sensor_drift`` is supported here (an offset per sample, whatever
-its form: the effect's own output on a zero displacement), but it is
-a property of the sensor, not of the transducer (the workflows leave it out of a
-compensation). An effect without an inverse step here raises a :class:`ValueError`
-naming it.
+leg's end) are advanced with the strain found. A lag's dead time (``lag_delay`` not 0) is
+refused: the current at a sample acts on the output only a dead time later, which no
+per-sample step can reach. A lag is inverted exactly too, which means the current leads the
+drive (:math:`i \approx u + \tau_L \dot u`) and steps where the drive has a kink; the exact
+step of a first-order filter with an input linear between samples has a zero near -1 in the
+sample domain, so a step in :math:`u` makes :math:`i` ring with alternating sign, decaying
+as :math:`(-1 + h/3\tau_L)^k`: real, but the current limits may bind. ``training`` (its
+drive, width and strain parts) and ``initial_state`` (its level, prior excursion and held
+memory) are inverted as identified (the compensation starts from the model's initial state).
+``sensor_drift`` is supported here (an offset per sample, whatever its form: the effect's
+own output on a zero displacement), but it is a property of the sensor, not of the
+transducer (the workflows leave it out of a compensation). An effect without an inverse step
+here raises a :class:`ValueError` naming it.
 """
 
 from __future__ import annotations

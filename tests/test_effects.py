@@ -902,11 +902,11 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
 
 def test_creep_tabulated_steps_equal_the_per_change_coefficients(monkeypatch):
     """The creep kernel computes each mode's coefficients once per distinct held step
-    (:func:`model.effects._distinct_steps` with ``CREEP_STEP_HOLD``): bit for bit its direct rule (recompute whenever
-    the
-    step changes by more than 1e-12 of itself), on a grid as a 1 kHz CSV gives (steps that
-    differ in their last bits at most samples) with genuinely different steps in it, for the
-    saturating spectrum, the logarithmic modes and the part held from a leg's end."""
+    (:func:`model.effects._distinct_steps` with ``CREEP_STEP_HOLD``): bit for bit its direct
+    rule (recompute whenever the step changes by more than 1e-12 of itself), on a grid as a 1
+    kHz CSV gives (steps that differ in their last bits at most samples) with genuinely
+    different steps in it, for the saturating spectrum, the logarithmic modes and the part held
+    from a leg's end."""
     from model import effects
     from model.effects import CREEP_STEP_HOLD, MAX_DISTINCT_STEPS, _distinct_steps
 

@@ -455,8 +455,8 @@ def _gaussian_variance_ratio(moves, dim=18, n_walkers=36, n_steps=4000, discard=
 def test_the_study_moves_leave_a_gaussian_posterior_invariant():
     """The study's move schedule (DE 80 %, corrected snooker 20 %) on a correlated 18-D
     Gaussian (the GPI posterior's dimension, 36 walkers) reproduces the variances. Measured:
-    ratio 0.98 (0.99 with emcee's loop order of random draws); the standard error of the ratio here is about 0.02, so
-    accept 0.93-1.07."""
+    ratio 0.98 (0.99 with emcee's loop order of random draws); the standard error of the ratio
+    here is about 0.02, so accept 0.93-1.07."""
     ratio = _gaussian_variance_ratio(MOVES["de"]())
     assert 0.93 <= ratio <= 1.07, ratio
 

@@ -21,14 +21,14 @@ the measured displacement range, i.e. log-uniform in sigma.
 
 Log-posterior
 -------------
-:class:`LogPosterior` is evaluated for all walkers at once (emcee ``vectorize=True``:
-ONE model call per step). It returns ``-inf`` for a walker outside the bounds *before*
+:class:`LogPosterior` is evaluated for all walkers at once (emcee ``vectorize=True``: ONE
+model call per step). It returns ``-inf`` for a walker outside the bounds *before*
 evaluating the model, and for one whose model output is not finite (the GPI itself is
-defined for every parameter set: :mod:`model.gpi`, "The whole domain"); it never raises and never returns NaN (a model
-error for the batch
-falls back to one row at a time; rows that still fail get ``-inf`` and are counted in
-:attr:`LogPosterior.n_errors`). The likelihood is :func:`identify.fitting.noise.log_likelihood`,
-evaluated in one fused pass (:func:`identify.fitting.noise.log_likelihood_of_rows`).
+defined for every parameter set: :mod:`model.gpi`, "The whole domain"); it never raises and
+never returns NaN (a model error for the batch falls back to one row at a time; rows that
+still fail get ``-inf`` and are counted in :attr:`LogPosterior.n_errors`). The likelihood is
+:func:`identify.fitting.noise.log_likelihood`, evaluated in one fused pass
+(:func:`identify.fitting.noise.log_likelihood_of_rows`).
 
 Sampling
 --------
