@@ -989,14 +989,15 @@ def test_the_posterior_samples_only_the_canonical_half():
 @pytest.mark.parametrize("name", list(EFFECTS))
 def test_every_effect_says_what_tells_it_apart(name):
     """The diagnosis quotes it when two effects fit a record equally well."""
-    from identify.diagnosis.diagnose import _telling_apart
+    from identify.diagnosis.explanation import telling_apart
 
     signature = EFFECTS[name].signature
     assert len(signature) > 30 and not signature.endswith(".")
     other = next(n for n in EFFECTS if n != name)
-    text = _telling_apart(name, other)
+    text = telling_apart(name, other)
     assert f"'{name}' {signature}" in text and f"'{other}' {EFFECTS[other].signature}" in text
-    assert _telling_apart(name, f"{other}+{name}") == ""  # a pair is no single effect to describe
+    assert telling_apart(name, f"{other}+{name}") == text  # a pair is described by its members
+    assert telling_apart(name) == ""  # one effect: nothing to tell apart
 
 
 def test_training_with_every_strength_on_batch_is_each_rows_own_output(paper_input):
