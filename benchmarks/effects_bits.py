@@ -11,9 +11,10 @@ irregular sample times (the first 30 s, steps uniform in 5-15 ms). Each model ge
 parameter sets: every effect off, its test parameters, and ten random sets (fixed seed)
 in which each effect parameter is, with probability 0.7, uniform within its bounds, else at
 its ``off`` value; the GPI at Table 1. A parameter's random values depend only on its name
-(the seed is the name's CRC32), so a parameter added later sits at ``off`` and the others
-keep their values: the check then also shows that the new parameters' off setting leaves
-the old form bit for bit. ``--check`` compares the outputs and validity masks with
+(the seed is the name's CRC32), and the saved file keeps each model's parameter names:
+``--check`` puts a parameter the saved model did not have at its ``off`` value, so the
+others keep their values and the check also shows that a new parameter's off setting
+leaves the old form bit for bit. ``--check`` compares the outputs and validity masks with
 ``np.array_equal`` (NaN equal to NaN) and exits 1 on any difference.
 """
 
@@ -40,8 +41,9 @@ def inputs() -> dict:
     return {"paper_100hz": (time, current), "irregular": (irregular, np.interp(irregular, time, current))}
 
 
-def parameter_sets(m: Model) -> np.ndarray:
-    """``(2 + N_RANDOM, P)``: off, test parameters, random sets (see the module docstring)."""
+def parameter_sets(m: Model, known=None) -> np.ndarray:
+    """``(2 + N_RANDOM, P)``: off, test parameters, random sets (see the module docstring); a
+    parameter not in ``known`` (names; default all) stays off in the random sets."""
     rows = [m.default_theta(TABLE1)]
     test = m.default_theta(TABLE1)
     for effect in m.effects:
@@ -54,22 +56,26 @@ def parameter_sets(m: Model) -> np.ndarray:
             for p in effect.parameters:
                 rng = np.random.default_rng([SEED, zlib.crc32(p.name.encode()), k])
                 on, value = rng.uniform() < 0.7, rng.uniform(p.lower, p.upper)
-                if on:
+                if on and (known is None or p.name in known):
                     theta[m.names.index(p.name)] = value
         rows.append(theta)
     return np.array(rows)
 
 
-def outputs() -> dict:
-    """``{key: array}``: every model's output and validity on every input."""
+def outputs(saved=None) -> dict:
+    """``{key: array}``: every model's output, validity and parameter names on every input;
+    the random sets use only the parameters ``saved`` (a loaded file) has for that model."""
     models = {name: Model([name]) for name in EFFECTS}
     models["all"] = Model(list(EFFECTS))
     out = {}
     for label, (time, current) in inputs().items():
         for key, m in models.items():
-            y, valid = m.evaluate(parameter_sets(m), time, current)
+            names_key = f"{label}/{key}/names"
+            known = None if saved is None or names_key not in saved.files else set(saved[names_key].tolist())
+            y, valid = m.evaluate(parameter_sets(m, known), time, current)
             out[f"{label}/{key}/y"] = y
             out[f"{label}/{key}/valid"] = valid
+            out[names_key] = np.array(m.names)
     return out
 
 
@@ -79,22 +85,23 @@ def main(argv=None) -> int:
     group.add_argument("--save", metavar="NPZ", help="write the outputs here")
     group.add_argument("--check", metavar="NPZ", help="compare the outputs with this file")
     args = parser.parse_args(argv)
-    got = outputs()
+    saved = np.load(args.check) if args.check else None
+    got = outputs(saved)
     if args.save:
         np.savez_compressed(args.save, **got)
         print(f"saved {len(got)} arrays to {args.save}")
         return 0
-    saved = np.load(args.check)
-    differ = [k for k in saved.files if k not in got or not np.array_equal(saved[k], got[k], equal_nan=True)]
-    missing = [k for k in got if k not in saved.files]
-    for k in saved.files:
+    results = [k for k in saved.files if not k.endswith("/names")]
+    differ = [k for k in results if k not in got or not np.array_equal(saved[k], got[k], equal_nan=True)]
+    missing = [k for k in got if k not in saved.files and not k.endswith("/names")]
+    for k in results:
         if k in got and k.endswith("/y") and k not in differ:
             print(f"same  {k} {got[k].shape}")
     for k in differ:
         print(f"DIFFERS {k}")
     for k in missing:
         print(f"new (not compared) {k}")
-    print(f"{len(saved.files) - len(differ)} of {len(saved.files)} arrays bit for bit the same")
+    print(f"{len(results) - len(differ)} of {len(results)} arrays bit for bit the same")
     return 1 if differ else 0
 
 
