@@ -513,6 +513,74 @@ def signature_incomplete_reset(paper_input, plain_gpi):
         incomplete_reset_strain(current, plain_gpi[:-1], [A], [R], [0.0])
 
 
+def signature_incomplete_reset_loading_shape(paper_input, plain_gpi):
+    """The virgin loading's general form: the extra strain follows A (e/E)^p of a loading
+    variable that mixes the strain's and the drive's excursion (share m). A = 0 is the plain
+    GPI bit for bit whatever m and p; m = 0, p = 1 is the strain-proportional form bit for bit
+    (and the general computation's limit there); p < 1 front-loads the extra strain (an early
+    overshoot), p > 1 delays it, m = 1 makes it follow the drive; the first unloading resets
+    the same shape (the phi-measure of the levels it passes), keeping the fraction R."""
+    time, current = paper_input
+    m = Model(["incomplete_reset"])
+    A, R = 6.0, 0.4
+
+    def change(**values):
+        theta = m.theta_from_dict({"incomplete_reset_strain": A, "incomplete_reset_retained": R, **values})
+        return m(theta, time, current) - plain_gpi
+
+    # off exact whatever the shape; the special case bit for bit, and the general path's limit
+    off = m.theta_from_dict({"incomplete_reset_drive": 1.0, "incomplete_reset_shape": 0.3})
+    assert np.array_equal(m(off, time, current), plain_gpi)
+    proportional = change()
+    assert np.array_equal(proportional, change(incomplete_reset_drive=0.0, incomplete_reset_shape=1.0))
+    assert np.array_equal(
+        proportional + plain_gpi, plain_gpi + incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0])[0]
+    )
+    near = incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0], drive=[1e-300])[0]  # general path
+    np.testing.assert_allclose(near, proportional, rtol=0, atol=1e-12)
+
+    excursion = np.abs(plain_gpi - plain_gpi[0])
+    E = excursion.max()
+    peak = int(np.argmax(excursion))
+    first_rise = np.arange(np.searchsorted(time, 10.0), peak + 1)
+    share = excursion[first_rise] / E
+    for p in (0.4, 2.5):
+        shaped = change(incomplete_reset_shape=p)
+        # the virgin loading adds A (e/E)^p
+        np.testing.assert_allclose(shaped[first_rise], A * share**p, rtol=1e-12, atol=1e-12)
+        # the recursion on the levels l = (e/E)^p (the reference run on them as its "strain")
+        levels = (excursion / E) ** p
+        np.testing.assert_allclose(shaped, _incomplete_reset_reference(current, levels, A, R, 0.0), atol=1e-9)
+    # front-loaded (p < 1): at a quarter of the largest excursion more than a quarter of A;
+    # late (p > 1): less
+    quarter = first_rise[np.searchsorted(share, 0.25)]
+    assert change(incomplete_reset_shape=0.4)[quarter] > 1.5 * proportional[quarter] > 0
+    assert 0 < change(incomplete_reset_shape=2.5)[quarter] < 0.5 * proportional[quarter]
+    # m = 1: the extra strain follows the drive's excursion (to A at the drive's largest), not the strain's
+    drive_share = np.abs(current - current[0]) / np.abs(current - current[0]).max()
+    by_drive = change(incomplete_reset_drive=1.0)
+    top = int(np.argmax(drive_share))
+    rising = np.arange(np.searchsorted(time, 10.0), top + 1)
+    np.testing.assert_allclose(by_drive[rising], A * drive_share[rising], rtol=1e-12, atol=1e-12)
+    assert not np.allclose(by_drive[rising], proportional[rising], atol=0.1)
+    np.testing.assert_allclose(by_drive, _incomplete_reset_reference(current, drive_share, A, R, 0.0), atol=1e-9)
+    # a mix: the level of (1 - m) e/E_y + m |i - i0|/E_i
+    mixed = 0.3 * excursion / E + 0.7 * drive_share
+    levels = (mixed / mixed.max()) ** 0.6
+    np.testing.assert_allclose(
+        change(incomplete_reset_drive=0.7, incomplete_reset_shape=0.6),
+        _incomplete_reset_reference(current, levels, A, R, 0.0),
+        atol=1e-9,
+    )
+    # a Jacobian's batch with the general form on: every row its own single evaluation
+    theta = m.theta_from_dict(
+        {"incomplete_reset_strain": A, "incomplete_reset_drive": 0.3, "incomplete_reset_shape": 0.6}
+    )
+    _assert_jacobian_batch_rows_are_single(m, theta, time[::4], current[::4], repeats=(0,))
+    with pytest.raises(ValueError, match="incomplete_reset_shape finite and > 0"):
+        incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0], shape=[0.0])
+
+
 def signature_thermal_two_nodes(paper_input, plain_gpi):
     """Node 2 follows node 1 through its own time constant: against the analytic two-pole
     response to a constant heating switched on at t_on; node 2's gains 0 is the one-node form bit for bit."""
@@ -768,6 +836,7 @@ GENERAL_FORMS = {
     "logarithmic creep after each leg": signature_log_creep_after_leg,
     "settling drift": signature_settling_drift,
     "ambient drift": signature_ambient_drift,
+    "incomplete_reset loading shape": signature_incomplete_reset_loading_shape,
 }
 
 
