@@ -92,14 +92,9 @@ import numpy as np
 from numba import njit, prange
 
 from .composite import Model
-from .effects import (
-    CREEP_MODES,
-    LOG_CREEP_MODE_WEIGHT,
-    REFERENCE_CURRENT,
-    _leg_end_level,
-    creep_time_constants,
-    log_creep_time_constants,
-)
+from .effects._filters import leg_end_level
+from .effects.creep import CREEP_MODES, LOG_CREEP_MODE_WEIGHT, creep_time_constants, log_creep_time_constants
+from .effects.thermal import REFERENCE_CURRENT
 from .gpi import READINGS, THETA_NAMES, initial_operator_memory, operator_thresholds_and_weights
 
 __all__ = [
@@ -315,7 +310,7 @@ def _evaluate(
         if cp[2] != 0.0 and n_log > 0:
             x_prev, x_now = st[12], y_strain
             if cp[4] != 0.0:  # the part creeping from the leg's end sees the held strain
-                held, _ = _leg_end_level(st[12], st[15], st[17], st[16])
+                held, _ = leg_end_level(st[12], st[15], st[17], st[16])
                 x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
             grown = 0.0
             for m in range(n_sat, n_sat + n_log):
@@ -419,7 +414,7 @@ def _commit(
                 modes[m] = _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
             x_prev, x_now = st[12], y_strain
             if cp[4] != 0.0:
-                held, direction = _leg_end_level(st[12], st[15], st[17], st[16])
+                held, direction = leg_end_level(st[12], st[15], st[17], st[16])
                 x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
                 st[16] = direction
                 st[17] = held

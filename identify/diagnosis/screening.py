@@ -113,10 +113,65 @@ def _initial_state_grid(model_e: Model, record) -> list[dict]:
     return points
 
 
+#: ``incomplete_reset``'s virgin-loading shapes on its screening grid beside the strain-proportional
+#: form: ``(drive share m, shape p)``, front-loaded (p < 1), late (p > 1) and set by the drive (m = 1)
+INCOMPLETE_RESET_SHAPES = ((0.0, 0.4), (0.0, 2.5), (1.0, 0.4), (1.0, 1.0), (1.0, 2.5))
+
+
+def _incomplete_reset_grid(model_e: Model, record) -> list[dict]:
+    """Screening grid of ``incomplete_reset``: the strain-proportional form's grid, then the
+    virgin loading's other shapes.
+
+    The strain ``A`` stays off and enters through its Jacobian column; the retained fraction
+    ``R``, the fade, the drive share ``m`` and the shape ``p`` do nothing while ``A = 0``,
+    so only the grid gives them values. First the grid the generic rule gave the
+    strain-proportional form (``m = 0``, ``p = 1``): ``R`` at 0, the middle and the top of
+    its range, the fade at five values over its range (15 points, the same order); then
+    each shape of :data:`INCOMPLETE_RESET_SHAPES` with ``R`` at the same three values and
+    no fade (15 points). The generic rule over all four would thin ``R`` to its two ends
+    and miss ``p = 1``. A pinned parameter keeps its value (a shape that needs it moved is
+    left out); the short refits move them together.
+    """
+    effect = get_effect("incomplete_reset")
+    names = effect.parameters.names
+    params = {n: model_e.parameters[n] for n in names}
+    off = {n: float(effect.off[n]) if params[n].vary else float(params[n].value) for n in names}
+
+    def spread(name, count):
+        parameter = params[name]
+        if not parameter.vary:
+            return [off[name]]
+        return [float(v) for v in np.linspace(parameter.lower, parameter.upper, count)]
+
+    retained = spread("incomplete_reset_retained", 5)[::2]
+    points = [off]
+    for r in retained:
+        for fade in spread("incomplete_reset_fade", 5):
+            point = off | {"incomplete_reset_retained": r, "incomplete_reset_fade": fade}
+            if point not in points:
+                points.append(point)
+    for share, shape in INCOMPLETE_RESET_SHAPES:
+        values = {"incomplete_reset_drive": share, "incomplete_reset_shape": shape}
+        if any(
+            (not params[n].vary and v != off[n]) or not params[n].lower <= v <= params[n].upper
+            for n, v in values.items()
+        ):
+            continue
+        for r in retained:
+            point = off | values | {"incomplete_reset_retained": r}
+            if point not in points:
+                points.append(point)
+    return points
+
+
 #: effect name -> callable(model_with_effect, record) returning a list of {parameter: value}
 #: grid points, the "off" point first; effects not listed use :func:`screening_grid`'s
 #: generic rule.
-SCREENING_GRIDS: dict[str, Callable] = {"training": _training_grid, "initial_state": _initial_state_grid}
+SCREENING_GRIDS: dict[str, Callable] = {
+    "training": _training_grid,
+    "initial_state": _initial_state_grid,
+    "incomplete_reset": _incomplete_reset_grid,
+}
 
 
 _MAX_GRID = 24
