@@ -283,3 +283,17 @@ def test_no_formatter_skips():
             if any(marker in line for marker in MARKERS):
                 marked.append(f"{path.relative_to(ROOT)}:{number}")
     assert not marked, marked
+
+
+def test_the_diagnosis_modules_and_functions_stay_small():
+    """The diagnosis shows its method (issue 63): no module of identify/diagnosis over 800
+    lines, no function over 80."""
+    long_modules, long_functions = [], []
+    for path in sorted((PACKAGE / "diagnosis").glob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        if text.count("\n") > 800:
+            long_modules.append(f"{path.name}: {text.count(chr(10))} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 80:
+                long_functions.append(f"{path.name}:{node.name}: {node.end_lineno - node.lineno + 1} lines")
+    assert not long_modules and not long_functions, long_modules + long_functions
