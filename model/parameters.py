@@ -27,6 +27,10 @@ class Parameter:
         False pins the parameter at ``value`` during identification.
     description : str
         One line saying what the parameter is.
+    per_record : bool
+        True when the parameter belongs to the run rather than the transducer (a sensor's
+        drift, the state a run starts from): several records of one transducer each get their
+        own value; False (default): one value shared by every record.
     """
 
     name: str
@@ -36,6 +40,7 @@ class Parameter:
     unit: str = ""
     vary: bool = True
     description: str = ""
+    per_record: bool = False
 
     def __post_init__(self):
         if not self.name.isidentifier():

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 import model
-from model import EFFECTS, INPUT_READINGS, READINGS, TABLE1, THETA_NAMES, Model, paper_current
+from model import EFFECTS, INPUT_READINGS, READINGS, TABLE1, THETA_NAMES, Model
+from model.signals import drive_current
 
 from ..data.records import Record
 from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA
@@ -202,6 +203,8 @@ def simulate(
     n_operators: int = 12,
     reading: str = "swapped",
     duration: float = 70.0,
+    drive: str = "paper",
+    current=None,
 ) -> Simulation:
     """Simulate one bench measurement of the paper's transducer.
 
@@ -226,7 +229,13 @@ def simulate(
     reading : {"swapped", "literal"}, default "swapped"
         Reading of eqs. (5)-(7) (:mod:`model.gpi`).
     duration : float, default 70.0
-        Record length [s]; the first 10 s are unenergised.
+        Record length [s] of the paper's drive; the first 10 s are unenergised.
+    drive : {"paper", "holds"}, default "paper"
+        The drive (:func:`model.signals.drive_current`): the paper's, or cycles that fall and
+        rise again, a hold at 4.5 A and a quiet end.
+    current : tuple of (time, current) arrays, optional
+        Any other drive: ``time`` [s] strictly increasing, ``current`` [A], shape (T,) each
+        (e.g. a designed next record); ``drive`` and ``duration`` are then not used.
 
     Returns
     -------
@@ -251,7 +260,15 @@ def simulate(
     chosen = parse_effect_spec(effects)
     rng = np.random.default_rng(seed)
 
-    time, current = paper_current(fs=fs, reading=input_reading, duration=duration)
+    given = current is not None
+    if not given:
+        time, current = drive_current(drive, fs=fs, reading=input_reading, duration=duration)
+    else:
+        time, current = (np.asarray(a, dtype=float) for a in current)
+        if time.ndim != 1 or current.shape != time.shape or time.size < 2 or not np.all(np.diff(time) > 0):
+            raise ValueError("current must be (time, current), two arrays of one shape (T,), time strictly increasing")
+        if not (np.isfinite(time).all() and np.isfinite(current).all()):
+            raise ValueError("the given drive has a value that is not finite")
     sim_model = Model(list(chosen), n_operators=n_operators, reading=reading)
     gpi_values = TABLE1 if gpi_theta is None else np.asarray(gpi_theta, dtype=float)
     if gpi_values.shape != (len(THETA_NAMES),):
@@ -276,7 +293,8 @@ def simulate(
         "noise": {"sigma": float(noise_sigma), "rho": float(noise_rho), "kind": "ar1" if noise_rho else "white"},
         "seed": int(seed),
         "fs": float(fs),
-        "duration": float(duration),
+        "duration": float(time[-1] - time[0]),
+        "drive": "given" if given else drive,
         "n_samples": int(time.size),
         "input_reading": input_reading,
         "quiet_seconds": float(model.QUIET_SECONDS),

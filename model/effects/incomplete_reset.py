@@ -189,6 +189,7 @@ class IncompleteReset(Effect):
                 50.0,
                 unit="um",
                 description="extra strain of the virgin loading at the record's largest excursion",
+                per_record=True,
             ),
             Parameter(
                 "incomplete_reset_retained",

@@ -106,6 +106,7 @@ class InitialState(Effect):
                 vary=False,
                 description="level the operators' initial memory is clamped from (0: paper; very negative: virgin); "
                 "pinned: an exact reparametrisation next to free GPI offsets",
+                per_record=True,
             ),
             Parameter(
                 "initial_state_excursion",
@@ -114,6 +115,7 @@ class InitialState(Effect):
                 20.0,
                 unit="A",
                 description="the last reversal before the record: the drive went to v0 + e and back (0: none)",
+                per_record=True,
             ),
             Parameter(
                 "initial_state_held",
@@ -123,6 +125,7 @@ class InitialState(Effect):
                 unit="A",
                 description="memory held beyond the bounds at the start, every operator (0: none); "
                 "kept until the first motion against it",
+                per_record=True,
             ),
             Parameter(
                 "initial_state_held_slope",
@@ -131,6 +134,7 @@ class InitialState(Effect):
                 10.0,
                 unit="A",
                 description="the held memory's growth from the narrowest to the widest operator: h_j = h + s j/N",
+                per_record=True,
             ),
         ]
     )

@@ -64,15 +64,41 @@ class SensorDrift(Effect):
     stage = "output"
     parameters = ParameterSet(
         [
-            Parameter("sensor_drift_linear", 0.0, -50.0, 50.0, unit="um", description="linear drift over the record"),
             Parameter(
-                "sensor_drift_quadratic", 0.0, -50.0, 50.0, unit="um", description="quadratic drift over the record"
+                "sensor_drift_linear",
+                0.0,
+                -50.0,
+                50.0,
+                unit="um",
+                description="linear drift over the record",
+                per_record=True,
             ),
             Parameter(
-                "sensor_drift_settling", 0.0, -50.0, 50.0, unit="um", description="offset a settling warm-up approaches"
+                "sensor_drift_quadratic",
+                0.0,
+                -50.0,
+                50.0,
+                unit="um",
+                description="quadratic drift over the record",
+                per_record=True,
             ),
             Parameter(
-                "sensor_drift_settling_tau", 10.0, 0.5, 500.0, unit="s", description="time constant of the warm-up"
+                "sensor_drift_settling",
+                0.0,
+                -50.0,
+                50.0,
+                unit="um",
+                description="offset a settling warm-up approaches",
+                per_record=True,
+            ),
+            Parameter(
+                "sensor_drift_settling_tau",
+                10.0,
+                0.5,
+                500.0,
+                unit="s",
+                description="time constant of the warm-up",
+                per_record=True,
             ),
             Parameter(
                 "sensor_drift_ambient_sine",
@@ -81,6 +107,7 @@ class SensorDrift(Effect):
                 50.0,
                 unit="um",
                 description="sine part of the drift that follows a periodic ambient",
+                per_record=True,
             ),
             Parameter(
                 "sensor_drift_ambient_cosine",
@@ -89,9 +116,16 @@ class SensorDrift(Effect):
                 50.0,
                 unit="um",
                 description="1 - cosine part of the drift that follows a periodic ambient",
+                per_record=True,
             ),
             Parameter(
-                "sensor_drift_ambient_period", 120.0, 30.0, 500.0, unit="s", description="period of the ambient's cycle"
+                "sensor_drift_ambient_period",
+                120.0,
+                30.0,
+                500.0,
+                unit="s",
+                description="period of the ambient's cycle",
+                per_record=True,
             ),
         ]
     )

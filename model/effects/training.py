@@ -184,6 +184,7 @@ class Training(Effect):
                 0.5,
                 unit="",
                 description="fraction of the drive the virgin material lacks (its higher twinning stress)",
+                per_record=True,
             ),
             Parameter(
                 "training_threshold",
@@ -192,6 +193,7 @@ class Training(Effect):
                 2.0,
                 unit="A",
                 description="extra drive the virgin material needs before it responds at all",
+                per_record=True,
             ),
             Parameter(
                 "training_travel",
@@ -217,6 +219,7 @@ class Training(Effect):
                 unit="",
                 description="fraction by which the virgin strain excursion exceeds the trained one (negative: falls "
                 "short)",
+                per_record=True,
             ),
             Parameter(
                 "training_width",
@@ -225,6 +228,7 @@ class Training(Effect):
                 1.0,
                 unit="",
                 description="fraction by which the virgin play width (every threshold) exceeds the trained one",
+                per_record=True,
             ),
         ]
     )

@@ -1,0 +1,441 @@
+r"""Several records of one transducer: one least-squares fit of shared and per-record parameters.
+
+The transducer's physics is the same in every record (its hysteresis, heating, lag, creep);
+what belongs to the run is not. :class:`JointModel` lays out one parameter vector for ``K``
+records of one :class:`model.Model`:
+
+* every parameter of the model, shared by all records; for the first record these are also
+  its own run parameters;
+* for each further record ``r = 2..K``: its own copy of every parameter the effects declare to
+  belong to the run (:attr:`model.Parameter.per_record`: a sensor's drift, the state a run
+  starts from, a virgin material's first-cycle amplitudes), named ``<name>_r<r>``, and the
+  sensor's zero of that record, ``zero_r<r>`` (an output offset; the first record's is carried
+  by the GPI's own offsets).
+
+:class:`JointResiduals` concatenates each record's whitened residual, each whitened with the
+record's own noise model (its own quiet start), so the likelihood is the sum over records;
+:func:`fit_joint` fits it from the records' separate fits. A single record is the model itself:
+nothing here runs for it.
+
+Whether records belong together: :func:`consistency` compares the joint chi-square with the sum
+of the separate ones. Under the hypothesis that they share the transducer, the excess is a
+chi-square with as many degrees of freedom as the joint fit has fewer parameters; a model that
+misses an effect makes every record's compromise its own and inflates the excess too, so a
+record is named as disagreeing only when it also fits clearly worse jointly than alone.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from model import Model, Parameter, ParameterSet
+
+from .lsq import POLISH_EVALUATIONS, FitResult, WhitenedResiduals, bounded_solve, fit_least_squares
+from .noise import NoiseModel, energised_mask, estimate_noise, whiten_rows
+from .threads import single_threaded_blas
+
+__all__ = ["JointModel", "JointResiduals", "JointFit", "fit_joint", "consistency", "record_suffix"]
+
+#: A joint fit whose chi-square exceeds the separate fits' sum with a p-value below this is
+#: inconsistent (the records do not share the parameters), and a record that also fits worse
+#: jointly than alone by :data:`DISAGREEING_RMS_RISE` is named.
+CONSISTENCY_P = 1e-6
+#: The relative rise of a record's RMS from its separate fit to the joint fit that names it as
+#: the one that disagrees.
+DISAGREEING_RMS_RISE = 0.10
+
+
+def record_suffix(r: int) -> str:
+    """The suffix of record ``r``'s own parameters (``r`` from 1): ``_r2`` for the second."""
+    return f"_r{r}"
+
+
+class JointModel:
+    """One model's parameters laid out for ``n_records`` records (module docstring).
+
+    Parameters
+    ----------
+    model : Model
+        The transducer's model (its pinned parameters stay pinned in every record).
+    n_records : int
+        ``K >= 1``.
+    zero_bound : float, default 1000.0
+        The bound of every ``zero_r`` [output unit].
+    """
+
+    def __init__(self, model: Model, n_records: int, zero_bound: float = 1000.0):
+        if n_records < 1:
+            raise ValueError(f"a joint model needs at least one record, got {n_records}")
+        self.model = model
+        self.n_records = int(n_records)
+        self.zero_bound = float(zero_bound)
+        self.per_record = tuple(p.name for p in model.parameters if p.per_record)
+        parameters = list(model.parameters)
+        for r in range(2, self.n_records + 1):
+            for name in self.per_record:
+                p = model.parameters[name]
+                parameters.append(p.with_(name=name + record_suffix(r), description=f"{p.description} (record {r})"))
+            parameters.append(
+                Parameter(
+                    f"zero{record_suffix(r)}",
+                    0.0,
+                    -zero_bound,
+                    zero_bound,
+                    unit="um",
+                    description=f"the sensor's zero of record {r} against record 1's",
+                )
+            )
+        self.parameters = ParameterSet(parameters)
+        self.names = self.parameters.names
+        self.n_parameters = len(self.names)
+        n_model = model.n_parameters
+        self._own = [np.arange(n_model)]  # record r's model vector: columns of the joint vector
+        self._zero = [None]
+        columns = {name: i for i, name in enumerate(self.names)}
+        for r in range(2, self.n_records + 1):
+            own = np.arange(n_model)
+            for name in self.per_record:
+                own[model.names.index(name)] = columns[name + record_suffix(r)]
+            self._own.append(own)
+            self._zero.append(columns[f"zero{record_suffix(r)}"])
+
+    def __repr__(self) -> str:
+        return f"JointModel({self.model!r}, n_records={self.n_records})"
+
+    def __add__(self, effect) -> JointModel:
+        return JointModel(self.model + effect, self.n_records, self.zero_bound)
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        return self.model.effect_names
+
+    def default_theta(self) -> np.ndarray:
+        return self.parameters.values.copy()
+
+    def in_bounds(self, theta) -> np.ndarray:
+        theta = np.atleast_2d(theta)
+        return np.all((theta >= self.parameters.lower) & (theta <= self.parameters.upper), axis=1)
+
+    def record_rows(self, theta, r: int) -> tuple[np.ndarray, np.ndarray]:
+        """Record ``r``'s (from 1) model vectors ``(W, P)`` and zeros ``(W,)`` from joint vectors ``(W, P_joint)``."""
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        rows = theta[:, self._own[r - 1]]
+        zero = np.zeros(theta.shape[0]) if self._zero[r - 1] is None else theta[:, self._zero[r - 1]]
+        return rows, zero
+
+    def record_theta(self, theta, r: int) -> np.ndarray:
+        """Record ``r``'s model vector ``(P,)`` from one joint vector (its zero not included)."""
+        return self.record_rows(theta, r)[0][0]
+
+    def joint_theta(self, thetas, zeros=None) -> np.ndarray:
+        """The joint vector of per-record model vectors ``thetas`` (record 1's shared values
+        from ``thetas[0]``) and zeros (default 0)."""
+        theta = np.empty(self.n_parameters)
+        theta[: self.model.n_parameters] = thetas[0]
+        for r in range(2, self.n_records + 1):
+            own = self._own[r - 1]
+            extra = own >= self.model.n_parameters
+            theta[own[extra]] = np.asarray(thetas[r - 1], dtype=float)[extra]
+            theta[self._zero[r - 1]] = 0.0 if zeros is None else float(zeros[r - 1])
+        return theta
+
+
+class JointResiduals(WhitenedResiduals):
+    """The records' whitened residuals concatenated, as a function of the joint free parameters
+    (the interface of :class:`~identify.fitting.lsq.WhitenedResiduals`: the solvers, Jacobians
+    and covariance work on it unchanged)."""
+
+    def __init__(self, records, joint: JointModel, noises):
+        if len(records) != joint.n_records or len(noises) != joint.n_records:
+            raise ValueError(f"{joint!r} needs {joint.n_records} records and noise models")
+        self.records = list(records)
+        self.noises = list(noises)
+        self.parts = []
+        for record, noise in zip(self.records, self.noises):
+            time = np.asarray(record.time, dtype=float)
+            uneven = None if noise.step_correlations(time) is None else time
+            self.parts.append(
+                (
+                    time,
+                    np.asarray(record.current, dtype=float),
+                    np.asarray(record.displacement, dtype=float),
+                    noise,
+                    uneven,
+                    1.0 if noise.is_free else noise.sigma,
+                )
+            )
+        self.bounds = np.cumsum([0] + [len(r.time) for r in self.records])
+        self.data = np.concatenate([part[2] for part in self.parts])
+        self.model = joint
+        self.noise = self.noises[0]
+        self.sigma = 1.0
+        self.free = np.flatnonzero(joint.parameters.vary)
+        self.template = joint.parameters.values.copy()
+        self.lower = joint.parameters.lower[self.free]
+        self.upper = joint.parameters.upper[self.free]
+        self.n_evaluations = 0
+        self._cache_x = None
+        self._cache_r = None
+
+    def batch(self, x_rows) -> tuple[np.ndarray, np.ndarray]:
+        thetas = self.full(np.atleast_2d(x_rows))
+        out = np.empty((thetas.shape[0], self.data.size))
+        valid = np.ones(thetas.shape[0], dtype=bool)
+        for r, (time, current, data, noise, uneven, sigma) in enumerate(self.parts, start=1):
+            rows, zero = self.model.record_rows(thetas, r)
+            y, ok = self.model.model.evaluate(rows, time, current)
+            w, finite = whiten_rows(data, y + zero[:, None], noise, sigma, time=uneven)
+            out[:, self.bounds[r - 1] : self.bounds[r]] = w
+            valid &= ok & finite
+        self.n_evaluations += thetas.shape[0]
+        return out, valid
+
+    def record_part(self, w, r: int) -> np.ndarray:
+        """Record ``r``'s (from 1) part of a concatenated residual."""
+        return w[..., self.bounds[r - 1] : self.bounds[r]]
+
+
+@dataclass
+class JointFit:
+    """A joint least-squares fit of several records.
+
+    Attributes
+    ----------
+    joint : JointModel
+    theta, stderr : ndarray, shape (P_joint,)
+    covariance : ndarray, shape (P_joint, P_joint)
+    chi2 : float
+        Whitened chi-square summed over the records.
+    records : list of Record
+    noises : list of NoiseModel
+    fits : list of FitResult
+        Each record's own fit at the joint optimum (its model vector, residual, RMS, max error).
+    separate : list of FitResult
+        Each record fitted alone.
+    consistency : dict
+        :func:`consistency`.
+    seconds : float
+    """
+
+    joint: JointModel
+    theta: np.ndarray
+    stderr: np.ndarray
+    covariance: np.ndarray
+    chi2: float
+    records: list
+    noises: list
+    fits: list
+    separate: list
+    consistency: dict = field(default_factory=dict)
+    seconds: float = 0.0
+
+    @property
+    def model(self) -> Model:
+        return self.joint.model
+
+    @property
+    def rms(self) -> float:
+        """RMS over every record's energised part [output unit]."""
+        squares = [np.sum(f.residual[energised_mask(rec, f.noise)] ** 2) for f, rec in zip(self.fits, self.records)]
+        counts = [int(np.sum(energised_mask(rec, f.noise))) for f, rec in zip(self.fits, self.records)]
+        return float(math.sqrt(sum(squares) / max(sum(counts), 1)))
+
+    def theta_dict(self) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(self.joint.names, self.theta)}
+
+    def to_dict(self) -> dict:
+        return {
+            "model": self.model.to_dict(),
+            "n_records": self.joint.n_records,
+            "theta": self.theta_dict(),
+            "stderr": {n: (None if not np.isfinite(s) else float(s)) for n, s in zip(self.joint.names, self.stderr)},
+            "chi2": float(self.chi2),
+            "rms": self.rms,
+            "records": [
+                {
+                    "source": rec.source,
+                    "samples": len(rec.time),
+                    "noise": f.noise.to_dict(),
+                    "rms": float(f.rms),
+                    "max_error_pct": float(f.max_error_pct),
+                    "separate_rms": float(s.rms),
+                }
+                for rec, f, s in zip(self.records, self.fits, self.separate)
+            ],
+            "consistency": dict(self.consistency),
+            "seconds": float(self.seconds),
+        }
+
+
+def _record_fit(record, model: Model, theta, zero: float, noise: NoiseModel, template: FitResult) -> FitResult:
+    """Record's own :class:`FitResult` at a joint optimum (its vector, residual, RMS, max error)."""
+    from dataclasses import replace
+
+    y = model(theta, record.time, record.current) + zero
+    residual = np.asarray(record.displacement, dtype=float) - y
+    energised = energised_mask(record, noise)
+    span = float(np.ptp(record.displacement))
+    w = whiten_rows(
+        np.asarray(record.displacement, dtype=float), y[None, :], noise, 1.0 if noise.is_free else noise.sigma
+    )[0][0]
+    dof = max(residual.size - int(model.parameters.vary.sum()), 1)
+    return replace(
+        template,
+        model=model,
+        theta=np.asarray(theta, dtype=float),
+        residual=residual,
+        rms=float(np.sqrt(np.mean(residual[energised] ** 2))),
+        max_error_pct=float(100.0 * np.max(np.abs(residual[energised])) / span) if span > 0 else math.inf,
+        reduced_chi2=float(w @ w) / dof,
+        noise=noise,
+    )
+
+
+def consistency(joint_fit_chi2: float, separate, joint: JointModel, fits, records) -> dict:
+    """Do the records share the transducer? ``{"statistic", "dof", "p", "consistent",
+    "disagreeing", "message"}``: the joint chi-square's excess over the separate fits' sum
+    against a chi-square of as many degrees of freedom as the joint fit has fewer free
+    parameters; the record whose RMS rises most from its separate fit is named when the test
+    fails and that rise exceeds :data:`DISAGREEING_RMS_RISE`."""
+    k = joint.n_records
+    separate_free = sum(int(f.vary.sum()) for f in separate)
+    dof = max(separate_free - int(joint.parameters.vary.sum()), 1)
+    excess = float(joint_fit_chi2 - sum(f.chi2 for f in separate))
+    p = float(stats.chi2.sf(max(excess, 0.0), dof)) if k > 1 else 1.0
+    rises = [(f.rms / s.rms - 1.0 if s.rms > 0 else 0.0) for f, s in zip(fits, separate)]
+    worst = int(np.argmax(rises)) if rises else 0
+    disagreeing = None
+    if k > 1 and p < CONSISTENCY_P and rises[worst] > DISAGREEING_RMS_RISE:
+        disagreeing = records[worst].source
+    message = ""
+    if disagreeing is not None:
+        message = (
+            f"the records do not look like one transducer: the joint fit's chi-square exceeds the separate fits' "
+            f"by {excess:.0f} ({dof} degrees of freedom, p = {p:.1e}), and {disagreeing} fits "
+            f"{100 * rises[worst]:.0f} % worse in RMS jointly ({fits[worst].rms:.4g}) than alone "
+            f"({separate[worst].rms:.4g}): another transducer, other units, a sensor re-zeroed with a gain change, "
+            "or a physical effect the model misses that acts differently on the records' drives (diagnose them "
+            "together)"
+        )
+    return {
+        "statistic": excess,
+        "dof": dof,
+        "p": p,
+        "consistent": disagreeing is None,
+        "disagreeing": disagreeing,
+        "rms_rise": [float(x) for x in rises],
+        "message": message,
+    }
+
+
+def fit_joint(
+    records, model: Model, noises=None, *, n_starts: int = 4, rng=None, separate=None, progress=None
+) -> JointFit:
+    """Least squares of ``model`` on several records at once (module docstring).
+
+    Each record is fitted alone first (:func:`identify.fitting.lsq.fit_least_squares`, unless
+    ``separate`` gives those fits); every separate fit then starts the joint fit (its shared
+    parameters for all records, each record's own run parameters from its own fit where the
+    threshold signs agree, the zeros from the records' mean residuals), polished on the joint
+    residual; the lowest joint chi-square wins.
+
+    Parameters
+    ----------
+    records : sequence of Record
+        Two or more records of one transducer, in the same units.
+    model : Model
+        The transducer's model (normalised: :func:`identify.fitting.parametrisation.normalised_model`).
+    noises : sequence of NoiseModel, optional
+        Each record's noise; default its own quiet start (:func:`identify.fitting.noise.estimate_noise`).
+    n_starts : int, default 4
+        Starts of each separate fit.
+    rng : numpy.random.Generator, optional
+    separate : sequence of FitResult, optional
+        The records' separate fits, when already made.
+    progress : callable(str), optional
+
+    Returns
+    -------
+    JointFit
+    """
+    say = progress or (lambda message: None)
+    t0 = _time.perf_counter()
+    rng = np.random.default_rng(0) if rng is None else rng
+    records = list(records)
+    noises = [estimate_noise(r) for r in records] if noises is None else list(noises)
+    if separate is None:
+        separate = []
+        for r, (record, noise) in enumerate(zip(records, noises), start=1):
+            say(f"least squares of record {r} of {len(records)} alone ({record.source})")
+            separate.append(fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng))
+    span = max(float(np.max(np.abs(r.displacement))) for r in records)
+    say(f"least squares of the {len(records)} records together")
+    best = None
+    for donor in separate:
+        joint = JointModel(donor.model, len(records), zero_bound=max(10.0 * span, 1.0))
+        start = _joint_start(joint, donor, separate, records)
+        residuals = JointResiduals(records, joint, noises)
+        x0 = np.clip(start[residuals.free], residuals.lower, residuals.upper)
+        with single_threaded_blas():
+            sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
+        chi2 = 2.0 * float(sol.cost)
+        if best is None or chi2 < best[0]:
+            best = (chi2, residuals, sol.x)
+    chi2, residuals, x = best
+    return _joint_fit(residuals, x, separate, t0)
+
+
+def _joint_start(joint: JointModel, donor: FitResult, separate, records) -> np.ndarray:
+    """The joint start of ``donor``: its vector for every record, each record's run parameters
+    from its own fit where it has ``donor``'s threshold sign, the zeros from the mean residuals."""
+    model = joint.model
+    thetas = []
+    for fit in separate:
+        theta = np.array(donor.theta, dtype=float)
+        same_sign = fit.model.parameters["alpha"].value == model.parameters["alpha"].value
+        if same_sign and fit is not donor:
+            for name in joint.per_record:
+                theta[model.names.index(name)] = fit.theta[fit.model.names.index(name)]
+        thetas.append(theta)
+    thetas[0] = np.array(donor.theta, dtype=float) if separate[0] is donor else thetas[0]
+    means = [float(np.mean(rec.displacement - model(th, rec.time, rec.current))) for rec, th in zip(records, thetas)]
+    zeros = [m - means[0] for m in means]
+    return np.clip(joint.joint_theta(thetas, zeros), joint.parameters.lower, joint.parameters.upper)
+
+
+def _joint_fit(residuals: JointResiduals, x, separate, t0: float) -> JointFit:
+    joint = residuals.model
+    theta = residuals.full(x)
+    w = residuals(x)
+    chi2 = float(w @ w)
+    with single_threaded_blas():
+        jac = residuals.central_jacobian(x)
+    cov_free = np.linalg.pinv(jac.T @ jac, rcond=1e-15, hermitian=True)
+    free = residuals.free
+    covariance = np.zeros((joint.n_parameters, joint.n_parameters))
+    covariance[np.ix_(free, free)] = cov_free
+    stderr = np.full(joint.n_parameters, np.nan)
+    stderr[free] = np.sqrt(np.clip(np.diag(cov_free), 0.0, None))
+    fits = []
+    for r, (record, noise, fit) in enumerate(zip(residuals.records, residuals.noises, separate), start=1):
+        rows, zero = joint.record_rows(theta, r)
+        fits.append(_record_fit(record, joint.model, rows[0], float(zero[0]), noise, fit))
+    check = consistency(chi2, separate, joint, fits, residuals.records)
+    return JointFit(
+        joint,
+        theta,
+        stderr,
+        covariance,
+        chi2,
+        residuals.records,
+        residuals.noises,
+        fits,
+        separate,
+        check,
+        _time.perf_counter() - t0,
+    )

@@ -1,0 +1,101 @@
+"""Several records of one transducer fitted together (identify.fitting.joint)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identify.bench import simulate
+from identify.fitting.joint import JointModel, JointResiduals, fit_joint
+from identify.fitting.noise import estimate_noise
+from identify.fitting.parametrisation import normalised_model
+from model import EFFECTS, Model
+
+
+def test_the_joint_layout_shares_the_transducer_and_gives_each_record_its_run():
+    """Every model parameter is shared; each further record has its own copy of the parameters
+    an effect declares to belong to the run, and its own zero."""
+    model = normalised_model(Model(["thermal", "sensor_drift"]))
+    joint = JointModel(model, 3)
+    drift = [p.name for p in EFFECTS["sensor_drift"].parameters]
+    assert joint.per_record == tuple(drift)
+    assert joint.n_parameters == model.n_parameters + 2 * (len(drift) + 1)
+    assert "sensor_drift_linear_r2" in joint.names and "zero_r3" in joint.names
+    assert not any(n.startswith("thermal") and n.endswith("_r2") for n in joint.names)
+    rng = np.random.default_rng(0)
+    thetas = [model.default_theta() for _ in range(3)]
+    for theta in thetas:
+        theta[model.names.index("sensor_drift_linear")] = rng.normal()
+    theta = joint.joint_theta(thetas, zeros=[0.0, 1.5, -2.0])
+    for r in (1, 2, 3):
+        rows, zero = joint.record_rows(theta, r)
+        np.testing.assert_array_equal(rows[0], thetas[r - 1])
+        assert zero[0] == [0.0, 1.5, -2.0][r - 1]
+    assert (joint + "creep").model.effect_names == ("creep", "thermal", "sensor_drift")
+
+
+def test_one_record_is_the_model_itself():
+    sim = simulate(None, seed=0, fs=10.0)
+    model = normalised_model(Model())
+    noise = estimate_noise(sim.record)
+    joint = JointResiduals([sim.record], JointModel(model, 1), [noise])
+    from identify.fitting.lsq import WhitenedResiduals
+
+    single = WhitenedResiduals(sim.record, model, noise)
+    x = model.default_theta()[single.free]
+    np.testing.assert_array_equal(joint(x), single(x))
+
+
+@pytest.fixture(scope="module")
+def two_records():
+    """One transducer (the Table 1 GPI with a hidden heating) on the paper's drive and on the
+    drive with holds and a quiet end, 10 Hz."""
+    spec = "thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5"
+    return [simulate(spec, seed=1, fs=10.0).record, simulate(spec, seed=2, fs=10.0, drive="holds").record]
+
+
+def test_a_joint_fit_of_one_transducer_is_consistent_and_at_the_noise(two_records):
+    fit = fit_joint(two_records, normalised_model(Model(["thermal"])), n_starts=2)
+    assert fit.consistency["consistent"] and fit.consistency["p"] > 1e-3
+    for f, alone in zip(fit.fits, fit.separate):
+        assert f.rms < 1.05 * alone.rms and f.rms / 0.5 < 1.1  # the bench's noise sigma is 0.5 um
+    assert abs(fit.theta_dict()["zero_r2"]) < 0.5  # the same sensor zero
+
+
+def test_the_consistency_rule():
+    """The joint chi-square's excess over the separate fits' against its degrees of freedom; a
+    record is named only when the test fails and its RMS also rises by more than 10 %."""
+    from types import SimpleNamespace
+
+    from identify.fitting.joint import consistency
+
+    model = normalised_model(Model(["thermal"]))
+    joint = JointModel(model, 2)
+    free = int(model.parameters.vary.sum())
+
+    def fit(chi2, rms):
+        return SimpleNamespace(chi2=chi2, rms=rms, vary=model.parameters.vary)
+
+    records = [SimpleNamespace(source="a.csv"), SimpleNamespace(source="b.csv")]
+    dof = 2 * free - int(joint.parameters.vary.sum())
+    ok = consistency(2000.0 + dof, [fit(1000.0, 0.5), fit(1000.0, 0.5)], joint, [fit(0, 0.5), fit(0, 0.505)], records)
+    assert ok["consistent"] and ok["dof"] == dof and 0.3 < ok["p"] < 0.7
+    bad = consistency(2600.0, [fit(1000.0, 0.5), fit(1000.0, 0.5)], joint, [fit(0, 0.5), fit(0, 0.65)], records)
+    assert not bad["consistent"] and bad["disagreeing"] == "b.csv" and "30 % worse" in bad["message"]
+    spread = consistency(2600.0, [fit(1000.0, 0.5), fit(1000.0, 0.5)], joint, [fit(0, 0.52), fit(0, 0.52)], records)
+    assert spread["consistent"] and spread["p"] < 1e-6  # a worse joint fit, but no record fits clearly worse
+
+
+@pytest.mark.slow
+def test_records_that_do_not_belong_together_are_named(two_records):
+    """The second record's sensor re-zeroed with another gain: the joint fit is much worse than
+    the separate fits, and the record that disagrees is named."""
+    from dataclasses import replace
+
+    first, second = two_records
+    regained = replace(second, displacement=1.3 * second.displacement, source="the re-gained record")
+    fit = fit_joint([first, regained], normalised_model(Model(["thermal"])), n_starts=2)
+    check = fit.consistency
+    assert not check["consistent"] and check["p"] < 1e-6
+    assert check["disagreeing"] in ("the re-gained record", first.source)
+    assert "do not look like one transducer" in check["message"]
