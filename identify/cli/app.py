@@ -84,13 +84,24 @@ def build_parser() -> argparse.ArgumentParser:
 
 def input_errors() -> tuple:
     """Exception types that mean bad input or usage (exit code 2)."""
+    from ..data.fileio import LinkedFileError
+    from ..data.hdf5 import ChainFileError
     from ..data.locks import FolderBusyError
     from ..data.records import RecordError
     from ..fitting.priors import PriorsError
     from ..output.results import DamagedResultsError, RunMismatchError
     from .options import OptionError
 
-    return (FolderBusyError, OptionError, PriorsError, RecordError, DamagedResultsError, RunMismatchError)
+    return (
+        FolderBusyError,
+        OptionError,
+        PriorsError,
+        RecordError,
+        DamagedResultsError,
+        RunMismatchError,
+        ChainFileError,
+        LinkedFileError,
+    )
 
 
 def _die_with_parent() -> None:
@@ -165,6 +176,12 @@ def _main(argv) -> int:
     except OSError as exc:
         if os.environ.get(DEBUG_VARIABLE):
             raise
+        from ..data.fileio import DiskFullError, is_disk_full
+
+        if is_disk_full(exc):  # one line naming the file and what to do
+            full = exc if isinstance(exc, DiskFullError) else DiskFullError(exc.filename)
+            print(f"error: {full}", file=sys.stderr)
+            return 1
         where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
         print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
         return 2 if isinstance(exc, (PermissionError, FileNotFoundError, NotADirectoryError, IsADirectoryError)) else 1

@@ -92,7 +92,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ..data.fileio import atomic_write, toml_module
+from ..data.fileio import atomic_write, open_no_follow, toml_module
 
 __all__ = [
     "TASKS",
@@ -982,7 +982,8 @@ def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
     stopped = ""
     env, pass_fds = lock.child_environment(_job_environment(job.threads))
     env[PARENT_VARIABLE] = str(os.getpid())  # the command ends (SIGTERM) if the batch dies
-    with open(folder / _LOG_FILE, "w", encoding="utf-8") as log:
+    log_fd = open_no_follow(folder / _LOG_FILE, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)  # never through a link
+    with os.fdopen(log_fd, "w", encoding="utf-8") as log:
         if lock.stale_note():
             log.write(f"note: {lock.stale_note()}\n")
         log.write("$ " + " ".join(command) + "\n")
