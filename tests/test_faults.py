@@ -16,6 +16,7 @@ part runs in a few minutes on two cores; the whole-batch equality is ``slow``.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import csv
 import hashlib
@@ -491,6 +492,10 @@ def test_a_value_beyond_any_physical_range_is_an_error_with_line_and_column(base
         (["paper", "--out", "figs", "--fs", "0"], "fs must be a positive sampling rate"),
         (["paper", "--out", "afile"], "argument --out: afile exists and is not a folder"),
         (["batch", "nothing.toml", "--workers", "0"], "argument --workers"),
+        (["fit", "rec.csv", "--jso", "x.json"], "unrecognized arguments: --jso x.json"),
+        (["study", "rec.csv", "--ou", "run"], "the following arguments are required: --out"),
+        (["batch", "nothing.toml", "--work", "1"], "unrecognized arguments: --work 1"),
+        (["reproduce", "adir", "--ou", "x"], "unrecognized arguments: --ou x"),
     ],
     ids=lambda v: " ".join(v) if isinstance(v, list) else None,
 )
@@ -952,6 +957,64 @@ def test_posterior_nc_is_written_under_a_fresh_name_never_through_a_link(tmp_pat
     assert not (tmp_path / "posterior.nc").is_symlink()
     assert az.from_netcdf(tmp_path / "posterior.nc").posterior["a"].shape == (2, 6)
     assert not list(tmp_path.glob(".posterior.nc.*"))
+
+
+def test_a_batch_option_is_matched_exactly_and_never_writes_outside(tmp_path):
+    """``jso = "/path"`` (argparse would expand it to --json) is an unknown option of the
+    config: one line naming the key, exit 2, the file never written."""
+    record_csv(tmp_path / "r4.csv", seed=4)
+    victim = tmp_path / "elsewhere" / "owned.json"
+    (tmp_path / "jso.toml").write_text(
+        f'task = "fit"\nout = "runs"\n[options]\nn_starts = 1\njso = "{victim}"\n[[records]]\npath = "r4.csv"\n'
+    )
+    for extra in ([], ["--dry-run"]):
+        completed = cli("batch", "jso.toml", "--no-progress", *extra, cwd=tmp_path)
+        one_error(completed, "options.jso", "unrecognized arguments: --jso")
+        assert not victim.parent.exists() and not (tmp_path / "runs").exists()
+
+
+def test_every_command_takes_its_options_only_spelt_in_full(tmp_path):
+    from identify.cli.app import build_parser
+
+    parser = build_parser()
+    assert parser.allow_abbrev is False
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert all(p.allow_abbrev is False for p in subparsers.choices.values())
+
+
+def test_reproduce_never_takes_an_output_path_from_a_manifest(base, tmp_path):
+    """A fit's manifest edited to hold ``"json": "/any/path"`` in its settings: reproduce refuses
+    in one line (exit 2) before running anything; the path is never written."""
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    made = cli("fit", "rec.csv", "--n-starts", "1", "--out", "fitrun", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr[-3000:]
+    victim = tmp_path / "elsewhere.json"
+    victim.write_text("precious\n")
+    manifest = json.loads((tmp_path / "fitrun" / "manifest.json").read_text())
+    manifest["settings"]["json"] = str(victim)
+    (tmp_path / "fitrun" / "manifest.json").write_text(json.dumps(manifest))
+    before = digests(tmp_path)
+    completed = cli("reproduce", "fitrun", "--out", "again", cwd=tmp_path)
+    one_error(completed, f"json = '{victim}'", "never takes from a manifest")
+    assert digests(tmp_path) == before and not (tmp_path / "again").exists()
+
+
+def test_rerun_arguments_replay_only_the_computation(tmp_path):
+    """Every option of fit and study is either replayed from a manifest or never (outputs)."""
+    import importlib
+
+    from identify.commands import COMMANDS, add_command_arguments
+    from identify.workflows import reproduce as R
+
+    for name in R.REPRODUCIBLE_COMMANDS:
+        parser = argparse.ArgumentParser(add_help=False)
+        add_command_arguments(parser, importlib.import_module(COMMANDS[name]))
+        options = {a.dest for a in parser._actions if a.option_strings}
+        assert options <= R.REPLAYED_OPTIONS | R.NOT_REPLAYED_OPTIONS, options - R.REPLAYED_OPTIONS
+    assert not R.REPLAYED_OPTIONS & R.NOT_REPLAYED_OPTIONS
+    manifest = {"task": "simulate", "settings": {"out": "x.csv"}, "data": {"file": "r.csv", "sha256": "0"}}
+    with pytest.raises(R.ManifestError, match="reruns only study, fit runs"):
+        R.rerun_arguments(manifest, "r.csv", tmp_path / "new")
 
 
 def _batch_of(folder: Path, name: str, n_starts: int = 1, glob: str = "r4.csv") -> Path:

@@ -43,7 +43,13 @@ def _exit_code_text() -> str:
 
 
 class _Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line naming the option (exit code 2)."""
+    """An argument parser whose errors are one line naming the option (exit code 2), and
+    that takes options only as spelt in full (``allow_abbrev=False``: ``--jso`` is not
+    ``--json``; a batch config or a manifest can only name an option exactly)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         self.exit(2, f"error: {self.prog}: {message} (see '{self.prog} --help')\n")

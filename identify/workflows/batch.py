@@ -594,7 +594,13 @@ class _ArgumentError(Exception):
 
 
 class _RaisingParser(argparse.ArgumentParser):
-    """An argument parser that raises instead of printing usage and exiting."""
+    """An argument parser that raises instead of printing usage and exiting, and knows an
+    option only by its full name (``allow_abbrev=False``, as the command line itself): a
+    config's ``jso = "..."`` is an unknown option, never ``--json``."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         raise _ArgumentError(message)
