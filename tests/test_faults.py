@@ -1017,6 +1017,71 @@ def test_rerun_arguments_replay_only_the_computation(tmp_path):
         R.rerun_arguments(manifest, "r.csv", tmp_path / "new")
 
 
+def test_markup_in_a_results_folder_is_text_on_the_report_page(finished, tmp_path):
+    """A data.npz whose units are markup: ``report DIR`` shows them as text, escaped in the
+    summary at the top and in the per-cycle table's header alike."""
+    run = copy_of(finished, tmp_path)
+    with np.load(run / "data.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["input_unit"] = np.array("<script>alert(3)</script>")
+    arrays["output_unit"] = np.array("<img src=x onerror=alert(4)>")
+    np.savez(run / "data.npz", **arrays)
+    completed = cli("report", "finished", "--draws", "4", cwd=tmp_path)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    page = (run / "report.html").read_text()
+    assert "<script>alert" not in page and "<img src=x" not in page
+    assert "RMS [&lt;img src=x onerror=alert(4)&gt;]" in page  # the per-cycle table's header
+    assert "input peak [&lt;script&gt;alert(3)&lt;/script&gt;]" in page
+    assert "Residual RMS" in page and "&lt;img src=x onerror=alert(4)&gt; = " in page  # the summary at the top
+
+
+def test_one_helper_escapes_every_string_of_a_table():
+    from identify.output.page import escape, html_table, number_cell, text_cell
+
+    table = html_table("t<", ["<b>h</b>"], [[text_cell("<i>"), number_cell("<s>", key='k"')]], caption="<u>c</u>")
+    assert "<b>" not in table and "<i>" not in table and "<s>" not in table and "<u>" not in table
+    assert "&lt;b&gt;h&lt;/b&gt;" in table and 'data-key="k&quot;"' in table and 'id="t&lt;"' in table
+    assert escape("a & 'b'") == "a &amp; &#x27;b&#x27;"
+
+
+def test_summary_md_shows_markup_and_markdown_as_written(tmp_path):
+    from identify.workflows import batch as B
+
+    evil = "error: <img src=x onerror=alert(1)> | *bold* [link](javascript:alert(2)) `code`"
+    B.write_summary(
+        tmp_path,
+        [
+            B.JobResult("a__v", "fit", "a", "v", "failed", error=evil, report="a__v/report (1).html"),
+            B.JobResult("b__v", "fit", "b", "v", "ok", rms=0.3, output_unit="<b>um</b>", verdict="_x_"),
+        ],
+    )
+    md = (tmp_path / "summary.md").read_text()
+    assert "<img" not in md and "<b>" not in md and "&lt;img src=x onerror=alert(1)&gt;" in md
+    assert r"\| \*bold\* \[link\](javascript:alert(2)) \`code\`" in md
+    assert "[a__v](a__v/report%20%281%29.html)" in md and r"\_x\_" in md
+    assert md.count("\n| ") == 3  # the header and two rows: no cell split by a '|'
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["fit", "rec.csv", "--input-unit", "<script>alert(3)</script>"],
+        ["study", "rec.csv", "--out", "run", "--output-unit", "<img src=x onerror=alert(4)>"],
+        ["diagnose", "rec.csv", "--output-unit", "um\n"],
+        ["predict", "adir", "rec.csv", "--input-unit", "A" * 40],
+    ],
+    ids=["fit", "study", "diagnose", "predict"],
+)
+def test_a_unit_is_checked_as_a_unit_when_parsed(base, tmp_path, command):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    (tmp_path / "adir").mkdir()
+    before = digests(tmp_path)
+    completed = cli(*command, cwd=tmp_path)
+    flag = next(w for w in command if w.endswith("-unit"))
+    one_error(completed, f"argument {flag}: a unit is")
+    assert digests(tmp_path) == before and not (tmp_path / "run").exists()
+
+
 def _batch_of(folder: Path, name: str, n_starts: int = 1, glob: str = "r4.csv") -> Path:
     path = folder / name
     path.write_text(f'task = "fit"\nout = "runs"\n[options]\nn_starts = {n_starts}\n[[records]]\nglob = "{glob}"\n')

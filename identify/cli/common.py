@@ -35,8 +35,8 @@ def add_record_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--time-column", default="time", help="time column [s] (default: time; 'none' = no time column)")
     group.add_argument("--input-column", default="current", help="drive column (default: current)")
     group.add_argument("--output-column", default="displacement", help="output column (default: displacement)")
-    group.add_argument("--input-unit", default="A", help="unit of the drive column (default: A)")
-    group.add_argument("--output-unit", default="um", help="unit of the output column (default: um)")
+    group.add_argument("--input-unit", default="A", type=options.unit, help="unit of the drive column (default: A)")
+    group.add_argument("--output-unit", default="um", type=options.unit, help="unit of the output column (default: um)")
     group.add_argument(
         "--every",
         type=options.positive_int,

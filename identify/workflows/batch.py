@@ -1258,6 +1258,22 @@ def _status_counts(results) -> str:
     return f"{len(results)} runs: {', '.join(parts)}."
 
 
+def _md(value) -> str:
+    """Text for a Markdown table cell, shown as written: HTML escaped (``<`` ``>`` ``&``), the
+    Markdown marks that format or link (``\\ ` * [ ] | !`` and ``_`` outside a word) escaped
+    by a backslash, line breaks as spaces."""
+    text = html.escape(" ".join(str(value).split()), quote=False)
+    text = re.sub(r"([\\`*\[\]|!])", r"\\\1", text)
+    return re.sub(r"(?<![A-Za-z0-9_])_|_(?![A-Za-z0-9_])", r"\\_", text)
+
+
+def _md_url(path: str) -> str:
+    """A relative link target for Markdown: every character but ``A-Z a-z 0-9 / . - _ ~`` percent-encoded."""
+    from urllib.parse import quote
+
+    return quote(str(path), safe="/.-_~")
+
+
 def write_summary(out, results: list[JobResult], config: BatchConfig | None = None) -> None:
     """Write ``summary.csv``, ``summary.md`` and ``index.html`` into ``out`` (each atomically).
 
@@ -1285,17 +1301,16 @@ def write_summary(out, results: list[JobResult], config: BatchConfig | None = No
 
     title = f"Batch {config.task} runs from {config.source.name}" if config else "Batch runs"
     counts = _status_counts(results)
-    md = [f"# {title}", "", counts, ""]
+    md = [f"# {_md(title)}", "", _md(counts), ""]
     md.append("| run | status | RMS | max error % | statistic | verdict | time [s] | error / notes |")
     md.append("|---|---|---|---|---|---|---|---|")
     for r in results:
-        link = f"[{r.key}]({r.report})" if r.report else r.key
+        link = f"[{_md(r.key)}]({_md_url(r.report)})" if r.report else _md(r.key)
         stat = f"{r.statistic_name} = {_fmt(r.statistic)}" if r.statistic is not None else ""
         unit = f" {r.output_unit}" if r.output_unit and r.rms is not None else ""
-        other = (r.error or r.notes).replace("|", "\\|").replace("\n", " ")
         md.append(
-            f"| {link} | {r.status} | {_fmt(r.rms)}{unit} | {_fmt(r.max_error_pct, 3)} | {stat} | {r.verdict} | "
-            f"{r.seconds:.1f} | {other} |"
+            f"| {link} | {_md(r.status)} | {_md(_fmt(r.rms) + unit)} | {_md(_fmt(r.max_error_pct, 3))} | {_md(stat)} | "
+            f"{_md(r.verdict)} | {r.seconds:.1f} | {_md(r.error or r.notes)} |"
         )
     atomic_write(out / "summary.md", "\n".join(md) + "\n")
 
