@@ -1088,6 +1088,33 @@ def _batch_of(folder: Path, name: str, n_starts: int = 1, glob: str = "r4.csv") 
     return path
 
 
+def test_a_batch_folder_belongs_to_one_configuration(tmp_path):
+    """Another configuration run into the same out is refused in one line naming both (exit 2),
+    prints no header and changes nothing; the same file edited, or a copy of it, may run there."""
+    record_csv(tmp_path / "r4.csv", seed=4)
+    first = cli("batch", _batch_of(tmp_path, "a.toml").name, "--no-progress", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr[-3000:]
+    before = digests(tmp_path / "runs")
+    other = cli("batch", _batch_of(tmp_path, "b.toml", n_starts=2).name, "--no-progress", cwd=tmp_path)
+    one_error(other, "runs belongs to the batch configuration", "a.toml", "b.toml", "is another one")
+    assert "batch:" not in other.stdout and digests(tmp_path / "runs") == before
+    copy = cli("batch", _batch_of(tmp_path, "a2.toml").name, "--no-progress", cwd=tmp_path)  # identical content
+    assert copy.returncode == 0 and "1 finished earlier, skipped" in copy.stdout, copy.stdout + copy.stderr
+    record_csv(tmp_path / "r5.csv", seed=5)
+    edited = cli("batch", _batch_of(tmp_path, "a.toml", glob="r[45].csv").name, "--no-progress", cwd=tmp_path)
+    assert edited.returncode == 0 and "2 ok (1 finished earlier" in edited.stdout, edited.stdout + edited.stderr
+
+
+def test_a_batch_refused_by_the_lock_prints_only_its_error(tmp_path):
+    from identify.data.locks import FolderLock
+
+    record_csv(tmp_path / "r4.csv", seed=4)
+    with FolderLock(tmp_path / "runs", command="the other batch"):
+        completed = cli("batch", _batch_of(tmp_path, "a.toml").name, "--no-progress", cwd=tmp_path)
+    one_error(completed, "runs is in use by process", "the other batch")
+    assert completed.stdout == ""
+
+
 def test_a_planted_batch_log_link_is_refused_and_its_target_untouched(tmp_path):
     record_csv(tmp_path / "r4.csv", seed=4)
     victim = tmp_path / "victim.txt"
