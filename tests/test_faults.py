@@ -1125,3 +1125,62 @@ def test_a_planted_batch_log_link_is_refused_and_its_target_untouched(tmp_path):
     assert completed.returncode == 1 and "Traceback" not in completed.stderr, completed.stderr[-3000:]
     assert "batch.log is a symbolic link" in completed.stderr
     assert victim.read_text() == "precious\n"
+
+
+def test_a_signal_after_the_command_finished_ends_it_with_its_exit_code_and_a_note(tmp_path):
+    """Ctrl-C while Python waits for a thread at exit (as after diagnose's 'done in'): exit code
+    of the finished command and one note, never death by the signal with no word."""
+    probe = (
+        "import runpy, sys, threading, time\n"
+        "from identify.cli import report\n"
+        "def run(args):\n"
+        "    threading.Thread(target=time.sleep, args=(60,)).start()  # Python waits for it at exit\n"
+        "    print('done in 0.0 s', file=sys.stderr, flush=True)\n"
+        "    return 0\n"
+        "report.run = run\n"
+        "sys.argv = ['identify', 'report', '.']\n"
+        "runpy.run_module('identify', run_name='__main__')\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", probe],
+        cwd=tmp_path,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    assert proc.stderr.readline().strip() == "done in 0.0 s"
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, (proc.returncode, err)
+    assert err.strip() == "note: SIGINT after the command had finished; its work is complete (exit code 0)"
+
+
+@pytest.mark.slow
+def test_ctrl_c_right_after_diagnose_is_done_is_no_death_by_signal(base, tmp_path):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    proc = start("diagnose", "rec.csv", "--n-starts", "1", cwd=tmp_path)
+    for line in proc.stderr:
+        if "done in" in line:
+            proc.send_signal(signal.SIGINT)
+            break
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode in (0, 130), (proc.returncode, err)
+
+
+def test_an_input_that_never_moves_is_said_so(base, tmp_path):
+    lines = (base / "rec.csv").read_text().splitlines()
+    rows = [lines[0]] + [",".join([r.split(",")[0], "0", r.split(",")[2]]) for r in lines[1:]]
+    (tmp_path / "zero.csv").write_text("\n".join(rows) + "\n")
+    for command in (["fit", "zero.csv"], ["diagnose", "zero.csv"], ["study", "zero.csv", "--out", "run", *FINISHED]):
+        completed = cli(*command, cwd=tmp_path)
+        one_error(completed, "zero.csv: the input never moves", "column 'current' is 0 in every sample")
+        assert not (tmp_path / "run").exists()
+
+
+def test_a_missing_column_names_the_command_line_flags(base, tmp_path):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    completed = cli("fit", "rec.csv", "--input-column", "curent", cwd=tmp_path)
+    one_error(completed, "missing column(s) 'curent'", "--input-column", "--time-column none")

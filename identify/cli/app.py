@@ -149,6 +149,45 @@ def main(argv=None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
+def program() -> None:
+    """``python -m identify``: :func:`main`, then exit with its code. A Ctrl-C or SIGTERM that
+    arrives once the command has finished (while Python shuts down its threads) ends the
+    process with that code and a note, never by the signal with no word."""
+    code = 2
+    try:
+        code = main()
+    except SystemExit as exc:  # --help, --version, a usage error
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+        if exc.code is not None and not isinstance(exc.code, int):
+            print(exc.code, file=sys.stderr)
+    finally:
+        _late_signals_exit(code)
+    raise SystemExit(code)
+
+
+def _late_signals_exit(code: int) -> None:
+    """From now on SIGINT and SIGTERM end the process at once with ``code`` (the command's own:
+    its work is complete), saying so, instead of interrupting Python's shutdown."""
+    if threading.current_thread() is not threading.main_thread():  # pragma: no cover - always main here
+        return
+
+    def late(signum, frame):
+        try:
+            print(
+                f"note: {signal.Signals(signum).name} after the command had finished; its work is complete "
+                f"(exit code {code})",
+                file=sys.stderr,
+            )
+            sys.stdout.flush()
+            sys.stderr.flush()
+        finally:
+            os._exit(code)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, late)
+
+
 def _main(argv) -> int:
     try:
         _die_with_parent()

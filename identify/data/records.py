@@ -449,7 +449,9 @@ def _header_columns(path: Path, layout: _Layout, wanted: list, time_column, note
             path,
             layout.line,
             f"missing column(s) {hints}. Columns present: {', '.join(repr(h) for h in header)}. "
-            "Rename the header or pass the column names (time_column/input_column/output_column).",
+            "Rename the header or pass the column names: --time-column/--input-column/--output-column on the "
+            "command line ('--time-column none' for no time column), time_column=/input_column=/output_column= "
+            "in Python.",
         )
     extra = [h for j, h in enumerate(header) if j not in indices.values()]
     if time_column is None and any(h.casefold() in ("time", "t", "t_s", "time_s") for h in extra):
