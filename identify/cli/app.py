@@ -26,11 +26,11 @@ from ..commands import COMMANDS, PARENT_VARIABLE, add_command_arguments
 EXIT_CODES = {
     0: "done (a study: its chain converged; a fit: its solver converged; a batch: every run did)",
     1: "done with a finding to look at: study's chain NOT CONVERGED (raise --max-steps), fit's solver did not "
-    "converge, batch: a run failed or did not converge, reproduce: the rerun differs; also an unexpected "
-    "failure (one error line; IDENTIFY_DEBUG=1 shows the traceback)",
+    "converge, batch: a run failed or did not converge, reproduce: the rerun differs; also a full disk (one "
+    "line naming the file) or an unexpected failure (one error line; IDENTIFY_DEBUG=1 shows the traceback)",
     2: "bad input or usage: an invalid option (named), an unreadable or invalid record (file, line, column) or "
-    "priors file (file, parameter), a damaged results file, a folder in use by another process, a folder "
-    "holding a run with other settings",
+    "priors file (file, parameter), a damaged results file, a link planted in a results folder, a folder in use "
+    "by another process, a folder holding a run with other settings, a batch folder of another configuration",
     130: "interrupted by Ctrl-C or SIGTERM: completed work is kept; rerun the same command to resume",
 }
 
