@@ -1,16 +1,23 @@
-"""Faults a hostile, realistic user causes (issue 15), reproduced with real subprocesses.
+"""Faults a hostile, realistic user causes (issues 15 and 64), reproduced with real subprocesses.
 
 Every case asserts what the user sees and what is left on disk: no traceback, the right
 exit code (docs/reliability.md), one ``error:`` line naming the option, the line or the
 file, results equal to an uninterrupted run's (chains bit for bit, every result value
-but wall times), no process left behind (checked by PID), nothing corrupted.
+but wall times), no process left behind (checked by PID), nothing corrupted, nothing
+outside the folder changed (checksums before and after).
+
+Issue 64's round: a real full disk (a 1-5 MB tmpfs the test mounts; skipped, saying why,
+where it cannot), links planted in a results folder, options and manifests that name
+paths outside it, markup in units and messages, a second batch configuration.
 
 Records are the paper's input at 5 Hz (351 samples) and chains are short, so the fast
-part runs in about a minute on two cores; the whole-batch equality is ``slow``.
+part runs in a few minutes on two cores; the whole-batch equality is ``slow``.
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import csv
 import hashlib
 import json
@@ -485,6 +492,10 @@ def test_a_value_beyond_any_physical_range_is_an_error_with_line_and_column(base
         (["paper", "--out", "figs", "--fs", "0"], "fs must be a positive sampling rate"),
         (["paper", "--out", "afile"], "argument --out: afile exists and is not a folder"),
         (["batch", "nothing.toml", "--workers", "0"], "argument --workers"),
+        (["fit", "rec.csv", "--jso", "x.json"], "unrecognized arguments: --jso x.json"),
+        (["study", "rec.csv", "--ou", "run"], "the following arguments are required: --out"),
+        (["batch", "nothing.toml", "--work", "1"], "unrecognized arguments: --work 1"),
+        (["reproduce", "adir", "--ou", "x"], "unrecognized arguments: --ou x"),
     ],
     ids=lambda v: " ".join(v) if isinstance(v, list) else None,
 )
@@ -717,3 +728,459 @@ def test_a_batch_killed_and_rerun_equals_an_uninterrupted_batch(tmp_path, whole_
         same = {c: row[c] for c in row if c not in ("status", "seconds")}
         assert same == {c: reference[key][c] for c in same}, key
         assert_same_results(tmp_path / "runs" / key, whole_batch / key)
+
+
+# == round two (issue 64): a full disk never corrupts a study; a results folder or a unit cannot write or script ==
+
+
+@contextlib.contextmanager
+def small_disk(folder: Path, size: str):
+    """A real file system of ``size`` (a tmpfs) mounted at ``folder``; the test is skipped, with
+    the reason, where one cannot be mounted (not root, no mount permission in CI)."""
+    folder.mkdir()
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        pytest.skip("a real full disk needs a tmpfs: mounting one needs root and the mount command")
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)], capture_output=True, text=True
+    )
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a {size} tmpfs for a real full disk: {done.stderr.strip() or done.returncode}")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], capture_output=True)
+
+
+def resize_disk(folder: Path, size: str) -> None:
+    """Free space on the disk of :func:`small_disk` (what a user does before the rerun)."""
+    done = subprocess.run(["mount", "-o", f"remount,size={size}", str(folder)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
+def fill_disk(folder: Path) -> Path:
+    """Fill the file system of ``folder`` to the last byte with the file ``filler``."""
+    filler = folder / "filler"
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+    try:
+        for size in (65536, 4096, 1):
+            try:
+                while os.write(fd, b"\0" * size):
+                    pass
+            except OSError:
+                pass
+    finally:
+        os.close(fd)
+    return filler
+
+
+def others(folder: Path, inside: str) -> dict:
+    """:func:`digests` of ``folder`` except what lies in its subfolder ``inside``."""
+    return {k: v for k, v in digests(folder).items() if not k.startswith(inside + os.sep)}
+
+
+@pytest.mark.parametrize(
+    "size, fills", [("1m", "before the first step is stored"), ("3m", "after some steps")], ids=["1m", "3m"]
+)
+def test_a_disk_that_fills_while_sampling_is_one_error_and_the_rerun_gives_the_chain_bit_for_bit(
+    finished, tmp_path, size, fills
+):
+    """A real small file system: the study stops with one error line naming chain.h5 (exit 1,
+    no crash by a signal, no HDF5 traceback); the chain holds exactly the steps its count
+    claims (none never written), nothing else on the disk changed; once space is freed the
+    same command resumes and ends with the chain of the uninterrupted run, bit for bit."""
+    with small_disk(tmp_path / "disk", size) as disk:
+        shutil.copy2(finished.parent / "rec.csv", disk / "rec.csv")
+        before = others(disk, "run")
+        completed = cli("study", "rec.csv", "--out", "run", *FINISHED, cwd=disk)
+        one_error(completed, "run/chain.h5: no space left on the device", "rerun the same command", code=1)
+        run = disk / "run"
+        from identify.fitting.posterior import chain_info
+
+        kept = chain_info(run / "chain.h5")[0]  # every counted step is stored (else ChainFileError)
+        assert (kept == 0) if size == "1m" else (0 < kept < 300), (fills, kept)
+        assert others(disk, "run") == before and not list(run.glob(".*"))  # no temporary file, no lock left
+        resize_disk(disk, "64m")
+        again = cli("study", "rec.csv", "--out", "run", *FINISHED, cwd=disk)
+        assert again.returncode == NOT_CONVERGED and "Traceback" not in again.stderr, again.stderr[-3000:]
+        assert ("resuming the chain" in again.stderr) == (kept > 0)
+        assert_same_results(run, finished)
+
+
+def test_a_full_disk_while_writing_the_posterior_leaves_no_temporary_file_and_no_lock(finished, tmp_path):
+    """posterior.nc does not fit: one error line naming it (exit 1), no .posterior.nc temporary
+    left; a rerun on a disk full to the last byte cannot even take its lock: one line naming
+    the lock file, which is not left behind (nor anything else); once space is freed the rerun
+    finishes with the uninterrupted run's results."""
+    with small_disk(tmp_path / "disk", "5m") as disk:
+        shutil.copy2(finished.parent / "rec.csv", disk / "rec.csv")
+        completed = cli("study", "rec.csv", "--out", "run", *FINISHED, cwd=disk)
+        one_error(completed, "run/posterior.nc: no space left on the device", code=1)
+        run = disk / "run"
+        assert steps(run) == 300 and not list(run.glob(".*")) and not (run / "posterior.nc").exists()
+        filler = fill_disk(disk)
+        before = digests(run)
+        for command in (["study", "rec.csv", "--out", "run", *FINISHED], ["report", "run"]):
+            full = cli(*command, cwd=disk)
+            one_error(full, "run/.identify.lock: no space left on the device", code=1)
+            assert digests(run) == before and not list(run.glob(".*"))
+        filler.unlink()
+        resize_disk(disk, "64m")
+        again = cli("study", "rec.csv", "--out", "run", *FINISHED, cwd=disk)
+        assert again.returncode == NOT_CONVERGED and "Traceback" not in again.stderr, again.stderr[-3000:]
+        assert (run / "posterior.nc").is_file() and not list(run.glob(".*"))
+        assert_same_results(run, finished)
+
+
+def test_an_unwritable_temporary_is_removed_and_the_error_names_the_destination(tmp_path):
+    """The writer behind posterior.nc: the disk fills while the library writes (after the
+    space check passed): DiskFullError naming the destination, the temporary file removed,
+    the destination as it was."""
+    from identify.data.fileio import DiskFullError, write_via_temporary
+
+    with small_disk(tmp_path / "disk", "1m") as disk:
+        (disk / "posterior.nc").write_bytes(b"old")
+
+        def too_big(path):
+            with open(path, "wb") as fh:
+                fh.write(b"\1" * (2 << 20))
+
+        with pytest.raises(DiskFullError, match="posterior.nc: no space left on the device"):
+            write_via_temporary(disk / "posterior.nc", too_big)
+        assert sorted(p.name for p in disk.iterdir()) == ["posterior.nc"]
+        assert (disk / "posterior.nc").read_bytes() == b"old"
+        with pytest.raises(DiskFullError, match=r"posterior.nc: no space left on the device \(up to 2\.1 MB needed"):
+            write_via_temporary(disk / "posterior.nc", too_big, need_bytes=2 << 20)
+        assert sorted(p.name for p in disk.iterdir()) == ["posterior.nc"]
+
+
+def _claim_unwritten_steps(chain: Path, extra: int) -> None:
+    """What a full disk did to a chain before: the count advanced, the steps never written (zeros)."""
+    with h5py.File(chain, "a") as f:
+        g = f["mcmc"]
+        n = int(g.attrs["iteration"])
+        g["chain"].resize(n + extra, axis=0)
+        g["log_prob"].resize(n + extra, axis=0)
+        g.attrs["iteration"] = n + extra
+
+
+def _change_last_step(chain: Path) -> None:
+    """A last step that is not the one written with the count (stale data under a newer count)."""
+    with h5py.File(chain, "a") as f:
+        g = f["mcmc"]
+        n = int(g.attrs["iteration"])
+        g["chain"][n - 1] = g["chain"][n - 2] * 1.001
+
+
+@pytest.mark.parametrize(
+    "damage, needles",
+    [
+        (_claim_unwritten_steps, ["chain.h5 is damaged", "claims 356 steps, but step 300 was never written"]),
+        (_change_last_step, ["chain.h5 is damaged", "its last stored step (step 300) is not the one written with"]),
+    ],
+    ids=["counted, never written", "last step not the one counted"],
+)
+def test_a_chain_whose_steps_do_not_match_its_count_is_refused_never_resumed(finished, tmp_path, damage, needles):
+    """The chain the full disk left in issue 64 (its count 56 steps beyond its data, zeros), and
+    one whose last step is not the one written with its count: the rerun that would extend it
+    refuses in one line saying what to do (exit 2) and changes nothing; report and reproduce
+    refuse too."""
+    run = copy_of(finished, tmp_path)
+    if damage is _claim_unwritten_steps:
+        damage(run / "chain.h5", 56)
+    else:
+        damage(run / "chain.h5")
+    before = digests(run)
+    longer = list(FINISHED)
+    longer[longer.index("--max-steps") + 1] = "600"
+    completed = cli("study", "rec.csv", "--out", "finished", *longer, cwd=tmp_path)
+    one_error(completed, *needles, "delete", "--force")
+    assert digests(run) == before
+    for command in (["report", "finished"], ["reproduce", "finished", "--out", "again"]):
+        refused = cli(*command, cwd=tmp_path)
+        one_error(refused, *needles)
+        assert digests(run) == before and not (tmp_path / "again").exists()
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["report", "finished"],
+        ["study", "rec.csv", "--out", "finished", *FINISHED],
+        ["reproduce", "finished", "--out", "again"],
+    ],
+    ids=["report", "study", "reproduce"],
+)
+@pytest.mark.parametrize("link", ["symbolic", "hard"])
+def test_a_lock_file_planted_as_a_link_is_refused_and_its_target_untouched(finished, tmp_path, command, link):
+    run = copy_of(finished, tmp_path)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    if link == "symbolic":
+        (run / ".identify.lock").symlink_to(victim)
+    else:
+        os.link(victim, run / ".identify.lock")
+    before = digests(tmp_path)
+    completed = cli(*command, cwd=tmp_path)
+    one_error(completed, "finished/.identify.lock", "symbolic link" if link == "symbolic" else "2 hard links")
+    assert victim.read_text() == "precious\n" and digests(tmp_path) == before
+    assert not (tmp_path / "again").exists()
+
+
+def test_a_chain_planted_as_a_link_is_refused_and_its_target_untouched(finished, tmp_path):
+    run = copy_of(finished, tmp_path)
+    victim = tmp_path / "victim.h5"
+    os.replace(run / "chain.h5", victim)
+    (run / "chain.h5").symlink_to(victim)
+    before = digests(tmp_path)
+    longer = list(FINISHED)
+    longer[longer.index("--max-steps") + 1] = "600"
+    for command in (["study", "rec.csv", "--out", "finished", *longer], ["report", "finished"]):
+        completed = cli(*command, cwd=tmp_path)
+        one_error(completed, "chain.h5 is a symbolic link")
+        assert digests(tmp_path) == before
+
+
+def test_posterior_nc_is_written_under_a_fresh_name_never_through_a_link(tmp_path):
+    """The old fixed temporary name and the destination itself planted as links to a user's
+    files: both targets stay as they were, posterior.nc becomes a regular file."""
+    import arviz as az
+
+    from identify.fitting.inference import write_netcdf
+
+    targets = {name: tmp_path / f"{name}.victim" for name in (".tmp-posterior.nc", "posterior.nc")}
+    for name, target in targets.items():
+        target.write_text("precious\n")
+        (tmp_path / name).symlink_to(target)
+    idata = az.from_dict(posterior={"a": np.arange(12.0).reshape(2, 6)})
+    write_netcdf(tmp_path / "posterior.nc", idata)
+    assert all(t.read_text() == "precious\n" for t in targets.values())
+    assert not (tmp_path / "posterior.nc").is_symlink()
+    assert az.from_netcdf(tmp_path / "posterior.nc").posterior["a"].shape == (2, 6)
+    assert not list(tmp_path.glob(".posterior.nc.*"))
+
+
+def test_a_batch_option_is_matched_exactly_and_never_writes_outside(tmp_path):
+    """``jso = "/path"`` (argparse would expand it to --json) is an unknown option of the
+    config: one line naming the key, exit 2, the file never written."""
+    record_csv(tmp_path / "r4.csv", seed=4)
+    victim = tmp_path / "elsewhere" / "owned.json"
+    (tmp_path / "jso.toml").write_text(
+        f'task = "fit"\nout = "runs"\n[options]\nn_starts = 1\njso = "{victim}"\n[[records]]\npath = "r4.csv"\n'
+    )
+    for extra in ([], ["--dry-run"]):
+        completed = cli("batch", "jso.toml", "--no-progress", *extra, cwd=tmp_path)
+        one_error(completed, "options.jso", "unrecognized arguments: --jso")
+        assert not victim.parent.exists() and not (tmp_path / "runs").exists()
+
+
+def test_every_command_takes_its_options_only_spelt_in_full(tmp_path):
+    from identify.cli.app import build_parser
+
+    parser = build_parser()
+    assert parser.allow_abbrev is False
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert all(p.allow_abbrev is False for p in subparsers.choices.values())
+
+
+def test_reproduce_never_takes_an_output_path_from_a_manifest(base, tmp_path):
+    """A fit's manifest edited to hold ``"json": "/any/path"`` in its settings: reproduce refuses
+    in one line (exit 2) before running anything; the path is never written."""
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    made = cli("fit", "rec.csv", "--n-starts", "1", "--out", "fitrun", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr[-3000:]
+    victim = tmp_path / "elsewhere.json"
+    victim.write_text("precious\n")
+    manifest = json.loads((tmp_path / "fitrun" / "manifest.json").read_text())
+    manifest["settings"]["json"] = str(victim)
+    (tmp_path / "fitrun" / "manifest.json").write_text(json.dumps(manifest))
+    before = digests(tmp_path)
+    completed = cli("reproduce", "fitrun", "--out", "again", cwd=tmp_path)
+    one_error(completed, f"json = '{victim}'", "never takes from a manifest")
+    assert digests(tmp_path) == before and not (tmp_path / "again").exists()
+
+
+def test_rerun_arguments_replay_only_the_computation(tmp_path):
+    """Every option of fit and study is either replayed from a manifest or never (outputs)."""
+    import importlib
+
+    from identify.commands import COMMANDS, add_command_arguments
+    from identify.workflows import reproduce as R
+
+    for name in R.REPRODUCIBLE_COMMANDS:
+        parser = argparse.ArgumentParser(add_help=False)
+        add_command_arguments(parser, importlib.import_module(COMMANDS[name]))
+        options = {a.dest for a in parser._actions if a.option_strings}
+        assert options <= R.REPLAYED_OPTIONS | R.NOT_REPLAYED_OPTIONS, options - R.REPLAYED_OPTIONS
+    assert not R.REPLAYED_OPTIONS & R.NOT_REPLAYED_OPTIONS
+    manifest = {"task": "simulate", "settings": {"out": "x.csv"}, "data": {"file": "r.csv", "sha256": "0"}}
+    with pytest.raises(R.ManifestError, match="reruns only study, fit runs"):
+        R.rerun_arguments(manifest, "r.csv", tmp_path / "new")
+
+
+def test_markup_in_a_results_folder_is_text_on_the_report_page(finished, tmp_path):
+    """A data.npz whose units are markup: ``report DIR`` shows them as text, escaped in the
+    summary at the top and in the per-cycle table's header alike."""
+    run = copy_of(finished, tmp_path)
+    with np.load(run / "data.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["input_unit"] = np.array("<script>alert(3)</script>")
+    arrays["output_unit"] = np.array("<img src=x onerror=alert(4)>")
+    np.savez(run / "data.npz", **arrays)
+    completed = cli("report", "finished", "--draws", "4", cwd=tmp_path)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    page = (run / "report.html").read_text()
+    assert "<script>alert" not in page and "<img src=x" not in page
+    assert "RMS [&lt;img src=x onerror=alert(4)&gt;]" in page  # the per-cycle table's header
+    assert "input peak [&lt;script&gt;alert(3)&lt;/script&gt;]" in page
+    assert "Residual RMS" in page and "&lt;img src=x onerror=alert(4)&gt; = " in page  # the summary at the top
+
+
+def test_one_helper_escapes_every_string_of_a_table():
+    from identify.output.page import escape, html_table, number_cell, text_cell
+
+    table = html_table("t<", ["<b>h</b>"], [[text_cell("<i>"), number_cell("<s>", key='k"')]], caption="<u>c</u>")
+    assert "<b>" not in table and "<i>" not in table and "<s>" not in table and "<u>" not in table
+    assert "&lt;b&gt;h&lt;/b&gt;" in table and 'data-key="k&quot;"' in table and 'id="t&lt;"' in table
+    assert escape("a & 'b'") == "a &amp; &#x27;b&#x27;"
+
+
+def test_summary_md_shows_markup_and_markdown_as_written(tmp_path):
+    from identify.workflows import batch as B
+
+    evil = "error: <img src=x onerror=alert(1)> | *bold* [link](javascript:alert(2)) `code`"
+    B.write_summary(
+        tmp_path,
+        [
+            B.JobResult("a__v", "fit", "a", "v", "failed", error=evil, report="a__v/report (1).html"),
+            B.JobResult("b__v", "fit", "b", "v", "ok", rms=0.3, output_unit="<b>um</b>", verdict="_x_"),
+        ],
+    )
+    md = (tmp_path / "summary.md").read_text()
+    assert "<img" not in md and "<b>" not in md and "&lt;img src=x onerror=alert(1)&gt;" in md
+    assert r"\| \*bold\* \[link\](javascript:alert(2)) \`code\`" in md
+    assert "[a__v](a__v/report%20%281%29.html)" in md and r"\_x\_" in md
+    assert md.count("\n| ") == 3  # the header and two rows: no cell split by a '|'
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["fit", "rec.csv", "--input-unit", "<script>alert(3)</script>"],
+        ["study", "rec.csv", "--out", "run", "--output-unit", "<img src=x onerror=alert(4)>"],
+        ["diagnose", "rec.csv", "--output-unit", "um\n"],
+        ["predict", "adir", "rec.csv", "--input-unit", "A" * 40],
+    ],
+    ids=["fit", "study", "diagnose", "predict"],
+)
+def test_a_unit_is_checked_as_a_unit_when_parsed(base, tmp_path, command):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    (tmp_path / "adir").mkdir()
+    before = digests(tmp_path)
+    completed = cli(*command, cwd=tmp_path)
+    flag = next(w for w in command if w.endswith("-unit"))
+    one_error(completed, f"argument {flag}: a unit is")
+    assert digests(tmp_path) == before and not (tmp_path / "run").exists()
+
+
+def _batch_of(folder: Path, name: str, n_starts: int = 1, glob: str = "r4.csv") -> Path:
+    path = folder / name
+    path.write_text(f'task = "fit"\nout = "runs"\n[options]\nn_starts = {n_starts}\n[[records]]\nglob = "{glob}"\n')
+    return path
+
+
+def test_a_batch_folder_belongs_to_one_configuration(tmp_path):
+    """Another configuration run into the same out is refused in one line naming both (exit 2),
+    prints no header and changes nothing; the same file edited, or a copy of it, may run there."""
+    record_csv(tmp_path / "r4.csv", seed=4)
+    first = cli("batch", _batch_of(tmp_path, "a.toml").name, "--no-progress", cwd=tmp_path)
+    assert first.returncode == 0, first.stderr[-3000:]
+    before = digests(tmp_path / "runs")
+    other = cli("batch", _batch_of(tmp_path, "b.toml", n_starts=2).name, "--no-progress", cwd=tmp_path)
+    one_error(other, "runs belongs to the batch configuration", "a.toml", "b.toml", "is another one")
+    assert "batch:" not in other.stdout and digests(tmp_path / "runs") == before
+    copy = cli("batch", _batch_of(tmp_path, "a2.toml").name, "--no-progress", cwd=tmp_path)  # identical content
+    assert copy.returncode == 0 and "1 finished earlier, skipped" in copy.stdout, copy.stdout + copy.stderr
+    record_csv(tmp_path / "r5.csv", seed=5)
+    edited = cli("batch", _batch_of(tmp_path, "a.toml", glob="r[45].csv").name, "--no-progress", cwd=tmp_path)
+    assert edited.returncode == 0 and "2 ok (1 finished earlier" in edited.stdout, edited.stdout + edited.stderr
+
+
+def test_a_batch_refused_by_the_lock_prints_only_its_error(tmp_path):
+    from identify.data.locks import FolderLock
+
+    record_csv(tmp_path / "r4.csv", seed=4)
+    with FolderLock(tmp_path / "runs", command="the other batch"):
+        completed = cli("batch", _batch_of(tmp_path, "a.toml").name, "--no-progress", cwd=tmp_path)
+    one_error(completed, "runs is in use by process", "the other batch")
+    assert completed.stdout == ""
+
+
+def test_a_planted_batch_log_link_is_refused_and_its_target_untouched(tmp_path):
+    record_csv(tmp_path / "r4.csv", seed=4)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    (tmp_path / "runs" / "r4__default").mkdir(parents=True)
+    (tmp_path / "runs" / "r4__default" / "batch.log").symlink_to(victim)
+    completed = cli("batch", _batch_of(tmp_path, "a.toml").name, "--no-progress", cwd=tmp_path)
+    assert completed.returncode == 1 and "Traceback" not in completed.stderr, completed.stderr[-3000:]
+    assert "batch.log is a symbolic link" in completed.stderr
+    assert victim.read_text() == "precious\n"
+
+
+def test_a_signal_after_the_command_finished_ends_it_with_its_exit_code_and_a_note(tmp_path):
+    """Ctrl-C while Python waits for a thread at exit (as after diagnose's 'done in'): exit code
+    of the finished command and one note, never death by the signal with no word."""
+    probe = (
+        "import runpy, sys, threading, time\n"
+        "from identify.cli import report\n"
+        "def run(args):\n"
+        "    threading.Thread(target=time.sleep, args=(60,)).start()  # Python waits for it at exit\n"
+        "    print('done in 0.0 s', file=sys.stderr, flush=True)\n"
+        "    return 0\n"
+        "report.run = run\n"
+        "sys.argv = ['identify', 'report', '.']\n"
+        "runpy.run_module('identify', run_name='__main__')\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", probe],
+        cwd=tmp_path,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    assert proc.stderr.readline().strip() == "done in 0.0 s"
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, (proc.returncode, err)
+    assert err.strip() == "note: SIGINT after the command had finished; its work is complete (exit code 0)"
+
+
+@pytest.mark.slow
+def test_ctrl_c_right_after_diagnose_is_done_is_no_death_by_signal(base, tmp_path):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    proc = start("diagnose", "rec.csv", "--n-starts", "1", cwd=tmp_path)
+    for line in proc.stderr:
+        if "done in" in line:
+            proc.send_signal(signal.SIGINT)
+            break
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode in (0, 130), (proc.returncode, err)
+
+
+def test_an_input_that_never_moves_is_said_so(base, tmp_path):
+    lines = (base / "rec.csv").read_text().splitlines()
+    rows = [lines[0]] + [",".join([r.split(",")[0], "0", r.split(",")[2]]) for r in lines[1:]]
+    (tmp_path / "zero.csv").write_text("\n".join(rows) + "\n")
+    for command in (["fit", "zero.csv"], ["diagnose", "zero.csv"], ["study", "zero.csv", "--out", "run", *FINISHED]):
+        completed = cli(*command, cwd=tmp_path)
+        one_error(completed, "zero.csv: the input never moves", "column 'current' is 0 in every sample")
+        assert not (tmp_path / "run").exists()
+
+
+def test_a_missing_column_names_the_command_line_flags(base, tmp_path):
+    shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
+    completed = cli("fit", "rec.csv", "--input-column", "curent", cwd=tmp_path)
+    one_error(completed, "missing column(s) 'curent'", "--input-column", "--time-column none")

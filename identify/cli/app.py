@@ -26,11 +26,11 @@ from ..commands import COMMANDS, PARENT_VARIABLE, add_command_arguments
 EXIT_CODES = {
     0: "done (a study: its chain converged; a fit: its solver converged; a batch: every run did)",
     1: "done with a finding to look at: study's chain NOT CONVERGED (raise --max-steps), fit's solver did not "
-    "converge, batch: a run failed or did not converge, reproduce: the rerun differs; also an unexpected "
-    "failure (one error line; IDENTIFY_DEBUG=1 shows the traceback)",
+    "converge, batch: a run failed or did not converge, reproduce: the rerun differs; also a full disk (one "
+    "line naming the file) or an unexpected failure (one error line; IDENTIFY_DEBUG=1 shows the traceback)",
     2: "bad input or usage: an invalid option (named), an unreadable or invalid record (file, line, column) or "
-    "priors file (file, parameter), a damaged results file, a folder in use by another process, a folder "
-    "holding a run with other settings",
+    "priors file (file, parameter), a damaged results file, a link planted in a results folder, a folder in use "
+    "by another process, a folder holding a run with other settings, a batch folder of another configuration",
     130: "interrupted by Ctrl-C or SIGTERM: completed work is kept; rerun the same command to resume",
 }
 
@@ -43,7 +43,13 @@ def _exit_code_text() -> str:
 
 
 class _Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line naming the option (exit code 2)."""
+    """An argument parser whose errors are one line naming the option (exit code 2), and
+    that takes options only as spelt in full (``allow_abbrev=False``: ``--jso`` is not
+    ``--json``; a batch config or a manifest can only name an option exactly)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         self.exit(2, f"error: {self.prog}: {message} (see '{self.prog} --help')\n")
@@ -84,13 +90,24 @@ def build_parser() -> argparse.ArgumentParser:
 
 def input_errors() -> tuple:
     """Exception types that mean bad input or usage (exit code 2)."""
+    from ..data.fileio import LinkedFileError
+    from ..data.hdf5 import ChainFileError
     from ..data.locks import FolderBusyError
     from ..data.records import RecordError
     from ..fitting.priors import PriorsError
     from ..output.results import DamagedResultsError, RunMismatchError
     from .options import OptionError
 
-    return (FolderBusyError, OptionError, PriorsError, RecordError, DamagedResultsError, RunMismatchError)
+    return (
+        FolderBusyError,
+        OptionError,
+        PriorsError,
+        RecordError,
+        DamagedResultsError,
+        RunMismatchError,
+        ChainFileError,
+        LinkedFileError,
+    )
 
 
 def _die_with_parent() -> None:
@@ -132,6 +149,45 @@ def main(argv=None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
+def program() -> None:
+    """``python -m identify``: :func:`main`, then exit with its code. A Ctrl-C or SIGTERM that
+    arrives once the command has finished (while Python shuts down its threads) ends the
+    process with that code and a note, never by the signal with no word."""
+    code = 2
+    try:
+        code = main()
+    except SystemExit as exc:  # --help, --version, a usage error
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+        if exc.code is not None and not isinstance(exc.code, int):
+            print(exc.code, file=sys.stderr)
+    finally:
+        _late_signals_exit(code)
+    raise SystemExit(code)
+
+
+def _late_signals_exit(code: int) -> None:
+    """From now on SIGINT and SIGTERM end the process at once with ``code`` (the command's own:
+    its work is complete), saying so, instead of interrupting Python's shutdown."""
+    if threading.current_thread() is not threading.main_thread():  # pragma: no cover - always main here
+        return
+
+    def late(signum, frame):
+        try:
+            print(
+                f"note: {signal.Signals(signum).name} after the command had finished; its work is complete "
+                f"(exit code {code})",
+                file=sys.stderr,
+            )
+            sys.stdout.flush()
+            sys.stderr.flush()
+        finally:
+            os._exit(code)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, late)
+
+
 def _main(argv) -> int:
     try:
         _die_with_parent()
@@ -165,6 +221,12 @@ def _main(argv) -> int:
     except OSError as exc:
         if os.environ.get(DEBUG_VARIABLE):
             raise
+        from ..data.fileio import DiskFullError, is_disk_full
+
+        if is_disk_full(exc):  # one line naming the file and what to do
+            full = exc if isinstance(exc, DiskFullError) else DiskFullError(exc.filename)
+            print(f"error: {full}", file=sys.stderr)
+            return 1
         where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
         print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
         return 2 if isinstance(exc, (PermissionError, FileNotFoundError, NotADirectoryError, IsADirectoryError)) else 1

@@ -57,12 +57,20 @@ def run(args) -> int:
         for job in jobs:
             print(f"  {job.key}: python -m identify {' '.join(job.argv)}")
         return 0
-    print(
-        f"batch: {len(jobs)} run(s) ({len(config.records)} record(s) x {len(config.variants)} variant(s)) of "
-        f"'{config.task}' -> {config.out}, executor {config.executor}, {config.workers} worker(s)"
-    )
+
+    def header():  # printed once the folder is locked and this configuration's: a refused batch prints only its error
+        print(
+            f"batch: {len(jobs)} run(s) ({len(config.records)} record(s) x {len(config.variants)} variant(s)) of "
+            f"'{config.task}' -> {config.out}, executor {config.executor}, {config.workers} worker(s)",
+            flush=True,
+        )
+
     # -q (identify.logs) hides the bar too; --no-progress is kept as the bar-only switch
-    result = run_batch(config, progress=not (args.no_progress or args.quiet), rerun=args.rerun)
+    try:
+        result = run_batch(config, progress=not (args.no_progress or args.quiet), rerun=args.rerun, announce=header)
+    except BatchConfigError as exc:  # the folder belongs to another configuration: nothing was changed
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     n_skipped = sum(r.status == "skipped" for r in result.results)
     interrupted = f", {result.n_interrupted} interrupted" if result.n_interrupted else ""
     print(

@@ -14,6 +14,7 @@ __all__ = [
     "add_record_arguments",
     "add_model_arguments",
     "record_from_args",
+    "check_input_moves",
     "model_from_args",
     "noise_from_args",
     "settings_from_args",
@@ -35,8 +36,8 @@ def add_record_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--time-column", default="time", help="time column [s] (default: time; 'none' = no time column)")
     group.add_argument("--input-column", default="current", help="drive column (default: current)")
     group.add_argument("--output-column", default="displacement", help="output column (default: displacement)")
-    group.add_argument("--input-unit", default="A", help="unit of the drive column (default: A)")
-    group.add_argument("--output-unit", default="um", help="unit of the output column (default: um)")
+    group.add_argument("--input-unit", default="A", type=options.unit, help="unit of the drive column (default: A)")
+    group.add_argument("--output-unit", default="um", type=options.unit, help="unit of the output column (default: um)")
     group.add_argument(
         "--every",
         type=options.positive_int,
@@ -124,6 +125,7 @@ def record_from_args(args, *, hint=True):
     )
     if big:
         say(f"read {len(record)} samples in {time.perf_counter() - started:.1f} s")
+    check_input_moves(record, args.input_column)
     every = getattr(args, "every", 1)
     if hint and every == 1:
         suggestion = suggest_every(record)
@@ -138,6 +140,22 @@ def record_from_args(args, *, hint=True):
     if every > 1 and len(record) > 200_000:
         say(f"thinning {len(record)} samples (--every {every}) ...")
     return keep_every(record, every)
+
+
+def check_input_moves(record, column) -> None:
+    """A record whose drive never moves (every sample equal, e.g. an all-zero current) has no
+    hysteresis to identify: a :class:`identify.data.records.RecordError` saying so, before a
+    least squares that would fail with advice about the model."""
+    import numpy as np
+
+    from ..data.records import RecordError
+
+    current = np.asarray(record.current, dtype=float)
+    if current.size and float(np.ptp(current)) == 0.0:
+        raise RecordError(
+            f"{record.source}: the input never moves: column {column!r} is {current[0]:g} in every sample, so there "
+            "is no hysteresis to identify. Is it the drive column? Name it with --input-column"
+        )
 
 
 def model_from_args(args, *, normalise=True):

@@ -31,6 +31,7 @@ __all__ = [
     "file_path",
     "existing_file",
     "number_pair",
+    "unit",
     "MAX_OPERATORS",
 ]
 
@@ -188,3 +189,14 @@ def number_pair(text, option: str, *, form: str = "A:B with two numbers", exampl
     except ValueError:
         raise ValueError(f"{option} must be {form} (e.g. {example}), got {text!r}") from None
     return a, b
+
+
+def unit(text) -> str:
+    """A unit (``--input-unit``, ``--output-unit``): a short printable string
+    (:func:`identify.data.records.unit_problem`), e.g. ``um``, ``V``, ``mm/s``."""
+    from ..data.records import unit_problem
+
+    problem = unit_problem(text)
+    if problem:
+        _fail(problem)
+    return text

@@ -61,8 +61,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--n-starts", type=options.positive_int, default=6, help="least-squares starts of a diagnosis (default 6)"
     )
     group = parser.add_argument_group("record columns and units (default: the study's)")
-    for option in ("time-column", "input-column", "output-column", "input-unit", "output-unit"):
+    for option in ("time-column", "input-column", "output-column"):
         group.add_argument(f"--{option}", default=None)
+    for option in ("input-unit", "output-unit"):
+        group.add_argument(f"--{option}", default=None, type=options.unit)
 
 
 def parse_span(text: str, option: str) -> tuple[float, float]:

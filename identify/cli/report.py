@@ -41,14 +41,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     """Write the report; exit code 2 with a one-line message for a folder that cannot be reported on."""
+    from pathlib import Path
+
     import numpy as np
 
     from ..data.locks import FolderLock
+    from ..fitting.posterior import ChainFileError, chain_info
     from ..output.report import ResultsError, write_report
 
     started = _time.perf_counter()
     try:
         with FolderLock(args.dir, command=f"python -m identify report {args.dir}"):  # no study writes meanwhile
+            try:  # a chain whose steps are not those its count claims is never drawn
+                chain_info(Path(args.dir) / "chain.h5")
+            except ChainFileError as exc:
+                raise ValueError(f"{exc}; delete it and rerun the study to redo the sampling") from None
             path = write_report(args.dir, n_draws=args.draws, rng=np.random.default_rng(args.seed))
     except (ResultsError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -14,6 +14,10 @@ the study's next write fail. Two rules remove that:
   holds the file for milliseconds, so the write goes through on a later try. Only a
   file held open longer than that (e.g. an ``h5py.File`` left open in a notebook) ends
   the run, with a message saying so; its completed steps are kept and a rerun resumes.
+
+A file opened for writing is never reached through a link: a symbolic link (or a file with
+a second hard link) at that path is refused (:func:`identify.data.fileio.refuse_link`), so a
+link planted in a results folder cannot make a study write into another file.
 """
 
 from __future__ import annotations
@@ -22,11 +26,19 @@ import errno
 import os
 import time
 
-__all__ = ["LOCK_WAIT_SECONDS", "open_hdf5", "is_lock_error"]
+from .fileio import refuse_link
+
+__all__ = ["LOCK_WAIT_SECONDS", "ChainFileError", "open_hdf5", "is_lock_error"]
 
 #: Longest wait [s] for another process to release an HDF5 file a writer must open.
 LOCK_WAIT_SECONDS = 60.0
 _FIRST_DELAY, _MAX_DELAY = 0.005, 0.25
+
+
+class ChainFileError(ValueError):
+    """A ``chain.h5`` that cannot be read back (truncated, overwritten, not emcee's format), or
+    whose stored steps are not those its step count claims (:func:`identify.fitting.posterior.chain_info`;
+    defined here, with no heavy import, for the command line's list of input errors)."""
 
 
 def is_lock_error(exc: BaseException) -> bool:
@@ -64,10 +76,14 @@ def open_hdf5(path, mode: str = "r", *, wait: float = LOCK_WAIT_SECONDS, sleep=t
         the file and what to do).
     OSError
         Any other failure to open (missing or damaged file), as h5py raises it.
+    identify.data.fileio.LinkedFileError
+        Writing, and ``path`` is a symbolic link or has another hard link.
     """
     import h5py
 
     path = os.fspath(path)
+    if mode != "r":
+        refuse_link(path)
     if mode == "r":
         try:
             return h5py.File(path, "r", locking=False)

@@ -6,13 +6,16 @@ folder and each run folder, ``reproduce`` for the original and the new folder) f
 takes :class:`FolderLock` on it, before it writes anything there. The lock is the file
 ``DIR/.identify.lock``:
 
-* created with ``O_CREAT`` and locked with ``fcntl.flock(LOCK_EX | LOCK_NB)``: the kernel
+* created with ``O_CREAT`` and ``O_NOFOLLOW`` (a symbolic link of that name, or a file
+  with another hard link, is refused before anything is written: the lock never writes
+  through a link into another file), and locked with ``fcntl.flock(LOCK_EX | LOCK_NB)``: the kernel
   holds the lock for the open file, so it is released when the process ends in any way
   (``kill -9`` included) and can never be held by a dead process;
 * holding, as JSON, the holder's PID, host, start time and command line, so a second
   writer is refused at once with a message naming the holder
   (:class:`FolderBusyError`);
-* removed when the holder releases it. A lock file left by a process that died
+* removed when the holder releases it, and when taking it fails (e.g. a full disk: the
+  file this process created is removed again). A lock file left by a process that died
   (``kill -9``, power loss) is *stale*: the next writer takes it over and
   :attr:`FolderLock.stale_holder` says whose it was.
 
@@ -36,6 +39,8 @@ import socket
 import sys
 import time
 from pathlib import Path
+
+from .fileio import DiskFullError, is_disk_full, open_no_follow
 
 try:  # POSIX
     import fcntl
@@ -85,8 +90,8 @@ def lock_holder(folder) -> dict | None:
     """The lock file's content (``pid``, ``host``, ``started``, ``command``) or None."""
     path = Path(folder) / LOCK_NAME
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_CLOEXEC", 0))
-    except OSError:
+        fd = open_no_follow(path, os.O_RDONLY)
+    except (OSError, ValueError):
         return None
     try:
         return _read_info(fd) or None
@@ -198,12 +203,36 @@ class FolderLock:
             self.created = True
         if self._take_inherited():
             return self
+        try:
+            return self._acquire()
+        except BaseException:
+            if self.created:  # a folder this lock created and left empty goes again
+                try:
+                    self.folder.rmdir()
+                except OSError:
+                    pass
+            raise
+
+    def _open(self) -> tuple[int, bool]:
+        """The lock file's descriptor (never through a link) and whether this call created it."""
+        try:
+            return open_no_follow(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), True
+        except FileExistsError:
+            pass
+        try:
+            return open_no_follow(self.path, os.O_RDWR), False
+        except FileNotFoundError:  # released meanwhile: create it after all
+            return open_no_follow(self.path, os.O_RDWR | os.O_CREAT, 0o644), False
+
+    def _acquire(self) -> FolderLock:
         for _attempt in range(100):
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+            fd, made = self._open()
+            locked = False
             try:
                 if fcntl is not None:
                     try:
                         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                        locked = True
                     except OSError as exc:
                         if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                             raise
@@ -220,7 +249,7 @@ class FolderLock:
                         raise FolderBusyError(_describe(self.folder, info))
                 # the file may have been released (unlinked) and replaced meanwhile
                 try:
-                    st_path = os.stat(self.path)
+                    st_path = os.lstat(self.path)
                 except FileNotFoundError:
                     os.close(fd)
                     continue
@@ -232,15 +261,28 @@ class FolderLock:
                 if previous:
                     self.stale_holder = previous
                 self._write_info(fd)
-            except BaseException:
+            except BaseException as exc:
+                if made and locked:  # a file this call created and locked (e.g. left empty by a full disk) goes
+                    self._unlink_if_same(fd)
                 try:
                     os.close(fd)
                 except OSError:
                     pass
+                if is_disk_full(exc) and not isinstance(exc, DiskFullError):
+                    raise DiskFullError(self.path) from None
                 raise
             self._fd = fd
             return self
         raise FolderBusyError(f"{self.folder}: could not take the lock {self.path} (it kept being replaced)")
+
+    def _unlink_if_same(self, fd) -> None:
+        """Remove the lock file when it is still the file open as ``fd``."""
+        try:
+            st_fd, st_path = os.fstat(fd), os.lstat(self.path)
+            if (st_fd.st_dev, st_fd.st_ino) == (st_path.st_dev, st_path.st_ino):
+                os.unlink(self.path)
+        except OSError:
+            pass
 
     def release(self, *, remove_if_empty: bool = True) -> None:
         """Remove the lock file and unlock (a no-op for an inherited or released lock).
@@ -251,12 +293,7 @@ class FolderLock:
         if fd is None:
             return
         try:
-            st_fd = os.fstat(fd)
-            st_path = os.stat(self.path)
-            if (st_fd.st_dev, st_fd.st_ino) == (st_path.st_dev, st_path.st_ino):
-                os.unlink(self.path)
-        except OSError:
-            pass
+            self._unlink_if_same(fd)
         finally:
             os.close(fd)
         if remove_if_empty and self.created:

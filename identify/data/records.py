@@ -49,6 +49,9 @@ __all__ = [
     "DEFAULT_COLUMNS",
     "MAX_ABS_VALUE",
     "MAX_ABS_TIME",
+    "MAX_UNIT_LENGTH",
+    "unit_problem",
+    "check_unit",
 ]
 
 #: The default header: time [s], drive [A], output [um].
@@ -137,6 +140,37 @@ class Record:
     def columns(self) -> tuple[str, str, str]:
         """The CSV header this record is written with: (time, input, output) names."""
         return (self.time_name, self.input_name, self.output_name)
+
+
+#: Longest unit string accepted (``--input-unit``, ``--output-unit``, ``load_record``'s units).
+MAX_UNIT_LENGTH = 32
+#: Characters no unit holds: markup and quoting (``< > & " ' ` \\``) and ``$`` (matplotlib's math mode).
+_UNIT_FORBIDDEN = set("<>&\"'`\\$")
+
+
+def unit_problem(unit) -> str | None:
+    """What makes ``unit`` no unit (None when it is one): a unit is a short printable string
+    (at most :data:`MAX_UNIT_LENGTH` characters, no control character, none of
+    ``< > & " ' ` \\ $``), such as ``um``, ``A``, ``V``, ``mm/s``, ``µm``, ``m/s^2`` or ``""``."""
+    if not isinstance(unit, str):
+        return f"expected a unit (text), got {type(unit).__name__}"
+    if len(unit) > MAX_UNIT_LENGTH:
+        return f"a unit is at most {MAX_UNIT_LENGTH} characters, got {len(unit)}"
+    bad = sorted({c for c in unit if not c.isprintable() or c in _UNIT_FORBIDDEN})
+    if bad:
+        return (
+            f"a unit is a short printable string without < > & \" ' ` \\ $, got {unit!r} "
+            f"(it holds {', '.join(repr(c) for c in bad)})"
+        )
+    return None
+
+
+def check_unit(unit, name: str = "unit") -> str:
+    """``unit`` when it is one (:func:`unit_problem`), else ValueError naming ``name``."""
+    problem = unit_problem(unit)
+    if problem:
+        raise ValueError(f"{name}: {problem}")
+    return unit
 
 
 def sidecar_path(path) -> Path:
@@ -256,7 +290,8 @@ def load_record(
     input_column, output_column : str, default "current", "displacement"
         Header names of the drive and output columns (e.g. ``"voltage"`` for a piezo).
     input_unit, output_unit : str, default "A", "um"
-        Units of those columns, stored on the record for labels.
+        Units of those columns, stored on the record for labels: short printable strings
+        (:func:`unit_problem`; anything else is a ValueError).
     min_samples : int, default 200
         Fewest samples accepted.
     progress : callable, optional
@@ -277,6 +312,8 @@ def load_record(
         sidecar. The message names the file, the line and, for a value, the column.
     """
     path = Path(path)
+    check_unit(input_unit, "input_unit")
+    check_unit(output_unit, "output_unit")
     if path.suffix.lower() == MAT_SUFFIX:  # a MATLAB file: the same checks, by variable (identify.data.matfile)
         return _load_mat_record(path, time_column, input_column, output_column, input_unit, output_unit, min_samples)
     wanted = [c for c in (time_column, input_column, output_column) if c is not None]
@@ -412,7 +449,9 @@ def _header_columns(path: Path, layout: _Layout, wanted: list, time_column, note
             path,
             layout.line,
             f"missing column(s) {hints}. Columns present: {', '.join(repr(h) for h in header)}. "
-            "Rename the header or pass the column names (time_column/input_column/output_column).",
+            "Rename the header or pass the column names: --time-column/--input-column/--output-column on the "
+            "command line ('--time-column none' for no time column), time_column=/input_column=/output_column= "
+            "in Python.",
         )
     extra = [h for j, h in enumerate(header) if j not in indices.values()]
     if time_column is None and any(h.casefold() in ("time", "t", "t_s", "time_s") for h in extra):

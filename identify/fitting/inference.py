@@ -39,6 +39,7 @@ __all__ = [
     "MAX_POINTWISE",
     "FILE",
     "write_inference_data",
+    "write_netcdf",
     "write_chain_attributes",
     "sampled_units",
     "pointwise_log_likelihood",
@@ -61,9 +62,11 @@ def sampled_units(log_post, record) -> list[str]:
 
 def write_chain_attributes(path, names, units) -> None:
     """Parameter names and units as attributes of ``chain.h5``'s emcee group."""
+    from ..data.fileio import require_space
     from ..data.hdf5 import open_hdf5
-    from .posterior import BACKEND_GROUP
+    from .posterior import BACKEND_GROUP, CHAIN_METADATA_BYTES
 
+    require_space(path, CHAIN_METADATA_BYTES)  # HDF5 does not survive a full disk: checked first
     with open_hdf5(os.fspath(path), "a") as f:  # waits for a reader's lock instead of failing
         g = f[BACKEND_GROUP]
         # fixed-length UTF-8 bytes (decode when reading): plain arrays, compared bit for bit by reproduce
@@ -159,7 +162,17 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
     idata.observed_data["displacement"].attrs["unit"] = unit_out
     idata.observed_data["time"].attrs["unit"] = "s"
     path = out_dir / FILE
-    tmp = out_dir / (".tmp-" + FILE)
-    idata.to_netcdf(str(tmp))
-    os.replace(tmp, path)
+    write_netcdf(path, idata)
     return path
+
+
+def write_netcdf(path, idata) -> None:
+    """``idata.to_netcdf`` through :func:`identify.data.fileio.write_via_temporary`: a fresh
+    ``mkstemp`` name in the folder (a link planted there is never written through), removed
+    on any error; the space the groups may take (their raw size and 1 MB of netCDF/HDF5
+    bookkeeping; compression only shrinks them) is checked free first, so HDF5 never meets
+    a full disk, which it does not survive."""
+    from ..data.fileio import write_via_temporary
+
+    need = sum(int(getattr(idata, group).nbytes) for group in idata.groups()) + 2**20
+    write_via_temporary(path, lambda tmp: idata.to_netcdf(tmp), need_bytes=need)

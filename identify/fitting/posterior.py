@@ -74,6 +74,7 @@ import os
 import signal
 import threading
 import time as _time
+import zlib
 from dataclasses import dataclass, field
 
 import emcee
@@ -82,7 +83,8 @@ import scipy.fft
 
 from model import Model
 
-from ..data.hdf5 import LOCK_WAIT_SECONDS, open_hdf5
+from ..data.fileio import require_space
+from ..data.hdf5 import LOCK_WAIT_SECONDS, ChainFileError, open_hdf5
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
 from .noise import NoiseModel, log_likelihood_of_rows
@@ -124,6 +126,10 @@ BACKEND_GROUP = "mcmc"
 CHAIN_CHUNK_STEPS = 256
 #: gzip level of the stored chain (4: within a few percent of level 9's size, several times faster).
 CHAIN_GZIP_LEVEL = 4
+#: Bytes kept free for HDF5's own bookkeeping (chunk index, attributes) beyond the chain's data [B].
+CHAIN_METADATA_BYTES = 256 * 1024
+#: Attribute of the emcee group: ``"<iteration>:<crc32>"`` of the last step, written with the count.
+LAST_STEP_CHECK = "last_step_check"
 
 
 class ChainBackend(emcee.backends.HDFBackend):
@@ -131,7 +137,15 @@ class ChainBackend(emcee.backends.HDFBackend):
     reading takes no HDF5 file lock (a reader never blocks the study writing the chain),
     and a write waits, with a short back-off, for a lock another process holds (a person
     reading ``chain.h5`` while the study runs) instead of failing. Same file format;
-    ``ChainBackend(path, name, read_only=True)`` is the package's reader of a chain."""
+    ``ChainBackend(path, name, read_only=True)`` is the package's reader of a chain.
+
+    A write never meets a full disk inside HDF5 (whose failed cache write ends the process
+    by a signal and leaves a chain that claims steps it does not hold): an open for
+    writing first checks that :data:`CHAIN_METADATA_BYTES` are free, and a flush of
+    :class:`BufferedHDFBackend` the whole of what it may write
+    (:func:`identify.data.fileio.require_space`); short of that, it raises
+    :class:`identify.data.fileio.DiskFullError` naming the file, with nothing written.
+    A link at the path is refused (:func:`identify.data.hdf5.open_hdf5`)."""
 
     #: Longest wait [s] for another process's lock on the file before a write fails
     #: (:data:`identify.data.hdf5.LOCK_WAIT_SECONDS`).
@@ -142,6 +156,8 @@ class ChainBackend(emcee.backends.HDFBackend):
             raise RuntimeError(
                 "The backend has been loaded in read-only mode. Set `read_only = False` to make changes."
             )
+        if mode != "r":
+            require_space(self.filename, CHAIN_METADATA_BYTES)
         f = open_hdf5(self.filename, mode, wait=self.lock_wait)
         if not self.dtype_set and self.name in f:
             g = f[self.name]
@@ -170,6 +186,11 @@ class BufferedHDFBackend(ChainBackend):
     position exactly, so a chain compresses 5-7 fold (a 16000-step, 36 x 18 chain: 87.6
     MB raw, 13.3 MB stored), the values are bit-for-bit those sampled, and resuming
     and the reproduction checks are unaffected. HDF5 readers decompress transparently.
+
+    A flush writes the steps' data first and hands them to the operating system
+    (``H5Fflush``), and only then the acceptance counts, the random state and the step count
+    ``iteration`` that claims them: a process that dies in between (a full disk, a signal)
+    leaves the previous count, whose steps are all stored, and the rerun resumes from it.
     """
 
     def __init__(self, filename, name=BACKEND_GROUP, *, flush_every=200, flush_seconds=1.0, **kwargs):
@@ -223,15 +244,20 @@ class BufferedHDFBackend(ChainBackend):
         n = len(pending)
         with self.open("a") as f:
             g = f[self.name]
+            chain, log_prob = g["chain"], g["log_prob"]
             start = int(g.attrs["iteration"])
-            if g["chain"].shape[0] < start + n:
-                g["chain"].resize(start + n, axis=0)
-                g["log_prob"].resize(start + n, axis=0)
-            g["chain"][start : start + n] = np.stack([p[0] for p in pending])
-            g["log_prob"][start : start + n] = np.stack([p[1] for p in pending])
+            require_space(self.filename, CHAIN_METADATA_BYTES + _bytes_to_write(chain, start, n, log_prob))
+            if chain.shape[0] < start + n:
+                chain.resize(start + n, axis=0)
+                log_prob.resize(start + n, axis=0)
+            chain[start : start + n] = np.stack([p[0] for p in pending])
+            log_prob[start : start + n] = np.stack([p[1] for p in pending])
+            f.flush()  # the steps' data reach the file before the count that claims them
             g["accepted"][:] += np.sum([p[2] for p in pending], axis=0)
             for i, value in enumerate(pending[-1][3]):
                 g.attrs[f"random_state_{i}"] = value
+            last = pending[-1]
+            g.attrs[LAST_STEP_CHECK] = _step_check(start + n, last[0], last[1], chain.dtype, log_prob.dtype)
             g.attrs["iteration"] = start + n
         self._pending = []
 
@@ -240,8 +266,30 @@ class BufferedHDFBackend(ChainBackend):
         super().grow(ngrow, blobs)
 
 
-class ChainFileError(ValueError):
-    """A ``chain.h5`` that cannot be read back (truncated, overwritten, not emcee's format)."""
+def _step_check(iteration, coords, log_prob, chain_dtype, log_prob_dtype) -> str:
+    """``"<iteration>:<crc32>"`` of the last stored step's walkers and log-probabilities as stored
+    (a text attribute: :mod:`identify.workflows.reproduce` compares numeric attributes only)."""
+    data = np.ascontiguousarray(coords, dtype=chain_dtype).tobytes()
+    data += np.ascontiguousarray(log_prob, dtype=log_prob_dtype).tobytes()
+    return f"{int(iteration)}:{zlib.crc32(data):08x}"
+
+
+def _bytes_to_write(chain, start, n, *others) -> int:
+    """Most bytes writing steps ``[start, start + n)`` of ``chain`` (and of ``others``, datasets
+    of the same steps) can add to the file: every HDF5 chunk they touch is rewritten whole,
+    and a compressed chunk is never larger than the raw one by more than a small header."""
+    total = 0
+    for ds in (chain, *others):
+        item = ds.dtype.itemsize
+        if ds.chunks is None:  # contiguous: written in place, at most the steps themselves
+            total += n * math.prod(ds.shape[1:]) * item
+            continue
+        per_chunk = math.prod(ds.chunks) * item + 1024
+        rows = ds.chunks[0]
+        across = math.prod(-(-size // c) for size, c in zip(ds.shape[1:], ds.chunks[1:]))
+        touched = (start + n - 1) // rows - start // rows + 1 if n > 0 else 0
+        total += touched * across * per_chunk
+    return total
 
 
 def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
@@ -249,16 +297,23 @@ def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
 
     Opens the file read-only and reads every stored step (in blocks of ``block_steps``,
     so memory stays small), the log-probabilities, acceptance counts and the random state
-    a resumed run needs. Returns None when there is no file.
+    a resumed run needs, and checks that the steps the count ``iteration`` claims are
+    stored: every value finite, no step all zeros (HDF5's fill value: a step counted but
+    never written, as a write cut short by a full disk or a crash leaves), and the last
+    step the one written with the count (its CRC-32, attribute :data:`LAST_STEP_CHECK`,
+    when the file has it). Returns None when there is no file.
 
     Raises
     ------
     ChainFileError
-        The file cannot be opened or read, or lacks what emcee's backend writes.
+        The file cannot be opened or read, lacks what emcee's backend writes, holds steps
+        that were never written, or is a link (never followed).
     """
     path = os.fspath(path)
-    if not os.path.exists(path):
+    if not os.path.lexists(path):
         return None
+    if os.path.islink(path):
+        raise ChainFileError(f"{path} is a symbolic link, not a chain written by study (a link is never followed)")
     try:
         with open_hdf5(path, "r") as f:
             if BACKEND_GROUP not in f:
@@ -280,8 +335,17 @@ def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
             accepted[()]
             for start in range(0, steps, int(block_steps)):
                 stop = min(steps, start + int(block_steps))
-                chain[start:stop]
-                log_prob[start:stop]
+                block, block_log_prob = chain[start:stop], log_prob[start:stop]
+                _check_stored(path, steps, start, block, block_log_prob)
+            recorded = str(g.attrs.get(LAST_STEP_CHECK, ""))
+            if steps > 0 and recorded.startswith(f"{steps}:"):  # the check written with this count
+                found = _step_check(steps, block[-1], block_log_prob[-1], chain.dtype, log_prob.dtype)
+                if found != recorded:
+                    raise ChainFileError(
+                        f"{path} is damaged: its last stored step (step {steps}) is not the one written with its "
+                        f"count (checksum {found.partition(':')[2]}, written {recorded.partition(':')[2]}); it cannot "
+                        "be resumed"
+                    )
             if steps > 0:
                 for i in range(5):
                     g.attrs[f"random_state_{i}"]
@@ -291,6 +355,21 @@ def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
         detail = " ".join(str(exc).split())[:200]
         raise ChainFileError(f"{path} is damaged ({type(exc).__name__}: {detail})") from None
     return steps, n_walkers, n_dim
+
+
+def _check_stored(path, steps, start, chain, log_prob) -> None:
+    """Steps ``start, start + 1, ...`` of a chain that claims ``steps``: raise :class:`ChainFileError`
+    at the first one that holds a non-finite value or was never written (all zeros)."""
+    finite = np.isfinite(chain).all(axis=(1, 2)) & np.isfinite(log_prob).all(axis=1)
+    blank = ~chain.any(axis=(1, 2)) & ~log_prob.any(axis=1)
+    bad = np.flatnonzero(~finite | blank)
+    if bad.size:
+        k = start + int(bad[0])
+        what = "holds non-finite values" if not finite[bad[0]] else "was never written (all zeros)"
+        raise ChainFileError(
+            f"{path} is damaged: it claims {steps} steps, but step {k} {what} (a write cut short by a full disk "
+            "or a crash); it cannot be resumed"
+        )
 
 
 def _uniform_logpdf(x, lower, upper):

@@ -1,6 +1,11 @@
 """The HTML of the reports: numbers as table text, cells, tables, embedded PNG figures and
 the pages' style sheet (one home for :mod:`identify.output.report` and
-:mod:`identify.output.use_report`)."""
+:mod:`identify.output.use_report`).
+
+Every string that reaches a page from outside the code (units, record and column names,
+file names, messages, values read from a results folder) goes through :func:`escape`, the
+one escaping helper: the cells, table headers, captions and figures here call it, and the
+pages call it for any such string they put into their own markup."""
 
 from __future__ import annotations
 
@@ -11,23 +16,42 @@ import math
 
 import numpy as np
 
-__all__ = ["DIGITS", "CSS", "number_text", "number_cell", "text_cell", "html_table", "embedded_figure", "png_bytes"]
+__all__ = [
+    "DIGITS",
+    "CSS",
+    "escape",
+    "number_text",
+    "number_cell",
+    "text_cell",
+    "html_table",
+    "embedded_figure",
+    "png_bytes",
+]
 
 #: Significant digits of the numbers in the tables.
 DIGITS = 6
 
 
+def escape(value) -> str:
+    """``value`` as page text: ``str(value)`` with ``& < > " '`` as HTML entities, so it shows as
+    written and never becomes markup (safe in element content and in quoted attributes)."""
+    return html.escape(str(value), quote=True)
+
+
 def number_text(value, digits=DIGITS) -> str:
-    """Table text of a number: ``digits`` significant digits; "—" for None/NaN."""
+    """Table text of a number: ``digits`` significant digits; "—" for None/NaN; a string escaped."""
     if value is None:
         return "—"
     if isinstance(value, str):
-        return html.escape(value)
+        return escape(value)
     if isinstance(value, (bool, np.bool_)):
         return "yes" if value else "no"
     if isinstance(value, (int, np.integer)):
         return str(int(value))
-    value = float(value)
+    try:
+        value = float(value)
+    except (TypeError, ValueError):  # not a number (a value read from a results folder): shown as text
+        return escape(value)
     if not math.isfinite(value):
         return "—"
     return f"{value:.{digits}g}"
@@ -36,26 +60,28 @@ def number_text(value, digits=DIGITS) -> str:
 def number_cell(value, key=None, digits=DIGITS, css=None) -> str:
     attributes = ""
     if key is not None:
-        attributes += f' data-key="{html.escape(key)}"'
+        attributes += f' data-key="{escape(key)}"'
     if css:
-        attributes += f' class="{css}"'
+        attributes += f' class="{escape(css)}"'
     return f"<td{attributes}>{number_text(value, digits)}</td>"
 
 
 def text_cell(value, css=None) -> str:
-    attributes = f' class="{css}"' if css else ""
-    return f"<td{attributes}>{html.escape(str(value))}</td>"
+    attributes = f' class="{escape(css)}"' if css else ""
+    return f"<td{attributes}>{escape(value)}</td>"
 
 
 def html_table(table_id, header, rows, caption=None, row_classes=None) -> str:
-    """An HTML table; ``rows`` are lists of ready cell strings, ``row_classes`` optional CSS classes."""
-    parts = [f'<table id="{table_id}">']
+    """An HTML table; ``header`` and ``caption`` are plain text (escaped here), ``rows`` lists
+    of ready cell strings (:func:`number_cell`, :func:`text_cell`), ``row_classes`` optional
+    CSS classes."""
+    parts = [f'<table id="{escape(table_id)}">']
     if caption:
-        parts.append(f"<caption>{caption}</caption>")
-    parts.append("<thead><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr></thead><tbody>")
+        parts.append(f"<caption>{escape(caption)}</caption>")
+    parts.append("<thead><tr>" + "".join(f"<th>{escape(h)}</th>" for h in header) + "</tr></thead><tbody>")
     for i, row in enumerate(rows):
         css = (row_classes or {}).get(i)
-        parts.append((f'<tr class="{css}">' if css else "<tr>") + "".join(row) + "</tr>")
+        parts.append((f'<tr class="{escape(css)}">' if css else "<tr>") + "".join(row) + "</tr>")
     parts.append("</tbody></table>")
     return "\n".join(parts)
 
@@ -63,8 +89,8 @@ def html_table(table_id, header, rows, caption=None, row_classes=None) -> str:
 def embedded_figure(stem, alt, png_bytes, caption) -> str:
     encoded = base64.b64encode(png_bytes).decode("ascii")
     return (
-        f'<figure id="figure-{html.escape(stem)}"><img alt="{html.escape(alt)}" src="data:image/png;base64,{encoded}">'
-        f"<figcaption><b>{html.escape(alt)}.</b> {html.escape(caption)}</figcaption></figure>"
+        f'<figure id="figure-{escape(stem)}"><img alt="{escape(alt)}" src="data:image/png;base64,{encoded}">'
+        f"<figcaption><b>{escape(alt)}.</b> {escape(caption)}</figcaption></figure>"
     )
 
 

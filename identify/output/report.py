@@ -42,7 +42,6 @@ digits, so a test can parse them back and compare them with ``summary.json``.
 
 from __future__ import annotations
 
-import html
 import math
 import time as _time
 from dataclasses import dataclass
@@ -57,7 +56,7 @@ from ..fitting.noise import energised_mask
 from ..fitting.posterior import BENCH_COVERAGE, ChainBackend
 from . import plots, results
 from .bands import mixture_quantile
-from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
+from .page import CSS, embedded_figure, escape, html_table, number_cell, number_text, png_bytes, text_cell
 
 __all__ = [
     "write_report",
@@ -796,14 +795,14 @@ def _fit_verdict(summary, noise_sigma):
 def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     summary, posterior, fit = data.summary, data.summary["posterior"], data.summary["fit"]
     record = data.record
-    unit = plots.unit_label(record.output_unit)
+    unit = escape(plots.unit_label(record.output_unit))  # page text: put into the markup below
     ratio, misfit = _fit_verdict(summary, data.noise_sigma)
     parts = ['<h2 id="glance">At a glance</h2>']
     message = str(posterior.get("message") or "")
     for prefix in ("NOT CONVERGED:", "converged:"):  # the box says it already
         if message.startswith(prefix):
             message = message[len(prefix) :].strip()
-    message = html.escape(message[:1].upper() + message[1:] + ("" if message.endswith(".") or not message else "."))
+    message = escape(message[:1].upper() + message[1:] + ("" if message.endswith(".") or not message else "."))
     if posterior.get("converged"):
         parts.append(f'<div class="ok" id="convergence-ok"><b>Converged.</b> {message}</div>')
     else:
@@ -835,7 +834,9 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     cycle = next((c for c in analysis.cycles if c.start <= worst < c.stop), None)
     if cycle is not None:
         where += f" (cycle {cycle.index}"
-    where += f", input {record.current[worst]:.3g} {plots.unit_label(record.input_unit)}" + (")" if cycle else "")
+    where += f", input {record.current[worst]:.3g} {escape(plots.unit_label(record.input_unit))}" + (
+        ")" if cycle else ""
+    )
     widths = sorted(
         (
             ((p["hi95"] - p["lo95"]) / abs(p["median"]), p["name"])
@@ -853,7 +854,7 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     if widths:
         items.append(
             "Least well determined (widest 95 % interval relative to the median): "
-            + ", ".join(f"{html.escape(name)} (±{50 * w:.3g} %)" for w, name in widths[:3])
+            + ", ".join(f"{escape(name)} (±{50 * w:.3g} %)" for w, name in widths[:3])
             + "."
         )
     items.append(
@@ -1196,19 +1197,17 @@ def _diagnosis_html(data: ReportData) -> str:
     if diagnosis is not None:
         status = str(diagnosis.get("status", "unknown"))
         missing = diagnosis.get("missing")
-        tied = " or ".join(f"<b>{html.escape(str(name))}</b>" for name in diagnosis.get("tied") or [])
+        tied = " or ".join(f"<b>{escape(str(name))}</b>" for name in diagnosis.get("tied") or [])
         verdict = {
             "adequate": "the residual is consistent with the noise; nothing to add.",
-            "missing_effect": f"the model misses the effect <b>{html.escape(str(missing))}</b>; add it with "
-            f"<code>--effects {html.escape(str(missing))}</code>.",
+            "missing_effect": f"the model misses the effect <b>{escape(str(missing))}</b>; add it with "
+            f"<code>--effects {escape(str(missing))}</code>.",
             "tied": f"several explanations repair the model and this record does not separate them: {tied}; "
             "another record (a hold at constant current, a quiet end) or a joint diagnosis can.",
             "unexplained": "structure remains in the residual that no effect of the library explains.",
         }.get(status, "")
         css = "ok" if status == "adequate" else "alert"
-        parts.append(
-            f'<div class="{css}" id="diagnosis-verdict">Verdict: <b>{html.escape(status)}</b>: {verdict}</div>'
-        )
+        parts.append(f'<div class="{css}" id="diagnosis-verdict">Verdict: <b>{escape(status)}</b>: {verdict}</div>')
         ranking = diagnosis.get("ranking") or []
         if ranking:
             columns = ["effect", "rms_after"] + sorted({k for r in ranking for k in r} - {"effect", "rms_after"})
@@ -1227,7 +1226,7 @@ def _diagnosis_html(data: ReportData) -> str:
             parts.append(
                 html_table(
                     "diagnosis-ranking",
-                    [html.escape(c) for c in columns],
+                    columns,
                     rows,
                     caption="Candidate effects, best first (rms_after: residual RMS with the effect added)",
                 )
@@ -1254,7 +1253,7 @@ def _effect_parameters_cell(parameters: dict) -> str:
     items = []
     for name, value in parameters.items():
         unit = units.get(name, "")
-        text = f"{html.escape(str(name))} = {number_text(value, 4)}" + (f" {html.escape(unit)}" if unit else "")
+        text = f"{escape(str(name))} = {number_text(value, 4)}" + (f" {escape(unit)}" if unit else "")
         items.append(f"<li>{text}</li>")
     return '<td class="parameters"><ul>' + "".join(items) + "</ul></td>"
 
@@ -1291,13 +1290,13 @@ def _page(data: ReportData, analysis: _Analysis, figure_html: dict, seconds: flo
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
+        f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
+        f"<h1>{escape(title)}</h1>",
         f"<p>Model: GPI with {data.model.n_operators} play operators, reading "
-        f"<code>{html.escape(data.model.reading)}</code>, "
-        f"effects: {html.escape(effects)}. Record: {len(record.time)} samples over "
+        f"<code>{escape(data.model.reading)}</code>, "
+        f"effects: {escape(effects)}. Record: {len(record.time)} samples over "
         f"{record.time[-1] - record.time[0]:.4g} s. Results folder: "
-        f"<code>{html.escape(str(data.directory))}</code>.</p>",
+        f"<code>{escape(str(data.directory))}</code>.</p>",
         _glance_html(data, analysis),
         '<h2 id="measurement">1. Measurement vs model</h2>',
         *(figure_html[s] for s in ("fig5_input", "fig6_displacement", "fig6_zoom", "fig7_error", "fig8_loops")),

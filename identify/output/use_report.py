@@ -10,7 +10,6 @@ for a compensation, the CSV files. Nothing here computes a fit, a band or an inv
 
 from __future__ import annotations
 
-import html
 import json
 from pathlib import Path
 
@@ -26,7 +25,7 @@ from .diagnosis_plots import (
     residual_rate_figure,
     residual_time_figure,
 )
-from .page import CSS, embedded_figure, html_table, number_cell, number_text, png_bytes, text_cell
+from .page import CSS, embedded_figure, escape, html_table, number_cell, number_text, png_bytes, text_cell
 from .plots import axis_label, new_figure, styled, unit_label
 from .report import (
     branches,
@@ -84,8 +83,8 @@ def _page(title, body_parts) -> bytes:
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
+        f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
+        f"<h1>{escape(title)}</h1>",
         *body_parts,
         "</body></html>",
     ]
@@ -97,7 +96,7 @@ def _notes_html(notes) -> str:
         return ""
     return (
         '<div class="note" id="notes"><b>Keep in mind:</b><ul>'
-        + "".join(f"<li>{html.escape(str(n))}</li>" for n in notes)
+        + "".join(f"<li>{escape(str(n))}</li>" for n in notes)
         + "</ul></div>"
     )
 
@@ -307,12 +306,12 @@ def _verdict_html(p) -> str:
     text = {
         "adequate": "the validation residual is consistent with the sensor noise: the model carries over to this "
         "record.",
-        "missing_effect": f"the record reveals the effect <b>{html.escape(str(p.missing))}</b>, which the study's "
+        "missing_effect": f"the record reveals the effect <b>{escape(str(p.missing))}</b>, which the study's "
         "model "
         "lacks; identify it again with <code>--effects "
-        f"{html.escape(','.join(list(p.study.model.effect_names) + [str(p.missing)]))}</code>.",
+        f"{escape(','.join(list(p.study.model.effect_names) + [str(p.missing)]))}</code>.",
         "tied": "the record reveals structure that several explanations repair and this record does not separate: "
-        + " or ".join(f"<b>{html.escape(str(n))}</b>" for n in getattr(p.diagnosis, "tied", ()) or ())
+        + " or ".join(f"<b>{escape(str(n))}</b>" for n in getattr(p.diagnosis, "tied", ()) or ())
         + ".",
         "unexplained": "structure remains in the validation residual that no effect of the library explains.",
         "parameters_differ": "the validation residual is not noise, yet no effect is missing: refitted on this record "
@@ -324,7 +323,7 @@ def _verdict_html(p) -> str:
     }[p.verdict]
     css = "ok" if p.verdict == "adequate" else "alert"
     parts.append(
-        f'<div class="{css}" id="prediction-verdict">Verdict: <b data-key="verdict">{html.escape(p.verdict)}</b>: '
+        f'<div class="{css}" id="prediction-verdict">Verdict: <b data-key="verdict">{escape(p.verdict)}</b>: '
         f"{text}</div>"
     )
     a = adequacy.to_dict()
@@ -358,7 +357,7 @@ def _verdict_html(p) -> str:
     )
     if p.diagnosis is not None:
         d = p.diagnosis
-        parts.append(f"<p>{html.escape(d.reason)}</p>")
+        parts.append(f"<p>{escape(d.reason)}</p>")
         rows = []
         for c in d.ranking:
             c = c.to_dict()
@@ -409,14 +408,14 @@ def prediction_files(p) -> dict:
             )
     files["prediction.json"] = _json_bytes(p.to_dict())
     study = p.study
-    unit = unit_label(p.record.output_unit)
+    unit = escape(unit_label(p.record.output_unit))  # page text: put into the markup below
     by_stem = dict(figure_html)
     effects = ", ".join(study.model.effect_names) or "none"
     glance_css = "ok" if p.verdict == "adequate" else "alert"
     body = [
-        f"<p>Study <code>{html.escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
-        f"{html.escape(effects)}; trained on <code>{html.escape(str(p.training.get('file')))}</code>) applied to "
-        f"<code>{html.escape(str(p.record.source))}</code>, window {p.window[0]:.6g}–{p.window[1]:.6g} s "
+        f"<p>Study <code>{escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
+        f"{escape(effects)}; trained on <code>{escape(str(p.training.get('file')))}</code>) applied to "
+        f"<code>{escape(str(p.record.source))}</code>, window {p.window[0]:.6g}–{p.window[1]:.6g} s "
         f"({p.stop - p.start} samples, the model run from the record's first sample). Nothing is refitted.</p>",
         '<h2 id="glance">At a glance</h2>',
         f'<div class="{glance_css}" id="glance-box">Validation RMS <b data-key="rms">{number_text(p.rms, 4)}</b> '
@@ -425,7 +424,7 @@ def prediction_files(p) -> dict:
         f'<b data-key="max_error_pct">{number_text(p.max_error_pct, 4)}</b> % of the range (training '
         f'{number_text(p.training["max_error_pct"], 4)} %); <span data-key="inside_predictive_band">'
         f"{100 * p.inside_predictive_band:.1f}</span> % inside the 95 % predictive band; verdict "
-        f"<b>{html.escape(p.verdict)}</b>{' (' + html.escape(str(p.missing)) + ')' if p.missing else ''}.</div>",
+        f"<b>{escape(p.verdict)}</b>{' (' + escape(str(p.missing)) + ')' if p.missing else ''}.</div>",
         _notes_html(p.notes),
         _prediction_tables(p),
         '<h2 id="measurement">1. Measured vs predicted</h2>',
@@ -713,10 +712,10 @@ def compensation_files(c) -> dict:
     ]
     effects = ", ".join(study.model.effect_names) or "none"
     body = [
-        f"<p>Study <code>{html.escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
-        f"{html.escape(effects)}); target <code>{html.escape(c.target.source)}</code>, {t.size} samples, "
-        f"{y.min():.6g}–{y.max():.6g} {u}; current limits {c.current_range[0]:g}–{c.current_range[1]:g} "
-        f"{unit_label(in_unit)}. The feedforward current is the exact inverse of the posterior-median model "
+        f"<p>Study <code>{escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
+        f"{escape(effects)}); target <code>{escape(c.target.source)}</code>, {t.size} samples, "
+        f"{y.min():.6g}–{y.max():.6g} {escape(u)}; current limits {c.current_range[0]:g}–{c.current_range[1]:g} "
+        f"{escape(unit_label(in_unit))}. The feedforward current is the exact inverse of the posterior-median model "
         "(<code>model.inverse</code>: a root find per sample carried forward with the model's state); the tracking "
         "error below is what the posterior predicts when that current drives the transducer.</p>",
         _notes_html(c.notes),

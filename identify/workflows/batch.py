@@ -46,6 +46,14 @@ and the record file's SHA-256) is unchanged, and redoes failed, interrupted or c
 (atomically): ``summary.csv``, ``summary.md`` and ``index.html`` (links to each run's
 report) in ``OUT``.
 
+One configuration per folder
+----------------------------
+``OUT`` belongs to the configuration that first ran into it: ``OUT/batch_config.json``
+records its file and the SHA-256 of what defines its runs (task, options, records,
+variants). The same file (edited: changed runs are redone) or an identical configuration
+may run there again; another configuration is refused in one line naming both, before
+anything in ``OUT`` is touched (it would replace the summary and the runs' bookkeeping).
+
 One writer, and stopping
 ------------------------
 The batch locks ``OUT`` and each job locks its run folder (:mod:`identify.data.locks`) before
@@ -92,7 +100,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ..data.fileio import atomic_write, toml_module
+from ..data.fileio import atomic_write, open_no_follow, toml_module
 
 __all__ = [
     "TASKS",
@@ -119,6 +127,8 @@ __all__ = [
     "DONE_MARKER",
     "FAILED_MARKER",
     "STOP_FILE",
+    "CONFIG_FILE",
+    "config_identity",
 ]
 
 #: The commands a batch can run, each a registered ``python -m identify`` command.
@@ -131,6 +141,8 @@ FAILED_MARKER = "batch_failed.json"
 STOP_FILE = ".batch_stop"
 #: Seconds a stopped command gets to end after SIGTERM before it is killed.
 STOP_GRACE_SECONDS = 120.0
+#: In the batch folder: the configuration the folder belongs to (file and SHA-256).
+CONFIG_FILE = "batch_config.json"
 _JOB_FILE = "batch_job.json"
 # the file a task writes when it only has a --json option
 _JSON_NAMES = {"fit": "fit.json", "diagnose": "diagnosis.json", "study": "summary.json"}
@@ -594,7 +606,13 @@ class _ArgumentError(Exception):
 
 
 class _RaisingParser(argparse.ArgumentParser):
-    """An argument parser that raises instead of printing usage and exiting."""
+    """An argument parser that raises instead of printing usage and exiting, and knows an
+    option only by its full name (``allow_abbrev=False``, as the command line itself): a
+    config's ``jso = "..."`` is an unknown option, never ``--json``."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs["allow_abbrev"] = False
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         raise _ArgumentError(message)
@@ -735,6 +753,48 @@ def expand_jobs(config: BatchConfig) -> list[Job]:
                 )
             )
     return jobs
+
+
+# -- the folder's configuration ----------------------------------------------------------------
+
+
+def config_identity(config: BatchConfig) -> dict:
+    """``{"config": file, "sha256": digest}``: the configuration's file and the SHA-256 of what
+    defines its runs (task, options, records with their files and options, variants);
+    comments, ``workers``, ``executor`` and ``timeout`` do not count."""
+    source = Path(config.source)
+    content = {
+        "task": config.task,
+        "options": config.options,
+        "records": [[r.name, str(r.path), r.options] for r in config.records],
+        "variants": [[v.name, v.options] for v in config.variants],
+    }
+    digest = hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode("utf-8")).hexdigest()
+    return {"config": str(source.resolve()) if source.is_file() else str(source), "sha256": digest}
+
+
+def _claim_folder(config: BatchConfig) -> None:
+    """Make ``config.out`` this configuration's (under the batch lock), or refuse: a folder that
+    another configuration ran into (another file, other runs) is never touched."""
+    path = config.out / CONFIG_FILE
+    mine = config_identity(config)
+    if path.exists():
+        recorded = _read_json(path)
+        if not isinstance(recorded, dict) or not isinstance(recorded.get("sha256"), str):
+            raise BatchConfigError(
+                f"{path} is damaged, so the configuration that owns {config.out} is unknown. Nothing was changed: "
+                f"delete {path} if {config.out} is this configuration's, or give {config.source} another out"
+            )
+        if recorded == mine or (recorded["sha256"] == mine["sha256"]):  # a copy of it does not take the folder over
+            return
+        if recorded.get("config") != mine["config"]:
+            raise BatchConfigError(
+                f"{config.out} belongs to the batch configuration {recorded.get('config')} (sha256 "
+                f"{recorded['sha256'][:12]}); {mine['config']} (sha256 {mine['sha256'][:12]}) is another one and "
+                "would replace its summary and its runs' bookkeeping. Nothing was changed: give this configuration "
+                f"another out, or delete {path} to hand the folder over"
+            )
+    atomic_write(path, json.dumps(mine, indent=2) + "\n")
 
 
 # -- running one job ---------------------------------------------------------------------------
@@ -985,7 +1045,8 @@ def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
     stopped = ""
     env, pass_fds = lock.child_environment(_job_environment(job.threads))
     env[PARENT_VARIABLE] = str(os.getpid())  # the command ends (SIGTERM) if the batch dies
-    with open(folder / _LOG_FILE, "w", encoding="utf-8") as log:
+    log_fd = open_no_follow(folder / _LOG_FILE, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)  # never through a link
+    with os.fdopen(log_fd, "w", encoding="utf-8") as log:
         if lock.stale_note():
             log.write(f"note: {lock.stale_note()}\n")
         log.write("$ " + " ".join(command) + "\n")
@@ -1254,6 +1315,22 @@ def _status_counts(results) -> str:
     return f"{len(results)} runs: {', '.join(parts)}."
 
 
+def _md(value) -> str:
+    """Text for a Markdown table cell, shown as written: HTML escaped (``<`` ``>`` ``&``), the
+    Markdown marks that format or link (``\\ ` * [ ] | !`` and ``_`` outside a word) escaped
+    by a backslash, line breaks as spaces."""
+    text = html.escape(" ".join(str(value).split()), quote=False)
+    text = re.sub(r"([\\`*\[\]|!])", r"\\\1", text)
+    return re.sub(r"(?<![A-Za-z0-9_])_|_(?![A-Za-z0-9_])", r"\\_", text)
+
+
+def _md_url(path: str) -> str:
+    """A relative link target for Markdown: every character but ``A-Z a-z 0-9 / . - _ ~`` percent-encoded."""
+    from urllib.parse import quote
+
+    return quote(str(path), safe="/.-_~")
+
+
 def write_summary(out, results: list[JobResult], config: BatchConfig | None = None) -> None:
     """Write ``summary.csv``, ``summary.md`` and ``index.html`` into ``out`` (each atomically).
 
@@ -1281,17 +1358,16 @@ def write_summary(out, results: list[JobResult], config: BatchConfig | None = No
 
     title = f"Batch {config.task} runs from {config.source.name}" if config else "Batch runs"
     counts = _status_counts(results)
-    md = [f"# {title}", "", counts, ""]
+    md = [f"# {_md(title)}", "", _md(counts), ""]
     md.append("| run | status | RMS | max error % | statistic | verdict | time [s] | error / notes |")
     md.append("|---|---|---|---|---|---|---|---|")
     for r in results:
-        link = f"[{r.key}]({r.report})" if r.report else r.key
+        link = f"[{_md(r.key)}]({_md_url(r.report)})" if r.report else _md(r.key)
         stat = f"{r.statistic_name} = {_fmt(r.statistic)}" if r.statistic is not None else ""
         unit = f" {r.output_unit}" if r.output_unit and r.rms is not None else ""
-        other = (r.error or r.notes).replace("|", "\\|").replace("\n", " ")
         md.append(
-            f"| {link} | {r.status} | {_fmt(r.rms)}{unit} | {_fmt(r.max_error_pct, 3)} | {stat} | {r.verdict} | "
-            f"{r.seconds:.1f} | {other} |"
+            f"| {link} | {_md(r.status)} | {_md(_fmt(r.rms) + unit)} | {_md(_fmt(r.max_error_pct, 3))} | {_md(stat)} | "
+            f"{_md(r.verdict)} | {r.seconds:.1f} | {_md(r.error or r.notes)} |"
         )
     atomic_write(out / "summary.md", "\n".join(md) + "\n")
 
@@ -1334,7 +1410,9 @@ max error in % of the measured output range. Each run name links to its report (
 # -- the batch ----------------------------------------------------------------------------------
 
 
-def run_batch(config: BatchConfig, *, progress: bool = True, rerun: bool = False, stream=None) -> BatchResult:
+def run_batch(
+    config: BatchConfig, *, progress: bool = True, rerun: bool = False, stream=None, announce=None
+) -> BatchResult:
     """Run every job of ``config`` that has not finished yet, then write the summary.
 
     The batch folder is locked for the whole run; Ctrl-C and SIGTERM stop the batch as
@@ -1348,6 +1426,10 @@ def run_batch(config: BatchConfig, *, progress: bool = True, rerun: bool = False
     rerun : bool, default False
         Redo finished jobs too.
     stream : file-like, default sys.stderr
+    announce : callable, optional
+        Called with no argument once the folder is locked and found to be this
+        configuration's, before anything runs (the command line prints its header there,
+        so a refused batch prints only its error).
 
     Returns
     -------
@@ -1358,14 +1440,19 @@ def run_batch(config: BatchConfig, *, progress: bool = True, rerun: bool = False
     ------
     identify.data.locks.FolderBusyError
         Another process holds the batch folder.
+    BatchConfigError
+        The folder belongs to another configuration (:data:`CONFIG_FILE`); nothing was changed.
     """
     from ..data.locks import FolderLock
 
     lock = FolderLock(config.out, command=f"python -m identify batch {config.source}")
     lock.acquire()
-    if lock.stale_note():
-        print(f"note: {lock.stale_note()}", file=sys.stderr if stream is None else stream)
     try:
+        _claim_folder(config)
+        if announce is not None:
+            announce()
+        if lock.stale_note():
+            print(f"note: {lock.stale_note()}", file=sys.stderr if stream is None else stream)
         return _run_batch_locked(config, progress=progress, rerun=rerun, stream=stream, lock=lock)
     finally:
         lock.release()

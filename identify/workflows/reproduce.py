@@ -59,6 +59,9 @@ __all__ = [
     "reproduce",
     "TIMING_KEYS",
     "REPORT_FILE",
+    "REPRODUCIBLE_COMMANDS",
+    "REPLAYED_OPTIONS",
+    "NOT_REPLAYED_OPTIONS",
 ]
 
 #: JSON keys whose values are wall times or timestamps: never compared.
@@ -71,6 +74,37 @@ REPORT_FILE = "reproduction.json"
 _JSON_FILES = ("fit.json", "summary.json", "diagnosis.json")
 #: Array files compared dataset by dataset.
 _ARRAY_FILES = ("chain.h5", "data.npz")
+#: The commands whose runs are reproduced (those that write a manifest).
+REPRODUCIBLE_COMMANDS = ("study", "fit")
+#: Options a rerun takes from the manifest's settings: the computation's, never where it writes.
+REPLAYED_OPTIONS = frozenset(
+    {
+        "time_column",
+        "input_column",
+        "output_column",
+        "input_unit",
+        "output_unit",
+        "every",
+        "effects",
+        "n_operators",
+        "reading",
+        "noise_sigma",
+        "seed",
+        "n_starts",
+        "free_alpha",
+        "walkers",
+        "max_steps",
+        "check_every",
+        "priors",
+        "all_terms",
+        "moves",
+        "no_report",
+        "progress",
+    }
+)
+#: Options never taken from a manifest: where the run wrote (the rerun writes only into
+#: NEWDIR, given by ``reproduce`` itself) and how it spoke.
+NOT_REPLAYED_OPTIONS = frozenset({"out", "json", "force", "verbose", "quiet", "help"})
 _MAX_LISTED = 25
 
 
@@ -401,10 +435,11 @@ def _command_name(manifest: dict) -> str:
 
     name = manifest.get("settings", {}).get("command") or manifest.get("task")
     if isinstance(name, str) and name in COMMANDS:
-        return name
-    for word in (manifest.get("command") or [])[1:]:
+        return _reproducible(name)
+    command = manifest.get("command")
+    for word in (command if isinstance(command, list) else [])[1:]:
         if word in COMMANDS:
-            return word
+            return _reproducible(word)
     # no command line (e.g. run from Python): the one command whose options cover the settings
     import argparse
     import importlib
@@ -412,13 +447,13 @@ def _command_name(manifest: dict) -> str:
     settings = set(manifest.get("settings", {}))
     matches = []
     for name, module_name in COMMANDS.items():
-        if name in ("batch", "reproduce"):
+        if name not in REPRODUCIBLE_COMMANDS:
             continue
         try:
             module = importlib.import_module(module_name)
         except ImportError:
             continue
-        parser = argparse.ArgumentParser(add_help=False)
+        parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
         add_command_arguments(parser, module)
         if settings <= {a.dest for a in parser._actions}:
             matches.append(name)
@@ -430,6 +465,28 @@ def _command_name(manifest: dict) -> str:
     )
 
 
+def _reproducible(name: str) -> str:
+    if name not in REPRODUCIBLE_COMMANDS:
+        raise ManifestError(
+            f"the manifest names the command {name!r}; reproduce reruns only {', '.join(REPRODUCIBLE_COMMANDS)} runs"
+        )
+    return name
+
+
+def _check_settings(settings: dict, parser) -> None:
+    """Refuse a manifest whose settings name an option ``reproduce`` never replays (an output
+    path such as ``json``: the rerun writes only into its new folder)."""
+    options = {action.dest for action in parser._actions if action.option_strings}
+    refused = sorted(k for k in settings if k in options and k not in REPLAYED_OPTIONS)
+    if refused:
+        shown = ", ".join(f"{k} = {settings[k]!r}" for k in refused)
+        raise ManifestError(
+            f"the manifest's settings hold {shown}, which reproduce never takes from a manifest (it replays only "
+            "the computation's options; the rerun writes only into its new folder). Nothing was run; a manifest "
+            "written by fit or study holds no such setting"
+        )
+
+
 def rerun_arguments(manifest: dict, data_file, out) -> list[str]:
     """The ``python -m identify`` arguments that redo the run into ``out``.
 
@@ -437,12 +494,15 @@ def rerun_arguments(manifest: dict, data_file, out) -> list[str]:
     each setting whose name is an option's destination becomes that option, the record
     path becomes ``data_file``, the output folder ``out`` and the seed the manifest's.
     Options left at their defaults are passed explicitly too, so a changed default cannot
-    change the rerun.
+    change the rerun. Only :data:`REPLAYED_OPTIONS` are taken from the manifest; output
+    paths never are.
 
     Raises
     ------
     ManifestError
-        Unknown command, or a setting the command's parser no longer accepts.
+        Unknown command (or one not in :data:`REPRODUCIBLE_COMMANDS`), a setting naming an
+        option that is never replayed (e.g. ``json``: an output path), or a setting the
+        command's parser no longer accepts.
     """
     import argparse
     import importlib
@@ -451,9 +511,10 @@ def rerun_arguments(manifest: dict, data_file, out) -> list[str]:
 
     name = _command_name(manifest)
     module = importlib.import_module(COMMANDS[name])
-    parser = argparse.ArgumentParser(prog=f"python -m identify {name}", add_help=False)
+    parser = argparse.ArgumentParser(prog=f"python -m identify {name}", add_help=False, allow_abbrev=False)
     add_command_arguments(parser, module)
     settings = dict(manifest["settings"])
+    _check_settings(settings, parser)
     if manifest.get("seed") is not None:
         settings["seed"] = manifest["seed"]
     positional, optional = [], []
@@ -467,7 +528,7 @@ def rerun_arguments(manifest: dict, data_file, out) -> list[str]:
         if dest in ("out", "out_dir", "output", "outdir"):
             optional += [flag, str(out)]
             continue
-        if dest in ("force", "resume", "help") or dest not in settings:
+        if dest not in REPLAYED_OPTIONS or dest not in settings:
             continue
         value = settings[dest]
         if action.nargs == 0:
