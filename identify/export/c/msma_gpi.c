@@ -446,8 +446,10 @@ static void initial_envelopes(const double *g, double u, double excursion, doubl
     *falling = envelope(g + 4, u);
 }
 
-/* The model's output at the present sample for current i, from the committed state (_evaluate). */
-static evaluation evaluate(const msma_inverse *c, double i, int first) {
+/* The model's output at the present sample for current i, from the committed state (_evaluate).
+ * side != 0 (a search on that side): a drive off that side returns at once with e.side set and
+ * nothing else computed (the search's objective is -inf there whatever the output). */
+static evaluation evaluate(const msma_inverse *c, double i, int first, int side) {
     const double *st = c->st, *g = c->g, *tr = c->tr, *cp = c->cp, *th = c->th;
     const msma_params *p = &c->p;
     evaluation e;
@@ -462,6 +464,11 @@ static evaluation evaluate(const msma_inverse *c, double i, int first) {
         excursion = first ? 0.0 : e.u1 - st[2];
         kept = sign(excursion) * pmax(fabs(excursion) - tr[1] * fade, 0.0);
         e.u = e.u1 - (excursion - kept * (1.0 - tr[0] * fade));
+    }
+    if (side != 0 && !first) {
+        double dv = e.u - st[4];
+        e.side = dv < 0.0 ? -1 : 1;
+        if (e.side != side) return e;
     }
     e.width = 1.0;
     if (p->has_training && tr[5] != 0.0) e.width = 1.0 + tr[5] * exp(-pow(e.travel / tr[2], tr[3]));
@@ -553,7 +560,7 @@ static double commit(msma_inverse *c, double i, int first) {
     const msma_params *p = &c->p;
     const double *g = c->g, *cp = c->cp, *th = c->th;
     double *st = c->st;
-    evaluation e = evaluate(c, i, first);
+    evaluation e = evaluate(c, i, first, 0);
     int j;
     if (first) {
         double rising, falling, excursion_env;
@@ -629,7 +636,7 @@ static double commit(msma_inverse *c, double i, int first) {
 
 /* s (y(s x) - target) on side s, -inf off it (search coordinate x = s i) (_objective). */
 static double objective(msma_inverse *c, double x, int s, double target, int first) {
-    evaluation e = evaluate(c, s * x, first);
+    evaluation e = evaluate(c, s * x, first, s);
     c->evaluations += 1;
     if (!first && e.side != s) return -INFINITY;
     return s * (e.y - target);
