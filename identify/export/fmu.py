@@ -131,7 +131,8 @@ def unit_variables(spec: ExportSpec, kind: str, *, input_start: float) -> list[F
                 "parameter",
                 start=spec.output_scale,
                 unit=unit_out,
-                description="the output's scale for the root find's rounding tolerance (compensate: max |target|)",
+                description="the output's scale for the root find's rounding tolerance: about the largest "
+                "|displacement| (compensate: max |target|); far smaller puts it under the output's rounding",
                 setting=2,
             ),
         ]
