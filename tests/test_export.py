@@ -193,6 +193,41 @@ def test_the_test_extra_installs_fmpy():
     assert any(re.match(r"fmpy\b", requirement) for requirement in extra)
 
 
+def test_the_units_parameters_are_set_before_the_initialization(tmp_path):
+    """A model unit with logarithmic creep exported for a 700 s run (10 modes), given the horizon of
+    the 70 s paper record (8 modes) before its initialization, is Model.evaluate on that record
+    (the modes' time constants computed again in C, to 1e-9); the compensator given
+    current_max = 4 A is invert with (0, 4)."""
+    from identify.export.fmu import build_fmu
+
+    m = model.Model(["creep", "thermal"])
+    theta = _table1(m, creep_amplitude=0.05, creep_log_rate=0.02, thermal_sensitivity=0.05, thermal_expansion=1.0)
+    spec = export_spec(m, theta, horizon=700.0, current_range=(0.0, 5.0), output_scale=300.0)
+    for kind in ("model", "compensator"):
+        build_fmu(
+            spec, kind, tmp_path / f"{kind}.fmu", input_start=0.0, step_size=0.05, generated="2026-12-03T00:00:00Z"
+        )
+    time, current = model.paper_current(fs=20.0)
+    y = m(theta, time, current)
+    after, _ = _fmu_driver(
+        tmp_path / "model.fmu", time, current, "current", ["displacement"], parameters={"horizon": 40.0}
+    )
+    assert np.abs(after[:, 0] - y).max() <= TOLERANCE * np.ptp(y)
+    stale, _ = _fmu_driver(tmp_path / "model.fmu", time, current, "current", ["displacement"])
+    assert np.abs(stale[:, 0] - y).max() > 1e-3  # the 700 s horizon is another model on this record
+    target = 30.0 + 200.0 * np.abs(np.sin(2 * np.pi * time / 20.0))
+    after, _ = _fmu_driver(
+        tmp_path / "compensator.fmu",
+        time,
+        target,
+        "target",
+        ["current"],
+        parameters={"current_max": 4.0, "horizon": 70.0, "output_scale": max(1.0, target.max())},
+    )
+    python = invert(m, theta, time, target, current_range=(0.0, 4.0))
+    assert np.abs(after[:, 0] - python.current).max() <= TOLERANCE * 4.0 and after[:, 0].max() <= 4.0
+
+
 # -- a study, exported ----------------------------------------------------------------------
 @pytest.fixture(scope="session")
 def study_dir(tmp_path_factory, worker_id):
@@ -279,10 +314,10 @@ def test_the_c_forward_and_inverse_equal_model_and_compensate(study_dir, exporte
         assert np.array_equal(status_c, result.status)  # thermal: not every sample of its own output is exact
 
 
-def _fmu_driver(path, time, values, input_name, output_names, *, peek=False):
-    """A sample-by-sample master (fmpy's FMU2Slave): per sample set the input, (peek at the outputs),
-    step from t_k by t_(k+1) - t_k, read the outputs. Returns the outputs after each step, and the
-    peeked ones."""
+def _fmu_driver(path, time, values, input_name, output_names, *, peek=False, parameters=None):
+    """A sample-by-sample master (fmpy's FMU2Slave): set ``parameters`` (name -> value) before the
+    initialization, then per sample set the input, (peek at the outputs), step from t_k by
+    t_(k+1) - t_k, read the outputs. Returns the outputs after each step, and the peeked ones."""
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
@@ -299,6 +334,8 @@ def _fmu_driver(path, time, values, input_name, output_names, *, peek=False):
     after, before = np.empty((time.size, len(reals))), np.empty((time.size, len(reals)))
     try:
         unit.instantiate()
+        for name, value in (parameters or {}).items():
+            unit.setReal([vr[name]], [float(value)])
         unit.setupExperiment(startTime=float(time[0]))
         unit.enterInitializationMode()
         unit.exitInitializationMode()
