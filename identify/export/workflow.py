@@ -26,7 +26,7 @@ import json
 import shutil
 import tempfile
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -153,13 +153,7 @@ def study_spec(study, *, draw=None, horizon=None, current_range=None) -> ExportS
     )
     theta_c = _compensator_theta(study, theta)
     y_low, y_high = reachable_range(model, theta_c, record.time, spec.current_range)
-    return _with(spec, output_scale=max(1.0, abs(y_low), abs(y_high)))
-
-
-def _with(spec: ExportSpec, **changes) -> ExportSpec:
-    from dataclasses import replace
-
-    return replace(spec, **changes)
+    return replace(spec, output_scale=max(1.0, abs(y_low), abs(y_high)))
 
 
 def _prepare_out(out: Path) -> None:
