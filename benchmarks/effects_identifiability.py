@@ -20,6 +20,14 @@ computed, and printed:
   GPI, and the "worst direction" lists its largest parameter loadings;
 * the same projection within the effect (each effect parameter against the GPI *and* the
   effect's other parameters): the parameter that trades off most.
+
+An effect parameter a row does not set is pinned at its off value (a row of an effect's
+simpler form leaves its general form's extra terms off). Then, for the pairs of
+:data:`PAIRS` (two first-cycle effects, both at their rows' settings, in one model): the
+smallest singular value of both effects' columns together after projecting out the GPI's
+span (``joint``) and its direction, and each effect's columns after projecting out the GPI
+*and* the other effect's (how much of it the other cannot take over), with its own worst
+direction.
 """
 
 from __future__ import annotations
@@ -51,6 +59,13 @@ SETTINGS = {
         "incomplete_reset_retained": 0.5,
         "incomplete_reset_fade": 0.05,
     },
+    "incomplete_reset (loading shape: drive share 0.3, p 0.6)": {
+        "incomplete_reset_strain": 5.0,
+        "incomplete_reset_retained": 0.5,
+        "incomplete_reset_fade": 0.05,
+        "incomplete_reset_drive": 0.3,
+        "incomplete_reset_shape": 0.6,
+    },
     "creep": {
         "creep_amplitude": 0.02,
         "creep_tau": 2.0,
@@ -77,6 +92,41 @@ SETTINGS = {
         "sensor_drift_ambient_period": 120.0,
     },
 }
+
+
+#: pairs of rows of :data:`SETTINGS` measured together (first-cycle effects that trade off)
+PAIRS = (
+    ("incomplete_reset (loading shape: drive share 0.3, p 0.6)", "training"),
+    ("incomplete_reset (loading shape: drive share 0.3, p 0.6)", "initial_state"),
+    ("incomplete_reset", "training"),
+    ("incomplete_reset", "initial_state"),
+)
+
+
+def configured(plain: Model, labels, theta0):
+    """``(model, theta, values)``: ``plain`` with the effects of the rows ``labels``, their
+    parameters set by the rows (freed where pinned by default) and every effect parameter a
+    row does not set pinned at its off value."""
+    model = plain
+    values = {}
+    for label in labels:
+        model = model + label.split()[0]
+        values |= SETTINGS[label]
+    parameters = model.parameters
+    for effect in model.effects:
+        for parameter in effect.parameters:
+            if parameter.name in values:  # freed where pinned by default (initial_state's level: the control)
+                parameters = parameters.replace(parameter.name, vary=True)
+            else:
+                parameters = parameters.replace(parameter.name, value=float(effect.off[parameter.name]), vary=False)
+    model = model.with_parameters(parameters)
+    theta = model.theta_from_dict(dict(zip(plain.names, theta0)) | values)
+    return model, theta, values
+
+
+def loadings(model, free, cols, vector, count=3) -> str:
+    order = np.argsort(-np.abs(vector))[:count]
+    return ", ".join(f"{model.names[free[cols[k]]]} {vector[k]:+.2f}" for k in order)
 
 
 def jacobian(model: Model, theta, time, current, free):
@@ -122,22 +172,15 @@ def main(argv=None) -> int:
         "| least separable parameter (vs GPI + rest of effect) |"
     )
     print("|---|---|---|---|---|---|")
-    for label, values in SETTINGS.items():
-        model = plain + label.split()[0]
-        parameters = model.parameters
-        for parameter in values:  # freed where pinned by default (initial_state's level: the positive control)
-            parameters = parameters.replace(parameter, vary=True)
-        model = model.with_parameters(parameters)
-        theta = model.theta_from_dict(dict(zip(plain.names, theta0)) | values)
+    for label in SETTINGS:
+        model, theta, values = configured(plain, [label], theta0)
         free = np.flatnonzero(model.parameters.vary)
         jac = jacobian(model, theta, time, current, free)
         s = np.linalg.svd(jac, compute_uv=False)
         effect_cols = [i for i, c in enumerate(free) if model.names[c] in values]
         gpi_cols = [i for i, c in enumerate(free) if model.names[c] not in values]
         sv, vt = projected_sv(jac[:, gpi_cols], jac[:, effect_cols])
-        worst = vt[-1]
-        order = np.argsort(-np.abs(worst))[:3]
-        loadings = ", ".join(f"{model.names[free[effect_cols[k]]]} {worst[k]:+.2f}" for k in order)
+        worst = loadings(model, free, effect_cols, vt[-1])
         per_param = []
         for k in range(len(effect_cols)):
             others = gpi_cols + [effect_cols[m] for m in range(len(effect_cols)) if m != k]
@@ -145,8 +188,29 @@ def main(argv=None) -> int:
             per_param.append((sv_k[0], model.names[free[effect_cols[k]]]))
         least = min(per_param)
         print(
-            f"| {label} | {len(effect_cols)} | {s[-1] / s[0]:.1e} | {sv[-1]:.1e} (largest {sv[0]:.2f}) | {loadings} | "
+            f"| {label} | {len(effect_cols)} | {s[-1] / s[0]:.1e} | {sv[-1]:.1e} (largest {sv[0]:.2f}) | {worst} | "
             f"{least[1]} {least[0]:.1e} |"
+        )
+    print()
+    print(
+        "| pair A + B | joint indep (both vs GPI) | joint worst direction | A vs GPI + B | its worst direction "
+        "| B vs GPI + A | its worst direction |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for first, second in PAIRS:
+        model, theta, values = configured(plain, [first, second], theta0)
+        free = np.flatnonzero(model.parameters.vary)
+        jac = jacobian(model, theta, time, current, free)
+        a_cols = [i for i, c in enumerate(free) if model.names[c] in SETTINGS[first]]
+        b_cols = [i for i, c in enumerate(free) if model.names[c] in SETTINGS[second]]
+        gpi_cols = [i for i, c in enumerate(free) if model.names[c] not in values]
+        both = a_cols + b_cols
+        sv, vt = projected_sv(jac[:, gpi_cols], jac[:, both])
+        sv_a, vt_a = projected_sv(jac[:, gpi_cols + b_cols], jac[:, a_cols])
+        sv_b, vt_b = projected_sv(jac[:, gpi_cols + a_cols], jac[:, b_cols])
+        print(
+            f"| {first} + {second} | {sv[-1]:.1e} | {loadings(model, free, both, vt[-1], 4)} | {sv_a[-1]:.1e} | "
+            f"{loadings(model, free, a_cols, vt_a[-1])} | {sv_b[-1]:.1e} | {loadings(model, free, b_cols, vt_b[-1])} |"
         )
     return 0
 

@@ -57,13 +57,17 @@ LIBRARY_FORM = {"rate_dependent_width": "rate_width"}
 OPTIONAL = {"initial_state"}
 
 
-def generate(generator: Path, suite: str, out: Path, seed: int, per_form: int | None, n: int | None) -> Path:
+def generate(
+    generator: Path, suite: str, out: Path, seed: int, per_form: int | None, n: int | None, extra: tuple = ()
+) -> Path:
     """``out/records``, generated unless it already holds records: those of the same settings
     are reused, and records of other settings are never overwritten (a draw's results are
     scored against them; regenerating another seed over them once mixed two draws)."""
     records = out / "records"
     done = records / ".generated.json"
     settings = {"generator": str(generator), "suite": suite, "seed": seed, "per_form": per_form, "n": n}
+    if extra:  # the generator's further options (drives, new forms): part of the draw's settings
+        settings["options"] = list(extra)
     if done.exists():
         earlier = json.loads(done.read_text())
         if earlier == settings:
@@ -80,7 +84,7 @@ def generate(generator: Path, suite: str, out: Path, seed: int, per_form: int | 
         command += ["--per-form", str(per_form)]
     if n is not None:
         command += ["--n", str(n)]
-    subprocess.run(command, check=True)
+    subprocess.run(command + list(extra), check=True)
     atomic_write(done, json.dumps(settings))
     return records
 
@@ -117,6 +121,7 @@ def diagnose_once(csv: Path, effects: list[str], workdir: Path) -> dict:
         "effects": effects,
         "status": result["status"],
         "missing": result["missing"],
+        "tied": result.get("tied", []),
         "rms_over_sigma": result["rms"] / result["noise_sigma"],
         "reason": result["reason"],
         "ranking": [
@@ -172,21 +177,30 @@ def refitted_singles(diagnosis: dict) -> list[dict]:
 
 
 def verdict_label(round_result: dict) -> str:
-    return round_result["missing"] if round_result["status"] == "missing_effect" else round_result["status"]
+    if round_result["status"] == "missing_effect":
+        return round_result["missing"]
+    if round_result["status"] == "tied":
+        return "tied"
+    return round_result["status"]
 
 
 def score(physics: list[str], history: list[dict]) -> dict:
-    """Right or wrong against the issue's definitions (module docstring)."""
+    """Right or wrong against the diagnosis issue's definitions (module docstring): a name never
+    wrong; a tie right when it lists every true effect still missing (among its explanations'
+    members) and names nothing wrong; physics outside the library never named."""
     first = verdict_label(history[0])
     final = history[-1]
     named = [h["missing"] for h in history if h["status"] == "missing_effect"]
     nameable = [p for p in physics if p not in OPTIONAL and p != "outside"]
     optional = [p for p in physics if p in OPTIONAL]
     final_rms = final.get("rms_over_sigma", float("nan"))
+    tied_members = {n for name in final.get("tied") or [] for n in name.split("+")}
+    still_missing = set(nameable) - set(named)
+    wrong = [n for n in named if n not in nameable + optional]
     if "outside" in physics:
         kind = "outside"
-        first_ok = first == "unexplained"
-        final_ok = final["status"] == "unexplained" and not named
+        first_ok = first in ("unexplained", "tied")
+        final_ok = final["status"] in ("unexplained", "tied") and not named
     elif not nameable:
         kind = "clean" if not physics else "initial_state"
         first_ok = first == "adequate" or first in optional
@@ -199,13 +213,15 @@ def score(physics: list[str], history: list[dict]) -> dict:
             and set(nameable) <= set(named) <= set(nameable) | set(optional)
             and abs(final_rms - 1.0) <= 0.10
         )
-    wrong_first = history[0]["status"] == "missing_effect" and first not in nameable + optional
+    tie_ok = final["status"] == "tied" and not wrong and bool(still_missing) and still_missing <= tied_members
     return {
         "kind": kind,
         "first": first,
         "first_ok": first_ok,
         "final_ok": final_ok,
-        "wrong_first": wrong_first,
+        "tie_ok": tie_ok,
+        "wrong_first": history[0]["status"] == "missing_effect" and first not in nameable + optional,
+        "wrong_names": wrong,
         "named": named,
         "final": verdict_label(final),
         "final_rms_over_sigma": final_rms,
@@ -216,8 +232,8 @@ def summarise(results: dict) -> str:
     rows = defaultdict(list)
     for _stem, r in sorted(results.items()):
         rows["+".join(r["physics"]) or "none (clean)"].append(r)
-    columns = sorted({r["score"]["first"] for r in results.values()} - {"adequate", "unexplained", "error"})
-    columns += ["adequate", "unexplained", "error"]
+    columns = sorted({r["score"]["first"] for r in results.values()} - {"adequate", "tied", "unexplained", "error"})
+    columns += ["adequate", "tied", "unexplained", "error"]
     lines = [
         "| true physics \\ first verdict | "
         + " | ".join(columns)
@@ -251,9 +267,14 @@ def summarise(results: dict) -> str:
         if group:
             ok = sum(r["score"][key] for r in group)
             lines.append(f"* {kind}: {what}: {ok}/{len(group)} = {100 * ok / len(group):.0f} % (target {target})")
-    wrong = [stem for stem, r in results.items() if r["score"]["wrong_first"]]
+    for kind in ("single", "pair"):
+        group = by_kind.get(kind, [])
+        if group:
+            ties = sum(r["score"].get("tie_ok", False) for r in group)
+            lines.append(f"* {kind}: ended tied with every missing true effect listed: {ties}/{len(group)}")
+    wrong = [stem for stem, r in results.items() if r["score"].get("wrong_names", r["score"]["wrong_first"])]
     lines.append(
-        f"* wrong first name (an effect that is not there named first): {len(wrong)}"
+        f"* wrong names (an effect that is not there named, in any round): {len(wrong)}"
         + (f" ({', '.join(wrong)})" if wrong else "")
     )
     total = sum(sum(h["seconds"] for h in r["history"]) for r in results.values())
@@ -275,6 +296,13 @@ def main(argv=None) -> int:
         "--n", type=int, default=None, help="the generator's number of clean records (its default: 100)"
     )
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument(
+        "--drive",
+        default=None,
+        choices=("paper", "holds", "triangle", "mixed"),
+        help="the generator's drive (its default: the paper's)",
+    )
+    parser.add_argument("--new-forms", action="store_true", help="the generator's forms added later")
     parser.add_argument("--generator", type=Path, default=DEFAULT_GENERATOR)
     parser.add_argument("--summary-only", action="store_true", help="only summarise the records diagnosed so far")
     parser.add_argument(
@@ -291,7 +319,8 @@ def main(argv=None) -> int:
         if not records.is_dir():
             raise SystemExit(f"error: no records in {records}")
     else:
-        records = generate(args.generator, args.suite, args.out, args.seed, args.per_form, args.n)
+        extra = (("--drive", args.drive) if args.drive else ()) + (("--new-forms",) if args.new_forms else ())
+        records = generate(args.generator, args.suite, args.out, args.seed, args.per_form, args.n, extra)
     results_dir = args.out / "results"
     work = args.out / "work"
     results_dir.mkdir(parents=True, exist_ok=True)
@@ -336,7 +365,7 @@ def main(argv=None) -> int:
             + " -> ".join(
                 verdict_label(h) + (f" ({h['rms_over_sigma']:.3f})" if "rms_over_sigma" in h else "") for h in history
             )
-            + f"  [{'ok' if s['final_ok'] else 'WRONG' if s['wrong_first'] else 'miss'}] "
+            + f"  [{'ok' if s['final_ok'] else 'tie' if s['tie_ok'] else 'WRONG' if s['wrong_names'] else 'miss'}] "
             f"{sum(h['seconds'] for h in history):.0f} s",
             flush=True,
         )

@@ -15,7 +15,7 @@ effect is among the record's true physics (the generator's ``first_cycle`` is th
 
 Prints the margins of the right and the wrong names, and for a few margins how many of each
 a rule "name only when the runner-up is at least this far below" would withhold. The
-diagnosis' own rule is 10 (:attr:`identify.diagnosis.diagnose.Thresholds.bic_significant`).
+diagnosis' own rule is 10 (:attr:`identify.diagnosis.Thresholds.bic_significant`).
 """
 
 from __future__ import annotations

@@ -10,30 +10,29 @@ record: a bound on the naming given those refits. This script asks the question 
 data instead. For every saved diagnosis whose model lacks a true library effect (as the
 separability script selects them), it takes the best missing true effect and the best
 effect that is not there (by the noisy refits' delta BIC) and fits the step's model with
-each of them, and without either, to the record's **noiseless** displacement, whitened by
-the same noise model the diagnosis used (sigma and AR(1) correlation from the quiet start).
-With noise added, each chi-square grows by about the number of samples, the same for all
-three, so the noiseless fits give the delta BIC a candidate gets on average over noise
-realisations (its charge for unused terms as the diagnosis computes it), and the gap between the
-two candidates. The noise moves that gap by about ``2 ||d||``, ``d`` the whitened difference
-of the two fits' predictions (the diagnosis's own rule, ``docs/diagnosis.md``: two
-non-nested fits that differ widely can fit about equally well and then their order is the
-noise's). So:
+each of them to the record's **noiseless** displacement, whitened by the same noise model
+the diagnosis used (sigma and AR(1) correlation from the quiet start). With noise added,
+each chi-square grows by about the number of samples ``n``, the same for both, so the
+noiseless fits give the likelihood gap the decision compares on average over noise
+realisations, ``n ln((chi2_other + n) / (chi2_true + n))`` (no charge for parameters, as in
+:mod:`identify.diagnosis.decision`). The noise moves that gap by about ``2 ||d||``, ``d`` the
+whitened difference of the two fits' predictions (:mod:`identify.diagnosis.evidence`). So:
 
 * ``data separate``: the true effect is ahead by more than
-  :attr:`~identify.diagnosis.diagnose.Thresholds.bic_significant` and by at least
-  :attr:`~identify.diagnosis.diagnose.Thresholds.gap_z` noise standard deviations: a rule
+  :attr:`~identify.diagnosis.Thresholds.bic_significant` and by at least
+  :attr:`~identify.diagnosis.Thresholds.gap_z` noise standard deviations: a rule
   that names by the fit's evidence without risking a wrong name can name it on most noise
   realisations;
 * ``data tie``: the gap is within either margin: on this record's noise level no such
   rule can name the true effect without naming the rival on about as many realisations;
-* ``data favour other``: the rival gets the higher delta BIC on the noiseless truth (by both
-  margins): it fits about as well with fewer parameters charged, or the true effect's form
-  fits worse (the saved ``chi2`` of each fit tells which).
+* ``data favour other``: the rival fits the noiseless truth better (by both margins): the
+  true effect's form in the library fits this physics worse than the rival does.
 
 The fits are least squares from the diagnosis's starts (``fit_baseline``: several starts,
-both threshold signs), so a class can also reflect a fit that missed its best basin; the
-noisy refits' delta BIC are printed beside for comparison. Prints one row per step and the
+both threshold signs), so a class can also reflect a fit that missed its best basin; each
+candidate is then refitted on the noisy record from its noiseless optimum, and that chi-square
+is printed beside the diagnosis's own (a shortfall of the search shows as a diagnosis chi-square
+far above it). Prints one row per step and the
 count per class.
 """
 
@@ -52,7 +51,7 @@ from independent_diagnosis import OPTIONAL, check_outputs, refitted_singles, sav
 
 from identify import Model, estimate_noise, load_record
 from identify.data.fileio import atomic_write
-from identify.diagnosis.diagnose import Thresholds, _delta_bic, fit_baseline
+from identify.diagnosis import Thresholds, fit_baseline
 from identify.fitting.lsq import fit_least_squares
 from identify.fitting.noise import whiten
 
@@ -84,53 +83,37 @@ def steps(out: Path, only: list[str]):
         true = [c for c in refitted if c["effect"] in missing]
         other = [c for c in refitted if c["effect"] not in present]
         if true and other:
-            yield (
-                stem,
-                effects,
-                max(true, key=lambda c: c["delta_bic"]),
-                max(other, key=lambda c: c["delta_bic"]),
-                diagnosis,
-            )
+            details = diagnosis.get("details", {})
+
+            def closest(c):  # the lowest chi-square (the decision compares fits), else the highest gain
+                chi2 = details.get(c["effect"], {}).get("chi2")
+                return (0, chi2) if chi2 is not None else (1, -c["delta_bic"])
+
+            yield stem, effects, min(true, key=closest), min(other, key=closest), diagnosis
 
 
-def oracle_step(csv: Path, effects: list[str], names: list[str], n_eff: float | None, seed: int) -> dict:
-    """Fit ``effects`` alone and with each of ``names`` to the noiseless record; the expected delta BIC
-    of each and the noise sd of the gap between the first two. ``n_eff``: the BIC's sample count
-    (the noisy diagnosis's effective count; ``None``: the record's samples)."""
+def oracle_step(csv: Path, effects: list[str], names: list[str], seed: int) -> dict:
+    """Fit ``effects`` with each of ``names`` to the noiseless record: the expected likelihood gap
+    of the second against the first and its noise sd; and each refitted on the noisy record from
+    its noiseless optimum."""
     record, clean = noiseless_record(csv)
     noise = estimate_noise(record)
     n_obs = float(len(record.time))  # a noisy fit's chi-square is this much larger, for every model alike
-    n_eff = n_eff or n_obs
-    fits = {}
-    for key, model_effects in [("base", effects)] + [(name, effects + [name]) for name in names]:
-        fits[key] = fit_baseline(clean, Model(model_effects), noise, rng=np.random.default_rng(seed))
-    base = fits["base"]
-    expected = {}
-    for name in names:
-        delta_bic, uncharged = _delta_bic(clean, base, base.chi2 + n_obs, fits[name], fits[name].chi2 + n_obs, n_eff)
-        expected[name] = (delta_bic, uncharged)
-    # the noisy record refitted from each noiseless optimum: the delta BIC a refit reaches from the
-    # truth's basin (against the better of the plain fit and the plain fit from its noiseless optimum)
+    fits = {
+        name: fit_baseline(clean, Model(effects + [name]), noise, rng=np.random.default_rng(seed)) for name in names
+    }
+    first, second = (fits[n] for n in names)
+    gap = n_obs * math.log((second.chi2 + n_obs) / (first.chi2 + n_obs))
+    d = whiten((clean.displacement - first.residual) - (clean.displacement - second.residual), noise, time=record.time)
     from_truth = {
-        key: fit_least_squares(record, f.model, noise=noise, start=f.theta, n_starts=1) for key, f in fits.items()
+        name: fit_least_squares(record, f.model, noise=noise, start=f.theta, n_starts=1) for name, f in fits.items()
     }
-    noisy_base = min(
-        fit_baseline(record, Model(effects), noise, rng=np.random.default_rng(seed)),
-        from_truth["base"],
-        key=lambda f: f.chi2,
-    )
-    reached = {
-        name: _delta_bic(record, noisy_base, noisy_base.chi2, from_truth[name], from_truth[name].chi2, n_eff)[0]
-        for name in names
-    }
-    prediction = {name: clean.displacement - fits[name].residual for name in names}
-    d = whiten(prediction[names[0]] - prediction[names[1]], noise, time=record.time)
     return {
         "noise_sigma": float(noise.sigma),
         "chi2": {k: float(f.chi2) for k, f in fits.items()},
-        "expected": expected,
-        "from_truth_basin": reached,
+        "gap": float(gap),
         "gap_sd": 2.0 * float(np.sqrt(np.sum(d * d))),
+        "from_truth_basin": {k: float(f.chi2) for k, f in from_truth.items()},
     }
 
 
@@ -154,27 +137,28 @@ def main(argv=None) -> int:
     only = [o for o in args.only.split(",") if o]
     counts = Counter()
     print(
-        "| record | model | true | other | noisy delta BIC (true, other) | from the truth's basin (true, other) | "
-        "noiseless: expected delta BIC (true, other) | gap | noise sd of gap | z | class | s |"
+        "| record | model | true | other | diagnosis chi2 (true, other) | from the truth's basin (true, other) | "
+        "noiseless chi2 (true, other) | gap | noise sd of gap | z | class | s |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for out in args.outs:
         for stem, effects, true, other, diagnosis in steps(out, only):
             started = clock.perf_counter()
-            n_eff = diagnosis.get("details", {}).get(true["effect"], {}).get("n_eff")
             csv = out / "records" / f"{stem}.csv"
-            result = oracle_step(csv, effects, [true["effect"], other["effect"]], n_eff, args.seed)
-            (e_true, _), (e_other, _) = result["expected"][true["effect"]], result["expected"][other["effect"]]
-            gap, sd = e_true - e_other, result["gap_sd"]
+            names = [true["effect"], other["effect"]]
+            result = oracle_step(csv, effects, names, args.seed)
+            gap, sd = result["gap"], result["gap_sd"]
             kind = classify(gap, sd, thresholds)
             counts[kind] += 1
+            details = diagnosis.get("details", {})
+            noisy = [details.get(n, {}).get("chi2") or float("nan") for n in names]
+            basin = [result["from_truth_basin"][n] for n in names]
+            clean = [result["chi2"][n] for n in names]
             print(
-                f"| {out.name}/{stem} | {'+'.join(effects) or 'plain'} | {true['effect']} | {other['effect']} "
-                f"| {true['delta_bic']:.0f}, {other['delta_bic']:.0f} "
-                f"| {result['from_truth_basin'][true['effect']]:.0f}, "
-                f"{result['from_truth_basin'][other['effect']]:.0f} | {e_true:.0f}, {e_other:.0f} | {gap:.0f} | "
-                f"{sd:.0f} "
-                f"| {gap / sd if sd > 0 else math.inf:.1f} | {kind} | {clock.perf_counter() - started:.0f} |",
+                f"| {out.name}/{stem} | {'+'.join(effects) or 'plain'} | {names[0]} | {names[1]} "
+                f"| {noisy[0]:.0f}, {noisy[1]:.0f} | {basin[0]:.0f}, {basin[1]:.0f} | {clean[0]:.1f}, {clean[1]:.1f} "
+                f"| {gap:.1f} | {sd:.1f} | {gap / sd if sd > 0 else math.inf:.1f} | {kind} "
+                f"| {clock.perf_counter() - started:.0f} |",
                 flush=True,
             )
             atomic_write(

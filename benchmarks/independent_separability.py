@@ -12,7 +12,7 @@ name, so neither counts). Among the single candidates refitted on the whole reco
 the best missing true effect with the best effect that is not there:
 
 * ``truth ahead``: the true effect's delta BIC exceeds every other's by more than
-  :attr:`~identify.diagnosis.diagnose.Thresholds.bic_significant`, the margin the diagnosis
+  :attr:`~identify.diagnosis.Thresholds.bic_significant`, the margin the diagnosis
   asks of a name;
 * ``tie``: within that margin of each other;
 * ``other ahead``: an effect that is not there fits better by more than the margin;
@@ -34,7 +34,7 @@ from pathlib import Path
 
 from independent_diagnosis import OPTIONAL, check_outputs, refitted_singles, saved_diagnoses
 
-from identify.diagnosis.diagnose import Thresholds
+from identify.diagnosis import Thresholds
 
 CLASSES = ("truth ahead", "tie", "other ahead", "truth not refitted")
 

@@ -9,7 +9,7 @@ Each draw is pure AR(1) noise (no structure at all): the record of the paper's i
 segment and the three tests are applied to the record exactly as the diagnosis does it
 (:func:`identify.diagnosis.residuals.residual_profile`). Under the null each test's ``z``
 should have mean 0, sd 1 and a normal tail; the diagnosis calls a residual structured at ``z > 5``
-(:attr:`identify.diagnosis.diagnose.Thresholds.z_critical`). Printed per noise correlation
+(:attr:`identify.diagnosis.Thresholds.z_critical`). Printed per noise correlation
 ``phi`` and rate: the mean, sd and maximum of ``z``, and how often it passes 3 and 5
 (a normal tail: 0.13 % and 3e-7).
 """

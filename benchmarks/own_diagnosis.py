@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_diagnose_slow import CASES, SEEDS, _case_record, format_confusion
 
-from identify.diagnosis.diagnose import diagnose
+from identify.diagnosis import diagnose
 
 
 class _Result:

@@ -35,10 +35,17 @@ passes it, so a memory above its upper bound stays there on rising runs and is c
 the first falling one (``initial_held``; the ``initial_state`` effect).
 
 The direction-dependent term, eq. (13), with the backward difference
-:math:`\Delta v_k = v_k - v_{k-1}` (the first sample counts as rising):
+:math:`\Delta v_k = v_k - v_{k-1}`:
 
-.. math::  \Omega_k = \begin{cases} c_0 \tanh(c_1 v_k + c_2) + c_3 & \Delta v_k \ge 0 \\
-                                    d_0 \tanh(d_1 v_k + d_2) + d_3 & \Delta v_k < 0 \end{cases}
+.. math::  \Omega_k = \begin{cases} c_0 \tanh(c_1 v_k + c_2) + c_3 & \text{the input last moved up} \\
+                                    d_0 \tanh(d_1 v_k + d_2) + d_3 & \text{the input last moved down} \end{cases}
+
+The paper writes the branches for :math:`dv/dt \ge 0` and :math:`dv/dt < 0`. A still input
+(:math:`\Delta v_k = 0`) has no direction of its own, and a transducer does not jump while its
+drive is held: it keeps the branch of its last motion (the first samples, before any motion,
+count as rising). Where the input never holds after a fall (the paper's drive) the two
+readings are the same; at a hold after a fall the literal one would jump by
+:math:`\Omega_c - \Omega_d` (about -1.9 um with Table 1 at 0 A) with nothing moving.
 
 Output, eq. (12): :math:`y_k = \Omega_k + \sum_j p_j z_j(t_k)` [um].
 
@@ -311,10 +318,13 @@ def operator_thresholds_and_weights(alpha, rho, tau, n_operators):
 
 
 @njit(cache=True, error_model="numpy")
-def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1, c2, c3, d0, d1, d2, d3, env, omega):
+def _branch_values(
+    current, rising, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1, c2, c3, d0, d1, d2, d3, env, omega
+):
     """Per sample ``k >= 1``: ``env[k]``, the envelope the input moves along (rising if
     ``dv > 0``, else falling; unused when ``dv = 0``), and ``omega[k]``, Omega's branch
-    (``c`` if ``dv >= 0``, else ``d``); ``omega[0]`` is the rising branch.
+    (``c`` where ``rising[row, k]``, the input last moved up: :func:`_directions`);
+    ``omega[0]`` is the rising branch.
 
     Both are selected per sample with no branch, so this loop vectorises (see
     :func:`_tanh`); it holds all of the kernel's per-sample transcendental work.
@@ -324,10 +334,9 @@ def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1,
     env[0] = 0.0
     for k in range(1, n_samples):
         v = current[row, k]
-        dv = v - current[row, k - 1]
-        up = dv > 0.0
+        up = v - current[row, k - 1] > 0.0
         env[k] = _tanh_env(ru0 if up else rd0, ru1 if up else rd1, ru2 if up else rd2, ru3 if up else rd3, v)
-        on_rising = dv >= 0.0
+        on_rising = rising[row, k] > 0
         omega[k] = _tanh_env(
             c0 if on_rising else d0, c1 if on_rising else d1, c2 if on_rising else d2, c3 if on_rising else d3, v
         )
@@ -335,16 +344,19 @@ def _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1,
 
 @njit(cache=True)
 def _directions(current):
-    """``(R, T)`` int8: +1 where ``current[r, k] > current[r, k-1]``, -1 where below, 0 where
-    equal (and at ``k = 0``): the branch each sample takes, shared by every parameter set
-    that reads row ``r``."""
+    """``(direction, rising)``, each ``(R, T)`` int8, shared by every parameter set that reads
+    row ``r``: ``direction`` +1 where ``current[r, k] > current[r, k-1]``, -1 where below, 0
+    where equal (and at ``k = 0``): the branch each sample takes; ``rising`` 1 where the input
+    last moved up (or has not moved yet), 0 where it last moved down: Omega's branch."""
     n_rows, n_samples = current.shape
     direction = np.zeros((n_rows, n_samples), dtype=np.int8)
+    rising = np.ones((n_rows, n_samples), dtype=np.int8)
     for r in range(n_rows):
         for k in range(1, n_samples):
             dv = current[r, k] - current[r, k - 1]
             direction[r, k] = 1 if dv > 0.0 else (-1 if dv < 0.0 else 0)
-    return direction
+            rising[r, k] = 1 if dv > 0.0 else (0 if dv < 0.0 else rising[r, k - 1])
+    return direction, rising
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -367,14 +379,14 @@ def initial_operator_memory(level, threshold, rising_env, falling_env, excursion
 
 
 @njit(cache=True, error_model="numpy")
-def _omega_values(current, row, c0, c1, c2, c3, d0, d1, d2, d3, omega):
+def _omega_values(current, rising, row, c0, c1, c2, c3, d0, d1, d2, d3, omega):
     """``omega`` of :func:`_branch_values` alone (the same expression, so the same bits):
     what a parameter set that shares its memories with another still computes."""
     n_samples = current.shape[1]
     omega[0] = _tanh_env(c0, c1, c2, c3, current[row, 0])
     for k in range(1, n_samples):
         v = current[row, k]
-        on_rising = v - current[row, k - 1] >= 0.0
+        on_rising = rising[row, k] > 0
         omega[k] = _tanh_env(
             c0 if on_rising else d0, c1 if on_rising else d1, c2 if on_rising else d2, c3 if on_rising else d3, v
         )
@@ -416,8 +428,8 @@ def _gpi_kernel(
     Two passes per leader: :func:`_branch_values` evaluates, for every sample, the
     envelope the input moves along and Omega's branch (vectorised over samples); the
     recursion then updates the ``N`` memories and sums them. A sample equal to its
-    predecessor after a rising-branch sample repeats the previous output (memory and
-    Omega are unchanged), exactly.
+    predecessor repeats the previous output (memory and Omega's branch are unchanged),
+    exactly.
 
     The recursion reads each sample's direction from :func:`_directions` (computed once
     per input row) and updates each memory and adds its weighted value in the same loop,
@@ -443,7 +455,7 @@ def _gpi_kernel(
     n_samples = current.shape[1]
     held = initial_held.shape[1] > 1
     scaled = threshold_scale.shape[1] > 1
-    directions = _directions(current)
+    directions, rising = _directions(current)
     for i in prange(leaders.shape[0]):
         w = leaders[i]
         row = row_of[w]
@@ -470,7 +482,9 @@ def _gpi_kernel(
 
         env = np.empty(n_samples)
         omega = np.empty(n_samples)
-        _branch_values(current, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1, c2, c3, d0, d1, d2, d3, env, omega)
+        _branch_values(
+            current, rising, row, ru0, ru1, ru2, ru3, rd0, rd1, rd2, rd3, c0, c1, c2, c3, d0, d1, d2, d3, env, omega
+        )
 
         v = current[row, 0]
         rising_env = _tanh_env(ru0, ru1, ru2, ru3, v)
@@ -491,19 +505,11 @@ def _gpi_kernel(
         if store >= 0:
             sums[store, 0] = total
         out[w, 0] = omega[0] + total
-        last_was_rising_branch = True  # Omega branch used at the previous sample
 
         for k in range(1, n_samples):
             d = directions[row, k]
-            if d == 0:
-                if last_was_rising_branch:
-                    out[w, k] = out[w, k - 1]
-                    continue
-                total = _weighted_sum(weights, memory)
-                if store >= 0:
-                    sums[store, k] = total
-                out[w, k] = omega[k] + total
-                last_was_rising_branch = True
+            if d == 0:  # a still input: memories and Omega's branch as at the sample before
+                out[w, k] = out[w, k - 1]
                 continue
             moving_env = env[k]
             if scaled:
@@ -531,7 +537,6 @@ def _gpi_kernel(
                     m0 = max(memory[j], moving_env - thresholds[j])
                     memory[j] = m0
                     s0 += weights[j] * m0
-                last_was_rising_branch = True
             else:
                 for j in range(0, n4, 4):
                     m0 = min(memory[j], moving_env + thresholds[j])
@@ -550,7 +555,6 @@ def _gpi_kernel(
                     m0 = min(memory[j], moving_env + thresholds[j])
                     memory[j] = m0
                     s0 += weights[j] * m0
-                last_was_rising_branch = False
             total = (s0 + s1) + (s2 + s3)
             if store >= 0:
                 sums[store, k] = total
@@ -562,16 +566,13 @@ def _gpi_kernel(
         source = slot[leader_of[w]]
         th = theta[w]
         omega = np.empty(n_samples)
-        _omega_values(current, row, th[11], th[12], th[13], th[14], th[15], th[16], th[17], th[18], omega)
+        _omega_values(current, rising, row, th[11], th[12], th[13], th[14], th[15], th[16], th[17], th[18], omega)
         out[w, 0] = omega[0] + sums[source, 0]
-        last_was_rising_branch = True
         for k in range(1, n_samples):
-            d = directions[row, k]
-            if d == 0 and last_was_rising_branch:
+            if directions[row, k] == 0:
                 out[w, k] = out[w, k - 1]
                 continue
             out[w, k] = omega[k] + sums[source, k]
-            last_was_rising_branch = d >= 0
 
 
 def kernel_array(values):

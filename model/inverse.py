@@ -52,9 +52,8 @@ current at the reversal; with Table 1's sign every target reversal is reachable 
 When the jump has the other sign, targets just past the reversal lie in a gap neither
 side can produce: then both sides are searched and the output closer to the target wins
 (never more than half the jump away); the sample is flagged :data:`STATUS_BRANCH`. A
-hold after falling is made by a tiny further decrease of the drive (a drive that stops
-after falling switches Omega to ``c``: the model's own convention for
-:math:`\Delta u = 0`), to rounding.
+still drive keeps Omega on the branch of its last motion (:mod:`model.gpi`), so a hold of the
+target is a hold of the current.
 
 Current limits and unreachable targets
 --------------------------------------
@@ -93,14 +92,9 @@ import numpy as np
 from numba import njit, prange
 
 from .composite import Model
-from .effects import (
-    CREEP_MODES,
-    LOG_CREEP_MODE_WEIGHT,
-    REFERENCE_CURRENT,
-    _leg_end_level,
-    creep_time_constants,
-    log_creep_time_constants,
-)
+from .effects._filters import leg_end_level
+from .effects.creep import CREEP_MODES, LOG_CREEP_MODE_WEIGHT, creep_time_constants, log_creep_time_constants
+from .effects.thermal import REFERENCE_CURRENT
 from .gpi import READINGS, THETA_NAMES, initial_operator_memory, operator_thresholds_and_weights
 
 __all__ = [
@@ -246,7 +240,7 @@ def _evaluate(
     Before the first sample is committed, ``memory`` holds the initial memory held beyond
     the bounds (``initial_state``'s :math:`h_j`), which the first sample adds to the clamped
     memory. Returns ``(y, y_gpi, u1, u, travel, side, y_strain, width)``; ``side`` +1 on Omega's c
-    branch (``du >= 0``), -1 on d; ``y_strain`` the strain after training's strain part (the
+    branch (the drive last moved up), -1 on d; ``y_strain`` the strain after training's strain part (the
     output stage's input); ``width`` the factor on the thresholds in force.
     """
     # input stage: lag, then training
@@ -296,15 +290,9 @@ def _evaluate(
                 s += weights[j] * min(memory[j], env + thresholds[j] * width)
             y_gpi = _env(g[12], g[13], g[14], g[15], u) + s
             side = -1
-        else:
-            side = 1
-            if st[5] > 0.5:  # the previous sample was on the c branch: the output repeats
-                y_gpi = st[6]
-            else:
-                s = 0.0
-                for j in range(n_ops):
-                    s += weights[j] * memory[j]
-                y_gpi = _env(g[8], g[9], g[10], g[11], u) + s
+        else:  # a still drive: the memories and Omega's branch as at the sample before, so the output repeats
+            side = 1 if st[5] > 0.5 else -1
+            y_gpi = st[6]
     # training's strain part (the commanded current's travel), then creep, thermal, drift
     y_strain = y_gpi
     if has_training and tr[4] != 0.0 and not first:
@@ -322,7 +310,7 @@ def _evaluate(
         if cp[2] != 0.0 and n_log > 0:
             x_prev, x_now = st[12], y_strain
             if cp[4] != 0.0:  # the part creeping from the leg's end sees the held strain
-                held, _ = _leg_end_level(st[12], st[15], st[17], st[16])
+                held, _ = leg_end_level(st[12], st[15], st[17], st[16])
                 x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
             grown = 0.0
             for m in range(n_sat, n_sat + n_log):
@@ -426,7 +414,7 @@ def _commit(
                 modes[m] = _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
             x_prev, x_now = st[12], y_strain
             if cp[4] != 0.0:
-                held, direction = _leg_end_level(st[12], st[15], st[17], st[16])
+                held, direction = leg_end_level(st[12], st[15], st[17], st[16])
                 x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
                 st[16] = direction
                 st[17] = held
@@ -439,7 +427,7 @@ def _commit(
             previous = st[7]
             st[7] = _filter_step(st[7], st[9], heating, thermal_c[0], thermal_c[1], thermal_c[2] > 0.5)
             st[13] = _filter_step(st[13], previous, st[7], thermal_c[3], thermal_c[4], thermal_c[5] > 0.5)
-        st[5] = 1.0 if dv >= 0.0 else 0.0
+        st[5] = 1.0 if dv > 0.0 else (0.0 if dv < 0.0 else st[5])  # Omega's branch: the last motion's
         st[10] = st[10] + abs(i - st[0])
     if first:
         st[2] = u1  # training's reference drive i_0
@@ -555,9 +543,11 @@ def _search(
        (probes from ``start`` with steps growing 4x from ``16 xtol``, then bisection of the
        off/on transition to ``xtol``): the root nearest the previous drive lies there;
     3. probes with steps growing 4x (from ``step0``) go first where a nondecreasing ``F``
-       has its root (up when ``F < 0``), then, if that direction reaches its limit without
-       a sign change, the other way (``thermal`` can make ``F`` fall slowly away from an
-       edge in a dead zone);
+       has its root (up when ``F < 0``), then, if that direction reaches its limit or the
+       side's edge without a sign change, the other way (``thermal`` can make ``F`` fall
+       slowly away from an edge in a dead zone); only when neither finds a sign change is the
+       bracket between the side's edge and the last point on it refined (a root can lie there
+       when the drive lags the current);
     4. the first bracket is closed by Illinois regula falsi (bisection while one end is
        off the side) to ``|F| <= rtol`` or a width of ``xtol``.
 
@@ -682,7 +672,9 @@ def _search(
     if direction < 0 and down_done:
         direction = 1
     found = False
+    edge_found = False
     xl, fl, xr, fr = x0, f0, x0, f0
+    exl, efl, exr, efr = x0, f0, x0, f0
     for sweep in range(2):
         if sweep == 1:
             direction = -direction
@@ -719,6 +711,12 @@ def _search(
                 drift,
             )
             n_eval += 1
+            if f == -np.inf:  # off the side (F counts as negative there): a root may lie between its
+                # edge and xp when F > 0 at xp, or the other way
+                if fp > 0.0 and not edge_found:
+                    edge_found = True
+                    exl, efl, exr, efr = (xp, fp, x, f) if direction > 0 else (x, f, xp, fp)
+                break
             if (f < 0.0) != (fp < 0.0):
                 if direction > 0:
                     xl, fl, xr, fr = xp, fp, x, f
@@ -733,6 +731,9 @@ def _search(
                 break
         if found:
             break
+    if not found and edge_found:  # no sign change on the side: the bracket at its edge
+        xl, fl, xr, fr = exl, efl, exr, efr
+        found = True
     if not found:
         return s * best_x, best_f, n_eval
     # 4. refine the bracket xl < xr, F changing sign: Illinois, bisection while an end is -inf

@@ -15,8 +15,8 @@ GPI, for one parameter set ``theta`` (Table 1 order) and input samples ``v_0 .. 
 * eq. (5) for ``k >= 1``: ``max(L_j(v_k), z)`` if ``v_k > v_{k-1}``, ``min(U_j(v_k), z)``
   if ``v_k < v_{k-1}``, else ``z`` unchanged (``law="piecewise"``); or the clamp form
   ``max(L_j(v_k), min(U_j(v_k), z))`` at every sample (``law="clamp"``);
-* ``Omega_k`` = c-branch of eq. (13) if ``v_k - v_{k-1} >= 0`` (and at ``k = 0``), else the
-  d-branch;
+* ``Omega_k`` = c-branch of eq. (13) where the input last moved up (``v_k > v_{k-1}``, or it
+  is still and last moved up, or has not moved yet), else the d-branch;
 * ``y_k = Omega_k + sum_j p_j z_j(t_k)`` (eq. 12).
 """
 
@@ -135,6 +135,7 @@ def gpi_reference(
                 if initial_held is not None:
                     z[j] += float(initial_held[j])
             omega_k = _tanh_form(*c, v)
+            on_rising = True
         else:
             v_previous = current[k - 1]
             for j in range(n_operators):
@@ -145,10 +146,9 @@ def gpi_reference(
                 elif v < v_previous:
                     z[j] = min(upper_k[j], z[j])
                 # v == v_previous: memory unchanged
-            if v - v_previous >= 0.0:
-                omega_k = _tanh_form(*c, v)
-            else:
-                omega_k = _tanh_form(*d, v)
+            if v != v_previous:
+                on_rising = v > v_previous  # a still input keeps the branch of its last motion
+            omega_k = _tanh_form(*(c if on_rising else d), v)
 
         y = omega_k
         for j in range(n_operators):

@@ -1,4 +1,4 @@
-"""Tests of the effects library (model/effects.py) and of composing effects with the GPI.
+"""Tests of the effects library (the package model/effects/) and of composing effects with the GPI.
 
 ``test_every_registered_effect`` iterates over the whole registry, and
 ``test_every_effect_has_a_signature_test`` fails when an effect has no signature test
@@ -69,6 +69,14 @@ def test_every_registered_effect(name, paper_input, plain_gpi):
     assert len(cls.parameters) >= 1
     for p in cls.parameters:
         assert p.name.startswith(name + "_") and p.description and p.lower <= cls.off[p.name] <= p.upper
+    # off is the declared values; the parameters are read by name, without the prefix
+    assert cls.off == {p.name: p.value for p in cls.parameters}
+    rows = np.array([[p.lower for p in cls.parameters], [p.upper for p in cls.parameters]])
+    view = cls.values(rows)
+    assert view._fields == tuple(n.removeprefix(name + "_") for n in cls.parameters.names)
+    assert all(np.array_equal(column, rows[:, i]) and column.flags.c_contiguous for i, column in enumerate(view))
+    with pytest.raises(ValueError, match="shape"):
+        cls.values(rows[:, :-1])
     m = Model([name])
     assert m.names[-len(cls.parameters) :] == cls.parameters.names
 
@@ -339,7 +347,7 @@ def signature_training(paper_input, plain_gpi):
     settings = ((0.2, 0.0, 2.0, 1.0), (0.3, 0.0, 0.8, 3.0), (-0.05, 0.0, 4.0, 1.0), (0.0, 0.4, 3.0, 2.0))
     for deficit, threshold, scale, shape in settings:
         values = dict(zip(names, (deficit, threshold, scale, shape)))
-        drive = effect.drive(np.array([[deficit, threshold, scale, shape]]), time, current)[0]
+        drive = effect.drive(np.array([[deficit, threshold, scale, shape, 0.0, 0.0]]), time, current)[0]
         fade = np.exp(-((travel / scale) ** shape))
         # i0 = 0 A and i >= 0: u = max(i - F f, 0) (1 - g f)
         expected = np.maximum(current - threshold * fade, 0.0) * (1.0 - deficit * fade)
@@ -367,7 +375,7 @@ def signature_training(paper_input, plain_gpi):
         assert np.array_equal(np.sign(np.diff(drive[late])), np.sign(np.diff(current[late])))
         assert np.max(np.abs(change[late])) < 0.02
     # A threshold F: nothing moves on the first rise until the current exceeds F (f = 1 at V = 0)
-    drive = effect.drive(np.array([[0.0, 0.4, 3.0, 2.0]]), time, current)[0]
+    drive = effect.drive(np.array([[0.0, 0.4, 3.0, 2.0, 0.0, 0.0]]), time, current)[0]
     below = first_rise & (current > 0) & (current < 0.4 * np.exp(-((current / 3.0) ** 2)))
     assert below.sum() > 5 and np.all(drive[below] == 0.0)
     # V0 controls how fast it fades: a longer travel scale leaves more of the difference later on
@@ -385,7 +393,7 @@ def signature_training(paper_input, plain_gpi):
     m2 = Model(["training", "lag"])
     assert m2.effect_names == ("lag", "training")
     lagged = first_order_lowpass(time, current, 0.05)[0]
-    params = np.array([[0.2, 0.1, 2.0, 1.5]])
+    params = np.array([[0.2, 0.1, 2.0, 1.5, 0.0, 0.0]])
     y2 = m2(_theta(m2, {"lag_tau": 0.05, **dict(zip(names, params[0]))}), time, current)
     assert np.array_equal(y2, gpi(TABLE1, effect.drive(params, time, lagged)[0]))
     lagged_fade = np.exp(-((accumulated_travel(lagged)[0] / 2.0) ** 1.5))
@@ -503,6 +511,74 @@ def signature_incomplete_reset(paper_input, plain_gpi):
     np.testing.assert_allclose(both[0], both[1], rtol=1e-12, atol=1e-12)  # the shares, not the sizes, matter
     with pytest.raises(ValueError, match="incomplete_reset: the displacement has shape"):
         incomplete_reset_strain(current, plain_gpi[:-1], [A], [R], [0.0])
+
+
+def signature_incomplete_reset_loading_shape(paper_input, plain_gpi):
+    """The virgin loading's general form: the extra strain follows A (e/E)^p of a loading
+    variable that mixes the strain's and the drive's excursion (share m). A = 0 is the plain
+    GPI bit for bit whatever m and p; m = 0, p = 1 is the strain-proportional form bit for bit
+    (and the general computation's limit there); p < 1 front-loads the extra strain (an early
+    overshoot), p > 1 delays it, m = 1 makes it follow the drive; the first unloading resets
+    the same shape (the phi-measure of the levels it passes), keeping the fraction R."""
+    time, current = paper_input
+    m = Model(["incomplete_reset"])
+    A, R = 6.0, 0.4
+
+    def change(**values):
+        theta = m.theta_from_dict({"incomplete_reset_strain": A, "incomplete_reset_retained": R, **values})
+        return m(theta, time, current) - plain_gpi
+
+    # off exact whatever the shape; the special case bit for bit, and the general path's limit
+    off = m.theta_from_dict({"incomplete_reset_drive": 1.0, "incomplete_reset_shape": 0.3})
+    assert np.array_equal(m(off, time, current), plain_gpi)
+    proportional = change()
+    assert np.array_equal(proportional, change(incomplete_reset_drive=0.0, incomplete_reset_shape=1.0))
+    assert np.array_equal(
+        proportional + plain_gpi, plain_gpi + incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0])[0]
+    )
+    near = incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0], drive=[1e-300])[0]  # general path
+    np.testing.assert_allclose(near, proportional, rtol=0, atol=1e-12)
+
+    excursion = np.abs(plain_gpi - plain_gpi[0])
+    E = excursion.max()
+    peak = int(np.argmax(excursion))
+    first_rise = np.arange(np.searchsorted(time, 10.0), peak + 1)
+    share = excursion[first_rise] / E
+    for p in (0.4, 2.5):
+        shaped = change(incomplete_reset_shape=p)
+        # the virgin loading adds A (e/E)^p
+        np.testing.assert_allclose(shaped[first_rise], A * share**p, rtol=1e-12, atol=1e-12)
+        # the recursion on the levels l = (e/E)^p (the reference run on them as its "strain")
+        levels = (excursion / E) ** p
+        np.testing.assert_allclose(shaped, _incomplete_reset_reference(current, levels, A, R, 0.0), atol=1e-9)
+    # front-loaded (p < 1): at a quarter of the largest excursion more than a quarter of A;
+    # late (p > 1): less
+    quarter = first_rise[np.searchsorted(share, 0.25)]
+    assert change(incomplete_reset_shape=0.4)[quarter] > 1.5 * proportional[quarter] > 0
+    assert 0 < change(incomplete_reset_shape=2.5)[quarter] < 0.5 * proportional[quarter]
+    # m = 1: the extra strain follows the drive's excursion (to A at the drive's largest), not the strain's
+    drive_share = np.abs(current - current[0]) / np.abs(current - current[0]).max()
+    by_drive = change(incomplete_reset_drive=1.0)
+    top = int(np.argmax(drive_share))
+    rising = np.arange(np.searchsorted(time, 10.0), top + 1)
+    np.testing.assert_allclose(by_drive[rising], A * drive_share[rising], rtol=1e-12, atol=1e-12)
+    assert not np.allclose(by_drive[rising], proportional[rising], atol=0.1)
+    np.testing.assert_allclose(by_drive, _incomplete_reset_reference(current, drive_share, A, R, 0.0), atol=1e-9)
+    # a mix: the level of (1 - m) e/E_y + m |i - i0|/E_i
+    mixed = 0.3 * excursion / E + 0.7 * drive_share
+    levels = (mixed / mixed.max()) ** 0.6
+    np.testing.assert_allclose(
+        change(incomplete_reset_drive=0.7, incomplete_reset_shape=0.6),
+        _incomplete_reset_reference(current, levels, A, R, 0.0),
+        atol=1e-9,
+    )
+    # a Jacobian's batch with the general form on: every row its own single evaluation
+    theta = m.theta_from_dict(
+        {"incomplete_reset_strain": A, "incomplete_reset_drive": 0.3, "incomplete_reset_shape": 0.6}
+    )
+    _assert_jacobian_batch_rows_are_single(m, theta, time[::4], current[::4], repeats=(0,))
+    with pytest.raises(ValueError, match="incomplete_reset_shape finite and > 0"):
+        incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0], shape=[0.0])
 
 
 def signature_thermal_two_nodes(paper_input, plain_gpi):
@@ -627,7 +703,7 @@ def signature_training_strain_gain(paper_input, plain_gpi):
     np.testing.assert_allclose(y[late], plain_gpi[late], rtol=0, atol=1e-9)
     # with the drive part: the GPI of the changed drive, scaled about its first value
     both = {"training_deficit": 0.1, "training_gain": 0.1, "training_travel": 5.0, "training_shape": 1.0}
-    drive = m.effects[0].drive(np.array([[0.1, 0.0, 5.0, 1.0, 0.1]]), time, current)[0]
+    drive = m.effects[0].drive(np.array([[0.1, 0.0, 5.0, 1.0, 0.1, 0.0]]), time, current)[0]
     y_drive = gpi(TABLE1, drive)
     fade = np.exp(-travel / 5.0)
     np.testing.assert_allclose(
@@ -760,6 +836,7 @@ GENERAL_FORMS = {
     "logarithmic creep after each leg": signature_log_creep_after_leg,
     "settling drift": signature_settling_drift,
     "ambient drift": signature_ambient_drift,
+    "incomplete_reset loading shape": signature_incomplete_reset_loading_shape,
 }
 
 
@@ -783,13 +860,13 @@ def test_training_drive_batches_and_refusals():
     time = _irregular_time(200)
     drives = np.vstack([1.0 + np.sin(3.0 * time), 0.5 * np.cos(time)])  # start at 1 A and 0.5 A, both directions
     effect = EFFECTS["training"]()
-    params = np.array([[0.1, 0.2, 1.0, 1.0], [-0.2, 0.0, 3.0, 2.0]])
+    params = np.array([[0.1, 0.2, 1.0, 1.0, 0.0, 0.0], [-0.2, 0.0, 3.0, 2.0, 0.0, 0.0]])
     both = effect.drive(params, time, drives)
     for w in range(2):
         assert np.array_equal(both[w], effect.drive(params[w : w + 1], time, drives[w])[0])
         # u - i0 = sign(d) max(|d| - F f, 0) (1 - g f), d = i - i0: the soft threshold and the
         # scale act on the excursion from the first value, in both directions
-        deficit, threshold, scale, shape = params[w]
+        deficit, threshold, scale, shape = params[w, :4]
         excursion = drives[w] - drives[w, 0]
         fade = training_fade(accumulated_travel(drives[w]), scale, shape)[0]
         kept = np.sign(excursion) * np.maximum(np.abs(excursion) - threshold * fade, 0.0)
@@ -797,9 +874,9 @@ def test_training_drive_batches_and_refusals():
         np.testing.assert_allclose(both[w], expected, rtol=1e-13, atol=1e-14)
     assert both[0, 0] == drives[0, 0] and both[1, 0] == drives[1, 0]
     with pytest.raises(ValueError, match="training_travel, training_shape > 0"):
-        effect.drive(np.array([[0.1, 0.0, 0.0, 1.0]]), time, drives[0])
+        effect.drive(np.array([[0.1, 0.0, 0.0, 1.0, 0.0, 0.0]]), time, drives[0])
     with pytest.raises(ValueError, match="training_threshold >= 0"):
-        effect.drive(np.array([[0.1, -0.1, 1.0, 1.0]]), time, drives[0])
+        effect.drive(np.array([[0.1, -0.1, 1.0, 1.0, 0.0, 0.0]]), time, drives[0])
     with pytest.raises(ValueError, match="2 rows for 3 parameter sets"):
         effect.drive(np.tile(params[:1], (3, 1)), time, drives)
     assert accumulated_travel(np.array([0.0, 1.0, 0.5, 2.0]))[0].tolist() == [0.0, 1.0, 1.5, 3.0]
@@ -861,13 +938,13 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
     four parameter sets in lockstep: bit for bit the per-sample computation of each set
     alone (a step jittered in its last bits is another entry), also with more distinct
     steps than the table holds (then computed at every sample)."""
-    from model.effects import MAX_DISTINCT_STEPS, _distinct_steps, _lowpass_step
+    from model.effects._filters import MAX_DISTINCT_STEPS, distinct_steps, lowpass_step
 
     rng = np.random.default_rng(3)
     uniform = np.arange(3000) * 0.01  # a handful of distinct float steps
     jittered = np.cumsum(np.r_[0.0, rng.uniform(0.005, 0.015, 2999)])  # all steps distinct
-    assert 0 < _distinct_steps(uniform, MAX_DISTINCT_STEPS)[0].size <= MAX_DISTINCT_STEPS
-    assert _distinct_steps(jittered, MAX_DISTINCT_STEPS)[0].size == 0
+    assert 0 < distinct_steps(uniform, MAX_DISTINCT_STEPS)[0].size <= MAX_DISTINCT_STEPS
+    assert distinct_steps(jittered, MAX_DISTINCT_STEPS)[0].size == 0
     current = 5.0 * np.abs(np.sin(uniform))
     # four sets with both nodes on (run in lockstep), then the other cases one by one
     params = np.array(
@@ -891,9 +968,9 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
             expected = [y_g[w, 0]]
             for k in range(1, time.size):
                 step, previous = time[k] - time[k - 1], rise
-                rise = _lowpass_step.py_func(rise, heating[k - 1], heating[k], step, tau)
+                rise = lowpass_step.py_func(rise, heating[k - 1], heating[k], step, tau)
                 if s2 != 0.0 or e2 != 0.0:
-                    rise2 = _lowpass_step.py_func(rise2, previous, rise, step, tau2)
+                    rise2 = lowpass_step.py_func(rise2, previous, rise, step, tau2)
                     expected.append(y_g[w, k] * (1.0 - s * rise - s2 * rise2) + e * rise + e2 * rise2)
                 else:
                     expected.append(y_g[w, k] * (1.0 - s * rise) + e * rise)
@@ -902,20 +979,21 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
 
 def test_creep_tabulated_steps_equal_the_per_change_coefficients(monkeypatch):
     """The creep kernel computes each mode's coefficients once per distinct held step
-    (:func:`model.effects._distinct_steps` with ``CREEP_STEP_HOLD``): bit for bit its direct
+    (:func:`model.effects._filters.distinct_steps` with ``CREEP_STEP_HOLD``): bit for bit its direct
     rule (recompute whenever the step changes by more than 1e-12 of itself), on a grid as a 1
     kHz CSV gives (steps that differ in their last bits at most samples) with genuinely
     different steps in it, for the saturating spectrum, the logarithmic modes and the part held
     from a leg's end."""
-    from model import effects
-    from model.effects import CREEP_STEP_HOLD, MAX_DISTINCT_STEPS, _distinct_steps
+    from model.effects import creep as creep_module
+    from model.effects._filters import MAX_DISTINCT_STEPS, distinct_steps
+    from model.effects.creep import CREEP_STEP_HOLD
 
     rng = np.random.default_rng(5)
     steps = np.where((np.arange(2999) // 400) % 3 == 1, 0.003, 0.001)  # 1 ms with 3 ms stretches
     time = np.array([float(f"{t:.3f}") for t in np.r_[0.0, np.cumsum(steps)]])  # read back from text
     diffs = np.diff(time)
     assert np.unique(diffs).size > 2 and np.count_nonzero(np.diff(diffs)) > 100  # last-bit changes
-    held, index = _distinct_steps(time, MAX_DISTINCT_STEPS, CREEP_STEP_HOLD)
+    held, index = distinct_steps(time, MAX_DISTINCT_STEPS, CREEP_STEP_HOLD)
     assert 2 <= held.size <= MAX_DISTINCT_STEPS
     # the held step is within 1e-12 of every sample's own step
     np.testing.assert_allclose(held[index[1:]], diffs, rtol=1e-11, atol=0)
@@ -932,9 +1010,9 @@ def test_creep_tabulated_steps_equal_the_per_change_coefficients(monkeypatch):
     y = creep.output(params, time, np.zeros_like(time), y_g)
     # the oracle: the kernel's own Python function with the table switched off (direct rule)
     monkeypatch.setattr(
-        effects, "_distinct_steps", lambda t, m, hold=0.0: (np.empty(0), np.zeros(t.size, dtype=np.int64))
+        creep_module, "distinct_steps", lambda t, m, hold=0.0: (np.empty(0), np.zeros(t.size, dtype=np.int64))
     )
-    monkeypatch.setattr(effects, "_creep_kernel", effects._creep_kernel.py_func)
+    monkeypatch.setattr(creep_module, "_creep_kernel", creep_module._creep_kernel.py_func)
     expected = creep.output(params, time, np.zeros_like(time), y_g)
     np.testing.assert_array_equal(y, expected)
     assert np.all(np.abs(y - y_g).max(axis=1) > 1e-3)  # every set creeps visibly
@@ -989,14 +1067,15 @@ def test_the_posterior_samples_only_the_canonical_half():
 @pytest.mark.parametrize("name", list(EFFECTS))
 def test_every_effect_says_what_tells_it_apart(name):
     """The diagnosis quotes it when two effects fit a record equally well."""
-    from identify.diagnosis.diagnose import _telling_apart
+    from identify.diagnosis.explanation import telling_apart
 
     signature = EFFECTS[name].signature
     assert len(signature) > 30 and not signature.endswith(".")
     other = next(n for n in EFFECTS if n != name)
-    text = _telling_apart(name, other)
+    text = telling_apart(name, other)
     assert f"'{name}' {signature}" in text and f"'{other}' {EFFECTS[other].signature}" in text
-    assert _telling_apart(name, f"{other}+{name}") == ""  # a pair is no single effect to describe
+    assert telling_apart(name, f"{other}+{name}") == text  # a pair is described by its members
+    assert telling_apart(name) == ""  # one effect: nothing to tell apart
 
 
 def test_training_with_every_strength_on_batch_is_each_rows_own_output(paper_input):
@@ -1022,13 +1101,17 @@ def test_training_with_every_strength_on_batch_is_each_rows_own_output(paper_inp
 
 
 def _compiled_versions():
-    """``{kernel: number of compiled versions}`` of every numba kernel of the model."""
-    import model.effects as effects_module
-    import model.gpi as gpi_module
+    """``{kernel: number of compiled versions}`` of every numba kernel of the model (the GPI and
+    every module of the effects package)."""
+    import sys
 
+    import model.gpi as gpi_module
+    from model.effects import LIBRARY, _filters
+
+    modules = [gpi_module, _filters] + [sys.modules[effect.__module__] for effect in LIBRARY]
     return {
         f"{module.__name__}.{name}": len(obj.signatures)
-        for module in (gpi_module, effects_module)
+        for module in modules
         for name, obj in vars(module).items()
         if hasattr(obj, "signatures") and hasattr(obj, "py_func")
     }

@@ -171,8 +171,9 @@ def test_batch_with_per_row_current_matches_oracle():
 @pytest.mark.parametrize("reading", ["swapped", "literal"])
 def test_initial_excursion_is_the_memory_of_a_prior_path(reading, paper_input):
     """``initial_excursion = e`` starts the record from the memory the oracle reaches along the
-    path v0 -> v0 + e -> v0 (prepended to the input); from the second sample on the outputs
-    agree (the first sample's Omega branch is the record's convention, rising)."""
+    path v0 -> v0 + e -> v0 (prepended to the input); from the record's first motion on the
+    outputs agree (before it, Omega's branch is the record's convention, rising, where the
+    oracle keeps the prior path's last one)."""
     current = paper_input[::10]
     v0 = float(current[0])
     thetas = np.tile(TABLE1, (5, 1))
@@ -183,7 +184,10 @@ def test_initial_excursion_is_the_memory_of_a_prior_path(reading, paper_input):
     for w in range(len(thetas)):
         path = np.r_[v0, v0 + excursions[w], current]
         reference = gpi_reference(thetas[w], path, reading=reading, initial_memory=levels[w])
-        np.testing.assert_allclose(fast[w, 1:], reference.output[3:], rtol=0, atol=1e-9 * oracle_scale(reference))
+        moved = int(np.flatnonzero(np.diff(current) != 0)[0]) + 1
+        np.testing.assert_allclose(
+            fast[w, moved:], reference.output[2 + moved :], rtol=0, atol=1e-9 * oracle_scale(reference)
+        )
         assert np.array_equal(
             fast[w], gpi(thetas[w], current, reading=reading, initial_memory=levels[w], initial_excursion=excursions[w])
         )
@@ -494,7 +498,10 @@ def test_output_bounded_by_envelopes(current, seed, initial_memory):
     assert np.all(weights > 0)
     rising = envelope(theta[A_SLICE], current)
     falling = envelope(theta[B_SLICE], current)
-    direction_up = np.concatenate([[True], np.diff(current) >= 0])
+    direction_up = np.ones(current.size, dtype=bool)  # Omega's branch: the input's last motion
+    for k in range(1, current.size):
+        step = current[k] - current[k - 1]
+        direction_up[k] = step > 0 or (step == 0 and direction_up[k - 1])
     omega = np.where(direction_up, envelope(theta[C_SLICE], current), envelope(theta[D_SLICE], current))
     low = omega + weights.sum() * rising - weights @ thresholds
     high = omega + weights.sum() * falling + weights @ thresholds
@@ -792,3 +799,23 @@ def test_paper_current_at_any_rate(fs):
 def test_paper_current_bad_input(kwargs, message):
     with pytest.raises(ValueError, match=message):
         paper_current(**kwargs)
+
+
+def test_a_still_input_keeps_the_branch_of_its_last_motion():
+    """Eq. (13) written for dv/dt >= 0 and < 0: a still input has no direction of its own, and the
+    transducer does not jump while its drive is held. After a fall, a hold stays on Omega's d
+    branch (the literal reading would jump by Omega_c - Omega_d, about -1.9 um at 0 A with
+    Table 1); after a rise it stays on c; the kernel equals the oracle there."""
+    rise = np.linspace(0.0, 4.0, 41)
+    fall = np.linspace(4.0, 0.0, 41)[1:]
+    held = np.full(30, 0.0)
+    current = np.concatenate([np.zeros(5), rise, fall, held, np.linspace(0.0, 3.0, 31)[1:], np.full(20, 3.0)])
+    y = gpi(TABLE1, current)
+    falls_end = 5 + 41 + 40 - 1
+    assert np.all(y[falls_end : falls_end + 31] == y[falls_end])  # the hold after the fall: no jump
+    assert np.all(y[-20:] == y[-21])  # the hold after the rise
+    reference = gpi_reference(TABLE1, current)
+    np.testing.assert_allclose(y, reference.output, rtol=0, atol=1e-9 * oracle_scale(reference))
+    c = TABLE1[11] * np.tanh(TABLE1[12] * 0.0 + TABLE1[13]) + TABLE1[14]
+    d = TABLE1[15] * np.tanh(TABLE1[16] * 0.0 + TABLE1[17]) + TABLE1[18]
+    assert abs(c - d) > 1.5  # the jump the literal reading would make is not small

@@ -210,6 +210,21 @@ def test_model_does_not_import_identify():
             assert not any(_inside(n) for n in names), f"{path}: model imports identify"
 
 
+@pytest.mark.parametrize("path", sorted((MODEL / "effects").glob("*.py")), ids=lambda p: p.name)
+def test_the_effects_package_modules_are_small_say_what_they_hold_and_import_at_the_top(path):
+    """``model/effects/``: the protocol, one module per effect and the shared filters, none
+    over 1,000 lines, each opening with a docstring, every import at the module's top."""
+    text = path.read_text()
+    tree = ast.parse(text)
+    assert len(text.splitlines()) <= 1000, f"{path.name}: {len(text.splitlines())} lines"
+    assert ast.get_docstring(tree), f"{path.name}: no module docstring"
+    top = {id(node) for node in tree.body}
+    nested = [
+        node.lineno for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom)) and id(node) not in top
+    ]
+    assert not nested, f"{path.name}: imports inside functions or classes at lines {nested}"
+
+
 @pytest.mark.parametrize("bad", ["identify.data.records imports identify.cli", "cycle"])
 def test_the_checks_can_fail(bad, monkeypatch):
     """The checks see a planted upward import and a planted cycle."""
@@ -269,3 +284,17 @@ def test_no_formatter_skips():
             if any(marker in line for marker in MARKERS):
                 marked.append(f"{path.relative_to(ROOT)}:{number}")
     assert not marked, marked
+
+
+def test_the_diagnosis_modules_and_functions_stay_small():
+    """The diagnosis shows its method (issue 63): no module of identify/diagnosis over 800
+    lines, no function over 80."""
+    long_modules, long_functions = [], []
+    for path in sorted((PACKAGE / "diagnosis").glob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        if text.count("\n") > 800:
+            long_modules.append(f"{path.name}: {text.count(chr(10))} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 80:
+                long_functions.append(f"{path.name}:{node.name}: {node.end_lineno - node.lineno + 1} lines")
+    assert not long_modules and not long_functions, long_modules + long_functions

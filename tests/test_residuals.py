@@ -220,7 +220,7 @@ def test_variance_and_low_frequency_tests_measure_the_structure():
 def test_no_false_alarm_with_the_quiet_segment_as_reference():
     """The tests' null (noise model estimated on a 1000-sample quiet segment, then applied to a
     7001-sample record): over 60 seeds of white and AR(1) noise no test reaches z = 5, the
-    diagnosis' threshold (identify.diagnosis.diagnose.Thresholds.z_critical)."""
+    diagnosis' threshold (identify.diagnosis.Thresholds.z_critical)."""
     time, current = paper_current(100.0)
     quiet = slice(0, 1001)
     worst = 0.0

@@ -236,7 +236,7 @@ def _bench_record(out: Path, record, effects: str, seed: int):
 
 def _diagnosed(out: Path, record: Path, data, seed: int, say) -> tuple[str, str | None]:
     """``(status, named effect)`` of the plain GPI's diagnosis, kept in ``out/diagnosis.json`` (reused when there)."""
-    from ..diagnosis.diagnose import diagnose
+    from ..diagnosis import diagnose
 
     diagnosis_path = out / "diagnosis.json"
     if diagnosis_path.exists():

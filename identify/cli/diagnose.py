@@ -4,9 +4,9 @@ Prints a short human summary (verdict, why, candidates) and writes, on request:
 
 ``--json OUT.json``
     :meth:`identify.diagnosis.diagnose.Diagnosis.to_dict`: ``effects``, ``noise_sigma``, ``rms``,
-    ``max_error_pct``, ``status``, ``missing``, ``ranking`` (best first: ``effect``,
+    ``max_error_pct``, ``status``, ``missing``, ``tied``, ``rule``, ``ranking`` (best first: ``effect``,
     ``rms_after``, ``delta_bic``, ``explained_fraction``, ``parameters``, ...), and the
-    details (``reason``, ``adequacy``, ``where``, ``pair``, ``details``, ``fit``).
+    details (``reason``, ``decision``, ``evidence``, ``gaps``, ``adequacy``, ``where``, ``pair``, ``fit``).
 ``--out DIR``
     ``DIR/diagnosis.json`` (the same content) and the figures ``DIR/diagnosis/*.png``
     (:data:`identify.output.diagnosis_plots.FIGURES`); the report (:mod:`identify.output.report`) of a
@@ -121,7 +121,7 @@ def _run(args) -> int:
     import numpy as np
 
     from ..data.records import RecordError
-    from ..diagnosis.diagnose import diagnose
+    from ..diagnosis import diagnose
     from ..fitting.noise import NoQuietSegmentError
     from .common import model_from_args, noise_from_args, record_from_args
 

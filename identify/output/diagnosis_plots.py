@@ -295,8 +295,12 @@ def ranking_figure(diagnosis, *, output_unit="um"):
     max_pct = [diagnosis.max_error_pct] + [
         c.max_error_pct_after if c.max_error_pct_after is not None else np.nan for c in ranking
     ]
+    tied = set(getattr(diagnosis, "tied", ()))
     colours = ["0.5"] + [
-        AFTER_COLOUR if c.effect == diagnosis.missing else ("tab:olive" if c.refitted else "0.75") for c in ranking
+        AFTER_COLOUR
+        if c.effect == diagnosis.missing
+        else ("tab:purple" if c.effect in tied else ("tab:olive" if c.refitted else "0.75"))
+        for c in ranking
     ]
     fig = new_figure(12, 4.2)
     axes = fig.subplots(1, 4)
@@ -322,14 +326,9 @@ def ranking_figure(diagnosis, *, output_unit="um"):
     ax.set_ylim(0, 105)
     ax.set_ylabel(axis_label("misfit explained", "%"))
     ax.set_title("Explained fraction")
-    if diagnosis.thresholds.explained_major is not None:  # named without an adequate residual above it
-        ax.axhline(100 * diagnosis.thresholds.explained_major, color="black", ls=":", label="named above")
-        ax.legend(loc="best", fontsize=9)
     for ax in axes:
         ax.tick_params(axis="x", rotation=45)
-    fig.suptitle(
-        f"Candidates (verdict: {diagnosis.status}" + (f", missing: {diagnosis.missing})" if diagnosis.missing else ")")
-    )
+    fig.suptitle(f"Candidates (verdict: {diagnosis.verdict_text()})")
     return fig
 
 

@@ -1196,10 +1196,13 @@ def _diagnosis_html(data: ReportData) -> str:
     if diagnosis is not None:
         status = str(diagnosis.get("status", "unknown"))
         missing = diagnosis.get("missing")
+        tied = " or ".join(f"<b>{html.escape(str(name))}</b>" for name in diagnosis.get("tied") or [])
         verdict = {
             "adequate": "the residual is consistent with the noise; nothing to add.",
             "missing_effect": f"the model misses the effect <b>{html.escape(str(missing))}</b>; add it with "
             f"<code>--effects {html.escape(str(missing))}</code>.",
+            "tied": f"several explanations repair the model and this record does not separate them: {tied}; "
+            "another record (a hold at constant current, a quiet end) or a joint diagnosis can.",
             "unexplained": "structure remains in the residual that no effect of the library explains.",
         }.get(status, "")
         css = "ok" if status == "adequate" else "alert"

@@ -311,6 +311,9 @@ def _verdict_html(p) -> str:
         "model "
         "lacks; identify it again with <code>--effects "
         f"{html.escape(','.join(list(p.study.model.effect_names) + [str(p.missing)]))}</code>.",
+        "tied": "the record reveals structure that several explanations repair and this record does not separate: "
+        + " or ".join(f"<b>{html.escape(str(n))}</b>" for n in getattr(p.diagnosis, "tied", ()) or ())
+        + ".",
         "unexplained": "structure remains in the validation residual that no effect of the library explains.",
         "parameters_differ": "the validation residual is not noise, yet no effect is missing: refitted on this record "
         "the "
@@ -325,7 +328,7 @@ def _verdict_html(p) -> str:
         f"{text}</div>"
     )
     a = adequacy.to_dict()
-    from ..diagnosis.diagnose import Thresholds
+    from ..diagnosis import Thresholds
 
     z_critical = Thresholds().z_critical
     rows = [

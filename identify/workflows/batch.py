@@ -833,8 +833,11 @@ def _collect_diagnose(folder: Path) -> dict:
         statistic = _number(ranking[0].get(statistic_name))
     status = str(diagnosis.get("status", ""))
     missing = diagnosis.get("missing")
+    tied = [str(name) for name in diagnosis.get("tied") or []]
     if missing:
         verdict = f"{status}: add {missing}"
+    elif tied:
+        verdict = f"{status}: {' | '.join(tied)}"
     elif top:
         verdict = f"{status} (best candidate {top})"
     else:

@@ -70,11 +70,11 @@ __all__ = [
 ]
 
 #: ``verdict`` values of a prediction: ``adequate`` (the validation residual is the sensor's
-#: noise), the diagnosis' ``missing_effect`` and ``unexplained``, ``parameters_differ`` (the
+#: noise), the diagnosis' ``missing_effect``, ``tied`` and ``unexplained``, ``parameters_differ`` (the
 #: residual is not noise, but the diagnosis, refitting its baseline on the record, finds the
 #: model adequate there: no effect is missing, the study's parameters do not carry over),
 #: and ``not_adequate`` (not noise; the candidate search was not run).
-VERDICTS = ("adequate", "missing_effect", "unexplained", "parameters_differ", "not_adequate")
+VERDICTS = ("adequate", "missing_effect", "tied", "unexplained", "parameters_differ", "not_adequate")
 PREDICTION_FILE = "prediction.json"
 COMPENSATION_FILE = "compensation.json"
 COMPENSATION_CSV = "compensation.csv"
@@ -343,9 +343,9 @@ class Prediction:
         (posterior median, recomputed here with the same draws).
     profile : identify.diagnosis.residuals.ResidualProfile
         Where the validation residual (least squares, the diagnosis' convention) fails.
-    adequacy : identify.diagnosis.diagnose.Adequacy
+    adequacy : identify.diagnosis.Adequacy
         Is that residual the sensor noise?
-    diagnosis : identify.diagnosis.diagnose.Diagnosis or None
+    diagnosis : identify.diagnosis.Diagnosis or None
         The candidate search when the residual is not noise (``diagnosis="auto"``).
     verdict : str
         One of :data:`VERDICTS`.
@@ -504,9 +504,9 @@ def predict(
         Chooses the draws (and seeds a diagnosis); default ``default_rng(0)``.
     diagnosis : {"auto", "adequacy"}, default "auto"
         The validation residual (of the least-squares vector) is always profiled and tested
-        against the noise (:func:`identify.diagnosis.diagnose.assess_adequacy`: is the misfit
+        against the noise (:func:`identify.diagnosis.assess_adequacy`: is the misfit
         noise?). ``"auto"`` then, when it is not noise, runs the candidate search
-        (:func:`identify.diagnosis.diagnose.diagnose` on the window, the study's least-squares vector
+        (:func:`identify.diagnosis.diagnose` on the window, the study's least-squares vector
         as its baseline: which effect does the new record reveal?); ``"adequacy"`` stops at
         the test (verdict ``not_adequate``). The diagnosis runs the model on the window
         alone (from the model's initial state at ``T0``) and may refit its baseline there;
@@ -737,7 +737,7 @@ def _training_figures(study: Study, draws, draw_sigma) -> dict:
 def _residual_check(v: _Validation, noise: NoiseModel, quiet: slice, start: int):
     """``(profile, adequacy)`` of the least-squares residual on the window: where it fails,
     and is it noise (as the diagnosis: the quiet start's AR noise, else white noise of sigma)."""
-    from ..diagnosis.diagnose import assess_adequacy
+    from ..diagnosis import assess_adequacy
     from ..diagnosis.residuals import ARNoise, fit_ar_noise, residual_profile
 
     residual_lsq = v.measured - v.bands.lsq
@@ -759,7 +759,7 @@ def _diagnose_window(
     """``(diagnosis, verdict, missing)``: which effect the window reveals, the study's
     least-squares vector as the baseline; ``parameters_differ`` when a refitted baseline is
     adequate there."""
-    from ..diagnosis.diagnose import diagnose
+    from ..diagnosis import diagnose
 
     time, current, measured = v.time, v.current, v.measured
     window_record = replace(

@@ -1,0 +1,111 @@
+"""The diagnosis's named regression cases (``benchmarks/cases/diagnosis.toml``), rerun.
+
+Run from the repository root (resumable: a case with a result is not run again)::
+
+    python benchmarks/diagnosis_cases.py --out reports/cases [--only NAME,...]
+
+Each case is a record that once revealed a rule of the search or the decision (its name, the
+rule and the story are in the table). The record is rebuilt (the independent generator's
+effects suite at the case's seed with ``--per-form 1``, or the virtual bench), diagnosed as a
+user would (``identify.diagnosis.diagnose``, the case's model), and the answer checked
+against the case's expectation: ``name`` (the truth named, or a tie listing it; never another
+name), ``tie-or-name`` (the same; a tie is expected where the data do not separate),
+``unexplained`` or ``adequate``. Prints one line per case and writes ``OUT/results.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np
+
+from identify.bench import simulate
+from identify.data.fileio import atomic_write, toml_module
+from identify.data.records import load_record
+from identify.diagnosis import diagnose
+
+CASES = ROOT / "benchmarks" / "cases" / "diagnosis.toml"
+GENERATOR = ROOT / "benchmarks" / "independent" / "generator.py"
+
+
+def record_of(case: dict, cache: Path):
+    """The case's record: the independent generator's (generated once per seed into ``cache``) or the bench's."""
+    if case["source"] == "own":
+        return simulate(case["effects_hidden"], seed=int(case["seed"]), noise_sigma=0.5).record
+    folder = cache / f"seed{case['seed']}"
+    csv = folder / f"{case['stem']}.csv"
+    if not csv.exists():
+        matches = sorted(folder.glob(f"{case['stem']}_*.csv")) if folder.is_dir() else []
+        if not matches:
+            folder.mkdir(parents=True, exist_ok=True)
+            command = [sys.executable, str(GENERATOR), "--suite", "effects", "--out", str(folder)]
+            subprocess.run([*command, "--seed", str(case["seed"]), "--per-form", "1"], check=True, capture_output=True)
+            matches = sorted(folder.glob(f"{case['stem']}_*.csv"))
+        if not matches:
+            raise SystemExit(f"error: {case['name']}: no record {case['stem']} in the generator's seed {case['seed']}")
+        csv = matches[0]
+    return load_record(str(csv))
+
+
+def judge(case: dict, status: str, missing, tied) -> tuple[bool, str]:
+    """``(right, what was answered)`` against the case's expectation."""
+    truth = set(case["truth"])
+    members = {n for name in tied for n in name.split("+")}
+    answer = f"add {missing}" if status == "missing_effect" else (f"tied: {' | '.join(tied)}" if tied else status)
+    if case["expect"] in ("name", "tie-or-name"):
+        return (status == "missing_effect" and missing in truth) or (status == "tied" and bool(truth & members)), answer
+    return status == case["expect"], answer
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--only", default="", help="comma-separated case names")
+    args = parser.parse_args(argv)
+    cases = toml_module().loads(CASES.read_text())["case"]
+    only = {n for n in args.only.split(",") if n}
+    unknown = only - {c["name"] for c in cases}
+    if unknown:
+        parser.error(f"unknown case(s): {', '.join(sorted(unknown))}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / "results.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    for case in cases:
+        if (only and case["name"] not in only) or case["name"] in results:
+            continue
+        record = record_of(case, args.out / "records")
+        started = time.perf_counter()
+        d = diagnose(record, case.get("effects"), rng=np.random.default_rng(0))
+        right, answer = judge(case, d.status, d.missing, d.tied)
+        results[case["name"]] = {
+            "right": right,
+            "answer": answer,
+            "rule": d.rule,
+            "seconds": time.perf_counter() - started,
+        }
+        atomic_write(path, json.dumps(results, indent=1))
+    for case in cases:
+        r = results.get(case["name"])
+        if r is not None and (not only or case["name"] in only):
+            mark = "ok" if r["right"] else "WRONG"
+            print(
+                f"[{mark:>5}] {case['name']:<50} truth {'+'.join(case['truth']):<28} -> {r['answer']} "
+                f"({r['rule']}, {r['seconds']:.0f} s)"
+            )
+    done = [r for name, r in results.items() if not only or name in only]
+    print(f"{sum(r['right'] for r in done)}/{len(done)} right")
+    return 0 if all(r["right"] for r in done) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,473 @@
+"""The search: every candidate effect screened, refitted from its start strategies, and the
+promising ones finished on the whole record, so that the decision compares fits the optimiser
+has done its best on.
+
+One round against one baseline:
+
+1. **Screening** of every candidate (:mod:`identify.diagnosis.screening`).
+2. **Short refits** on the working copy (:func:`identify.diagnosis.fits.short_refit`), each from
+   the groups of its start strategies (:mod:`identify.diagnosis.starts`): carried and near the
+   baseline, data-driven, the screening's step. A short refit that ends above the screening's
+   linearised promise has stayed in the baseline's basin: the candidate is fitted from scratch
+   in both threshold signs too.
+3. **The other threshold sign**, where the data do not choose it (the plain model's two signs
+   fit alike): every candidate is short-refitted from the other sign's baseline as well.
+4. **Finishes** on the whole record: the :attr:`~identify.diagnosis.adequacy.Thresholds.max_refits`
+   best short refits and every further one that gains significantly; a candidate's fit of the
+   other sign is finished where it starts lower on the whole record than its own.
+5. When the best candidate still leaves structure, it is fitted from scratch in the other sign,
+   and where that fits it better the next candidates are refitted there from its GPI.
+6. **One basin**: every finished candidate is refitted from the GPI of the best one of its sign
+   where that promises to matter, so that effects are ranked on the same GPI basin and no
+   effect loses to a rival for its GPI's sake.
+7. **Baseline challenge**: the model without the candidates refitted from their GPIs and through
+   the exact reparametrisations; a better baseline repeats the round, each candidate also
+   starting from what the round before reached with it.
+
+Pairs are searched by :mod:`identify.diagnosis.pairs`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from model import Model, get_effect
+
+from ..fitting.lsq import FitResult
+from ..fitting.threads import single_threaded_blas
+from .adequacy import Adequacy, Thresholds, assess_adequacy
+from .baseline import challenge_baseline, reparametrisation_paths, tied_sign
+from .candidates import CandidateResult, Reference, evaluate, failed_candidate
+from .fits import (
+    Point,
+    Working,
+    attempt,
+    effect_values,
+    embed,
+    n_eff,
+    plain_of,
+    profile_of,
+    same_threshold_sign,
+    short_refit,
+    threshold_sign_variants,
+    whitened,
+    whitened_at,
+    whole_record_chi2,
+    with_values,
+)
+from .residuals import ARNoise, ResidualProfile
+from .screening import ScreeningResult, screen_one
+from .starts import carried, data_driven, from_scratch, near, screening_step, working_chi2
+
+__all__ = ["Setting", "Round", "Short", "search", "start_round", "MAX_BASELINE_CHALLENGES", "SHARED_BASIN_GAIN"]
+
+#: How often a candidate's GPI may replace the baseline before the verdict.
+MAX_BASELINE_CHALLENGES = 1
+#: A start beats a candidate's own fit when it is lower by more than this in chi-square (one
+#: evaluation on the whole record); less is the rounding of two polished optima.
+SHARED_BASIN_GAIN = 1.0
+
+
+@dataclass
+class Setting:
+    """What stays fixed through one diagnosis: the record, its working copy, the noise
+    reference, the options, the candidates (``redundant``: the exact reparametrisations of the
+    model, never refitted) and the baseline fitted in each threshold sign."""
+
+    record: object
+    work: Working
+    quiet: slice | None
+    noise_ref: ARNoise
+    thresholds: Thresholds
+    n_starts: int
+    rng: np.random.Generator
+    say: Callable[[str], None]
+    candidates: list
+    redundant: list
+    sign_baselines: list = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Short:
+    """A short refit on the working copy: its chi-square there, the model (its threshold sign)
+    and the full vector reached."""
+
+    chi2: float
+    model: Model
+    theta: np.ndarray
+
+
+@dataclass
+class Round:
+    """One pass of the search against one baseline (module docstring).
+
+    ``short``: the best short refit of each single candidate in the baseline's threshold sign;
+    ``other``: in the other sign, where one was made and ended lower; ``refitted``: the single
+    candidates finished on the whole record (the better sign kept); ``replaced``: their finish in
+    the baseline's sign where the other sign's replaced it (pairs of the baseline's sign start
+    from it); ``pairs`` and ``pair_shorts``: the pairs (:mod:`identify.diagnosis.pairs`);
+    ``failed``: candidates whose screening or refit failed; ``carried``: what the round before
+    reached with each candidate."""
+
+    ref: Reference
+    profile: ResidualProfile
+    chi2_small: float
+    n_eff_small: float
+    excess_small: float
+    screened: dict = field(default_factory=dict)
+    short: dict = field(default_factory=dict)
+    other: dict = field(default_factory=dict)
+    refitted: dict = field(default_factory=dict)
+    replaced: dict = field(default_factory=dict)
+    pairs: dict = field(default_factory=dict)
+    pair_shorts: dict = field(default_factory=dict)
+    pair_pool: list = field(default_factory=list)
+    failed: dict = field(default_factory=dict)
+    reparametrised: list = field(default_factory=list)
+    carried: dict = field(default_factory=dict)
+    tied_sign: FitResult | None = None
+
+    @property
+    def fit(self) -> FitResult:
+        return self.ref.fit
+
+    @property
+    def adequacy(self) -> Adequacy:
+        return self.ref.adequacy
+
+    def ranked(self) -> list:
+        """The finished single candidates, by falling delta BIC."""
+        return sorted(self.refitted.values(), key=lambda c: -c.delta_bic)
+
+    def working_gain(self, chi2: float, k: int) -> float:
+        """Delta BIC on the working copy of a model with ``k`` more free parameters reaching
+        ``chi2`` there: ``n ln(chi2_0 / chi2) - k ln n``, ``n`` the baseline's effective sample
+        count on the working copy."""
+        n = self.n_eff_small
+        return n * math.log(self.chi2_small / max(chi2, 1e-300)) - k * math.log(n)
+
+
+def start_round(s: Setting, fit: FitResult, carried_history: dict | None = None) -> Round:
+    """The baseline's residual profile, adequacy and chi-squares (whole record and working copy)."""
+    profile = profile_of(s.record, fit, s.quiet, s.noise_ref)
+    adequacy = assess_adequacy(profile, s.thresholds)
+    chi2_0 = float(np.sum(whitened(s.record, fit) ** 2))
+    w_small = whitened_at(s.work.record, fit.model, s.work.noise, fit.theta)
+    chi2_small = float(w_small @ w_small)
+    ref = Reference(s.record, fit, chi2_0, adequacy, s.quiet, s.noise_ref, s.thresholds, s.rng)
+    rnd = Round(ref, profile, chi2_small, n_eff(w_small), chi2_small - w_small.size)
+    rnd.carried = dict(carried_history or {})
+    return rnd
+
+
+def _baseline_of(s: Setting, rnd: Round, model_e: Model) -> FitResult:
+    """The baseline in ``model_e``'s threshold sign: the round's, or the other sign's fit."""
+    if same_threshold_sign(rnd.fit.model, model_e):
+        return rnd.fit
+    other = [b for b in s.sign_baselines if same_threshold_sign(b.model, model_e)]
+    return other[0] if other else rnd.fit
+
+
+def _on_failure(rnd: Round, name: str, screening, stage: str):
+    def record(exc):
+        rnd.failed[name] = failed_candidate(name, screening, rnd.fit, rnd.n_eff_small, stage, exc)
+
+    return record
+
+
+def _screen(s: Setting, rnd: Round) -> None:
+    """Step 1: every candidate screened on the working copy, by falling chi-square drop."""
+    steps = f" (on every {s.work.step}th sample)" if s.work.step > 1 else ""
+    s.say(f"screening {len(s.candidates)} candidate effects{steps}")
+    found = []
+    for name in s.candidates:
+        one = attempt(
+            lambda: _screen_blas(s, rnd, name),
+            s.say,
+            f"screening of '{name}' failed",
+            _on_failure(rnd, name, None, "screening"),
+        )
+        if one is not None:
+            found.append(one)
+    rnd.screened = {one.effect: one for one in sorted(found, key=lambda r: -r.chi2_drop)}
+
+
+def _screen_blas(s: Setting, rnd: Round, name: str) -> ScreeningResult:
+    with single_threaded_blas():  # small dense algebra: threads only compete with the model
+        return screen_one(s.work.record, rnd.fit.model, rnd.fit.theta, s.work.noise, name)
+
+
+def _values(rnd: Round, name: str, model_e: Model) -> list:
+    """The candidate's own parameter values to start from: its short refit, its screening start,
+    then its screening grid."""
+    values = []
+    if name in rnd.short:
+        values.append(effect_values(rnd.short[name].model, rnd.short[name].theta, name))
+    one = rnd.screened.get(name)
+    if one is not None:
+        values.append(effect_values(rnd.fit.model + name, one.start, name))
+        values += list(one.grid)
+    return values
+
+
+def refit_short(s: Setting, rnd: Round, name: str, model_e: Model, donor, extra=()) -> Short:
+    """The search's one refit routine for a single candidate: a short refit of ``model_e`` on the
+    working copy from the groups of its start strategies, around ``donor`` (a baseline or
+    another candidate's fit, a :class:`~identify.diagnosis.fits.Point`, of ``model_e``'s
+    threshold sign): near ``donor`` (with
+    ``extra`` and what earlier rounds reached), data-driven, and the screening's step."""
+    values = _values(rnd, name, model_e)
+    groups = [
+        near(donor, model_e, values, extra=[*extra, *carried(rnd.carried.get(name, ()), model_e)]),
+        data_driven(s.work, model_e, values),
+        screening_step(rnd.screened.get(name), model_e) if same_threshold_sign(rnd.fit.model, model_e) else [],
+    ]
+    chi2, theta = short_refit(s.work.record, model_e, s.work.noise, groups)
+    return Short(chi2, model_e, theta)
+
+
+def _short_of_screening(s: Setting, rnd: Round, one: ScreeningResult, chi2: float) -> bool:
+    """Did a short refit ending at ``chi2`` fall short of the screening's linearised chi-square
+    by more than ``bic_significant`` in the working copy's BIC units?"""
+    return rnd.n_eff_small * math.log(chi2 / max(one.chi2_after, 1e-300)) > s.thresholds.bic_significant
+
+
+def _short_refits(s: Setting, rnd: Round) -> None:
+    """Step 2: a short refit of every screened candidate in the baseline's sign; one that stays
+    above its screening's promise is also fitted from scratch in both signs (the better of a
+    sign replaces the short refit of that sign where it is lower)."""
+    for name, one in rnd.screened.items():
+        s.say(f"short refit with '{name}'")
+        model_e = rnd.fit.model + name
+        failure = _on_failure(rnd, name, one, "short refit")
+        short = attempt(lambda: refit_short(s, rnd, name, model_e, rnd.fit), s.say, "not possible", failure)
+        if short is None:
+            continue
+        rnd.short[name] = short
+        if _short_of_screening(s, rnd, one, short.chi2):
+            s.say(f"fitting '{name}' from scratch (its short refit stayed above the screening's prediction)")
+            fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng), s.say, "not possible")
+            for model_f, theta in fresh or ():
+                _keep_short(rnd, name, Short(working_chi2(s.work, model_f, theta), model_f, theta))
+
+
+def _keep_short(rnd: Round, name: str, short: Short, gain: float = 0.0) -> bool:
+    """Keep ``short`` as candidate ``name``'s short refit of its sign where it is lower than the
+    one there by more than ``gain``; whether it was kept."""
+    table = rnd.short if same_threshold_sign(short.model, rnd.fit.model) else rnd.other
+    own = table.get(name)
+    if own is not None and short.chi2 >= own.chi2 - gain:
+        return False
+    table[name] = short
+    return True
+
+
+def _other_sign_shorts(s: Setting, rnd: Round) -> None:
+    """Step 3: where the plain model's two threshold signs fit alike, every candidate is also
+    short-refitted from the other sign's baseline; kept where it ends lower there than its short
+    refit in the baseline's sign."""
+    tied = rnd.tied_sign
+    sign = "positive" if tied.model.parameters["alpha"].value > 0 else "negative"
+    s.say(f"the plain model's two threshold signs fit alike; the candidates are refitted with alpha {sign} too")
+    for name in list(rnd.short):
+        model_e = tied.model + name
+        short = attempt(lambda: refit_short(s, rnd, name, model_e, tied), s.say, f"'{name}' not possible")
+        if short is not None and short.chi2 < rnd.short[name].chi2 - SHARED_BASIN_GAIN:
+            _keep_short(rnd, name, short)
+
+
+def _worth_finishing(s: Setting, rnd: Round, name: str, chi2: float, rank: int) -> bool:
+    """Is candidate ``name``, whose best short refit ends at ``chi2`` (``rank``-th lowest, from 0),
+    finished on the whole record? When it beats the baseline on the working copy and is among
+    the ``max_refits`` best, or beyond them gains significantly (a short refit only bounds a
+    candidate's gain from below)."""
+    if chi2 >= rnd.chi2_small:
+        return False
+    k = len(get_effect(name).parameters)
+    return rank < s.thresholds.max_refits or rnd.working_gain(chi2, k) > s.thresholds.bic_significant
+
+
+def _starts_lower(s: Setting, rnd: Round, name: str, short: Short) -> bool:
+    """Is a fit of the other threshold sign worth finishing? Only where it starts lower on the
+    whole record, by more than :data:`SHARED_BASIN_GAIN`, than the candidate's own short refit
+    in the baseline's sign (one evaluation each): the working copy's chi-square is no such
+    measure where structure from outside the library is left at a high sampling rate, and a
+    finish at tens of thousands of samples costs tens of seconds."""
+    own = rnd.short.get(name)
+    if own is None:
+        return True
+    noise = rnd.fit.noise
+    return whole_record_chi2(s.record, short.model, noise, short.theta) < (
+        whole_record_chi2(s.record, own.model, noise, own.theta) - SHARED_BASIN_GAIN
+    )
+
+
+def finish_candidate(s: Setting, rnd: Round, name: str, start, members=()) -> CandidateResult | None:
+    """Candidate ``name`` finished on the whole record from ``start`` (a :class:`Short` or any
+    point with ``model`` and ``theta``) and measured
+    (:func:`identify.diagnosis.candidates.evaluate`); None when that fails."""
+    failure = _on_failure(rnd, name, rnd.screened.get(name), "refit")
+    return attempt(
+        lambda: evaluate(rnd.ref, name, start.model, start.theta, rnd.screened.get(name), members),
+        s.say,
+        f"refit with '{name}' failed",
+        failure,
+    )
+
+
+def _keep_better(rnd: Round, result: CandidateResult | None) -> None:
+    """``result`` as its candidate's finish where its delta BIC is higher than the one there; a
+    finish in the baseline's sign that one of the other sign replaces is kept in ``replaced``."""
+    if result is None:
+        return
+    own = rnd.refitted.get(result.effect)
+    if own is not None and result.delta_bic <= own.delta_bic:
+        return
+    if own is not None and same_threshold_sign(own.fit.model, rnd.fit.model):
+        rnd.replaced[result.effect] = own
+    rnd.refitted[result.effect] = result
+
+
+def _finish_best(s: Setting, rnd: Round) -> None:
+    """Step 4: the short refits worth it finished on the whole record, in the baseline's sign and,
+    where a lower short refit of the other sign starts lower on the whole record, in that one."""
+    best = {n: min(rnd.short[n].chi2, rnd.other[n].chi2 if n in rnd.other else math.inf) for n in rnd.short}
+    for rank, name in enumerate(sorted(best, key=best.get)):
+        if not _worth_finishing(s, rnd, name, best[name], rank):
+            continue
+        s.say(f"refitting with '{name}'")
+        _keep_better(rnd, finish_candidate(s, rnd, name, rnd.short[name]))
+        other = rnd.other.get(name)
+        if other is not None and _starts_lower(s, rnd, name, other):
+            s.say(f"refitting with '{name}' in the other threshold sign")
+            _keep_better(rnd, finish_candidate(s, rnd, name, other))
+
+
+def _other_sign_from_best(s: Setting, rnd: Round) -> None:
+    """Step 5 (the best candidate leaves structure and the signs do not tie): the best candidate
+    fitted from scratch in the other sign; where that fits it better, the next candidates that
+    leave structure are refitted in that sign from its GPI. A misspecified plain GPI can settle
+    on the other sign, a different model, and refits from its basin stay there."""
+    variants = threshold_sign_variants(rnd.fit.model)
+    if len(variants) == 1:
+        return
+    ranked = rnd.ranked()
+    best = ranked[0]
+    other = "positive" if rnd.fit.model.parameters["alpha"].value < 0 else "negative"
+    s.say(f"refitting with '{best.effect}' from scratch with the other threshold sign (alpha {other})")
+    model_e = rnd.fit.model + best.effect
+    fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, other, s.n_starts), s.say, "not possible")
+    if not fresh:
+        return
+    model_f, theta = fresh[0]
+    short = Short(working_chi2(s.work, model_f, theta), model_f, theta)
+    if not _starts_lower(s, rnd, best.effect, short):
+        s.say(f"with alpha {other} '{best.effect}' starts no lower on the whole record; not refitted there")
+        return
+    anchor = finish_candidate(s, rnd, best.effect, short)
+    _keep_better(rnd, anchor)
+    if anchor is None or anchor.delta_bic <= best.delta_bic:
+        return
+    plain = plain_of(anchor.fit.model, rnd.fit.model)
+    donor = Point(plain, embed(anchor.fit.model, anchor.fit.theta, plain, drop_extra=True))
+    for c in ranked[1 : s.thresholds.max_refits]:
+        if c.adequate_after:
+            continue
+        s.say(f"refitting with '{c.effect}' with the other threshold sign, from the GPI of '{best.effect}' there")
+        model_c = plain + c.effect
+        short = attempt(lambda: refit_short(s, rnd, c.effect, model_c, donor), s.say, "not possible")
+        if short is not None and _starts_lower(s, rnd, c.effect, short):
+            _keep_better(rnd, finish_candidate(s, rnd, c.effect, short))
+
+
+def shared_basin(s: Setting, rnd: Round, candidates: dict, members_of=None) -> None:
+    """Step 6: every finished candidate of ``candidates`` (``{name: CandidateResult}``, singles or
+    pairs) again from the GPI of the one of lowest chi-square of its threshold sign, its own
+    effects' parameters kept; the better of its two finishes kept in ``candidates``.
+
+    The slow effects are small beside the hysteresis, so the GPI basin one of them found serves
+    the others too; each candidate's own refit starts from its short refit and can end in a
+    worse basin, and would then lose to a rival for its GPI's sake. A short refit from the
+    shared start on the working copy is bounded on the whole record by one evaluation; the
+    finish runs only where that beats the candidate's own fit by more than
+    :data:`SHARED_BASIN_GAIN` and could bring it within ``bic_significant`` of the best."""
+    fitted = [c for c in candidates.values() if c.fit is not None]
+    if len(fitted) < 2:
+        return
+    best_bic = max(c.delta_bic for c in fitted)
+    for c in fitted:
+        same = [d for d in fitted if same_threshold_sign(d.fit.model, c.fit.model)]
+        donor = min(same, key=lambda d: d.fit.chi2)
+        if donor is c:
+            continue
+        model_e = c.fit.model
+        shared = {p: float(donor.fit.theta[donor.fit.model.names.index(p)]) for p in rnd.fit.model.names}
+        start = with_values(model_e, c.fit.theta, shared)
+        if not model_e.in_bounds(start)[0]:
+            continue
+        small = attempt(
+            lambda: short_refit(s.work.record, model_e, s.work.noise, [[start]]),
+            s.say,
+            f"no short refit of '{c.effect}' from the GPI of '{donor.effect}'",
+        )
+        if small is None:
+            continue
+        chi2_start = whole_record_chi2(s.record, model_e, rnd.fit.noise, small[1])
+        reach = c.delta_bic + c.n_eff * math.log(c.fit.chi2 / chi2_start) if chi2_start > 0 else -math.inf
+        if not (chi2_start < c.fit.chi2 - SHARED_BASIN_GAIN and reach > best_bic - s.thresholds.bic_significant):
+            continue
+        s.say(f"refitting '{c.effect}' from the GPI of '{donor.effect}'")
+        members = () if members_of is None else members_of(c.effect)
+        again = finish_candidate(s, rnd, c.effect, Point(model_e, small[1]), members)
+        if again is not None and again.fit.chi2 < c.fit.chi2:
+            candidates[c.effect] = again
+
+
+def _carry(rnd: Round) -> dict:
+    """What a next round inherits: per candidate, the earlier ``(model, theta)`` plus its short
+    refits and its finish in this round (a basin found against the old baseline is kept)."""
+    history = {name: list(items) for name, items in rnd.carried.items()}
+    for table in (rnd.short, rnd.other):
+        for name, short in table.items():
+            history.setdefault(name, []).append((short.model, short.theta))
+    for name, c in rnd.refitted.items():
+        if c.fit is not None:
+            history.setdefault(name, []).append((c.fit.model, c.fit.theta))
+    return history
+
+
+def search(s: Setting, fit: FitResult) -> Round:
+    """Steps 1-7 (module docstring) against the baseline ``fit``, repeated (at most
+    :data:`MAX_BASELINE_CHALLENGES` more times) while the baseline challenge finds a better
+    baseline; the last round."""
+    history: dict = {}
+    for attempt_no in range(MAX_BASELINE_CHALLENGES + 1):
+        rnd = start_round(s, fit, history)
+        _screen(s, rnd)
+        if not rnd.adequacy.adequate:
+            _short_refits(s, rnd)
+            rnd.tied_sign = tied_sign(s.record, fit, s.sign_baselines, rnd.ref.chi2, s.thresholds.bic_significant)
+            if rnd.tied_sign is not None and rnd.short:
+                _other_sign_shorts(s, rnd)
+            _finish_best(s, rnd)
+            ranked = rnd.ranked()
+            if rnd.tied_sign is None and ranked and not ranked[0].adequate_after:
+                _other_sign_from_best(s, rnd)
+            shared_basin(s, rnd, rnd.refitted)
+            names = s.candidates + s.redundant
+            rnd.reparametrised = reparametrisation_paths(s.work, rnd.fit, names, s.say)
+        if attempt_no == MAX_BASELINE_CHALLENGES or not (rnd.refitted or rnd.reparametrised):
+            break
+        fits = [c.fit for c in rnd.refitted.values() if c.fit is not None]
+        challenger = challenge_baseline(
+            s.record, s.work, fit, rnd.ref.chi2, rnd.chi2_small, fits, rnd.reparametrised, s.rng, s.say
+        )
+        if challenger is None:
+            break
+        s.say(f"the baseline improved (chi-square {rnd.ref.chi2:.6g} -> {challenger.chi2:.6g}); diagnosing again")
+        fit, history = challenger, _carry(rnd)
+    return rnd
