@@ -216,7 +216,6 @@ static double gpi_move(msma_forward *m, double u, int d, double width) {
             m->memory[j] = z;
             s[j < MSMA_N_OPERATORS - MSMA_N_OPERATORS % 4 ? j % 4 : 0] += m->weight[j] * z;
         }
-        m->last_rising = 1;
         return envelope(m->omega_c, u) + ((s[0] + s[1]) + (s[2] + s[3]));
     }
     {
@@ -226,7 +225,6 @@ static double gpi_move(msma_forward *m, double u, int d, double width) {
             m->memory[j] = z;
             s[j < MSMA_N_OPERATORS - MSMA_N_OPERATORS % 4 ? j % 4 : 0] += m->weight[j] * z;
         }
-        m->last_rising = 0;
         return envelope(m->omega_d, u) + ((s[0] + s[1]) + (s[2] + s[3]));
     }
 }
@@ -314,7 +312,6 @@ double msma_forward_step(msma_forward *m, double t, double i) {
             if (p->has_initial_state) m->memory[j] += held_memory(p, j);
         }
         y_gpi = envelope(m->omega_c, u) + weighted_sum(m->weight, m->memory);
-        m->last_rising = 1;
         m->t0 = t;
         m->u1_first = u1;
         m->travel = 0.0;
@@ -354,11 +351,8 @@ double msma_forward_step(msma_forward *m, double t, double i) {
             y_gpi = gpi_move(m, u, 1, width);
         } else if (dv < 0.0) {
             y_gpi = gpi_move(m, u, -1, width);
-        } else if (m->last_rising) {
-            y_gpi = m->y_gpi_prev; /* memory and Omega unchanged: the output repeats */
         } else {
-            y_gpi = envelope(m->omega_c, u) + weighted_sum(m->weight, m->memory);
-            m->last_rising = 1;
+            y_gpi = m->y_gpi_prev; /* a still drive: memories and Omega's branch unchanged, the output repeats */
         }
         y_strain = y_gpi;
         m->travel_i = m->travel_i + fabs(i - m->i_prev);
@@ -467,7 +461,7 @@ static evaluation evaluate(const msma_inverse *c, double i, int first, int side)
     }
     if (side != 0 && !first) {
         double dv = e.u - st[4];
-        e.side = dv < 0.0 ? -1 : 1;
+        e.side = dv > 0.0 ? 1 : (dv < 0.0 ? -1 : (st[5] > 0.5 ? 1 : -1));
         if (e.side != side) return e;
     }
     e.width = 1.0;
@@ -496,15 +490,9 @@ static evaluation evaluate(const msma_inverse *c, double i, int first, int side)
             for (j = 0; j < MSMA_N_OPERATORS; j++) s += c->weight[j] * pmin(c->memory[j], env + c->threshold[j] * e.width);
             e.y_gpi = envelope(g + 12, e.u) + s;
             e.side = -1;
-        } else {
-            e.side = 1;
-            if (st[5] > 0.5) {
-                e.y_gpi = st[6];
-            } else {
-                s = 0.0;
-                for (j = 0; j < MSMA_N_OPERATORS; j++) s += c->weight[j] * c->memory[j];
-                e.y_gpi = envelope(g + 8, e.u) + s;
-            }
+        } else { /* a still drive: the memories and Omega's branch as at the sample before */
+            e.side = st[5] > 0.5 ? 1 : -1;
+            e.y_gpi = st[6];
         }
     }
     e.y_strain = e.y_gpi;
@@ -617,7 +605,7 @@ static double commit(msma_inverse *c, double i, int first) {
             st[7] = filter_step(st[7], st[9], heating, c->thermal_c[0], c->thermal_c[1], c->thermal_c[2] > 0.5);
             st[13] = filter_step(st[13], previous, st[7], c->thermal_c[3], c->thermal_c[4], c->thermal_c[5] > 0.5);
         }
-        st[5] = dv >= 0.0 ? 1.0 : 0.0;
+        st[5] = dv > 0.0 ? 1.0 : (dv < 0.0 ? 0.0 : st[5]); /* Omega's branch: the last motion's */
         st[10] = st[10] + fabs(i - st[0]);
     }
     if (first) st[2] = e.u1;
@@ -648,8 +636,8 @@ static double magnitude(double f) { return f == -INFINITY ? INFINITY : fabs(f); 
 static void search(msma_inverse *c, int s, double start, double step0, double target, int first, double *i_out,
                    double *f_out) {
     const double lo = c->lo, hi = c->hi, htol = c->htol, rtol = c->rtol, xtol = c->xtol;
-    double x_min, x_max, x0, f0, best_x, best_f, xl, fl, xr, fr, gl, gr;
-    int down_done, up_done, direction, found, sweep, last, it;
+    double x_min, x_max, x0, f0, best_x, best_f, xl, fl, xr, fr, gl, gr, exl, efl, exr, efr;
+    int down_done, up_done, direction, found, edge_found, sweep, last, it;
     if (s > 0) {
         x_min = lo, x_max = hi;
     } else {
@@ -699,7 +687,9 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
     direction = f0 < 0.0 ? 1 : -1;
     if (direction < 0 && down_done) direction = 1;
     found = 0;
+    edge_found = 0;
     xl = x0, fl = f0, xr = x0, fr = f0;
+    exl = x0, efl = f0, exr = x0, efr = f0;
     for (sweep = 0; sweep < 2; sweep++) {
         double xp, fp, step;
         if (sweep == 1) direction = -direction;
@@ -710,6 +700,17 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
             double x = direction > 0 ? pmin(xp + step, x_max) : pmax(xp - step, x_min), f;
             step *= 4.0;
             f = objective(c, x, s, target, first);
+            if (f == -INFINITY) { /* off the side: a root may lie between its edge and xp when F > 0 at xp */
+                if (fp > 0.0 && !edge_found) {
+                    edge_found = 1;
+                    if (direction > 0) {
+                        exl = xp, efl = fp, exr = x, efr = f;
+                    } else {
+                        exl = x, efl = f, exr = xp, efr = fp;
+                    }
+                }
+                break;
+            }
             if ((f < 0.0) != (fp < 0.0)) {
                 if (direction > 0) {
                     xl = xp, fl = fp, xr = x, fr = f;
@@ -724,6 +725,10 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
             if (x >= x_max || x <= x_min) break;
         }
         if (found) break;
+    }
+    if (!found && edge_found) { /* no sign change on the side: the bracket at its edge */
+        xl = exl, fl = efl, xr = exr, fr = efr;
+        found = 1;
     }
     if (!found) {
         *i_out = s * best_x, *f_out = best_f;
