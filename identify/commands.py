@@ -18,6 +18,7 @@ COMMANDS = {
     "diagnose": "identify.cli.diagnose",
     "predict": "identify.cli.predict",
     "compensate": "identify.cli.compensate",
+    "export": "identify.cli.export",
 }
 
 #: Set by a batch for the commands it runs: their PID is to end (SIGTERM) when the batch does.

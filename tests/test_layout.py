@@ -29,6 +29,7 @@ LAYERS = (
     ("identify.diagnosis",),
     ("identify.output",),
     ("identify.workflows",),
+    ("identify.export",),
     ("identify.bench",),
     ("identify.cli",),
     ("identify.__main__", "identify"),
