@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from model import EFFECTS, THETA_NAMES, Model
-from model.effects import CREEP_MODES, creep_time_constants, log_creep_time_constants
+from model.effects import CREEP_MODES, LOG_CREEP_MAX_MODES, creep_time_constants, log_creep_time_constants
 from model.inverse import SUPPORTED_EFFECTS
 
 __all__ = [
@@ -83,7 +83,8 @@ REFUSED = {
     ),
 }
 
-#: The C arrays' sizes for the creep modes (``MSMA_CREEP_MODES``, ``MSMA_LOG_CREEP_MAX_MODES``).
+#: The C arrays' sizes for the creep modes (``MSMA_CREEP_MODES``, ``MSMA_LOG_CREEP_MAX_MODES`` in
+#: ``c/msma_gpi.h.in``), checked against the library's constants before an export.
 C_CREEP_MODES = 9
 C_LOG_CREEP_MODES = 24
 
@@ -223,6 +224,8 @@ def export_spec(
         raise ExportError(f"the horizon must be a duration > 0 s, got {horizon!r}")
     if CREEP_MODES != C_CREEP_MODES:  # pragma: no cover - the library's constant and the C arrays
         raise ExportError(f"creep: {CREEP_MODES} saturating modes, the C step has {C_CREEP_MODES}")
+    if LOG_CREEP_MAX_MODES != C_LOG_CREEP_MODES:  # pragma: no cover - likewise
+        raise ExportError(f"creep: up to {LOG_CREEP_MAX_MODES} logarithmic modes, the C step has {C_LOG_CREEP_MODES}")
     lo, hi = (float(x) for x in current_range)
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise ExportError(f"the current range must be LO < HI, got {lo:g}:{hi:g}")

@@ -60,13 +60,13 @@ from .base import get_effect as get_effect
 from .base import register_effect
 from .creep import (
     CREEP_MODES,
+    LOG_CREEP_MAX_MODES,
     LOG_CREEP_MODES_PER_DECADE,
     Creep,
     creep_time_constants,
     log_creep_time_constants,
 )
 from .creep import CREEP_STEP_HOLD as CREEP_STEP_HOLD
-from .creep import LOG_CREEP_MAX_MODES as LOG_CREEP_MAX_MODES
 from .creep import LOG_CREEP_MODE_WEIGHT as LOG_CREEP_MODE_WEIGHT
 from .creep import LOG_CREEP_REACH as LOG_CREEP_REACH
 from .incomplete_reset import IncompleteReset, incomplete_reset_strain
@@ -78,6 +78,7 @@ from .thermal import REFERENCE_CURRENT, Thermal, thermal_rise
 from .training import Training, accumulated_travel, training_fade
 
 __all__ = [
+    "LOG_CREEP_MAX_MODES",
     "Lag",
     "Training",
     "RateWidth",
