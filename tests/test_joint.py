@@ -99,3 +99,36 @@ def test_records_that_do_not_belong_together_are_named(two_records):
     assert not check["consistent"] and check["p"] < 1e-6
     assert check["disagreeing"] in ("the re-gained record", first.source)
     assert "do not look like one transducer" in check["message"]
+
+
+def test_records_that_cannot_be_one_transducers_are_refused_naming_the_record():
+    from dataclasses import replace
+
+    from identify.diagnosis import diagnose
+
+    a = simulate(None, seed=1, fs=5.0).record
+    b = simulate(None, seed=2, fs=5.0).record
+    with pytest.raises(ValueError, match="empty"):
+        diagnose([])
+    with pytest.raises(ValueError, match=r"\(seed 1\): the same data as record 1"):
+        diagnose([a, replace(a)])
+    volts = replace(b, input_unit="V", source="volts.csv")
+    with pytest.raises(ValueError, match="volts.csv: drive in V"):
+        fit_joint([a, volts], normalised_model(Model()))
+    quiet_less = replace(b, current=b.current + 1.0, source="no-quiet.csv")
+    with pytest.raises(ValueError, match="no-quiet.csv"):
+        fit_joint([a, quiet_less], normalised_model(Model()))
+
+
+@pytest.mark.slow
+def test_the_joint_diagnosis_names_creep_with_a_record_of_holds():
+    """A creep on the paper's drive and on the drive with holds and a quiet end: the joint
+    verdict names it, and it repairs each record."""
+    from identify.diagnosis import diagnose
+
+    spec = "creep_amplitude=0.03"
+    records = [simulate(spec, seed=1, fs=25.0).record, simulate(spec, seed=2, fs=25.0, drive="holds").record]
+    d = diagnose(records, rng=np.random.default_rng(0))
+    assert d.status == "missing_effect" and d.missing == "creep", d.reason
+    assert d.adequate_by_record["creep"] == [True, True]
+    assert len(d.to_dict()["records"]) == 2

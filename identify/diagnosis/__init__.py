@@ -26,10 +26,12 @@ from .decision import RULES, STATUSES, Decision, decide
 from .diagnose import Diagnosis, diagnose
 from .evidence import Evidence, Explanation, Gap
 from .explanation import explain
+from .joint import JointDiagnosis
 
 __all__ = [
     "diagnose",
     "Diagnosis",
+    "JointDiagnosis",
     "STATUSES",
     "RULES",
     "Thresholds",

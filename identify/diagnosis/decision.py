@@ -163,16 +163,16 @@ def _judge(repairing: list, ev: Evidence, th: Thresholds) -> Decision:
     """Steps 1-3 of the module docstring on the repairing explanations."""
     minimal, superfluous = _minimal(repairing, ev, th)
     best = min(minimal, key=lambda e: e.chi2)
-    rivals = [
+    # every other explanation is compared, but a pair that only adds to the best (a superset of
+    # it) or adds nothing to a repairing member says no other physics
+    compared = [
         e
         for e in ev.explanations
-        if e.name != best.name
-        and e.name not in superfluous
-        and not set(best.effects) < set(e.effects)
-        and not _separated(ev, best, e, th)
+        if e.name != best.name and e.name not in superfluous and not set(best.effects) < set(e.effects)
     ]
+    rivals = [e for e in compared if not _separated(ev, best, e, th)]
     group = [best, *sorted(rivals, key=lambda e: e.chi2)]
-    numbers = {"best": best.name, "rivals": _gap_numbers(ev, best, ev.explanations)}
+    numbers = {"best": best.name, "rivals": _gap_numbers(ev, best, compared)}
     common = set.intersection(*(set(e.effects) for e in group))
     if not common:
         return Decision("tied", "tied", tied=tuple(e.name for e in group), best=best.name, numbers=numbers)

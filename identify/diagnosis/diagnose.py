@@ -34,6 +34,7 @@ import numpy as np
 from model import get_effect
 
 from ..data.reversals import find_reversals
+from ..fitting.joint import check_records
 from ..fitting.lsq import FitResult
 from ..fitting.noise import NoiseModel, quiet_segment
 from .adequacy import Adequacy, Thresholds, rms_change_and_size
@@ -43,6 +44,7 @@ from .decision import STATUSES, Decision, decide
 from .evidence import Evidence, Explanation, gap_between
 from .explanation import explain, where_text
 from .fits import effect_values, working_copy
+from .joint import JointDiagnosis, diagnose_records
 from .pairs import rival_pairs, search_pairs
 from .reparametrisation import exact_reparametrisation
 from .residuals import ResidualProfile
@@ -349,14 +351,17 @@ def diagnose(
     rng: np.random.Generator | None = None,
     candidates=None,
     progress: Callable[[str], None] | None = None,
-) -> Diagnosis:
+) -> Diagnosis | JointDiagnosis:
     """Least squares plus the diagnosis (module docstring).
 
     Parameters
     ----------
-    record : identify.data.records.Record
+    record : identify.data.records.Record or sequence of Record
         ``time`` [s], ``current`` [A], ``displacement`` [um], shape (T,), with an unenergised
         start (the noise reference, at least 20 samples) unless ``noise`` gives a sigma.
+        Several records of one transducer are diagnosed together
+        (:func:`identify.diagnosis.joint.diagnose_records`; ``noise`` and ``fit`` are then
+        each record's own, from its quiet start): a :class:`JointDiagnosis`.
     model : Model or sequence of str, optional
         The model to diagnose; effect names give the normalised GPI plus those effects
         (:func:`identify.fitting.parametrisation.normalised_model`); default the plain GPI.
@@ -384,6 +389,24 @@ def diagnose(
         A record without a quiet segment of >= 20 samples (unless the noise sigma is user-given),
         a free noise sigma, an unknown effect, or a ``fit`` of another model.
     """
+    if isinstance(record, (list, tuple)):
+        record = check_records(record)
+        if len(record) > 1:
+            if noise is not None or fit is not None or candidates is not None:
+                raise ValueError(
+                    "several records are diagnosed each from its own quiet start: noise, fit and "
+                    "candidates apply to one record"
+                )
+            return diagnose_records(
+                record,
+                model,
+                diagnose_one=diagnose,
+                thresholds=thresholds,
+                n_starts=n_starts,
+                rng=rng,
+                progress=progress,
+            )
+        record = record[0]
     t_start = _time.perf_counter()
     thresholds = Thresholds() if thresholds is None else thresholds
     say = progress or (lambda message: None)

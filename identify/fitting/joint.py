@@ -39,7 +39,16 @@ from .lsq import POLISH_EVALUATIONS, FitResult, WhitenedResiduals, bounded_solve
 from .noise import NoiseModel, energised_mask, estimate_noise, whiten_rows
 from .threads import single_threaded_blas
 
-__all__ = ["JointModel", "JointResiduals", "JointFit", "fit_joint", "consistency", "record_suffix"]
+__all__ = [
+    "check_records",
+    "JointModel",
+    "JointResiduals",
+    "JointFit",
+    "fit_joint",
+    "joint_fit_at",
+    "consistency",
+    "record_suffix",
+]
 
 #: A joint fit whose chi-square exceeds the separate fits' sum with a p-value below this is
 #: inconsistent (the records do not share the parameters), and a record that also fits worse
@@ -48,6 +57,31 @@ CONSISTENCY_P = 1e-6
 #: The relative rise of a record's RMS from its separate fit to the joint fit that names it as
 #: the one that disagrees.
 DISAGREEING_RMS_RISE = 0.10
+
+
+def check_records(records) -> list:
+    """The records as a list, refused with the record named when they cannot be one transducer's
+    records: none, other units than the first's, or one given twice (the same data)."""
+    records = list(records)
+    if not records:
+        raise ValueError("no record given: the list of records is empty")
+    first = records[0]
+    units = (getattr(first, "input_unit", "A"), getattr(first, "output_unit", "um"))
+    seen = {}
+    for r, record in enumerate(records, start=1):
+        these = (getattr(record, "input_unit", "A"), getattr(record, "output_unit", "um"))
+        if these != units:
+            raise ValueError(
+                f"{record.source}: drive in {these[0]} and output in {these[1]}, where {first.source} has "
+                f"{units[0]} and {units[1]}: the records of one transducer share their units"
+            )
+        key = getattr(record, "sha256", "") or None
+        if key is None:
+            key = (len(record.time), float(np.sum(record.displacement)), float(np.sum(record.current)))
+        if key in seen:
+            raise ValueError(f"{record.source}: the same data as record {seen[key]}: a record given twice")
+        seen[key] = r
+    return records
 
 
 def record_suffix(r: int) -> str:
@@ -366,8 +400,8 @@ def fit_joint(
     say = progress or (lambda message: None)
     t0 = _time.perf_counter()
     rng = np.random.default_rng(0) if rng is None else rng
-    records = list(records)
-    noises = [estimate_noise(r) for r in records] if noises is None else list(noises)
+    records = check_records(records)
+    noises = [_noise_of(r) for r in records] if noises is None else list(noises)
     if separate is None:
         separate = []
         for r, (record, noise) in enumerate(zip(records, noises), start=1):
@@ -387,7 +421,15 @@ def fit_joint(
         if best is None or chi2 < best[0]:
             best = (chi2, residuals, sol.x)
     chi2, residuals, x = best
-    return _joint_fit(residuals, x, separate, t0)
+    return joint_fit_at(residuals, x, separate, t0)
+
+
+def _noise_of(record) -> NoiseModel:
+    """The record's noise from its own quiet start; the error names the record."""
+    try:
+        return estimate_noise(record)
+    except ValueError as exc:
+        raise ValueError(f"{record.source}: {exc}") from None
 
 
 def _joint_start(joint: JointModel, donor: FitResult, separate, records) -> np.ndarray:
@@ -408,7 +450,9 @@ def _joint_start(joint: JointModel, donor: FitResult, separate, records) -> np.n
     return np.clip(joint.joint_theta(thetas, zeros), joint.parameters.lower, joint.parameters.upper)
 
 
-def _joint_fit(residuals: JointResiduals, x, separate, t0: float) -> JointFit:
+def joint_fit_at(residuals: JointResiduals, x, separate, t0: float | None = None) -> JointFit:
+    """The :class:`JointFit` at free vector ``x`` of ``residuals`` (``separate``: the records' own fits)."""
+    t0 = _time.perf_counter() if t0 is None else t0
     joint = residuals.model
     theta = residuals.full(x)
     w = residuals(x)

@@ -1,0 +1,389 @@
+"""The diagnosis of several records of one transducer: one verdict from joint fits.
+
+The physics of the transducer is the same in every record, and records on different drives
+separate effects that one record leaves tied (a hold, a quiet end, an amplitude that rises
+again). The joint diagnosis:
+
+1. diagnoses each record alone (:func:`identify.diagnosis.diagnose`): its baseline, its
+   candidates and pairs, each searched with every start strategy;
+2. takes the explanations any record found worth finishing (those that repair it, and the best
+   few by their gain) and fits each on all records together
+   (:class:`identify.fitting.joint.JointResiduals`: the transducer's parameters shared, each
+   record's run parameters and sensor zero its own), from each record's own fit of it and
+   from the joint baseline with the effect off;
+3. measures each joint fit as one candidate: its chi-square summed over the records, its delta
+   BIC against the joint baseline, and whether it repairs *every* record (each record's residual
+   against its own quiet start);
+4. decides with the same pure rule table (:func:`identify.diagnosis.decide`) and explains.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from model import Model
+
+from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at
+from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
+from ..fitting.noise import energised_mask
+from ..fitting.threads import single_threaded_blas
+from .adequacy import Adequacy, Thresholds, assess_adequacy
+from .candidates import CandidateResult, explained_fraction, first_loading_share
+from .decision import Decision, decide
+from .evidence import Evidence, Explanation, gap_between
+from .explanation import explain, where_text
+from .fits import n_eff, profile_of, same_threshold_sign
+
+__all__ = ["JointDiagnosis", "diagnose_records"]
+
+
+@dataclass
+class JointDiagnosis:
+    """The joint diagnosis of several records (module docstring).
+
+    Attributes
+    ----------
+    status, missing, tied, rule, reason
+        As :class:`~identify.diagnosis.Diagnosis`.
+    effects : tuple of str
+    records : list of dict
+        Per record: ``source``, ``samples``, ``noise_sigma``, ``rms`` (the joint baseline's),
+        ``adequate`` and ``failed`` tests of the joint baseline, and the record's own verdict
+        alone (``alone``).
+    ranking : list of CandidateResult
+        The explanations fitted jointly, by falling delta BIC (``adequate_after``: every record).
+    adequate_by_record : dict
+        ``{explanation: [adequate on record 1, ...]}``.
+    alone : list of Diagnosis
+        Each record's own diagnosis.
+    baseline : JointFit
+    decision, evidence, thresholds, seconds
+    """
+
+    status: str
+    missing: str | None
+    tied: tuple
+    rule: str
+    reason: str
+    effects: tuple
+    records: list
+    ranking: list
+    adequate_by_record: dict
+    alone: list
+    baseline: JointFit
+    decision: Decision
+    evidence: Evidence
+    thresholds: Thresholds
+    seconds: float = 0.0
+    pairs_tried: list = field(default_factory=list)
+
+    def verdict_text(self) -> str:
+        if self.status == "missing_effect":
+            return f"missing_effect -> add '{self.missing}'"
+        if self.status == "tied":
+            return "tied: " + " | ".join(self.tied)
+        return self.status
+
+    def to_dict(self) -> dict:
+        return {
+            "n_records": len(self.records),
+            "effects": list(self.effects),
+            "status": self.status,
+            "missing": self.missing,
+            "tied": list(self.tied),
+            "rule": self.rule,
+            "reason": self.reason,
+            "records": [dict(r) for r in self.records],
+            "ranking": [
+                c.to_dict() | {"adequate_by_record": self.adequate_by_record.get(c.effect)} for c in self.ranking
+            ],
+            "decision": self.decision.to_dict(),
+            "evidence": self.evidence.to_dict(),
+            "baseline": self.baseline.to_dict(),
+            "alone": [d.to_dict() for d in self.alone],
+            "thresholds": self.thresholds.to_dict(),
+            "seconds": float(self.seconds),
+        }
+
+    def summary(self) -> str:
+        lines = [
+            f"model: GPI{''.join(' + ' + e for e in self.effects)}, {len(self.records)} records diagnosed together",
+            f"verdict: {self.verdict_text()}",
+            self.reason,
+            "records:",
+        ]
+        for r in self.records:
+            lines.append(
+                f"  {r['source']}: {r['samples']} samples, RMS {r['rms']:.4g} um ({r['rms'] / r['noise_sigma']:.3f} "
+                f"sigma), {'noise' if r['adequate'] else 'not noise'}; alone: {r['alone']}"
+            )
+        if self.ranking:
+            lines.append("explanations fitted on every record together:")
+            width = max(len(c.effect) for c in self.ranking)
+            for c in self.ranking:
+                by_record = self.adequate_by_record.get(c.effect) or []
+                marks = "".join("+" if ok else "-" for ok in by_record)
+                lines.append(f"  {c.effect:<{width}}  delta BIC {c.delta_bic:9.1f}, noise on each record [{marks}]")
+        return "\n".join(lines)
+
+
+def _pooled(values, weights) -> float:
+    return float(math.sqrt(sum(w * v * v for v, w in zip(values, weights)) / max(sum(weights), 1)))
+
+
+class _Joint:
+    """What the joint candidates are measured against: the records, their noise references and
+    the joint baseline."""
+
+    def __init__(self, records, alone, baseline: JointFit, thresholds: Thresholds, rng):
+        self.records, self.alone, self.baseline, self.th, self.rng = records, alone, baseline, thresholds, rng
+        self.noises = [d.fit.noise for d in alone]
+        self.quiet = [d.profile.noise for d in alone]  # each record's AR noise reference
+        self.slices = [d.fit.noise.quiet for d in alone]
+        self.profiles = [self._profile(r, f) for r, f in enumerate(baseline.fits)]
+        self.adequacies = [assess_adequacy(p, thresholds) for p in self.profiles]
+        self.chi2 = baseline.chi2
+        self.energised = [int(np.sum(energised_mask(rec, f.noise))) for rec, f in zip(records, baseline.fits)]
+
+    def _profile(self, r, fit, kind=None):
+        quiet = self.slices[r] if self.slices[r] is not None else slice(0, 0)
+        return profile_of(self.records[r], fit, quiet if quiet.stop else None, self.quiet[r])
+
+    def measure(self, name: str, jf: JointFit, w: np.ndarray) -> tuple[CandidateResult, list]:
+        """A joint fit as one candidate: ``(CandidateResult, adequate on each record)``."""
+        ns = [n_eff(part) for part in np.split(w, np.cumsum([len(r.time) for r in self.records])[:-1])]
+        n = float(sum(ns))
+        k = int(jf.joint.parameters.vary.sum() - self.baseline.joint.parameters.vary.sum())
+        delta_bic = n * math.log(self.chi2 / jf.chi2) - k * math.log(n) if jf.chi2 > 0 else math.inf
+        adequate, before, after = [], 0.0, 0.0
+        for r, fit in enumerate(jf.fits):
+            base = self.adequacies[r]
+            a = assess_adequacy(self._profile(r, fit), self.th, excess_kind=base.excess_kind)
+            adequate.append(bool(a.adequate))
+            before += base.excess
+            after += a.excess
+        rms = _pooled([f.rms for f in jf.fits], self.energised)
+        shares = [first_loading_share(rec, f, name.split("+")) for rec, f in zip(self.records, jf.fits)]
+        shares = [s for s in shares if s is not None]
+        candidate = CandidateResult(
+            name,
+            None,
+            True,
+            rms,
+            max(f.max_error_pct for f in jf.fits),
+            float(delta_bic),
+            n,
+            explained_fraction(before, after),
+            all(adequate),
+            parameters={p: float(v) for p, v in jf.theta_dict().items() if p not in self.baseline.joint.names},
+            chi2=float(jf.chi2),
+            first_loading_share=max(shares) if shares else None,
+            whitened=w,
+        )
+        return candidate, adequate
+
+
+def _candidates_of(alone, thresholds: Thresholds) -> list[str]:
+    """The explanations any record found worth finishing: those that repair it and the
+    ``max_refits`` best by their gain, singles and pairs."""
+    names = []
+    for d in alone:
+        singles = [c for c in d.ranking if c.refitted and c.fit is not None]
+        pairs = [c for c in d.pairs_tried if c.fit is not None]
+        for group in (singles, pairs):
+            ranked = sorted(group, key=lambda c: -c.delta_bic)
+            keep = [c for c in ranked if c.adequate_after] + ranked[: thresholds.max_refits]
+            names += [c.effect for c in keep if c.delta_bic > 0.0]
+    return list(dict.fromkeys(names))
+
+
+def _own_fits(alone, name: str) -> list:
+    """Each record's own fit of explanation ``name`` (None where it has none)."""
+    fits = []
+    for d in alone:
+        found = next((c for c in [*d.ranking, *d.pairs_tried] if c.effect == name and c.fit is not None), None)
+        fits.append(None if found is None else found.fit)
+    return fits
+
+
+def _fit_candidate(ctx: _Joint, name: str):
+    """Explanation ``name`` fitted on every record together from each record's own fit of it and
+    from the joint baseline with it off: ``(JointFit, whitened residual)`` of the lowest chi-square."""
+    own = _own_fits(ctx.alone, name)
+    donors = [f for f in own if f is not None]
+    base_model = ctx.baseline.joint.model
+    best = None
+    for donor in donors:
+        model_e = donor.model
+        joint = JointModel(model_e, len(ctx.records), ctx.baseline.joint.zero_bound)
+        thetas = []
+        for fit in own:
+            source = fit if fit is not None and same_threshold_sign(fit.model, model_e) else donor
+            thetas.append(np.asarray(source.theta, dtype=float))
+        thetas[0] = np.asarray(donor.theta, dtype=float) if own[0] is None else thetas[0]
+        names = ctx.baseline.joint.names
+        zeros = [0.0] + [float(ctx.baseline.theta[names.index(f"zero_r{r}")]) for r in range(2, len(ctx.records) + 1)]
+        starts = [joint.joint_theta(thetas, zeros)]
+        if same_threshold_sign(model_e, base_model):
+            starts.append(_embedded(ctx.baseline, joint))
+        residuals = JointResiduals(ctx.records, joint, ctx.noises)
+        for start in starts:
+            x0 = np.clip(np.asarray(start)[residuals.free], residuals.lower, residuals.upper)
+            with single_threaded_blas():
+                sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
+            chi2 = 2.0 * float(sol.cost)
+            if best is None or chi2 < best[0]:
+                best = (chi2, residuals, sol.x)
+    if best is None:
+        return None
+    _, residuals, x = best
+    jf = joint_fit_at(residuals, x, ctx.baseline.fits)
+    return jf, residuals(x)
+
+
+def _embedded(baseline: JointFit, joint: JointModel) -> np.ndarray:
+    """The joint baseline's vector in ``joint`` (its new effects off)."""
+    theta = joint.default_theta()
+    for name, value in zip(baseline.joint.names, baseline.theta):
+        if name in joint.names:
+            theta[joint.names.index(name)] = value
+    return theta
+
+
+def diagnose_records(
+    records,
+    model=None,
+    *,
+    diagnose_one,
+    thresholds: Thresholds | None = None,
+    n_starts: int = 6,
+    rng=None,
+    progress=None,
+) -> JointDiagnosis:
+    """The joint diagnosis of several records of one transducer (module docstring).
+
+    Parameters
+    ----------
+    records : sequence of Record
+        Two or more records, in the same units, each with its unenergised start.
+    model : Model or sequence of str, optional
+        As :func:`identify.diagnosis.diagnose`.
+    diagnose_one : callable
+        The diagnosis of one record (:func:`identify.diagnosis.diagnose`).
+    thresholds : Thresholds, optional
+    n_starts : int, default 6
+    rng : numpy.random.Generator, optional
+    progress : callable(str), optional
+
+    Returns
+    -------
+    JointDiagnosis
+    """
+    t0 = _time.perf_counter()
+    thresholds = Thresholds() if thresholds is None else thresholds
+    say = progress or (lambda message: None)
+    rng = np.random.default_rng(0) if rng is None else rng
+    records = list(records)
+    alone = []
+    for r, record in enumerate(records, start=1):
+        say(f"record {r} of {len(records)} alone: {record.source}")
+        alone.append(diagnose_one(record, model, thresholds=thresholds, n_starts=n_starts, rng=rng, progress=say))
+    base_model = alone[0].fit.model
+    say("the baseline on every record together")
+    separate = [d.fit if same_threshold_sign(d.fit.model, base_model) else alone[0].fit for d in alone]
+    baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
+    ctx = _Joint(records, alone, baseline, thresholds, rng)
+    ranking, adequate_by_record = [], {}
+    for name in _candidates_of(alone, thresholds):
+        say(f"'{name}' on every record together")
+        fitted = _fit_candidate(ctx, name)
+        if fitted is None:
+            continue
+        candidate, adequate = ctx.measure(name, *fitted)
+        ranking.append(candidate)
+        adequate_by_record[name] = adequate
+    ranking.sort(key=lambda c: -c.delta_bic)
+    evidence = _evidence(ctx, ranking)
+    decision = decide(evidence, thresholds)
+    reason = explain(decision, evidence, thresholds, where_text(ctx.profiles[_worst(ctx)]))
+    rows = [
+        {
+            "source": rec.source,
+            "samples": len(rec.time),
+            "noise_sigma": float(f.noise.sigma),
+            "rms": float(f.rms),
+            "adequate": bool(a.adequate),
+            "failed": list(a.failed),
+            "alone": d.verdict_text(),
+        }
+        for rec, f, a, d in zip(records, baseline.fits, ctx.adequacies, alone)
+    ]
+    return JointDiagnosis(
+        decision.status,
+        decision.missing,
+        tuple(decision.tied) if decision.status == "tied" else (),
+        decision.rule,
+        reason,
+        tuple(base_model.effect_names),
+        rows,
+        [c for c in ranking if "+" not in c.effect],
+        adequate_by_record,
+        alone,
+        baseline,
+        decision,
+        evidence,
+        thresholds,
+        _time.perf_counter() - t0,
+        [c for c in ranking if "+" in c.effect],
+    )
+
+
+def _worst(ctx: _Joint) -> int:
+    return int(np.argmax([a.size_ratio for a in ctx.adequacies]))
+
+
+def _evidence(ctx: _Joint, ranking) -> Evidence:
+    """The joint evidence: the joint baseline (inadequate when any record is), every joint
+    explanation and the gaps between them on the concatenated residual."""
+    explanations = [
+        Explanation(
+            c.effect,
+            float(c.chi2),
+            float(c.n_eff),
+            float(c.delta_bic),
+            bool(c.adequate_after),
+            float(c.rms_after),
+            float(c.explained),
+            c.first_loading_share,
+        )
+        for c in ranking
+    ]
+    gaps = [
+        gap_between(explanations[i], ranking[i].whitened, explanations[j], ranking[j].whitened)
+        for i in range(len(ranking))
+        for j in range(i + 1, len(ranking))
+    ]
+    worst = ctx.adequacies[_worst(ctx)]
+    adequate = all(a.adequate for a in ctx.adequacies)
+    baseline = worst if adequate == worst.adequate else Adequacy(adequate, *list(worst.__dict__.values())[1:])
+    strength = {}
+    for d in ctx.alone:
+        for c in d.ranking:
+            strength[c.effect] = strength.get(c.effect, 0.0) + c.delta_bic
+    sigma = _pooled([f.noise.sigma for f in ctx.baseline.fits], ctx.energised)
+    rms = _pooled([f.rms for f in ctx.baseline.fits], ctx.energised)
+    model: Model = ctx.baseline.joint.model
+    return Evidence(
+        sigma,
+        rms,
+        baseline,
+        tuple(explanations),
+        tuple(gaps),
+        strength,
+        tuple(e.name for e in model.effects if e.first_cycle),
+        bool(adequate),
+    )
