@@ -36,6 +36,7 @@ API = {
     "predict": "identify.workflows.use",
     "compensate": "identify.workflows.use",
     "simulate": "identify.bench.synthetic",
+    "design": "identify.workflows.design",
 }
 
 __all__ = ["__version__", *API]

@@ -19,6 +19,7 @@ COMMANDS = {
     "predict": "identify.cli.predict",
     "compensate": "identify.cli.compensate",
     "export": "identify.cli.export",
+    "design": "identify.cli.design",
 }
 
 #: Set by a batch for the commands it runs: their PID is to end (SIGTERM) when the batch does.

@@ -28,6 +28,7 @@ from ..data.records import Record
 from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA
 
 __all__ = [
+    "simulate_like",
     "Simulation",
     "simulate",
     "parse_effect_spec",
@@ -292,7 +293,7 @@ def simulate(
         "model": sim_model.to_dict(),
         "noise": {"sigma": float(noise_sigma), "rho": float(noise_rho), "kind": "ar1" if noise_rho else "white"},
         "seed": int(seed),
-        "fs": float(fs),
+        "fs": float(1.0 / np.median(np.diff(time))) if given else float(fs),
         "duration": float(time[-1] - time[0]),
         "drive": "given" if given else drive,
         "n_samples": int(time.size),
@@ -324,3 +325,38 @@ def _version() -> str:
     from ..version import __version__
 
     return __version__
+
+
+def simulate_like(truth: dict, time, current, *, seed: int = 0, noise_sigma=None, noise_rho=None) -> Simulation:
+    """Another record of the transducer a truth describes (a sidecar of :func:`simulate`: its model,
+    every parameter by name, its noise) driven by ``current`` at ``time``, with fresh noise from
+    ``seed``. The run's own parameters (:attr:`model.Parameter.per_record`) are kept as they were.
+
+    Parameters
+    ----------
+    truth : dict
+        The sidecar (``model``, ``theta``, ``noise``).
+    time, current : array_like, shape (T,)
+        The drive [s], [A].
+    seed : int, default 0
+    noise_sigma, noise_rho : float, optional
+        Default: the truth's.
+    """
+    try:
+        model = Model.from_dict(truth["model"])
+        theta = model.theta_from_dict(truth["theta"])
+        noise = truth["noise"]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"the truth does not describe a transducer of the bench ({exc})") from None
+    gpi_theta = theta[: len(THETA_NAMES)]
+    effects = {e.name: {p: float(theta[model.names.index(p)]) for p in e.parameters.names} for e in model.effects}
+    return simulate(
+        effects,
+        noise_sigma=float(noise["sigma"] if noise_sigma is None else noise_sigma),
+        noise_rho=float(noise.get("rho", 0.0) if noise_rho is None else noise_rho),
+        seed=seed,
+        gpi_theta=gpi_theta,
+        n_operators=model.n_operators,
+        reading=model.reading,
+        current=(time, current),
+    )

@@ -14,6 +14,7 @@ __all__ = [
     "add_record_arguments",
     "add_model_arguments",
     "record_from_args",
+    "records_from_args",
     "check_input_moves",
     "model_from_args",
     "noise_from_args",
@@ -27,9 +28,19 @@ BIG_FILE = 20 * 2**20
 NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet", "verbose")
 
 
-def add_record_arguments(parser: argparse.ArgumentParser) -> None:
-    """DATA and the column/unit options passed to :func:`identify.data.records.load_record`."""
-    parser.add_argument("data", help="measurement CSV (header time,current,displacement by default)")
+def add_record_arguments(parser: argparse.ArgumentParser, *, several: bool = False) -> None:
+    """DATA (one record, or with ``several`` one or more of one transducer) and the column/unit
+    options passed to :func:`identify.data.records.load_record`."""
+    if several:
+        parser.add_argument(
+            "data",
+            nargs="+",
+            metavar="DATA",
+            help="measurement CSVs of one transducer (header time,current,displacement by default); several are "
+            "fitted together: the transducer shared, each record's run and sensor zero its own",
+        )
+    else:
+        parser.add_argument("data", help="measurement CSV (header time,current,displacement by default)")
     group = parser.add_argument_group(
         "record columns and units (for records from other rigs, e.g. a piezo in V and um)"
     )
@@ -83,8 +94,17 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def record_from_args(args, *, hint=True):
-    """The record the options name (loaded, thinned by ``--every``).
+def records_from_args(args, *, hint=True) -> list:
+    """The records DATA names (one or more), each as :func:`record_from_args` loads it; the same file
+    twice, or records in other units, are an error naming the record."""
+    from ..fitting.joint import check_records
+
+    paths = args.data if isinstance(args.data, (list, tuple)) else [args.data]
+    return check_records([record_from_args(args, hint=hint, path=path) for path in paths])
+
+
+def record_from_args(args, *, hint=True, path=None):
+    """The record the options name (``path``, default DATA; loaded, thinned by ``--every``).
 
     A big file gets progress lines while it loads; a record far longer than the model
     needs gets a ``note:`` suggesting ``--every`` (:func:`identify.data.records.suggest_every`).
@@ -106,16 +126,17 @@ def record_from_args(args, *, hint=True):
         for other, other_name in given[i + 1 :]:
             if name == other_name:
                 raise options.OptionError(f"{flag} and {other} both name the column {name!r}")
+    path = args.data if path is None else path
     try:
-        size = Path(args.data).stat().st_size
+        size = Path(path).stat().st_size
     except OSError:
         size = 0
     big = size > BIG_FILE
     if big:
-        say(f"reading {args.data} ({size / 2**20:.0f} MB) ...")
+        say(f"reading {path} ({size / 2**20:.0f} MB) ...")
     started = time.perf_counter()
     record = load_record(
-        args.data,
+        path,
         time_column=time_column,
         input_column=args.input_column,
         output_column=args.output_column,

@@ -18,6 +18,8 @@ from pathlib import Path
 from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA, EFFECT_NAMES, INPUT_READINGS
 from . import options
 
+DRIVES = ("paper", "holds")
+
 __all__ = ["HELP", "add_arguments", "run"]
 
 HELP = "simulate a bench measurement (paper input, Table 1 transducer, hidden effects, sensor noise)"
@@ -59,9 +61,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--input",
-        choices=INPUT_READINGS,
         default="literal",
-        help="reading of the paper's eq. (16) decay (default literal)",
+        metavar="READING|FILE.csv",
+        help="the drive: a reading of the paper's eq. (16) decay (literal, centred; default literal), or a CSV "
+        "file with the columns time,current (e.g. a designed next_input.csv)",
+    )
+    parser.add_argument(
+        "--drive",
+        choices=DRIVES,
+        default="paper",
+        help="the bench's drive when --input is a reading: the paper's, or cycles that fall and rise again, a hold "
+        "at 4.5 A and a quiet end (holds); default paper",
+    )
+    parser.add_argument(
+        "--truth",
+        default=None,
+        metavar="RUN.json",
+        help="simulate the transducer of this sidecar (its model, parameters and noise) instead of --effects",
     )
     parser.add_argument(
         "--seed", type=options.seed, default=0, metavar="N", help="seed of the noise generator, >= 0 (default 0)"
@@ -70,7 +86,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     """Simulate and write the record and its sidecar; 0 on success, 2 on a bad option."""
-    from ..bench.synthetic import simulate
     from ..data.records import write_record
     from ..output.results import git_head
 
@@ -82,14 +97,7 @@ def run(args) -> int:
         )
         return 2
     try:
-        simulation = simulate(
-            args.effects,
-            noise_sigma=args.noise,
-            noise_rho=args.noise_rho,
-            fs=args.fs,
-            input_reading=args.input,
-            seed=args.seed,
-        )
+        simulation = _simulation(args)
     except ValueError as exc:
         print(f"simulate: error: {exc}", file=sys.stderr)
         return 2
@@ -124,3 +132,41 @@ def _command_line(args) -> str:
         f"--seed {args.seed}",
     ]
     return " ".join(parts)
+
+
+def _drive_file(path: str):
+    """``(time, current)`` of a drive file (columns time,current), or a one-line error naming it."""
+    from ..data.records import load_record
+
+    drive = load_record(path, output_column=None, min_samples=2)
+    return drive.time, drive.current
+
+
+def _simulation(args):
+    """The simulation the options ask for: the bench's transducer with --effects, or --truth's, on the
+    paper's drive, the drive with holds or a given drive file."""
+    import json
+
+    from ..bench.synthetic import simulate, simulate_like
+
+    given = None if args.input in INPUT_READINGS else _drive_file(args.input)
+    if args.truth is not None:
+        try:
+            truth = json.loads(Path(args.truth).read_text())
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{args.truth}: cannot read the truth ({exc})") from None
+        if given is None:
+            from model.signals import drive_current
+
+            given = drive_current(args.drive, fs=args.fs, reading=args.input)
+        return simulate_like(truth, *given, seed=args.seed)
+    return simulate(
+        args.effects,
+        noise_sigma=args.noise,
+        noise_rho=args.noise_rho,
+        fs=args.fs,
+        input_reading=args.input if given is None else "literal",
+        seed=args.seed,
+        drive=args.drive,
+        current=given,
+    )

@@ -289,6 +289,8 @@ def load_record(
         0, 1, 2, ... and a note says so.
     input_column, output_column : str, default "current", "displacement"
         Header names of the drive and output columns (e.g. ``"voltage"`` for a piezo).
+        ``output_column=None``: a drive file (``time,current``, e.g. a designed next record's
+        drive); the record's displacement is then zero.
     input_unit, output_unit : str, default "A", "um"
         Units of those columns, stored on the record for labels: short printable strings
         (:func:`unit_problem`; anything else is a ValueError).
@@ -352,12 +354,12 @@ def load_record(
     return Record(
         time=time,
         current=arrays[input_column],
-        displacement=arrays[output_column],
+        displacement=arrays[output_column] if output_column is not None else np.zeros(n_samples),
         source=str(path),
         sha256=digest,
         input_name=input_column,
         input_unit=input_unit,
-        output_name=output_column,
+        output_name=output_column if output_column is not None else "none",
         output_unit=output_unit,
         notes=tuple(notes),
         sidecar=sidecar,

@@ -62,6 +62,10 @@ class JointDiagnosis:
         Each record's own diagnosis.
     baseline : JointFit
     decision, evidence, thresholds, seconds
+    pairs_tried : list of CandidateResult
+        The pairs fitted jointly.
+    joint_fits : dict
+        ``{explanation: JointFit}``.
     """
 
     status: str
@@ -80,6 +84,7 @@ class JointDiagnosis:
     thresholds: Thresholds
     seconds: float = 0.0
     pairs_tried: list = field(default_factory=list)
+    joint_fits: dict = field(default_factory=dict)
 
     def verdict_text(self) -> str:
         if self.status == "missing_effect":
@@ -180,6 +185,7 @@ class _Joint:
             explained_fraction(before, after),
             all(adequate),
             parameters={p: float(v) for p, v in jf.theta_dict().items() if p not in self.baseline.joint.names},
+            fit=jf.fits[0],
             chi2=float(jf.chi2),
             first_loading_share=max(shares) if shares else None,
             whitened=w,
@@ -297,12 +303,13 @@ def diagnose_records(
     separate = [d.fit if same_threshold_sign(d.fit.model, base_model) else alone[0].fit for d in alone]
     baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
-    ranking, adequate_by_record = [], {}
+    ranking, adequate_by_record, joint_fits = [], {}, {}
     for name in _candidates_of(alone, thresholds):
         say(f"'{name}' on every record together")
         fitted = _fit_candidate(ctx, name)
         if fitted is None:
             continue
+        joint_fits[name] = fitted[0]
         candidate, adequate = ctx.measure(name, *fitted)
         ranking.append(candidate)
         adequate_by_record[name] = adequate
@@ -339,6 +346,7 @@ def diagnose_records(
         thresholds,
         _time.perf_counter() - t0,
         [c for c in ranking if "+" in c.effect],
+        joint_fits,
     )
 
 

@@ -26,6 +26,7 @@ __all__ = [
     "html_table",
     "embedded_figure",
     "png_bytes",
+    "html_page",
 ]
 
 #: Significant digits of the numbers in the tables.
@@ -91,6 +92,23 @@ def embedded_figure(stem, alt, png_bytes, caption) -> str:
     return (
         f'<figure id="figure-{escape(stem)}"><img alt="{escape(alt)}" src="data:image/png;base64,{encoded}">'
         f"<figcaption><b>{escape(alt)}.</b> {escape(caption)}</figcaption></figure>"
+    )
+
+
+def html_page(title: str, body_parts, *, heading: bool = True) -> str:
+    """A whole page: the head (charset, viewport, the title escaped, :data:`CSS`), an ``h1`` of the
+    title (``heading``) and ``body_parts`` (ready markup) in order. Every page the project writes
+    is made here."""
+    return "\n".join(
+        [
+            "<!DOCTYPE html>",
+            '<html lang="en"><head><meta charset="utf-8">',
+            '<meta name="viewport" content="width=device-width, initial-scale=1">',
+            f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
+            *([f"<h1>{escape(title)}</h1>"] if heading else []),
+            *body_parts,
+            "</body></html>",
+        ]
     )
 
 

@@ -25,7 +25,7 @@ from .diagnosis_plots import (
     residual_rate_figure,
     residual_time_figure,
 )
-from .page import CSS, embedded_figure, escape, html_table, number_cell, number_text, png_bytes, text_cell
+from .page import embedded_figure, escape, html_page, html_table, number_cell, number_text, png_bytes, text_cell
 from .plots import axis_label, new_figure, styled, unit_label
 from .report import (
     branches,
@@ -79,16 +79,7 @@ class _BandView:
 
 
 def _page(title, body_parts) -> bytes:
-    parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
-        f"<h1>{escape(title)}</h1>",
-        *body_parts,
-        "</body></html>",
-    ]
-    return "\n".join(parts).encode("utf-8")
+    return html_page(title, body_parts).encode("utf-8")
 
 
 def _notes_html(notes) -> str:

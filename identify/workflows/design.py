@@ -1,0 +1,763 @@
+r"""Design the next experiment: the drive that decides between the explanations a record leaves tied.
+
+When the diagnosis ends ``tied``, the way forward is another record of the same transducer.
+Which one to take is optimal experiment design for model discrimination: for each ordered
+pair of contenders (``a`` the truth, ``b`` its rival), the proposed record is worth the
+chi-square gap it would show *after the rival is refitted to mimic the truth* on the new record
+and the records already taken together (T-optimality, Atkinson and Fedorov 1975; with the
+rival's parameters held by what the records already say, a Bayesian reading close to the
+KL-optimality of Lopez-Fidalgo, Tommasi and Trandafir 2007). Linearised around the rival's fit,
+with ``d`` the whitened difference of the two predictions on the proposed drive, ``J`` the
+rival's whitened Jacobian there (the transducer's parameters, the run's own parameters and
+sensor zero of the new record) and ``F`` the information the records already hold on the
+rival's transducer parameters (the inverse of their covariance; none on the new run's):
+
+.. math::  \Delta = -(J^\top J + F)^{+} J^\top d, \qquad
+           \mathrm{gap} = \lVert d + J\Delta \rVert^2 + \Delta^\top F \Delta,
+
+and the noise moves that gap by about ``2 ||d + J Delta||`` (the rule of
+:mod:`identify.diagnosis.evidence`). The diagnosis names the truth when the gap exceeds
+``bic_significant`` and ``gap_z`` of its noise sd, so the predicted probability of a right name is
+:math:`\Phi((\mathrm{gap} - \max(10, 2.5\,\mathrm{sd}))/\mathrm{sd})`. The design maximises the
+smallest of these over the ordered pairs (maximin: the drive must decide every tie).
+
+The search runs over a few families of drives with a handful of shape parameters each, all
+within the rig's limits (:class:`RigLimits`: current range, slew, duration, RMS current as the
+heating limit, sampling rate) and starting with the quiet segment the records need for their
+noise: ``hold`` (cycles, a hold at a constant current, a quiet end), ``rise_again`` (the
+amplitude falls and rises again, a quiet end), ``steps`` (a staircase of held currents) and
+``probe_blocks`` (blocks of high power between small probe cycles). The best few are confirmed
+by simulation: each contender, drawn from its fit's covariance, drives the proposed record
+with noise; every rival is refitted on it nonlinearly, held by the records' information, and
+the right names are counted (:func:`confirm`).
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+from scipy.optimize import least_squares
+
+from model import Model, get_effect
+
+from ..data.records import Record
+from ..diagnosis import Thresholds, diagnose
+from ..fitting.joint import check_records, fit_joint
+from ..fitting.lsq import WhitenedResiduals, fit_least_squares
+from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
+from ..fitting.parametrisation import normalised_model
+from ..fitting.threads import single_threaded_blas
+
+__all__ = [
+    "RigLimits",
+    "Contender",
+    "contender",
+    "contenders_of",
+    "DesignedDrive",
+    "Design",
+    "FAMILIES",
+    "design",
+    "design_drive",
+    "discrimination",
+    "confirm",
+]
+
+#: Drives evaluated per family in the search.
+DRIVES_PER_FAMILY = 40
+#: Best drives confirmed by simulation.
+CONFIRMED = 3
+#: Noise realisations per contender in a confirmation.
+CONFIRM_DRAWS = 2
+#: Samples of a drive in the search and the confirmation: longer drives are evaluated on every
+#: k-th sample (the same drive; the best ones again on every sample, and the confirmation's gaps
+#: scaled by the ratio of the two predictions).
+DESIGN_SAMPLES = 1500
+
+
+@dataclass(frozen=True)
+class RigLimits:
+    """What the rig allows the next record (defaults read from the records, :meth:`from_records`).
+
+    Attributes
+    ----------
+    current_range : tuple of float
+        ``(lo, hi)`` [input unit]; the quiet segments sit at ``lo``.
+    max_slew : float
+        Largest rate of the current [input unit/s].
+    duration : float
+        Length of the record [s].
+    max_rms_current : float
+        Largest RMS of the current over the record [input unit]: the coil's heating limit.
+    fs : float
+        Sampling rate [Hz].
+    quiet : float
+        The unenergised start [s] the noise needs.
+    """
+
+    current_range: tuple
+    max_slew: float
+    duration: float
+    max_rms_current: float
+    fs: float
+    quiet: float
+
+    def __post_init__(self):
+        lo, hi = self.current_range
+        problems = []
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            problems.append(f"the current range must be LO:HI with LO < HI, got {lo:g}:{hi:g}")
+        for name in ("max_slew", "duration", "max_rms_current", "fs", "quiet"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                problems.append(f"{name.replace('_', ' ')} must be > 0, got {value:g}")
+        if not problems and self.duration <= self.quiet + 10.0 / self.fs:
+            problems.append(f"a duration of {self.duration:g} s leaves nothing after the {self.quiet:g} s quiet start")
+        if not problems and self.max_rms_current <= max(abs(lo), 0.0):
+            problems.append(f"an RMS current limit of {self.max_rms_current:g} allows no drive above {lo:g}")
+        if problems:
+            raise ValueError("; ".join(problems))
+
+    @classmethod
+    def from_records(cls, records, **given) -> RigLimits:
+        """The limits the records show (their current range, largest slew, longest duration,
+        largest RMS current, sampling rate and quiet start), overridden by ``given``."""
+        currents = [np.asarray(r.current, dtype=float) for r in records]
+        slews = [np.abs(np.diff(c)) / np.diff(np.asarray(r.time, dtype=float)) for c, r in zip(currents, records)]
+        values = {
+            "current_range": (min(float(c.min()) for c in currents), max(float(c.max()) for c in currents)),
+            "max_slew": max(float(np.quantile(s, 0.999)) for s in slews),
+            "duration": max(float(r.time[-1] - r.time[0]) for r in records),
+            "max_rms_current": max(float(np.sqrt(np.mean(c * c))) for c in currents),
+            "fs": float(1.0 / np.median(np.diff(np.asarray(records[0].time, dtype=float)))),
+            "quiet": max(float(r.time[quiet_segment(r.current).stop - 1] - r.time[0]) for r in records),
+        }
+        values.update({k: v for k, v in given.items() if v is not None})
+        values["current_range"] = tuple(float(x) for x in values["current_range"])
+        return cls(**values)
+
+    def to_dict(self) -> dict:
+        return {
+            "current_range": list(self.current_range),
+            "max_slew": self.max_slew,
+            "duration": self.duration,
+            "max_rms_current": self.max_rms_current,
+            "fs": self.fs,
+            "quiet": self.quiet,
+        }
+
+
+@dataclass(frozen=True)
+class Contender:
+    """One explanation to tell apart: its model, its vector for a new record (the transducer and the
+    run parameters as the records showed them), and the information the records hold on its
+    transducer parameters (``info``, over the model's columns; zero where the records say nothing
+    about a new record: the run's own parameters, the pinned ones)."""
+
+    name: str
+    model: Model
+    theta: np.ndarray
+    info: np.ndarray
+    covariance: np.ndarray
+
+
+def contender(name: str, model: Model, theta, covariance) -> Contender:
+    """A :class:`Contender` from a fit: its vector and covariance over ``model``'s columns; the
+    information on the transducer is the inverse of the covariance of its shared parameters (the
+    run's own parameters say nothing about a new record)."""
+    covariance = np.asarray(covariance, dtype=float)
+    per_record = np.array([p.per_record for p in model.parameters])
+    shared = np.flatnonzero((np.diag(covariance) > 0) & ~per_record)
+    info = np.zeros_like(covariance)
+    if shared.size:
+        info[np.ix_(shared, shared)] = np.linalg.pinv(covariance[np.ix_(shared, shared)], rcond=1e-12, hermitian=True)
+    return Contender(name, model, np.asarray(theta, dtype=float), info, covariance)
+
+
+def contenders_of(diagnosis, names=None) -> list:
+    """The contenders of a diagnosis: its tied explanations (or ``names``), each from its fit (the
+    joint fit's for several records)."""
+    wanted = list(names) if names is not None else list(diagnosis.tied)
+    if len(wanted) < 2:
+        raise ValueError(
+            f"the diagnosis is '{diagnosis.status}', not a tie: give the explanations to tell apart (--candidates a,b)"
+        )
+    joint_fits = getattr(diagnosis, "joint_fits", None)
+    found = []
+    for name in wanted:
+        if joint_fits is not None and name in joint_fits:
+            jf = joint_fits[name]
+            n = jf.model.n_parameters
+            found.append(contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n]))
+            continue
+        entry = next((c for c in [*diagnosis.ranking, *diagnosis.pairs_tried] if c.effect == name), None)
+        if entry is None or entry.fit is None:
+            known = sorted(c.effect for c in [*diagnosis.ranking, *diagnosis.pairs_tried] if c.fit is not None)
+            raise ValueError(
+                f"'{name}' was not fitted by the diagnosis; the fitted explanations are {', '.join(known)}"
+            )
+        found.append(contender(name, entry.fit.model, entry.fit.theta, entry.fit.covariance))
+    return found
+
+
+# -- the drives -----------------------------------------------------------------------------
+
+
+def _raised(t, t0, period, low, high):
+    """A raised-cosine cycle from ``low`` to ``high`` and back over ``period`` starting at ``t0``."""
+    return low + 0.5 * (high - low) * (1.0 - np.cos(2.0 * np.pi * (t - t0) / period))
+
+
+class _Builder:
+    """A drive assembled piece by piece within the limits (ramps at most at the slew limit)."""
+
+    def __init__(self, limits: RigLimits, period: float):
+        self.limits = limits
+        self.period = period
+        self.time = np.arange(int(math.floor(limits.duration * limits.fs + 1e-9)) + 1) / limits.fs
+        self.current = np.full(self.time.size, float(limits.current_range[0]))
+        self.t = limits.quiet
+        self.level = float(limits.current_range[0])
+
+    def _span(self, seconds):
+        return (self.time >= self.t) & (self.time < self.t + seconds)
+
+    def cycle(self, peak: float) -> None:
+        lo = self.limits.current_range[0]
+        period = max(self.period, math.pi * (peak - lo) / self.limits.max_slew)
+        inside = self._span(period)
+        self.current[inside] = _raised(self.time[inside], self.t, period, lo, peak)
+        self.t += period
+        self.level = lo
+
+    def ramp(self, target: float) -> None:
+        seconds = max(self.period / 2.0, math.pi * abs(target - self.level) / (2.0 * self.limits.max_slew))
+        inside = self._span(seconds)
+        phase = (self.time[inside] - self.t) / seconds
+        self.current[inside] = self.level + (target - self.level) * 0.5 * (1.0 - np.cos(np.pi * phase))
+        self.t += seconds
+        self.level = target
+
+    def hold(self, seconds: float) -> None:
+        self.current[self._span(seconds)] = self.level
+        self.t += seconds
+
+    def finish(self):
+        """``(time, current)`` with the rest at the lower current (the quiet end), or None when the
+        pieces overran the duration or the drive breaks the RMS limit."""
+        if self.t > self.limits.duration:
+            return None
+        lo = self.limits.current_range[0]
+        self.current[self.time >= self.t] = lo
+        if float(np.sqrt(np.mean(self.current**2))) > self.limits.max_rms_current:
+            return None
+        return self.time, self.current
+
+
+def _hold(b: _Builder, p: dict) -> None:
+    lo, hi = b.limits.current_range
+    for _ in range(int(p["cycles"])):
+        b.cycle(lo + p["amplitude"] * (hi - lo))
+    b.ramp(lo + p["level"] * (hi - lo))
+    b.hold(p["hold"] * (b.limits.duration - b.t))
+    b.ramp(lo)
+
+
+def _rise_again(b: _Builder, p: dict) -> None:
+    lo, hi = b.limits.current_range
+    n = int(p["cycles"])
+    amplitudes = np.concatenate([np.linspace(1.0, p["low"], n), np.linspace(p["low"], p["high"], n)[1:]])
+    for a in amplitudes:
+        b.cycle(lo + a * (hi - lo))
+
+
+def _steps(b: _Builder, p: dict) -> None:
+    lo, hi = b.limits.current_range
+    levels = p["levels"]
+    dwell = p["dwell"] * (b.limits.duration - b.t) / max(len(levels), 1)
+    for level in levels:
+        b.ramp(lo + level * (hi - lo))
+        b.hold(dwell)
+    b.ramp(lo)
+
+
+def _probe_blocks(b: _Builder, p: dict) -> None:
+    lo, hi = b.limits.current_range
+    for _ in range(int(p["blocks"])):
+        b.ramp(lo + p["level"] * (hi - lo))
+        b.hold(p["block"] * b.period)
+        b.ramp(lo)
+        b.cycle(lo + p["probe"] * (hi - lo))
+
+
+def _draw(rng: np.random.Generator, family: str) -> dict:
+    if family == "hold":
+        return {
+            "cycles": int(rng.integers(1, 4)),
+            "amplitude": rng.uniform(0.5, 1.0),
+            "level": rng.uniform(0.4, 1.0),
+            "hold": rng.uniform(0.15, 0.6),
+        }
+    if family == "rise_again":
+        return {"cycles": int(rng.integers(2, 5)), "low": rng.uniform(0.2, 0.6), "high": rng.uniform(0.7, 1.0)}
+    if family == "steps":
+        return {
+            "levels": [float(x) for x in rng.uniform(0.2, 1.0, int(rng.integers(2, 5)))],
+            "dwell": rng.uniform(0.3, 0.7),
+        }
+    return {
+        "blocks": int(rng.integers(1, 4)),
+        "level": rng.uniform(0.6, 1.0),
+        "block": rng.uniform(0.5, 2.0),
+        "probe": rng.uniform(0.2, 0.5),
+    }
+
+
+#: family -> how its parameters shape the drive (after the quiet start).
+FAMILIES = {"hold": _hold, "rise_again": _rise_again, "steps": _steps, "probe_blocks": _probe_blocks}
+
+
+def drive_of(family: str, params: dict, limits: RigLimits, period: float):
+    """``(time, current)`` of a family's drive with ``params``, or None outside the limits."""
+    b = _Builder(limits, period)
+    FAMILIES[family](b, params)
+    return b.finish()
+
+
+# -- the criterion ---------------------------------------------------------------------------
+
+
+def _predicted(c: Contender, time, current) -> np.ndarray | None:
+    y, valid = c.model.evaluate(c.theta, time, current)
+    return y[0] if valid[0] else None
+
+
+def discrimination(truth: Contender, rival: Contender, time, current, noise: NoiseModel) -> tuple[float, float]:
+    """``(gap, noise sd of the gap)``: the chi-square gap the proposed drive shows between ``truth``
+    and ``rival`` once the rival is refitted to mimic it, linearised (module docstring)."""
+    y_true = _predicted(truth, time, current)
+    if y_true is None:
+        return 0.0, 0.0
+    record = Record(time, current, y_true, source="the proposed drive", sha256="")
+    residuals = WhitenedResiduals(record, rival.model, noise)
+    x = rival.theta[residuals.free]
+    d = residuals(x)
+    jac = residuals.jacobian(x)
+    zero = np.full((d.size, 1), -1.0 / noise.sigma)  # the new record's sensor zero
+    jac = np.hstack([jac, zero])
+    info = np.zeros((jac.shape[1], jac.shape[1]))
+    info[:-1, :-1] = rival.info[np.ix_(residuals.free, residuals.free)]
+    step = -np.linalg.pinv(jac.T @ jac + info, rcond=1e-12) @ (jac.T @ d)
+    r = d + jac @ step
+    gap = float(r @ r + step @ info @ step)
+    return gap, 2.0 * float(np.sqrt(r @ r))
+
+
+def p_right(gap: float, sd: float, th: Thresholds) -> float:
+    """The probability that the diagnosis names the truth: the gap beyond ``bic_significant`` and
+    ``gap_z`` of its noise sd (module docstring)."""
+    if not sd > 0:
+        return 1.0 if gap > th.bic_significant else 0.0
+    return float(stats.norm.cdf((gap - max(th.bic_significant, th.gap_z * sd)) / sd))
+
+
+@dataclass
+class DesignedDrive:
+    """One proposed drive with its predicted discrimination."""
+
+    family: str
+    params: dict
+    time: np.ndarray
+    current: np.ndarray
+    pairs: list = field(default_factory=list)
+    value: float = 0.0
+    confirmed: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "family": self.family,
+            "params": {k: (v if not isinstance(v, float) else float(v)) for k, v in self.params.items()},
+            "samples": int(self.time.size),
+            "rms_current": float(np.sqrt(np.mean(self.current**2))),
+            "pairs": [dict(p) for p in self.pairs],
+            "value": float(self.value),
+            "confirmed": [dict(c) for c in self.confirmed],
+        }
+
+
+def evaluate(drive: DesignedDrive, contenders, noise: NoiseModel, th: Thresholds, step: int = 1) -> DesignedDrive:
+    """Every ordered pair's predicted gap, its sd and the chance of a right name on ``drive`` (on
+    every ``step``-th sample); the drive's value is the smallest chance (maximin)."""
+    pairs = []
+    time, current = drive.time[::step], drive.current[::step]
+    for truth in contenders:
+        for rival in contenders:
+            if rival is truth:
+                continue
+            gap, sd = discrimination(truth, rival, time, current, noise)
+            pairs.append(
+                {"truth": truth.name, "rival": rival.name, "gap": gap, "noise_sd": sd, "p_right": p_right(gap, sd, th)}
+            )
+    drive.pairs = pairs
+    drive.value = min((p["p_right"] for p in pairs), default=0.0)
+    return drive
+
+
+# -- confirmation by simulation ---------------------------------------------------------------
+
+
+def _penalised_refit(c: Contender, record: Record, noise: NoiseModel, theta0) -> tuple[float, np.ndarray]:
+    """``c`` refitted on ``record`` (its transducer held by the records' information, the new run's
+    parameters and zero free), from ``theta0``: ``(chi2 with the penalty, whitened residual)``."""
+    residuals = WhitenedResiduals(record, c.model, noise)
+    free = residuals.free
+    info = c.info[np.ix_(free, free)]
+    values, vectors = np.linalg.eigh(0.5 * (info + info.T))
+    root = (vectors * np.sqrt(np.clip(values, 0.0, None))).T  # root.T @ root = info
+    centre = c.theta[free]
+    scale = 1.0 / noise.sigma
+
+    def objective(z):
+        x, zero = z[:-1], z[-1]
+        return np.concatenate([residuals(x) - zero * scale, root @ (x - centre)])
+
+    def jacobian(z):  # the residuals' own batched Jacobian, the zero's column and the penalty's rows
+        jac = np.zeros((record.time.size + root.shape[0], z.size))
+        jac[: record.time.size, :-1] = residuals.jacobian(z[:-1])
+        jac[: record.time.size, -1] = -scale
+        jac[record.time.size :, :-1] = root
+        return jac
+
+    start = np.concatenate([np.clip(theta0[free], residuals.lower, residuals.upper), [0.0]])
+    lower = np.concatenate([residuals.lower, [-np.inf]])
+    upper = np.concatenate([residuals.upper, [np.inf]])
+    with single_threaded_blas():  # small dense algebra: threads only compete with the model
+        sol = least_squares(
+            objective, start, jac=jacobian, bounds=(lower, upper), method="trf", max_nfev=40, x_scale="jac"
+        )
+    r = objective(sol.x)
+    return float(r @ r), r[: record.time.size]
+
+
+def confirm(
+    drive: DesignedDrive,
+    contenders,
+    noise: NoiseModel,
+    th: Thresholds,
+    rng,
+    draws=CONFIRM_DRAWS,
+    step: int = 1,
+    scale=None,
+) -> list:
+    """Each contender as the truth, drawn from its fit's covariance, drives the proposed record
+    (every ``step``-th sample) with noise; every contender is refitted on it
+    (:func:`_penalised_refit`); a right name is the truth ahead of every rival by the decision's
+    margins. Per ordered pair: the realised gaps (times ``scale[(truth, rival)]``, the full
+    record's prediction over this one's) and the share of right names."""
+    scale = {} if scale is None else scale
+    time, current = drive.time[::step], drive.current[::step]
+    rows = []
+    for truth in contenders:
+        realised = {rival.name: [] for rival in contenders if rival is not truth}
+        right = 0
+        for _ in range(draws):
+            theta = _drawn(truth, rng)
+            y, valid = truth.model.evaluate(theta, time, current)
+            if not valid[0]:
+                continue
+            data = y[0] + noise.sigma * rng.standard_normal(time.size)
+            record = Record(time, current, data, source="simulated next record", sha256="")
+            chi2_true, r_true = _penalised_refit(truth, record, noise, theta)
+            ok = True
+            for rival in contenders:
+                if rival is truth:
+                    continue
+                chi2, r = _penalised_refit(rival, record, noise, rival.theta)
+                factor = scale.get((truth.name, rival.name), 1.0)
+                gap, sd = factor * (chi2 - chi2_true), 2.0 * math.sqrt(factor) * float(np.linalg.norm(r - r_true))
+                realised[rival.name].append(gap)
+                ok &= gap > th.bic_significant and (sd == 0 or gap / sd > th.gap_z)
+            right += ok
+        for rival, gaps in realised.items():
+            rows.append(
+                {
+                    "truth": truth.name,
+                    "rival": rival,
+                    "realised_gaps": [float(g) for g in gaps],
+                    "right_names": right,
+                    "draws": draws,
+                }
+            )
+    return rows
+
+
+def _drawn(c: Contender, rng) -> np.ndarray:
+    """A draw of the contender's transducer parameters from its fit's covariance, within two standard
+    deviations along each of the covariance's own axes (a poorly determined combination is not sent
+    to a bound); the run's own parameters as fitted."""
+    cov = np.asarray(c.covariance, dtype=float)
+    per_record = np.array([p.per_record for p in c.model.parameters])
+    free = np.flatnonzero((np.diag(cov) > 0) & ~per_record)
+    theta = np.array(c.theta, dtype=float)
+    if free.size:
+        sub = cov[np.ix_(free, free)]
+        values, vectors = np.linalg.eigh(0.5 * (sub + sub.T))
+        z = np.clip(rng.standard_normal(free.size), -2.0, 2.0)  # in the covariance's own axes
+        theta[free] += vectors @ (np.sqrt(np.clip(values, 0.0, None)) * z)
+    return np.clip(theta, c.model.parameters.lower, c.model.parameters.upper)
+
+
+# -- the design --------------------------------------------------------------------------------
+
+
+@dataclass
+class Design:
+    """The proposed next record and what it is expected to decide."""
+
+    contenders: list
+    limits: RigLimits
+    best: DesignedDrive
+    ranked: list
+    noise_sigma: float
+    reason: str
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {
+            "contenders": [c.name for c in self.contenders],
+            "limits": self.limits.to_dict(),
+            "noise_sigma": float(self.noise_sigma),
+            "best": self.best.to_dict(),
+            "others": [d.to_dict() for d in self.ranked[1:]],
+            "reason": self.reason,
+            "seconds": float(self.seconds),
+        }
+
+
+def _period(records) -> float:
+    """The records' drive period [s] (twice the median time between reversals), at least 2 s."""
+    from ..data.reversals import find_reversals
+
+    periods = []
+    for r in records:
+        index = np.asarray(find_reversals(np.asarray(r.current)).index)
+        if index.size >= 3:
+            periods.append(2.0 * float(np.median(np.diff(np.asarray(r.time)[index]))))
+    return max(float(np.median(periods)) if periods else 10.0, 2.0)
+
+
+def search(
+    contenders,
+    limits: RigLimits,
+    noise: NoiseModel,
+    th: Thresholds,
+    rng,
+    period: float,
+    per_family=DRIVES_PER_FAMILY,
+    say=None,
+    step: int = 1,
+) -> list:
+    """Drives of every family drawn within the limits and evaluated (on every ``step``-th sample), best first."""
+    say = say or (lambda message: None)
+    drives = []
+    for family in FAMILIES:
+        say(f"searching the '{family}' drives ({per_family} shapes)")
+        for _ in range(per_family):
+            params = _draw(rng, family)
+            made = drive_of(family, params, limits, period)
+            if made is not None:
+                drives.append(evaluate(DesignedDrive(family, params, *made), contenders, noise, th, step))
+    if not drives:
+        raise ValueError(
+            "no drive of any family fits the limits (the duration, the RMS current limit or the slew leave no "
+            "room after the quiet start): loosen --duration, --max-rms-current or --max-slew"
+        )
+    drives.sort(key=_rank)
+    return drives
+
+
+def _rank(drive: DesignedDrive):
+    """Best first: the highest smallest chance of a right name, then the largest smallest gap."""
+    return -drive.value, -min((p["gap"] for p in drive.pairs), default=0.0)
+
+
+def design_drive(
+    contenders,
+    records,
+    noise: NoiseModel,
+    *,
+    limits: RigLimits | None = None,
+    thresholds=None,
+    rng=None,
+    per_family=DRIVES_PER_FAMILY,
+    n_confirm=CONFIRMED,
+    progress=None,
+) -> Design:
+    """The next record that best decides between ``contenders`` (module docstring).
+
+    Parameters
+    ----------
+    contenders : sequence of Contender
+        Two or more explanations to tell apart (:func:`contenders_of`).
+    records : sequence of Record
+        The records already taken (the limits' defaults, the drive's period).
+    noise : NoiseModel
+        The sensor's noise (its sigma and correlation) for the next record.
+    limits : RigLimits, optional
+        Default :meth:`RigLimits.from_records`.
+    thresholds : Thresholds, optional
+    rng : numpy.random.Generator, optional
+    per_family : int
+        Drives drawn per family.
+    n_confirm : int
+        Best drives confirmed by simulation.
+    progress : callable(str), optional
+
+    Returns
+    -------
+    Design
+    """
+    t0 = _time.perf_counter()
+    say = progress or (lambda message: None)
+    th = Thresholds() if thresholds is None else thresholds
+    rng = np.random.default_rng(0) if rng is None else rng
+    if len(contenders) < 2:
+        raise ValueError("a design needs two or more contenders to tell apart")
+    limits = RigLimits.from_records(records) if limits is None else limits
+    step = max(1, math.ceil(limits.duration * limits.fs / DESIGN_SAMPLES))
+    ranked = search(contenders, limits, noise, th, rng, _period(records), per_family, say, step)
+    top = ranked[: max(n_confirm, 1)]
+    coarse = {id(d): {(p["truth"], p["rival"]): p["gap"] for p in d.pairs} for d in top}
+    if step > 1:
+        say(f"the best {len(top)} drives on every sample")
+        for drive in top:
+            evaluate(drive, contenders, noise, th)
+        top.sort(key=_rank)
+    for drive in top[:n_confirm]:
+        say(f"confirming a '{drive.family}' drive by simulation")
+        scale = {
+            (p["truth"], p["rival"]): p["gap"] / coarse[id(drive)][p["truth"], p["rival"]]
+            for p in drive.pairs
+            if coarse[id(drive)][p["truth"], p["rival"]] > 0
+        }
+        drive.confirmed = confirm(drive, contenders, noise, th, rng, step=step, scale=scale)
+    ranked = top + ranked[len(top) :]
+    best = ranked[0]
+    worst = min(best.pairs, key=lambda p: p["p_right"])
+    reason = (
+        f"The '{best.family}' drive separates every pair: its weakest, '{worst['truth']}' against "
+        f"'{worst['rival']}', shows a gap of {worst['gap']:.0f} (noise sd {worst['noise_sd']:.3g}) after the rival "
+        f"is refitted to mimic it, a {100 * worst['p_right']:.0f} % chance that the joint diagnosis names the right "
+        "one."
+    )
+    return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0)
+
+
+def _explanation_model(name: str, model: Model) -> Model:
+    """``model`` plus the effects of explanation ``name`` (``"creep"``, ``"creep+sensor_drift"``);
+    an unknown effect or one already in the model is a ValueError naming it."""
+    for effect in name.split("+"):
+        get_effect(effect)
+        if effect in model.effect_names:
+            raise ValueError(f"candidate '{name}': '{effect}' is already in the model {model!r}")
+    return model + name.split("+")
+
+
+def fitted_contenders(records, model: Model, names, noises, *, n_starts: int = 4, rng=None, say=None) -> list:
+    """Each explanation of ``names`` fitted by least squares on the records (jointly when several)
+    as a :class:`Contender`."""
+    say = say or (lambda message: None)
+    found = []
+    for name in names:
+        model_e = _explanation_model(name, model)
+        say(f"least squares with '{name}'")
+        if len(records) == 1:
+            fit = fit_least_squares(records[0], model_e, noise=noises[0], n_starts=n_starts, rng=rng)
+            found.append(contender(name, fit.model, fit.theta, fit.covariance))
+        else:
+            jf = fit_joint(records, model_e, noises, n_starts=n_starts, rng=rng)
+            n = jf.model.n_parameters
+            found.append(contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n]))
+    return found
+
+
+def design(
+    records,
+    model=None,
+    candidates=None,
+    *,
+    limits: RigLimits | None = None,
+    diagnosis=None,
+    thresholds=None,
+    rng=None,
+    n_starts: int = 4,
+    per_family=DRIVES_PER_FAMILY,
+    n_confirm=CONFIRMED,
+    progress=None,
+) -> Design:
+    """The next record to take: the drive that best decides between the explanations the records
+    leave tied (module docstring).
+
+    Parameters
+    ----------
+    records : Record or sequence of Record
+        The records of the transducer taken so far.
+    model : Model or sequence of str, optional
+        The model diagnosed (default the normalised plain GPI).
+    candidates : sequence of str, optional
+        The explanations to tell apart (``"creep"``, ``"thermal+lag"``); default the tie of the
+        records' diagnosis (run here unless ``diagnosis`` is given).
+    limits : RigLimits, optional
+        Default :meth:`RigLimits.from_records`.
+    diagnosis : Diagnosis or JointDiagnosis, optional
+        The records' diagnosis, when already made.
+    thresholds : Thresholds, optional
+    rng : numpy.random.Generator, optional
+    n_starts : int, default 4
+        Least-squares starts of each candidate's fit (with ``candidates``).
+    per_family, n_confirm : int
+        Drives drawn per family; best drives confirmed by simulation.
+    progress : callable(str), optional
+
+    Returns
+    -------
+    Design
+    """
+    say = progress or (lambda message: None)
+    rng = np.random.default_rng(0) if rng is None else rng
+    records = check_records([records] if isinstance(records, Record) else records)
+    if model is None or not isinstance(model, Model):
+        model = normalised_model(Model([] if model is None else list(model)))
+    noises = []
+    for record in records:
+        try:
+            noises.append(estimate_noise(record))
+        except ValueError as exc:
+            raise ValueError(f"{record.source}: {exc}") from None
+    limits = RigLimits.from_records(records) if limits is None else limits
+    if candidates is not None:
+        candidates = list(candidates)
+        if len(candidates) < 2:
+            raise ValueError(f"--candidates needs two or more explanations to tell apart, got {candidates}")
+        for name in candidates:
+            _explanation_model(name, model)
+        contenders = fitted_contenders(records, model, candidates, noises, n_starts=n_starts, rng=rng, say=say)
+    else:
+        if diagnosis is None:
+            say("diagnosing the records")
+            diagnosis = diagnose(records if len(records) > 1 else records[0], model, rng=rng, progress=say)
+        contenders = contenders_of(diagnosis)
+    return design_drive(
+        contenders,
+        records,
+        noises[0],
+        limits=limits,
+        thresholds=thresholds,
+        rng=rng,
+        per_family=per_family,
+        n_confirm=n_confirm,
+        progress=say,
+    )

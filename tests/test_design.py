@@ -1,0 +1,176 @@
+"""Design the next experiment (identify.workflows.design, ``python -m identify design``)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from identify.bench import simulate
+from identify.cli import main
+from identify.data.records import write_record
+from identify.diagnosis import Thresholds
+from identify.fitting.noise import estimate_noise
+from identify.fitting.parametrisation import normalised_model
+from identify.workflows.design import (
+    FAMILIES,
+    RigLimits,
+    _draw,
+    contender,
+    discrimination,
+    drive_of,
+    fitted_contenders,
+    p_right,
+)
+from model import Model
+
+LIMITS = RigLimits((0.0, 5.0), max_slew=1.6, duration=110.0, max_rms_current=2.6, fs=10.0, quiet=10.0)
+
+
+@pytest.mark.parametrize("family", list(FAMILIES))
+def test_every_drive_keeps_the_rigs_limits_and_starts_quiet(family):
+    rng = np.random.default_rng(1)
+    made = 0
+    for _ in range(30):
+        drive = drive_of(family, _draw(rng, family), LIMITS, period=10.0)
+        if drive is None:  # beyond the duration or the RMS limit: refused, never clipped
+            continue
+        made += 1
+        time, current = drive
+        assert time[0] == 0.0 and np.allclose(np.diff(time), 0.1) and time[-1] == pytest.approx(110.0)
+        assert current.min() >= 0.0 and current.max() <= 5.0 + 1e-12
+        assert np.all(current[time < 10.0] == 0.0)  # the quiet start the noise needs
+        assert np.max(np.abs(np.diff(current))) / 0.1 <= 1.6 * 1.0001
+        assert np.sqrt(np.mean(current**2)) <= 2.6
+    assert made >= 5
+
+
+@pytest.mark.parametrize(
+    "given, problem",
+    [
+        ({"current_range": (5.0, 0.0)}, "LO < HI"),
+        ({"max_slew": 0.0}, "max slew must be > 0"),
+        ({"duration": 8.0}, "leaves nothing after the 10 s quiet start"),
+        ({"max_rms_current": -1.0}, "max rms current must be > 0"),
+    ],
+)
+def test_bad_limits_are_refused_in_one_sentence(given, problem):
+    values = {
+        "current_range": (0.0, 5.0),
+        "max_slew": 1.6,
+        "duration": 110.0,
+        "max_rms_current": 2.6,
+        "fs": 10.0,
+        "quiet": 10.0,
+    } | given
+    with pytest.raises(ValueError, match=problem):
+        RigLimits(**values)
+
+
+def test_the_criterion_is_zero_for_a_rival_that_can_be_the_truth_and_positive_otherwise():
+    """A rival that contains the truth's physics (the same model) mimics it exactly: no gap. A rival
+    without it keeps a gap the noise cannot explain on a drive that shows the effect."""
+    sim = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
+    model = normalised_model(Model(["thermal"]))
+    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    covariance = np.diag(np.where(model.parameters.vary, 1e-4, 0.0))
+    truth = contender("thermal", model, theta, covariance)
+    plain = normalised_model(Model())
+    rival = contender(
+        "plain", plain, theta[: plain.n_parameters], covariance[: plain.n_parameters, : plain.n_parameters]
+    )
+    hot = RigLimits((0.0, 5.0), max_slew=1.6, duration=110.0, max_rms_current=4.0, fs=10.0, quiet=10.0)
+    time, current = drive_of("hold", {"cycles": 2, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, hot, 10.0)
+    noise = estimate_noise(sim.record)
+    gap, sd = discrimination(truth, truth, time, current, noise)
+    assert abs(gap) < 1e-6
+    gap, sd = discrimination(truth, rival, time, current, noise)
+    assert gap > 100.0 and sd > 0
+    assert p_right(gap, sd, Thresholds()) > 0.99
+    assert p_right(5.0, 1.0, Thresholds()) < 0.01  # a gap below bic_significant names nothing
+
+
+@pytest.fixture(scope="module")
+def creep_csv(tmp_path_factory):
+    sim = simulate("creep_amplitude=0.03", seed=1, fs=5.0)
+    path = tmp_path_factory.mktemp("design") / "creep.csv"
+    write_record(path, sim.record, sidecar=sim.truth)
+    return path
+
+
+def test_the_design_command_writes_the_drive_its_numbers_and_a_page(creep_csv, tmp_path, capsys):
+    out = tmp_path / "next"
+    args = [
+        "design",
+        str(creep_csv),
+        "--out",
+        str(out),
+        "--candidates",
+        "creep,thermal",
+        "--duration",
+        "110",
+        "--drives",
+        "4",
+        "--n-starts",
+        "2",
+        "--quiet",
+    ]
+    assert main(args) == 0
+    drive = np.loadtxt(out / "next_input.csv", delimiter=",", skiprows=1)
+    assert drive[0, 0] == 0.0 and drive[-1, 0] == pytest.approx(110.0) and np.all(drive[drive[:, 0] < 10.0, 1] == 0)
+    content = json.loads((out / "design.json").read_text())
+    assert content["contenders"] == ["creep", "thermal"]
+    pairs = content["best"]["pairs"]
+    assert {(p["truth"], p["rival"]) for p in pairs} == {("creep", "thermal"), ("thermal", "creep")}
+    assert all(p["gap"] >= 0 and p["noise_sd"] >= 0 and 0 <= p["p_right"] <= 1 for p in pairs)
+    assert content["best"]["confirmed"]  # the best drives were simulated
+    page = (out / "design.html").read_text()
+    assert "next_input.csv" in page and "data:image/png;base64," in page
+    # the same transducer driven by the proposed drive: the bench's simulate takes it
+    run = tmp_path / "run2.csv"
+    assert (
+        main(
+            [
+                "simulate",
+                "--out",
+                str(run),
+                "--input",
+                str(out / "next_input.csv"),
+                "--truth",
+                str(creep_csv.with_suffix(".json")),
+                "--seed",
+                "3",
+            ]
+        )
+        == 0
+    )
+    assert json.loads(run.with_suffix(".json").read_text())["theta"]["creep_amplitude"] == pytest.approx(0.03)
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--candidates", "creep,warp"], "unknown effect 'warp'"),
+        (["--candidates", "creep"], "two or more"),
+        (["--current-range", "5:0"], "LO < HI"),
+        (["--duration", "5"], "quiet start"),
+    ],
+)
+def test_bad_design_input_is_one_line_exit_2_and_nothing_written(creep_csv, tmp_path, capsys, extra, message):
+    out = tmp_path / "never"
+    assert main(["design", str(creep_csv), "--out", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_fitted_contenders_hold_what_the_records_say():
+    """A contender's information on its transducer parameters comes from its fit; the run's own
+    parameters (a drift) carry none to a new record."""
+    sim = simulate("sensor_drift_linear=1.1", seed=1, fs=5.0)
+    noise = estimate_noise(sim.record)
+    (drift,) = fitted_contenders([sim.record], normalised_model(Model()), ["sensor_drift"], [noise], n_starts=1)
+    names = drift.model.names
+    column = names.index("sensor_drift_linear")
+    assert np.all(drift.info[column] == 0) and drift.info[names.index("rho"), names.index("rho")] > 0
