@@ -132,3 +132,16 @@ def test_the_joint_diagnosis_names_creep_with_a_record_of_holds():
     assert d.status == "missing_effect" and d.missing == "creep", d.reason
     assert d.adequate_by_record["creep"] == [True, True]
     assert len(d.to_dict()["records"]) == 2
+
+
+def test_the_diagnose_command_refuses_a_record_given_twice(tmp_path, capsys):
+    from identify.cli import main
+    from identify.data.records import write_record
+
+    path = tmp_path / "a.csv"
+    write_record(path, simulate(None, seed=1, fs=5.0).record)
+    out = tmp_path / "never"
+    assert main(["diagnose", str(path), str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "a record given twice" in err and err.count("\n") == 1
+    assert not (out / "diagnosis.json").exists()

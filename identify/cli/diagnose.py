@@ -33,7 +33,7 @@ HELP = "least squares + diagnosis: is the residual noise, and which physical eff
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .common import add_model_arguments, add_record_arguments
 
-    add_record_arguments(parser)
+    add_record_arguments(parser, several=True)
     add_model_arguments(parser)
     parser.set_defaults(n_starts=6)
     parser.add_argument(
@@ -65,8 +65,10 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
 
     Parameters
     ----------
-    diagnosis : Diagnosis
-    record : Record
+    diagnosis : Diagnosis or JointDiagnosis
+    record : Record or list of Record
+        The record (each record of a joint diagnosis: its figures are those of the record alone,
+        ``record<k>_<stem>.png``).
     json_path : path-like, optional
     out_dir : path-like, optional
         Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure.
@@ -90,10 +92,14 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
         figure_dir.mkdir(parents=True, exist_ok=True)
         for stale in figure_dir.glob("*.png"):  # figures of an earlier diagnosis must not mix in
             stale.unlink()
-        for stem, figure in diagnosis_figures(diagnosis, record).items():
-            path = figure_dir / f"{stem}.png"
-            atomic_write(path, lambda fh, figure=figure: figure.savefig(fh, format="png", dpi=100))
-            written.append(str(path))
+        records = record if isinstance(record, (list, tuple)) else [record]
+        alone = getattr(diagnosis, "alone", None) or [diagnosis]
+        for r, (one, rec) in enumerate(zip(alone, records), start=1):
+            prefix = f"record{r}_" if len(records) > 1 else ""  # each record's own figures
+            for stem, figure in diagnosis_figures(one, rec).items():
+                path = figure_dir / f"{prefix}{stem}.png"
+                atomic_write(path, lambda fh, figure=figure: figure.savefig(fh, format="png", dpi=100))
+                written.append(str(path))
         write_json(out / DIAGNOSIS_FILE, content)
         written.append(str(out / DIAGNOSIS_FILE))
     return written
@@ -111,7 +117,8 @@ def run(args) -> int:
             return 2
     if args.out is None:
         return _run(args)
-    with FolderLock(args.out, command=f"python -m identify diagnose {args.data} --out {args.out}"):
+    data = " ".join(args.data) if isinstance(args.data, (list, tuple)) else args.data
+    with FolderLock(args.out, command=f"python -m identify diagnose {data} --out {args.out}"):
         return _run(args)
 
 
@@ -123,16 +130,20 @@ def _run(args) -> int:
     from ..data.records import RecordError
     from ..diagnosis import diagnose
     from ..fitting.noise import NoQuietSegmentError
-    from .common import model_from_args, noise_from_args, record_from_args
+    from .common import model_from_args, noise_from_args, records_from_args
 
     try:
-        record = record_from_args(args)
+        records = records_from_args(args)
         if getattr(args, "drop_window", None):
             from ..data.realdata import drop_window
 
-            record = drop_window(record, *parse_window(args.drop_window))
+            records = [drop_window(r, *parse_window(args.drop_window)) for r in records]
         model = model_from_args(args)
-        noise = noise_from_args(args, record)
+        if len(records) > 1 and args.noise_sigma is not None:
+            raise ValueError(
+                "several records are each whitened with their own quiet start: --noise-sigma applies to one"
+            )
+        noise = noise_from_args(args, records[0]) if len(records) == 1 else None
     except (RecordError, NoQuietSegmentError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -141,7 +152,9 @@ def _run(args) -> int:
     def progress(message):  # INFO: hidden by -q (the old --quiet)
         say(f"[{time.perf_counter() - started:6.1f} s] {message}")
 
-    progress(f"diagnosing {model!r} on {record.source} ({len(record.time)} samples)")
+    sources = ", ".join(f"{r.source} ({len(r.time)} samples)" for r in records)
+    progress(f"diagnosing {model!r} on {sources}")
+    record = records[0] if len(records) == 1 else records
     try:
         result = diagnose(
             record, model, noise=noise, n_starts=args.n_starts, rng=np.random.default_rng(args.seed), progress=progress
