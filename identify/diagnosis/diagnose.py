@@ -359,9 +359,8 @@ def diagnose(
     record : identify.data.records.Record or sequence of Record
         ``time`` [s], ``current`` [A], ``displacement`` [um], shape (T,), with an unenergised
         start (the noise reference, at least 20 samples) unless ``noise`` gives a sigma.
-        Several records of one transducer are diagnosed together
-        (:func:`identify.diagnosis.joint.diagnose_records`; ``noise`` and ``fit`` are then
-        each record's own, from its quiet start): a :class:`JointDiagnosis`.
+        Several records of one transducer are diagnosed together, each from its own quiet start
+        (:func:`identify.diagnosis.joint.diagnose_records`): a :class:`JointDiagnosis`.
     model : Model or sequence of str, optional
         The model to diagnose; effect names give the normalised GPI plus those effects
         (:func:`identify.fitting.parametrisation.normalised_model`); default the plain GPI.
@@ -381,7 +380,7 @@ def diagnose(
 
     Returns
     -------
-    Diagnosis
+    Diagnosis or JointDiagnosis
 
     Raises
     ------
@@ -392,25 +391,12 @@ def diagnose(
     if isinstance(record, (list, tuple)):
         record = check_records(record)
         if len(record) > 1:
-            if noise is not None or fit is not None or candidates is not None:
-                raise ValueError(
-                    "several records are diagnosed each from its own quiet start: noise, fit and "
-                    "candidates apply to one record"
-                )
-            return diagnose_records(
-                record,
-                model,
-                diagnose_one=diagnose,
-                thresholds=thresholds,
-                n_starts=n_starts,
-                rng=rng,
-                progress=progress,
-            )
+            return _diagnose_several(record, model, noise, fit, candidates, thresholds, n_starts, rng, progress)
         record = record[0]
     t_start = _time.perf_counter()
     thresholds = Thresholds() if thresholds is None else thresholds
-    say = progress or (lambda message: None)
     rng = np.random.default_rng(0) if rng is None else rng
+    say = progress or (lambda message: None)
     model, candidates = model_and_candidates(model, fit, candidates)
     noise = known_noise(record, noise, fit)
     quiet = noise.quiet if noise.quiet is not None else quiet_segment(record.current)
@@ -424,6 +410,13 @@ def diagnose(
     quiet, noise_ref = noise_reference(record, fit, noise, quiet)
     s = Setting(record, work, quiet, noise_ref, thresholds, n_starts, rng, say, candidates, redundant, sign_baselines)
     rnd = search(s, fit)
+    decision, evidence = _finish(s, rnd)
+    return _diagnosis(rnd, decision, evidence, s.redundant, t_start)
+
+
+def _finish(s: Setting, rnd: Round) -> tuple[Decision, Evidence]:
+    """The targeted refits or the pairs the first round calls for, then the evidence and the decision."""
+    thresholds = s.thresholds
     if rnd.adequacy.adequate and thresholds.targeted_refits:
         promising = [c.effect for c in _unrefitted(rnd) if c.delta_bic > thresholds.bic_significant]
         _targeted(s, rnd, promising[: thresholds.max_refits])
@@ -434,7 +427,17 @@ def diagnose(
     if _check_rivals(s, rnd, decision):
         evidence = gather_evidence(rnd)
         decision = decide(evidence, thresholds)
-    return _diagnosis(rnd, decision, evidence, s.redundant, t_start)
+    return decision, evidence
+
+
+def _diagnose_several(records, model, noise, fit, candidates, thresholds, n_starts, rng, progress):
+    if noise is not None or fit is not None or candidates is not None:
+        raise ValueError(
+            "several records are diagnosed each from its own quiet start: noise, fit and candidates apply to one record"
+        )
+    return diagnose_records(
+        records, model, diagnose_one=diagnose, thresholds=thresholds, n_starts=n_starts, rng=rng, progress=progress
+    )
 
 
 def _diagnosis(rnd: Round, decision: Decision, evidence: Evidence, redundant, t_start: float) -> Diagnosis:

@@ -317,18 +317,7 @@ def diagnose_records(
     evidence = _evidence(ctx, ranking)
     decision = decide(evidence, thresholds)
     reason = explain(decision, evidence, thresholds, where_text(ctx.profiles[_worst(ctx)]))
-    rows = [
-        {
-            "source": rec.source,
-            "samples": len(rec.time),
-            "noise_sigma": float(f.noise.sigma),
-            "rms": float(f.rms),
-            "adequate": bool(a.adequate),
-            "failed": list(a.failed),
-            "alone": d.verdict_text(),
-        }
-        for rec, f, a, d in zip(records, baseline.fits, ctx.adequacies, alone)
-    ]
+    rows = _record_rows(records, baseline, ctx, alone)
     return JointDiagnosis(
         decision.status,
         decision.missing,
@@ -348,6 +337,21 @@ def diagnose_records(
         [c for c in ranking if "+" in c.effect],
         joint_fits,
     )
+
+
+def _record_rows(records, baseline, ctx, alone) -> list[dict]:
+    return [
+        {
+            "source": rec.source,
+            "samples": len(rec.time),
+            "noise_sigma": float(f.noise.sigma),
+            "rms": float(f.rms),
+            "adequate": bool(a.adequate),
+            "failed": list(a.failed),
+            "alone": d.verdict_text(),
+        }
+        for rec, f, a, d in zip(records, baseline.fits, ctx.adequacies, alone)
+    ]
 
 
 def _worst(ctx: _Joint) -> int:
