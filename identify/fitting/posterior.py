@@ -754,27 +754,23 @@ def chain_diagnostics(draws) -> dict[str, np.ndarray]:
     effective sample sizes (``arviz.ess``, ``method="bulk"``/``"tail"``), and the Monte
     Carlo standard errors of the mean and of the standard deviation (``arviz.mcse``,
     ``method="mean"``/``"sd"``). NaN where ArviZ gives no value (fewer than 4 draws per
-    walker).
+    walker). The figures are ``az.summary(kind="diagnostics")``'s, computed by
+    :func:`identify.fitting.mcmc_diagnostics.multichain_statistics` with ArviZ's
+    arithmetic but without importing ArviZ (2-6 s) or its xarray machinery.
     """
+    from .mcmc_diagnostics import multichain_statistics
+
     draws = np.asarray(draws, dtype=float)
     n_dim = draws.shape[2]
     out = {k: np.full(n_dim, np.nan) for k in DIAGNOSTICS}
     if draws.shape[0] < 4:
         return out
-    az = import_arviz()
-    # one az.summary call (its mcse_sd path also works where az.mcse(method="sd") on an
-    # array fails with numpy 2); full precision, one variable per parameter
-    data = {f"p{d}": np.ascontiguousarray(draws[:, :, d].T) for d in range(n_dim)}  # (chain, draw)
-    table = az.summary(az.convert_to_dataset(data), kind="diagnostics", round_to="none")
-    columns = {
-        "rhat": "r_hat",
-        "ess_bulk": "ess_bulk",
-        "ess_tail": "ess_tail",
-        "mcse_mean": "mcse_mean",
-        "mcse_sd": "mcse_sd",
-    }
-    for key, column in columns.items():
-        out[key] = np.array([float(table.loc[f"p{d}", column]) for d in range(n_dim)])
+    for d in range(n_dim):
+        with np.errstate(invalid="ignore", divide="ignore"):  # a parameter that never moved: NaN, as ArviZ's
+            stats = multichain_statistics(np.ascontiguousarray(draws[:, :, d].T))  # (chain, draw)
+        mcse_mean, mcse_sd, ess_bulk, ess_tail, rhat = stats
+        out["rhat"][d], out["ess_bulk"][d], out["ess_tail"][d] = rhat, ess_bulk, ess_tail
+        out["mcse_mean"][d], out["mcse_sd"][d] = mcse_mean, mcse_sd
     return out
 
 
