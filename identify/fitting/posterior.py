@@ -113,6 +113,7 @@ __all__ = [
     "ESS_BULK_MIN",
     "DIAGNOSTICS",
     "chain_diagnostics",
+    "autocorrelation_times",
 ]
 
 
@@ -829,6 +830,15 @@ def _tau(chain, c=5.0) -> np.ndarray:
         window = int(np.argmin(inside)) if inside.any() else n_steps - 1
         tau[d] = taus[window]
     return np.where(np.isfinite(tau), tau, np.inf)  # a chain that never moved: no estimate
+
+
+def autocorrelation_times(chain) -> np.ndarray:
+    """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain
+    (:func:`_tau`: emcee's estimator to 1e-12 relative, one inverse FFT per parameter); NaN
+    where there is no estimate (a coordinate that never moved), as
+    :func:`emcee.autocorr.integrated_time` gives it."""
+    tau = _tau(np.asarray(chain, dtype=float))
+    return np.where(np.isfinite(tau), tau, np.nan)
 
 
 def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):
