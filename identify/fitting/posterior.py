@@ -393,6 +393,10 @@ class LogPosterior:
         Rows whose evaluation raised (and were given ``-inf``).
     """
 
+    #: One call scores every row ``(W, D) -> (W,)`` floats, never NaN, no blobs: the
+    #: sampler's moves call it directly (:func:`identify.fitting.coordinates._log_probabilities`).
+    vectorised_log_probability = True
+
     def __init__(self, record, model: Model, noise: NoiseModel, *, priors=None):
         model = in_record_units(model, record)  # default bounds in the record's unit prefixes
         self.time = np.asarray(record.time, dtype=float)
