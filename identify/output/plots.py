@@ -602,7 +602,11 @@ def trace_figure(chain, log_prob, labels, *, steps, discard):
     height = 1.9 * n_rows + 0.6
     fig = Figure(figsize=(15, height))  # fixed margins: constrained layout triples the drawing time here
     grid = dict(left=0.05, right=0.99, bottom=0.5 / height, top=1 - 0.8 / height, hspace=0.5, wspace=0.22)
-    axes = np.atleast_1d(fig.subplots(n_rows, n_cols, sharex=True, gridspec_kw=grid)).ravel()
+    # every panel's x range is that of the same steps: the same limits without sharing the
+    # axes (whose bookkeeping cost a third of the drawing), only the lowest panels labelled
+    axes = np.atleast_1d(fig.subplots(n_rows, n_cols, gridspec_kw=grid)).ravel()
+    for ax in axes:
+        ax.xaxis.set_tick_params(labelbottom=False)
     line_alpha = float(np.clip(8.0 / n_walkers, 0.08, 0.6))
     series = [(chain[:, :, i], labels[i]) for i in range(n_dim)] + [(log_prob, "log posterior")]
     for ax, (values, label) in zip(axes, series):
@@ -611,7 +615,7 @@ def trace_figure(chain, log_prob, labels, *, steps, discard):
         ax.add_collection(LineCollection(walkers, colors="black", linewidths=0.5, alpha=line_alpha))
         ax.autoscale_view()
         ax.axvspan(steps[0], discard, color="tab:orange", alpha=0.2, lw=0)
-        ax.set_title(label, fontsize=10)
+        ax.set_title(label, fontsize=10, y=1.0)  # where matplotlib puts it; given, it is not searched for
         ax.tick_params(labelsize=8)
     settled = log_prob[steps > discard]
     settled = settled[np.isfinite(settled)]
