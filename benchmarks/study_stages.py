@@ -48,6 +48,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 
 TIMES: dict[str, float] = defaultdict(float)
+CPU: dict[str, float] = defaultdict(float)
 CALLS: dict[str, int] = defaultdict(int)
 #: (parameter sets, numba threads) of every model call made inside sample_posterior.
 SAMPLER_BATCHES: list = []
@@ -63,13 +64,14 @@ def _wrap(owner, attribute, label):
     @functools.wraps(original)
     def timed(*args, **kwargs):
         depth[0] += 1
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             return original(*args, **kwargs)
         finally:
             depth[0] -= 1
             if depth[0] == 0:
                 TIMES[label] += time.perf_counter() - t0
+                CPU[label] += time.process_time() - c0
                 CALLS[label] += 1
 
     setattr(owner, attribute, timed)
@@ -196,6 +198,7 @@ def main(argv=None) -> int:
     model = Model(effects, n_operators=12, reading="swapped") if effects else None
     max_steps = args.max_steps or DEFAULT_MAX_STEPS
     TIMES.clear()
+    CPU.clear()
     CALLS.clear()
     SAMPLER_BATCHES.clear()
     t0 = time.perf_counter()
@@ -243,7 +246,7 @@ def main(argv=None) -> int:
     map_seconds = sum(TIMES.get(f"posterior: map {n}", 0.0) for n in ("forward", "inverse", "log_det"))
     for label in sorted(TIMES):
         per = f" ({1e3 * TIMES[label] / steps:.3f} ms/step)" if label.startswith("posterior: ") else ""
-        print(f"  {label:<46} {TIMES[label]:8.2f} s  {CALLS[label]:7d} calls{per}")
+        print(f"  {label:<46} {TIMES[label]:8.2f} s (CPU {CPU[label]:7.2f} s) {CALLS[label]:7d} calls{per}")
     moves = TIMES.get("posterior: moves (incl. log-posterior)", 0.0)
     log_post = TIMES.get("posterior: log-posterior calls", 0.0)
     outside = (
