@@ -125,6 +125,14 @@ def _replay(record) -> tuple[float, float, int, int]:
     return wall, cpu, len(SAMPLER_BATCHES), rows
 
 
+def _thread_counts() -> str:
+    """How many of the recorded sampler calls ran at each numba thread count."""
+    counts: dict[int, int] = defaultdict(int)
+    for _model, _theta, n_threads in SAMPLER_BATCHES:
+        counts[n_threads] += 1
+    return ", ".join(f"{n} at {k} thread{'s' if k > 1 else ''}" for k, n in sorted(counts.items()))
+
+
 def _instrument():
     import identify.fitting.coordinates as coordinates
     import identify.fitting.inference as inference
@@ -273,7 +281,8 @@ def main(argv=None) -> int:
     print(
         f"sampling {sampling:.2f} s beside the pure forward model of the same {n_calls} calls ({n_rows} parameter "
         f"sets) replayed through Model.evaluate at the sampler's thread counts: {replay_wall:.2f} s "
-        f"(CPU {replay_cpu:.2f} s); ratio {sampling / max(replay_wall, 1e-9):.2f} (target <= 1.5)"
+        f"(CPU {replay_cpu:.2f} s); ratio {sampling / max(replay_wall, 1e-9):.2f} (target <= 1.5); CPU ratio "
+        f"{CPU.get('posterior: sample_posterior', 0.0) / max(replay_cpu, 1e-9):.2f}; calls {_thread_counts()}"
     )
     sizes = {p.name: p.stat().st_size for p in out.rglob("*") if p.is_file()}
     print(
