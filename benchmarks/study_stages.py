@@ -85,10 +85,17 @@ def _record_sampler_batches(composite, posterior):
     _EVALUATE.append(evaluate)
 
     @functools.wraps(evaluate)
-    def recorded(self, theta, time, current):
-        if _SAMPLING[0]:
-            SAMPLER_BATCHES.append((self, np.array(theta), numba.get_num_threads()))
-        return evaluate(self, theta, time, current)
+    def recorded(self, theta, t, current):
+        if not _SAMPLING[0]:
+            return evaluate(self, theta, t, current)
+        SAMPLER_BATCHES.append((self, np.array(theta), numba.get_num_threads()))
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            return evaluate(self, theta, t, current)
+        finally:
+            TIMES["posterior: model.evaluate inside the sampler"] += time.perf_counter() - t0
+            CPU["posterior: model.evaluate inside the sampler"] += time.process_time() - c0
+            CALLS["posterior: model.evaluate inside the sampler"] += 1
 
     composite.Model.evaluate = recorded
     sample = posterior.sample_posterior
