@@ -2,9 +2,12 @@
 
 For every seed, runs the command line as a user does (a subprocess, report included) once
 per source tree, alternating the trees so that a change in the machine's load hits both,
-and prints one line per run: wall time [s], the 1-minute load average before and after
-(a shared 2-core machine), steps, tau_max, whether the chain converged, and the phases
-from the manifest (least squares, posterior, report).
+and prints one line per run: wall time [s], the study's CPU time [s] (user + system of
+the subprocess), the 1-minute load average before and after (a shared 2-core machine),
+steps, tau_max, whether the chain converged, the results folder's size and posterior.nc's
+[MB], and the phases from the manifest (least squares, posterior, report, ...).
+``--warm-up`` first runs a 50-step study per tree (numba's cache of a fresh tree is
+compiled then, not in the first timed run).
 
 Usage::
 
@@ -21,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -38,7 +42,12 @@ def _seeds(text):
     return seeds
 
 
-def run_one(tree: Path, data: Path, effects: str, seed: int, out: Path) -> dict:
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run_one(tree: Path, data: Path, effects: str, seed: int, out: Path, extra=()) -> dict:
     command = [
         sys.executable,
         "-m",
@@ -52,19 +61,25 @@ def run_one(tree: Path, data: Path, effects: str, seed: int, out: Path) -> dict:
         "--force",
         "--progress",
         "off",
+        *extra,
     ] + (["--effects", effects] if effects else [])
     env = dict(os.environ, PYTHONPATH=str(tree))
     load_before = os.getloadavg()[0]
+    cpu0 = _children_cpu()
     t0 = time.perf_counter()
     done = subprocess.run(command, cwd=tree, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
+    sizes = {p.name: p.stat().st_size for p in out.rglob("*") if p.is_file()} if out.exists() else {}
     row = {
         "tree": str(tree),
         "seed": seed,
         "wall": wall,
+        "cpu": _children_cpu() - cpu0,
         "load_before": load_before,
         "load_after": os.getloadavg()[0],
         "exit": done.returncode,
+        "folder_mb": sum(sizes.values()) / 1e6,
+        "posterior_nc_mb": sizes.get("posterior.nc", 0) / 1e6,
     }
     if done.returncode not in (0, 1):
         row["error"] = done.stderr[-500:]
@@ -83,12 +98,22 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", default="0", help="e.g. 0-4 or 0,2")
     parser.add_argument("--tree", action="append", help="source tree (repeat for A/B); default: this checkout")
     parser.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    parser.add_argument("--warm-up", action="store_true", help="a 50-step study per tree first (numba's cache)")
     args = parser.parse_args(argv)
     trees = [Path(t).resolve() for t in (args.tree or [ROOT])]
     data = Path(args.data).resolve()
     rows = []
     print(f"{os.cpu_count()} cores; {data.name} effects '{args.effects or 'none'}'")
-    print(f"{'tree':<28} {'seed':>4} {'wall s':>7} {'load':>11} {'steps':>6} {'tau':>6} {'conv':>5}  phases [s]")
+    if args.warm_up:
+        for tree in trees:
+            with tempfile.TemporaryDirectory(prefix="study-seeds-") as tmp:
+                warm = ("--max-steps", "50", "--no-report", "--n-starts", "1")
+                row = run_one(tree, data, args.effects, 0, Path(tmp) / "out", warm)
+            print(f"warm-up {tree.name}: {row['wall']:.1f} s, exit {row['exit']}", flush=True)
+    print(
+        f"{'tree':<28} {'seed':>4} {'wall s':>7} {'CPU s':>6} {'load':>11} {'steps':>6} {'tau':>6} {'conv':>5} "
+        f"{'MB':>5} {'nc MB':>5}  phases [s]"
+    )
     for seed in _seeds(args.seeds):
         for tree in trees:
             with tempfile.TemporaryDirectory(prefix="study-seeds-") as tmp:
@@ -100,8 +125,9 @@ def main(argv=None) -> int:
             phases = ", ".join(f"{k} {v:.1f}" for k, v in row["phases"].items() if v >= 0.05)
             load = f"{row['load_before']:5.2f}-{row['load_after']:<5.2f}"
             print(
-                f"{tree.name:<28} {seed:>4} {row['wall']:7.1f} {load} {row['steps']:>6} {row['tau_max']:6.1f} "
-                f"{str(row['converged']):>5}  {phases}",
+                f"{tree.name:<28} {seed:>4} {row['wall']:7.1f} {row['cpu']:6.1f} {load} {row['steps']:>6} "
+                f"{row['tau_max']:6.1f} {str(row['converged']):>5} {row['folder_mb']:5.1f} "
+                f"{row['posterior_nc_mb']:5.1f}  {phases}",
                 flush=True,
             )
     if args.json:

@@ -12,9 +12,15 @@ average before and after (a shared 2-core machine: other processes slow everythi
 * inside the posterior: steps, model evaluation (the log-posterior calls, and the model
   alone), the sampler-coordinate map (forward, inverse, log-determinant), emcee's own
   bookkeeping (the rest of the sampling loop), HDF5 writes, the thread-count probes,
-  the convergence checks (of which ArviZ's R-hat/ESS), the final summary and the
-  ArviZ InferenceData export;
-* inside the report: the figures (of which the corner plot) and the bands.
+  the convergence checks (of which the R-hat/ESS), the final summary and the
+  InferenceData export;
+* the sampling phase beside the pure forward-model time of the same evaluations: every
+  batch of parameter sets the sampler passed to ``Model.evaluate`` (log-posterior calls
+  and thread probes) is recorded with numba's thread count at the call, and replayed
+  through ``Model.evaluate`` at the same thread counts after the study, in the same
+  process (issue 70's target: sampling at most 1.5 x that time);
+* inside the report: the figures (of which the corner plot) and the bands;
+* the results folder's size and ``posterior.nc``'s.
 
 Usage::
 
@@ -37,10 +43,17 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parent.parent
 
 TIMES: dict[str, float] = defaultdict(float)
+CPU: dict[str, float] = defaultdict(float)
 CALLS: dict[str, int] = defaultdict(int)
+#: (parameter sets, numba threads) of every model call made inside sample_posterior.
+SAMPLER_BATCHES: list = []
+_SAMPLING = [False]
+_EVALUATE = []  # Model.evaluate before any wrapper (the replay calls it)
 
 
 def _wrap(owner, attribute, label):
@@ -51,16 +64,80 @@ def _wrap(owner, attribute, label):
     @functools.wraps(original)
     def timed(*args, **kwargs):
         depth[0] += 1
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             return original(*args, **kwargs)
         finally:
             depth[0] -= 1
             if depth[0] == 0:
                 TIMES[label] += time.perf_counter() - t0
+                CPU[label] += time.process_time() - c0
                 CALLS[label] += 1
 
     setattr(owner, attribute, timed)
+
+
+def _record_sampler_batches(composite, posterior):
+    """Record the parameter sets of every Model.evaluate call inside sample_posterior."""
+    import numba
+
+    evaluate = composite.Model.evaluate
+    _EVALUATE.append(evaluate)
+
+    @functools.wraps(evaluate)
+    def recorded(self, theta, t, current):
+        if not _SAMPLING[0]:
+            return evaluate(self, theta, t, current)
+        SAMPLER_BATCHES.append((self, np.array(theta), numba.get_num_threads()))
+        t0, c0 = time.perf_counter(), time.process_time()
+        try:
+            return evaluate(self, theta, t, current)
+        finally:
+            TIMES["posterior: model.evaluate inside the sampler"] += time.perf_counter() - t0
+            CPU["posterior: model.evaluate inside the sampler"] += time.process_time() - c0
+            CALLS["posterior: model.evaluate inside the sampler"] += 1
+
+    composite.Model.evaluate = recorded
+    sample = posterior.sample_posterior
+
+    @functools.wraps(sample)
+    def sampling(*args, **kwargs):
+        _SAMPLING[0] = True
+        try:
+            return sample(*args, **kwargs)
+        finally:
+            _SAMPLING[0] = False
+
+    posterior.sample_posterior = sampling
+
+
+def _replay(record) -> tuple[float, float, int, int]:
+    """(wall, CPU) seconds of the recorded sampler batches through Model.evaluate at their
+    thread counts, and the numbers of calls and of parameter sets."""
+    import numba
+
+    threads = numba.get_num_threads()
+    wall = cpu = 0.0
+    rows = 0
+    try:
+        for model, theta, n_threads in SAMPLER_BATCHES:
+            numba.set_num_threads(n_threads)
+            t0, c0 = time.perf_counter(), time.process_time()
+            _EVALUATE[0](model, theta, record.time, record.current)
+            wall += time.perf_counter() - t0
+            cpu += time.process_time() - c0
+            rows += len(np.atleast_2d(theta))
+    finally:
+        numba.set_num_threads(threads)
+    return wall, cpu, len(SAMPLER_BATCHES), rows
+
+
+def _thread_counts() -> str:
+    """How many of the recorded sampler calls ran at each numba thread count."""
+    counts: dict[int, int] = defaultdict(int)
+    for _model, _theta, n_threads in SAMPLER_BATCHES:
+        counts[n_threads] += 1
+    return ", ".join(f"{n} at {k} thread{'s' if k > 1 else ''}" for k, n in sorted(counts.items()))
 
 
 def _instrument():
@@ -70,6 +147,7 @@ def _instrument():
     import identify.fitting.posterior as posterior
     import model.composite as composite
 
+    _record_sampler_batches(composite, posterior)
     _wrap(composite.Model, "evaluate", "model.evaluate")
     _wrap(lsq.WhitenedResiduals, "jacobian", "lsq: forward-difference Jacobian")
     _wrap(lsq.WhitenedResiduals, "central_jacobian", "lsq: central Jacobian (covariance)")
@@ -84,7 +162,7 @@ def _instrument():
     _wrap(posterior, "fastest_thread_count", "posterior: thread-count probe")
     _wrap(posterior, "_check", "posterior: convergence checks")
     _wrap(posterior, "_tau", "posterior: autocorrelation time")
-    _wrap(posterior, "chain_diagnostics", "posterior: ArviZ R-hat/ESS")
+    _wrap(posterior, "chain_diagnostics", "posterior: R-hat/ESS (chain_diagnostics)")
     _wrap(posterior, "posterior_from_backend", "posterior: final summary (reads chain.h5)")
     _wrap(inference, "write_inference_data", "posterior: InferenceData export")
     try:
@@ -119,8 +197,6 @@ def main(argv=None) -> int:
         subprocess.run([sys.executable, "-m", "identify", "--help"], cwd=ROOT, capture_output=True, check=True)
         cli_startup = time.perf_counter() - t0
     t0 = time.perf_counter()
-    import numpy as np
-
     import identify
     from identify.data.records import load_record
     from identify.defaults import DEFAULT_MAX_STEPS
@@ -137,8 +213,11 @@ def main(argv=None) -> int:
     model = Model(effects, n_operators=12, reading="swapped") if effects else None
     max_steps = args.max_steps or DEFAULT_MAX_STEPS
     TIMES.clear()
+    CPU.clear()
     CALLS.clear()
+    SAMPLER_BATCHES.clear()
     t0 = time.perf_counter()
+    cpu0 = time.process_time()
     result = identify.study(
         record,
         model,
@@ -151,7 +230,10 @@ def main(argv=None) -> int:
         progress=False,
     )
     wall = time.perf_counter() - t0
+    cpu = time.process_time() - cpu0
     load_after = _load()
+    replay_wall, replay_cpu, n_calls, n_rows = _replay(record)
+    load_replayed = _load()
 
     import json
 
@@ -160,7 +242,7 @@ def main(argv=None) -> int:
     post = result.summary["posterior"]
     print(
         f"record {args.data}, effects '{args.effects or 'none'}', seed {args.seed}; {os.cpu_count()} cores, "
-        f"load {load_before:.2f} before, {load_after:.2f} after"
+        f"load {load_before:.2f} before, {load_after:.2f} after the study, {load_replayed:.2f} after the replay"
     )
     if not args.skip_startup:
         print(
@@ -169,7 +251,7 @@ def main(argv=None) -> int:
         )
     verdict = "converged" if post["converged"] else "NOT converged"
     print(
-        f"study() {wall:.1f} s: {post['n_steps']} steps x {post['n_walkers']} walkers, "
+        f"study() {wall:.1f} s (CPU {cpu:.1f} s): {post['n_steps']} steps x {post['n_walkers']} walkers, "
         f"tau_max {post['tau_max']:.1f}, {verdict}"
     )
     for name, seconds in phases.items():
@@ -179,7 +261,7 @@ def main(argv=None) -> int:
     map_seconds = sum(TIMES.get(f"posterior: map {n}", 0.0) for n in ("forward", "inverse", "log_det"))
     for label in sorted(TIMES):
         per = f" ({1e3 * TIMES[label] / steps:.3f} ms/step)" if label.startswith("posterior: ") else ""
-        print(f"  {label:<46} {TIMES[label]:8.2f} s  {CALLS[label]:7d} calls{per}")
+        print(f"  {label:<46} {TIMES[label]:8.2f} s (CPU {CPU[label]:7.2f} s) {CALLS[label]:7d} calls{per}")
     moves = TIMES.get("posterior: moves (incl. log-posterior)", 0.0)
     log_post = TIMES.get("posterior: log-posterior calls", 0.0)
     outside = (
@@ -202,6 +284,17 @@ def main(argv=None) -> int:
     )
     print(
         f"  posterior: emcee's loop outside the moves            {outside:8.2f} s ({1e3 * outside / steps:.3f} ms/step)"
+    )
+    print(
+        f"sampling {sampling:.2f} s beside the pure forward model of the same {n_calls} calls ({n_rows} parameter "
+        f"sets) replayed through Model.evaluate at the sampler's thread counts: {replay_wall:.2f} s "
+        f"(CPU {replay_cpu:.2f} s); ratio {sampling / max(replay_wall, 1e-9):.2f} (target <= 1.5); CPU ratio "
+        f"{CPU.get('posterior: sample_posterior', 0.0) / max(replay_cpu, 1e-9):.2f}; calls {_thread_counts()}"
+    )
+    sizes = {p.name: p.stat().st_size for p in out.rglob("*") if p.is_file()}
+    print(
+        f"results folder {sum(sizes.values()) / 1e6:.1f} MB (target <= 15), posterior.nc "
+        f"{sizes.get('posterior.nc', 0) / 1e6:.1f} MB (target <= 10), chain.h5 {sizes.get('chain.h5', 0) / 1e6:.1f} MB"
     )
     if args.save:
         from identify.fitting.posterior import BACKEND_GROUP, ChainBackend

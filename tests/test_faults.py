@@ -811,7 +811,8 @@ def test_a_full_disk_while_writing_the_posterior_leaves_no_temporary_file_and_no
     left; a rerun on a disk full to the last byte cannot even take its lock: one line naming
     the lock file, which is not left behind (nor anything else); once space is freed the rerun
     finishes with the uninterrupted run's results."""
-    with small_disk(tmp_path / "disk", "5m") as disk:
+    # 4 MB: room for the chain (its 3.1 MB bound) but not for posterior.nc (2.7 MB of arrays and 1 MB of bookkeeping)
+    with small_disk(tmp_path / "disk", "4m") as disk:
         shutil.copy2(finished.parent / "rec.csv", disk / "rec.csv")
         completed = cli("study", "rec.csv", "--out", "run", *FINISHED, cwd=disk)
         one_error(completed, "run/posterior.nc: no space left on the device", code=1)
@@ -951,8 +952,9 @@ def test_posterior_nc_is_written_under_a_fresh_name_never_through_a_link(tmp_pat
     for name, target in targets.items():
         target.write_text("precious\n")
         (tmp_path / name).symlink_to(target)
-    idata = az.from_dict(posterior={"a": np.arange(12.0).reshape(2, 6)})
-    write_netcdf(tmp_path / "posterior.nc", idata)
+    coords = {"chain": np.arange(2), "draw": np.arange(6)}
+    groups = {"posterior": (coords, {"a": (("chain", "draw"), np.arange(12.0).reshape(2, 6), {}, None)}, {})}
+    write_netcdf(tmp_path / "posterior.nc", groups)
     assert all(t.read_text() == "precious\n" for t in targets.values())
     assert not (tmp_path / "posterior.nc").is_symlink()
     assert az.from_netcdf(tmp_path / "posterior.nc").posterior["a"].shape == (2, 6)

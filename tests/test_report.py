@@ -269,6 +269,52 @@ def test_figures_label_their_axes_with_units():
     assert plots.unit_label("um") == "µm" and plots.unit_label("") == "-" and plots.unit_label("um/A") == "µm/A"
 
 
+def test_corner_figure_shows_what_corner_corner_showed():
+    """The corner plot drawn as artists on one figure labels what corner.corner (2.3) labelled
+    with the report's former options: the same tick labels on the outer panels (the same
+    axis ranges, MaxNLocator and ScalarFormatter) and the names under the bottom row and left
+    of the first column (the figures were compared by eye on the bundled study)."""
+    import corner
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rng = np.random.default_rng(2)
+    samples = rng.multivariate_normal([5.7, 0.01, 14.9], [[4e-3, 1e-5, 0.0], [1e-5, 6e-5, 0.0], [0.0, 0.0, 0.16]], 3000)
+    labels = ["rho [µm/A]", "tau [1/A]", "a0 [A]"]
+    ours = plots.corner_figure(samples, labels, reference=[5.7, 0.012, 15.0])
+    FigureCanvasAgg(ours).draw()
+    theirs = Figure(figsize=(6, 6))
+    theirs.subplots(3, 3)
+    corner.corner(
+        samples,
+        labels=labels,
+        truths=[5.7, 0.012, 15.0],
+        quantiles=[0.025, 0.5, 0.975],
+        fig=theirs,
+        max_n_ticks=3,
+        plot_datapoints=False,
+        plot_density=False,
+        no_fill_contours=True,
+        levels=(1 - np.exp(-0.5), 1 - np.exp(-2.0)),
+        bins=20,
+        labelpad=0.3,
+    )
+    FigureCanvasAgg(theirs).draw()
+    axes = np.array(theirs.axes).reshape(3, 3)
+
+    def drawn(axis, view):  # tick labels inside the view (matplotlib lists one beyond it too)
+        low, high = sorted(view)
+        return {t.get_text() for t, x in zip(axis.get_ticklabels(), axis.get_ticklocs()) if low <= x <= high}
+
+    expected = set(labels)
+    for j in range(3):
+        expected |= drawn(axes[2, j].xaxis, axes[2, j].get_xlim())
+    for i in range(1, 3):
+        expected |= drawn(axes[i, 0].yaxis, axes[i, 0].get_ylim())
+    shown = {t.get_text() for t in ours.texts} - {ours.get_suptitle()}
+    assert expected <= shown and len(shown - expected) == 0
+
+
 # --------------------------------------------------------------------------------------
 # the page written by study
 # --------------------------------------------------------------------------------------

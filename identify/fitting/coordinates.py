@@ -60,8 +60,11 @@ themselves); or any callable ``f(log_post)`` returning an object with ``forward`
 
 from __future__ import annotations
 
+import math
+
 import emcee
 import numpy as np
+from numba import njit
 
 from model import THETA_NAMES
 
@@ -77,6 +80,69 @@ _THERMAL_NODES = {
 _THERMAL = tuple(n for names in _THERMAL_NODES.values() for n in names)
 #: Most safeguarded Newton steps for ``tau`` in the inverse map (typically 4-6 are used).
 MAX_NEWTON_STEPS = 100
+
+
+@njit(cache=True, error_model="numpy")
+def _moment_rows(rho, tau, r, out):
+    """Per row ``w``: ``out[:, w] = (S, R, central second moment, s0)`` of the weights
+    ``p_j = rho e^{-tau r_j}`` (``s0 = sum_j e^{-tau r_j}``), one pass over the thresholds."""
+    for w in range(rho.shape[0]):
+        s0 = s1 = s2 = 0.0
+        for j in range(r.shape[0]):
+            e = math.exp(-tau[w] * r[j])
+            s0 += e
+            s1 += e * r[j]
+            s2 += e * r[j] * r[j]
+        out[0, w] = rho[w] * s0
+        out[1, w] = rho[w] * s1
+        out[2, w] = rho[w] * (s2 - s1 * s1 / s0)
+        out[3, w] = s0
+
+
+@njit(cache=True, error_model="numpy")
+def _mean_and_var(t, r, r2):
+    """Mean and variance of the thresholds ``r`` under the weights ``e^{-t r}``; the
+    exponent's maximum is at the first or the last threshold (``-t r_j`` is monotone in
+    ``j``), so the weights are scaled by it (no overflow)."""
+    top = max(-t * r[0], -t * r[-1])
+    s0 = s1 = s2 = 0.0
+    for j in range(r.shape[0]):
+        e = math.exp(-t * r[j] - top)
+        s0 += e
+        s1 += e * r[j]
+        s2 += e * r2[j]
+    m = s1 / s0
+    return m, s2 / s0 - m * m
+
+
+@njit(cache=True, error_model="numpy")
+def _solve_tau_rows(mean, r, r2, lower, upper, mean_lo, mean_hi, m0, v0, max_steps, out):
+    """Per row: the ``tau`` in ``[lower, upper]`` whose weighted mean threshold is ``mean``
+    (safeguarded Newton from the linearisation at ``tau = 0``, a bisection step whenever
+    Newton leaves the bracket, until a step moves ``tau`` by at most ``1e-13 (1 + |tau|)``);
+    NaN where ``mean`` is not finite or outside ``[mean_hi, mean_lo]`` (the means at the
+    bounds)."""
+    for w in range(mean.shape[0]):
+        target = mean[w]
+        if not (target <= mean_lo and target >= mean_hi and math.isfinite(target)):
+            out[w] = math.nan
+            continue
+        lo, hi = lower, upper
+        t = min(max((m0 - target) / v0, lo), hi)
+        for _ in range(max_steps):
+            m, var = _mean_and_var(t, r, r2)
+            f = m - target  # > 0: the root lies at larger tau
+            if f > 0:
+                lo = t
+            else:
+                hi = t
+            newton = t + f / var
+            t_new = newton if lo <= newton <= hi else 0.5 * (lo + hi)
+            done = abs(t_new - t) <= 1e-13 * (1.0 + abs(t))
+            t = t_new
+            if done:
+                break
+        out[w] = t
 
 
 class IdentityCoordinates:
@@ -206,12 +272,10 @@ class GPICoordinates:
 
     # -- the weight block ------------------------------------------------------------
     def _moments(self, rho, tau):
-        """``S = sum p_j``, ``R = sum p_j r_j`` and the centred second moment (W,)."""
-        e = np.exp(-tau[:, None] * self.r[None, :])
-        s0 = e.sum(axis=1)
-        s1 = (e * self.r).sum(axis=1)
-        s2 = (e * self.r**2).sum(axis=1)
-        return rho * s0, rho * s1, rho * (s2 - s1**2 / s0), s0
+        """``S = sum p_j``, ``R = sum p_j r_j``, the centred second moment and ``sum e^{-tau r_j}`` (W,)."""
+        out = np.empty((4, np.size(rho)))
+        _moment_rows(np.ascontiguousarray(rho, dtype=float), np.ascontiguousarray(tau, dtype=float), self.r, out)
+        return out[0], out[1], out[2], out[3]
 
     def _gpi(self, x, name):
         if name in self.idx:
@@ -231,14 +295,11 @@ class GPICoordinates:
         return self._moments(rho, tau)[0]
 
     def _mean_and_var(self, t):
-        """Mean and variance of the thresholds under the weights ``e^{-t r}`` (W,); the
-        exponent's maximum is at the first or the last threshold (``-t r_j`` is monotone in
-        ``j``), so it is taken from those two."""
-        z = -t[:, None] * self.r[None, :]
-        e = np.exp(z - np.maximum(z[:, :1], z[:, -1:]))
-        s0 = e.sum(axis=1)
-        m = (e * self.r).sum(axis=1) / s0
-        return m, (e * self._r2).sum(axis=1) / s0 - m**2
+        """Mean and variance of the thresholds under the weights ``e^{-t r}`` (W,)."""
+        m, var = np.empty(np.size(t)), np.empty(np.size(t))
+        for w, tw in enumerate(np.atleast_1d(np.asarray(t, dtype=float))):
+            m[w], var[w] = _mean_and_var(tw, self.r, self._r2)
+        return m, var
 
     def _solve_tau(self, mean):
         """``tau`` with weighted mean threshold ``sum r e^{-tau r} / sum e^{-tau r} = mean``;
@@ -246,32 +307,26 @@ class GPICoordinates:
 
         The mean decreases in tau with slope ``-var`` (the weights' variance of the
         thresholds), so Newton's method, kept inside a shrinking bracket (a bisection step
-        whenever Newton would leave it), converges to machine precision in a few steps.
+        whenever Newton would leave it), converges to machine precision in a few steps
+        (:func:`_solve_tau_rows`, row by row).
         """
-        lo = np.full(mean.shape, self.tau_bounds[0])
-        hi = np.full(mean.shape, self.tau_bounds[1])
-        mean_and_var = self._mean_and_var
-        if self._at_bounds is None:  # the same for every row: computed once, on one row
-            (mean_lo,), _ = mean_and_var(np.array([self.tau_bounds[0]]))
-            (mean_hi,), _ = mean_and_var(np.array([self.tau_bounds[1]]))
-            (m0,), (v0,) = mean_and_var(np.zeros(1))
+        if self._at_bounds is None:  # the same for every row: computed once
+            mean_lo, _ = _mean_and_var(self.tau_bounds[0], self.r, self._r2)
+            mean_hi, _ = _mean_and_var(self.tau_bounds[1], self.r, self._r2)
+            m0, v0 = _mean_and_var(0.0, self.r, self._r2)
             self._at_bounds = (mean_lo, mean_hi, m0, v0)
-        mean_lo, mean_hi, m0, v0 = self._at_bounds
-        inside = (mean <= mean_lo) & (mean >= mean_hi) & np.isfinite(mean)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = np.clip(np.where(inside, (m0 - mean) / v0, 0.0), lo, hi)
-            for _ in range(MAX_NEWTON_STEPS):
-                m, var = mean_and_var(t)
-                f = m - mean  # > 0: the root lies at larger tau
-                lo = np.where(f > 0, t, lo)
-                hi = np.where(f > 0, hi, t)
-                newton = t + f / var
-                t_new = np.where((newton >= lo) & (newton <= hi), newton, 0.5 * (lo + hi))
-                done = ~inside | (np.abs(t_new - t) <= 1e-13 * (1.0 + np.abs(t)))
-                t = np.where(inside, t_new, t)
-                if done.all():
-                    break
-        return np.where(inside, t, np.nan)
+        out = np.empty(np.size(mean))
+        _solve_tau_rows(
+            np.ascontiguousarray(mean, dtype=float),
+            self.r,
+            self._r2,
+            self.tau_bounds[0],
+            self.tau_bounds[1],
+            *self._at_bounds,
+            MAX_NEWTON_STEPS,
+            out,
+        )
+        return out
 
     # -- the map ---------------------------------------------------------------------
     def forward(self, x) -> np.ndarray:
@@ -416,6 +471,19 @@ def coordinates_for(spec, log_post):
     return COORDINATES[spec](log_post)
 
 
+def _log_probabilities(model, q):
+    """emcee's ``compute_log_prob`` of the proposals ``q``: ``(log_prob (n,), blobs)``. A
+    log-probability function that declares ``vectorised_log_probability`` (e.g.
+    :class:`identify.fitting.posterior.LogPosterior`: one call for all rows, a float array,
+    never NaN, no blobs) is called directly, without emcee's per-row conversion and checks
+    (the same numbers); any other goes through emcee."""
+    wrapper = model.log_prob_fn
+    fn = getattr(wrapper, "f", None)
+    if getattr(fn, "vectorised_log_probability", False) and not wrapper.args and not wrapper.kwargs:
+        return np.asarray(fn(q), dtype=float), None
+    return model.compute_log_prob_fn(q)
+
+
 class CoordinateMove(emcee.moves.RedBlueMove):
     """An emcee red-blue move made in other coordinates (see the module docstring).
 
@@ -499,7 +567,7 @@ class CoordinateMove(emcee.moves.RedBlueMove):
             c_u = [u[inds == j] for j in range(self.nsplits) if j != split]
             q_u, factors = self.move.get_proposal(u[S1], c_u, model.random)
             q, factors, log_det_q = self._back(s, q_u, factors, log_det[S1])
-            new_log_probs, new_blobs = model.compute_log_prob_fn(q)
+            new_log_probs, new_blobs = _log_probabilities(model, q)
             members = all_inds[S1]
             draws = model.random.rand(members.size)  # the draws of emcee's per-walker loop, in its order
             take = factors + new_log_probs - state.log_prob[members] > np.log(draws)

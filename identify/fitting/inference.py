@@ -8,7 +8,7 @@
       one variable per sampled parameter with ``unit`` and ``prior`` attributes (the
       draws ``summary.json`` is computed from, so ``az.summary`` gives its means).
   ``sample_stats``
-      ``lp`` (log posterior) and ``log_likelihood`` (its sum over the record).
+      ``lp`` (log posterior).
   ``observed_data``
       ``displacement`` with the ``time`` coordinate, in the record's units.
   ``log_likelihood``
@@ -19,8 +19,21 @@
       ``displacement``: model output plus a draw of the fitted noise.
 
   The pointwise groups hold every ``k``-th draw of every walker, ``k`` chosen so that
-  draws x samples stays at most :data:`MAX_POINTWISE` (attribute ``draw_step``); the
-  ``posterior`` group holds all draws.
+  draws x samples stays at most :data:`MAX_POINTWISE` (attribute ``draw_step``; 576
+  draws of the bundled 7001-sample record); the ``posterior`` group holds all draws.
+  Fewer pointwise draws would worsen ``az.loo``'s Pareto-k diagnostics: ArviZ takes the
+  relative efficiency from the ``posterior`` group's ESS over the pointwise draws, so its
+  tail fits shrink with them (docs/benchmarks.md, "The results folder").
+
+  Storage: the posterior, ``lp`` and the observed data in float64 (``az.summary`` gives
+  ``summary.json``'s means exactly); the pointwise log-likelihood in float32 (relative
+  6e-8: ``az.loo``'s elpd and Pareto k agree with the float64 values to 1e-4); the
+  posterior predictive in float32 when float32's rounding stays below
+  :data:`FLOAT32_SIGMA_FRACTION` of the noise sigma (else float64: a record with a large
+  offset and little noise). Every variable is gzip-compressed with byte shuffle (HDF5
+  filters any netCDF4 or HDF5 reader decodes), the pointwise groups in chunks of all
+  draws x :data:`POINTWISE_CHUNK_SAMPLES` samples. The file is written with h5netcdf in
+  the layout ArviZ's ``to_netcdf`` writes, without importing ArviZ or xarray.
 * :func:`write_chain_attributes` puts the parameter names and units on the emcee group of
   ``chain.h5`` (attributes ``parameter_names``, ``parameter_units``), where
   ``emcee.backends.HDFBackend(path, name="mcmc").open()`` finds them (fixed-length UTF-8
@@ -45,8 +58,15 @@ __all__ = [
     "pointwise_log_likelihood",
 ]
 
-#: Largest number of draws x record samples in the pointwise groups (float64: 32 MB each).
+#: Largest number of draws x record samples in the pointwise groups (float32: 16 MB each
+#: before compression).
 MAX_POINTWISE = 4_000_000
+#: Record samples per HDF5 chunk of the pointwise groups (every walker and draw in a chunk:
+#: a sample's values over the draws lie 64 values apart, which gzip finds).
+POINTWISE_CHUNK_SAMPLES = 64
+#: The posterior predictive is stored as float32 when float32's rounding is at most this
+#: fraction of the noise sigma (else float64).
+FLOAT32_SIGMA_FRACTION = 1e-3
 #: File name in the results folder.
 FILE = "posterior.nc"
 
@@ -94,17 +114,69 @@ def pointwise_log_likelihood(residual, noise, sigma=None, *, time=None) -> np.nd
     return out
 
 
-def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Path:
-    """Write ``DIR/posterior.nc`` (module docstring) and return its path."""
-    from .posterior import BACKEND_GROUP, ChainBackend, import_arviz
+def _ar1_noise(white, correlations) -> np.ndarray:
+    """AR(1) noise of unit marginal variance from white draws ``(S, T)``, step ``t`` with
+    correlation ``correlations[t - 1]`` (white noise itself when every correlation is 0)."""
+    if not np.any(correlations):
+        return white
+    eps = np.empty_like(white)
+    eps[:, 0] = white[:, 0]
+    for t in range(1, white.shape[1]):
+        rho = correlations[t - 1]
+        eps[:, t] = rho * eps[:, t - 1] + math.sqrt(1.0 - rho * rho) * white[:, t]
+    return eps
 
-    az = import_arviz()
+
+def predictive_dtype(predictive, sigma) -> type:
+    """float32 when its rounding (half a unit in the last place at the largest value) stays
+    below :data:`FLOAT32_SIGMA_FRACTION` of the smallest noise sigma, else float64."""
+    largest = float(np.max(np.abs(predictive), where=np.isfinite(predictive), initial=0.0))
+    half_ulp = 0.5 * float(np.spacing(np.float32(largest)))
+    return np.float32 if half_ulp <= FLOAT32_SIGMA_FRACTION * float(np.min(sigma)) else np.float64
+
+
+def _group(n_chain, n_draw, draw_index):
+    return {"chain": np.arange(n_chain), "draw": np.asarray(draw_index)}
+
+
+def _write_netcdf(path, groups) -> None:
+    """Write ``groups`` (``{name: (coords, variables, attrs)}``; a coordinate ``values`` or
+    ``(values, attrs)``, a variable ``(dims, values, attrs, chunks)``) as the netCDF4 groups
+    of an InferenceData file: the layout ``InferenceData.to_netcdf`` writes through
+    xarray's h5netcdf engine (dimension scales, coordinate variables), written here with
+    h5netcdf alone, so writing it imports neither ArviZ nor xarray (2-3 s); every variable
+    gzip-compressed with byte shuffle."""
+    import h5netcdf
+
+    packed = dict(compression="gzip", compression_opts=4, shuffle=True)
+    with h5netcdf.File(path, "w") as f:
+        for name, (coords, variables, attrs) in groups.items():
+            g = f.create_group(name)
+            g.dimensions = {d: len(v[0] if isinstance(v, tuple) else v) for d, v in coords.items()}
+            for d, values in coords.items():
+                values, coord_attrs = values if isinstance(values, tuple) else (values, {})
+                g.create_variable(d, (d,), data=values).attrs.update(coord_attrs)
+            for var, (dims, values, var_attrs, chunks) in variables.items():
+                v = g.create_variable(var, dims, data=values, chunks=chunks, **packed)
+                v.attrs.update(var_attrs)
+            g.attrs.update(attrs)
+
+
+def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Path:
+    """Write ``DIR/posterior.nc`` (module docstring) and return its path.
+
+    The draws are ``posterior.samples`` (the chain after burn-in and thinning, read from
+    ``chain.h5`` by :func:`identify.fitting.posterior.posterior_from_backend`), walkers as
+    ArviZ's chains."""
+    from datetime import datetime, timezone
+    from importlib import metadata
+
     out_dir = Path(out_dir)
-    backend = ChainBackend(str(out_dir / "chain.h5"), name=BACKEND_GROUP, read_only=True)
-    chain = backend.get_chain()[posterior.discard :: posterior.thin]  # (draw, walker, D)
-    lp = backend.get_log_prob()[posterior.discard :: posterior.thin]
-    draws = np.moveaxis(chain, 1, 0)  # (walker, draw, D)
-    n_chain, n_draw, _ = draws.shape
+    n_chain = int(posterior.n_walkers)
+    draws = np.asarray(posterior.samples, dtype=float).reshape(-1, n_chain, posterior.samples.shape[1])
+    draws = np.moveaxis(draws, 1, 0)  # (walker, draw, D)
+    lp = np.asarray(posterior.log_prob, dtype=float).reshape(-1, n_chain).T  # (walker, draw)
+    n_draw = draws.shape[1]
     names = list(log_post.names)
     units = sampled_units(log_post, record)
     time = np.asarray(record.time, dtype=float)
@@ -122,57 +194,76 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
     correlations = log_post.noise.step_correlations(time)
     if correlations is None:
         correlations = np.full(max(time.size - 1, 0), log_post.noise.rho)
-    eps = np.empty_like(white)
-    eps[:, 0] = white[:, 0]
-    for t in range(1, time.size):  # AR(1) with unit marginal variance, each step's own correlation
-        rho = correlations[t - 1]
-        eps[:, t] = rho * eps[:, t - 1] + math.sqrt(1.0 - rho * rho) * white[:, t]
-    predictive = y + noise_sigma * eps
+    predictive = y + noise_sigma * _ar1_noise(white, correlations)
     shape = (n_chain, sub.shape[1], time.size)
-    draw_index = np.arange(0, n_draw, step)
+    pointwise_chunks = (n_chain, sub.shape[1], min(POINTWISE_CHUNK_SAMPLES, time.size))
     unit_out = record.output_unit
-    import warnings
-
-    warnings.filterwarnings("ignore", message="More chains", category=UserWarning)  # a short chain: fine here
-    idata = az.from_dict(
-        posterior={n: draws[:, :, j] for j, n in enumerate(names)},
-        sample_stats={"lp": np.moveaxis(lp, 1, 0)},
-        observed_data={"displacement": data},
-        coords={"time": time},
-        dims={"displacement": ["time"]},
-        attrs={
-            "source": "msma-gpi study",
-            "input_unit": record.input_unit,
-            "output_unit": unit_out,
-            "discard": int(posterior.discard),
-            "thin": int(posterior.thin),
-        },
-    )
-    pointwise_groups = az.from_dict(
-        log_likelihood={"displacement": pointwise.reshape(shape)},
-        posterior_predictive={"displacement": predictive.reshape(shape)},
-        coords={"time": time, "draw": draw_index},
-        dims={"displacement": ["time"]},
-    )
-    idata.extend(pointwise_groups)
-    for j, n in enumerate(names):
-        idata.posterior[n].attrs.update(unit=units[j], prior=str(getattr(log_post, "prior_names", {}).get(n, "")))
-    for group in (idata.log_likelihood, idata.posterior_predictive):
-        group.attrs["draw_step"] = int(step)
-    idata.observed_data["displacement"].attrs["unit"] = unit_out
-    idata.observed_data["time"].attrs["unit"] = "s"
+    try:
+        version = {"arviz_version": metadata.version("arviz")}  # the schema's version, as from_dict writes it
+    except metadata.PackageNotFoundError:  # pragma: no cover - arviz is a dependency
+        version = {}
+    stamp = {"created_at": datetime.now(timezone.utc).isoformat(), **version}
+    run = {
+        "source": "msma-gpi study",
+        "input_unit": record.input_unit,
+        "output_unit": unit_out,
+        "discard": int(posterior.discard),
+        "thin": int(posterior.thin),
+    }
+    draws_coords = _group(n_chain, n_draw, np.arange(n_draw))
+    pointwise_coords = {**_group(n_chain, sub.shape[1], np.arange(0, n_draw, step)), "time": time}
+    prior_names = getattr(log_post, "prior_names", {})
+    whole = (n_chain, n_draw)
+    dims3 = ("chain", "draw", "time")
+    pointwise_attrs = {**stamp, "draw_step": int(step)}
+    groups = {
+        "posterior": (
+            draws_coords,
+            {
+                n: (("chain", "draw"), draws[:, :, j], {"unit": units[j], "prior": str(prior_names.get(n, ""))}, whole)
+                for j, n in enumerate(names)
+            },
+            stamp,
+        ),
+        "sample_stats": (draws_coords, {"lp": (("chain", "draw"), lp, {}, whole)}, stamp),
+        "observed_data": (
+            {"time": (time, {"unit": "s"})},
+            {"displacement": (("time",), data, {"unit": unit_out}, None)},
+            {**stamp, **run},
+        ),
+        "log_likelihood": (
+            pointwise_coords,
+            {"displacement": (dims3, pointwise.reshape(shape).astype(np.float32), {}, pointwise_chunks)},
+            pointwise_attrs,
+        ),
+        "posterior_predictive": (
+            pointwise_coords,
+            {
+                "displacement": (
+                    dims3,
+                    predictive.reshape(shape).astype(predictive_dtype(predictive, noise_sigma)),
+                    {},
+                    pointwise_chunks,
+                )
+            },
+            pointwise_attrs,
+        ),
+    }
     path = out_dir / FILE
-    write_netcdf(path, idata)
+    write_netcdf(path, groups)
     return path
 
 
-def write_netcdf(path, idata) -> None:
-    """``idata.to_netcdf`` through :func:`identify.data.fileio.write_via_temporary`: a fresh
+def write_netcdf(path, groups) -> None:
+    """:func:`_write_netcdf` through :func:`identify.data.fileio.write_via_temporary`: a fresh
     ``mkstemp`` name in the folder (a link planted there is never written through), removed
     on any error; the space the groups may take (their raw size and 1 MB of netCDF/HDF5
     bookkeeping; compression only shrinks them) is checked free first, so HDF5 never meets
     a full disk, which it does not survive."""
     from ..data.fileio import write_via_temporary
 
-    need = sum(int(getattr(idata, group).nbytes) for group in idata.groups()) + 2**20
-    write_via_temporary(path, lambda tmp: idata.to_netcdf(tmp), need_bytes=need)
+    need = 2**20
+    for coords, variables, _attrs in groups.values():
+        need += sum(np.asarray(v[0] if isinstance(v, tuple) else v).nbytes for v in coords.values())
+        need += sum(np.asarray(v[1]).nbytes for v in variables.values())
+    write_via_temporary(path, lambda tmp: _write_netcdf(tmp, groups), need_bytes=need)

@@ -115,6 +115,7 @@ __all__ = [
     "ESS_BULK_MIN",
     "DIAGNOSTICS",
     "chain_diagnostics",
+    "autocorrelation_times",
 ]
 
 
@@ -470,6 +471,10 @@ class LogPosterior:
     n_errors : int
         Rows whose evaluation raised (and were given ``-inf``).
     """
+
+    #: One call scores every row ``(W, D) -> (W,)`` floats, never NaN, no blobs: the
+    #: sampler's moves call it directly (:func:`identify.fitting.coordinates._log_probabilities`).
+    vectorised_log_probability = True
 
     def __init__(self, record, model: Model, noise: NoiseModel, *, priors=None):
         model = in_record_units(model, record)  # default bounds in the record's unit prefixes
@@ -833,27 +838,23 @@ def chain_diagnostics(draws) -> dict[str, np.ndarray]:
     effective sample sizes (``arviz.ess``, ``method="bulk"``/``"tail"``), and the Monte
     Carlo standard errors of the mean and of the standard deviation (``arviz.mcse``,
     ``method="mean"``/``"sd"``). NaN where ArviZ gives no value (fewer than 4 draws per
-    walker).
+    walker). The figures are ``az.summary(kind="diagnostics")``'s, computed by
+    :func:`identify.fitting.mcmc_diagnostics.multichain_statistics` with ArviZ's
+    arithmetic but without importing ArviZ (2-6 s) or its xarray machinery.
     """
+    from .mcmc_diagnostics import multichain_statistics
+
     draws = np.asarray(draws, dtype=float)
     n_dim = draws.shape[2]
     out = {k: np.full(n_dim, np.nan) for k in DIAGNOSTICS}
     if draws.shape[0] < 4:
         return out
-    az = import_arviz()
-    # one az.summary call (its mcse_sd path also works where az.mcse(method="sd") on an
-    # array fails with numpy 2); full precision, one variable per parameter
-    data = {f"p{d}": np.ascontiguousarray(draws[:, :, d].T) for d in range(n_dim)}  # (chain, draw)
-    table = az.summary(az.convert_to_dataset(data), kind="diagnostics", round_to="none")
-    columns = {
-        "rhat": "r_hat",
-        "ess_bulk": "ess_bulk",
-        "ess_tail": "ess_tail",
-        "mcse_mean": "mcse_mean",
-        "mcse_sd": "mcse_sd",
-    }
-    for key, column in columns.items():
-        out[key] = np.array([float(table.loc[f"p{d}", column]) for d in range(n_dim)])
+    for d in range(n_dim):
+        with np.errstate(invalid="ignore", divide="ignore"):  # a parameter that never moved: NaN, as ArviZ's
+            stats = multichain_statistics(np.ascontiguousarray(draws[:, :, d].T))  # (chain, draw)
+        mcse_mean, mcse_sd, ess_bulk, ess_tail, rhat = stats
+        out["rhat"][d], out["ess_bulk"][d], out["ess_tail"][d] = rhat, ess_bulk, ess_tail
+        out["mcse_mean"][d], out["mcse_sd"][d] = mcse_mean, mcse_sd
     return out
 
 
@@ -912,6 +913,15 @@ def _tau(chain, c=5.0) -> np.ndarray:
         window = int(np.argmin(inside)) if inside.any() else n_steps - 1
         tau[d] = taus[window]
     return np.where(np.isfinite(tau), tau, np.inf)  # a chain that never moved: no estimate
+
+
+def autocorrelation_times(chain) -> np.ndarray:
+    """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain
+    (:func:`_tau`: emcee's estimator to 1e-12 relative, one inverse FFT per parameter); NaN
+    where there is no estimate (a coordinate that never moved), as
+    :func:`emcee.autocorr.integrated_time` gives it."""
+    tau = _tau(np.asarray(chain, dtype=float))
+    return np.where(np.isfinite(tau), tau, np.nan)
 
 
 def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):

@@ -47,13 +47,12 @@ import time as _time
 from dataclasses import dataclass
 from pathlib import Path
 
-import emcee
 import numpy as np
 
 from ..data.fileio import atomic_write_bytes
 from ..data.reversals import Reversals, find_reversals
 from ..fitting.noise import energised_mask
-from ..fitting.posterior import BENCH_COVERAGE, ChainBackend
+from ..fitting.posterior import BENCH_COVERAGE, ChainBackend, autocorrelation_times
 from . import plots, results
 from .bands import mixture_quantile
 from .page import CSS, embedded_figure, escape, html_table, number_cell, number_text, png_bytes, text_cell
@@ -541,8 +540,10 @@ def loop_zoom_box(current, measured, bands: ModelBands, window: slice, energised
 def autocorrelation_curve(chain: ChainSample, n_points: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Integrated autocorrelation time estimated from growing prefixes of the post-burn-in chain.
 
-    Uses :func:`emcee.autocorr.integrated_time` (walker-averaged autocorrelation
-    function, window ``c = 5``); estimates from a chain thinned by ``t`` are multiplied
+    Uses emcee's estimator (walker-averaged autocorrelation function, window ``c = 5``) as
+    :func:`identify.fitting.posterior.autocorrelation_times` computes it (equal to
+    :func:`emcee.autocorr.integrated_time` to 1e-12, one inverse FFT per parameter instead
+    of one per walker and parameter); estimates from a chain thinned by ``t`` are multiplied
     by ``t`` (close when tau is several times ``t``).
 
     Returns
@@ -558,9 +559,8 @@ def autocorrelation_curve(chain: ChainSample, n_points: int = 12) -> tuple[np.nd
     n_rows = rows.shape[0]
     sizes = np.unique(np.geomspace(min(8, n_rows), n_rows, n_points).astype(int))
     tau = np.empty((sizes.size, rows.shape[2]))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        for i, n in enumerate(sizes):
-            tau[i] = chain.thin * emcee.autocorr.integrated_time(rows[:n], c=5, tol=0, quiet=True)
+    for i, n in enumerate(sizes):
+        tau[i] = chain.thin * autocorrelation_times(rows[:n])
     return sizes * chain.thin, tau
 
 

@@ -517,7 +517,7 @@ class _Run:
             ident = self.identifiability(state, fit)
             posterior, summary = self.posterior(state, fit, ident, posterior_rng)
             status = "converged" if posterior.converged else "not converged"
-            self.lap("posterior")
+            self.lap("inference_data")
             self.report()
         except KeyboardInterrupt:
             status = "interrupted"
@@ -634,6 +634,7 @@ class _Run:
         summary["priors"] = prior_table(log_post)
         write_summary(out, summary)
         write_chain_attributes(out / FILES["chain"], log_post.names, sampled_units(log_post, record))
+        self.lap("posterior")  # the sampling and its summary; the export is the phase "inference_data"
         write_inference_data(out, record, log_post, posterior, seed=opts["seed"])
         self.log(f"posterior: ArviZ InferenceData in {out / 'posterior.nc'}")
         self.show(f"posterior: {posterior.message}")
