@@ -670,18 +670,30 @@ def fitted_contenders(records, model: Model, names, noises, *, n_starts: int = 4
     """Each explanation of ``names`` fitted by least squares on the records (jointly when several)
     as a :class:`Contender`."""
     say = say or (lambda message: None)
-    found = []
+    found, sign = [], "auto"
     for name in names:
         model_e = _explanation_model(name, model)
         say(f"least squares with '{name}'")
         if len(records) == 1:
-            fit = fit_least_squares(records[0], model_e, noise=noises[0], n_starts=n_starts, rng=rng)
+            # The thresholds' sign describes the loop's shape (identify.fitting.lsq), which the
+            # explanations told apart here share: the first fits both signs, the others keep its.
+            fit = fit_least_squares(
+                records[0], model_e, noise=noises[0], n_starts=n_starts, rng=rng, threshold_sign=sign
+            )
+            sign = _sign_name(fit.model)
             found.append(contender(name, fit.model, fit.theta, fit.covariance))
         else:
             jf = fit_joint(records, model_e, noises, n_starts=n_starts, rng=rng)
             n = jf.model.n_parameters
             found.append(contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n]))
     return found
+
+
+def _sign_name(model: Model) -> str:
+    alpha = model.parameters["alpha"]
+    if alpha.vary or model.reading != "swapped":
+        return "auto"
+    return "positive" if alpha.value > 0 else "negative"
 
 
 def design(
