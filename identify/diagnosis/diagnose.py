@@ -43,12 +43,13 @@ from .candidates import CandidateResult, explained_fraction, unrefitted_candidat
 from .decision import STATUSES, Decision, decide
 from .evidence import Evidence, Explanation, gap_between
 from .explanation import explain, where_text
-from .fits import effect_values, working_copy
+from .fits import attempt, effect_values, working_copy
 from .joint import JointDiagnosis, diagnose_records
+from .mimic import mimic_start
 from .pairs import rival_pairs, search_pairs
 from .reparametrisation import exact_reparametrisation
 from .residuals import ResidualProfile
-from .search import Round, Setting, finish_candidate, refit_short, search
+from .search import Round, Setting, finish_candidate, own_values, refit_short, search
 
 __all__ = ["STATUSES", "Diagnosis", "diagnose"]
 
@@ -335,9 +336,40 @@ def _check_rivals(s: Setting, rnd: Round, decision: Decision) -> bool:
         pending = [c.effect for c in _unrefitted(rnd) if c.delta_bic > 0.0]
         _targeted(s, rnd, pending)
         return bool(pending)
+    finished = _unfinished_rivals(s, rnd, decision) if decision.status == "missing_effect" else []
     if decision.rule == "named_from_pair" and decision.best in rnd.pairs:
-        return bool(rival_pairs(s, rnd, decision.missing, rnd.pairs[decision.best]))
-    return False
+        finished += rival_pairs(s, rnd, decision.missing, rnd.pairs[decision.best])
+    return bool(finished)
+
+
+def _unfinished_rivals(s: Setting, rnd: Round, decision: Decision) -> list:
+    """Before a name stands, every candidate the search did not finish is finished from the start
+    that reproduces the named explanation's output (:mod:`identify.diagnosis.mimic`): a
+    screening is no evidence that a rival cannot explain what the name explains. Their names."""
+    named = rnd.pairs.get(decision.best) or rnd.refitted.get(decision.best)
+    if named is None or named.fit is None:
+        return []
+    inside = set(named.effect.split("+"))
+    pending = [n for n in rnd.screened if n not in rnd.refitted and n not in rnd.failed and n not in inside]
+    finished = []
+    for name in pending:
+        s.say(f"before naming '{decision.missing}': '{name}' started where it mimics '{named.effect}'")
+        model_e = rnd.fit.model + name
+        work = s.work.record
+        mimic = attempt(
+            lambda: mimic_start(
+                named.fit.model, named.fit.theta, model_e, name, work.time, work.current, own_values(rnd, name, model_e)
+            ),
+            s.say,
+            "no start",
+        )
+        extra = [] if mimic is None else [mimic]
+        short = attempt(lambda: refit_short(s, rnd, name, model_e, rnd.fit, extra=extra), s.say, "not possible")
+        result = None if short is None else finish_candidate(s, rnd, name, short)
+        if result is not None:
+            rnd.refitted[name] = result
+            finished.append(name)
+    return finished
 
 
 def diagnose(

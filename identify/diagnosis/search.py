@@ -201,7 +201,7 @@ def _screen_blas(s: Setting, rnd: Round, name: str) -> ScreeningResult:
         return screen_one(s.work.record, rnd.fit.model, rnd.fit.theta, s.work.noise, name)
 
 
-def _values(rnd: Round, name: str, model_e: Model) -> list:
+def own_values(rnd: Round, name: str, model_e: Model) -> list:
     """The candidate's own parameter values to start from: its short refit, its screening start,
     then its screening grid."""
     values = []
@@ -220,7 +220,7 @@ def refit_short(s: Setting, rnd: Round, name: str, model_e: Model, donor, extra=
     another candidate's fit, a :class:`~identify.diagnosis.fits.Point`, of ``model_e``'s
     threshold sign): near ``donor`` (with
     ``extra`` and what earlier rounds reached), data-driven, and the screening's step."""
-    values = _values(rnd, name, model_e)
+    values = own_values(rnd, name, model_e)
     groups = [
         near(donor, model_e, values, extra=[*extra, *carried(rnd.carried.get(name, ()), model_e)]),
         data_driven(s.work, model_e, values),
