@@ -23,6 +23,9 @@ its ``virgin_field_overshoot`` form (a first-cycle overshoot of the virgin field
 7001 samples) is taken; the 70001-sample record is the same transducer driven by the paper's
 input at 1 kHz (the generator's ``--like``). No library effect is its form, so every
 candidate, the other sign and the pairs are refitted, the slowest path users meet.
+``--case ringing``: the generator's ``resonance_ringing`` record of seed 21 (outside the
+library, 1 kHz, 70001 samples; ``unexplained`` on 2026-12-02 in 132 s), at 100 Hz the same
+transducer on the paper's input.
 ``--side-by-side N`` runs N diagnoses of the 7001-sample record at once (as the benches'
 workers do on the two cores), alternating numba's OpenMP threads waiting passively between
 kernel calls (``OMP_WAIT_POLICY=PASSIVE``, which the bench runners set) and as libgomp does
@@ -79,21 +82,26 @@ def make_record(fs: float, workdir: Path, case: str = "creep") -> Path:
     return csv
 
 
-def make_overshoot_record(fs: float, workdir: Path) -> Path:
-    """The independent generator's ``virgin_field_overshoot`` record (seed 5) at 100 Hz, or
-    its transducer on the paper's input at ``fs`` Hz (the generator's ``--like``)."""
+#: The cases of independent origin: the generator's seed, its options, and the record's form.
+INDEPENDENT = {
+    "overshoot": (5, ["--new-forms"], "virgin_field_overshoot"),
+    "ringing": (21, [], "resonance_ringing"),
+}
+
+
+def make_independent_record(fs: float, workdir: Path, case: str) -> Path:
+    """The independent generator's record of the case's form (:data:`INDEPENDENT`: its effects
+    suite, one record per form) when it is at ``fs`` Hz, else its transducer on the paper's
+    input at ``fs`` Hz (the generator's ``--like``)."""
+    seed, options, form = INDEPENDENT[case]
     generator = ROOT / "benchmarks" / "independent" / "generator.py"
-    suite = workdir / "independent"
+    suite = workdir / f"independent_{seed}"
     if not (suite / "index.json").exists():
-        options = ["--suite", "effects", "--seed", "5", "--per-form", "1", "--new-forms"]
+        options = ["--suite", "effects", "--seed", str(seed), "--per-form", "1", *options]
         subprocess.run([sys.executable, str(generator), "--out", str(suite), *options], check=True, capture_output=True)
-    truths = [
-        p
-        for p in sorted(suite.glob("*.truth.json"))
-        if json.loads(p.read_text()).get("forms") == ["virgin_field_overshoot"]
-    ]
+    truths = [p for p in sorted(suite.glob("*.truth.json")) if json.loads(p.read_text()).get("forms") == [form]]
     if not truths:
-        raise SystemExit("the generator wrote no virgin_field_overshoot record")
+        raise SystemExit(f"the generator wrote no {form} record")
     truth = truths[0]
     csv = truth.with_name(truth.name.removesuffix(".truth.json") + ".csv")
     if json.loads(truth.read_text()).get("fs") == fs:
@@ -103,10 +111,15 @@ def make_overshoot_record(fs: float, workdir: Path) -> Path:
     paper = np.genfromtxt(make_record(fs, workdir, "creep"), delimiter=",", names=True)
     drive = workdir / f"paper_drive_{int(fs)}.csv"
     np.savetxt(drive, np.c_[paper["time"], paper["current"]], delimiter=",", header="time,current", comments="")
-    stem = f"overshoot_{int(fs)}"
+    stem = f"{case}_{int(fs)}"
     like = ["--like", str(truth), "--input", str(drive), "--stem", stem]
     subprocess.run([sys.executable, str(generator), "--out", str(suite), *like], check=True, capture_output=True)
     return suite / f"{stem}.csv"
+
+
+def make_case_record(fs: float, workdir: Path, case: str) -> Path:
+    """The record of ``case`` at ``fs`` Hz (simulated, or of independent origin)."""
+    return make_independent_record(fs, workdir, case) if case in INDEPENDENT else make_record(fs, workdir, case)
 
 
 def _children_cpu(before: os.times_result, after: os.times_result) -> float:
@@ -120,7 +133,7 @@ def _command(csv: Path, out: Path) -> list[str]:
 
 def run_once(fs: float, workdir: Path, case: str = "creep") -> tuple[float, float, dict]:
     """Simulate at ``fs`` Hz, diagnose in a subprocess; (wall seconds, CPU seconds, diagnosis JSON)."""
-    csv = make_overshoot_record(fs, workdir) if case == "overshoot" else make_record(fs, workdir, case)
+    csv = make_case_record(fs, workdir, case)
     out = workdir / f"{case}_{int(fs)}_diagnosis.json"
     started = time.perf_counter()
     before = os.times()
@@ -157,7 +170,7 @@ def run_side_by_side(csv: Path, workdir: Path, copies: int, wait_policy: str) ->
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="7001 samples only")
-    parser.add_argument("--case", choices=("creep", "unexplained", "overshoot"), default="creep")
+    parser.add_argument("--case", choices=("creep", "unexplained", *INDEPENDENT), default="creep")
     parser.add_argument(
         "--side-by-side",
         type=int,
@@ -169,10 +182,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.side_by_side:
         with tempfile.TemporaryDirectory() as tmp:
-            if args.case == "overshoot":
-                csv = make_overshoot_record(100.0, Path(tmp))
-            else:
-                csv = make_record(100.0, Path(tmp), args.case)
+            csv = make_case_record(100.0, Path(tmp), args.case)
             for policy in ("PASSIVE", "", "PASSIVE", ""):
                 walls, cpu = run_side_by_side(csv, Path(tmp), args.side_by_side, policy)
                 print(
