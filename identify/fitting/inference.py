@@ -30,7 +30,7 @@
   precision, since a value's digits below it are noise and cost most of the file (their
   entropy, not gzip, sets the size): the log-likelihood to the nearest multiple of
   :data:`LOG_LIKELIHOOD_QUANTUM` nats (2^-15, about 3.1e-5: ``az.loo``'s elpd and p_loo
-  move by at most half of it per sample, and by 1e-3 on the bundled record; a Pareto k
+  move by at most half of it per sample, and by 7e-4 on the bundled record; a Pareto k
   by less than 0.1, a fraction of its own Monte Carlo error), the posterior predictive to
   the nearest multiple of the largest power of two at most
   :data:`PREDICTIVE_SIGMA_FRACTION` of the smallest noise sigma (rounding error at most
