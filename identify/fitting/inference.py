@@ -26,14 +26,21 @@
   tail fits shrink with them (docs/benchmarks.md, "The results folder").
 
   Storage: the posterior, ``lp`` and the observed data in float64 (``az.summary`` gives
-  ``summary.json``'s means exactly); the pointwise log-likelihood in float32 (relative
-  6e-8: ``az.loo``'s elpd and Pareto k agree with the float64 values to 1e-4); the
-  posterior predictive in float32 when float32's rounding stays below
-  :data:`FLOAT32_SIGMA_FRACTION` of the noise sigma (else float64: a record with a large
-  offset and little noise). Every variable is gzip-compressed with byte shuffle (HDF5
-  filters any netCDF4 or HDF5 reader decodes), the pointwise groups in chunks of all
-  draws x :data:`POINTWISE_CHUNK_SAMPLES` samples. The file is written with h5netcdf in
-  the layout ArviZ's ``to_netcdf`` writes, without importing ArviZ or xarray.
+  ``summary.json``'s means exactly). The pointwise groups are rounded to a stated
+  precision, since a value's digits below it are noise and cost most of the file (their
+  entropy, not gzip, sets the size): the log-likelihood to the nearest multiple of
+  :data:`LOG_LIKELIHOOD_QUANTUM` nats (2^-15, about 3.1e-5: ``az.loo``'s elpd and p_loo
+  move by at most half of it per sample, and by 7e-4 on the bundled record; a Pareto k
+  by less than 0.1, a fraction of its own Monte Carlo error), the posterior predictive to
+  the nearest multiple of the largest power of two at most
+  :data:`PREDICTIVE_SIGMA_FRACTION` of the smallest noise sigma (rounding error at most
+  sigma/64, adding 1/12288 of the noise variance). Both are stored as float32 where
+  float32 holds the rounded values exactly (float64 otherwise: a record with a large
+  offset and little noise), so every reader gets plain floats. Every variable is
+  gzip-compressed with byte shuffle (HDF5 filters any netCDF4 or HDF5 reader decodes),
+  the pointwise groups in chunks of all draws x :data:`POINTWISE_CHUNK_SAMPLES` samples.
+  The file is written with h5netcdf in the layout ArviZ's ``to_netcdf`` writes, without
+  importing ArviZ or xarray.
 * :func:`write_chain_attributes` puts the parameter names and units on the emcee group of
   ``chain.h5`` (attributes ``parameter_names``, ``parameter_units``), where
   ``emcee.backends.HDFBackend(path, name="mcmc").open()`` finds them (fixed-length UTF-8
@@ -64,9 +71,11 @@ MAX_POINTWISE = 4_000_000
 #: Record samples per HDF5 chunk of the pointwise groups (every walker and draw in a chunk:
 #: a sample's values over the draws lie 64 values apart, which gzip finds).
 POINTWISE_CHUNK_SAMPLES = 64
-#: The posterior predictive is stored as float32 when float32's rounding is at most this
-#: fraction of the noise sigma (else float64).
-FLOAT32_SIGMA_FRACTION = 1e-3
+#: The pointwise log-likelihood is stored rounded to a multiple of this [nats] (2^-15).
+LOG_LIKELIHOOD_QUANTUM = 2.0**-15
+#: The posterior predictive is stored rounded to a multiple of the largest power of two at
+#: most this fraction of the smallest noise sigma.
+PREDICTIVE_SIGMA_FRACTION = 1.0 / 32.0
 #: File name in the results folder.
 FILE = "posterior.nc"
 
@@ -127,12 +136,20 @@ def _ar1_noise(white, correlations) -> np.ndarray:
     return eps
 
 
-def predictive_dtype(predictive, sigma) -> type:
-    """float32 when its rounding (half a unit in the last place at the largest value) stays
-    below :data:`FLOAT32_SIGMA_FRACTION` of the smallest noise sigma, else float64."""
-    largest = float(np.max(np.abs(predictive), where=np.isfinite(predictive), initial=0.0))
-    half_ulp = 0.5 * float(np.spacing(np.float32(largest)))
-    return np.float32 if half_ulp <= FLOAT32_SIGMA_FRACTION * float(np.min(sigma)) else np.float64
+def predictive_quantum(sigma) -> float:
+    """The posterior predictive's rounding step [output unit]: the largest power of two at
+    most :data:`PREDICTIVE_SIGMA_FRACTION` of the smallest noise sigma ``sigma`` (scalar or
+    ``(S, 1)``)."""
+    return float(2.0 ** math.floor(math.log2(PREDICTIVE_SIGMA_FRACTION * float(np.min(sigma)))))
+
+
+def quantised(values, quantum) -> np.ndarray:
+    """``values`` rounded to the nearest multiple of ``quantum`` (a power of two), as float32
+    when float32 holds every rounded value exactly (at most 2^24 steps from zero), else
+    float64; non-finite values kept."""
+    rounded = np.round(np.asarray(values, dtype=float) / quantum) * quantum
+    largest = float(np.max(np.abs(rounded), where=np.isfinite(rounded), initial=0.0))
+    return rounded.astype(np.float32 if largest / quantum <= 2.0**24 else np.float64)
 
 
 def _group(n_chain, n_draw, draw_index):
@@ -155,7 +172,9 @@ def _write_netcdf(path, groups) -> None:
             g.dimensions = {d: len(v[0] if isinstance(v, tuple) else v) for d, v in coords.items()}
             for d, values in coords.items():
                 values, coord_attrs = values if isinstance(values, tuple) else (values, {})
-                g.create_variable(d, (d,), data=values).attrs.update(coord_attrs)
+                # long coordinates (time: three copies of the record's grid) compressed too
+                coord_packed = packed if np.size(values) > POINTWISE_CHUNK_SAMPLES else {}
+                g.create_variable(d, (d,), data=values, **coord_packed).attrs.update(coord_attrs)
             for var, (dims, values, var_attrs, chunks) in variables.items():
                 v = g.create_variable(var, dims, data=values, chunks=chunks, **packed)
                 v.attrs.update(var_attrs)
@@ -233,7 +252,14 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
         ),
         "log_likelihood": (
             pointwise_coords,
-            {"displacement": (dims3, pointwise.reshape(shape).astype(np.float32), {}, pointwise_chunks)},
+            {
+                "displacement": (
+                    dims3,
+                    quantised(pointwise, LOG_LIKELIHOOD_QUANTUM).reshape(shape),
+                    {"rounded_to": LOG_LIKELIHOOD_QUANTUM},
+                    pointwise_chunks,
+                )
+            },
             pointwise_attrs,
         ),
         "posterior_predictive": (
@@ -241,8 +267,8 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
             {
                 "displacement": (
                     dims3,
-                    predictive.reshape(shape).astype(predictive_dtype(predictive, noise_sigma)),
-                    {},
+                    quantised(predictive, predictive_quantum(noise_sigma)).reshape(shape),
+                    {"rounded_to": predictive_quantum(noise_sigma), "unit": unit_out},
                     pointwise_chunks,
                 )
             },

@@ -203,7 +203,10 @@ class BufferedHDFBackend(ChainBackend):
 
     def reset(self, nwalkers, ndim):
         """emcee's :meth:`~emcee.backends.HDFBackend.reset` (same group, datasets and
-        attributes) with chunked, compressed ``chain`` and ``log_prob`` datasets."""
+        attributes) with chunked, compressed ``chain`` and ``log_prob`` datasets, in a file
+        created by :func:`_create_chain_file` when there is none."""
+        if not os.path.lexists(self.filename):
+            _create_chain_file(self.filename)
         with self.open("a") as f:
             if self.name in f:
                 del f[self.name]
@@ -265,6 +268,19 @@ class BufferedHDFBackend(ChainBackend):
     def grow(self, ngrow, blobs):
         self.flush()
         super().grow(ngrow, blobs)
+
+
+def _create_chain_file(path) -> None:
+    """A new, empty HDF5 file at ``path`` that keeps its free space across opens (HDF5's
+    free-space manager, persistent): every flush rewrites the chunk being filled, and
+    without it the old copy's space is lost once the file closes, so a chain written
+    every second grew to several times its data (34.5 MB for 6.0 MB at load 12). ``"x"``
+    refuses anything already at the path, a link included."""
+    import h5py
+
+    require_space(path, CHAIN_METADATA_BYTES)
+    with h5py.File(os.fspath(path), "x", fs_strategy="fsm", fs_persist=True):
+        pass
 
 
 def _step_check(iteration, coords, log_prob, chain_dtype, log_prob_dtype) -> str:
