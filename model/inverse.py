@@ -95,7 +95,8 @@ from .composite import Model
 from .effects._filters import leg_end_level
 from .effects.creep import CREEP_MODES, LOG_CREEP_MODE_WEIGHT, creep_time_constants, log_creep_time_constants
 from .effects.thermal import REFERENCE_CURRENT
-from .gpi import READINGS, THETA_NAMES, initial_operator_memory, operator_thresholds_and_weights
+from .gpi import READINGS, THETA_NAMES
+from .gpi_kernels import initial_operator_memory, operator_thresholds_and_weights
 
 __all__ = [
     "invert",

@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..gpi import kernel_array
+from ..gpi_kernels import kernel_array
 
 __all__ = [
     "MAX_DISTINCT_STEPS",

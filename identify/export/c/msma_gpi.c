@@ -187,7 +187,7 @@ int msma_forward_init(msma_forward *m, const msma_params *p) {
     return MSMA_OK;
 }
 
-/* The weighted memory sum in four interleaved partial sums (model.gpi._weighted_sum's order). */
+/* The weighted memory sum in four interleaved partial sums (model.gpi_kernels._weighted_sum's order). */
 static double weighted_sum(const double *weight, const double *memory) {
     double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
     int j = 0;
