@@ -5,7 +5,8 @@ What is here, and nothing else:
 - :func:`fast_tanh`, the branch-free ``tanh`` within 4 ulp of libm's that lets the
   per-sample loops vectorise, and the envelope form ``k0 tanh(k1 v + k2) + k3`` built on it;
 - :func:`operator_thresholds_and_weights` (eqs. (8)-(9)) and :func:`initial_operator_memory`
-  (eq. (8) and a prior excursion), shared with :mod:`model.inverse`'s kernel;
+  (eq. (8) and a prior excursion), shared with the inverse (:mod:`model.inverse_step`,
+  :mod:`model.inverse_search`);
 - :func:`gpi_kernel`, eq. (5) for a batch of parameter sets, parallel over the batch, with
   its helpers (the branch values, the input's directions, the weighted memory sum);
 - :func:`play_kernel`, the classical Prandtl-Ishlinskii plays of :func:`model.gpi.classical_pi`;
@@ -172,7 +173,7 @@ def initial_operator_memory(level, threshold, rising_env, falling_env, excursion
 
     ``rising_env``, ``falling_env``: the envelopes at ``v_0``; ``excursion_env``: the rising
     envelope at ``v_0 + e`` for ``e > 0``, the falling one for ``e < 0`` (not read at 0).
-    Shared by the forward kernel and :mod:`model.inverse`'s first step.
+    Shared by the forward kernel and the inverse's first step (:mod:`model.inverse_step`).
     """
     lower = rising_env - threshold
     upper = falling_env + threshold

@@ -2,8 +2,8 @@
 its JSON form, and the units of its parameters in a record's units (:func:`parameter_units`).
 
 The fit itself is :func:`identify.fitting.lsq.fit_least_squares` (method in
-:mod:`identify.fitting.lsq`'s docstring); this module holds only the result's shape, so the
-output and the workflows read a fit without the solver.
+:mod:`identify.fitting.lsq`'s docstring); this module holds only the result's shape and its
+JSON form.
 """
 
 from __future__ import annotations
