@@ -23,6 +23,8 @@ setting, so the test suite can iterate over the whole library.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from .effects.base import EFFECTS, STAGES, Effect, get_effect, register_effect
@@ -119,8 +121,6 @@ class Model:
         """A copy with other parameter settings (values, bounds, pins): ``parameters`` must
         hold this model's parameters, in its order. The effects and the GPI settings are shared
         (the forward model does not read the settings)."""
-        import copy
-
         parameters = ParameterSet(parameters)
         if parameters.names != self.names:
             raise ValueError(f"parameters {list(parameters.names)} are not those of {self!r}: {list(self.names)}")

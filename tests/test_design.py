@@ -16,12 +16,12 @@ from identify.fitting.parametrisation import normalised_model
 from identify.workflows.design import (
     FAMILIES,
     RigLimits,
-    _draw,
     contender,
     discrimination,
     drive_of,
     fitted_contenders,
     p_right,
+    random_drive_parameters,
 )
 from model import Model
 
@@ -33,7 +33,7 @@ def test_every_drive_keeps_the_rigs_limits_and_starts_quiet(family):
     rng = np.random.default_rng(1)
     made = 0
     for _ in range(30):
-        drive = drive_of(family, _draw(rng, family), LIMITS, period=10.0)
+        drive = drive_of(family, random_drive_parameters(rng, family), LIMITS, period=10.0)
         if drive is None:  # beyond the duration or the RMS limit: refused, never clipped
             continue
         made += 1

@@ -1101,14 +1101,14 @@ def test_training_with_every_strength_on_batch_is_each_rows_own_output(paper_inp
 
 
 def _compiled_versions():
-    """``{kernel: number of compiled versions}`` of every numba kernel of the model (the GPI and
-    every module of the effects package)."""
+    """``{kernel: number of compiled versions}`` of every numba kernel of the model (the GPI's
+    kernels and every module of the effects package)."""
     import sys
 
-    import model.gpi as gpi_module
+    import model.gpi_kernels as gpi_kernels
     from model.effects import LIBRARY, _filters
 
-    modules = [gpi_module, _filters] + [sys.modules[effect.__module__] for effect in LIBRARY]
+    modules = [gpi_kernels, _filters] + [sys.modules[effect.__module__] for effect in LIBRARY]
     return {
         f"{module.__name__}.{name}": len(obj.signatures)
         for module in modules

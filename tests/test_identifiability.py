@@ -186,13 +186,13 @@ def _kink_problem():
 def test_the_scaling_is_exact_at_an_optimum_on_a_kink():
     """The eigenvalues alone miss the scaling there (ratio ~1e-9, not ~1e-16); the finite
     invariance check lists it, with eigenvalue 0, and finds nothing else exact."""
-    from identify.fitting.identifiability import _exact_directions
+    from identify.fitting.identifiability import exact_directions
 
     residuals, theta, jac, names = _kink_problem()
     by_eigenvalues = analyse_identifiability(jac, theta, names)
     assert by_eigenvalues.eigenvalues[0] / by_eigenvalues.eigenvalues[-1] > 1e3 * EXACT_RATIO
     assert by_eigenvalues.exact == []
-    exact = _exact_directions(residuals, theta, jac, names, 8)
+    exact = exact_directions(residuals, theta, jac, names, 8)
     assert len(exact) == 1
     assert set(exact[0].combination) == set(SCALING_PARAMETERS) and exact[0].eigenvalue == 0.0
     assert abs(exact[0].vector @ scaling_direction(theta, names)) == pytest.approx(1.0, abs=1e-12)
@@ -204,7 +204,7 @@ def test_the_scaling_is_not_listed_when_the_output_is_not_invariant(monkeypatch)
     import identify.fitting.identifiability as ident
 
     residuals, theta, jac, names = _kink_problem()
-    assert ident._invariant_under_scaling(residuals, theta)
+    assert ident.invariant_under_scaling(residuals, theta)
 
     def alpha_only(theta, k):
         out = np.array(theta, dtype=float)
@@ -212,5 +212,5 @@ def test_the_scaling_is_not_listed_when_the_output_is_not_invariant(monkeypatch)
         return out
 
     monkeypatch.setattr(ident, "gpi_scaling", alpha_only)
-    assert not ident._invariant_under_scaling(residuals, theta)
-    assert ident._exact_directions(residuals, theta, jac, names, 8) == []
+    assert not ident.invariant_under_scaling(residuals, theta)
+    assert ident.exact_directions(residuals, theta, jac, names, 8) == []

@@ -193,8 +193,8 @@ def test_timing_keys_are_not_compared():
 
 def test_batch_thread_count_is_read_for_the_rerun(tmp_path):
     """A run made by a batch is rerun with the batch's thread count (BLAS sums depend on it)."""
-    assert R._recorded_threads(tmp_path) is None
+    assert R.recorded_threads(tmp_path) is None
     (tmp_path / "batch_job.json").write_text(json.dumps({"key": "r__v", "threads": 1}))
-    assert R._recorded_threads(tmp_path) == 1
+    assert R.recorded_threads(tmp_path) == 1
     (tmp_path / "batch_job.json").write_text(json.dumps({"threads": "many"}))
-    assert R._recorded_threads(tmp_path) is None
+    assert R.recorded_threads(tmp_path) is None

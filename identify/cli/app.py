@@ -13,13 +13,19 @@ too (exit 1; ``IDENTIFY_DEBUG=1`` shows the traceback). See docs/reliability.md.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import importlib
+import importlib.metadata as md
 import os
 import signal
 import sys
 import threading
 
 from ..commands import COMMANDS, PARENT_VARIABLE, add_command_arguments
+from ..data.fileio import DiskFullError, LinkedFileError, is_disk_full
+from ..data.hdf5 import ChainFileError
+from ..logs import configure
+from .options import OptionError
 
 #: Exit code -> meaning (printed by ``--help``; docs/reproducibility.md). The numbers are
 #: :mod:`identify.defaults`' ``EXIT_*``.
@@ -57,8 +63,6 @@ class _Parser(argparse.ArgumentParser):
 
 def version() -> str:
     """The installed package's version (``msma-gpi``), or pyproject's when run from a checkout."""
-    import importlib.metadata as md
-
     try:
         return md.version("msma-gpi")
     except md.PackageNotFoundError:  # pragma: no cover - not installed
@@ -90,13 +94,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def input_errors() -> tuple:
     """Exception types that mean bad input or usage (exit code 2)."""
-    from ..data.fileio import LinkedFileError
-    from ..data.hdf5 import ChainFileError
+    # deferred (--help imports every command's module): data.locks: json, fcntl, +7 ms
     from ..data.locks import FolderBusyError
+
+    # deferred (--help imports every command's module): fitting.priors: numpy, scipy, numba, +550 ms
     from ..data.records import RecordError
     from ..fitting.priors import PriorsError
     from ..output.results import DamagedResultsError, RunMismatchError
-    from .options import OptionError
 
     return (
         FolderBusyError,
@@ -117,8 +121,6 @@ def _die_with_parent() -> None:
         return
     if sys.platform.startswith("linux"):
         try:
-            import ctypes
-
             libc = ctypes.CDLL(None, use_errno=True)
             libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
         except (OSError, AttributeError):
@@ -196,8 +198,6 @@ def _main(argv) -> int:
         if not getattr(args, "command", None):
             parser.print_help()
             return 2
-        from ..logs import configure
-
         configure(getattr(args, "verbose", 0), getattr(args, "quiet", 0))
         module = importlib.import_module(args._module)
         return int(module.run(args) or 0)
@@ -221,8 +221,6 @@ def _main(argv) -> int:
     except OSError as exc:
         if os.environ.get(DEBUG_VARIABLE):
             raise
-        from ..data.fileio import DiskFullError, is_disk_full
-
         if is_disk_full(exc):  # one line naming the file and what to do
             full = exc if isinstance(exc, DiskFullError) else DiskFullError(exc.filename)
             print(f"error: {full}", file=sys.stderr)

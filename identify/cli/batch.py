@@ -34,8 +34,10 @@ def run(args) -> int:
     """Run the batch; exit code 0 when every job succeeded, 1 when some failed or did not converge
     (solver or chain), 2 for a bad config
     (or a batch folder in use), 130 when stopped by Ctrl-C or SIGTERM (rerun it to resume)."""
+    # deferred (--help imports every command's module): dataclasses: inspect, ast, dis, +6 ms
     from dataclasses import replace
 
+    # deferred (--help imports every command's module): workflows.batch: +40 ms (its code, csv, subprocess)
     from ..workflows.batch import EXECUTORS, BatchConfigError, expand_jobs, load_config, run_batch
 
     try:

@@ -5,6 +5,8 @@ model and the manifest's settings."""
 from __future__ import annotations
 
 import argparse
+import time
+from pathlib import Path
 
 from ..defaults import DEFAULT_N_STARTS
 from ..workflows.fit import parse_effects, say
@@ -97,6 +99,7 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
 def records_from_args(args, *, hint=True) -> list:
     """The records DATA names (one or more), each as :func:`record_from_args` loads it; the same file
     twice, or records in other units, are an error naming the record."""
+    # deferred (--help imports every command's module): fitting.joint: numpy, scipy, numba, emcee, +1.1 s
     from ..fitting.joint import check_records
 
     paths = args.data if isinstance(args.data, (list, tuple)) else [args.data]
@@ -110,9 +113,7 @@ def record_from_args(args, *, hint=True, path=None):
     needs gets a ``note:`` suggesting ``--every`` (:func:`identify.data.records.suggest_every`).
     Column names that coincide are an :class:`identify.cli.options.OptionError`.
     """
-    import time
-    from pathlib import Path
-
+    # deferred (--help imports every command's module): data.records: numpy, +110 ms
     from ..data.records import keep_every, load_record, suggest_every
 
     time_column = None if str(args.time_column).lower() == "none" else args.time_column
@@ -167,6 +168,7 @@ def check_input_moves(record, column) -> None:
     """A record whose drive never moves (every sample equal, e.g. an all-zero current) has no
     hysteresis to identify: a :class:`identify.data.records.RecordError` saying so, before a
     least squares that would fail with advice about the model."""
+    # deferred (--help imports every command's module): data.records: numpy, +110 ms
     import numpy as np
 
     from ..data.records import RecordError
@@ -181,6 +183,7 @@ def check_input_moves(record, column) -> None:
 
 def model_from_args(args, *, normalise=True):
     """The model the options describe; with the normalisation (alpha pinned) by default."""
+    # deferred (--help imports every command's module): fitting.parametrisation: the model and numba, +380 ms
     from model import Model
 
     from ..fitting.parametrisation import normalised_model
@@ -190,6 +193,7 @@ def model_from_args(args, *, normalise=True):
 
 
 def noise_from_args(args, record):
+    # deferred (--help imports every command's module): fitting.noise: numpy, scipy, numba, +280 ms
     from ..fitting.noise import estimate_noise
 
     return estimate_noise(record, noise_sigma=args.noise_sigma)
@@ -206,6 +210,7 @@ def settings_from_args(args) -> dict:
         settings[key] = value
     settings["data"] = str(args.data)
     if getattr(args, "priors", None):  # the file's content counts, not only its name
+        # deferred (--help imports every command's module): workflows.study: the sampler (numpy, numba, emcee)
         from ..workflows.study import priors_settings
 
         settings.update(priors_settings(args.priors))

@@ -24,8 +24,10 @@ finished study), nothing written.
 from __future__ import annotations
 
 import argparse
+import time
 
 from . import options
+from .predict import compute_and_write, parse_span, timed_progress
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -56,12 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    import time
 
+    # deferred (--help imports every command's module): workflows.use: numpy, scipy, numba, matplotlib, +1.6 s
     import numpy as np
 
     from ..workflows.use import compensate, load_study, load_target, write_compensation
-    from .predict import compute_and_write, parse_span, timed_progress
 
     started, progress = timed_progress()
 

@@ -22,8 +22,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
+from ..workflows.fit import say
 from . import options
+from .common import add_model_arguments, add_record_arguments, model_from_args, records_from_args
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -31,8 +34,6 @@ HELP = "design the next experiment: the drive that decides between the effects t
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from .common import add_model_arguments, add_record_arguments
-
     add_record_arguments(parser, several=True)
     add_model_arguments(parser)
     parser.set_defaults(n_starts=4)
@@ -61,15 +62,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    import time
 
+    # deferred (--help imports every command's module): workflows.design: numpy, scipy, numba, +1.5 s
     import numpy as np
 
     from ..data.records import RecordError
     from ..output.design_report import write_design
     from ..workflows.design import RigLimits, design
-    from ..workflows.fit import say
-    from .common import model_from_args, records_from_args
 
     started = time.perf_counter()
 

@@ -21,9 +21,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+from pathlib import Path
 
+from ..data.fileio import atomic_write
 from ..logs import say
 from . import options
+from .common import add_model_arguments, add_record_arguments, model_from_args, noise_from_args, records_from_args
 
 __all__ = ["HELP", "add_arguments", "parse_window", "run", "write_outputs"]
 
@@ -31,8 +35,6 @@ HELP = "least squares + diagnosis: is the residual noise, and which physical eff
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from .common import add_model_arguments, add_record_arguments
-
     add_record_arguments(parser, several=True)
     add_model_arguments(parser)
     parser.set_defaults(n_starts=6)
@@ -73,9 +75,7 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
     out_dir : path-like, optional
         Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure.
     """
-    from pathlib import Path
-
-    from ..data.fileio import atomic_write
+    # deferred (--help imports every command's module): output.report: numpy, scipy, numba, matplotlib, +1.4 s
     from ..output.diagnosis_plots import diagnosis_figures
     from ..output.report import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
     from ..output.results import write_json
@@ -107,6 +107,7 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
 
 def run(args) -> int:
     """Diagnose; exit code 0 done, 2 bad input, 130 interrupted. ``--out DIR`` is locked from the start."""
+    # deferred (--help imports every command's module): data.locks: json, fcntl, +7 ms
     from ..data.locks import FolderLock
 
     if getattr(args, "drop_window", None):
@@ -123,14 +124,13 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    import time
 
+    # deferred (--help imports every command's module): diagnosis: numpy, scipy, numba, +1.6 s
     import numpy as np
 
     from ..data.records import RecordError
     from ..diagnosis import diagnose
     from ..fitting.noise import NoQuietSegmentError
-    from .common import model_from_args, noise_from_args, records_from_args
 
     try:
         records = records_from_args(args)

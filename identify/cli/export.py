@@ -25,9 +25,13 @@ compilers tried).
 from __future__ import annotations
 
 import argparse
+import sys
+import time
+from pathlib import Path
 
 from ..logs import say
 from . import options
+from .predict import parse_span, timed_progress
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -61,13 +65,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    import sys
-    import time
-    from pathlib import Path
 
+    # deferred (--help imports every command's module): workflows.use: numpy, scipy, numba, matplotlib, +1.6 s
     from ..export import CompilerError, ExportError, export
     from ..workflows.use import UseError
-    from .predict import parse_span, timed_progress
 
     started, progress = timed_progress()
     out = Path(args.out) if args.out else Path(args.dir) / "export"

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
+import time as _time
+from pathlib import Path
 
+from ..defaults import EXIT_FINDING
 from ..workflows.fit import (
     LONG_RECORD_SAMPLES,
     FitFailedError,
@@ -65,10 +69,6 @@ def _fit_settings(args) -> dict:
 def _fit_exit_code(fit) -> int:
     """0 when the solver converged; 1 (:data:`identify.defaults.EXIT_FINDING`, a warning line
     says so) when it stopped without converging: the parameters are then not a minimum."""
-    import logging
-
-    from ..defaults import EXIT_FINDING
-
     if fit.success:
         return 0
     say(
@@ -82,9 +82,7 @@ def _fit_exit_code(fit) -> int:
 def run(args) -> int:
     """Fit; exit code 0 done (solver converged), 1 the solver did not converge, 2 bad input
     (one ``error:`` line), 130 interrupted."""
-    import time as _time
-    from pathlib import Path
-
+    # deferred (--help imports every command's module): fitting.noise: numpy, scipy, numba, +280 ms; data.locks +7 ms
     import numpy as np
 
     from ..data.locks import FolderLock

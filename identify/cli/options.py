@@ -194,6 +194,7 @@ def number_pair(text, option: str, *, form: str = "A:B with two numbers", exampl
 def unit(text) -> str:
     """A unit (``--input-unit``, ``--output-unit``): a short printable string
     (:func:`identify.data.records.unit_problem`), e.g. ``um``, ``V``, ``mm/s``."""
+    # deferred (--help imports every command's module): data.records: numpy, +110 ms
     from ..data.records import unit_problem
 
     problem = unit_problem(text)

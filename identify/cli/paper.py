@@ -43,6 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     """Simulate, write the figures and ``paper.md`` into ``args.out``; 0 on success, 2 on bad options."""
+    # deferred (--help imports every command's module): workflows.paper: numpy, scipy, numba, +300 ms
     from ..workflows.paper import FIGURE_FILES, paper_input, write_paper
 
     try:

@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+from pathlib import Path
 
 from ..logs import say
 from . import options
@@ -75,8 +77,6 @@ def parse_span(text: str, option: str) -> tuple[float, float]:
 def timed_progress():
     """``(started, progress)``: the start time and a ``progress(message)`` that says the message
     with the seconds since then (INFO: hidden by -q, the old --quiet)."""
-    import time
-
     started = time.perf_counter()
 
     def progress(message):
@@ -92,8 +92,7 @@ def compute_and_write(args, data_path, prefix: str, compute, write):
     Returns ``(result, out)``, or None after one ``error:`` line for a
     :class:`identify.workflows.use.UseError` or ValueError (nothing written).
     """
-    from pathlib import Path
-
+    # deferred (--help imports every command's module): workflows.use: numpy, scipy, numba, matplotlib, +1.6 s
     from ..workflows.use import UseError
 
     try:
@@ -107,8 +106,8 @@ def compute_and_write(args, data_path, prefix: str, compute, write):
 
 
 def run(args) -> int:
-    import time
 
+    # deferred (--help imports every command's module): workflows.use: numpy, scipy, numba, matplotlib, +1.6 s
     import numpy as np
 
     from ..workflows.use import load_record_for_study, load_study, predict, write_prediction

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time as _time
+from pathlib import Path
 
 from . import options
 
@@ -41,8 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     """Write the report; exit code 2 with a one-line message for a folder that cannot be reported on."""
-    from pathlib import Path
-
+    # deferred (--help imports every command's module): output.report: numpy, scipy, matplotlib, +1.4 s; locks +7 ms
     import numpy as np
 
     from ..data.locks import FolderLock

@@ -33,6 +33,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     """Exit code 0: reproduced exactly; 1: it differs (printed what); 2: cannot rerun (manifest, data,
     damaged results, an existing --out folder)."""
+    # deferred (--help imports every command's module): workflows.reproduce: numpy, +100 ms
     from ..workflows.reproduce import REPORT_FILE, DataChangedError, ManifestError, reproduce
 
     try:

@@ -12,6 +12,7 @@ software version and git commit). The same options and seed give the same CSV by
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -86,6 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     """Simulate and write the record and its sidecar; 0 on success, 2 on a bad option."""
+    # deferred (--help imports every command's module): data.records: numpy, +110 ms
     from ..data.records import write_record
     from ..output.results import git_head
 
@@ -136,6 +138,7 @@ def _command_line(args) -> str:
 
 def _drive_file(path: str):
     """``(time, current)`` of a drive file (columns time,current), or a one-line error naming it."""
+    # deferred (--help imports every command's module): data.records: numpy, +110 ms
     from ..data.records import load_record
 
     drive = load_record(path, output_column=None, min_samples=2)
@@ -145,8 +148,7 @@ def _drive_file(path: str):
 def _simulation(args):
     """The simulation the options ask for: the bench's transducer with --effects, or --truth's, on the
     paper's drive, the drive with holds or a given drive file."""
-    import json
-
+    # deferred (--help imports every command's module): bench.synthetic: the model and numba, +340 ms
     from ..bench.synthetic import simulate, simulate_like
 
     given = None if args.input in INPUT_READINGS else _drive_file(args.input)

@@ -14,7 +14,9 @@ import sys
 from pathlib import Path
 
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, EXIT_FINDING
+from ..workflows.fit import FitFailedError, print_record_notes, say
 from . import options
+from .app import input_errors
 from .common import add_model_arguments, add_record_arguments, model_from_args, record_from_args, settings_from_args
 
 __all__ = ["HELP", "add_arguments", "run", "run_study"]
@@ -84,9 +86,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     """The study; exit code 0 done and converged, 1 done but the chain did NOT CONVERGE, 2 bad input,
     130 interrupted (:data:`identify.cli.app.EXIT_CODES`)."""
+    # deferred (--help imports every command's module): fitting.noise: numpy, scipy, numba, +280 ms
     from ..fitting.noise import NoQuietSegmentError
-    from ..workflows.fit import FitFailedError
-    from .app import input_errors
 
     try:
         return run_study(args)
@@ -98,8 +99,10 @@ def run(args) -> int:
 def run_study(args) -> int:
     """The study of the parsed options; returns the exit code (0 converged, 1 NOT CONVERGED,
     :attr:`identify.workflows.study.StudyResult.exit_code`)."""
+    # deferred (--help imports every command's module): data.locks: json, fcntl, +7 ms
     from ..data.locks import FolderLock
-    from ..workflows.fit import print_record_notes, say
+
+    # deferred (--help imports every command's module): workflows.study: the sampler (numpy, numba, emcee)
     from ..workflows.study import check_priors, check_walkers, study
 
     out = Path(args.out)

@@ -79,7 +79,7 @@ def open_hdf5(path, mode: str = "r", *, wait: float = LOCK_WAIT_SECONDS, sleep=t
     identify.data.fileio.LinkedFileError
         Writing, and ``path`` is a symbolic link or has another hard link.
     """
-    import h5py
+    import h5py  # deferred: ~0.6 s to import, and cli.app imports this module for its error type
 
     path = os.fspath(path)
     if mode != "r":

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .hdf5 import open_hdf5
+
 __all__ = ["read_mat_variables", "MatFileError", "MAT_SUFFIX"]
 
 #: File suffix read as a MATLAB file by :func:`identify.data.records.load_record`.
@@ -68,7 +70,7 @@ def read_mat_variables(path, wanted) -> tuple[dict, str]:
 
 def _read_v5(path: Path, wanted) -> tuple[dict, str]:
     """``{name: array}`` of the top-level variables (or one struct's fields) and a description."""
-    import scipy.io
+    import scipy.io  # deferred: ~0.8 s to import, needed only for a MATLAB v5 record
 
     try:
         contents = scipy.io.loadmat(str(path), squeeze_me=False, struct_as_record=True)
@@ -93,9 +95,7 @@ def _read_v5(path: Path, wanted) -> tuple[dict, str]:
 
 def _read_v73(path: Path, wanted) -> tuple[dict, str]:
     """As :func:`_read_v5` for a v7.3 (HDF5) file."""
-    import h5py
-
-    from .hdf5 import open_hdf5
+    import h5py  # deferred: h5py costs ~0.6 s to import, needed only for a v7.3 file
 
     try:
         with open_hdf5(path, "r") as f:

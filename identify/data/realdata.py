@@ -53,12 +53,13 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from .fileio import atomic_write, toml_module
+from .records import load_record
 
 __all__ = [
     "shared_realdata_dir",
@@ -307,8 +308,6 @@ def load_sma_sequence(path=None):
         773 samples; time is the sample index (the file has none) and the record's notes
         say so. Input ``v_input`` [V, unconfirmed], output ``y_output`` [unknown units].
     """
-    from .records import load_record
-
     if path is None:
         path = shared_realdata_dir() / "sma_morphing_wing_ga" / "input_data_sequence.csv"
     return load_record(path, **REAL_RECORDS["sma_morphing_wing_ga"].load_options)
@@ -375,8 +374,6 @@ def drop_window(record, start, stop):
     ValueError
         ``start >= stop``, or the window holds no sample or every sample.
     """
-    from dataclasses import replace
-
     if not (np.isfinite(start) and np.isfinite(stop) and start < stop):
         raise ValueError(f"drop_window needs start < stop (finite), got {start!r}, {stop!r}")
     time = np.asarray(record.time)

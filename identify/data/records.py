@@ -23,12 +23,14 @@ leaves a half-written file.
 
 from __future__ import annotations
 
+import codecs
 import difflib
 import hashlib
 import json
 import math
+from array import array
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -218,8 +220,6 @@ def _hash_and_check_text(path: Path):
     """SHA-256 of the file and its size, checking it is UTF-8 text, in 1 MB chunks (memory O(1)).
 
     Raises RecordError naming the line of the first byte that is not UTF-8."""
-    import codecs
-
     digest = hashlib.sha256()
     decoder = codecs.getincrementaldecoder("utf-8")()
     newlines = 0
@@ -467,8 +467,6 @@ def _parse_rows(fh, path: Path, layout: _Layout, wanted: list, size: int, progre
     """Parsing: the data rows after the header, streamed into one ``array('d')`` per wanted
     column. Returns ``([(name, index, values)], the 1-based lines of the blank or comment
     lines skipped, whether a decimal comma was read)``; a bad row raises (:func:`_row_error`)."""
-    from array import array
-
     n_columns = len(layout.names)
     parse_number = layout.parse_number
     columns = [(name, layout.indices[name], array("d")) for name in wanted]
@@ -868,8 +866,6 @@ def keep_every(record: Record, every: int) -> Record:
     every = int(every)
     if every == 1:
         return record
-    from dataclasses import replace
-
     n = len(record)
     keep = thinning_indices(record.current, every)
     note = (

@@ -66,7 +66,7 @@ import emcee
 import numpy as np
 from numba import njit
 
-from model import THETA_NAMES
+from model import TABLE1, THETA_NAMES
 
 __all__ = ["GPICoordinates", "IdentityCoordinates", "CoordinateMove", "COORDINATES", "coordinates_for"]
 
@@ -442,8 +442,6 @@ class GPICoordinates:
     def get_test_parameters():
         """A small setting for the tests: the 18 free GPI parameters of the normalised
         model at Table 1 (alpha pinned), 12 operators, input 0-5 A."""
-        from model import TABLE1
-
         names = [n for n in THETA_NAMES if n != "alpha"]
         lower = np.full(len(names), -np.inf)
         for n in ("a1", "b1", "c1", "d1", "rho", "a0", "b0"):

@@ -46,6 +46,8 @@ __all__ = [
     "IdentifiabilityResult",
     "analyse_identifiability",
     "analyse_fit",
+    "exact_directions",
+    "invariant_under_scaling",
 ]
 
 EXACT_RATIO = 1e-13
@@ -234,7 +236,7 @@ SCALING_CHECK = 0.01
 SCALING_TOLERANCE = 1e-6
 
 
-def _invariant_under_scaling(residuals: WhitenedResiduals, theta) -> bool:
+def invariant_under_scaling(residuals: WhitenedResiduals, theta) -> bool:
     """Whether the output at full vector ``theta`` is unchanged by :func:`gpi_scaling` with
     ``k = 1 + SCALING_CHECK`` (a finite check: exact symmetries hold for any ``k``)."""
     free = residuals.free
@@ -243,11 +245,11 @@ def _invariant_under_scaling(residuals: WhitenedResiduals, theta) -> bool:
     return bool(np.all(np.isfinite(before)) and np.max(np.abs(after - before)) <= SCALING_TOLERANCE)
 
 
-def _exact_directions(residuals: WhitenedResiduals, theta, jacobian, names, max_terms) -> list:
+def exact_directions(residuals: WhitenedResiduals, theta, jacobian, names, max_terms) -> list:
     """The exact degeneracies of the released problem (every GPI parameter free) at full vector ``theta``.
 
     The GPI scaling (:func:`gpi_scaling`) is exact by construction; it is listed when a finite
-    check confirms it for this model and record (:func:`_invariant_under_scaling`), with
+    check confirms it for this model and record (:func:`invariant_under_scaling`), with
     eigenvalue 0, and the search for further numerically-zero eigenvalues runs in the
     complement of its direction. Why not from the eigenvalues alone: where operator bounds
     cross, the output has kinks in the parameters, and a central difference that straddles one
@@ -258,7 +260,7 @@ def _exact_directions(residuals: WhitenedResiduals, theta, jacobian, names, max_
     lam_max = float(np.linalg.eigvalsh(fisher)[-1])
     exact, basis = [], np.eye(len(names))
     direction = scaling_direction(theta, names)
-    if np.linalg.norm(direction) > 0 and _invariant_under_scaling(residuals, theta):
+    if np.linalg.norm(direction) > 0 and invariant_under_scaling(residuals, theta):
         exact.append(_direction(0.0, lam_max, direction, names, max_terms))
         basis = np.linalg.svd(np.eye(len(names)) - np.outer(direction, direction))[0][:, : len(names) - 1]
     values, vectors = np.linalg.eigh(basis.T @ fisher @ basis)
@@ -274,7 +276,7 @@ def analyse_fit(fit, record, **kwargs) -> IdentifiabilityResult:
     Two Fisher analyses at ``fit.theta`` (central-difference Jacobians of the whitened
     residuals): with the normalisation released (every GPI parameter free), for the
     **exact** degeneracies (the scaling of :func:`gpi_scaling`, confirmed by a finite check,
-    and any further numerically-zero eigenvalue: :func:`_exact_directions`); and with the
+    and any further numerically-zero eigenvalue: :func:`exact_directions`); and with the
     fitted model's pins, whose weak directions are the **near**-degenerate ones that remain.
     Eigenvalues and the condition number are those of the normalised (fitted) problem.
 
@@ -302,7 +304,7 @@ def analyse_fit(fit, record, **kwargs) -> IdentifiabilityResult:
         theta_released[:] = fit.theta
         jac_released = released_res.central_jacobian(theta_released[released_res.free])
         names_released = [released.names[i] for i in released_res.free]
-        exact = _exact_directions(released_res, theta_released, jac_released, names_released, result.max_terms)
+        exact = exact_directions(released_res, theta_released, jac_released, names_released, result.max_terms)
     return IdentifiabilityResult(
         names=result.names,
         scales=result.scales,

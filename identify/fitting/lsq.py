@@ -56,7 +56,7 @@ contains dogbox's alone, so the search only adds ends to what dogbox's ranking p
 Table-1-shaped starts (``table1``, ``data_scaled``, ``classical``) are made for Table 1's
 12 operators; for ``N`` operators they are rescaled so the operators keep the same
 threshold range and total weight (``alpha`` and ``rho`` times ``12/N``, then the exact
-scaling restores a pinned ``alpha``; :func:`_rescaled_to_operators`).
+scaling restores a pinned ``alpha``; :func:`identify.fitting.lsq_starts._rescaled_to_operators`).
 
 Starts "agree" when their final chi-square is within 1 of the best (statistically indistinguishable
 fits); a start screened out counts as not agreeing, so ``n_agree`` is a lower bound.
@@ -86,699 +86,75 @@ from __future__ import annotations
 import logging
 import math
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
-from numba import njit
 from scipy.optimize import least_squares
 
-from model import GPI_PARAMETERS, THETA_NAMES, Model
+from model import THETA_NAMES, Model
 
 from .coordinates import GPICoordinates
-from .noise import NoiseModel, energised_mask, estimate_noise, whiten_rows
-from .parametrisation import gpi_scaling, in_record_units, record_unit_factors, with_threshold_sign
+from .lsq_residuals import CENTRAL_STEP_POWER, DOMAIN_PENALTY, WhitenedResiduals, difference_columns
+from .lsq_result import FitResult, StartOutcome, parameter_units
+from .lsq_solver import (
+    ALTERNATE_METHOD,
+    N_POLISH,
+    N_POLISH_ALTERNATE,
+    POLISH_EVALUATIONS,
+    SCREEN_EVALUATIONS,
+    SOLVER_METHOD,
+    STALL_CHI2,
+    STALL_ITERATIONS,
+    STALLED,
+    TOLERANCE,
+    StallStop,
+    bounded_solve,
+    solver_verdict,
+)
+from .lsq_starts import PAPER_PEAK_INPUT, TABLE1_N_OPERATORS, candidate_starts
+from .noise import NoiseModel, energised_mask, estimate_noise
+from .parametrisation import in_record_units, with_threshold_sign
 from .threads import fastest_thread_count, single_threaded_blas
 
 _log = logging.getLogger(__name__)  # a child of the "identify" logger (identify.logs)
 
+#: The fit's public face; the names from :mod:`identify.fitting.lsq_result`,
+#: :mod:`~identify.fitting.lsq_residuals`, :mod:`~identify.fitting.lsq_starts` and
+#: :mod:`~identify.fitting.lsq_solver` are re-exported here, where they were before the split.
 __all__ = [
     "FitResult",
     "StartOutcome",
     "fit_least_squares",
     "candidate_starts",
     "WhitenedResiduals",
+    "difference_columns",
     "DOMAIN_PENALTY",
+    "CENTRAL_STEP_POWER",
     "TABLE1_N_OPERATORS",
     "PAPER_PEAK_INPUT",
     "THRESHOLD_SIGNS",
+    "AGREE_CHI2",
     "parameter_units",
     "StallStop",
+    "solver_verdict",
     "bounded_solve",
+    "SCREEN_EVALUATIONS",
+    "N_POLISH",
+    "N_POLISH_ALTERNATE",
+    "SOLVER_METHOD",
+    "ALTERNATE_METHOD",
+    "POLISH_EVALUATIONS",
+    "TOLERANCE",
+    "STALL_ITERATIONS",
+    "STALL_CHI2",
+    "STALLED",
 ]
 
-#: Whitened residual per sample returned for a parameter set whose model output is not finite.
-DOMAIN_PENALTY = 1e5
-#: Peak drive of the paper's record [A]; the input scale of the data-driven start.
-PAPER_PEAK_INPUT = 5.0
-#: Central-difference step ``eps**CENTRAL_STEP_POWER * max(|theta|, 0.01)``. Smaller than the
-#: textbook ``eps**(1/3)`` on purpose: the play operators' clamps make the output only
-#: piecewise smooth, and a step that straddles a kink at some sample mixes the two
-#: branches' slopes differently for each parameter; with 0.45 (steps ~1e-7 relative) the
-#: GPI's exact scaling degeneracy shows as an eigenvalue ~1e-17 of the largest (1e-10 with 1/3).
-CENTRAL_STEP_POWER = 0.45
-#: Solver evaluations each start gets in the screening phase.
-SCREEN_EVALUATIONS = 20
-#: How many of the best screened starts are run to convergence. Twenty evaluations rank the
-#: starts only roughly: on an independent clean record (every second sample) the start that
-#: reaches the global optimum was ranked third after screening (chi-square 3529 from the two
-#: best, 3431 with four), and on the SMA record 1 of 5 seeds missed the best basin with 2
-#: polished starts and none with 4.
-N_POLISH = 4
-#: How many of the best starts after a screening with :data:`ALTERNATE_METHOD` are run to
-#: convergence too (from that screening's end, with :data:`SOLVER_METHOD`; a start among
-#: dogbox's best as well is then polished from both ends). Dogbox's large first steps can
-#: throw a start that lies in the global optimum's basin into a degenerate region, where it
-#: ranks last: on an independent clean record at 1 kHz the Table-1 start did, and from trf's
-#: screening it reached the global optimum.
-N_POLISH_ALTERNATE = 2
-#: :func:`scipy.optimize.least_squares` method. "dogbox" rather than "trf": on the bundled
-#: record (plain GPI fitted to data with a hidden thermal effect, a curved valley) dogbox
-#: reached the optimum in 44 evaluations (0.7 s) where trf crawled for 750 evaluations
-#: (16 s) and stopped 25 higher in chi-square; on clean records both agree.
-SOLVER_METHOD = "dogbox"
-#: Second method for starts whose dogbox optimum put a GPI parameter on a box bound: the
-#: trust-region-reflective method stays inside the box and reached the global optimum where
-#: dogbox ended in such a degenerate limit (an independent clean record with crossing operator
-#: bounds: chi-square 11655 against the truth's 7158; trf 7136 from the same start).
-ALTERNATE_METHOD = "trf"
-#: Cap on the solver evaluations of each polished start (a misspecified model can crawl
-#: along a flat valley for thousands of steps; the result then says "not converged").
-POLISH_EVALUATIONS = 400
-#: Relative tolerances of the solver (ftol, xtol, gtol): a chi-square change of 1e-8
-#: relative is far below 1, the statistically meaningful scale.
-TOLERANCE = 1e-8
-#: A solver run stops as stalled when its last :data:`STALL_ITERATIONS` iterations together
-#: lowered the chi-square by less than :data:`STALL_CHI2` (an absolute amount of the whitened
-#: chi-square, the same for every record size: a likelihood ratio of exp(0.05)). The relative
-#: tolerances cannot see this: in a curved valley each step gains more than ``ftol`` of the
-#: chi-square, so a misspecified model crawls on to the evaluation cap. Measured (diagnoses of
-#: a 1 kHz record and of the worst-case bench record, every solver run's chi-square per
-#: iteration): a dogbox run gained 3 in chi-square in 370 evaluations (62 s at 70001
-#: samples), and the rule's chi-square at the stop was at most 1.8 above the run's end in
-#: all but one of 550 runs (a plateau that dropped by 18 after 190 iterations, in a
-#: baseline of the sign that lost by 9,300).
-STALL_ITERATIONS = 10
-#: See :data:`STALL_ITERATIONS`.
-STALL_CHI2 = 0.1
-#: Solver status of a run stopped as stalled (:class:`StallStop`; scipy's status of a callback's stop).
-STALLED = -2
 #: Starts whose chi-square is within this of the best count as agreeing.
 AGREE_CHI2 = 1.0
-#: Operators of Table 1's fit (the paper's N); Table-1-shaped starts for another N are rescaled.
-TABLE1_N_OPERATORS = 12
-_SLOPES = ("a1", "b1", "c1", "d1")
 #: ``threshold_sign`` option -> the signs of ``alpha`` fitted.
 THRESHOLD_SIGNS = {"auto": (-1, 1), "negative": (-1,), "positive": (1,)}
-
-
-@dataclass(frozen=True)
-class StartOutcome:
-    """How one least-squares start ended.
-
-    Parameters
-    ----------
-    label : str
-        ``"user"``, ``"table1"``, ``"data_scaled"`` or ``"perturbed-k"``.
-    chi2 : float
-        Sum of squared whitened residuals at the end (``2 * cost``); ``inf`` when the
-        start gave a non-finite model output.
-    n_evaluations : int
-        Residual evaluations used.
-    success : bool
-    message : str
-    """
-
-    label: str
-    chi2: float
-    n_evaluations: int
-    success: bool
-    message: str
-
-
-@dataclass
-class FitResult:
-    """A least-squares fit (fields as in docs/CONTRACTS.md, plus start bookkeeping).
-
-    Parameters
-    ----------
-    model : model.Model
-        The model fitted, with any pinned parameters.
-    theta : ndarray, shape (P,)
-        Best parameter vector, full, in ``model.names`` order.
-    stderr : ndarray, shape (P,)
-        Jacobian-based standard errors; NaN for pinned parameters.
-    covariance : ndarray, shape (P, P)
-        Jacobian-based covariance; zero rows/columns for pinned parameters.
-    vary : ndarray of bool, shape (P,)
-        False = pinned.
-    residual : ndarray, shape (T,)
-        Data minus model [output unit].
-    rms : float
-        Residual RMS over the energised part [output unit].
-    max_error_pct : float
-        Largest ``|residual|`` over the energised part, in % of the measured
-        displacement range (max - min).
-    reduced_chi2 : float
-        ``sum w^2 / (T - P_free)`` with ``w`` the whitened residuals (1 for a perfect
-        noise model).
-    noise : NoiseModel
-        The noise model used (a free sigma replaced by its estimate).
-    n_starts : int
-        Starts run.
-    success : bool
-        The best start's solver reported convergence.
-    message : str
-        The best start's solver message.
-    seconds : float
-        Wall time of the whole fit [s].
-    n_agree : int
-        Starts within chi-square 1 of the best.
-    starts : list of StartOutcome
-    terms : list of dict
-        The optional effect terms tested by :func:`identify.fitting.terms.select_terms`
-        (effect, term, parameters, chi-square change, BIC penalty, whether pinned off);
-        empty when none was tested.
-    """
-
-    model: Model
-    theta: np.ndarray
-    stderr: np.ndarray
-    covariance: np.ndarray
-    vary: np.ndarray
-    residual: np.ndarray
-    rms: float
-    max_error_pct: float
-    reduced_chi2: float
-    noise: NoiseModel
-    n_starts: int
-    success: bool
-    message: str
-    seconds: float
-    n_agree: int = 1
-    starts: list[StartOutcome] = field(default_factory=list)
-    terms: list[dict] = field(default_factory=list)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return self.model.names
-
-    @property
-    def chi2(self) -> float:
-        """Sum of squared whitened residuals at the optimum."""
-        return float(self.reduced_chi2 * (self.residual.size - int(self.vary.sum())))
-
-    def theta_dict(self) -> dict[str, float]:
-        return self.model.theta_dict(self.theta)
-
-    def to_dict(self) -> dict:
-        """JSON-ready (NaN written as None): everything needed to rebuild the fit."""
-        return {
-            "names": list(self.names),
-            "units": [p.unit for p in self.model.parameters],
-            "model": self.model.to_dict(),
-            "theta": _floats(self.theta),
-            "stderr": _floats(self.stderr),
-            "covariance": [_floats(row) for row in self.covariance],
-            "vary": [bool(v) for v in self.vary],
-            "lower": _floats(self.model.parameters.lower),
-            "upper": _floats(self.model.parameters.upper),
-            "residual": _floats(self.residual),
-            "rms": float(self.rms),
-            "max_error_pct": float(self.max_error_pct),
-            "reduced_chi2": float(self.reduced_chi2),
-            "noise": self.noise.to_dict(),
-            "n_starts": int(self.n_starts),
-            "n_agree": int(self.n_agree),
-            "success": bool(self.success),
-            "message": str(self.message),
-            "seconds": float(self.seconds),
-            "starts": [
-                {
-                    "label": s.label,
-                    "chi2": _float(s.chi2),
-                    "n_evaluations": s.n_evaluations,
-                    "success": s.success,
-                    "message": s.message,
-                }
-                for s in self.starts
-            ],
-            "terms": [dict(t) for t in self.terms],
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict) -> FitResult:
-        """Inverse of :meth:`to_dict` (the model is rebuilt with the same pins)."""
-        theta = _array(d["theta"])
-        vary = np.asarray(d["vary"], dtype=bool)
-        base = Model.from_dict(d["model"])
-        if tuple(d["names"]) != base.names:
-            raise ValueError(f"fit names {d['names']} do not match the model {base!r}")
-        lower = _array(d["lower"]) if "lower" in d else base.parameters.lower
-        upper = _array(d["upper"]) if "upper" in d else base.parameters.upper
-        settings = []  # every parameter's pin and bounds as stored (GPI and effects alike)
-        for i, p in enumerate(base.parameters):
-            value = float(theta[i]) if not vary[i] else min(max(p.value, lower[i]), upper[i])
-            settings.append(p.with_(value=value, vary=bool(vary[i]), lower=float(lower[i]), upper=float(upper[i])))
-        model = base.with_parameters(settings)
-        starts = [
-            StartOutcome(
-                s["label"], _unfloat(s["chi2"], math.inf), int(s["n_evaluations"]), bool(s["success"]), s["message"]
-            )
-            for s in d.get("starts", [])
-        ]
-        return cls(
-            model=model,
-            theta=theta,
-            stderr=_array(d["stderr"]),
-            covariance=np.array([_array(r) for r in d["covariance"]]).reshape(theta.size, theta.size),
-            vary=vary,
-            residual=_array(d["residual"]),
-            rms=float(d["rms"]),
-            max_error_pct=float(d["max_error_pct"]),
-            reduced_chi2=float(d["reduced_chi2"]),
-            noise=NoiseModel.from_dict(d["noise"]),
-            n_starts=int(d["n_starts"]),
-            success=bool(d["success"]),
-            message=str(d["message"]),
-            seconds=float(d["seconds"]),
-            n_agree=int(d.get("n_agree", 1)),
-            starts=starts,
-            terms=[dict(t) for t in d.get("terms", [])],
-        )
-
-
-def _float(x):
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def _floats(a):
-    return [_float(x) for x in np.asarray(a, dtype=float).ravel()]
-
-
-def _unfloat(x, missing=math.nan):
-    return missing if x is None else float(x)
-
-
-def _array(values):
-    return np.array([_unfloat(v) for v in values], dtype=float)
-
-
-def parameter_units(model: Model, record=None) -> list[str]:
-    r"""Units of ``model.names``, with the record's input/output units substituted.
-
-    The GPI's declared units assume a drive in A and an output in um. For a record in
-    other units (e.g. V and um for a piezo) they are rewritten by dimensional analysis:
-    the slopes ``a1, b1, c1, d1`` are per input unit; the envelopes
-    :math:`\gamma(v) = a_0 \tanh(a_1 v + a_2) + a_3` are compared with the thresholds
-    :math:`r_j = \alpha j`, and the paper gives both the input's unit, so ``alpha, a0,
-    a3, b0, b3`` are in the input unit, ``tau`` per input unit and ``rho`` output per
-    input unit; ``c0, c3, d0, d3`` are in the output unit.
-    """
-    in_unit = getattr(record, "input_unit", "A") if record is not None else "A"
-    out_unit = getattr(record, "output_unit", "um") if record is not None else "um"
-    units = []
-    for p in model.parameters:
-        unit = p.unit
-        if p.name in _SLOPES or p.name == "tau":
-            unit = f"1/{in_unit}"
-        elif p.name in ("alpha", "a0", "a3", "b0", "b3"):
-            unit = in_unit
-        elif p.name in ("c0", "c3", "d0", "d3"):
-            unit = out_unit
-        elif p.name == "rho":
-            unit = f"{out_unit}/{in_unit}"
-        units.append(unit)
-    return units
-
-
-@njit(cache=True)
-def difference_columns(rows, base, steps, columns, out):
-    """Forward differences laid out as a Jacobian: ``out[k, j] = (rows[j + 1, k] - base[k]) / steps[j]``
-    for each ``j`` in ``columns`` (``rows`` of shape ``(P + 1, T)``, ``out`` ``(T, P)``; other
-    columns untouched).
-
-    The same two operations per value as numpy's ``((rows[1:] - base) / steps[:, None]).T``,
-    so the same bits, written in blocks of samples: numpy's transposed copy of the
-    ``(P, T)`` differences strides through memory and costs about ten times as much at
-    70001 samples."""
-    n_samples = base.shape[0]
-    block = 64
-    for k0 in range(0, n_samples, block):
-        k1 = min(k0 + block, n_samples)
-        for j in columns:
-            step = steps[j]
-            for k in range(k0, k1):
-                out[k, j] = (rows[j + 1, k] - base[k]) / step
-
-
-class WhitenedResiduals:
-    """Whitened residuals of a record as a function of the free parameters.
-
-    Parameters
-    ----------
-    record : Record
-        Supplies ``time``, ``current``, ``displacement`` (shape (T,)).
-    model : model.Model
-    noise : NoiseModel
-        A free sigma is treated as 1 here (the scale does not move the optimum).
-
-    Attributes
-    ----------
-    free : ndarray of int, shape (P_free,)
-        Columns of the full vector that vary.
-    template : ndarray, shape (P,)
-        The full vector's pinned values.
-    n_evaluations : int
-        Model rows evaluated so far.
-    """
-
-    def __init__(self, record, model: Model, noise: NoiseModel):
-        self.time = np.asarray(record.time, dtype=float)
-        self.current = np.asarray(record.current, dtype=float)
-        self.data = np.asarray(record.displacement, dtype=float)
-        self.model = model
-        self.noise = noise
-        # the time grid for the whitening when its steps are not all the noise's one step
-        # (a thinned record: each step its own correlation), else None (checked once here)
-        self._uneven_time = None if noise.step_correlations(self.time) is None else self.time
-        self.sigma = 1.0 if noise.is_free else noise.sigma
-        self.free = np.flatnonzero(model.parameters.vary)
-        self.template = model.parameters.values.copy()
-        self.lower = model.parameters.lower[self.free]
-        self.upper = model.parameters.upper[self.free]
-        self.n_evaluations = 0
-        self._cache_x = None
-        self._cache_r = None
-
-    def full(self, x) -> np.ndarray:
-        """Full vector(s) ``(…, P)`` from free values ``(…, P_free)``."""
-        x = np.asarray(x, dtype=float)
-        out = np.broadcast_to(self.template, x.shape[:-1] + self.template.shape).copy()
-        out[..., self.free] = x
-        return out
-
-    def batch(self, x_rows) -> tuple[np.ndarray, np.ndarray]:
-        """Whitened residuals ``(B, T)`` and validity ``(B,)`` for free vectors ``(B, P_free)``."""
-        thetas = self.full(np.atleast_2d(x_rows))
-        y, valid = self.model.evaluate(thetas, self.time, self.current)
-        self.n_evaluations += thetas.shape[0]
-        w, finite = whiten_rows(self.data, y, self.noise, self.sigma, time=self._uneven_time)
-        valid = valid & finite
-        return w, valid
-
-    def __call__(self, x) -> np.ndarray:
-        """Residual vector ``(T,)``; :data:`DOMAIN_PENALTY` everywhere where the output is not finite."""
-        x = np.asarray(x, dtype=float)
-        if self._cache_x is not None and np.array_equal(x, self._cache_x):
-            return self._cache_r
-        w, valid = self.batch(x[None, :])
-        r = w[0] if valid[0] else np.full(self.data.size, DOMAIN_PENALTY)
-        self._cache_x, self._cache_r = x.copy(), r
-        return r
-
-    def _steps(self, x, power):
-        return np.finfo(float).eps ** power * np.maximum(np.abs(x), 0.01)
-
-    def jacobian(self, x) -> np.ndarray:
-        """Forward-difference Jacobian ``(T, P_free)`` from one ``(P_free + 1)``-row batch."""
-        x = np.asarray(x, dtype=float)
-        n_free = x.size
-        steps = self._steps(x, 0.5)
-        steps = np.where(x + steps > self.upper, -steps, steps)
-        rows = np.repeat(x[None, :], n_free + 1, axis=0)
-        rows[1:][np.arange(n_free), np.arange(n_free)] += steps
-        w, valid = self.batch(rows)
-        base = w[0] if valid[0] else self(x)
-        jac = np.empty((self.data.size, n_free))
-        difference_columns(w, base, steps, np.arange(n_free), jac)
-        bad = [j for j in range(n_free) if not valid[j + 1]]
-        jac[:, bad] = 0.0
-        if bad and valid[0]:
-            # Non-finite output on the forward step: step backward instead, in one more batch.
-            back = np.repeat(x[None, :], len(bad), axis=0)
-            back[np.arange(len(bad)), bad] -= steps[bad]
-            back = np.clip(back, self.lower, self.upper)
-            wb, vb = self.batch(back)
-            for k, j in enumerate(bad):
-                delta = back[k, j] - x[j]
-                if vb[k] and delta != 0:
-                    jac[:, j] = (wb[k] - base) / delta
-        return jac
-
-    def central_jacobian(self, x) -> np.ndarray:
-        """Central-difference Jacobian ``(T, P_free)`` from one ``(2 P_free + 1)``-row batch.
-
-        Falls back to one-sided differences for a column whose up or down step leaves
-        the bounds or gives a non-finite output.
-        """
-        x = np.asarray(x, dtype=float)
-        n_free = x.size
-        steps = self._steps(x, CENTRAL_STEP_POWER)
-        up = np.repeat(x[None, :], n_free, axis=0)
-        down = up.copy()
-        idx = np.arange(n_free)
-        up[idx, idx] = np.minimum(x + steps, self.upper)
-        down[idx, idx] = np.maximum(x - steps, self.lower)
-        w, valid = self.batch(np.vstack([x[None, :], up, down]))
-        base, w_up, w_down = w[0], w[1 : n_free + 1], w[n_free + 1 :]
-        v_up, v_down = valid[1 : n_free + 1], valid[n_free + 1 :]
-        jac = np.zeros((self.data.size, n_free))
-        for j in range(n_free):
-            hu, hd = up[j, j] - x[j], x[j] - down[j, j]
-            if v_up[j] and v_down[j] and hu > 0 and hd > 0:
-                jac[:, j] = (w_up[j] - w_down[j]) / (hu + hd)
-            elif v_up[j] and hu > 0:
-                jac[:, j] = (w_up[j] - base) / hu
-            elif v_down[j] and hd > 0:
-                jac[:, j] = (base - w_down[j]) / hd
-        return jac
-
-
-def _rescaled_to_operators(theta: np.ndarray, model: Model) -> np.ndarray:
-    """A Table-1-shaped ``theta`` (made for :data:`TABLE1_N_OPERATORS` operators) for ``model.n_operators``.
-
-    The ``N`` operators keep the 12 operators' threshold range and total weight:
-    ``alpha`` and ``rho`` times ``12 / N`` (a finer discretisation of the same density
-    ``p(r)``). When ``alpha`` is pinned (the normalisation), the exact scaling (k = N / 12,
-    :func:`identify.fitting.parametrisation.gpi_scaling`) then brings it back to its pinned value:
-    ``rho`` times ``(12/N)**2``, ``tau`` times ``12/N``, ``a0, a3, b0, b3`` times ``N/12``.
-    The output is unchanged up to the discretisation of the density. Returns a new
-    array, shape (P,); ``theta`` itself when ``N`` is 12.
-    """
-    n_operators = model.n_operators
-    if n_operators == TABLE1_N_OPERATORS:
-        return theta
-    ratio = TABLE1_N_OPERATORS / n_operators
-    i_alpha, i_rho = THETA_NAMES.index("alpha"), THETA_NAMES.index("rho")
-    out = np.array(theta, dtype=float)
-    out[i_alpha] *= ratio
-    out[i_rho] *= ratio
-    if not model.parameters["alpha"].vary:
-        out = gpi_scaling(out, 1.0 / ratio)
-        out[i_alpha] = theta[i_alpha]  # exactly the pinned value
-    return out
-
-
-def _table1_theta(model: Model) -> np.ndarray:
-    """Table 1 (with the model's pinned alpha and effects off), for ``model.n_operators``."""
-    return _rescaled_to_operators(model.default_theta(), model)
-
-
-def _data_scaled_theta(record, model: Model) -> np.ndarray | None:
-    """Table 1 rescaled to the record's input and output ranges (see module docstring)."""
-    theta = _table1_theta(model)
-    names = model.names
-    peak = float(np.max(np.abs(record.current)))
-    if not peak > 0:
-        return None
-    # the model's default slopes are already per the record's input unit prefix (in_record_units)
-    input_scale = peak / PAPER_PEAK_INPUT / record_unit_factors(record)[0]
-    for n in _SLOPES:
-        i = names.index(n)
-        if model.parameters[i].vary:
-            theta[i] = theta[i] / input_scale
-    return _fit_gain_and_offset(record, model, theta)
-
-
-def _fit_gain_and_offset(record, model: Model, theta: np.ndarray) -> np.ndarray | None:
-    """Scale ``rho, c0, c3, d0, d3`` and shift ``c3, d3`` so the prediction best matches the data
-    in linear least squares; None when the output is not finite or the gain is not > 0."""
-    names = model.names
-    theta = np.clip(theta, model.parameters.lower, model.parameters.upper)
-    y, valid = model.evaluate(theta, record.time, record.current)
-    if not valid[0]:
-        return None
-    design = np.column_stack([np.ones(y.shape[1]), y[0]])
-    (offset, gain), *_ = np.linalg.lstsq(design, record.displacement, rcond=None)
-    if not (np.isfinite(gain) and gain > 0):
-        return None
-    for n in ("rho", "c0", "c3", "d0", "d3"):
-        theta[names.index(n)] *= gain
-    for n in ("c3", "d3"):
-        theta[names.index(n)] += offset
-    return np.clip(theta, model.parameters.lower, model.parameters.upper)
-
-
-def _classical_theta(record, model: Model) -> np.ndarray | None:
-    """Start for positive thresholds: identical mildly saturating envelopes (module docstring)."""
-    names = model.names
-    alpha = model.parameters["alpha"].value
-    peak = float(np.max(np.abs(record.current)))
-    if not (alpha > 0 and peak > 0):
-        return None
-    theta = model.default_theta()
-    scale = alpha / abs(float(GPI_PARAMETERS["alpha"].value))  # envelopes scale with |alpha|
-    values = {"rho": 1.0 / scale, "tau": 0.5 / scale}
-    for branch in ("a", "b"):
-        values.update({f"{branch}0": 3.0 * scale, f"{branch}1": 0.5 / peak, f"{branch}2": 0.0, f"{branch}3": 0.0})
-    for branch in ("c", "d"):
-        values.update({f"{branch}0": 1.0, f"{branch}1": 1.0 / peak, f"{branch}2": 0.0, f"{branch}3": 0.0})
-    for n, v in values.items():
-        i = names.index(n)
-        if model.parameters[i].vary:
-            theta[i] = v
-    return _fit_gain_and_offset(record, model, _rescaled_to_operators(theta, model))
-
-
-def _is_time_constant(parameter) -> bool:
-    return parameter.unit == "s" and parameter.upper > 0
-
-
-def _perturbed_theta(base: np.ndarray, model: Model, rng: np.random.Generator, spread: float) -> np.ndarray:
-    theta = base.copy()
-    n_gpi = len(THETA_NAMES)
-    lower, upper = model.parameters.lower, model.parameters.upper
-    for i, p in enumerate(model.parameters):
-        if not p.vary:
-            continue
-        z = rng.standard_normal()
-        if i < n_gpi:
-            theta[i] = base[i] * math.exp(spread * z)
-        elif _is_time_constant(p):
-            lo = max(p.lower, 1e-3 * p.upper)
-            theta[i] = math.exp(rng.uniform(math.log(lo), math.log(p.upper)))
-        else:
-            width = (p.upper - p.lower) if np.isfinite(p.upper - p.lower) else 1.0
-            theta[i] = base[i] + 0.01 * width * z
-    return np.clip(theta, lower, upper)
-
-
-def candidate_starts(record, model: Model, *, n_starts=8, rng=None, start=None) -> list[tuple[str, np.ndarray]]:
-    """The multi-start list ``[(label, theta), ...]`` (full vectors within the bounds, finite output).
-
-    Parameters
-    ----------
-    record : Record
-    model : model.Model
-    n_starts : int, default 8
-        Total number of starts (deterministic ones first, then rng-perturbed).
-    rng : numpy.random.Generator, optional
-        Default ``numpy.random.default_rng(0)``.
-    start : array_like, shape (P,), optional
-        A user start, tried first.
-    """
-    if isinstance(n_starts, bool) or not isinstance(n_starts, (int, np.integer)) or n_starts < 1:
-        raise ValueError(f"n_starts must be an integer >= 1, got {n_starts!r}")
-    rng = np.random.default_rng(0) if rng is None else rng
-    pinned = ~model.parameters.vary
-    template = model.parameters.values
-
-    def valid(theta):
-        if not model.in_bounds(theta)[0]:
-            return False
-        return bool(model.evaluate(theta, record.time, record.current)[1][0])
-
-    starts: list[tuple[str, np.ndarray]] = []
-    if start is not None:
-        theta = np.asarray(start, dtype=float)
-        if theta.shape != (model.n_parameters,):
-            raise ValueError(f"start must have shape ({model.n_parameters},) for {model!r}, got {theta.shape}")
-        theta = np.where(pinned, template, theta)
-        if not valid(theta):
-            raise ValueError("the given start lies outside the parameter bounds or gives a non-finite model output")
-        starts.append(("user", theta))
-    if getattr(record, "input_unit", "A") == "A" and getattr(record, "output_unit", "um") == "um":
-        theta = np.clip(_table1_theta(model), model.parameters.lower, model.parameters.upper)
-        if valid(theta):
-            starts.append(("table1", theta))
-    scaled = _data_scaled_theta(record, model)
-    if scaled is not None and valid(scaled):
-        starts.append(("data_scaled", scaled))
-    classical = _classical_theta(record, model)
-    if classical is not None and valid(classical):
-        starts.append(("classical", classical))
-        scaled = classical
-    if not starts:
-        raise ValueError(
-            "no valid least-squares start: Table 1 (rescaled to the record) gives a non-finite model "
-            "output on this input; pass an explicit start"
-        )
-    base = starts[-1][1] if scaled is not None else starts[0][1]
-    starts = starts[:n_starts]
-    k = 0
-    while len(starts) < n_starts:
-        spread = 0.15
-        for _attempt in range(50):
-            theta = _perturbed_theta(base, model, rng, spread)
-            if valid(theta):
-                break
-            spread *= 0.8
-        else:
-            theta = None
-        k += 1
-        if theta is not None:
-            starts.append((f"perturbed-{k}", theta))
-        if k > 4 * n_starts:
-            break
-    return starts
-
-
-class StallStop:
-    """Callback of :func:`scipy.optimize.least_squares` that stops a stalled run.
-
-    After every iteration it records the chi-square ``sum(fun**2)`` at the accepted point
-    (``fun``: the whitened residuals) and raises :class:`StopIteration` once the last
-    ``window`` iterations together lowered it by less than ``chi2`` (the solver then returns
-    status :data:`STALLED`; :func:`solver_verdict` reads that as converged).
-
-    Parameters
-    ----------
-    window : int, default :data:`STALL_ITERATIONS`
-    chi2 : float, default :data:`STALL_CHI2`
-        Absolute chi-square (whitened residuals).
-    """
-
-    def __init__(self, window: int = STALL_ITERATIONS, chi2: float = STALL_CHI2):
-        self.window, self.chi2 = int(window), float(chi2)
-        self.history: list[float] = []
-
-    def __call__(self, intermediate_result) -> None:
-        f = np.asarray(intermediate_result.fun, dtype=float)
-        self.history.append(float(f @ f))
-        if len(self.history) > self.window and self.history[-1 - self.window] - self.history[-1] < self.chi2:
-            raise StopIteration
-
-
-def solver_verdict(sol, stall: StallStop | None = None) -> tuple[bool, str]:
-    """``(success, message)`` of a :func:`scipy.optimize.least_squares` result, a stall
-    counting as converged with its own message, which states the rule of ``stall`` (the
-    :class:`StallStop` the run was given; default the default rule)."""
-    if sol.status == STALLED:
-        stall = StallStop() if stall is None else stall
-        return True, (
-            f"stalled: the chi-square fell by less than {stall.chi2:g} over the last {stall.window} iterations"
-        )
-    return bool(sol.success), str(sol.message)
-
-
-def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METHOD, tolerance=TOLERANCE):
-    """One bounded solver run on ``residuals`` from free vector ``x0``: ``method`` with
-    Jacobian scaling, relative tolerances ``tolerance`` and the stall rule (:class:`StallStop`).
-    The diagnosis' short refits and polishes run it too."""
-    return least_squares(
-        residuals,
-        x0,
-        jac=residuals.jacobian,
-        bounds=(residuals.lower, residuals.upper),
-        method=method,
-        x_scale="jac",
-        ftol=tolerance,
-        xtol=tolerance,
-        gtol=tolerance,
-        max_nfev=max_nfev,
-        callback=StallStop(),
-    )
 
 
 def _converged(residuals: WhitenedResiduals, sol, note: str = "") -> _PolishedStart:
@@ -840,8 +216,6 @@ def fit_least_squares(
     FitResult
         The better fit; ``fit.model`` carries the chosen sign.
     """
-    from dataclasses import replace
-
     if threshold_sign not in THRESHOLD_SIGNS:
         raise ValueError(f"threshold_sign must be one of {sorted(THRESHOLD_SIGNS)}, got {threshold_sign!r}")
     options = dict(noise=noise, start=start, n_starts=n_starts, rng=rng, verbose=verbose, n_polish=n_polish)
@@ -971,8 +345,6 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
     and single-threaded BLAS: phase 1 screens every start with a few steps of each solver
     method, phase 2 runs the most promising to convergence (module docstring), phase 3
     (:func:`_polish_at_bound`), phase 4 (:func:`_polish_in_coordinates`)."""
-    import numba
-
     free = residuals.free
     threads_before = numba.get_num_threads()
     x_probe = np.repeat(np.clip(starts[0][1][free], residuals.lower, residuals.upper)[None, :], free.size + 1, axis=0)

@@ -279,7 +279,7 @@ def quiet_segment(current, *, current_tolerance=None) -> slice:
 
 
 def _ar1_is_significant(rho_hat: float, n: int, level: float = AR1_SIGNIFICANCE) -> bool:
-    from scipy.stats import norm
+    from scipy.stats import norm  # deferred: scipy.stats takes seconds to import; only this test needs it
 
     z = abs(rho_hat + 1.0 / n) * math.sqrt(n)
     return bool(z > norm.ppf(1.0 - level / 2.0))

@@ -96,7 +96,7 @@ class ChainProgress:
         self.tau_max = math.nan
         self.bar = None
         if mode == "bar":
-            from tqdm import tqdm
+            from tqdm import tqdm  # deferred: ~0.15 s to import, only for a bar on a terminal
 
             self.bar = tqdm(total=None, initial=self.done, desc="emcee", unit="step", file=sys.stderr)
             self.bar.set_postfix_str(f"tau not estimated yet; cap {self.max_steps}", refresh=False)

@@ -33,6 +33,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .lsq import WhitenedResiduals, fit_least_squares
 from .noise import whiten
 
 __all__ = ["select_terms", "optional_terms", "term_decision", "best_form", "keeps_every_effect"]
@@ -81,8 +82,6 @@ def _reduced_fit(record, fit, effect_name, term, names, rng):
     """``(fit, chi2)``: the best least-squares fit of ``fit.model`` with ``term`` pinned off,
     from the effect's reduced starts, and its chi-square under ``fit``'s noise model; None
     when no start could be fitted."""
-    from .lsq import fit_least_squares
-
     model = fit.model
     effect = next(e for e in model.effects if e.name == effect_name)
     parameters = model.parameters
@@ -264,8 +263,6 @@ def best_form(record, fit, effects, n_samples, jacobian=None):
         ``{"terms": [(effect, term)], "parameters": k_S, "delta_chi2": chi2_S - chi2}`` of the
         best subset (empty, 0 and 0.0 when every term is kept).
     """
-    from .lsq import WhitenedResiduals
-
     model = fit.model
     terms = optional_terms(model, effects)
     none = {"terms": [], "parameters": 0, "delta_chi2": 0.0}

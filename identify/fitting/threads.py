@@ -7,6 +7,8 @@ import contextlib
 import math
 import time as _time
 
+import numba
+
 __all__ = ["single_threaded_blas", "fastest_thread_count"]
 
 
@@ -34,8 +36,6 @@ def fastest_thread_count(fn, argument, repeats=3) -> int:
         The thread count now set (restore the previous one with
         ``numba.set_num_threads`` when done).
     """
-    import numba
-
     counts = sorted({1, int(numba.config.NUMBA_NUM_THREADS)})
     best_count, best_time = counts[-1], math.inf
     for count in counts:

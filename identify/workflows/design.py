@@ -63,6 +63,7 @@ __all__ = [
     "design",
     "design_drive",
     "discrimination",
+    "random_drive_parameters",
     "confirm",
 ]
 
@@ -293,7 +294,10 @@ def _probe_blocks(b: _Builder, p: dict) -> None:
         b.cycle(lo + p["probe"] * (hi - lo))
 
 
-def _draw(rng: np.random.Generator, family: str) -> dict:
+def random_drive_parameters(rng: np.random.Generator, family: str) -> dict:
+    """Random shape parameters of a drive of ``family`` (:data:`FAMILIES`) for :func:`drive_of`:
+    counts (cycles) and fractions of the rig's current range or of the drive's period; the
+    search's candidates, drawn with ``rng``."""
     if family == "hold":
         return {
             "cycles": int(rng.integers(1, 4)),
@@ -566,7 +570,7 @@ def search(
     for family in FAMILIES:
         say(f"searching the '{family}' drives ({per_family} shapes)")
         for _ in range(per_family):
-            params = _draw(rng, family)
+            params = random_drive_parameters(rng, family)
             made = drive_of(family, params, limits, period)
             if made is not None:
                 drives.append(evaluate(DesignedDrive(family, params, *made), contenders, noise, th, step))

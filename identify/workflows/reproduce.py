@@ -57,6 +57,7 @@ __all__ = [
     "compare_json",
     "compare_runs",
     "reproduce",
+    "recorded_threads",
     "TIMING_KEYS",
     "REPORT_FILE",
     "REPRODUCIBLE_COMMANDS",
@@ -732,7 +733,7 @@ def compare_runs(original, rerun) -> tuple[list, int, list, dict, list | None]:
 _THREAD_VARIABLES = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def _recorded_threads(directory: Path) -> int | None:
+def recorded_threads(directory: Path) -> int | None:
     """Threads a batch gave the run (``DIR/batch_job.json``), or None for a run started by hand.
 
     BLAS reductions in the least squares depend on the thread count in the last bits, so a
@@ -815,7 +816,7 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
         )
     args = rerun_arguments(manifest, location.argument, out)
     env = package_environment()
-    threads = _recorded_threads(directory)
+    threads = recorded_threads(directory)
     if threads is not None:
         for name in _THREAD_VARIABLES:
             env[name] = str(threads)

@@ -8,13 +8,13 @@ the actual sample times (no assumed sampling rate) and the exact solution of
 parameter sets tabulates the coefficients once per distinct sample step
 (:func:`distinct_steps`, :func:`lowpass_table`), bit for bit the direct step.
 :func:`leg_end_level` is the output at the end of the last completed leg, shared by
-``creep``'s kernel and :mod:`model.inverse`. :func:`first_order_lowpass` is public as
+``creep``'s kernel and :mod:`model.inverse_step`. :func:`first_order_lowpass` is public as
 :func:`model.effects.first_order_lowpass`; the rest serves the effects' modules and
-:mod:`model.inverse`, which import it from here.
+:mod:`model.inverse_step`, which import it from here.
 
 numba's on-disk cache does not see a change in another file: a kernel compiled with
 ``cache=True`` that inlines a function of this module (every effect's kernel, and
-:mod:`model.inverse`'s) keeps the old code after an edit here until its cache is cleared
+:mod:`model.inverse_step`'s) keeps the old code after an edit here until its cache is cleared
 (``find model -name '*.nb[ic]' -delete``).
 """
 
@@ -25,7 +25,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..gpi import kernel_array
+from ..gpi_kernels import kernel_array
 
 __all__ = [
     "MAX_DISTINCT_STEPS",

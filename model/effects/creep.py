@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..gpi import kernel_array
+from ..gpi_kernels import kernel_array
 from ..parameters import Parameter, ParameterSet
 from ._filters import MAX_DISTINCT_STEPS, distinct_steps, leg_end_level, lowpass_coefficients
 from .base import Effect

@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..gpi import kernel_array
+from ..gpi_kernels import kernel_array
 from ..parameters import Parameter, ParameterSet
 from .base import Effect
 

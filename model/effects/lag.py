@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..gpi import kernel_array
+from ..gpi_kernels import kernel_array
 from ..parameters import Parameter, ParameterSet
 from ._filters import first_order_lowpass, lowpass_step
 from .base import Effect

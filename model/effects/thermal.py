@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..gpi import kernel_array
+from ..gpi_kernels import kernel_array
 from ..parameters import Parameter, ParameterSet
 from ._filters import MAX_DISTINCT_STEPS, distinct_steps, first_order_lowpass, lowpass_step, lowpass_table
 from .base import Effect

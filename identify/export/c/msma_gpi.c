@@ -1,9 +1,10 @@
 /* msma_gpi.c: the GPI model (plus effects) and its inverse as streaming step functions; see msma_gpi.h.
  * Written by `python -m identify export` (msma-gpi). C99, libm only: no allocation, no global state.
  *
- * The forward step is model.Model.evaluate (model/gpi.py, model/effects.py) taken one sample at
- * a time, with the same operations in the same order; the inverse is model/inverse.py's kernel
- * (per sample: a bracketed root find in the present current, committed with the model's state).
+ * The forward step is model.Model.evaluate (model/gpi.py, model/gpi_kernels.py, model/effects/) taken
+ * one sample at a time, with the same operations in the same order; the inverse is model.inverse's
+ * kernel (model/inverse_search.py, its step model/inverse_step.py; per sample: a bracketed root
+ * find in the present current, committed with the model's state).
  * Compile with floating-point contraction off (-ffp-contract=off) for the Python figures to
  * rounding; the code is plain C99 either way.
  */
@@ -187,7 +188,7 @@ int msma_forward_init(msma_forward *m, const msma_params *p) {
     return MSMA_OK;
 }
 
-/* The weighted memory sum in four interleaved partial sums (model.gpi._weighted_sum's order). */
+/* The weighted memory sum in four interleaved partial sums (model.gpi_kernels._weighted_sum's order). */
 static double weighted_sum(const double *weight, const double *memory) {
     double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
     int j = 0;
@@ -400,7 +401,7 @@ int msma_forward_run(const msma_params *p, size_t n, const double *t, const doub
 }
 
 /* ---------------------------------------------------------------------------------------- */
-/* inverse (model/inverse.py)                                                               */
+/* inverse (model/inverse.py: the search in inverse_search.py, the step in inverse_step.py)  */
 /* ---------------------------------------------------------------------------------------- */
 /* Scalar state st[] (as the Python kernel): 0 i_prev, 1 u1_prev (lag output), 2 training's i_0,
  * 3 travel, 4 u_prev (GPI drive), 5 previous sample on Omega's c branch, 6 GPI output prev,

@@ -1,0 +1,593 @@
+"""The inverse's root search: per sample, the current on a side whose output meets the target.
+
+:func:`inverse_kernel` walks the target sample by sample for a batch of parameter sets
+(parallel over the batch): it chooses the side (rising or falling) from the target, finds the
+current with an expanding probe and Illinois regula falsi safeguarded by bisection
+(``_search`` on ``_objective``, the output's distance from the target through
+:func:`model.inverse_step.evaluate_step`), handles the Omega switch at a reversal and the
+current limits, and commits the state (:func:`model.inverse_step.commit_step`). The method
+and the statuses are stated in :mod:`model.inverse`'s docstring; :func:`model.inverse.invert`
+checks the inputs and calls this kernel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .effects.thermal import REFERENCE_CURRENT
+from .gpi_kernels import operator_thresholds_and_weights
+from .inverse_step import commit_step, evaluate_step, filter_coefficients
+
+__all__ = ["inverse_kernel"]
+
+#: The cap on the iterations of each loop of the search (the bisection for a side's edge, the
+#: refinement of the bracket).
+_MAX_ITERATIONS = 200
+
+
+@njit(cache=True)
+def _objective(
+    x,
+    s,
+    target,
+    first,
+    n_ops,
+    g,
+    thresholds,
+    weights,
+    memory,
+    st,
+    lag_c,
+    has_training,
+    tr,
+    creep_on,
+    creep_params,
+    modes,
+    creep_gain,
+    creep_decay,
+    creep_active,
+    thermal_on,
+    th,
+    thermal_c,
+    drift,
+):
+    """``s (y(s x) - target)`` on side ``s``, ``-inf`` off it (search coordinate ``x = s i``)."""
+    y, _, _, _, _, side, _, _ = evaluate_step(
+        s * x,
+        first,
+        n_ops,
+        g,
+        thresholds,
+        weights,
+        memory,
+        st,
+        lag_c,
+        has_training,
+        tr,
+        creep_on,
+        creep_params,
+        modes,
+        creep_gain,
+        creep_decay,
+        creep_active,
+        thermal_on,
+        th,
+        thermal_c,
+        drift,
+    )
+    if not first and side != s:
+        return -np.inf
+    return s * (y - target)
+
+
+@njit(cache=True, inline="always")
+def _magnitude(f):
+    return np.inf if f == -np.inf else abs(f)
+
+
+@njit(cache=True)
+def _search(
+    s,
+    start,
+    step0,
+    lo,
+    hi,
+    target,
+    htol,
+    rtol,
+    xtol,
+    first,
+    n_ops,
+    g,
+    thresholds,
+    weights,
+    memory,
+    st,
+    lag_c,
+    has_training,
+    tr,
+    creep_on,
+    creep_params,
+    modes,
+    creep_gain,
+    creep_decay,
+    creep_active,
+    thermal_on,
+    th,
+    thermal_c,
+    drift,
+):
+    """The current on side ``s`` whose output meets the target, nearest ``start`` (``F`` = :func:`_objective`).
+
+    In the search coordinate ``x = s i``:
+
+    1. ``start`` itself when ``|F| <= htol`` there (a hold);
+    2. a start off the side (a reversal: ``F = -inf``) is first moved to the side's edge
+       (probes from ``start`` with steps growing 4x from ``16 xtol``, then bisection of the
+       off/on transition to ``xtol``): the root nearest the previous drive lies there;
+    3. probes with steps growing 4x (from ``step0``) go first where a nondecreasing ``F``
+       has its root (up when ``F < 0``), then, if that direction reaches its limit or the
+       side's edge without a sign change, the other way (``thermal`` can make ``F`` fall
+       slowly away from an edge in a dead zone); only when neither finds a sign change is the
+       bracket between the side's edge and the last point on it refined (a root can lie there
+       when the drive lags the current);
+    4. the first bracket is closed by Illinois regula falsi (bisection while one end is
+       off the side) to ``|F| <= rtol`` or a width of ``xtol``.
+
+    Without a sign change the evaluated point of smallest ``|F|`` is returned: a current
+    limit (saturated) or the side's edge (an Omega switch). Returns ``(i, F, evaluations)``.
+    """
+    if s > 0:
+        x_min, x_max = lo, hi
+    else:
+        x_min, x_max = -hi, -lo
+    x0 = min(max(s * start, x_min), x_max)
+    n_eval = 1
+    f0 = _objective(
+        x0,
+        s,
+        target,
+        first,
+        n_ops,
+        g,
+        thresholds,
+        weights,
+        memory,
+        st,
+        lag_c,
+        has_training,
+        tr,
+        creep_on,
+        creep_params,
+        modes,
+        creep_gain,
+        creep_decay,
+        creep_active,
+        thermal_on,
+        th,
+        thermal_c,
+        drift,
+    )
+    if abs(f0) <= htol:
+        return s * x0, f0, n_eval
+    down_done = x0 <= x_min
+    if f0 == -np.inf:
+        # 2. find the side's edge above x0
+        off = x0
+        step = 16.0 * xtol
+        x = x0
+        f = f0
+        while f == -np.inf and x < x_max:
+            off = x
+            x = min(x0 + step, x_max)
+            step *= 4.0
+            f = _objective(
+                x,
+                s,
+                target,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params,
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                drift,
+            )
+            n_eval += 1
+        if f == -np.inf:
+            return s * x0, f0, n_eval  # the side cannot be reached within the limits
+        on, f_on = x, f
+        for _ in range(_MAX_ITERATIONS):
+            if on - off <= 16.0 * xtol:  # without input dynamics the edge is x0 itself: no bisection
+                break
+            x = 0.5 * (off + on)
+            f = _objective(
+                x,
+                s,
+                target,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params,
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                drift,
+            )
+            n_eval += 1
+            if f == -np.inf:
+                off = x
+            else:
+                on, f_on = x, f
+        x0, f0 = on, f_on
+        down_done = True
+        if abs(f0) <= htol:
+            return s * x0, f0, n_eval
+    # 3. probe for a sign change
+    best_x, best_f = x0, f0
+    up_done = x0 >= x_max
+    direction = 1 if f0 < 0.0 else -1
+    if direction < 0 and down_done:
+        direction = 1
+    found = False
+    edge_found = False
+    xl, fl, xr, fr = x0, f0, x0, f0
+    exl, efl, exr, efr = x0, f0, x0, f0
+    for sweep in range(2):
+        if sweep == 1:
+            direction = -direction
+        if (direction > 0 and up_done) or (direction < 0 and down_done):
+            continue
+        xp, fp = x0, f0
+        step = step0
+        while True:
+            x = min(xp + step, x_max) if direction > 0 else max(xp - step, x_min)
+            step *= 4.0
+            f = _objective(
+                x,
+                s,
+                target,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params,
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                drift,
+            )
+            n_eval += 1
+            if f == -np.inf:  # off the side (F counts as negative there): a root may lie between its
+                # edge and xp when F > 0 at xp, or the other way
+                if fp > 0.0 and not edge_found:
+                    edge_found = True
+                    exl, efl, exr, efr = (xp, fp, x, f) if direction > 0 else (x, f, xp, fp)
+                break
+            if (f < 0.0) != (fp < 0.0):
+                if direction > 0:
+                    xl, fl, xr, fr = xp, fp, x, f
+                else:
+                    xl, fl, xr, fr = x, f, xp, fp
+                found = True
+                break
+            if _magnitude(f) < _magnitude(best_f):
+                best_x, best_f = x, f
+            xp, fp = x, f
+            if x >= x_max or x <= x_min:
+                break
+        if found:
+            break
+    if not found and edge_found:  # no sign change on the side: the bracket at its edge
+        xl, fl, xr, fr = exl, efl, exr, efr
+        found = True
+    if not found:
+        return s * best_x, best_f, n_eval
+    # 4. refine the bracket xl < xr, F changing sign: Illinois, bisection while an end is -inf
+    gl, gr = fl, fr  # the values the interpolation uses (halved by Illinois)
+    last = 0
+    for _ in range(_MAX_ITERATIONS):
+        if abs(fl) <= rtol or abs(fr) <= rtol or xr - xl <= xtol:
+            break
+        if gl > -np.inf and gr > -np.inf:
+            x = xr - gr * (xr - xl) / (gr - gl)
+            if not (xl < x < xr):
+                x = 0.5 * (xl + xr)
+        else:
+            x = 0.5 * (xl + xr)
+        f = _objective(
+            x,
+            s,
+            target,
+            first,
+            n_ops,
+            g,
+            thresholds,
+            weights,
+            memory,
+            st,
+            lag_c,
+            has_training,
+            tr,
+            creep_on,
+            creep_params,
+            modes,
+            creep_gain,
+            creep_decay,
+            creep_active,
+            thermal_on,
+            th,
+            thermal_c,
+            drift,
+        )
+        n_eval += 1
+        if (f < 0.0) == (fl < 0.0):
+            xl, fl, gl = x, f, f
+            if last == -1 and gr > -np.inf:
+                gr *= 0.5
+            last = -1
+        else:
+            xr, fr, gr = x, f, f
+            if last == 1 and gl > -np.inf:
+                gl *= 0.5
+            last = 1
+    if _magnitude(fl) < _magnitude(fr):
+        return s * xl, fl, n_eval
+    return s * xr, fr, n_eval
+
+
+@njit(parallel=True, cache=True)
+def inverse_kernel(
+    gpi_theta,
+    n_ops,
+    rising_is_a,
+    z0,
+    held,
+    lag_tau,
+    has_training,
+    training,
+    creep_on,
+    creep_params,
+    creep_taus,
+    thermal_on,
+    thermal,
+    drift,
+    time,
+    target,
+    lo,
+    hi,
+    ytol,
+    current_out,
+    output_out,
+    status_out,
+    evaluations,
+):
+    n_sets = gpi_theta.shape[0]
+    n_samples = time.shape[0]
+    n_modes = creep_taus.shape[1]
+    xtol = 1e-15 * (hi - lo)
+    scale = 1.0
+    for k in range(n_samples):
+        scale = max(scale, abs(target[k]))
+    rtol = 4.0 * 2.220446049250313e-16 * scale  # rounding of the output
+    htol = 16.0 * rtol  # a hold (no move) is accepted this close
+    for w in prange(n_sets):
+        th_ = gpi_theta[w]
+        alpha, rho, tau = th_[0], th_[1], th_[2]
+        g = np.empty(16)
+        if rising_is_a:
+            for q in range(4):
+                g[q] = th_[3 + q]
+                g[4 + q] = th_[7 + q]
+        else:
+            for q in range(4):
+                g[q] = th_[7 + q]
+                g[4 + q] = th_[3 + q]
+        for q in range(8):
+            g[8 + q] = th_[11 + q]
+        thresholds, weights = operator_thresholds_and_weights(alpha, rho, tau, n_ops)
+        memory = held[w].copy()  # the held part until the first sample is committed
+        modes = np.empty(n_modes)
+        creep_gain = np.empty(n_modes)
+        creep_decay = np.empty(n_modes)
+        creep_active = np.empty(n_modes, dtype=np.bool_)
+        # scalar state: 0 i_prev, 1 u1_prev (lag output), 2 training's i_0, 3 travel,
+        # 4 u_prev (GPI drive), 5 previous sample on Omega's c branch, 6 GPI output prev,
+        # 7 temperature rise (node 1), 8 initial memory level z0, 9 heating prev,
+        # 10 the current's travel, 11 the GPI output at the first sample, 12 the strain
+        # (after training's strain part) prev, 13 temperature rise of node 2, 14 initial
+        # excursion, 15 the strain two samples back, 16 its last direction of change, 17 the
+        # strain held at the last leg's end, 18 the logarithmic creep's input prev
+        st = np.zeros(19)
+        st[8] = z0[w, 0]
+        st[14] = z0[w, 1]
+        lag_c = np.zeros(3)
+        thermal_c = np.zeros(6)
+        tr = training[w]
+        th = np.empty(7)
+        th[0] = thermal[w, 0]
+        th[1] = thermal[w, 1]
+        th[2] = thermal[w, 2]
+        th[3] = REFERENCE_CURRENT
+        th[4] = thermal[w, 3]
+        th[5] = thermal[w, 4]
+        th[6] = thermal[w, 5]
+        n_eval_total = 0
+        previous_step = 0.1 * (hi - lo)
+        for k in range(n_samples):
+            first = k == 0
+            if not first:
+                h = time[k] - time[k - 1]
+                gain, decay, active = filter_coefficients(h, lag_tau[w])
+                lag_c[0], lag_c[1], lag_c[2] = gain, decay, 1.0 if active else 0.0
+                if creep_on:
+                    for m in range(n_modes):
+                        gain, decay, active = filter_coefficients(h, creep_taus[w, m])
+                        creep_gain[m], creep_decay[m], creep_active[m] = gain, decay, active
+                if thermal_on:
+                    gain, decay, active = filter_coefficients(h, th[0])
+                    thermal_c[0], thermal_c[1], thermal_c[2] = gain, decay, 1.0 if active else 0.0
+                    gain, decay, active = filter_coefficients(h, th[4])
+                    thermal_c[3], thermal_c[4], thermal_c[5] = gain, decay, 1.0 if active else 0.0
+            d = drift[w, k]
+            tk = target[k]
+            if first:
+                pref = 1
+                start = lo
+                step0 = 0.1 * (hi - lo)
+            else:
+                pref = 1 if st[5] > 0.5 else -1  # continue on the previous sample's side first
+                start = st[0]
+                step0 = max(2.0 * previous_step, 1e-4 * (hi - lo))
+            i_best, f_best, n_eval = _search(
+                pref,
+                start,
+                step0,
+                lo,
+                hi,
+                tk,
+                htol,
+                rtol,
+                xtol,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params[w],
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                d,
+            )
+            n_eval_total += n_eval
+            if abs(f_best) > htol and not first:
+                i_other, f_other, n_eval = _search(
+                    -pref,
+                    start,
+                    step0,
+                    lo,
+                    hi,
+                    tk,
+                    htol,
+                    rtol,
+                    xtol,
+                    first,
+                    n_ops,
+                    g,
+                    thresholds,
+                    weights,
+                    memory,
+                    st,
+                    lag_c,
+                    has_training,
+                    tr,
+                    creep_on,
+                    creep_params[w],
+                    modes,
+                    creep_gain,
+                    creep_decay,
+                    creep_active,
+                    thermal_on,
+                    th,
+                    thermal_c,
+                    d,
+                )
+                n_eval_total += n_eval
+                if abs(f_other) <= htol:
+                    i_best, f_best = i_other, f_other
+                else:
+                    # Neither side exact. When the side toward the target cannot reach it
+                    # (F < 0 along it), drive that side to its current limit: full effort (a lag
+                    # keeps the drive from crossing a dead zone in one sample; committing to the
+                    # reversal at full effort catches up soonest). Otherwise (the side overshoots
+                    # from its edge: a gap at an Omega switch) the output nearer the target wins,
+                    # at most half the jump away.
+                    f_rise = f_best if pref > 0 else f_other
+                    f_fall = f_other if pref > 0 else f_best
+                    toward = tk - output_out[w, k - 1]
+                    if toward > 0.0 and -np.inf < f_rise < 0.0:
+                        i_best = hi
+                    elif toward < 0.0 and -np.inf < f_fall < 0.0:
+                        i_best = lo
+                    elif _magnitude(f_other) < _magnitude(f_best):
+                        i_best, f_best = i_other, f_other
+            if not first:
+                previous_step = abs(i_best - st[0])
+            y = commit_step(
+                i_best,
+                first,
+                n_ops,
+                g,
+                thresholds,
+                weights,
+                memory,
+                st,
+                lag_c,
+                has_training,
+                tr,
+                creep_on,
+                creep_params[w],
+                modes,
+                creep_gain,
+                creep_decay,
+                creep_active,
+                thermal_on,
+                th,
+                thermal_c,
+                d,
+            )
+            current_out[w, k] = i_best
+            output_out[w, k] = y
+            if abs(y - tk) <= ytol:
+                status_out[w, k] = 0
+            else:
+                status_out[w, k] = 1 if (i_best <= lo or i_best >= hi) else 2
+        evaluations[w] = n_eval_total
