@@ -48,6 +48,9 @@ __all__ = [
     "joint_fit_at",
     "consistency",
     "record_suffix",
+    "joint_fit_from_json",
+    "record_noises",
+    "joint_manifest_data",
 ]
 
 #: A joint fit whose chi-square exceeds the separate fits' sum with a p-value below this is
@@ -305,10 +308,38 @@ class JointFit:
             "seconds": float(self.seconds),
         }
 
+    def to_json(self) -> dict:
+        """``fit.json`` of several records: record 1's own fit at the joint optimum (what a reader
+        of one record's ``fit.json`` finds: the shared parameters and record 1's run), with the
+        joint fit (:meth:`to_dict`, its names, vector, covariance, zero bound and the records'
+        separate fits) under ``"joint"`` and the records under ``"records"``.
+        :func:`joint_fit_from_json` rebuilds it."""
+        joint = self.to_dict()
+        joint.update(
+            names=list(self.joint.names),
+            theta_vector=[float(v) for v in self.theta],
+            covariance=[[float(v) for v in row] for row in self.covariance],
+            zero_bound=float(self.joint.zero_bound),
+            separate=[f.to_dict() for f in self.separate],
+        )
+        return {**self.fits[0].to_dict(), "joint": joint, "records": joint["records"]}
 
-def _record_fit(record, model: Model, theta, zero: float, noise: NoiseModel, template: FitResult) -> FitResult:
-    """Record's own :class:`FitResult` at a joint optimum (its vector, residual, RMS, max error)."""
+
+def _record_fit(
+    record, model: Model, theta, zero: float, noise: NoiseModel, template: FitResult, covariance=None
+) -> FitResult:
+    """Record's own :class:`FitResult` at a joint optimum (its vector, residual, RMS, max error;
+    with ``covariance`` ``(P, P)``, the joint covariance of its vector's columns, also its
+    covariance and standard errors)."""
     from dataclasses import replace
+
+    uncertainty = {}
+    if covariance is not None:
+        covariance = np.asarray(covariance, dtype=float)
+        stderr = np.full(model.n_parameters, np.nan)
+        vary = model.parameters.vary
+        stderr[vary] = np.sqrt(np.clip(np.diag(covariance)[vary], 0.0, None))
+        uncertainty = {"covariance": covariance, "stderr": stderr}
 
     y = model(theta, record.time, record.current) + zero
     residual = np.asarray(record.displacement, dtype=float) - y
@@ -327,6 +358,7 @@ def _record_fit(record, model: Model, theta, zero: float, noise: NoiseModel, tem
         max_error_pct=float(100.0 * np.max(np.abs(residual[energised])) / span) if span > 0 else math.inf,
         reduced_chi2=float(w @ w) / dof,
         noise=noise,
+        **uncertainty,
     )
 
 
@@ -424,6 +456,33 @@ def fit_joint(
     return joint_fit_at(residuals, x, separate, t0)
 
 
+def joint_fit_from_json(content: dict, records, noises=None) -> JointFit:
+    """The :class:`JointFit` stored by :meth:`JointFit.to_json`, on the same ``records`` (their
+    noises: default each one's quiet start); its covariance and per-record fits are recomputed
+    at the stored vector (deterministic)."""
+    stored = content["joint"]
+    records = check_records(records)
+    if len(records) != int(stored["n_records"]):
+        raise ValueError(f"the stored joint fit has {stored['n_records']} records, {len(records)} were given")
+    model = FitResult.from_dict(content).model
+    separate = [FitResult.from_dict(d) for d in stored["separate"]]
+    noises = [_noise_of(r) for r in records] if noises is None else list(noises)
+    joint = JointModel(model, len(records), zero_bound=float(stored["zero_bound"]))
+    if list(joint.names) != list(stored["names"]):
+        raise ValueError("the stored joint fit's parameters are not this model's")
+    residuals = JointResiduals(records, joint, noises)
+    theta = np.asarray(stored["theta_vector"], dtype=float)
+    fit = joint_fit_at(residuals, theta[residuals.free], separate, _time.perf_counter())
+    fit.seconds = float(stored.get("seconds", 0.0))
+    return fit
+
+
+def record_noises(records) -> list:
+    """Each record's noise from its own quiet start (:func:`identify.fitting.noise.estimate_noise`);
+    a record without one is a ValueError naming it."""
+    return [_noise_of(r) for r in records]
+
+
 def _noise_of(record) -> NoiseModel:
     """The record's noise from its own quiet start; the error names the record."""
     try:
@@ -468,7 +527,8 @@ def joint_fit_at(residuals: JointResiduals, x, separate, t0: float | None = None
     fits = []
     for r, (record, noise, fit) in enumerate(zip(residuals.records, residuals.noises, separate), start=1):
         rows, zero = joint.record_rows(theta, r)
-        fits.append(_record_fit(record, joint.model, rows[0], float(zero[0]), noise, fit))
+        own = joint._own[r - 1]
+        fits.append(_record_fit(record, joint.model, rows[0], float(zero[0]), noise, fit, covariance[np.ix_(own, own)]))
     check = consistency(chi2, separate, joint, fits, residuals.records)
     return JointFit(
         joint,
@@ -483,3 +543,18 @@ def joint_fit_at(residuals: JointResiduals, x, separate, t0: float | None = None
         check,
         _time.perf_counter() - t0,
     )
+
+
+def joint_manifest_data(records) -> dict:
+    """The manifest's ``data`` of several records: record 1's file, a SHA-256 over every record's
+    (in order: any record changed, added, removed or moved is another run) and one entry per record."""
+    import hashlib
+
+    digest = hashlib.sha256("\n".join(str(r.sha256) for r in records).encode()).hexdigest()
+    return {
+        "file": str(records[0].source),
+        "sha256": digest,
+        "n_samples": int(sum(len(r.time) for r in records)),
+        "notes": [f"{r.source}: {note}" for r in records for note in getattr(r, "notes", ())],
+        "records": [{"file": str(r.source), "sha256": r.sha256, "n_samples": len(r.time)} for r in records],
+    }

@@ -17,6 +17,8 @@ __all__ = [
     "FitFailedError",
     "parse_effects",
     "fit_or_explain",
+    "fit_records",
+    "format_joint_fit_table",
     "format_fit_table",
     "print_record_notes",
     "say",
@@ -127,4 +129,77 @@ def format_fit_table(fit, record=None) -> str:
         f"starts: {fit.n_agree} of {fit.n_starts} agree (chi-square within 1 of the best); "
         f"solver: {'converged' if fit.success else 'NOT converged'} ({fit.message}); {fit.seconds:.1f} s",
     ]
+    return "\n".join(lines)
+
+
+def fit_records(records, model, *, noises=None, n_starts: int = 4, rng=None, progress=None):
+    """Least squares of ``model`` on several records of one transducer at once
+    (:func:`identify.fitting.joint.fit_joint`: the transducer shared, each record's run
+    parameters and sensor zero its own, each whitened with its own noise), with a failure
+    turned into a :class:`FitFailedError`.
+
+    Parameters
+    ----------
+    records : sequence of Record
+        Two or more records in the same units (:func:`identify.fitting.joint.check_records`).
+    model : model.Model
+        Normalised (alpha pinned).
+    noises : sequence of NoiseModel, optional
+        Default: each record's own quiet start.
+    n_starts : int, default 4
+        Starts of each record's separate fit.
+    rng : numpy.random.Generator, optional
+    progress : callable(str), optional
+
+    Returns
+    -------
+    identify.fitting.joint.JointFit
+    """
+    from ..fitting.joint import check_records, fit_joint, record_noises
+
+    records = check_records(records)  # refused naming the record, before any fit
+    noises = record_noises(records) if noises is None else list(noises)
+    try:
+        return fit_joint(records, model, noises, n_starts=n_starts, rng=rng, progress=progress)
+    except FitFailedError:
+        raise
+    except ValueError as exc:
+        names = ", ".join(str(r.source) for r in records)
+        raise FitFailedError(
+            f"least squares of {model!r} on the records {names} failed: {exc}. Try fewer --effects, more "
+            "starts (--n-starts) or another --seed"
+        ) from exc
+
+
+def format_joint_fit_table(fit) -> str:
+    """Human summary of a joint fit: the shared parameters once (value, stderr), each record's own
+    run parameters and zero, then one line per record (samples, noise, RMS, max error, its RMS
+    alone) and the consistency test."""
+    from ..fitting.lsq import parameter_units
+
+    record = fit.records[0]
+    model = fit.model
+    units = dict(zip(model.names, parameter_units(model, record)))
+    lines = [f"{'parameter':<28} {'value':>13} {'stderr':>11}  {'unit':<8}", "-" * 64]
+    for i, name in enumerate(fit.joint.names):
+        base = name.rsplit("_r", 1)[0] if i >= model.n_parameters else name
+        unit = units.get(base, record.output_unit if name.startswith("zero_r") else "")
+        pinned = not fit.joint.parameters.vary[i]
+        stderr = "pinned" if pinned else f"{fit.stderr[i]:11.4g}"
+        lines.append(f"{name:<28} {fit.theta[i]:13.6g} {stderr:>11}  {unit:<8}")
+    out_unit = record.output_unit
+    lines.append("-" * 64)
+    for r, (rec, f, alone) in enumerate(zip(fit.records, fit.fits, fit.separate), start=1):
+        ratio = f.rms / f.noise.sigma if f.noise.sigma > 0 else math.nan
+        lines.append(
+            f"record {r} {rec.source}: {len(rec.time)} samples, noise sigma {f.noise.sigma:.4g} {out_unit}; "
+            f"RMS {f.rms:.4g} {out_unit} = {ratio:.3f} x sigma (alone {alone.rms:.4g}); max |error| "
+            f"{f.max_error_pct:.3f} %"
+        )
+    check = fit.consistency
+    verdict = "consistent" if check.get("consistent") else "NOT consistent"
+    lines.append(
+        f"consistency of the records: {verdict} (excess chi-square {check.get('statistic', 0.0):.1f} on "
+        f"{check.get('dof')} degrees of freedom, p = {check.get('p', 1.0):.2g}); {fit.seconds:.1f} s"
+    )
     return "\n".join(lines)
