@@ -18,6 +18,7 @@ __all__ = [
     "parse_effects",
     "fit_or_explain",
     "fit_records",
+    "select_terms_of_records",
     "format_joint_fit_table",
     "format_fit_table",
     "print_record_notes",
@@ -132,7 +133,7 @@ def format_fit_table(fit, record=None) -> str:
     return "\n".join(lines)
 
 
-def fit_records(records, model, *, noises=None, n_starts: int = 4, rng=None, progress=None):
+def fit_records(records, model, *, noises=None, n_starts: int = 4, rng=None, progress=None, separate=None):
     """Least squares of ``model`` on several records of one transducer at once
     (:func:`identify.fitting.joint.fit_joint`: the transducer shared, each record's run
     parameters and sensor zero its own, each whitened with its own noise), with a failure
@@ -150,6 +151,8 @@ def fit_records(records, model, *, noises=None, n_starts: int = 4, rng=None, pro
         Starts of each record's separate fit.
     rng : numpy.random.Generator, optional
     progress : callable(str), optional
+    separate : sequence of FitResult, optional
+        The records' separate fits, when already made (they start the joint fit).
 
     Returns
     -------
@@ -160,7 +163,7 @@ def fit_records(records, model, *, noises=None, n_starts: int = 4, rng=None, pro
     records = check_records(records)  # refused naming the record, before any fit
     noises = record_noises(records) if noises is None else list(noises)
     try:
-        return fit_joint(records, model, noises, n_starts=n_starts, rng=rng, progress=progress)
+        return fit_joint(records, model, noises, n_starts=n_starts, rng=rng, progress=progress, separate=separate)
     except FitFailedError:
         raise
     except ValueError as exc:
@@ -203,3 +206,20 @@ def format_joint_fit_table(fit) -> str:
         f"{check.get('dof')} degrees of freedom, p = {check.get('p', 1.0):.2g}); {fit.seconds:.1f} s"
     )
     return "\n".join(lines)
+
+
+def select_terms_of_records(records, separate, *, rng=None, log=None) -> list:
+    """The records' separate fits with the optional effect terms none of them supports pinned off
+    (:func:`identify.fitting.terms.select_terms` on each): a term is pinned off for the joint fit
+    only when every record's selection pins it off, since one record that needs it is evidence
+    the transducer has it. Returns the selected fits when every record pins off the same terms,
+    else the fits given (every term kept)."""
+    from ..fitting.terms import select_terms
+
+    selected = [select_terms(record, fit, rng=rng, log=log) for record, fit in zip(records, separate)]
+    pinned = [frozenset(n for n, v in zip(f.model.names, f.vary) if not v) for f in selected]
+    if all(p == pinned[0] for p in pinned):
+        return selected
+    if log is not None:
+        log("terms: the records do not agree on the optional terms to pin off; every term is kept in the joint fit")
+    return list(separate)
