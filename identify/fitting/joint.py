@@ -36,7 +36,7 @@ from scipy import stats
 from model import Model, Parameter, ParameterSet
 
 from .lsq import POLISH_EVALUATIONS, FitResult, WhitenedResiduals, bounded_solve, fit_least_squares
-from .noise import NoiseModel, energised_mask, estimate_noise, whiten_rows
+from .noise import NoiseModel, NoQuietSegmentError, energised_mask, estimate_noise, whiten_rows
 from .threads import single_threaded_blas
 
 __all__ = [
@@ -67,16 +67,18 @@ DISAGREEING_RMS_RISE = 0.10
 def check_records(records) -> list:
     """The records as a list, refused with the record named when they cannot be one transducer's
     records: none, other units than the first's, or one given twice (the same data)."""
+    from ..data.records import RecordError
+
     records = list(records)
     if not records:
-        raise ValueError("no record given: the list of records is empty")
+        raise RecordError("no record given: the list of records is empty")
     first = records[0]
     units = (getattr(first, "input_unit", "A"), getattr(first, "output_unit", "um"))
     seen = {}
     for r, record in enumerate(records, start=1):
         these = (getattr(record, "input_unit", "A"), getattr(record, "output_unit", "um"))
         if these != units:
-            raise ValueError(
+            raise RecordError(
                 f"{record.source}: drive in {these[0]} and output in {these[1]}, where {first.source} has "
                 f"{units[0]} and {units[1]}: the records of one transducer share their units"
             )
@@ -84,7 +86,7 @@ def check_records(records) -> list:
         if key is None:
             key = (len(record.time), float(np.sum(record.displacement)), float(np.sum(record.current)))
         if key in seen:
-            raise ValueError(f"{record.source}: the same data as record {seen[key]}: a record given twice")
+            raise RecordError(f"{record.source}: the same data as record {seen[key]}: a record given twice")
         seen[key] = r
     return records
 
@@ -509,6 +511,12 @@ def _noise_of(record) -> NoiseModel:
     """The record's noise from its own quiet start; the error names the record."""
     try:
         return estimate_noise(record)
+    except NoQuietSegmentError:
+        raise NoQuietSegmentError(
+            f"{record.source}: no unenergised start to estimate this record's sensor noise from; several records "
+            "are each whitened with the noise of their own quiet start, so every record needs one (a record "
+            "without one can be studied alone, with --noise-sigma VALUE or free)"
+        ) from None
     except ValueError as exc:
         raise ValueError(f"{record.source}: {exc}") from None
 
