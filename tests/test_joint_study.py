@@ -162,3 +162,14 @@ def test_records_in_other_units_an_empty_list_and_no_quiet_start_from_python(two
     for name in ("empty", "units", "quiet"):
         folder = tmp_path / name
         assert not folder.exists() or not any(folder.iterdir())
+
+
+def test_reproduce_reruns_a_fit_of_several_records(two_files, tmp_path):
+    from identify.workflows.reproduce import reproduce
+
+    out = tmp_path / "fit"
+    assert main(["fit", *map(str, two_files), "--n-starts", "1", "--out", str(out)]) in (0, 1)
+    report = reproduce(out, tmp_path / "again")
+    files = {a.file for a in report.arrays}
+    assert "data_record2.npz" in files and report.n_numbers_compared > 0
+    assert not report.numbers and all(a.identical for a in report.arrays)
