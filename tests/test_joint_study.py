@@ -8,6 +8,7 @@ from dataclasses import replace
 import h5py
 import numpy as np
 import pytest
+import tomllib
 
 from identify.bench import simulate
 from identify.cli import main
@@ -173,3 +174,39 @@ def test_reproduce_reruns_a_fit_of_several_records(two_files, tmp_path):
     files = {a.file for a in report.arrays}
     assert "data_record2.npz" in files and report.n_numbers_compared > 0
     assert not report.numbers and all(a.identical for a in report.arrays)
+
+
+def test_a_batch_job_of_several_records_runs_the_command_on_all(two_files, tmp_path):
+    from identify.workflows.batch import BatchConfigError, expand_jobs, parse_config
+
+    text = (
+        'task = "study"\nout = "out"\n[[records]]\nname = "both"\n'
+        f'paths = ["{two_files[0]}", "{two_files[1]}"]\n[[records]]\npath = "{two_files[0]}"\n'
+    )
+    config = parse_config(tomllib.loads(text), tmp_path / "batch.toml")
+    jobs = expand_jobs(config)
+    assert [j.record for j in jobs] == ["both", "paper"]
+    assert list(jobs[0].argv[1:3]) == [str(two_files[0]), str(two_files[1])] and jobs[0].argv[3] == "--out"
+    assert jobs[1].argv[2] == "--out"
+    bad = text.replace('name = "both"\n', "")
+    with pytest.raises(BatchConfigError, match="name is required"):
+        parse_config(tomllib.loads(bad), tmp_path / "batch.toml")
+
+
+def test_predict_validates_several_records_each_on_its_own(two_files, tmp_path, capsys):
+    from identify import study
+    from identify.workflows.use import predict
+
+    out = tmp_path / "study"
+    study(str(two_files[0]), Model(), out=out, seed=0, n_starts=1, max_steps=60, check_every=30, quiet=True)
+    many = tmp_path / "many"
+    code = main(["predict", str(out), *map(str, two_files), "--out", str(many), "--diagnosis", "adequacy"])
+    assert code == 0
+    for path in two_files:
+        assert (many / f"predict-{path.stem}" / "prediction.json").exists()
+    predictions = predict(out, list(map(str, two_files)), diagnosis="adequacy", n_draws=20)
+    assert [p.record.source for p in predictions] == [str(p) for p in two_files]
+    assert (
+        main(["predict", str(out), str(two_files[0]), str(tmp_path / "missing.csv"), "--out", str(tmp_path / "x")]) == 2
+    )
+    assert "missing.csv" in capsys.readouterr().err and not (tmp_path / "x").exists()
