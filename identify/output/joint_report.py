@@ -241,7 +241,12 @@ def write_joint_report(result_dir, *, rng=None) -> Path:
 
     directory = Path(result_dir)
     rng = np.random.default_rng(0) if rng is None else rng
-    records, joint, summary, content = _load(directory)
+    try:
+        records, joint, summary, content = _load(directory)
+    except (FileNotFoundError, KeyError, TypeError) as exc:
+        raise results.DamagedResultsError(
+            f"{directory}: not a complete study of several records ({type(exc).__name__}: {exc})"
+        ) from None
     theta_hat = np.asarray(content["joint"]["theta_vector"], dtype=float)
     parts = [_records_html(summary), _posterior_html(summary), _shared_html(summary, joint), _own_html(summary, joint)]
     if summary.get("posterior"):
