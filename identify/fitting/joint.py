@@ -50,6 +50,7 @@ __all__ = [
     "record_suffix",
     "joint_fit_from_json",
     "record_noises",
+    "separate_fits",
     "joint_manifest_data",
     "leave_one_record_out",
     "predict_left_out",
@@ -459,10 +460,7 @@ def fit_joint(
     records = check_records(records)
     noises = [_noise_of(r) for r in records] if noises is None else list(noises)
     if separate is None:
-        separate = []
-        for r, (record, noise) in enumerate(zip(records, noises), start=1):
-            say(f"least squares of record {r} of {len(records)} alone ({record.source})")
-            separate.append(fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng))
+        separate = separate_fits(records, model, noises, n_starts=n_starts, rng=rng, progress=progress)
     span = max(float(np.max(np.abs(r.displacement))) for r in records)
     say(f"least squares of the {len(records)} records together")
     best = None
@@ -505,6 +503,23 @@ def record_noises(records) -> list:
     """Each record's noise from its own quiet start (:func:`identify.fitting.noise.estimate_noise`);
     a record without one is a ValueError naming it."""
     return [_noise_of(r) for r in records]
+
+
+def separate_fits(records, model: Model, noises, *, n_starts: int = 4, rng=None, progress=None) -> list:
+    """Each record fitted alone (:func:`identify.fitting.lsq.fit_least_squares`). The first
+    record's fit is also the first start of every further record's, and its thresholds' sign
+    is theirs: the records share the transducer, so the sign the first record chose holds for
+    all (each further record then searches one sign instead of two; its own ``n_starts`` are
+    still tried)."""
+    say = progress or (lambda message: None)
+    rng = np.random.default_rng(0) if rng is None else rng
+    fits = []
+    for r, (record, noise) in enumerate(zip(records, noises), start=1):
+        say(f"least squares of record {r} of {len(records)} alone ({record.source})")
+        start = None if not fits else fits[0].theta
+        fit_model = model if not fits else fits[0].model
+        fits.append(fit_least_squares(record, fit_model, noise=noise, start=start, n_starts=n_starts, rng=rng))
+    return fits
 
 
 def _noise_of(record) -> NoiseModel:

@@ -19,6 +19,7 @@ __all__ = [
     "fit_or_explain",
     "fit_records",
     "select_terms_of_records",
+    "separate_fits_or_explain",
     "format_joint_fit_table",
     "format_fit_table",
     "print_record_notes",
@@ -206,6 +207,21 @@ def format_joint_fit_table(fit) -> str:
         f"{check.get('dof')} degrees of freedom, p = {check.get('p', 1.0):.2g}); {fit.seconds:.1f} s"
     )
     return "\n".join(lines)
+
+
+def separate_fits_or_explain(records, model, noises, *, n_starts: int = 4, rng=None, log=None) -> list:
+    """Each record fitted alone (:func:`identify.fitting.joint.separate_fits`), a failure turned
+    into a :class:`FitFailedError` naming the records."""
+    from ..fitting.joint import separate_fits
+
+    try:
+        return separate_fits(records, model, noises, n_starts=n_starts, rng=rng, progress=log)
+    except ValueError as exc:
+        names = ", ".join(str(r.source) for r in records)
+        raise FitFailedError(
+            f"least squares of {model!r} on the records {names} failed: {exc}. Try fewer --effects, more starts "
+            "(--n-starts) or another --seed"
+        ) from exc
 
 
 def select_terms_of_records(records, separate, *, rng=None, log=None) -> list:

@@ -732,7 +732,7 @@ class _JointRun(_Run):
         from ..fitting.joint import joint_fit_from_json
         from ..fitting.terms import optional_terms
         from ..output.results import FILES, read_json, record_data_file, write_data, write_json
-        from .fit import fit_records, format_joint_fit_table, select_terms_of_records
+        from .fit import fit_records, format_joint_fit_table, select_terms_of_records, separate_fits_or_explain
 
         out = self.out
         if state.has_fit:
@@ -742,12 +742,9 @@ class _JointRun(_Run):
             self.log(f"least squares of {len(self.records)} records together: {self.model!r} ...")
             separate = None
             if self.options["select_terms"] and optional_terms(self.model):
-                separate = []
-                for r, (record, noise) in enumerate(zip(self.records, self.noises), start=1):
-                    self.log(f"least squares of record {r} of {len(self.records)} alone ({record.source})")
-                    separate.append(
-                        fit_or_explain(record, self.model, noise=noise, n_starts=self.options["n_starts"], rng=lsq_rng)
-                    )
+                separate = separate_fits_or_explain(
+                    self.records, self.model, self.noises, n_starts=self.options["n_starts"], rng=lsq_rng, log=self.log
+                )
                 separate = select_terms_of_records(self.records, separate, rng=lsq_rng, log=self.log)
             fit = fit_records(
                 self.records,
