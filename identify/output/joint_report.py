@@ -86,12 +86,11 @@ def _record_figure(r, record, joint, theta_hat, draws, noise_sigma, quiet_noise)
     loop.plot(record.current, y_hat, "-", lw=0.8, color="C0", label="model (joint fit)")
     loop.set(xlabel=f"drive [{record.input_unit}]", ylabel=f"output [{record.output_unit}]", title=f"record {r}")
     loop.legend(loc="upper left", fontsize=8)
-    over_time.plot(record.time, error, lw=0.5, color="0.3", label="measured - model")
-    over_time.fill_between(record.time, lo, hi, color="C0", alpha=0.35, label="95 % band of the model")
+    over_time.plot(record.time, error, ".", ms=1.0, alpha=0.4, color="0.3", label="measured - model")
     band = Z95 * noise_sigma
-    over_time.fill_between(
-        record.time, lo - band, hi + band, color="C1", alpha=0.15, label="with the noise (95 % predictive)"
-    )
+    for edge, label in ((lo - band, "95 % predictive band (with the noise)"), (hi + band, None)):
+        over_time.plot(record.time, edge, lw=0.8, color="C1", label=label, zorder=3)
+    over_time.fill_between(record.time, lo, hi, color="C0", alpha=0.8, label="95 % band of the model", zorder=4)
     over_time.set(xlabel="time [s]", ylabel=f"error [{record.output_unit}]", title=f"record {r}: error over time")
     over_time.legend(loc="upper right", fontsize=8)
     energised = energised_mask(record, quiet_noise)
