@@ -87,16 +87,15 @@ def _record_figure(r, record, joint, theta_hat, draws, noise_sigma, quiet_noise)
     loop.set(xlabel=f"drive [{record.input_unit}]", ylabel=f"output [{record.output_unit}]", title=f"record {r}")
     loop.legend(loc="upper left", fontsize=8)
     over_time.plot(record.time, error, ".", ms=1.0, alpha=0.4, color="0.3", label="measured - model")
-    band = Z95 * noise_sigma
-    for edge, label in ((lo - band, "95 % predictive band (with the noise)"), (hi + band, None)):
+    # the predictive band: the model's band and the noise's combined in quadrature (independent, near-Gaussian)
+    centre, half = 0.5 * (lo + hi), np.sqrt((0.5 * (hi - lo)) ** 2 + (Z95 * noise_sigma) ** 2)
+    for edge, label in ((centre - half, "95 % predictive band (with the noise)"), (centre + half, None)):
         over_time.plot(record.time, edge, lw=0.8, color="C1", label=label, zorder=3)
     over_time.fill_between(record.time, lo, hi, color="C0", alpha=0.8, label="95 % band of the model", zorder=4)
     over_time.set(xlabel="time [s]", ylabel=f"error [{record.output_unit}]", title=f"record {r}: error over time")
     over_time.legend(loc="upper right", fontsize=8)
     energised = energised_mask(record, quiet_noise)
-    inside = float(
-        np.mean(np.abs(error[energised] - 0.5 * (lo + hi)[energised]) <= (0.5 * (hi - lo) + band)[energised])
-    )
+    inside = float(np.mean(np.abs(error[energised] - centre[energised]) <= half[energised]))
     return figure, inside
 
 
