@@ -210,3 +210,27 @@ def test_predict_validates_several_records_each_on_its_own(two_files, tmp_path, 
         main(["predict", str(out), str(two_files[0]), str(tmp_path / "missing.csv"), "--out", str(tmp_path / "x")]) == 2
     )
     assert "missing.csv" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_the_bundled_second_record_is_the_same_transducer_on_the_drive_with_holds():
+    """data/bench_default_holds.csv equals what its sidecar's truth simulates on the drive with
+    holds now (to 1e-9 um), and its truth is bench_default.json's transducer and noise."""
+    from pathlib import Path
+
+    from identify import load_record
+    from identify.bench.synthetic import simulate_like
+
+    data = Path(__file__).resolve().parent.parent / "data"
+    holds, default = load_record(data / "bench_default_holds.csv"), load_record(data / "bench_default.csv")
+    truth, first = holds.sidecar, default.sidecar
+    assert {k: v for k, v in truth["theta"].items() if k in first["theta"]} == first["theta"]
+    assert truth["noise"] == first["noise"] and truth["fs"] == pytest.approx(first["fs"], rel=1e-9)
+    assert {k: v for k, v in truth["effects"]["thermal"].items() if k in first["effects"]["thermal"]} == (
+        first["effects"]["thermal"]
+    )
+    assert truth["theta"]["thermal_sensitivity_core"] == 0.0  # the second node absent: the same one-pole heating
+    assert "--truth data/bench_default.json --drive holds" in truth["command"]
+    sim = simulate_like(first, holds.time, holds.current, seed=truth["seed"])
+    np.testing.assert_allclose(holds.displacement, sim.record.displacement, rtol=0, atol=1e-9)
+    quiet_end = holds.current[-int(5 * truth["fs"]) :]
+    assert holds.current.max() >= 4.5 and not quiet_end.any() and not holds.current[: int(truth["fs"])].any()
