@@ -28,6 +28,7 @@ API = {
     "estimate_noise": "identify.fitting.noise",
     "normalised_model": "identify.fitting.parametrisation",
     "fit_least_squares": "identify.fitting.lsq",
+    "fit_records": "identify.workflows.fit",
     "diagnose": "identify.diagnosis.diagnose",
     "study": "identify.workflows.study",
     "StudyResult": "identify.workflows.study",

@@ -145,3 +145,29 @@ def test_the_diagnose_command_refuses_a_record_given_twice(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "a record given twice" in err and err.count("\n") == 1
     assert not (out / "diagnosis.json").exists()
+
+
+def test_the_joint_log_likelihood_is_the_sum_of_each_records_own(two_records):
+    """Each record scored with its own noise model, its own run parameters and zero; the
+    posterior is the prior plus their sum."""
+    from identify.fitting.joint_posterior import JointLogPosterior
+    from identify.fitting.noise import log_likelihood
+
+    model = normalised_model(Model(["thermal"]))
+    joint = JointModel(model, 2)
+    noises = [estimate_noise(r) for r in two_records]
+    log_post = JointLogPosterior(two_records, joint, noises)
+    theta = joint.default_theta()
+    theta[joint.names.index("zero_r2")] = 0.3
+    x = theta[log_post.free]
+    expected = []
+    for r, (record, noise) in enumerate(zip(two_records, noises), start=1):
+        rows, zero = joint.record_rows(theta, r)
+        residual = record.displacement - (model(rows[0], record.time, record.current) + zero[0])
+        expected.append(log_likelihood(residual, noise))
+    parts = log_post.record_log_likelihoods(theta[None, :])[:, 0]
+    np.testing.assert_allclose(parts, expected, rtol=1e-10)
+    assert log_post(x) == pytest.approx(log_post.log_prior(x[None, :])[0] + sum(expected), rel=1e-10)
+    outside = x.copy()
+    outside[log_post.names.index("zero_r2")] = 1e9
+    assert log_post(outside) == -np.inf

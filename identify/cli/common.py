@@ -30,6 +30,14 @@ BIG_FILE = 20 * 2**20
 NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet", "verbose")
 
 
+class _OneOrSeveral(argparse.Action):
+    """DATA of a command that takes several records: one path as a string (exactly what the
+    command of one record parses, so its settings and manifest do not change), several as a list."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values[0] if len(values) == 1 else list(values))
+
+
 def add_record_arguments(parser: argparse.ArgumentParser, *, several: bool = False) -> None:
     """DATA (one record, or with ``several`` one or more of one transducer) and the column/unit
     options passed to :func:`identify.data.records.load_record`."""
@@ -37,6 +45,7 @@ def add_record_arguments(parser: argparse.ArgumentParser, *, several: bool = Fal
         parser.add_argument(
             "data",
             nargs="+",
+            action=_OneOrSeveral,
             metavar="DATA",
             help="measurement CSVs of one transducer (header time,current,displacement by default); several are "
             "fitted together: the transducer shared, each record's run and sensor zero its own",

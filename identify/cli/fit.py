@@ -32,11 +32,14 @@ __all__ = ["HELP", "add_arguments", "run", "FIT_OUT_FILES"]
 #: Files ``fit --out DIR`` writes (roles as in :data:`identify.output.results.FILES`).
 FIT_OUT_FILES = ("data", "fit", "manifest")
 
-HELP = "least-squares fit of the GPI (+ effects) to a record; prints parameters, stderr, RMS vs noise"
+HELP = (
+    "least-squares fit of the GPI (+ effects) to a record, or to several records of one transducer together; "
+    "prints parameters, stderr, RMS vs noise"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_record_arguments(parser)
+    add_record_arguments(parser, several=True)
     add_model_arguments(parser)
     parser.add_argument(
         "--free-alpha", action="store_true", help="do not pin alpha (the normalisation); the fit is then degenerate"
@@ -102,6 +105,10 @@ def run(args) -> int:
     )
 
     started, t_start = now_iso(), _time.perf_counter()
+    if isinstance(args.data, (list, tuple)) and len(args.data) == 1:
+        args.data = args.data[0]  # one record: exactly the command of one record
+    if isinstance(args.data, (list, tuple)):
+        return _run_records(args, started, t_start)
     out = Path(args.out) if args.out else None
     lock = FolderLock(out, command="python -m identify fit " + str(args.data)) if out is not None else None
     try:
@@ -160,6 +167,106 @@ def run(args) -> int:
             write_json(out / FILES["manifest"], manifest)
             say(f"wrote {out / FILES['fit']} and {out / FILES['manifest']}")
         return _fit_exit_code(fit)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _check_several(args) -> None:
+    """Options that mean one record only."""
+    if args.noise_sigma is not None:
+        raise options.OptionError(
+            "several records are each whitened with the noise of their own quiet start: --noise-sigma applies to "
+            "one record"
+        )
+    if args.free_alpha:
+        raise options.OptionError("--free-alpha applies to one record (the joint fit is normalised)")
+
+
+def _run_records(args, started, t_start) -> int:
+    """``fit A.csv B.csv ...``: the joint least squares (:func:`identify.workflows.fit.fit_records`);
+    with ``--out`` the folder holds each record's data (``data.npz``, ``data_record<k>.npz``),
+    ``fit.json`` (:meth:`identify.fitting.joint.JointFit.to_json`: record 1's fit plus ``joint``
+    and a ``records`` list) and the manifest. Every input is checked before anything is written."""
+    import time as _time
+    from pathlib import Path
+
+    import numpy as np
+
+    from ..data.locks import FolderLock
+    from ..fitting.joint import joint_manifest_data, record_noises
+    from ..fitting.noise import NoQuietSegmentError
+    from ..output.results import (
+        FILES,
+        build_manifest,
+        check_resumable,
+        finish_manifest,
+        record_data_file,
+        remove_run,
+        write_data,
+        write_json,
+    )
+    from ..workflows.fit import fit_records, format_joint_fit_table
+    from .app import input_errors
+    from .common import records_from_args
+
+    out = Path(args.out) if args.out else None
+    lock = FolderLock(out, command="python -m identify fit " + " ".join(map(str, args.data))) if out else None
+    try:
+        if lock is not None:
+            lock.acquire()
+        try:
+            _check_several(args)
+            records = records_from_args(args)
+            for record in records:
+                print_record_notes(record)
+            model = model_from_args(args)
+            noises = record_noises(records)
+            if out is not None:
+                manifest = build_manifest(
+                    seed=args.seed, record=records[0], settings=_fit_settings(args), started=started, task="fit"
+                )
+                manifest["data"] = joint_manifest_data(records)
+                if not args.force:
+                    check_resumable(out, manifest, ignore=("verbose",))
+            say(f"fitting {model!r} to {len(records)} records together ...")
+            fit = fit_records(
+                records,
+                model,
+                noises=noises,
+                n_starts=args.n_starts,
+                rng=np.random.default_rng(args.seed),
+                progress=say,
+            )
+        except (*input_errors(), NoQuietSegmentError, FitFailedError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(format_joint_fit_table(fit))
+        if not fit.consistency.get("consistent", True):
+            import logging
+
+            say(f"warning: {fit.consistency['message']}", logging.WARNING)
+        content = fit.to_json()
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            write_json(args.json, content)
+            say(f"wrote {args.json}")
+        if out is not None:
+            if args.force:
+                remove_run(out)
+            for r, record in enumerate(records, start=1):
+                write_data(out, record, record_data_file(r))
+            write_json(out / FILES["fit"], content)
+            manifest = finish_manifest(
+                manifest,
+                started=started,
+                seconds=_time.perf_counter() - t_start,
+                status="done",
+                phases={"least_squares": fit.seconds},
+            )
+            write_json(out / FILES["manifest"], manifest)
+            say(f"wrote {out / FILES['fit']} and {out / FILES['manifest']}")
+        return _fit_exit_code(next((f for f in fit.separate if not f.success), fit.separate[0]))
     finally:
         if lock is not None:
             lock.release()

@@ -21,6 +21,7 @@ study, a record with other columns or units, an empty window), nothing written.
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 import time
 from pathlib import Path
@@ -35,8 +36,18 @@ HELP = "apply a finished study's model to another record (validation, no refit):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", metavar="DIR", help="results folder of a finished `python -m identify study`")
-    parser.add_argument("data", metavar="NEW.csv", help="record of the same rig (the study's columns and units)")
-    parser.add_argument("--out", default=None, metavar="OUT", help="output folder (default DIR/predict-<NEW stem>)")
+    parser.add_argument(
+        "data",
+        metavar="NEW.csv",
+        nargs="+",
+        help="record(s) of the same rig (the study's columns and units); several are each validated on their own",
+    )
+    parser.add_argument(
+        "--out",
+        default=None,
+        metavar="OUT",
+        help="output folder (default DIR/predict-<NEW stem>); with several records OUT/predict-<NEW stem> each",
+    )
     parser.add_argument(
         "--window",
         default=None,
@@ -106,7 +117,45 @@ def compute_and_write(args, data_path, prefix: str, compute, write):
 
 
 def run(args) -> int:
+    """Validate one record, or several each on its own (every record and the study are read and
+    checked before anything is written); exit code 0, or 2 after one ``error:`` line."""
+    if isinstance(args.data, (list, tuple)) and len(args.data) == 1:
+        args.data = args.data[0]  # one record: exactly the command of one record
+    if not isinstance(args.data, (list, tuple)):
+        return _run_one(args)
+    return _run_several(args)
 
+
+def _run_several(args) -> int:
+    from ..workflows.use import UseError, load_record_for_study, load_study
+
+    paths = [Path(p) for p in args.data]
+    stems = [p.stem for p in paths]
+    try:
+        repeated = next((p for p, stem in zip(paths, stems) if stems.count(stem) > 1), None)
+        if repeated is not None:
+            raise UseError(
+                f"{repeated}: a record named twice (or two records with its name, whose folders would clash)"
+            )
+        study = load_study(args.dir)
+        columns = {k: getattr(args, k) for k in ("time_column", "input_column", "output_column")}
+        units = {k: getattr(args, k) for k in ("input_unit", "output_unit")}
+        for path in paths:  # every record read and checked before anything is written
+            load_record_for_study(str(path), study, **columns, **units)
+    except (UseError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    code = 0
+    for path in paths:
+        one = copy.copy(args)
+        one.data = str(path)
+        if args.out:
+            one.out = str(Path(args.out) / f"predict-{path.stem}")
+        code = max(code, _run_one(one))
+    return code
+
+
+def _run_one(args) -> int:
     # deferred (--help imports every command's module): workflows.use: numpy, scipy, numba, matplotlib, +1.6 s
     import numpy as np
 

@@ -124,8 +124,12 @@ def run(args) -> int:
 def _command_line(args) -> str:
     """The options as a reproducible command line (no absolute paths beyond what was given)."""
     parts = ["python -m identify simulate", f"--out {args.out}"]
-    if args.effects:
+    if getattr(args, "truth", None):
+        parts.append(f"--truth {args.truth}")
+    elif args.effects:
         parts.append(f"--effects {args.effects}")
+    if getattr(args, "drive", "paper") != "paper":
+        parts.append(f"--drive {args.drive}")
     parts += [
         f"--noise {args.noise:g}",
         f"--noise-rho {args.noise_rho:g}",

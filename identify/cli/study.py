@@ -17,15 +17,25 @@ from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, EXIT_FINDING
 from ..workflows.fit import FitFailedError, print_record_notes, say
 from . import options
 from .app import input_errors
-from .common import add_model_arguments, add_record_arguments, model_from_args, record_from_args, settings_from_args
+from .common import (
+    add_model_arguments,
+    add_record_arguments,
+    model_from_args,
+    record_from_args,
+    records_from_args,
+    settings_from_args,
+)
 
 __all__ = ["HELP", "add_arguments", "run", "run_study"]
 
-HELP = "whole study (noise, least squares, identifiability, emcee posterior, report) into a results folder"
+HELP = (
+    "whole study (noise, least squares, identifiability, emcee posterior, report) of a record, or of several "
+    "records of one transducer together, into a results folder"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_record_arguments(parser)
+    add_record_arguments(parser, several=True)
     parser.add_argument(
         "--out",
         required=True,
@@ -105,8 +115,12 @@ def run_study(args) -> int:
     # deferred (--help imports every command's module): workflows.study: the sampler (numpy, numba, emcee)
     from ..workflows.study import check_priors, check_walkers, study
 
+    if isinstance(args.data, (list, tuple)) and len(args.data) == 1:
+        args.data = args.data[0]  # one record: exactly the study of one record
+    several = isinstance(args.data, (list, tuple))
+    data = " ".join(map(str, args.data)) if several else args.data
     out = Path(args.out)
-    lock = FolderLock(out, command=f"python -m identify study {args.data} --out {args.out}")
+    lock = FolderLock(out, command=f"python -m identify study {data} --out {args.out}")
     lock.acquire()  # first: a second writer is refused at once, before anything is written
     try:
         if lock.stale_note():
@@ -117,8 +131,20 @@ def run_study(args) -> int:
         except ValueError as exc:
             raise options.OptionError(str(exc)) from None
         check_priors(args.priors, model)  # before the record is read and anything written (exit code 2)
-        record = record_from_args(args)
-        print_record_notes(record)
+        settings = settings_from_args(args)
+        if several:
+            if args.noise_sigma is not None:
+                raise options.OptionError(
+                    "several records are each whitened with the noise of their own quiet start: --noise-sigma "
+                    "applies to one record"
+                )
+            record = records_from_args(args)
+            settings["data"] = [str(r.source) for r in record]
+            for one in record:
+                print_record_notes(one)
+        else:
+            record = record_from_args(args)
+            print_record_notes(record)
         progress = {"auto": None, "on": True, "off": False}[args.progress]
         if progress is None and getattr(args, "quiet", 0):
             progress = False  # -q: no bar and no progress lines
@@ -138,7 +164,7 @@ def run_study(args) -> int:
             force=args.force,
             report=not args.no_report,
             progress=progress,
-            settings=settings_from_args(args),
+            settings=settings,
             lock=False,
         )
         if not result.converged:  # a warning: -q keeps it

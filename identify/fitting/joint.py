@@ -36,7 +36,7 @@ from scipy import stats
 from model import Model, Parameter, ParameterSet
 
 from .lsq import POLISH_EVALUATIONS, FitResult, WhitenedResiduals, bounded_solve, fit_least_squares
-from .noise import NoiseModel, energised_mask, estimate_noise, whiten_rows
+from .noise import NoiseModel, NoQuietSegmentError, energised_mask, estimate_noise, whiten_rows
 from .threads import single_threaded_blas
 
 __all__ = [
@@ -48,6 +48,12 @@ __all__ = [
     "joint_fit_at",
     "consistency",
     "record_suffix",
+    "joint_fit_from_json",
+    "record_noises",
+    "separate_fits",
+    "joint_manifest_data",
+    "leave_one_record_out",
+    "predict_left_out",
 ]
 
 #: A joint fit whose chi-square exceeds the separate fits' sum with a p-value below this is
@@ -62,16 +68,18 @@ DISAGREEING_RMS_RISE = 0.10
 def check_records(records) -> list:
     """The records as a list, refused with the record named when they cannot be one transducer's
     records: none, other units than the first's, or one given twice (the same data)."""
+    from ..data.records import RecordError
+
     records = list(records)
     if not records:
-        raise ValueError("no record given: the list of records is empty")
+        raise RecordError("no record given: the list of records is empty")
     first = records[0]
     units = (getattr(first, "input_unit", "A"), getattr(first, "output_unit", "um"))
     seen = {}
     for r, record in enumerate(records, start=1):
         these = (getattr(record, "input_unit", "A"), getattr(record, "output_unit", "um"))
         if these != units:
-            raise ValueError(
+            raise RecordError(
                 f"{record.source}: drive in {these[0]} and output in {these[1]}, where {first.source} has "
                 f"{units[0]} and {units[1]}: the records of one transducer share their units"
             )
@@ -79,7 +87,7 @@ def check_records(records) -> list:
         if key is None:
             key = (len(record.time), float(np.sum(record.displacement)), float(np.sum(record.current)))
         if key in seen:
-            raise ValueError(f"{record.source}: the same data as record {seen[key]}: a record given twice")
+            raise RecordError(f"{record.source}: the same data as record {seen[key]}: a record given twice")
         seen[key] = r
     return records
 
@@ -147,6 +155,26 @@ class JointModel:
     @property
     def effect_names(self) -> tuple[str, ...]:
         return self.model.effect_names
+
+    @property
+    def n_operators(self) -> int:
+        return self.model.n_operators
+
+    @property
+    def reading(self) -> str:
+        return self.model.reading
+
+    @property
+    def has_canonical_domain(self) -> bool:
+        return self.model.has_canonical_domain
+
+    def in_canonical_domain(self, theta) -> np.ndarray:
+        """Boolean ``(W,)``: every record's vector in the model's canonical labelling."""
+        theta = np.atleast_2d(np.asarray(theta, dtype=float))
+        ok = np.ones(theta.shape[0], dtype=bool)
+        for r in range(1, self.n_records + 1):
+            ok &= np.asarray(self.model.in_canonical_domain(self.record_rows(theta, r)[0]), dtype=bool)
+        return ok
 
     def default_theta(self) -> np.ndarray:
         return self.parameters.values.copy()
@@ -305,10 +333,38 @@ class JointFit:
             "seconds": float(self.seconds),
         }
 
+    def to_json(self) -> dict:
+        """``fit.json`` of several records: record 1's own fit at the joint optimum (what a reader
+        of one record's ``fit.json`` finds: the shared parameters and record 1's run), with the
+        joint fit (:meth:`to_dict`, its names, vector, covariance, zero bound and the records'
+        separate fits) under ``"joint"`` and the records under ``"records"``.
+        :func:`joint_fit_from_json` rebuilds it."""
+        joint = self.to_dict()
+        joint.update(
+            names=list(self.joint.names),
+            theta_vector=[float(v) for v in self.theta],
+            covariance=[[float(v) for v in row] for row in self.covariance],
+            zero_bound=float(self.joint.zero_bound),
+            separate=[f.to_dict() for f in self.separate],
+        )
+        return {**self.fits[0].to_dict(), "joint": joint, "records": joint["records"]}
 
-def _record_fit(record, model: Model, theta, zero: float, noise: NoiseModel, template: FitResult) -> FitResult:
-    """Record's own :class:`FitResult` at a joint optimum (its vector, residual, RMS, max error)."""
+
+def _record_fit(
+    record, model: Model, theta, zero: float, noise: NoiseModel, template: FitResult, covariance=None
+) -> FitResult:
+    """Record's own :class:`FitResult` at a joint optimum (its vector, residual, RMS, max error;
+    with ``covariance`` ``(P, P)``, the joint covariance of its vector's columns, also its
+    covariance and standard errors)."""
     from dataclasses import replace
+
+    uncertainty = {}
+    if covariance is not None:
+        covariance = np.asarray(covariance, dtype=float)
+        stderr = np.full(model.n_parameters, np.nan)
+        vary = model.parameters.vary
+        stderr[vary] = np.sqrt(np.clip(np.diag(covariance)[vary], 0.0, None))
+        uncertainty = {"covariance": covariance, "stderr": stderr}
 
     y = model(theta, record.time, record.current) + zero
     residual = np.asarray(record.displacement, dtype=float) - y
@@ -327,6 +383,7 @@ def _record_fit(record, model: Model, theta, zero: float, noise: NoiseModel, tem
         max_error_pct=float(100.0 * np.max(np.abs(residual[energised])) / span) if span > 0 else math.inf,
         reduced_chi2=float(w @ w) / dof,
         noise=noise,
+        **uncertainty,
     )
 
 
@@ -403,10 +460,7 @@ def fit_joint(
     records = check_records(records)
     noises = [_noise_of(r) for r in records] if noises is None else list(noises)
     if separate is None:
-        separate = []
-        for r, (record, noise) in enumerate(zip(records, noises), start=1):
-            say(f"least squares of record {r} of {len(records)} alone ({record.source})")
-            separate.append(fit_least_squares(record, model, noise=noise, n_starts=n_starts, rng=rng))
+        separate = separate_fits(records, model, noises, n_starts=n_starts, rng=rng, progress=progress)
     span = max(float(np.max(np.abs(r.displacement))) for r in records)
     say(f"least squares of the {len(records)} records together")
     best = None
@@ -424,10 +478,60 @@ def fit_joint(
     return joint_fit_at(residuals, x, separate, t0)
 
 
+def joint_fit_from_json(content: dict, records, noises=None) -> JointFit:
+    """The :class:`JointFit` stored by :meth:`JointFit.to_json`, on the same ``records`` (their
+    noises: default each one's quiet start); its covariance and per-record fits are recomputed
+    at the stored vector (deterministic)."""
+    stored = content["joint"]
+    records = check_records(records)
+    if len(records) != int(stored["n_records"]):
+        raise ValueError(f"the stored joint fit has {stored['n_records']} records, {len(records)} were given")
+    model = FitResult.from_dict(content).model
+    separate = [FitResult.from_dict(d) for d in stored["separate"]]
+    noises = [_noise_of(r) for r in records] if noises is None else list(noises)
+    joint = JointModel(model, len(records), zero_bound=float(stored["zero_bound"]))
+    if list(joint.names) != list(stored["names"]):
+        raise ValueError("the stored joint fit's parameters are not this model's")
+    residuals = JointResiduals(records, joint, noises)
+    theta = np.asarray(stored["theta_vector"], dtype=float)
+    fit = joint_fit_at(residuals, theta[residuals.free], separate, _time.perf_counter())
+    fit.seconds = float(stored.get("seconds", 0.0))
+    return fit
+
+
+def record_noises(records) -> list:
+    """Each record's noise from its own quiet start (:func:`identify.fitting.noise.estimate_noise`);
+    a record without one is a ValueError naming it."""
+    return [_noise_of(r) for r in records]
+
+
+def separate_fits(records, model: Model, noises, *, n_starts: int = 4, rng=None, progress=None) -> list:
+    """Each record fitted alone (:func:`identify.fitting.lsq.fit_least_squares`). The first
+    record's fit is also the first start of every further record's, and its thresholds' sign
+    is theirs: the records share the transducer, so the sign the first record chose holds for
+    all (each further record then searches one sign instead of two; its own ``n_starts`` are
+    still tried)."""
+    say = progress or (lambda message: None)
+    rng = np.random.default_rng(0) if rng is None else rng
+    fits = []
+    for r, (record, noise) in enumerate(zip(records, noises), start=1):
+        say(f"least squares of record {r} of {len(records)} alone ({record.source})")
+        start = None if not fits else fits[0].theta
+        fit_model = model if not fits else fits[0].model
+        fits.append(fit_least_squares(record, fit_model, noise=noise, start=start, n_starts=n_starts, rng=rng))
+    return fits
+
+
 def _noise_of(record) -> NoiseModel:
     """The record's noise from its own quiet start; the error names the record."""
     try:
         return estimate_noise(record)
+    except NoQuietSegmentError:
+        raise NoQuietSegmentError(
+            f"{record.source}: no unenergised start to estimate this record's sensor noise from; several records "
+            "are each whitened with the noise of their own quiet start, so every record needs one (a record "
+            "without one can be studied alone, with --noise-sigma VALUE or free)"
+        ) from None
     except ValueError as exc:
         raise ValueError(f"{record.source}: {exc}") from None
 
@@ -468,7 +572,8 @@ def joint_fit_at(residuals: JointResiduals, x, separate, t0: float | None = None
     fits = []
     for r, (record, noise, fit) in enumerate(zip(residuals.records, residuals.noises, separate), start=1):
         rows, zero = joint.record_rows(theta, r)
-        fits.append(_record_fit(record, joint.model, rows[0], float(zero[0]), noise, fit))
+        own = joint._own[r - 1]
+        fits.append(_record_fit(record, joint.model, rows[0], float(zero[0]), noise, fit, covariance[np.ix_(own, own)]))
     check = consistency(chi2, separate, joint, fits, residuals.records)
     return JointFit(
         joint,
@@ -483,3 +588,114 @@ def joint_fit_at(residuals: JointResiduals, x, separate, t0: float | None = None
         check,
         _time.perf_counter() - t0,
     )
+
+
+def joint_manifest_data(records) -> dict:
+    """The manifest's ``data`` of several records: record 1's file, a SHA-256 over every record's
+    (in order: any record changed, added, removed or moved is another run) and one entry per record."""
+    import hashlib
+
+    digest = hashlib.sha256("\n".join(str(r.sha256) for r in records).encode()).hexdigest()
+    return {
+        "file": str(records[0].source),
+        "sha256": digest,
+        "n_samples": int(sum(len(r.time) for r in records)),
+        "notes": [f"{r.source}: {note}" for r in records for note in getattr(r, "notes", ())],
+        "records": [{"file": str(r.source), "sha256": r.sha256, "n_samples": len(r.time)} for r in records],
+    }
+
+
+#: The predictive band's level of the leave-one-record-out validation.
+LORO_LEVEL = 0.95
+
+
+def _zero_from_quiet_start(record, y, noise) -> float:
+    """The left-out record's sensor zero against the prediction: the mean difference over its
+    unenergised start, where the transducer rests and the data say nothing of its physics."""
+    quiet = ~energised_mask(record, noise)
+    if not quiet.any():
+        return 0.0
+    return float(np.mean(np.asarray(record.displacement, dtype=float)[quiet] - y[quiet]))
+
+
+def predict_left_out(record, noise, model: Model, theta, covariance, rng, n_draws: int = 200) -> dict:
+    """Predict ``record`` from another fit (its model vector ``theta`` ``(P,)`` and covariance
+    ``(P, P)``): the 95 % predictive band of the model's output under the fit's Laplace
+    approximation plus the record's own noise; the record's sensor zero from its quiet start.
+
+    Returns
+    -------
+    dict
+        ``rms`` [output unit] and ``rms_sigma`` (in the record's noise sigmas) of the energised
+        part, ``inside_95`` (share of energised samples inside the band), ``max_error_pct``,
+        ``zero``, ``n_draws``.
+    """
+    theta = np.asarray(theta, dtype=float)
+    vary = np.asarray(model.parameters.vary, dtype=bool)
+    cov = np.asarray(covariance, dtype=float)[np.ix_(vary, vary)]
+    cov = 0.5 * (cov + cov.T)
+    rows = np.repeat(theta[None, :], n_draws, axis=0)
+    rows[:, vary] = rng.multivariate_normal(theta[vary], cov, size=n_draws, method="eigh")
+    rows = np.clip(rows, model.parameters.lower, model.parameters.upper)
+    y_hat = model(theta, record.time, record.current)
+    draws, valid = model.evaluate(rows, record.time, record.current)
+    draws = draws[np.asarray(valid, dtype=bool)]
+    zero = _zero_from_quiet_start(record, y_hat, noise)
+    data = np.asarray(record.displacement, dtype=float)
+    energised = energised_mask(record, noise)
+    residual = data - (y_hat + zero)
+    half = stats.norm.ppf(0.5 + LORO_LEVEL / 2.0) * np.sqrt(np.var(draws, axis=0) + noise.sigma**2)
+    span = float(np.ptp(data))
+    rms = float(np.sqrt(np.mean(residual[energised] ** 2)))
+    return {
+        "rms": rms,
+        "rms_sigma": rms / noise.sigma if noise.sigma > 0 else math.nan,
+        "inside_95": float(np.mean(np.abs(residual[energised]) <= half[energised])),
+        "max_error_pct": float(100.0 * np.max(np.abs(residual[energised])) / span) if span > 0 else math.nan,
+        "zero": zero,
+        "n_draws": int(draws.shape[0]),
+    }
+
+
+def leave_one_record_out(fit: JointFit, rng=None, progress=None) -> list[dict]:
+    """Each record predicted from the others' fit (one record alone: its separate fit; several:
+    their joint fit, polished from their separate fits). Pointwise leave-one-out over samples is
+    not valid for a time series whose residuals are correlated: the record is the unit.
+
+    Returns
+    -------
+    list of dict
+        Per left-out record: ``record`` (from 1), ``source``, ``trained_on`` and
+        :func:`predict_left_out`'s figures. The run parameters a record declares its own
+        (:attr:`JointModel.per_record`) are the first training record's.
+    """
+    say = progress or (lambda message: None)
+    rng = np.random.default_rng(0) if rng is None else rng
+    out = []
+    k = fit.joint.n_records
+    for left in range(k):
+        others = [i for i in range(k) if i != left]
+        say(f"leave one record out: predicting record {left + 1} ({fit.records[left].source}) from the others")
+        if len(others) == 1:
+            train = fit.separate[others[0]]
+            model, theta, cov = train.model, train.theta, train.covariance
+        else:
+            train = fit_joint(
+                [fit.records[i] for i in others],
+                fit.model,
+                [fit.noises[i] for i in others],
+                separate=[fit.separate[i] for i in others],
+                rng=rng,
+            )
+            own = train.joint._own[0]
+            model, theta, cov = train.model, train.theta[own], train.covariance[np.ix_(own, own)]
+        prediction = predict_left_out(fit.records[left], fit.noises[left], model, theta, cov, rng)
+        out.append(
+            {
+                "record": left + 1,
+                "source": str(fit.records[left].source),
+                "trained_on": [str(fit.records[i].source) for i in others],
+                **prediction,
+            }
+        )
+    return out

@@ -493,7 +493,8 @@ class LogPosterior:
     vectorised_log_probability = True
 
     def __init__(self, record, model: Model, noise: NoiseModel, *, priors=None):
-        model = in_record_units(model, record)  # default bounds in the record's unit prefixes
+        if isinstance(model, Model):  # a joint layout (identify.fitting.joint) is converted by its maker
+            model = in_record_units(model, record)  # default bounds in the record's unit prefixes
         self.time = np.asarray(record.time, dtype=float)
         self.current = np.asarray(record.current, dtype=float)
         self.data = np.asarray(record.displacement, dtype=float)

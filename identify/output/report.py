@@ -1343,6 +1343,10 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
         raise ValueError(f"n_draws must be an integer >= 2, got {n_draws!r}")
     started = _time.perf_counter()
     rng = np.random.default_rng(0) if rng is None else rng
+    from .joint_report import is_joint_folder, write_joint_report
+
+    if is_joint_folder(result_dir):  # a study of several records: its own page
+        return write_joint_report(result_dir, rng=rng)
     data = load_report_data(result_dir)
     analysis = _analyse(data, int(n_draws), rng)
     figure_html = {}

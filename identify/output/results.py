@@ -48,6 +48,7 @@ __all__ = [
     "jsonable",
     "write_data",
     "load_data",
+    "record_data_file",
     "write_fit",
     "load_fit",
     "write_summary",
@@ -151,9 +152,15 @@ def read_json(path, *, hint="") -> dict:
     return value
 
 
-def write_data(out_dir, record) -> None:
-    """``data.npz``: the record's arrays, units, column names, source and sha256 (streamed
-    to the file, no copy of the record in memory)."""
+def record_data_file(r: int) -> str:
+    """The data file of record ``r`` (from 1) of a folder of several records: ``data.npz`` for the
+    first (what a reader of one record finds), ``data_record<r>.npz`` for the others."""
+    return FILES["data"] if r == 1 else f"data_record{r}.npz"
+
+
+def write_data(out_dir, record, name=None) -> None:
+    """``data.npz`` (or ``name``): the record's arrays, units, column names, source and sha256
+    (streamed to the file, no copy of the record in memory)."""
 
     def save(fh):
         np.savez(
@@ -169,10 +176,10 @@ def write_data(out_dir, record) -> None:
             sha256=np.array(record.sha256),
         )
 
-    atomic_write(Path(out_dir) / FILES["data"], save)
+    atomic_write(Path(out_dir) / (name or FILES["data"]), save)
 
 
-def load_data(out_dir):
+def load_data(out_dir, name=None):
     """The record stored in ``DIR/data.npz`` as an :class:`identify.data.records.Record`.
 
     Raises
@@ -186,7 +193,7 @@ def load_data(out_dir):
 
     from ..data.records import Record
 
-    path = Path(out_dir) / FILES["data"]
+    path = Path(out_dir) / (name or FILES["data"])
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing (not a complete results folder?)")
     try:
@@ -596,6 +603,10 @@ def remove_run(out_dir, roles=RUN_FILES) -> list[str]:
     for role in roles:
         path = out / FILES[role]
         if path.exists():
+            path.unlink()
+            removed.append(path.name)
+    if "data" in roles:  # the further records of a run of several (record_data_file)
+        for path in sorted(out.glob("data_record*.npz")):
             path.unlink()
             removed.append(path.name)
     if "report" in roles and had_run:  # the report's figures (never PNGs of a folder that held no run)

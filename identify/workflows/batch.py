@@ -149,7 +149,9 @@ _JSON_NAMES = {"fit": "fit.json", "diagnose": "diagnosis.json", "study": "summar
 _LOG_FILE = "batch.log"
 
 _TOP_KEYS = {"task", "out", "workers", "executor", "timeout", "options", "records", "variants", "executor_options"}
-_RECORD_KEYS = {"path", "glob", "name"}
+_RECORD_KEYS = {"path", "glob", "name", "paths"}
+#: The tasks whose command takes several records of one transducer (an entry's ``paths``).
+SEVERAL_RECORD_TASKS = ("fit", "study", "diagnose")
 _VARIANT_KEYS = {"name"}
 # options the batch sets itself: a config may not give them
 _RESERVED_OPTIONS = {"out", "json", "data", "record", "path"}
@@ -168,14 +170,23 @@ class RecordSpec:
     name : str
         Short name used in job folder names and the summary.
     path : Path
-        The record file (absolute).
+        The record file (absolute); of several records, the first.
     options : dict
         Task options for this record (e.g. load options ``input_column``, ``input_unit``).
+    more : tuple of Path
+        The further records of one transducer that the job studies together with ``path``
+        (an entry's ``paths = [...]``); empty for one record.
     """
 
     name: str
     path: Path
     options: dict = field(default_factory=dict)
+    more: tuple = ()
+
+    @property
+    def files(self) -> tuple:
+        """Every record file of the job, ``path`` first."""
+        return (self.path, *self.more)
 
 
 @dataclass(frozen=True)
@@ -531,9 +542,12 @@ def _records(data: dict, source: Path, base: Path) -> list:
     """The :class:`RecordSpec` of every ``[[records]]`` entry (a path, or the files of a glob), names unique."""
     records = []
     for where, entry in _array_of_tables(data, "records", source):
+        if "paths" in entry:
+            records.append(_several_records(entry, where, source, base, data.get("task")))
+            continue
         has_path, has_glob = "path" in entry, "glob" in entry
         if has_path == has_glob:
-            raise BatchConfigError(f"{source}: {where} needs exactly one of 'path' or 'glob'")
+            raise BatchConfigError(f"{source}: {where} needs exactly one of 'path', 'paths' or 'glob'")
         record_options = _check_options({k: v for k, v in entry.items() if k not in _RECORD_KEYS}, where, source)
         paths = _record_paths(entry, where, source, base, has_path)
         name = entry.get("name")
@@ -545,6 +559,30 @@ def _records(data: dict, source: Path, base: Path) -> list:
             records.append(RecordSpec(_slug(name if name else p.stem), p, record_options))
     _check_unique([r.name for r in records], "record", source, "give the records a 'name'")
     return records
+
+
+def _several_records(entry: dict, where: str, source: Path, base: Path, task) -> RecordSpec:
+    """The :class:`RecordSpec` of an entry ``paths = ["a.csv", "b.csv"]``: several records of one
+    transducer that one job fits, studies or diagnoses together (a ``name`` is required)."""
+    if "path" in entry or "glob" in entry:
+        raise BatchConfigError(f"{source}: {where} needs exactly one of 'path', 'paths' or 'glob'")
+    if task not in SEVERAL_RECORD_TASKS:
+        raise BatchConfigError(
+            f"{source}: {where}.paths: several records in one job are for the tasks {', '.join(SEVERAL_RECORD_TASKS)}, "
+            f"not {task!r}"
+        )
+    files = entry["paths"]
+    if not isinstance(files, list) or len(files) < 2 or not all(isinstance(f, str) and f.strip() for f in files):
+        raise BatchConfigError(f"{source}: {where}.paths must list two or more record files (strings)")
+    paths = [(base / f).resolve() for f in files]
+    repeated = next((p for i, p in enumerate(paths) if p in paths[:i]), None)
+    if repeated is not None:
+        raise BatchConfigError(f"{source}: {where}.paths names {repeated} twice")
+    name = entry.get("name")
+    if not isinstance(name, str) or not name.strip():
+        raise BatchConfigError(f"{source}: {where}.name is required with 'paths' (it names the job's folder)")
+    record_options = _check_options({k: v for k, v in entry.items() if k not in _RECORD_KEYS}, where, source)
+    return RecordSpec(_slug(name), paths[0], record_options, tuple(paths[1:]))
 
 
 def _record_paths(entry: dict, where: str, source: Path, base: Path, has_path: bool) -> list:
@@ -717,11 +755,12 @@ def expand_jobs(config: BatchConfig) -> list[Job]:
             key = f"{record.name}__{variant.name}"
             out_dir = config.out / key
             out_words = _output_words(parser, out_dir, config)
-            argv = [config.task, str(record.path), *out_words]
+            files = [str(f) for f in record.files]
+            argv = [config.task, *files, *out_words]
             for k, v in merged.items():
                 try:
                     words = _option_args(parser, k, v)
-                    parser.parse_args([str(record.path), *out_words, *words])
+                    parser.parse_args([*files, *out_words, *words])
                 except _ArgumentError as exc:
                     raise BatchConfigError(
                         f"{config.source}: {origin[k]}.{k} = {v!r}: not accepted by 'python -m identify "
@@ -736,7 +775,9 @@ def expand_jobs(config: BatchConfig) -> list[Job]:
                 ) from None
             stable = [w.replace(str(out_dir), "<out>") for w in argv]
             fingerprint = hashlib.sha256(
-                json.dumps({"argv": stable, "record_sha256": _file_sha256(record.path)}, sort_keys=True).encode()
+                json.dumps(
+                    {"argv": stable, "record_sha256": "+".join(_file_sha256(f) for f in record.files)}, sort_keys=True
+                ).encode()
             ).hexdigest()
             jobs.append(
                 Job(
@@ -766,7 +807,9 @@ def config_identity(config: BatchConfig) -> dict:
     content = {
         "task": config.task,
         "options": config.options,
-        "records": [[r.name, str(r.path), r.options] for r in config.records],
+        "records": [
+            [r.name, str(r.path), r.options, *([[str(f) for f in r.more]] if r.more else [])] for r in config.records
+        ],
         "variants": [[v.name, v.options] for v in config.variants],
     }
     digest = hashlib.sha256(json.dumps(content, sort_keys=True, default=str).encode("utf-8")).hexdigest()

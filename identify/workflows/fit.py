@@ -17,6 +17,10 @@ __all__ = [
     "FitFailedError",
     "parse_effects",
     "fit_or_explain",
+    "fit_records",
+    "select_terms_of_records",
+    "separate_fits_or_explain",
+    "format_joint_fit_table",
     "format_fit_table",
     "print_record_notes",
     "say",
@@ -128,3 +132,110 @@ def format_fit_table(fit, record=None) -> str:
         f"solver: {'converged' if fit.success else 'NOT converged'} ({fit.message}); {fit.seconds:.1f} s",
     ]
     return "\n".join(lines)
+
+
+def fit_records(records, model, *, noises=None, n_starts: int = 4, rng=None, progress=None, separate=None):
+    """Least squares of ``model`` on several records of one transducer at once
+    (:func:`identify.fitting.joint.fit_joint`: the transducer shared, each record's run
+    parameters and sensor zero its own, each whitened with its own noise), with a failure
+    turned into a :class:`FitFailedError`.
+
+    Parameters
+    ----------
+    records : sequence of Record
+        Two or more records in the same units (:func:`identify.fitting.joint.check_records`).
+    model : model.Model
+        Normalised (alpha pinned).
+    noises : sequence of NoiseModel, optional
+        Default: each record's own quiet start.
+    n_starts : int, default 4
+        Starts of each record's separate fit.
+    rng : numpy.random.Generator, optional
+    progress : callable(str), optional
+    separate : sequence of FitResult, optional
+        The records' separate fits, when already made (they start the joint fit).
+
+    Returns
+    -------
+    identify.fitting.joint.JointFit
+    """
+    from ..fitting.joint import check_records, fit_joint, record_noises
+
+    records = check_records(records)  # refused naming the record, before any fit
+    noises = record_noises(records) if noises is None else list(noises)
+    try:
+        return fit_joint(records, model, noises, n_starts=n_starts, rng=rng, progress=progress, separate=separate)
+    except FitFailedError:
+        raise
+    except ValueError as exc:
+        names = ", ".join(str(r.source) for r in records)
+        raise FitFailedError(
+            f"least squares of {model!r} on the records {names} failed: {exc}. Try fewer --effects, more "
+            "starts (--n-starts) or another --seed"
+        ) from exc
+
+
+def format_joint_fit_table(fit) -> str:
+    """Human summary of a joint fit: the shared parameters once (value, stderr), each record's own
+    run parameters and zero, then one line per record (samples, noise, RMS, max error, its RMS
+    alone) and the consistency test."""
+    from ..fitting.lsq import parameter_units
+
+    record = fit.records[0]
+    model = fit.model
+    units = dict(zip(model.names, parameter_units(model, record)))
+    lines = [f"{'parameter':<28} {'value':>13} {'stderr':>11}  {'unit':<8}", "-" * 64]
+    for i, name in enumerate(fit.joint.names):
+        base = name.rsplit("_r", 1)[0] if i >= model.n_parameters else name
+        unit = units.get(base, record.output_unit if name.startswith("zero_r") else "")
+        pinned = not fit.joint.parameters.vary[i]
+        stderr = "pinned" if pinned else f"{fit.stderr[i]:11.4g}"
+        lines.append(f"{name:<28} {fit.theta[i]:13.6g} {stderr:>11}  {unit:<8}")
+    out_unit = record.output_unit
+    lines.append("-" * 64)
+    for r, (rec, f, alone) in enumerate(zip(fit.records, fit.fits, fit.separate), start=1):
+        ratio = f.rms / f.noise.sigma if f.noise.sigma > 0 else math.nan
+        lines.append(
+            f"record {r} {rec.source}: {len(rec.time)} samples, noise sigma {f.noise.sigma:.4g} {out_unit}; "
+            f"RMS {f.rms:.4g} {out_unit} = {ratio:.3f} x sigma (alone {alone.rms:.4g}); max |error| "
+            f"{f.max_error_pct:.3f} %"
+        )
+    check = fit.consistency
+    verdict = "consistent" if check.get("consistent") else "NOT consistent"
+    lines.append(
+        f"consistency of the records: {verdict} (excess chi-square {check.get('statistic', 0.0):.1f} on "
+        f"{check.get('dof')} degrees of freedom, p = {check.get('p', 1.0):.2g}); {fit.seconds:.1f} s"
+    )
+    return "\n".join(lines)
+
+
+def separate_fits_or_explain(records, model, noises, *, n_starts: int = 4, rng=None, log=None) -> list:
+    """Each record fitted alone (:func:`identify.fitting.joint.separate_fits`), a failure turned
+    into a :class:`FitFailedError` naming the records."""
+    from ..fitting.joint import separate_fits
+
+    try:
+        return separate_fits(records, model, noises, n_starts=n_starts, rng=rng, progress=log)
+    except ValueError as exc:
+        names = ", ".join(str(r.source) for r in records)
+        raise FitFailedError(
+            f"least squares of {model!r} on the records {names} failed: {exc}. Try fewer --effects, more starts "
+            "(--n-starts) or another --seed"
+        ) from exc
+
+
+def select_terms_of_records(records, separate, *, rng=None, log=None) -> list:
+    """The records' separate fits with the optional effect terms none of them supports pinned off
+    (:func:`identify.fitting.terms.select_terms` on each): a term is pinned off for the joint fit
+    only when every record's selection pins it off, since one record that needs it is evidence
+    the transducer has it. Returns the selected fits when every record pins off the same terms,
+    else the fits given (every term kept)."""
+    from ..fitting.terms import select_terms
+
+    selected = [select_terms(record, fit, rng=rng, log=log) for record, fit in zip(records, separate)]
+    pinned = [frozenset(n for n, v in zip(f.model.names, f.vary) if not v) for f in selected]
+    if all(p == pinned[0] for p in pinned):
+        return selected
+    if log is not None:
+        log("terms: the records do not agree on the optional terms to pin off; every term is kept in the joint fit")
+    return list(separate)

@@ -431,6 +431,24 @@ def locate_data(manifest: dict, directory, data=None) -> DataLocation:
     return DataLocation(path.resolve(), str(path.resolve()), None)
 
 
+def _locate_records(manifest: dict, directory, first: DataLocation) -> list[str] | None:
+    """The rerun's arguments of a run of several records (``manifest["data"]["records"]``), each
+    file found as :func:`locate_data` finds one and checked against its own SHA-256 (a changed
+    or missing record is a :class:`DataChangedError` naming it); None for a run of one record.
+    Every record is named as the first is (the manifest's relative path from the same folder)
+    when found there, else by its absolute path."""
+    records = manifest["data"].get("records")
+    if not isinstance(records, list) or len(records) < 2:
+        return None
+    arguments = [first.argument]
+    for entry in records[1:]:
+        one = {**manifest, "data": {"file": entry["file"], "sha256": entry["sha256"]}}
+        location = locate_data(one, directory)
+        same_base = first.cwd is not None and location.cwd == first.cwd
+        arguments.append(location.argument if same_base else str(location.path))
+    return arguments
+
+
 def _command_name(manifest: dict) -> str:
     from ..commands import COMMANDS, add_command_arguments
 
@@ -523,7 +541,8 @@ def rerun_arguments(manifest: dict, data_file, out) -> list[str]:
         dest = action.dest
         if not action.option_strings:  # positional: the record
             if dest in ("record", "data", "path", "csv", "record_path", "input", "file") or not positional:
-                positional.append(str(data_file))
+                several = isinstance(data_file, (list, tuple))
+                positional += [str(f) for f in data_file] if several else [str(data_file)]
             continue
         flag = next((s for s in action.option_strings if s.startswith("--")), action.option_strings[0])
         if dest in ("out", "out_dir", "output", "outdir"):
@@ -702,7 +721,8 @@ def compare_runs(original, rerun) -> tuple[list, int, list, dict, list | None]:
     """
     original, rerun = Path(original), Path(rerun)
     arrays = []
-    for file in _ARRAY_FILES:
+    further = sorted({p.name for p in [*original.glob("data_record*.npz"), *rerun.glob("data_record*.npz")]})
+    for file in [*_ARRAY_FILES, *further]:  # a run of several records: each record's data too
         pa, pb = original / file, rerun / file
         if not pa.exists() and not pb.exists():
             continue
@@ -800,7 +820,12 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     directory = Path(directory).resolve()
     manifest = read_manifest(directory)
     _check_readable(directory)
-    location = locate_data(manifest, directory, data)
+    records = manifest["data"].get("records")
+    if isinstance(records, list) and len(records) > 1:  # several records: the first by its own hash
+        first = {**manifest, "data": {"file": records[0]["file"], "sha256": records[0]["sha256"]}}
+    else:
+        first = manifest
+    location = locate_data(first, directory, data)
     out = Path(out).resolve() if out is not None else directory.with_name(directory.name + "-reproduced")
     if out == directory:
         raise OutputExistsError("--out must be a new folder, not the run being reproduced")
@@ -814,7 +839,8 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
             f"{out} {what}: a reproduction writes into a new folder and never into an existing one. "
             "Remove it, or pass --out NEWDIR"
         )
-    args = rerun_arguments(manifest, location.argument, out)
+    several = _locate_records(manifest, directory, location)
+    args = rerun_arguments(manifest, location.argument if several is None else several, out)
     env = package_environment()
     threads = recorded_threads(directory)
     if threads is not None:

@@ -492,8 +492,9 @@ def predict(
     ----------
     study : Study or path
         A finished study (:func:`load_study`).
-    record : Record or path
-        The new record, in the study's units (a path is read with the study's columns).
+    record : Record or path, or a list of them
+        The new record, in the study's units (a path is read with the study's columns); a list
+        validates each record on its own and returns a list of :class:`Prediction`.
     window : (float, float), optional
         Score only ``T0 <= t <= T1`` [s]; the model still runs from the record's first
         sample, so the operators' memory at ``T0`` carries the history (fit on the first
@@ -525,6 +526,11 @@ def predict(
         Not a finished study, a record in other units, an empty window, a model outside
         its domain on this record.
     """
+    if isinstance(record, (list, tuple)):  # several validation records: each on its own
+        study = study if isinstance(study, Study) else load_study(study)
+        rng = np.random.default_rng(0) if rng is None else rng
+        options = dict(window=window, n_draws=n_draws, diagnosis=diagnosis, n_starts=n_starts, progress=progress)
+        return [predict(study, one, rng=rng, **options) for one in record]
     say, seconds = _say(progress), {}
     clock = _time.perf_counter()
 
