@@ -123,7 +123,7 @@ def pointwise_log_likelihood(residual, noise, sigma=None, *, time=None) -> np.nd
     return out
 
 
-def _ar1_noise(white, correlations) -> np.ndarray:
+def ar1_noise(white, correlations) -> np.ndarray:
     """AR(1) noise of unit marginal variance from white draws ``(S, T)``, step ``t`` with
     correlation ``correlations[t - 1]`` (white noise itself when every correlation is 0)."""
     if not np.any(correlations):
@@ -213,7 +213,7 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
     correlations = log_post.noise.step_correlations(time)
     if correlations is None:
         correlations = np.full(max(time.size - 1, 0), log_post.noise.rho)
-    predictive = y + noise_sigma * _ar1_noise(white, correlations)
+    predictive = y + noise_sigma * ar1_noise(white, correlations)
     shape = (n_chain, sub.shape[1], time.size)
     pointwise_chunks = (n_chain, sub.shape[1], min(POINTWISE_CHUNK_SAMPLES, time.size))
     unit_out = record.output_unit

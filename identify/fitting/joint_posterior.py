@@ -27,10 +27,13 @@ import numpy as np
 
 from .inference import (
     FILE,
+    LOG_LIKELIHOOD_QUANTUM,
     MAX_POINTWISE,
     POINTWISE_CHUNK_SAMPLES,
+    ar1_noise,
     pointwise_log_likelihood,
-    predictive_dtype,
+    predictive_quantum,
+    quantised,
     write_netcdf,
 )
 from .joint import JointModel
@@ -136,19 +139,6 @@ def _group(n_chain, draw_index):
     return {"chain": np.arange(n_chain), "draw": np.asarray(draw_index)}
 
 
-def _ar1_noise(white, correlations) -> np.ndarray:
-    """AR(1) noise of unit marginal variance from white draws ``(S, T)`` (as the one record's
-    ``posterior.nc`` draws it: step ``t`` with correlation ``correlations[t - 1]``)."""
-    if not np.any(correlations):
-        return white
-    eps = np.empty_like(white)
-    eps[:, 0] = white[:, 0]
-    for t in range(1, white.shape[1]):
-        rho = correlations[t - 1]
-        eps[:, t] = rho * eps[:, t - 1] + math.sqrt(1.0 - rho * rho) * white[:, t]
-    return eps
-
-
 def joint_sampled_units(log_post: JointLogPosterior, record) -> list[str]:
     """Units of the sampled coordinates of a joint log-posterior (a record's own copy in its
     original's unit; a zero in the output unit)."""
@@ -172,15 +162,31 @@ def _record_groups(r, record, log_post, flat, noise, step_draws, shape_head, rng
     correlations = noise.step_correlations(time)
     if correlations is None:
         correlations = np.full(max(time.size - 1, 0), noise.rho)
-    predictive = y + noise.sigma * _ar1_noise(rng.standard_normal(y.shape), correlations)
+    predictive = y + noise.sigma * ar1_noise(rng.standard_normal(y.shape), correlations)
     dims = ("chain", "draw", record_variable(r, "time"))
     shape = (*shape_head, time.size)
     chunks = (*shape_head, min(POINTWISE_CHUNK_SAMPLES, time.size))
     name = record_variable(r)
     return (
         (name, ((record_variable(r, "time"),), data, {"unit": record.output_unit, "source": str(record.source)}, None)),
-        (name, (dims, pointwise.reshape(shape).astype(np.float32), {}, chunks)),
-        (name, (dims, predictive.reshape(shape).astype(predictive_dtype(predictive, noise.sigma)), {}, chunks)),
+        (
+            name,
+            (
+                dims,
+                quantised(pointwise, LOG_LIKELIHOOD_QUANTUM).reshape(shape),
+                {"rounded_to": LOG_LIKELIHOOD_QUANTUM},
+                chunks,
+            ),
+        ),
+        (
+            name,
+            (
+                dims,
+                quantised(predictive, predictive_quantum(noise.sigma)).reshape(shape),
+                {"rounded_to": predictive_quantum(noise.sigma), "unit": record.output_unit},
+                chunks,
+            ),
+        ),
     )
 
 
