@@ -37,6 +37,7 @@ from ..data.reversals import find_reversals
 from ..fitting.joint import check_records
 from ..fitting.lsq import FitResult
 from ..fitting.noise import NoiseModel, quiet_segment
+from ..logs import progress_function
 from .adequacy import Adequacy, Thresholds, rms_change_and_size
 from .baseline import best_baseline, fit_baselines, known_noise, model_and_candidates, noise_reference
 from .candidates import CandidateResult, explained_fraction, unrefitted_candidate
@@ -350,7 +351,7 @@ def diagnose(
     n_starts: int = 6,
     rng: np.random.Generator | None = None,
     candidates=None,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str], None] | bool | None = None,
 ) -> Diagnosis | JointDiagnosis:
     """Least squares plus the diagnosis (module docstring).
 
@@ -375,8 +376,10 @@ def diagnose(
         Default ``numpy.random.default_rng(0)``.
     candidates : sequence of str, optional
         Effects to consider; default every library effect not in the model.
-    progress : callable(str), optional
-        Called with a short message at each stage.
+    progress : callable(str) or bool, optional
+        Called with a short message at each stage. Default (None): the messages are shown
+        on stderr (a terminal, a notebook's cell) unless :mod:`logging` is configured
+        (:func:`identify.logs.progress_function`); False: none.
 
     Returns
     -------
@@ -388,6 +391,7 @@ def diagnose(
         A record without a quiet segment of >= 20 samples (unless the noise sigma is user-given),
         a free noise sigma, an unknown effect, or a ``fit`` of another model.
     """
+    progress = progress_function(progress, "diagnosis: ")  # lines on stderr by default, False: none
     if isinstance(record, (list, tuple)):
         record = check_records(record)
         if len(record) > 1:
@@ -396,7 +400,7 @@ def diagnose(
     t_start = _time.perf_counter()
     thresholds = Thresholds() if thresholds is None else thresholds
     rng = np.random.default_rng(0) if rng is None else rng
-    say = progress or (lambda message: None)
+    say = progress
     model, candidates = model_and_candidates(model, fit, candidates)
     noise = known_noise(record, noise, fit)
     quiet = noise.quiet if noise.quiet is not None else quiet_segment(record.current)

@@ -25,7 +25,17 @@ from .diagnosis_plots import (
     residual_rate_figure,
     residual_time_figure,
 )
-from .page import embedded_figure, escape, html_page, html_table, number_cell, number_text, png_bytes, text_cell
+from .page import (
+    embedded_figure,
+    escape,
+    html_page,
+    html_table,
+    number_cell,
+    number_text,
+    plain_text,
+    png_bytes,
+    text_cell,
+)
 from .plots import axis_label, new_figure, styled, unit_label
 from .report import (
     branches,
@@ -239,7 +249,7 @@ def _prediction_tables(p) -> str:
     rows = [
         [
             text_cell("samples scored (energised)"),
-            number_cell(training["n_samples"], "training.n_samples"),
+            number_cell(training.get("n_scored", training["n_samples"]), "training.n_scored"),
             number_cell(int(p.energised.sum()), "validation.n_scored"),
         ],
         [
@@ -287,8 +297,21 @@ def _prediction_tables(p) -> str:
         "validation-vs-training",
         ["quantity", "training (the study's record)", "validation (this record)"],
         rows,
-        caption="Validation beside training: the same posterior draws on both records; nothing refitted",
+        caption=f"Validation beside training: the same {training.get('n_draws', '')} posterior draws on both "
+        "records, nothing refitted (the study report draws its own 200, so its posterior-median numbers can differ in "
+        "the last digits; the least-squares numbers are the study's own)",
     )
+
+
+#: The prediction's verdicts (``prediction.json`` ``verdict``) in words.
+_VERDICTS = {
+    "adequate": "adequate",
+    "missing_effect": "an effect is missing",
+    "tied": "tied",
+    "unexplained": "unexplained",
+    "parameters_differ": "the parameters differ",
+    "not_adequate": "not adequate",
+}
 
 
 def _verdict_html(p) -> str:
@@ -297,12 +320,12 @@ def _verdict_html(p) -> str:
     text = {
         "adequate": "the validation residual is consistent with the sensor noise: the model carries over to this "
         "record.",
-        "missing_effect": f"the record reveals the effect <b>{escape(str(p.missing))}</b>, which the study's "
-        "model "
+        "missing_effect": f"the record reveals the effect <b><code>{escape(str(p.missing))}</code></b>, which the "
+        "study's model "
         "lacks; identify it again with <code>--effects "
         f"{escape(','.join(list(p.study.model.effect_names) + [str(p.missing)]))}</code>.",
         "tied": "the record reveals structure that several explanations repair and this record does not separate: "
-        + " or ".join(f"<b>{escape(str(n))}</b>" for n in getattr(p.diagnosis, "tied", ()) or ())
+        + " or ".join(f"<b><code>{escape(str(n))}</code></b>" for n in getattr(p.diagnosis, "tied", ()) or ())
         + ".",
         "unexplained": "structure remains in the validation residual that no effect of the library explains.",
         "parameters_differ": "the validation residual is not noise, yet no effect is missing: refitted on this record "
@@ -314,8 +337,8 @@ def _verdict_html(p) -> str:
     }[p.verdict]
     css = "ok" if p.verdict == "adequate" else "alert"
     parts.append(
-        f'<div class="{css}" id="prediction-verdict">Verdict: <b data-key="verdict">{escape(p.verdict)}</b>: '
-        f"{text}</div>"
+        f'<div class="{css}" id="prediction-verdict">Verdict: '
+        f'<b data-key="verdict">{escape(_VERDICTS[p.verdict])}</b>: {text}</div>'
     )
     a = adequacy.to_dict()
     from ..diagnosis import Thresholds
@@ -348,7 +371,14 @@ def _verdict_html(p) -> str:
     )
     if p.diagnosis is not None:
         d = p.diagnosis
-        parts.append(f"<p>{escape(d.reason)}</p>")
+        refitted = not np.array_equal(np.asarray(d.fit.theta), np.asarray(p.study.fit.theta))
+        about = (
+            "The diagnosis refits the model's parameters on this record before it judges the residual, so its reason "
+            "is about the refitted residual, not the study's residual in the table above: "
+            if refitted
+            else "The diagnosis, on the residual of the table above: "
+        )
+        parts.append(f'<p id="diagnosis-reason">{escape(about)}{plain_text(d.reason)}</p>')
         rows = []
         for c in d.ranking:
             c = c.to_dict()
