@@ -38,6 +38,8 @@ from identify.data.records import write_record
 REPRS = re.compile(r"\b(True|False|None)\b")
 #: A snake_case identifier (two words or more joined by underscores).
 SNAKE = re.compile(r"\b[A-Za-z][A-Za-z0-9]*_[A-Za-z0-9_]*[A-Za-z0-9]\b")
+#: The hidden effect of the test records.
+THERMAL = "thermal_tau=20,thermal_sensitivity=0.2,thermal_expansion=1.5"
 #: The browser's window width [px].
 VIEWPORT = 1400
 
@@ -50,10 +52,38 @@ def _run(argv):
 
 
 def _study(csv, out, *extra):
-    argv = ["study", csv, "--out", out, "--seed", 1, "--n-starts", 1, "--walkers", 40, "--max-steps", 160]
-    code, text = _run([*argv, "--check-every", 80, "--progress", "off", *extra])
+    argv = ["study", csv, "--out", out, "--seed", 1, "--n-starts", 1, "--max-steps", 160, "--check-every", 80]
+    code, text = _run([*argv, "--progress", "off", *extra])
     assert code in (0, 1), text
     return out
+
+
+def _thermal_record(path, seed=1) -> Path:
+    """A short bench record (5 Hz, 351 samples) of the paper's transducer with a hidden thermal effect."""
+    sim = simulate(THERMAL, seed=seed, fs=5.0)
+    write_record(path, sim.record, sidecar=sim.truth)
+    return path
+
+
+def _diagnose_into(folder: Path):
+    """The diagnosis of a study's fit, among two candidates (quick), stored as ``study`` stores it."""
+    from identify.diagnosis import diagnose
+    from identify.output.diagnosis_files import write_diagnosis
+    from identify.output.results import load_results
+
+    study = load_results(folder)
+    found = diagnose(
+        study.record,
+        study.fit.model,
+        fit=study.fit,
+        noise=study.fit.noise,
+        candidates=["thermal", "creep"],
+        progress=False,
+    )
+    write_diagnosis(found, study.record, out_dir=folder)
+    code, text = _run(["report", folder, "--draws", 40])
+    assert code == 0, text
+    return found
 
 
 def _batch_index(folder: Path) -> Path:
@@ -87,14 +117,11 @@ def _batch_index(folder: Path) -> Path:
 def pages(tmp_path_factory) -> dict:
     """``{name: path}`` of one page of each kind."""
     base = tmp_path_factory.mktemp("pages")
-    sim = simulate("thermal_tau=20,thermal_sensitivity=0.2,thermal_expansion=1.5", seed=1, fs=5.0)
-    csv = base / "thermal.csv"
-    write_record(csv, sim.record, sidecar=sim.truth)
-    first = _study(csv, base / "first")
+    csv = _thermal_record(base / "thermal.csv")
+    first = _study(csv, base / "first", "--no-diagnose", "--no-report")
+    found = _diagnose_into(first)
     second = _study(csv, base / "second", "--effects", "thermal", "--compare", first, "--no-diagnose")
-    new = simulate("thermal_tau=20,thermal_sensitivity=0.2,thermal_expansion=1.5", seed=2, fs=5.0)
-    new_csv = base / "new.csv"
-    write_record(new_csv, new.record)
+    new_csv = _thermal_record(base / "new.csv", seed=2)
     code, text = _run(["predict", second, new_csv, "--out", base / "prediction", "--draws", 30])
     assert code == 0, text
     t = np.arange(0.0, 32.0, 0.2)
@@ -106,6 +133,7 @@ def pages(tmp_path_factory) -> dict:
     code, text = _run([*design, "--drives", "2", "--n-starts", "1", "--quiet"])
     assert code == 0, text
     return {
+        "diagnosis": found,
         "study report (diagnosed)": first / "report.html",
         "study report (compared)": second / "report.html",
         "prediction": base / "prediction" / "prediction.html",
@@ -136,10 +164,16 @@ class _Text(HTMLParser):
             self.chunks.append(data.strip())
 
 
-def test_the_study_diagnoses_itself_and_the_next_study_shows_the_error_fall(pages):
+def _page_files(pages) -> dict:
+    return {name: path for name, path in pages.items() if isinstance(path, Path)}
+
+
+def test_the_report_states_the_verdict_and_the_next_study_shows_the_error_fall(pages):
     first = pages["study report (diagnosed)"].read_text()
-    assert (pages["study report (diagnosed)"].parent / "diagnosis.json").exists()
     assert 'id="next-step"' in first and "No diagnosis in this folder" not in first
+    if pages["diagnosis"].status == "missing_effect":
+        missing = pages["diagnosis"].missing
+        assert f"--effects {missing} --out" in first and "--compare" in first
     second = pages["study report (compared)"].read_text()
     assert 'id="comparison-table"' in second and "comparison.png" not in second  # the figure is embedded
     assert (pages["study report (compared)"].parent / "comparison.png").exists()
@@ -215,7 +249,7 @@ def test_no_element_is_wider_than_the_page_in_chromium(pages):
         browser = driver.chromium.launch(executable_path=executable, args=flags)
         try:
             view = browser.new_page(viewport={"width": VIEWPORT, "height": 900})
-            for name, path in pages.items():
+            for name, path in _page_files(pages).items():
                 view.goto(path.as_uri())
                 found = view.evaluate(_TOO_WIDE)
                 assert found["page"] <= found["width"] and not found["wide"], f"{name}: {found}"
@@ -224,24 +258,42 @@ def test_no_element_is_wider_than_the_page_in_chromium(pages):
 
 
 # -- figures -------------------------------------------------------------------------------------
+def _shown(text) -> bool:
+    return text.get_visible() and bool(text.get_text().strip())
+
+
 def overlapping_labels(figure) -> list[tuple[str, str]]:
-    """Pairs of visible tick or axis labels of ``figure`` whose boxes overlap (after a draw)."""
+    """Pairs of visible labels of ``figure`` whose boxes overlap after a draw: tick labels of one
+    axis that run into each other, an axis label on any other label, and the figure's own texts
+    (the corner plot draws its ticks and names as texts of the figure) on each other."""
     FigureCanvasAgg(figure)
     figure.canvas.draw()
     renderer = figure.canvas.get_renderer()
-    boxes = []
+
+    def boxes(texts):
+        return [(t.get_text(), t.get_window_extent(renderer).padded(-1.0)) for t in texts if _shown(t)]
+
+    def clashes(items):
+        return [(a, b) for (a, box_a), (b, box_b) in itertools.combinations(items, 2) if box_a.overlaps(box_b)]
+
+    found, every_label, axis_labels = [], [], []
     for ax in figure.axes:
-        texts = [*ax.get_xticklabels(), *ax.get_yticklabels(), ax.xaxis.label, ax.yaxis.label]
-        for text in texts:
-            if text.get_visible() and text.get_text().strip():
-                boxes.append((text.get_text(), text.get_window_extent(renderer).padded(-1.0)))
-    return [(a, b) for (a, box_a), (b, box_b) in itertools.combinations(boxes, 2) if box_a.overlaps(box_b)]
+        for axis in (ax.xaxis, ax.yaxis):
+            if not axis.get_visible():
+                continue
+            ticks = boxes(axis.get_ticklabels())
+            found += clashes(ticks)
+            every_label += ticks
+            axis_labels += boxes([axis.label])
+    found += [(a, b) for a, box_a in axis_labels for b, box_b in every_label if box_a.overlaps(box_b)]
+    found += clashes(axis_labels)
+    found += clashes(boxes(figure.texts))
+    return found
 
 
 @pytest.fixture(scope="module")
 def drawn_figures(pages) -> dict:
     """Every figure of the two study reports and of the diagnosis, drawn again from their folders."""
-    from identify.diagnosis import diagnose
     from identify.output import report
     from identify.output.diagnosis_plots import diagnosis_figures
 
@@ -257,8 +309,7 @@ def drawn_figures(pages) -> dict:
         if isinstance(comparison, report.Comparison):
             figures[f"{name}: comparison"] = report.comparison_figure(data, comparison)
     data = report.load_report_data(pages["study report (diagnosed)"].parent)
-    found = diagnose(data.record, data.fit.model, fit=data.fit, noise=data.fit.noise, progress=False)
-    for stem, figure in diagnosis_figures(found, data.record).items():
+    for stem, figure in diagnosis_figures(pages["diagnosis"], data.record).items():
         figures[f"diagnosis: {stem}"] = figure
     return figures
 
@@ -278,3 +329,66 @@ def test_the_overlap_check_finds_overlapping_labels():
     ax.bar(range(4), [1, 2, 3, 4])
     ax.set_xticks(range(4), ["incomplete_reset", "rate_width", "thermal_expansion", "creep"])
     assert overlapping_labels(figure)
+
+
+# -- the study's own diagnosis and the next step -------------------------------------------------
+def test_next_step_names_the_command_for_each_verdict():
+    from identify.output.diagnosis_files import next_step
+
+    sentence, command = next_step(
+        {"status": "missing_effect", "missing": "thermal"}, data_file="data/r.csv", effects=[], out_dir="reports/r"
+    )
+    assert "thermal" in sentence
+    assert command == (
+        "python -m identify study data/r.csv --effects thermal --out reports/r-thermal --compare reports/r"
+    )
+    sentence, command = next_step(
+        {"status": "tied", "tied": ["creep", "thermal"]}, data_file="d.csv", effects=["lag"], out_dir="o"
+    )
+    assert "creep or thermal" in sentence and command == "python -m identify design d.csv --out o-design"
+    assert next_step({"status": "adequate"}, data_file="d.csv", effects=[], out_dir="o")[1] is None
+
+
+def test_the_earlier_study_is_found_by_its_manifest(tmp_path):
+    """A sibling folder with the same record (SHA-256) and fewer effects, finished; not one of another record."""
+    import json
+
+    from identify.output.diagnosis_files import earlier_study
+
+    def folder(name, sha, effects, finished=True, missing=None):
+        path = tmp_path / name
+        path.mkdir()
+        manifest = {"data": {"sha256": sha}, "settings": {"effects": effects}, "finished": "2026-12-03T00:00:00"}
+        (path / "manifest.json").write_text(json.dumps(manifest))
+        (path / "summary.json").write_text(json.dumps({"posterior": {"n_steps": 10} if finished else None}))
+        if missing:
+            (path / "diagnosis.json").write_text(json.dumps({"status": "missing_effect", "missing": missing}))
+        return path
+
+    folder("other", "b" * 64, "")
+    folder("unfinished", "a" * 64, "", finished=False)
+    plain = folder("plain", "a" * 64, "", missing="thermal")
+    folder("same", "a" * 64, "thermal")
+    new = tmp_path / "plain-thermal"
+    new.mkdir()
+    assert earlier_study(new, "a" * 64, ["thermal"]) == plain
+    assert earlier_study(new, "c" * 64, ["thermal"]) is None
+
+
+@pytest.mark.slow
+def test_the_study_diagnoses_itself_when_the_residual_is_above_the_noise(tmp_path):
+    """A record with a hidden thermal effect: the plain study runs the whole diagnosis by default, stores
+    it as diagnose --out does, prints the next command, and its report states it."""
+    import json
+
+    csv = _thermal_record(tmp_path / "thermal.csv")
+    out = tmp_path / "plain"
+    argv = ["study", csv, "--out", out, "--seed", 1, "--n-starts", 2, "--max-steps", 200, "--check-every", 100]
+    code, text = _run([*argv, "--progress", "off"])
+    assert code in (0, 1), text
+    diagnosis = json.loads((out / "diagnosis.json").read_text())
+    assert diagnosis["status"] == "missing_effect" and diagnosis["missing"] == "thermal", diagnosis["status"]
+    assert list((out / "diagnosis").glob("*.png"))
+    command = f"python -m identify study {csv} --effects thermal --out {out}-thermal --compare {out}"
+    assert f"next: {command}" in text
+    assert command in (out / "report.html").read_text()

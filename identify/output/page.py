@@ -45,7 +45,7 @@ def escape(value) -> str:
 #: A name from the code or the files that a person types as it is (an effect, a parameter, a
 #: file, a manifest key): snake_case or dotted words, file names. Shown in ``<code>`` by
 #: :func:`plain_text`, never as prose.
-IDENTIFIER = re.compile(r"(?<![\w.])(?:[A-Za-z]\w*(?:[._/-]\w+)*[._]\w+|\w+\.(?:csv|json|png|html|npz|h5|nc|toml|log))")
+IDENTIFIER = re.compile(r"(?<![\w.\[\]/-])(?:\.{0,2}/)?[A-Za-z][\w\[\]./-]*[\w\]]")
 
 
 def plain_text(value) -> str:
@@ -59,8 +59,9 @@ def plain_text(value) -> str:
     text = str(value)
     for match in IDENTIFIER.finditer(text):
         word = match.group(0)
-        if "_" not in word and max(len(part) for part in re.split(r"[./-]", word)) < 2:
-            continue  # "e.g", "i.e": prose
+        dotted = "." in word and max(len(part) for part in re.split(r"[./\[\]-]", word)) >= 2  # not "e.g"
+        if "_" not in word and not dotted:
+            continue  # a plain word, "µm/A", "e.g"
         parts.append(escape(text[last : match.start()]))
         parts.append(f"<code>{escape(match.group(0))}</code>")
         last = match.end()
@@ -136,7 +137,7 @@ def html_page(title: str, body_parts, *, heading: bool = True) -> str:
             '<html lang="en"><head><meta charset="utf-8">',
             '<meta name="viewport" content="width=device-width, initial-scale=1">',
             f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
-            *([f"<h1>{escape(title)}</h1>"] if heading else []),
+            *([f"<h1>{plain_text(title)}</h1>"] if heading else []),
             *body_parts,
             "</body></html>",
         ]

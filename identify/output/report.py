@@ -56,7 +56,17 @@ from ..fitting.posterior import BENCH_COVERAGE, ChainBackend, autocorrelation_ti
 from . import plots, results
 from .bands import mixture_quantile
 from .diagnosis_files import COMPARISON_FILE, DIAGNOSIS_FIGURES, DIAGNOSIS_FILE, next_step
-from .page import embedded_figure, escape, html_page, html_table, number_cell, number_text, png_bytes, text_cell
+from .page import (
+    embedded_figure,
+    escape,
+    html_page,
+    html_table,
+    number_cell,
+    number_text,
+    plain_text,
+    png_bytes,
+    text_cell,
+)
 
 __all__ = [
     "write_report",
@@ -820,7 +830,7 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     for prefix in ("NOT CONVERGED:", "converged:"):  # the box says it already
         if message.startswith(prefix):
             message = message[len(prefix) :].strip()
-    message = escape(message[:1].upper() + message[1:] + ("" if message.endswith(".") or not message else "."))
+    message = plain_text(message[:1].upper() + message[1:] + ("" if message.endswith(".") or not message else "."))
     if posterior.get("converged"):
         parts.append(f'<div class="ok" id="convergence-ok"><b>Converged.</b> {message}</div>')
     else:
@@ -873,7 +883,7 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     if widths:
         items.append(
             "Least well determined (widest 95 % interval relative to the median): "
-            + ", ".join(f"{escape(name)} (±{50 * w:.3g} %)" for w, name in widths[:3])
+            + ", ".join(f"<code>{escape(name)}</code> (±{50 * w:.3g} %)" for w, name in widths[:3])
             + "."
         )
     items.append(
@@ -901,7 +911,7 @@ def _next_step_html(data: ReportData) -> str:
     sentence, command = next_step(
         data.diagnosis, data_file=data_file, effects=data.model.effect_names, out_dir=data.directory
     )
-    run = f" Next: <code>{escape(command)}</code>" if command else ""
+    run = f'<br>Next: <code class="command">{escape(command)}</code>' if command else ""
     return f'<div class="note" id="next-step"><b>Diagnosis:</b> {escape(sentence)}{run}</div>'
 
 
@@ -1498,8 +1508,10 @@ def comparison_figure(data: ReportData, comparison: Comparison):
     loops.set_xlabel(plots.axis_label(record.input_name, record.input_unit))
     loops.set_ylabel(plots.axis_label(record.output_name, record.output_unit))
     loops.set_title("Hysteresis loops")
-    errors.plot(time, comparison.error_before, color="tab:blue", lw=0.7, label=before)
-    errors.plot(time, comparison.error_after, color="tab:red", lw=0.7, label=after)
+    errors.plot(time, comparison.error_after, color="tab:red", lw=0.6, label=after)
+    errors.plot(
+        time, comparison.error_before, color="tab:blue", lw=0.6, alpha=0.8, label=before
+    )  # on top: it is larger
     errors.set_xlabel(plots.axis_label("time", "s"))
     errors.set_ylabel(plots.axis_label("measurement − model", record.output_unit))
     errors.set_title("Error vs time")

@@ -97,7 +97,7 @@ def _notes_html(notes) -> str:
         return ""
     return (
         '<div class="note" id="notes"><b>Keep in mind:</b><ul>'
-        + "".join(f"<li>{escape(str(n))}</li>" for n in notes)
+        + "".join(f"<li>{plain_text(n)}</li>" for n in notes)
         + "</ul></div>"
     )
 
@@ -435,7 +435,7 @@ def prediction_files(p) -> dict:
     glance_css = "ok" if p.verdict == "adequate" else "alert"
     body = [
         f"<p>Study <code>{escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
-        f"{escape(effects)}; trained on <code>{escape(str(p.training.get('file')))}</code>) applied to "
+        f"{plain_text(effects)}; trained on <code>{escape(str(p.training.get('file')))}</code>) applied to "
         f"<code>{escape(str(p.record.source))}</code>, window {p.window[0]:.6g}–{p.window[1]:.6g} s "
         f"({p.stop - p.start} samples, the model run from the record's first sample). Nothing is refitted.</p>",
         '<h2 id="glance">At a glance</h2>',
@@ -445,7 +445,8 @@ def prediction_files(p) -> dict:
         f'<b data-key="max_error_pct">{number_text(p.max_error_pct, 4)}</b> % of the range (training '
         f'{number_text(p.training["max_error_pct"], 4)} %); <span data-key="inside_predictive_band">'
         f"{100 * p.inside_predictive_band:.1f}</span> % inside the 95 % predictive band; verdict "
-        f"<b>{escape(p.verdict)}</b>{' (' + escape(str(p.missing)) + ')' if p.missing else ''}.</div>",
+        f"<b>{escape(_VERDICTS[p.verdict])}</b>{' (<code>' + escape(str(p.missing)) + '</code>)' if p.missing else ''}"
+        ".</div>",
         _notes_html(p.notes),
         _prediction_tables(p),
         '<h2 id="measurement">1. Measured vs predicted</h2>',
@@ -734,7 +735,7 @@ def compensation_files(c) -> dict:
     effects = ", ".join(study.model.effect_names) or "none"
     body = [
         f"<p>Study <code>{escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
-        f"{escape(effects)}); target <code>{escape(c.target.source)}</code>, {t.size} samples, "
+        f"{plain_text(effects)}); target <code>{escape(c.target.source)}</code>, {t.size} samples, "
         f"{y.min():.6g}–{y.max():.6g} {escape(u)}; current limits {c.current_range[0]:g}–{c.current_range[1]:g} "
         f"{escape(unit_label(in_unit))}. The feedforward current is the exact inverse of the posterior-median model "
         "(<code>model.inverse</code>: a root find per sample carried forward with the model's state); the tracking "
