@@ -392,3 +392,27 @@ def test_the_study_diagnoses_itself_when_the_residual_is_above_the_noise(tmp_pat
     command = f"python -m identify study {csv} --effects thermal --out {out}-thermal --compare {out}"
     assert f"next: {command}" in text
     assert command in (out / "report.html").read_text()
+
+
+# -- progress from Python --------------------------------------------------------------------------
+def test_python_progress_is_shown_by_default_and_silenced_by_false(monkeypatch, capsys):
+    """Without any logging configuration the package's progress lines reach stderr (as emcee's and
+    lmfit's do); progress=False shows nothing; a configured root logger keeps its say."""
+    import logging
+
+    from identify.logs import get_logger, progress_function
+
+    logger = get_logger()
+    monkeypatch.setattr(logger, "handlers", [])
+    monkeypatch.setattr(logger, "propagate", True)
+    monkeypatch.setattr(logger, "level", logging.NOTSET)
+    monkeypatch.setattr(logging.getLogger(), "handlers", [])
+    progress_function(False)("hidden line")
+    assert "hidden line" not in capsys.readouterr().err
+    progress_function(None, "diagnosis: ")("a stage")
+    assert "diagnosis: a stage" in capsys.readouterr().err
+
+    def own(message):
+        return message
+
+    assert progress_function(own) is own  # a callable is used as it is

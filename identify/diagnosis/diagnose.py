@@ -190,7 +190,7 @@ class Diagnosis:
                 width = max(len(c.effect) for c in items)
                 for c in items:
                     lines.append(
-                        f"  {c.effect:<{width}}  RMS after {c.rms_after:.4g} {unit}, delta BIC {c.delta_bic:9.1f}, "
+                        f"  {c.effect:<{width}}  RMS after {c.rms_after:<7.4g} {unit}, delta BIC {c.delta_bic:9.1f}, "
                         f"explains {100 * c.explained:5.1f} % of the excess"
                         + (", adequate after" if c.adequate_after else "")
                     )
