@@ -144,19 +144,20 @@ def pages(tmp_path_factory) -> dict:
 
 
 class _Text(HTMLParser):
-    """The text a person reads, outside ``<code>``, ``<style>`` and ``<script>`` and the text of links
-    (a link's text is the name of the file or folder it opens)."""
+    """The text a person reads, outside ``<code>``, ``<style>`` and ``<script>``, the text of links
+    (a link's text is the name of the file or folder it opens) and ``<title>`` (the tab's title
+    cannot hold markup; the page's heading repeats it with the names as code)."""
 
     def __init__(self):
         super().__init__()
         self.depth, self.chunks = 0, []
 
     def handle_starttag(self, tag, attrs):
-        if tag in ("code", "style", "script", "a"):
+        if tag in ("code", "style", "script", "a", "title"):
             self.depth += 1
 
     def handle_endtag(self, tag):
-        if tag in ("code", "style", "script", "a"):
+        if tag in ("code", "style", "script", "a", "title"):
             self.depth -= 1
 
     def handle_data(self, data):
