@@ -156,6 +156,7 @@ margin:1.5em auto;padding:0 1em;color:#222;line-height:1.45}
 h1{font-size:1.6em} h2{border-bottom:2px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
 table{border-collapse:collapse;margin:.8em 0;font-size:.92em}
 div.table-box{max-width:100%;overflow-x:auto}
+td.parameters{text-align:left;white-space:nowrap} td.parameters ul{margin:0;padding-left:1.1em}
 pre,code{overflow-wrap:anywhere;white-space:pre-wrap}
 th,td{border:1px solid #ccc;padding:.25em .55em;text-align:right}
 th{background:#f2f2f2} td:first-child,th:first-child{text-align:left}

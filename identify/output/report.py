@@ -937,7 +937,7 @@ _RANKING_HEADERS = {
     "rms_after": "RMS with it [{unit}]",
     "max_error_pct_after": "max error with it [% of range]",
     "delta_bic": "BIC gain",
-    "explained_fraction": "share of the misfit explained",
+    "explained_fraction": "share of the misfit explained (1: all)",
     "adequate_after": "residual is noise with it",
     "refitted": "refitted",
     "parameters": "fitted parameters",
