@@ -17,9 +17,12 @@ flags      level     what is shown on stderr
                      (the old ``fit --verbose``)
 =========  ========  =====================================================================
 
-The command line calls :func:`configure` once per command; a program that imports the
-package configures :mod:`logging` itself (e.g. ``logging.basicConfig(level=logging.INFO)``)
-to see the same lines.
+The command line calls :func:`configure` once per command. From Python (a script, a
+terminal, a notebook), :func:`identify.study` and :func:`identify.diagnose` show their
+progress by default, as emcee and lmfit do: :func:`show_progress` routes the package logger
+to stderr at INFO unless logging was configured already (a handler on the ``identify``
+logger or on the root logger: then that configuration decides); ``progress=False``
+silences them.
 """
 
 from __future__ import annotations
@@ -28,7 +31,17 @@ import argparse
 import logging
 import sys
 
-__all__ = ["LOGGER_NAME", "get_logger", "level_for", "configure", "add_verbosity_arguments", "say"]
+__all__ = [
+    "LOGGER_NAME",
+    "get_logger",
+    "level_for",
+    "configure",
+    "add_verbosity_arguments",
+    "say",
+    "show_progress",
+    "progress_function",
+    "ordinal",
+]
 
 #: Name of the package's logger; modules log to children of it.
 LOGGER_NAME = "identify"
@@ -113,3 +126,48 @@ def add_verbosity_arguments(parser: argparse.ArgumentParser) -> None:
 def say(message: str, level: int = logging.INFO) -> None:
     """Log one progress or note line through the package logger (INFO by default)."""
     get_logger().log(level, message)
+
+
+def show_progress() -> None:
+    """Show the package's progress lines on stderr from Python, unless logging is configured.
+
+    A program that configured :mod:`logging` (a handler on the ``identify`` logger, e.g. the
+    command line's :func:`configure`, or on the root logger, e.g. ``logging.basicConfig``)
+    keeps its configuration; otherwise the lines would go nowhere (Python's last-resort
+    handler shows warnings only), so the ``identify`` logger gets the stderr handler at INFO,
+    once per process. In a notebook stderr is the cell's output.
+    """
+    logger = get_logger()
+    if logger.handlers or logging.getLogger().handlers:
+        return
+    configure()
+
+
+def progress_function(progress, prefix: str = ""):
+    """The ``progress(message)`` callable of a ``progress`` argument of the Python API.
+
+    Parameters
+    ----------
+    progress : callable or bool or None
+        A callable is returned as it is; False gives a function that shows nothing; None or
+        True give lines on stderr through the package logger (:func:`show_progress`), with
+        the seconds since this call and ``prefix``.
+    prefix : str, optional
+        Put before each message (e.g. ``"diagnosis: "``).
+    """
+    if callable(progress):
+        return progress
+    if progress is False:
+        return lambda message: None
+    import time
+
+    show_progress()
+    started = time.perf_counter()
+    return lambda message: say(f"[{time.perf_counter() - started:6.1f} s] {prefix}{message}")
+
+
+def ordinal(n: int) -> str:
+    """``n`` as an English ordinal: 1st, 2nd, 3rd, 4th, 11th, 12th, 13th, 21st, ..."""
+    n = int(n)
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"

@@ -107,6 +107,7 @@ def build_results_folder(directory, settings: FixtureSettings = FixtureSettings(
         str(max(1, settings.max_steps // 2)),
         "--progress",
         "off",
+        "--no-diagnose",  # the report's tests write their own diagnosis.json; tests/test_pages.py runs the diagnosis
     ]
     if settings.free_noise:
         argv += ["--noise-sigma", "free"]

@@ -149,7 +149,7 @@ def test_fit_whose_solver_did_not_converge_exits_1(small_csv, monkeypatch, capsy
     monkeypatch.setattr(lsq, "fit_least_squares", stopped_early)
     assert main(["fit", str(small_csv), "--n-starts", "1"]) == 1
     captured = capsys.readouterr()
-    assert "solver: NOT converged (iteration limit reached)" in captured.out
+    assert "solver: NOT converged: iteration limit reached" in captured.out
     assert "exit code 1: the least-squares solver did NOT converge" in captured.err
 
 

@@ -3,6 +3,7 @@ the report, ``posterior.nc`` (InferenceData), names and units in ``chain.h5``.""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import warnings
 
@@ -38,7 +39,22 @@ def _stored_draws(folder, summary):
     return backend.get_chain()[post["discard"] :: post["thin"]]  # (steps, walkers, D)
 
 
+@contextlib.contextmanager
+def _more_walkers_than_draws():
+    """ArviZ warns "More chains (36) than draws (31)" (its guess that an array came transposed) on
+    a short chain of many walkers; here the arrays are (chain, draw) as it asks, so only that
+    warning is silenced, at the calls, and any other still shows."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"More chains \(\d+\) than draws \(\d+\)", category=UserWarning)
+        yield
+
+
 def test_diagnostics_equal_arviz_on_the_stored_chain(study_dir):
+    with _more_walkers_than_draws():
+        _diagnostics_equal_arviz(study_dir)
+
+
+def _diagnostics_equal_arviz(study_dir):
     summary = json.loads((study_dir / "summary.json").read_text())
     draws = _stored_draws(study_dir, summary)
     varying = [p for p in summary["parameters"] if p["vary"]]

@@ -47,7 +47,10 @@ def shared_file(*parts) -> Path:
     """Path into the shared realdata folder, or skip the test saying which path is missing."""
     path = SHARED.joinpath(*parts)
     if not path.is_file():
-        pytest.skip(f"shared real data not available: {path} is absent")
+        pytest.skip(
+            f"real records not available: {path} is absent (../shared/realdata, beside the project, holds the real "
+            "records with their licences; docs/realdata.md)"
+        )
     return path
 
 

@@ -243,7 +243,7 @@ def _diagnosed(out: Path, record: Path, data, seed: int, say) -> tuple[str, str 
         found = json.loads(diagnosis_path.read_text())
         return found["status"], found["missing"]
     say(f"diagnosing the plain GPI on {record}")
-    result = diagnose(data, rng=np.random.default_rng(seed))
+    result = diagnose(data, rng=np.random.default_rng(seed), progress=False)
     status, named = result.status, result.missing
     diagnosis_path.write_text(json.dumps({"status": status, "missing": named, "rms": result.rms}, indent=2) + "\n")
     return status, named

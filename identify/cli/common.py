@@ -27,7 +27,7 @@ __all__ = [
 #: Files above this size [bytes] get progress lines while loading.
 BIG_FILE = 20 * 2**20
 #: Options that are not settings of the computation (not compared, not all recorded).
-NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet", "verbose")
+NOT_SETTINGS = ("out", "force", "progress", "command", "_module", "quiet", "verbose", "compare")
 
 
 class _OneOrSeveral(argparse.Action):

@@ -22,9 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
-from ..data.fileio import atomic_write
 from ..logs import say
 from . import options
 from .common import add_model_arguments, add_record_arguments, model_from_args, noise_from_args, records_from_args
@@ -63,46 +61,11 @@ def parse_window(text: str) -> tuple[float, float]:
 
 
 def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[str]:
-    """Write the JSON and (with ``out_dir``) the figures; returns the paths written.
+    """Write the JSON and (with ``out_dir``) the figures; returns the paths written
+    (:func:`identify.output.diagnosis_files.write_diagnosis`)."""
+    from ..output.diagnosis_files import write_diagnosis
 
-    Parameters
-    ----------
-    diagnosis : Diagnosis or JointDiagnosis
-    record : Record or list of Record
-        The record (each record of a joint diagnosis: its figures are those of the record alone,
-        ``record<k>_<stem>.png``).
-    json_path : path-like, optional
-    out_dir : path-like, optional
-        Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure.
-    """
-    # deferred (--help imports every command's module): output.report: numpy, scipy, numba, matplotlib, +1.4 s
-    from ..output.diagnosis_plots import diagnosis_figures
-    from ..output.report import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
-    from ..output.results import write_json
-
-    content = diagnosis.to_dict()
-    written = []
-    if json_path is not None:
-        Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-        write_json(json_path, content)
-        written.append(str(json_path))
-    if out_dir is not None:
-        out = Path(out_dir)
-        figure_dir = out / DIAGNOSIS_FIGURES
-        figure_dir.mkdir(parents=True, exist_ok=True)
-        for stale in figure_dir.glob("*.png"):  # figures of an earlier diagnosis must not mix in
-            stale.unlink()
-        records = record if isinstance(record, (list, tuple)) else [record]
-        alone = getattr(diagnosis, "alone", None) or [diagnosis]
-        for r, (one, rec) in enumerate(zip(alone, records), start=1):
-            prefix = f"record{r}_" if len(records) > 1 else ""  # each record's own figures
-            for stem, figure in diagnosis_figures(one, rec).items():
-                path = figure_dir / f"{prefix}{stem}.png"
-                atomic_write(path, lambda fh, figure=figure: figure.savefig(fh, format="png", dpi=100))
-                written.append(str(path))
-        write_json(out / DIAGNOSIS_FILE, content)
-        written.append(str(out / DIAGNOSIS_FILE))
-    return written
+    return write_diagnosis(diagnosis, record, json_path=json_path, out_dir=out_dir)
 
 
 def run(args) -> int:

@@ -85,6 +85,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-report", action="store_true", help="skip the report (report.html); write it later with 'report DIR'"
     )
     parser.add_argument(
+        "--no-diagnose",
+        action="store_true",
+        help="skip the diagnosis that runs when the residual is above the noise (which effect is missing; "
+        "DIR/diagnosis.json, DIR/diagnosis/*.png)",
+    )
+    parser.add_argument(
+        "--compare",
+        default=None,
+        type=options.existing_folder,
+        metavar="EARLIER_DIR",
+        help="an earlier study of the same record (e.g. before adding the effect its diagnosis named): the report "
+        "shows the error before and after (default: a sibling folder of DIR found by its manifest)",
+    )
+    parser.add_argument(
         "--progress",
         choices=("auto", "on", "off"),
         default="auto",
@@ -131,6 +145,8 @@ def run_study(args) -> int:
         except ValueError as exc:
             raise options.OptionError(str(exc)) from None
         check_priors(args.priors, model)  # before the record is read and anything written (exit code 2)
+        if args.compare is not None and not (Path(args.compare) / "summary.json").is_file():
+            raise options.OptionError(f"--compare {args.compare}: not the results folder of a study (no summary.json)")
         settings = settings_from_args(args)
         if several:
             if args.noise_sigma is not None:
@@ -163,6 +179,8 @@ def run_study(args) -> int:
             select_terms=not args.all_terms,
             force=args.force,
             report=not args.no_report,
+            diagnose=not args.no_diagnose,
+            compare=args.compare,
             progress=progress,
             settings=settings,
             lock=False,

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..logs import ordinal
 from .fileio import atomic_write_bytes
 from .matfile import MAT_SUFFIX, MatFileError, read_mat_variables
 from .reversals import find_reversals
@@ -869,7 +870,7 @@ def keep_every(record: Record, every: int) -> Record:
     n = len(record)
     keep = thinning_indices(record.current, every)
     note = (
-        f"thinned (--every {every}): kept every {every}th sample, every input reversal and the last sample: "
+        f"thinned (--every {every}): kept every {ordinal(every)} sample, every input reversal and the last sample: "
         f"{keep.size} of {n} samples"
     )
     return replace(

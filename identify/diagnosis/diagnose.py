@@ -37,6 +37,7 @@ from ..data.reversals import find_reversals
 from ..fitting.joint import check_records
 from ..fitting.lsq import FitResult
 from ..fitting.noise import NoiseModel, quiet_segment
+from ..logs import progress_function
 from .adequacy import Adequacy, Thresholds, rms_change_and_size
 from .baseline import best_baseline, fit_baselines, known_noise, model_and_candidates, noise_reference
 from .candidates import CandidateResult, explained_fraction, unrefitted_candidate
@@ -190,7 +191,7 @@ class Diagnosis:
                 width = max(len(c.effect) for c in items)
                 for c in items:
                     lines.append(
-                        f"  {c.effect:<{width}}  RMS after {c.rms_after:.4g} {unit}, delta BIC {c.delta_bic:9.1f}, "
+                        f"  {c.effect:<{width}}  RMS after {c.rms_after:<7.4g} {unit}, delta BIC {c.delta_bic:9.1f}, "
                         f"explains {100 * c.explained:5.1f} % of the excess"
                         + (", adequate after" if c.adequate_after else "")
                     )
@@ -382,7 +383,7 @@ def diagnose(
     n_starts: int = 6,
     rng: np.random.Generator | None = None,
     candidates=None,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[str], None] | bool | None = None,
 ) -> Diagnosis | JointDiagnosis:
     """Least squares plus the diagnosis (module docstring).
 
@@ -407,8 +408,10 @@ def diagnose(
         Default ``numpy.random.default_rng(0)``.
     candidates : sequence of str, optional
         Effects to consider; default every library effect not in the model.
-    progress : callable(str), optional
-        Called with a short message at each stage.
+    progress : callable(str) or bool, optional
+        Called with a short message at each stage. Default (None): the messages are shown
+        on stderr (a terminal, a notebook's cell) unless :mod:`logging` is configured
+        (:func:`identify.logs.progress_function`); False: none.
 
     Returns
     -------
@@ -420,6 +423,7 @@ def diagnose(
         A record without a quiet segment of >= 20 samples (unless the noise sigma is user-given),
         a free noise sigma, an unknown effect, or a ``fit`` of another model.
     """
+    progress = progress_function(progress, "diagnosis: ")  # lines on stderr by default, False: none
     if isinstance(record, (list, tuple)):
         record = check_records(record)
         if len(record) > 1:
@@ -428,7 +432,7 @@ def diagnose(
     t_start = _time.perf_counter()
     thresholds = Thresholds() if thresholds is None else thresholds
     rng = np.random.default_rng(0) if rng is None else rng
-    say = progress or (lambda message: None)
+    say = progress
     model, candidates = model_and_candidates(model, fit, candidates)
     noise = known_noise(record, noise, fit)
     quiet = noise.quiet if noise.quiet is not None else quiet_segment(record.current)

@@ -39,6 +39,7 @@ from model import Model, get_effect
 
 from ..fitting.lsq import FitResult
 from ..fitting.threads import single_threaded_blas
+from ..logs import ordinal
 from .adequacy import Adequacy, Thresholds, assess_adequacy
 from .baseline import challenge_baseline, reparametrisation_paths, tied_sign
 from .candidates import CandidateResult, Reference, evaluate, failed_candidate
@@ -181,7 +182,7 @@ def _on_failure(rnd: Round, name: str, screening, stage: str):
 
 def _screen(s: Setting, rnd: Round) -> None:
     """Step 1: every candidate screened on the working copy, by falling chi-square drop."""
-    steps = f" (on every {s.work.step}th sample)" if s.work.step > 1 else ""
+    steps = f" (on every {ordinal(s.work.step)} sample)" if s.work.step > 1 else ""
     s.say(f"screening {len(s.candidates)} candidate effects{steps}")
     found = []
     for name in s.candidates:

@@ -43,11 +43,13 @@ def progress_mode(progress) -> str:
     Parameters
     ----------
     progress : bool or None
-        True: a bar; False: nothing; None: a bar when stderr is a terminal, else lines.
+        True: a bar; False: nothing; None: a bar when stderr is a terminal or in a Jupyter
+        notebook, else lines.
     """
     if progress is None:
         isatty = getattr(sys.stderr, "isatty", None)
-        return "bar" if isatty is not None and isatty() else "lines"
+        in_notebook = "ipykernel" in sys.modules  # a Jupyter cell shows a bar redrawn on stderr
+        return "bar" if in_notebook or (isatty is not None and isatty()) else "lines"
     return "bar" if progress else "off"
 
 

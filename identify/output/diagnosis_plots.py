@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .plots import axis_label, new_figure, styled, unit_label
+from .plots import axis_label, legend_below, new_figure, styled, unit_label
 
 __all__ = [
     "residual_time_figure",
@@ -164,7 +164,6 @@ def cycles_figure(profile, *, output_unit="um"):
     twin.grid(False)
     lines = ax.get_legend_handles_labels()
     lines2 = twin.get_legend_handles_labels()
-    ax.legend(lines[0] + lines2[0], lines[1] + lines2[1], loc="best", fontsize=9)
     ax.set_title("Error per cycle (trough to trough)")
     ax = axes[1]
     ext = profile.extrema
@@ -184,7 +183,10 @@ def cycles_figure(profile, *, output_unit="um"):
         ylabel=axis_label("residual", output_unit),
         title="Residual at the reversals, cycle by cycle",
     )
-    ax.legend(loc="best", fontsize=9)
+    more = ax.get_legend_handles_labels()
+    legend_below(
+        fig, handles=lines[0] + lines2[0] + more[0], labels=lines[1] + lines2[1] + more[1], ncols=6, fontsize=9
+    )
     return fig
 
 
@@ -207,20 +209,11 @@ def residual_autocorrelation_figure(profile):
     ax.axhspan(-band, band, color=NOISE_COLOUR, alpha=0.2, label="±2/√n")
     tests = profile.tests
     text = "\n".join(f"{name}: z = {t.z:.1f}" for name, t in tests.items())
-    ax.text(
-        0.98,
-        0.95,
-        text,
-        transform=ax.transAxes,
-        ha="right",
-        va="top",
-        fontsize=9,
-        bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"},
-    )
     ax.set_xlabel(axis_label("lag", "samples"))
     ax.set_ylabel("autocorrelation [-]")
     ax.set_title("Is the residual noise? Autocorrelation vs the quiet segment")
-    ax.legend(loc="lower left", fontsize=9)
+    # beside the data: the curves, then the whiteness tests' z as the legend's title
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=9, title=text, title_fontsize=9)
     return fig
 
 
@@ -288,9 +281,12 @@ def before_after_error_figure(
 
 @styled
 def ranking_figure(diagnosis, *, output_unit="um"):
-    """Candidates side by side: RMS after, max error % after, delta BIC and explained fraction."""
+    """Candidates side by side: RMS after, max error % after, delta BIC and explained fraction.
+
+    Horizontal bars, one row per candidate named once on the left (in words: ``rate_width`` ->
+    "rate width"), so long names never run into each other whatever their number."""
     ranking = diagnosis.ranking
-    names = ["(before)"] + [c.effect for c in ranking]
+    names = ["model as given"] + [c.effect.replace("_", " ") for c in ranking]
     rms = [diagnosis.rms] + [c.rms_after for c in ranking]
     max_pct = [diagnosis.max_error_pct] + [
         c.max_error_pct_after if c.max_error_pct_after is not None else np.nan for c in ranking
@@ -302,33 +298,35 @@ def ranking_figure(diagnosis, *, output_unit="um"):
         else ("tab:purple" if c.effect in tied else ("tab:olive" if c.refitted else "0.75"))
         for c in ranking
     ]
-    fig = new_figure(12, 4.2)
-    axes = fig.subplots(1, 4)
+    rows = np.arange(len(names))
+    fig = new_figure(13, 1.6 + 0.32 * len(names))
+    axes = fig.subplots(1, 4, sharey=True)
     ax = axes[0]
-    ax.bar(names, rms, color=colours)
-    ax.axhline(diagnosis.noise_sigma, color="black", ls=":", label="noise σ")
-    ax.set_ylabel(axis_label("RMS error", output_unit))
+    ax.barh(rows, rms, color=colours)
+    ax.axvline(diagnosis.noise_sigma, color="black", ls=":", label="noise σ")
+    ax.set_xlabel(axis_label("RMS error", output_unit))
     ax.set_title("RMS")
-    ax.legend(loc="best", fontsize=9)
     ax = axes[1]
-    ax.bar(names, max_pct, color=colours)
-    ax.set_ylabel(axis_label("max |error| / range", "%"))
+    ax.barh(rows, max_pct, color=colours)
+    ax.set_xlabel(axis_label("max |error| / range", "%"))
     ax.set_title("Max error (refitted only)")
     ax = axes[2]
-    ax.bar(names[1:], [c.delta_bic for c in ranking], color=colours[1:])
-    ax.axhline(diagnosis.thresholds.bic_significant, color="black", ls=":", label="significance")
-    ax.set_yscale("symlog", linthresh=10.0)
-    ax.set_ylabel("ΔBIC (n_eff) [-]")
+    ax.barh(rows[1:], [c.delta_bic for c in ranking], color=colours[1:])
+    ax.axvline(diagnosis.thresholds.bic_significant, color="black", ls="--", label="significant BIC gain")
+    ax.set_xscale("symlog", linthresh=10.0)
+    ax.set_xlabel("BIC gain [-]")
     ax.set_title("Comparison statistic")
-    ax.legend(loc="best", fontsize=9)
     ax = axes[3]
-    ax.bar(names[1:], [100 * c.explained for c in ranking], color=colours[1:])
-    ax.set_ylim(0, 105)
-    ax.set_ylabel(axis_label("misfit explained", "%"))
+    ax.barh(rows[1:], [100 * c.explained for c in ranking], color=colours[1:])
+    ax.set_xlim(0, 105)
+    ax.set_xlabel(axis_label("misfit explained", "%"))
     ax.set_title("Explained fraction")
-    for ax in axes:
-        ax.tick_params(axis="x", rotation=45)
-    fig.suptitle(f"Candidates (verdict: {diagnosis.verdict_text()})")
+    axes[0].set_yticks(rows, names)
+    axes[0].invert_yaxis()  # the model as given on top, then the candidates best first
+    handles = axes[0].get_legend_handles_labels()
+    more = axes[2].get_legend_handles_labels()
+    legend_below(fig, handles=handles[0] + more[0], labels=handles[1] + more[1], ncols=2, fontsize=9)
+    fig.suptitle(f"Candidates (verdict: {diagnosis.verdict_text().replace('missing_effect', 'missing effect')})")
     return fig
 
 

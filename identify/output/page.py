@@ -13,6 +13,7 @@ import base64
 import html
 import io
 import math
+import re
 
 import numpy as np
 
@@ -20,6 +21,8 @@ __all__ = [
     "DIGITS",
     "CSS",
     "escape",
+    "plain_text",
+    "IDENTIFIER",
     "number_text",
     "number_cell",
     "text_cell",
@@ -37,6 +40,33 @@ def escape(value) -> str:
     """``value`` as page text: ``str(value)`` with ``& < > " '`` as HTML entities, so it shows as
     written and never becomes markup (safe in element content and in quoted attributes)."""
     return html.escape(str(value), quote=True)
+
+
+#: A name from the code or the files that a person types as it is (an effect, a parameter, a
+#: file, a manifest key): snake_case or dotted words, file names. Shown in ``<code>`` by
+#: :func:`plain_text`, never as prose.
+IDENTIFIER = re.compile(r"(?<![\w.\[\]/-])(?:\.{0,2}/)?[A-Za-z][\w\[\]./-]*[\w\]]")
+
+
+def plain_text(value) -> str:
+    """``value`` as page text for a person: None is "—", a bool "yes"/"no", a float with
+    :data:`DIGITS` digits; the rest escaped (:func:`escape`) with every name a person types as
+    it is (:data:`IDENTIFIER`: ``thermal_tau``, ``diagnosis.json``, ``settings.n_starts``)
+    wrapped in ``<code>``, so no Python repr and no bare identifier reads as prose."""
+    if value is None or isinstance(value, (bool, np.bool_)) or isinstance(value, (float, np.floating)):
+        return number_text(value)
+    parts, last = [], 0
+    text = str(value)
+    for match in IDENTIFIER.finditer(text):
+        word = match.group(0)
+        dotted = "." in word and max(len(part) for part in re.split(r"[./\[\]-]", word)) >= 2  # not "e.g"
+        if "_" not in word and not dotted:
+            continue  # a plain word, "µm/A", "e.g"
+        parts.append(escape(text[last : match.start()]))
+        parts.append(f"<code>{escape(match.group(0))}</code>")
+        last = match.end()
+    parts.append(escape(text[last:]))
+    return "".join(parts)
 
 
 def number_text(value, digits=DIGITS) -> str:
@@ -68,22 +98,24 @@ def number_cell(value, key=None, digits=DIGITS, css=None) -> str:
 
 
 def text_cell(value, css=None) -> str:
+    """A table cell of text for a person (:func:`plain_text`: no Python reprs, names in ``<code>``)."""
     attributes = f' class="{escape(css)}"' if css else ""
-    return f"<td{attributes}>{escape(value)}</td>"
+    return f"<td{attributes}>{plain_text(value)}</td>"
 
 
 def html_table(table_id, header, rows, caption=None, row_classes=None) -> str:
     """An HTML table; ``header`` and ``caption`` are plain text (escaped here), ``rows`` lists
     of ready cell strings (:func:`number_cell`, :func:`text_cell`), ``row_classes`` optional
-    CSS classes."""
-    parts = [f'<table id="{escape(table_id)}">']
+    CSS classes. The table sits in a box that scrolls sideways when the table is wider than
+    the page (a table of many columns), so it never widens the page."""
+    parts = [f'<div class="table-box"><table id="{escape(table_id)}">']
     if caption:
         parts.append(f"<caption>{escape(caption)}</caption>")
     parts.append("<thead><tr>" + "".join(f"<th>{escape(h)}</th>" for h in header) + "</tr></thead><tbody>")
     for i, row in enumerate(rows):
         css = (row_classes or {}).get(i)
         parts.append((f'<tr class="{escape(css)}">' if css else "<tr>") + "".join(row) + "</tr>")
-    parts.append("</tbody></table>")
+    parts.append("</tbody></table></div>")
     return "\n".join(parts)
 
 
@@ -91,7 +123,7 @@ def embedded_figure(stem, alt, png_bytes, caption) -> str:
     encoded = base64.b64encode(png_bytes).decode("ascii")
     return (
         f'<figure id="figure-{escape(stem)}"><img alt="{escape(alt)}" src="data:image/png;base64,{encoded}">'
-        f"<figcaption><b>{escape(alt)}.</b> {escape(caption)}</figcaption></figure>"
+        f"<figcaption><b>{plain_text(alt)}.</b> {plain_text(caption)}</figcaption></figure>"
     )
 
 
@@ -105,7 +137,7 @@ def html_page(title: str, body_parts, *, heading: bool = True) -> str:
             '<html lang="en"><head><meta charset="utf-8">',
             '<meta name="viewport" content="width=device-width, initial-scale=1">',
             f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
-            *([f"<h1>{escape(title)}</h1>"] if heading else []),
+            *([f"<h1>{plain_text(title)}</h1>"] if heading else []),
             *body_parts,
             "</body></html>",
         ]
@@ -123,9 +155,13 @@ body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;max
 margin:1.5em auto;padding:0 1em;color:#222;line-height:1.45}
 h1{font-size:1.6em} h2{border-bottom:2px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
 table{border-collapse:collapse;margin:.8em 0;font-size:.92em}
+div.table-box{max-width:100%;overflow-x:auto}
+td.parameters{text-align:left;white-space:nowrap} td.parameters ul{margin:0;padding-left:1.1em}
+pre,code{overflow-wrap:anywhere;white-space:pre-wrap}
 th,td{border:1px solid #ccc;padding:.25em .55em;text-align:right}
 th{background:#f2f2f2} td:first-child,th:first-child{text-align:left}
 caption{text-align:left;font-weight:bold;padding:.3em 0}
+tr.failed td{background:#fde8e8} tr.interrupted td{background:#fff4d6}
 tr.worst td{background:#ffe3e0} tr.pinned td{color:#777;background:#f7f7f7}
 td.alert{background:#fdecea;font-weight:bold} td.ok{background:#e8f5e9}
 figure{margin:1.2em 0} img{max-width:100%;height:auto;border:1px solid #ddd}

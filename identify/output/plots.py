@@ -67,6 +67,26 @@ def axis_label(quantity: str, unit: str) -> str:
     return f"{quantity} [{unit_label(unit)}]"
 
 
+def legend_below(fig, ax=None, handles=None, labels=None, ncols=3, **options):
+    """A legend under the axes, outside the data: matplotlib's ``"outside lower center"`` of the
+    figure, for which the constrained layout makes room (never over a curve).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    ax : Axes, optional
+        Whose artists are listed (default: the handles given).
+    handles, labels : list, optional
+        Default ``ax.get_legend_handles_labels()``.
+    ncols : int, default 3
+    """
+    if handles is None:
+        handles, labels = ax.get_legend_handles_labels()
+    if labels is None:
+        return fig.legend(handles=handles, loc="outside lower center", ncols=ncols, frameon=False, **options)
+    return fig.legend(handles, labels, loc="outside lower center", ncols=ncols, frameon=False, **options)
+
+
 def new_figure(width, height):
     """A detached figure of ``width`` x ``height`` inches with constrained layout."""
     return Figure(figsize=(width, height), layout="constrained")
@@ -342,7 +362,7 @@ def loops_figure(
         Patch(color=RISING_COLOUR, alpha=0.6, label="model, rising branches: median and 95 % band"),
         Patch(color=FALLING_COLOUR, alpha=0.6, label="model, falling branches: median and 95 % band"),
     ]
-    full_ax.legend(handles=handles, loc="upper left", fontsize=9)
+    legend_below(fig, handles=handles, ncols=3, fontsize=9)
     return fig
 
 
@@ -359,8 +379,8 @@ CORNER = {
     "tick_length": 3.5,  # points
     "tick_pad": 3.5,  # points
     "tick_label_size": 8,
-    "label_size": 13,
-    "label_offset": 0.6,  # panel sizes from the panel to the parameter names
+    "label_size": 11,
+    "label_offset": 0.55,  # inches from the panel to the parameter names (past the rotated tick labels)
     "title_size": 14,
     "marker_size": 6.0,
     "colour": "black",
@@ -458,7 +478,11 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
     n_dim = samples.shape[1]
     size = max(6.0, 0.9 * n_dim)  # inches; ~1200 px at the report's 80 dpi for 18 parameters
     fig = Figure(figsize=(size, size))
-    margin = min(0.2, 1.0 / size)  # 1 inch for the rotated tick labels and the names
+    # room for the rotated tick labels and the names, which are written across the panels' row or
+    # column (vertical below, horizontal at the left) so that long names never run into each other
+    name_inches = c["label_size"] * 0.75 * max(len(str(label)) for label in labels) / 72.0
+    margin = min(0.35, (c["label_offset"] + name_inches + 0.2) / size)
+    max_ticks = c["max_ticks"] if size / n_dim >= 1.2 else 2  # narrow panels: two ticks
     left, bottom, right, top = margin, margin, 0.99, 1 - 0.4 / size
     width = (right - left) / (n_dim + (n_dim - 1) * c["space"])
     height = (top - bottom) / (n_dim + (n_dim - 1) * c["space"])
@@ -493,7 +517,9 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
     texts = []  # (x, y, text, keyword arguments)
     tick = c["tick_length"] * point
     pad = (c["tick_length"] + c["tick_pad"]) * point
-    tick_text = dict(fontsize=c["tick_label_size"], rotation=45)
+    # tick labels across the axis (vertical below, horizontal at the left): each is one line high
+    # along the axis, and the lowest tick is pruned, so neighbouring panels' labels never touch
+    tick_text = dict(fontsize=c["tick_label_size"])
     for i in range(n_dim):
         for j in range(i + 1):
             x0, y0 = box(i, j)
@@ -524,18 +550,26 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
             if reference is not None and xview[0] <= reference[j] <= xview[1]:
                 lines.append(np.column_stack(to_figure(i, j, [reference[j]] * 2, yview, xview, yview)))
             # ticks below every panel, left of every contour panel; labels at the figure's edges
-            locs, tick_labels, offset = _ticks(*xview, c["max_ticks"])
+            locs, tick_labels, offset = _ticks(*xview, max_ticks)
             xs, _ = to_figure(i, j, locs, np.zeros_like(locs), xview, (0.0, 1.0))
             ticks += [((x, y0), (x, y0 - tick)) for x in xs]
             if i == n_dim - 1:
-                texts += [(x, y0 - pad, t, dict(ha="center", va="top", **tick_text)) for x, t in zip(xs, tick_labels)]
+                texts += [
+                    (x, y0 - pad, t, dict(ha="center", va="top", rotation=90, **tick_text))
+                    for x, t in zip(xs, tick_labels)
+                ]
                 if offset:
                     texts.append((x0 + width, y0 - 6 * pad, offset, dict(ha="right", va="top", fontsize=8)))
                 texts.append(
-                    (x0 + 0.5 * width, y0 - c["label_offset"] * height, labels[j], dict(ha="center", va="top"))
+                    (
+                        x0 + 0.5 * width,
+                        y0 - c["label_offset"] / size,
+                        labels[j],
+                        dict(ha="center", va="top", rotation=90),
+                    )
                 )
             if i != j:
-                locs, tick_labels, offset = _ticks(*yview, c["max_ticks"])
+                locs, tick_labels, offset = _ticks(*yview, max_ticks)
                 _, ys = to_figure(i, j, np.zeros_like(locs), locs, (0.0, 1.0), yview)
                 ticks += [((x0, y), (x0 - tick, y)) for y in ys]
                 if j == 0:
@@ -546,12 +580,7 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
                     if offset:
                         texts.append((x0, y0 + height + pad, offset, dict(ha="left", va="bottom", fontsize=8)))
                     texts.append(
-                        (
-                            x0 - c["label_offset"] * width,
-                            y0 + 0.5 * height,
-                            labels[i],
-                            dict(ha="center", va="bottom", rotation=90, rotation_mode="anchor"),
-                        )
+                        (x0 - c["label_offset"] / size, y0 + 0.5 * height, labels[i], dict(ha="right", va="center"))
                     )
     colour, figure = c["colour"], dict(transform=fig.transFigure)
     fig.add_artist(LineCollection(contours, colors=colour, linewidths=c["line_width"], **figure))
@@ -665,5 +694,5 @@ def autocorrelation_figure(chain_lengths, tau, labels, *, tau_reported=None):
     ax.set_xlabel("chain length N [steps]")
     ax.set_ylabel("integrated autocorrelation time τ [steps]")
     ax.set_title("Autocorrelation time vs chain length")
-    ax.legend(loc="upper left", fontsize=9)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=9)  # beside the data
     return fig

@@ -55,7 +55,18 @@ from ..fitting.noise import energised_mask
 from ..fitting.posterior import BENCH_COVERAGE, ChainBackend, autocorrelation_times
 from . import plots, results
 from .bands import mixture_quantile
-from .page import CSS, embedded_figure, escape, html_table, number_cell, number_text, png_bytes, text_cell
+from .diagnosis_files import COMPARISON_FILE, DIAGNOSIS_FIGURES, DIAGNOSIS_FILE, next_step
+from .page import (
+    embedded_figure,
+    escape,
+    html_page,
+    html_table,
+    number_cell,
+    number_text,
+    plain_text,
+    png_bytes,
+    text_cell,
+)
 
 __all__ = [
     "write_report",
@@ -81,16 +92,17 @@ __all__ = [
     "DIAGNOSIS_FILE",
     "DIAGNOSIS_FIGURES",
     "NOISE_COORDINATE",
+    "residual_above_noise",
+    "Comparison",
+    "load_comparison",
+    "comparison_figure",
+    "COMPARISON_FIGURE",
 ]
 
 #: Residual RMS above this multiple of the noise sigma is "far above the noise".
 RMS_RATIO_LIMIT = 1.2
 #: Reduced chi-square above this is "far above the noise".
 REDUCED_CHI2_LIMIT = 1.5
-#: Written by the diagnosis (issue 6) into the results folder; optional.
-DIAGNOSIS_FILE = "diagnosis.json"
-#: Folder (inside the results folder) whose ``*.png`` the diagnosis section embeds.
-DIAGNOSIS_FIGURES = "diagnosis"
 #: Name of the sampled log noise sigma (last chain column when the noise is free).
 NOISE_COORDINATE = "noise_log_sigma"
 #: At most this many stored chain rows are read (the chain is thinned to fit).
@@ -117,6 +129,10 @@ FIGURES = {
     "traces": "Walker traces with the burn-in marked",
     "autocorrelation": "Integrated autocorrelation time vs chain length with the N/50 line",
 }
+
+
+#: The comparison's figure (written only when the study is compared with an earlier one).
+COMPARISON_FIGURE = {"comparison": "Before and after: the earlier study's model and this one's"}
 
 
 class ResultsError(ValueError):
@@ -778,9 +794,21 @@ def _flatten(value, prefix=""):
         for i, item in enumerate(value, start=1):
             yield from _flatten(item, f"{prefix}[{i}]")
     elif isinstance(value, (list, tuple)):
-        yield prefix, " ".join(map(str, value)) if value else "(none)"
+        yield prefix, " ".join(map(str, value)) if value else "none"
     else:
         yield prefix, value
+
+
+def residual_above_noise(summary: dict) -> bool:
+    """Whether the least-squares residual of ``summary`` (``summary.json``) is far above the
+    sensor noise (RMS > :data:`RMS_RATIO_LIMIT` sigma or reduced chi-square >
+    :data:`REDUCED_CHI2_LIMIT`), the red box of "At a glance". False when sigma was identified
+    from the residual itself (``noise.source == "free"``): RMS is then near sigma by construction."""
+    noise = summary.get("noise") or {}
+    sigma = noise.get("sigma")
+    if noise.get("source") == "free" or not sigma or not math.isfinite(sigma):
+        return False
+    return _fit_verdict(summary, float(sigma))[1]
 
 
 def _fit_verdict(summary, noise_sigma):
@@ -802,7 +830,7 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     for prefix in ("NOT CONVERGED:", "converged:"):  # the box says it already
         if message.startswith(prefix):
             message = message[len(prefix) :].strip()
-    message = escape(message[:1].upper() + message[1:] + ("" if message.endswith(".") or not message else "."))
+    message = plain_text(message[:1].upper() + message[1:] + ("" if message.endswith(".") or not message else "."))
     if posterior.get("converged"):
         parts.append(f'<div class="ok" id="convergence-ok"><b>Converged.</b> {message}</div>')
     else:
@@ -827,6 +855,7 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
             'this page are conditional on a model that misses something; see the <a href="#diagnosis">diagnosis '
             "section</a>.</div>"
         )
+        parts.append(_next_step_html(data))
     else:
         parts.append(f'<div class="ok" id="fit-ok"><b>The residual is at the noise level.</b> {sentence}</div>')
     worst = analysis.worst
@@ -854,7 +883,7 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     if widths:
         items.append(
             "Least well determined (widest 95 % interval relative to the median): "
-            + ", ".join(f"{escape(name)} (±{50 * w:.3g} %)" for w, name in widths[:3])
+            + ", ".join(f"<code>{escape(name)}</code> (±{50 * w:.3g} %)" for w, name in widths[:3])
             + "."
         )
     items.append(
@@ -866,6 +895,56 @@ def _glance_html(data: ReportData, analysis: _Analysis) -> str:
     return "\n".join(parts)
 
 
+def _next_step_html(data: ReportData) -> str:
+    """The diagnosis' verdict in one sentence and the exact command to run next (a box of "At a
+    glance"); without a diagnosis, the commands that make one."""
+    manifest_data = data.manifest.get("data") if isinstance(data.manifest.get("data"), dict) else {}
+    data_file = str(manifest_data.get("file") or data.record.source)
+    if data.diagnosis is None:
+        command = f"python -m identify diagnose {data_file} --out {data.directory}"
+        return (
+            '<div class="note" id="next-step"><b>Next:</b> no diagnosis in this folder (the study ran with '
+            "<code>--no-diagnose</code>, or before studies diagnosed themselves). Find which effect is missing with "
+            f"<code>{escape(command)}</code>, then <code>{escape(f'python -m identify report {data.directory}')}"
+            "</code>.</div>"
+        )
+    sentence, command = next_step(
+        data.diagnosis, data_file=data_file, effects=data.model.effect_names, out_dir=data.directory
+    )
+    run = f'<br>Next: <code class="command">{escape(command)}</code>' if command else ""
+    return f'<div class="note" id="next-step"><b>Diagnosis:</b> {escape(sentence)}{run}</div>'
+
+
+#: How the noise sigma was found (``summary.json`` ``noise.source``), in words.
+_NOISE_SOURCES = {
+    "quiet_segment": "the record's unenergised start",
+    "user": "the value given",
+    "given": "the value given",
+    "free": "the residual itself, sampled",
+}
+#: The noise model (``noise.kind``), in words.
+_NOISE_KINDS = {"white": "white", "ar1": "first-order autoregressive"}
+#: A diagnosis' status (``diagnosis.json`` ``status``), in words.
+STATUS_LABELS = {
+    "adequate": "adequate",
+    "missing_effect": "an effect is missing",
+    "tied": "tied",
+    "unexplained": "unexplained",
+}
+#: The diagnosis ranking's columns (``diagnosis.json`` ``ranking`` keys) -> headers; ``{unit}``: the output unit.
+_RANKING_HEADERS = {
+    "effect": "effect",
+    "rms_after": "RMS with it [{unit}]",
+    "max_error_pct_after": "max error with it [% of range]",
+    "delta_bic": "BIC gain",
+    "explained_fraction": "share of the misfit explained (1: all)",
+    "adequate_after": "residual is noise with it",
+    "refitted": "refitted",
+    "parameters": "fitted parameters",
+    "note": "note",
+}
+
+
 def _fit_quality_html(data: ReportData, analysis: _Analysis) -> str:
     summary, fit, noise = data.summary, data.summary["fit"], data.summary["noise"]
     record = data.record
@@ -875,7 +954,10 @@ def _fit_quality_html(data: ReportData, analysis: _Analysis) -> str:
     rows = [
         [text_cell(f"residual RMS, least squares [{unit}]"), number_cell(fit["rms"], "fit.rms")],
         [
-            text_cell(f"sensor noise σ [{unit}] (from: {noise.get('source')}, {noise.get('kind')})"),
+            text_cell(
+                f"sensor noise σ [{unit}] (from {_NOISE_SOURCES.get(noise.get('source'), noise.get('source'))}, "
+                f"{_NOISE_KINDS.get(noise.get('kind'), noise.get('kind'))})"
+            ),
             number_cell(noise["sigma"], "noise.sigma"),
         ],
         [text_cell("lag-1 autocorrelation of the noise ρ"), number_cell(noise.get("rho"), "noise.rho")],
@@ -1196,21 +1278,24 @@ def _diagnosis_html(data: ReportData) -> str:
         return "\n".join(parts)
     if diagnosis is not None:
         status = str(diagnosis.get("status", "unknown"))
+        unit = plots.unit_label(data.record.output_unit)
         missing = diagnosis.get("missing")
-        tied = " or ".join(f"<b>{escape(str(name))}</b>" for name in diagnosis.get("tied") or [])
+        tied = " or ".join(f"<b><code>{escape(str(name))}</code></b>" for name in diagnosis.get("tied") or [])
         verdict = {
             "adequate": "the residual is consistent with the noise; nothing to add.",
-            "missing_effect": f"the model misses the effect <b>{escape(str(missing))}</b>; add it with "
+            "missing_effect": f"the model misses the effect <b><code>{escape(str(missing))}</code></b>; add it with "
             f"<code>--effects {escape(str(missing))}</code>.",
             "tied": f"several explanations repair the model and this record does not separate them: {tied}; "
             "another record (a hold at constant current, a quiet end) or a joint diagnosis can.",
             "unexplained": "structure remains in the residual that no effect of the library explains.",
         }.get(status, "")
         css = "ok" if status == "adequate" else "alert"
-        parts.append(f'<div class="{css}" id="diagnosis-verdict">Verdict: <b>{escape(status)}</b>: {verdict}</div>')
+        label = STATUS_LABELS.get(status, status.replace("_", " "))
+        parts.append(f'<div class="{css}" id="diagnosis-verdict">Verdict: <b>{escape(label)}</b>: {verdict}</div>')
         ranking = diagnosis.get("ranking") or []
         if ranking:
-            columns = ["effect", "rms_after"] + sorted({k for r in ranking for k in r} - {"effect", "rms_after"})
+            known = [k for k in _RANKING_HEADERS if any(k in r for r in ranking)]
+            columns = known + sorted({k for r in ranking for k in r} - set(known))
             rows = []
             for r in ranking:
                 row = []
@@ -1221,18 +1306,19 @@ def _diagnosis_html(data: ReportData) -> str:
                     elif column == "parameters" and isinstance(value, dict):
                         row.append(_effect_parameters_cell(value))
                     else:
-                        row.append(text_cell("—" if value is None else value))
+                        row.append(text_cell(value))
                 rows.append(row)
             parts.append(
                 html_table(
                     "diagnosis-ranking",
-                    columns,
+                    [_RANKING_HEADERS.get(c, c.replace("_", " ")).format(unit=unit) for c in columns],
                     rows,
-                    caption="Candidate effects, best first (rms_after: residual RMS with the effect added)",
+                    caption="Candidate effects, best first (each added to the model and refitted; the BIC gain is "
+                    "the fall in the Bayesian information criterion, which charges each added parameter)",
                 )
             )
     for path in pngs:
-        alt = f"Diagnosis: {path.stem.replace('_', ' ')}"
+        alt = f"Diagnosis: {path.stem.replace('_', ' ')}"  # "record1_residual_time" -> words
         parts.append(
             embedded_figure(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From {DIAGNOSIS_FIGURES}/{path.name}.")
         )
@@ -1253,7 +1339,9 @@ def _effect_parameters_cell(parameters: dict) -> str:
     items = []
     for name, value in parameters.items():
         unit = units.get(name, "")
-        text = f"{escape(str(name))} = {number_text(value, 4)}" + (f" {escape(unit)}" if unit else "")
+        text = f"<code>{escape(str(name))}</code> = {number_text(value, 4)}" + (
+            f" {escape(plots.unit_label(unit))}" if unit else ""
+        )
         items.append(f"<li>{text}</li>")
     return '<td class="parameters"><ul>' + "".join(items) + "</ul></td>"
 
@@ -1266,7 +1354,10 @@ def _provenance_html(data: ReportData, analysis: _Analysis, seconds: float) -> s
             text_cell("converged" if converged else "NOT CONVERGED", css="ok" if converged else "alert"),
         ]
     ]
-    rows += [[text_cell(name), text_cell(value)] for name, value in _flatten(data.manifest)]
+    for name, value in _flatten(data.manifest):
+        if name == "finished" and value is None:  # the run is closed after its report is written
+            value = "at the end of this run (the report is written before the manifest is closed)"
+        rows.append([text_cell(name), text_cell(value)])
     rows.append(
         [
             text_cell("record stored in the results folder"),
@@ -1277,7 +1368,7 @@ def _provenance_html(data: ReportData, analysis: _Analysis, seconds: float) -> s
     rows.append([text_cell("report: generated in [s]"), number_cell(seconds, digits=3)])
     rows.append([text_cell("report: generated at (UTC)"), text_cell(results.now_iso())])
     return '<h2 id="provenance-section">5. Provenance</h2>\n' + html_table(
-        "provenance", ["item", "value"], rows, caption="Provenance (manifest.json)"
+        "provenance", ["item (manifest key)", "value"], rows, caption="Provenance (the results folder's manifest)"
     )
 
 
@@ -1287,25 +1378,209 @@ def _page(data: ReportData, analysis: _Analysis, figure_html: dict, seconds: flo
     title = f"Identification report — {Path(str(source or record.source)).name}"
     effects = ", ".join(data.model.effect_names) or "none"
     parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{escape(title)}</title><style>{CSS}</style></head><body>",
-        f"<h1>{escape(title)}</h1>",
         f"<p>Model: GPI with {data.model.n_operators} play operators, reading "
         f"<code>{escape(data.model.reading)}</code>, "
         f"effects: {escape(effects)}. Record: {len(record.time)} samples over "
         f"{record.time[-1] - record.time[0]:.4g} s. Results folder: "
         f"<code>{escape(str(data.directory))}</code>.</p>",
         _glance_html(data, analysis),
+        figure_html.get("comparison-section", ""),
         '<h2 id="measurement">1. Measurement vs model</h2>',
         *(figure_html[s] for s in ("fig5_input", "fig6_displacement", "fig6_zoom", "fig7_error", "fig8_loops")),
         _fit_quality_html(data, analysis),
         _parameters_html(data, analysis, "\n".join(figure_html[s] for s in ("corner", "traces", "autocorrelation"))),
         _diagnosis_html(data),
         _provenance_html(data, analysis, seconds),
-        "</body></html>",
     ]
+    return html_page(title, parts)
+
+
+# --------------------------------------------------------------------------------------
+# before and after: the comparison with an earlier study (study --compare)
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Comparison:
+    """The least-squares error of an earlier study of the same record and of this one.
+
+    Attributes
+    ----------
+    earlier : Path
+        The earlier results folder.
+    found : str
+        How it was named (``"given (--compare)"`` or ``"found by manifest"``).
+    effects_before, effects_after : tuple of str
+        The effects of the two models.
+    model_before, model_after : ndarray, shape (T,)
+        The two least-squares model curves [output unit].
+    error_before, error_after : ndarray, shape (T,)
+        Measurement minus each curve [output unit].
+    rms_before, rms_after : float
+        RMS of the errors over the energised samples [output unit].
+    max_pct_before, max_pct_after : float
+        Largest absolute error as % of the measured displacement range (energised samples).
+    cycles_before, cycles_after : list of CycleError
+        Per-cycle errors (the same cycles).
+    """
+
+    earlier: Path
+    found: str
+    effects_before: tuple
+    effects_after: tuple
+    model_before: np.ndarray
+    model_after: np.ndarray
+    error_before: np.ndarray
+    error_after: np.ndarray
+    rms_before: float
+    rms_after: float
+    max_pct_before: float
+    max_pct_after: float
+    cycles_before: list
+    cycles_after: list
+
+    @property
+    def improved_cycles(self) -> list[int]:
+        """1-based numbers of the cycles whose RMS error fell."""
+        return [b.index for b, a in zip(self.cycles_before, self.cycles_after) if a.rms < b.rms]
+
+
+def load_comparison(data: ReportData, analysis: _Analysis) -> Comparison | str | None:
+    """The :class:`Comparison` named by ``DIR/comparison.json``; None without that file; a
+    sentence (plain text) when the earlier folder cannot be compared (gone, another record)."""
+    path = data.directory / COMPARISON_FILE
+    if not path.exists():
+        return None
+    named = results.read_json(path)
+    earlier = Path(str(named.get("earlier")))
+    try:
+        before = results.load_results(earlier)
+    except (OSError, KeyError, ValueError) as exc:
+        return f"The earlier study {earlier} named in {COMPARISON_FILE} cannot be read ({exc})."
+    if before.record.sha256 != data.record.sha256:
+        return f"The earlier study {earlier} holds another record (its SHA-256 differs): not compared."
+    record = data.record
+    time, current, measured = (np.asarray(a, dtype=float) for a in (record.time, record.current, record.displacement))
+    curves = []
+    for fit in (before.fit, data.fit):
+        curve, valid = fit.model.evaluate(fit.theta[None, :], time, current)
+        if not valid[0]:
+            return f"The earlier study {earlier}: its least-squares model gives a non-finite output on this record."
+        curves.append(np.asarray(curve[0], dtype=float))
+    energised, span = data.energised, analysis.displacement_range
+    errors = [measured - curve for curve in curves]
+    cycles = [cycle_errors(time, current, e, energised, analysis.branch_list, span) for e in errors]
+    rms = [float(np.sqrt(np.mean(e[energised] ** 2))) for e in errors]
+    worst = [float(100.0 * np.max(np.abs(e[energised])) / span) for e in errors]
+    return Comparison(
+        earlier=earlier,
+        found=str(named.get("found") or ""),
+        effects_before=tuple(before.fit.model.effect_names),
+        effects_after=tuple(data.model.effect_names),
+        model_before=curves[0],
+        model_after=curves[1],
+        error_before=errors[0],
+        error_after=errors[1],
+        rms_before=rms[0],
+        rms_after=rms[1],
+        max_pct_before=worst[0],
+        max_pct_after=worst[1],
+        cycles_before=cycles[0],
+        cycles_after=cycles[1],
+    )
+
+
+def _effects_text(effects) -> str:
+    return "GPI + " + " + ".join(effects) if effects else "GPI alone"
+
+
+@plots.styled
+def comparison_figure(data: ReportData, comparison: Comparison):
+    """Three panels: the two models' hysteresis loops over the measurement, the two errors vs
+    time, and each cycle's RMS error before and after (legends below the axes, off the data)."""
+    record = data.record
+    time, current, measured = (np.asarray(a, dtype=float) for a in (record.time, record.current, record.displacement))
+    before, after = _effects_text(comparison.effects_before), _effects_text(comparison.effects_after)
+    fig = plots.new_figure(14, 4.8)
+    loops, errors, cycles = fig.subplots(1, 3)
+    shown = data.energised
+    loops.plot(current[shown], measured[shown], color="0.55", lw=0.8, label="measurement")
+    loops.plot(current[shown], comparison.model_before[shown], color="tab:blue", lw=1.0, ls="--", label=before)
+    loops.plot(current[shown], comparison.model_after[shown], color="tab:red", lw=1.0, label=after)
+    loops.set_xlabel(plots.axis_label(record.input_name, record.input_unit))
+    loops.set_ylabel(plots.axis_label(record.output_name, record.output_unit))
+    loops.set_title("Hysteresis loops")
+    errors.plot(time, comparison.error_after, color="tab:red", lw=0.6, label=after)
+    errors.plot(
+        time, comparison.error_before, color="tab:blue", lw=0.6, alpha=0.8, label=before
+    )  # on top: it is larger
+    errors.set_xlabel(plots.axis_label("time", "s"))
+    errors.set_ylabel(plots.axis_label("measurement − model", record.output_unit))
+    errors.set_title("Error vs time")
+    index = np.array([c.index for c in comparison.cycles_before])
+    cycles.bar(index - 0.2, [c.rms for c in comparison.cycles_before], 0.4, color="tab:blue", label=before)
+    cycles.bar(index + 0.2, [c.rms for c in comparison.cycles_after], 0.4, color="tab:red", label=after)
+    cycles.set_xlabel("input cycle")
+    cycles.set_ylabel(plots.axis_label("RMS error", record.output_unit))
+    cycles.set_title("RMS error per cycle")
+    cycles.xaxis.get_major_locator().set_params(integer=True)
+    for ax in (loops, errors, cycles):
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3 if ax is loops else 2, frameon=False)
+    return fig
+
+
+def _comparison_html(data: ReportData, comparison, figure_html: str) -> str:
+    """The section "Before and after": the error of the earlier study and of this one."""
+    if comparison is None:
+        return ""
+    parts = ['<h2 id="comparison">Before and after</h2>']
+    if isinstance(comparison, str):
+        parts.append(f'<div class="note" id="comparison-missing">{escape(comparison)}</div>')
+        return "\n".join(parts)
+    unit = plots.unit_label(data.record.output_unit)
+    before, after = _effects_text(comparison.effects_before), _effects_text(comparison.effects_after)
+    improved = comparison.improved_cycles
+    n_cycles = len(comparison.cycles_before)
+    falls = comparison.rms_after < comparison.rms_before
+    parts.append(
+        f'<p id="comparison-summary">The same record studied before with <b>{escape(before)}</b> (<code>'
+        f"{escape(str(comparison.earlier))}</code>, {escape(comparison.found)}) and now with <b>{escape(after)}</b>: "
+        f"the least-squares RMS error {'falls' if falls else 'does not fall'} from "
+        f"{number_text(comparison.rms_before, 4)} to {number_text(comparison.rms_after, 4)} {escape(unit)} "
+        f"(the sensor noise σ is {number_text(data.noise_sigma, 4)} {escape(unit)}), and {len(improved)} of "
+        f"{n_cycles} input cycles improved"
+        + (f" (cycles {', '.join(map(str, improved))})" if improved and len(improved) < n_cycles else "")
+        + ".</p>"
+    )
+    rows = [
+        [
+            text_cell(f"RMS error [{unit}]"),
+            number_cell(comparison.rms_before, "comparison.rms_before", 4),
+            number_cell(comparison.rms_after, "comparison.rms_after", 4),
+        ],
+        [
+            text_cell("RMS error / σ"),
+            number_cell(comparison.rms_before / data.noise_sigma, "comparison.rms_ratio_before", 4),
+            number_cell(comparison.rms_after / data.noise_sigma, "comparison.rms_ratio_after", 4),
+        ],
+        [
+            text_cell("max error [% of the displacement range]"),
+            number_cell(comparison.max_pct_before, "comparison.max_pct_before", 4),
+            number_cell(comparison.max_pct_after, "comparison.max_pct_after", 4),
+        ],
+        [
+            text_cell("input cycles with a smaller RMS error"),
+            text_cell(""),
+            text_cell(f"{len(improved)} of {n_cycles}"),
+        ],
+    ]
+    parts.append(
+        html_table(
+            "comparison-table",
+            ["least squares, energised samples", f"before: {before}", f"after: {after}"],
+            rows,
+            caption="The error before and after",
+        )
+    )
+    parts.append(figure_html)
     return "\n".join(parts)
 
 
@@ -1354,6 +1629,16 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
         png = png_bytes(figure, DPI.get(stem, DPI["default"]))
         atomic_write_bytes(data.directory / f"{stem}.png", png)
         figure_html[stem] = embedded_figure(stem, FIGURES[stem], png, caption)
+    comparison = load_comparison(data, analysis)
+    if isinstance(comparison, Comparison):
+        png = png_bytes(comparison_figure(data, comparison), DPI["default"])
+        atomic_write_bytes(data.directory / "comparison.png", png)
+        caption = (
+            "Left: the loops of the two least-squares models over the measurement. Middle: measurement minus "
+            "each model. Right: each input cycle's RMS error (cycles split at the input's minima)."
+        )
+        figure_html["comparison"] = embedded_figure("comparison", COMPARISON_FIGURE["comparison"], png, caption)
+    figure_html["comparison-section"] = _comparison_html(data, comparison, figure_html.get("comparison", ""))
     page = _page(data, analysis, figure_html, _time.perf_counter() - started)
     path = data.directory / results.FILES["report"]
     atomic_write_bytes(path, page.encode("utf-8"))

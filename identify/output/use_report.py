@@ -25,7 +25,17 @@ from .diagnosis_plots import (
     residual_rate_figure,
     residual_time_figure,
 )
-from .page import embedded_figure, escape, html_page, html_table, number_cell, number_text, png_bytes, text_cell
+from .page import (
+    embedded_figure,
+    escape,
+    html_page,
+    html_table,
+    number_cell,
+    number_text,
+    plain_text,
+    png_bytes,
+    text_cell,
+)
 from .plots import axis_label, new_figure, styled, unit_label
 from .report import (
     branches,
@@ -87,7 +97,7 @@ def _notes_html(notes) -> str:
         return ""
     return (
         '<div class="note" id="notes"><b>Keep in mind:</b><ul>'
-        + "".join(f"<li>{escape(str(n))}</li>" for n in notes)
+        + "".join(f"<li>{plain_text(n)}</li>" for n in notes)
         + "</ul></div>"
     )
 
@@ -239,7 +249,7 @@ def _prediction_tables(p) -> str:
     rows = [
         [
             text_cell("samples scored (energised)"),
-            number_cell(training["n_samples"], "training.n_samples"),
+            number_cell(training.get("n_scored", training["n_samples"]), "training.n_scored"),
             number_cell(int(p.energised.sum()), "validation.n_scored"),
         ],
         [
@@ -287,8 +297,21 @@ def _prediction_tables(p) -> str:
         "validation-vs-training",
         ["quantity", "training (the study's record)", "validation (this record)"],
         rows,
-        caption="Validation beside training: the same posterior draws on both records; nothing refitted",
+        caption=f"Validation beside training: the same {training.get('n_draws', '')} posterior draws on both "
+        "records, nothing refitted (the study report draws its own 200, so its posterior-median numbers can differ in "
+        "the last digits; the least-squares numbers are the study's own)",
     )
+
+
+#: The prediction's verdicts (``prediction.json`` ``verdict``) in words.
+_VERDICTS = {
+    "adequate": "adequate",
+    "missing_effect": "an effect is missing",
+    "tied": "tied",
+    "unexplained": "unexplained",
+    "parameters_differ": "the parameters differ",
+    "not_adequate": "not adequate",
+}
 
 
 def _verdict_html(p) -> str:
@@ -297,12 +320,12 @@ def _verdict_html(p) -> str:
     text = {
         "adequate": "the validation residual is consistent with the sensor noise: the model carries over to this "
         "record.",
-        "missing_effect": f"the record reveals the effect <b>{escape(str(p.missing))}</b>, which the study's "
-        "model "
+        "missing_effect": f"the record reveals the effect <b><code>{escape(str(p.missing))}</code></b>, which the "
+        "study's model "
         "lacks; identify it again with <code>--effects "
         f"{escape(','.join(list(p.study.model.effect_names) + [str(p.missing)]))}</code>.",
         "tied": "the record reveals structure that several explanations repair and this record does not separate: "
-        + " or ".join(f"<b>{escape(str(n))}</b>" for n in getattr(p.diagnosis, "tied", ()) or ())
+        + " or ".join(f"<b><code>{escape(str(n))}</code></b>" for n in getattr(p.diagnosis, "tied", ()) or ())
         + ".",
         "unexplained": "structure remains in the validation residual that no effect of the library explains.",
         "parameters_differ": "the validation residual is not noise, yet no effect is missing: refitted on this record "
@@ -314,8 +337,8 @@ def _verdict_html(p) -> str:
     }[p.verdict]
     css = "ok" if p.verdict == "adequate" else "alert"
     parts.append(
-        f'<div class="{css}" id="prediction-verdict">Verdict: <b data-key="verdict">{escape(p.verdict)}</b>: '
-        f"{text}</div>"
+        f'<div class="{css}" id="prediction-verdict">Verdict: '
+        f'<b data-key="verdict">{escape(_VERDICTS[p.verdict])}</b>: {text}</div>'
     )
     a = adequacy.to_dict()
     from ..diagnosis import Thresholds
@@ -348,7 +371,14 @@ def _verdict_html(p) -> str:
     )
     if p.diagnosis is not None:
         d = p.diagnosis
-        parts.append(f"<p>{escape(d.reason)}</p>")
+        refitted = not np.array_equal(np.asarray(d.fit.theta), np.asarray(p.study.fit.theta))
+        about = (
+            "The diagnosis refits the model's parameters on this record before it judges the residual, so its reason "
+            "is about the refitted residual, not the study's residual in the table above: "
+            if refitted
+            else "The diagnosis, on the residual of the table above: "
+        )
+        parts.append(f'<p id="diagnosis-reason">{escape(about)}{plain_text(d.reason)}</p>')
         rows = []
         for c in d.ranking:
             c = c.to_dict()
@@ -405,7 +435,7 @@ def prediction_files(p) -> dict:
     glance_css = "ok" if p.verdict == "adequate" else "alert"
     body = [
         f"<p>Study <code>{escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
-        f"{escape(effects)}; trained on <code>{escape(str(p.training.get('file')))}</code>) applied to "
+        f"{plain_text(effects)}; trained on <code>{escape(str(p.training.get('file')))}</code>) applied to "
         f"<code>{escape(str(p.record.source))}</code>, window {p.window[0]:.6g}–{p.window[1]:.6g} s "
         f"({p.stop - p.start} samples, the model run from the record's first sample). Nothing is refitted.</p>",
         '<h2 id="glance">At a glance</h2>',
@@ -415,7 +445,8 @@ def prediction_files(p) -> dict:
         f'<b data-key="max_error_pct">{number_text(p.max_error_pct, 4)}</b> % of the range (training '
         f'{number_text(p.training["max_error_pct"], 4)} %); <span data-key="inside_predictive_band">'
         f"{100 * p.inside_predictive_band:.1f}</span> % inside the 95 % predictive band; verdict "
-        f"<b>{escape(p.verdict)}</b>{' (' + escape(str(p.missing)) + ')' if p.missing else ''}.</div>",
+        f"<b>{escape(_VERDICTS[p.verdict])}</b>{' (<code>' + escape(str(p.missing)) + '</code>)' if p.missing else ''}"
+        ".</div>",
         _notes_html(p.notes),
         _prediction_tables(p),
         '<h2 id="measurement">1. Measured vs predicted</h2>',
@@ -704,7 +735,7 @@ def compensation_files(c) -> dict:
     effects = ", ".join(study.model.effect_names) or "none"
     body = [
         f"<p>Study <code>{escape(str(study.path))}</code> (GPI with {study.model.n_operators} operators, effects: "
-        f"{escape(effects)}); target <code>{escape(c.target.source)}</code>, {t.size} samples, "
+        f"{plain_text(effects)}); target <code>{escape(c.target.source)}</code>, {t.size} samples, "
         f"{y.min():.6g}–{y.max():.6g} {escape(u)}; current limits {c.current_range[0]:g}–{c.current_range[1]:g} "
         f"{escape(unit_label(in_unit))}. The feedforward current is the exact inverse of the posterior-median model "
         "(<code>model.inverse</code>: a root find per sample carried forward with the model's state); the tracking "

@@ -1414,40 +1414,65 @@ def write_summary(out, results: list[JobResult], config: BatchConfig | None = No
         )
     atomic_write(out / "summary.md", "\n".join(md) + "\n")
 
-    esc = html.escape
+    atomic_write(out / "index.html", _index_page(title, counts, results))
+
+
+#: A diagnosis' status in the verdict column, in words.
+_STATUS_WORDS = {"missing_effect": "an effect is missing", "not_adequate": "not adequate"}
+
+
+def _statistic_label(name: str) -> str:
+    """A summary row's statistic name for a person: ``reduced_chi2`` -> "reduced χ²",
+    ``delta_bic[thermal]`` -> "BIC gain of <code>thermal</code>" (markup)."""
+    from ..output.page import escape
+
+    base, _, effect = name.partition("[")
+    label = {"reduced_chi2": "reduced χ²", "delta_bic": "BIC gain"}.get(base, base.replace("_", " "))
+    return escape(label) + (f" of <code>{escape(effect.rstrip(']'))}</code>" if effect else "")
+
+
+def _index_page(title: str, counts: str, results: list[JobResult]) -> str:
+    """``index.html``: one row per run, links to each run's report and log (:func:`identify.output.page.html_page`)."""
+    from ..output.page import escape, html_page, plain_text
+
     rows = []
     for r in results:
-        name = f'<a href="{esc(r.report)}">{esc(r.key)}</a>' if r.report else esc(r.key)
-        log = f' <a href="{esc(r.key)}/{_LOG_FILE}">log</a>'
+        link = f'<a href="{escape(r.report)}">{escape(r.key)}</a>' if r.report else plain_text(r.key)
+        log = f' <a href="{escape(r.key)}/{_LOG_FILE}">log</a>'
         css = f' class="{r.status}"' if r.status in ("failed", "interrupted") else ""
-        stat = f"{esc(r.statistic_name)} = {_fmt(r.statistic)}" if r.statistic is not None else ""
+        stat = f"{_statistic_label(r.statistic_name)} = {_fmt(r.statistic)}" if r.statistic is not None else ""
+        verdict = str(r.verdict or "")
+        for word, words in _STATUS_WORDS.items():
+            verdict = verdict.replace(word, words)
+        unit = escape(unit_text(r.output_unit)) if r.rms is not None else ""
         rows.append(
-            f"<tr{css}><td>{name}{log}</td><td>{esc(r.record)}</td><td>{esc(r.variant)}</td><td>{esc(r.status)}</td>"
-            f"<td>{_fmt(r.rms)} {esc(r.output_unit) if r.rms is not None else ''}</td>"
-            f"<td>{_fmt(r.max_error_pct, 3)}</td>"
-            f"<td>{stat}</td><td>{esc(r.verdict)}</td><td>{r.seconds:.1f}</td><td>{esc(r.error or r.notes)}</td></tr>"
+            f"<tr{css}><td>{link}{log}</td><td>{plain_text(r.record)}</td><td>{plain_text(r.variant)}</td>"
+            f"<td>{escape(r.status)}</td><td>{_fmt(r.rms)} {unit}</td><td>{_fmt(r.max_error_pct, 3)}</td>"
+            f"<td>{stat}</td><td>{plain_text(verdict)}</td><td>{r.seconds:.1f}</td>"
+            f"<td>{plain_text(r.error or r.notes or '')}</td></tr>"
         )
-    page = f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>{esc(title)}</title>
-<style>
-body {{ font-family: sans-serif; margin: 2em; }}
-table {{ border-collapse: collapse; }}
-th, td {{ border: 1px solid #bbb; padding: 0.3em 0.6em; text-align: left; vertical-align: top; }}
-th {{ background: #eee; }}
-tr.failed td {{ background: #fde8e8; }}
-tr.interrupted td {{ background: #fff4d6; }}
-</style></head><body>
-<h1>{esc(title)}</h1>
-<p>{esc(counts)} RMS and max error over the energised part of each record;
-max error in % of the measured output range. Each run name links to its report (when it has one).</p>
-<table>
-<tr><th>run</th><th>record</th><th>variant</th><th>status</th><th>residual RMS</th><th>max error %</th>
-<th>comparison statistic</th><th>verdict</th><th>run time [s]</th><th>error / assumptions</th></tr>
-{chr(10).join(rows)}
-</table>
-</body></html>
-"""
-    atomic_write(out / "index.html", page)
+    header = (
+        "<tr><th>run</th><th>record</th><th>variant</th><th>status</th><th>residual RMS</th><th>max error [%]</th>"
+        "<th>comparison statistic</th><th>verdict</th><th>run time [s]</th><th>error / assumptions</th></tr>"
+    )
+    return html_page(
+        title,
+        [
+            f"<p>{escape(counts)} RMS and max error over the energised part of each record; max error in % of the "
+            "measured output range. Each run name links to its report (when it has one).</p>",
+            '<div class="table-box"><table id="runs">',
+            header,
+            *rows,
+            "</table></div>",
+        ],
+    )
+
+
+def unit_text(unit) -> str:
+    """A unit as a page shows it (``um`` -> ``µm``)."""
+    from ..output.plots import unit_label
+
+    return unit_label(unit) if unit else ""
 
 
 # -- the batch ----------------------------------------------------------------------------------

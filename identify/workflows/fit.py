@@ -101,6 +101,13 @@ def print_record_notes(record, file=None) -> None:
             print(f"note: {note}", file=file)
 
 
+def _flat(message) -> str:
+    """A solver message on one level: its inner parentheses become semicolons, so the line never
+    nests parentheses in parentheses."""
+    text = str(message).replace(" (", "; ").replace("(", "").replace(")", "")
+    return text.replace("`", "").replace(".;", ";")
+
+
 def format_fit_table(fit, record=None) -> str:
     """Human summary: parameter, value, stderr, unit, Table 1; then RMS vs noise, max error, chi2."""
     from model import TABLE1, THETA_NAMES
@@ -128,8 +135,9 @@ def format_fit_table(fit, record=None) -> str:
         f"residual RMS (energised part) = {fit.rms:.4g} {out_unit} = {ratio:.3f} x noise sigma",
         f"max |error| = {fit.max_error_pct:.3f} % of the displacement range",
         f"reduced chi-square = {fit.reduced_chi2:.4f}",
-        f"starts: {fit.n_agree} of {fit.n_starts} agree (chi-square within 1 of the best); "
-        f"solver: {'converged' if fit.success else 'NOT converged'} ({fit.message}); {fit.seconds:.1f} s",
+        f"starts: {fit.n_agree} of {fit.n_starts} reached the best chi-square (within 1; fewer than all means the "
+        "optimum is hard to find, more starts make it surer)",
+        f"solver: {'converged' if fit.success else 'NOT converged'}: {_flat(fit.message)}; {fit.seconds:.1f} s",
     ]
     return "\n".join(lines)
 

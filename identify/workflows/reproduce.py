@@ -100,6 +100,7 @@ REPLAYED_OPTIONS = frozenset(
         "all_terms",
         "moves",
         "no_report",
+        "no_diagnose",
         "progress",
     }
 )

@@ -3,7 +3,11 @@
 Steps: the noise model from the record's unenergised start; least squares (multi-start)
 of the normalised model (alpha pinned, see :mod:`identify.fitting.parametrisation`);
 identifiability (exact and near-degenerate directions); emcee posterior until converged
-or the step cap; the report (:func:`identify.output.report.write_report`). Results go to
+or the step cap; when the residual is above the noise, the diagnosis (which effect is
+missing: :func:`identify.diagnosis.diagnose`, into ``DIR/diagnosis.json`` and
+``DIR/diagnosis/*.png``, as ``python -m identify diagnose --out DIR`` writes them); the
+comparison with an earlier study of the same record (``compare``: the study this one adds an
+effect to); the report (:func:`identify.output.report.write_report`). Results go to
 ``out`` as described in :mod:`identify.output.results`. ``python -m identify study`` is
 this function behind its options (:mod:`identify.cli.study`), with the same defaults
 (:mod:`identify.defaults`).
@@ -41,6 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, DEFAULT_N_STARTS, EXIT_FINDING, EXIT_OK
+from ..logs import show_progress
 from .fit import LONG_RECORD_SAMPLES, fit_or_explain, format_fit_table, say
 
 __all__ = [
@@ -56,7 +61,7 @@ __all__ = [
 
 #: Settings that may differ when a run is resumed (``max_steps`` is checked against the
 #: stored chain instead, :func:`identify.output.results.check_resumable`).
-RESUMABLE_SETTINGS = ("data", "no_report")  # data compared by sha256; no_report changes no number
+RESUMABLE_SETTINGS = ("data", "no_report", "no_diagnose")  # data compared by sha256; the others change no number
 #: The copy of a finished chain that a raised max_steps extends (renamed over chain.h5 when done).
 _EXTENDING = ".chain.h5.extending"
 
@@ -184,6 +189,7 @@ def _api_settings(
     report,
     priors,
     select_terms=True,
+    diagnose=True,
 ):
     """The manifest's settings for a call from Python, with the keys the command line records."""
     return {
@@ -199,6 +205,7 @@ def _api_settings(
         "n_operators": model.n_operators,
         "n_starts": n_starts,
         "no_report": not report,
+        "no_diagnose": not diagnose,
         "noise_sigma": noise_sigma,
         "output_column": record.output_name,
         "output_unit": record.output_unit,
@@ -226,6 +233,8 @@ def study(
     select_terms: bool = True,
     force: bool = False,
     report: bool = True,
+    diagnose: bool = True,
+    compare=None,
     progress: bool | None = None,
     quiet: bool = False,
     settings: dict | None = None,
@@ -268,14 +277,24 @@ def study(
         Discard a different (or damaged) run already in ``out``.
     report : bool, default True
         Write ``report.html`` at the end.
+    diagnose : bool, default True
+        When the least-squares residual is above the noise (the report's rule:
+        :func:`identify.output.report.residual_above_noise`), run the diagnosis and store it in
+        ``out`` (``diagnosis.json``, ``diagnosis/*.png``); the report's "At a glance" then
+        states the verdict and the command to run next. False (``--no-diagnose``) skips it.
+    compare : str or os.PathLike, optional
+        An earlier study of the same record (``study --compare DIR``), e.g. the one whose
+        diagnosis named the effect this study adds: the report shows the error before and
+        after. Default: found among the sibling folders of ``out`` through their manifests
+        (same record by SHA-256, fewer effects; :func:`identify.output.diagnosis_files.earlier_study`).
     progress : bool or None
-        The chain's progress (:mod:`identify.fitting.progress`): True a bar whose total is
-        the projected chain length (50 tau); False none; None (default) the bar when stderr
-        is a terminal, else a log line every 10 s (none when ``quiet``).
+        The progress (:mod:`identify.fitting.progress`): True a bar whose total is the
+        projected chain length (50 tau); False none; None (default) the bar when stderr is a
+        terminal or in a notebook, else a line every 10 s (none when ``quiet``). Unless
+        :mod:`logging` is configured, the progress lines go to stderr
+        (:func:`identify.logs.show_progress`), as emcee's and lmfit's do.
     quiet : bool, default False
-        No progress lines and no tables (stdout). The lines are logged through the
-        ``identify`` logger (:mod:`identify.logs`) at INFO: configure :mod:`logging` (e.g.
-        ``logging.basicConfig(level=logging.INFO)``) to see them.
+        No progress lines and no tables (stdout).
     settings : dict, optional
         The manifest's settings (the command line passes its options); default: these
         arguments with the command line's keys.
@@ -336,6 +355,10 @@ def study(
         record = records[0]  # one record: the study of one record, unchanged
     if not isinstance(record, Record):
         record = load_record(record)
+    if progress is not False and not quiet:
+        show_progress()  # from Python the lines would otherwise go nowhere
+    if compare is not None and not (Path(compare) / "summary.json").is_file():
+        raise ValueError(f"compare {compare}: not a results folder of a study (no summary.json)")
     model = _default_model(model)
     check_walkers(walkers, model, noise_sigma)
     check_priors(priors, model)
@@ -353,6 +376,7 @@ def study(
             report=report,
             priors=priors,
             select_terms=select_terms,
+            diagnose=diagnose,
         )
     if quiet and progress is None:
         progress = False  # quiet: no bar and no progress lines
@@ -372,6 +396,8 @@ def study(
         select_terms=select_terms,
         force=force,
         report=report,
+        diagnose=diagnose,
+        compare=compare,
         progress=progress,
         quiet=quiet,
     )
@@ -545,6 +571,8 @@ class _Run:
             posterior, summary = self.posterior(state, fit, ident, posterior_rng)
             status = "converged" if posterior.converged else "not converged"
             self.lap("inference_data")
+            self.diagnose(fit, summary)
+            self.comparison()
             self.report()
         except KeyboardInterrupt:
             status = "interrupted"
@@ -672,6 +700,52 @@ class _Run:
         )
         return posterior, summary
 
+    def diagnose(self, fit, summary) -> None:
+        """The diagnosis, when asked for and the residual is above the noise (not for a free sigma,
+        which the residual itself sets); its verdict and the next command are printed."""
+        import numpy as np
+
+        from ..diagnosis import diagnose
+        from ..output.diagnosis_files import next_step, write_diagnosis
+        from ..output.report import residual_above_noise
+
+        if not self.options["diagnose"] or not residual_above_noise(summary):
+            return
+        self.log("the residual is above the noise: diagnosing which effect is missing (--no-diagnose skips it) ...")
+        try:
+            found = diagnose(
+                self.record,
+                fit.model,
+                noise=fit.noise,
+                fit=fit,
+                rng=np.random.default_rng(self.options["seed"]),
+                progress=lambda message: self.log(f"diagnosis: {message}"),
+            )
+        except ValueError as exc:  # e.g. a record the diagnosis cannot whiten: the study stands
+            self.log(f"diagnosis skipped: {exc}")
+            return
+        write_diagnosis(found, self.record, out_dir=self.out)
+        self.show(found.summary())
+        sentence, command = next_step(
+            found.to_dict(), data_file=self.settings.get("data"), effects=fit.model.effect_names, out_dir=self.out
+        )
+        self.show(sentence + (f"\nnext: {command}" if command else ""))
+        self.lap("diagnosis")
+
+    def comparison(self) -> None:
+        """Name the earlier study this one is compared with (``compare``, else found by manifest)."""
+        from ..output.diagnosis_files import COMPARISON_FILE, earlier_study
+        from ..output.results import write_json
+
+        earlier, found = self.options["compare"], "given (--compare)"
+        if earlier is None:
+            earlier, found = earlier_study(self.out, self.record.sha256, self.model.effect_names), "found by manifest"
+        if earlier is None:
+            (self.out / COMPARISON_FILE).unlink(missing_ok=True)
+            return
+        write_json(self.out / COMPARISON_FILE, {"earlier": str(earlier), "found": found})
+        self.log(f"compared with the earlier study {earlier} ({found})")
+
     def report(self) -> None:
         if not self.options["report"]:
             self.log(f"report skipped (--no-report); write it with: python -m identify report {self.out}")
@@ -683,6 +757,38 @@ class _Run:
 class _JointRun(_Run):
     """One call of :func:`study_records`: the steps of :class:`identify.workflows.study._Run` on
     several records."""
+
+    def diagnose(self, fit, summary) -> None:
+        """The joint diagnosis (each record alone, then the explanations on all together), when
+        asked for and any record's residual is above its noise."""
+        import numpy as np
+
+        from ..diagnosis import diagnose
+        from ..output.diagnosis_files import write_diagnosis
+        from ..output.report import RMS_RATIO_LIMIT
+
+        rows = summary.get("records") or []
+        if not self.options["diagnose"] or not any(r["rms"] > RMS_RATIO_LIMIT * r["noise_sigma"] for r in rows):
+            return
+        self.log("a record's residual is above its noise: the joint diagnosis (--no-diagnose skips it) ...")
+        try:
+            found = diagnose(
+                list(self.records),
+                fit.model,
+                rng=np.random.default_rng(self.options["seed"]),
+                progress=lambda message: self.log(f"diagnosis: {message}"),
+            )
+        except ValueError as exc:  # a record the diagnosis cannot whiten: the study stands
+            self.log(f"diagnosis skipped: {exc}")
+            return
+        write_diagnosis(found, list(self.records), out_dir=self.out)
+        self.show(found.summary())
+        self.lap("diagnosis")
+
+    def comparison(self) -> None:
+        """The before-and-after comparison is one record's (its report page); said when asked for."""
+        if self.options["compare"] is not None:
+            self.log("--compare: the comparison with an earlier study is drawn for one record; skipped here")
 
     def __init__(self, out, records, model, settings, *, quiet, **options):
         super().__init__(out, records, model, settings, quiet=quiet, **options)

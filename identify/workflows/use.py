@@ -39,7 +39,7 @@ from model import Model
 from model.inverse import DEFAULT_CURRENT_RANGE, STATUS_BRANCH, STATUS_EXACT, STATUS_NAMES, STATUS_SATURATED, invert
 
 from ..data.records import Record, RecordError, load_record
-from ..fitting.noise import MIN_QUIET_SAMPLES, NoiseModel, estimate_noise, quiet_segment
+from ..fitting.noise import MIN_QUIET_SAMPLES, NoiseModel, energised_mask, estimate_noise, quiet_segment
 from ..output import results
 from ..output.report import ModelBands
 
@@ -712,8 +712,7 @@ def _validation(
 def _training_figures(study: Study, draws, draw_sigma) -> dict:
     """The training record's figures with the same draws, beside the validation's."""
     train = study.record
-    train_energised = np.ones(len(train), dtype=bool)
-    train_energised[quiet_segment(train.current)] = False
+    train_energised = energised_mask(train, study.noise)  # as the study and its report count them
     train_bands = bands_of(
         study.model,
         draws,
@@ -736,6 +735,8 @@ def _training_figures(study: Study, draws, draw_sigma) -> dict:
         "inside_predictive_band": float(train_inside[train_energised].mean()),
         "noise_sigma": float(study.noise.sigma),
         "n_samples": len(train),
+        "n_scored": int(train_energised.sum()),  # energised samples, counted as the validation's n_scored
+        "n_draws": int(np.asarray(draws).shape[0]),
         "file": study.manifest.get("data", {}).get("file"),
     }
 
