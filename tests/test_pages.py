@@ -113,22 +113,45 @@ def _batch_index(folder: Path) -> Path:
     return folder / "index.html"
 
 
+#: Every figure saved while the pages are written: ``[(page kind, labels that overlap)]``.
+SAVED_FIGURES = []
+
+
 @pytest.fixture(scope="module")
 def pages(tmp_path_factory) -> dict:
-    """``{name: path}`` of one page of each kind."""
+    """``{name: path}`` of one page of each kind (every figure they save checked for overlapping
+    labels as it is saved: :data:`SAVED_FIGURES`)."""
+    from matplotlib.figure import Figure
+
+    save = Figure.savefig
+
+    def checked_save(figure, *args, **kwargs):
+        SAVED_FIGURES.append((_kind[0], overlapping_labels(figure)))
+        return save(figure, *args, **kwargs)
+
+    _kind = ["study"]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Figure, "savefig", checked_save)
+        return _pages(tmp_path_factory, _kind)
+
+
+def _pages(tmp_path_factory, kind) -> dict:
     base = tmp_path_factory.mktemp("pages")
     csv = _thermal_record(base / "thermal.csv")
     first = _study(csv, base / "first", "--no-diagnose", "--no-report")
     found = _diagnose_into(first)
     second = _study(csv, base / "second", "--effects", "thermal", "--compare", first, "--no-diagnose")
     new_csv = _thermal_record(base / "new.csv", seed=2)
+    kind[0] = "prediction"
     code, text = _run(["predict", second, new_csv, "--out", base / "prediction", "--draws", 30])
     assert code == 0, text
     t = np.arange(0.0, 32.0, 0.2)
     target = 30.0 + 230.0 * np.abs(((t / 16.0) % 1.0) * 2 - 1)
     (base / "target.csv").write_text("time,displacement\n" + "".join(f"{a:.6g},{b:.6g}\n" for a, b in zip(t, target)))
+    kind[0] = "compensation"
     code, text = _run(["compensate", second, "--target", base / "target.csv", "--out", base / "comp", "--draws", 20])
     assert code == 0, text
+    kind[0] = "design"
     design = ["design", csv, "--out", base / "design", "--candidates", "creep,thermal", "--duration", "90"]
     code, text = _run([*design, "--drives", "2", "--n-starts", "1", "--quiet"])
     assert code == 0, text
@@ -318,6 +341,15 @@ def drawn_figures(pages) -> dict:
 def test_no_figure_has_overlapping_labels(drawn_figures):
     assert len(drawn_figures) >= 10
     overlaps = {name: pairs[:3] for name, fig in drawn_figures.items() if (pairs := overlapping_labels(fig))}
+    assert not overlaps, overlaps
+
+
+def test_no_figure_saved_by_any_page_has_overlapping_labels(pages):
+    """The figures of every page as they were saved (prediction, compensation and design pages
+    included), not only those drawn again from the study folders."""
+    kinds = {kind for kind, _ in SAVED_FIGURES}
+    assert {"study", "prediction", "compensation", "design"} <= kinds, kinds
+    overlaps = [(kind, pairs[:3]) for kind, pairs in SAVED_FIGURES if pairs]
     assert not overlaps, overlaps
 
 
