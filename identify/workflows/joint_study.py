@@ -1,5 +1,5 @@
 """The study of several records of one transducer: its summary (:func:`build_joint_summary`); the
-run itself is :func:`identify.workflows.study.study_records`.
+run itself is :func:`identify.workflows.joint_run.study_records`.
 
 :func:`identify.workflows.study.study` given a list of two or more records runs this; one record
 (or a list of one) is the study of one record, unchanged. The steps and the folder's rules are
