@@ -45,9 +45,9 @@ def main(argv=None) -> int:
     print(f"load {_since(start)}")
     rng = np.random.default_rng(0)
     start = _clock()
-    analysis = report._analyse(data, 200, rng)
+    analysis = report.analyse_report(data, 200, rng)
     print(f"analysis {_since(start)}")
-    figures = report._figures(data, analysis, rng)
+    figures = report.report_figures(data, analysis, rng)
     while True:
         start = _clock()
         try:

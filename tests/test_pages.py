@@ -326,8 +326,8 @@ def drawn_figures(pages) -> dict:
         folder = pages[name].parent
         data = report.load_report_data(folder)
         rng = np.random.default_rng(0)
-        analysis = report._analyse(data, 40, rng)
-        for stem, figure, _ in report._figures(data, analysis, rng):
+        analysis = report.analyse_report(data, 40, rng)
+        for stem, figure, _ in report.report_figures(data, analysis, rng):
             figures[f"{name}: {stem}"] = figure
         comparison = report.load_comparison(data, analysis)
         if isinstance(comparison, report.Comparison):

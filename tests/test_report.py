@@ -551,7 +551,7 @@ def test_no_domain_wall_note_even_for_a_summary_that_still_counts_proposals(fold
     summary["posterior"]["outside_domain_fraction"] = 0.07
     path.write_text(json.dumps(summary))
     data = report.load_report_data(folder_copy)
-    section = report._glance_html(data, report._analyse(data, 20, np.random.default_rng(0)))
+    section = report._glance_html(data, report.analyse_report(data, 20, np.random.default_rng(0)))
     assert "domain-wall" not in section and "% of the proposals" not in section
 
 
@@ -578,7 +578,7 @@ def test_a_term_pinned_off_is_named_in_the_parameter_table(folder_copy):
     entry["vary"] = False
     path.write_text(json.dumps(summary))
     data = report.load_report_data(folder_copy)
-    html = report._parameters_html(data, report._analyse(data, 20, np.random.default_rng(0)), "")
+    html = report._parameters_html(data, report.analyse_report(data, 20, np.random.default_rng(0)), "")
     assert (
         "<td>pinned off: thermal term &#x27;core&#x27; not supported by the record (chi-square +0.6 &lt;= BIC "
         "26.6)</td>" in html

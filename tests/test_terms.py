@@ -145,7 +145,7 @@ def test_a_model_without_optional_terms_is_returned_as_it_is():
 
 
 def test_all_terms_is_a_setting_only_when_set():
-    from identify.workflows.study import _api_settings
+    from identify.workflows.study_run import api_settings as _api_settings
 
     record = simulate(None, fs=10.0, seed=1).record
     common = dict(

@@ -604,7 +604,7 @@ class _Analysis:
     autocorrelation: tuple
 
 
-def _analyse(data: ReportData, n_draws: int, rng: np.random.Generator) -> _Analysis:
+def analyse_report(data: ReportData, n_draws: int, rng: np.random.Generator) -> _Analysis:
     record = data.record
     time, current, measured = (np.asarray(a, dtype=float) for a in (record.time, record.current, record.displacement))
     energised = data.energised
@@ -637,7 +637,7 @@ def _analyse(data: ReportData, n_draws: int, rng: np.random.Generator) -> _Analy
     )
 
 
-def _figures(data: ReportData, analysis: _Analysis, rng: np.random.Generator):
+def report_figures(data: ReportData, analysis: _Analysis, rng: np.random.Generator):
     """Yield ``(stem, figure, caption)`` in page order; each figure is made only when asked for."""
     record = data.record
     time, current, measured = (np.asarray(a, dtype=float) for a in (record.time, record.current, record.displacement))
@@ -1623,9 +1623,9 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
     if is_joint_folder(result_dir):  # a study of several records: its own page
         return write_joint_report(result_dir, rng=rng)
     data = load_report_data(result_dir)
-    analysis = _analyse(data, int(n_draws), rng)
+    analysis = analyse_report(data, int(n_draws), rng)
     figure_html = {}
-    for stem, figure, caption in _figures(data, analysis, rng):
+    for stem, figure, caption in report_figures(data, analysis, rng):
         png = png_bytes(figure, DPI.get(stem, DPI["default"]))
         atomic_write_bytes(data.directory / f"{stem}.png", png)
         figure_html[stem] = embedded_figure(stem, FIGURES[stem], png, caption)

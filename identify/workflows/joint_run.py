@@ -1,5 +1,5 @@
 """The study of several records of one transducer: :func:`study_records` and its run, the
-steps of :class:`identify.workflows.study._Run` on the joint layout (the transducer shared,
+steps of :class:`identify.workflows.study_run.StudyRun` on the joint layout (the transducer shared,
 each record's run and sensor zero its own; the method in docs/method.md). The summary's
 joint parts are built by :mod:`identify.workflows.joint_study`."""
 
@@ -8,21 +8,21 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, DEFAULT_N_STARTS
-from .study import (
+from .study_run import (
     StudyResult,
-    _api_settings,
-    _chain_to_extend,
-    _default_model,
-    _Run,
+    StudyRun,
+    api_settings,
+    chain_to_extend,
     check_priors,
     check_walkers,
+    default_model,
 )
 
 __all__ = ["study_records"]
 
 
-class _JointRun(_Run):
-    """One call of :func:`study_records`: the steps of :class:`identify.workflows.study._Run` on
+class _JointRun(StudyRun):
+    """One call of :func:`study_records`: the steps of :class:`identify.workflows.study_run.StudyRun` on
     several records."""
 
     def diagnose(self, fit, summary) -> None:
@@ -204,7 +204,7 @@ class _JointRun(_Run):
             f"posterior of {len(fit.records)} records: {n_walkers} walkers x {log_post.ndim} parameters, up to "
             f"{opts['max_steps']} steps ({opts['moves']} moves)"
         )
-        with _chain_to_extend(out / FILES["chain"], state) as chain_path:
+        with chain_to_extend(out / FILES["chain"], state) as chain_path:
             posterior = sample_posterior(
                 log_post,
                 lambda n, r: initial_walkers(log_post, mean, cov, n, r),
@@ -245,7 +245,7 @@ def study_records(records, model=None, *, out, settings=None, lock: bool = True,
     from ..fitting.joint import check_records
 
     records = check_records(records)
-    model = _default_model(model)
+    model = default_model(model)
     if options.get("noise_sigma") is not None:
         raise ValueError(
             "several records are each whitened with the noise of their own quiet start: noise_sigma "
@@ -257,7 +257,7 @@ def study_records(records, model=None, *, out, settings=None, lock: bool = True,
         defaults = {"seed": 0, "n_starts": DEFAULT_N_STARTS, "max_steps": DEFAULT_MAX_STEPS, "moves": "de"}
         given = {k: options.get(k, defaults.get(k)) for k in keys}
         given["check_every"] = options.get("check_every", DEFAULT_CHECK_EVERY)
-        settings = _api_settings(records[0], model, report=options.get("report", True), **given)
+        settings = api_settings(records[0], model, report=options.get("report", True), **given)
         settings["data"] = [str(r.source) for r in records]
     options = {
         "seed": 0,
