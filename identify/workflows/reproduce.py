@@ -105,8 +105,9 @@ REPLAYED_OPTIONS = frozenset(
     }
 )
 #: Options never taken from a manifest: where the run wrote (the rerun writes only into
-#: NEWDIR, given by ``reproduce`` itself) and how it spoke.
-NOT_REPLAYED_OPTIONS = frozenset({"out", "json", "force", "verbose", "quiet", "help"})
+#: NEWDIR, given by ``reproduce`` itself), how it spoke, and the earlier study its report was
+#: compared with (another folder, which changes no number of the run).
+NOT_REPLAYED_OPTIONS = frozenset({"out", "json", "force", "verbose", "quiet", "help", "compare"})
 _MAX_LISTED = 25
 
 
