@@ -271,6 +271,8 @@ def study_records(records, model=None, *, out, settings=None, lock: bool = True,
         "select_terms": True,
         "force": False,
         "report": True,
+        "diagnose": True,
+        "compare": None,
         "progress": False if quiet else None,
         **options,
     }

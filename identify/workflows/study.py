@@ -197,6 +197,8 @@ def study(
                 select_terms=select_terms,
                 force=force,
                 report=report,
+                diagnose=diagnose,
+                compare=compare,
                 progress=progress,
             )
         record = records[0]  # one record: the study of one record, unchanged
