@@ -12,7 +12,6 @@ from .study_run import (
     StudyResult,
     StudyRun,
     api_settings,
-    chain_to_extend,
     check_priors,
     check_walkers,
     default_model,
@@ -182,7 +181,6 @@ class _JointRun(StudyRun):
         from ..fitting.inference import write_chain_attributes
         from ..fitting.joint import JointModel, leave_one_record_out
         from ..fitting.joint_posterior import JointLogPosterior, joint_sampled_units, write_joint_inference_data
-        from ..fitting.posterior import default_n_walkers, initial_walkers, sample_posterior
         from ..fitting.priors import prior_table
         from ..output.results import FILES, write_summary
         from .joint_study import build_joint_summary
@@ -199,24 +197,7 @@ class _JointRun(StudyRun):
         log_post = JointLogPosterior(fit.records, joint, fit.noises, priors=priors)
         free = log_post.free
         mean, cov = fit.theta[free], fit.covariance[np.ix_(free, free)]
-        n_walkers = opts["walkers"] or default_n_walkers(log_post.ndim)
-        self.log(
-            f"posterior of {len(fit.records)} records: {n_walkers} walkers x {log_post.ndim} parameters, up to "
-            f"{opts['max_steps']} steps ({opts['moves']} moves)"
-        )
-        with chain_to_extend(out / FILES["chain"], state) as chain_path:
-            posterior = sample_posterior(
-                log_post,
-                lambda n, r: initial_walkers(log_post, mean, cov, n, r),
-                chain_path,
-                posterior_rng,
-                n_walkers=n_walkers,
-                max_steps=opts["max_steps"],
-                check_every=opts["check_every"],
-                moves=opts["moves"],
-                progress=opts["progress"],
-                log=self.log,
-            )
+        posterior = self.sample(log_post, mean, cov, state, posterior_rng, f"posterior of {len(fit.records)} records")
         self.lap("posterior")
         loro = leave_one_record_out(fit, rng=np.random.default_rng(opts["seed"]), progress=self.log)
         for row in loro:

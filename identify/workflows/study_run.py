@@ -425,7 +425,7 @@ class StudyRun:
         import numpy as np
 
         from ..fitting.inference import sampled_units, write_chain_attributes, write_inference_data
-        from ..fitting.posterior import LogPosterior, default_n_walkers, initial_walkers, sample_posterior
+        from ..fitting.posterior import LogPosterior
         from ..fitting.priors import prior_table
         from ..output.results import FILES, build_summary, write_summary
 
@@ -447,24 +447,7 @@ class StudyRun:
             mean = np.append(mean, np.log(fit.noise.sigma))
             cov = np.pad(cov, ((0, 1), (0, 1)))
             cov[-1, -1] = 1.0 / (2.0 * dof)
-        n_walkers = opts["walkers"] or default_n_walkers(log_post.ndim)
-        self.log(
-            f"posterior: {n_walkers} walkers x {log_post.ndim} parameters, up to {opts['max_steps']} steps "
-            f"({opts['moves']} moves)"
-        )
-        with chain_to_extend(out / FILES["chain"], state) as chain_path:
-            posterior = sample_posterior(
-                log_post,
-                lambda n, r: initial_walkers(log_post, mean, cov, n, r),
-                chain_path,
-                posterior_rng,
-                n_walkers=n_walkers,
-                max_steps=opts["max_steps"],
-                check_every=opts["check_every"],
-                moves=opts["moves"],
-                progress=opts["progress"],
-                log=self.log,
-            )
+        posterior = self.sample(log_post, mean, cov, state, posterior_rng, "posterior")
         summary = build_summary(record, fit, ident, posterior)
         summary["priors"] = prior_table(log_post)
         write_summary(out, summary)
@@ -479,6 +462,32 @@ class StudyRun:
             f"{posterior.thin}"
         )
         return posterior, summary
+
+    def sample(self, log_post, mean, cov, state, posterior_rng, what: str):
+        """The emcee chain of ``log_post`` from walkers around ``mean``/``cov`` into chain.h5 (a
+        raised max_steps extends a finished chain's copy); ``what`` heads the log line."""
+        from ..fitting.posterior import default_n_walkers, initial_walkers, sample_posterior
+        from ..output.results import FILES
+
+        opts = self.options
+        n_walkers = opts["walkers"] or default_n_walkers(log_post.ndim)
+        self.log(
+            f"{what}: {n_walkers} walkers x {log_post.ndim} parameters, up to {opts['max_steps']} steps "
+            f"({opts['moves']} moves)"
+        )
+        with chain_to_extend(self.out / FILES["chain"], state) as chain_path:
+            return sample_posterior(
+                log_post,
+                lambda n, r: initial_walkers(log_post, mean, cov, n, r),
+                chain_path,
+                posterior_rng,
+                n_walkers=n_walkers,
+                max_steps=opts["max_steps"],
+                check_every=opts["check_every"],
+                moves=opts["moves"],
+                progress=opts["progress"],
+                log=self.log,
+            )
 
     def diagnose(self, fit, summary) -> None:
         """The diagnosis, when asked for and the residual is above the noise (not for a free sigma,
