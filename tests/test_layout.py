@@ -312,7 +312,6 @@ MAX_MODULE_LINES = 1000
 LONG_MODULES_BEING_SPLIT = (
     "identify/fitting/posterior.py",
     "identify/output/report.py",
-    "identify/workflows/use.py",
 )
 
 
@@ -360,7 +359,6 @@ PRIVATE_NAMES_IN_TESTS = {
     ("test_report.py", "identify.output.report._diagnosis_html"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._glance_html"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._parameters_html"): _BEING_SPLIT,
-    ("test_use.py", "identify.workflows.use._compensation_theta"): _BEING_SPLIT,
     ("test_effects.py", "model.effects._filters"): _FILTERS,
     ("test_effects.py", "model.effects.creep._creep_kernel"): (
         "the test swaps creep's compiled kernel for its Python function (numba's py_func) as the "
