@@ -21,6 +21,8 @@ from identify import cli
 from identify.data.fileio import toml_module
 from identify.data.records import write_record
 from identify.workflows import batch as B
+from identify.workflows.batch_run import job_environment
+from identify.workflows.batch_summary import assumptions_from_options, error_from_log, exit_is_finding
 
 NOISE_SIGMA = 0.3  # um, the simulated sensor noise
 
@@ -190,11 +192,11 @@ def test_finished_result_requires_marker_with_same_fingerprint(tmp_path):
 
 def test_error_line_is_taken_from_the_log():
     log = "fitting ...\nTraceback (most recent call last):\n  File x\nValueError: theta has a NaN\n"
-    assert B._error_from_log(log, 1) == "ValueError: theta has a NaN"
-    assert B._error_from_log("loading\nerror: a.csv, line 3: column 'current' is empty\n", 2).startswith(
+    assert error_from_log(log, 1) == "ValueError: theta has a NaN"
+    assert error_from_log("loading\nerror: a.csv, line 3: column 'current' is empty\n", 2).startswith(
         "error: a.csv, line 3"
     )
-    assert B._error_from_log("", 9) == "exit code 9: (no output)"
+    assert error_from_log("", 9) == "exit code 9: (no output)"
 
 
 def test_summary_files(tmp_path):
@@ -335,13 +337,13 @@ def test_dask_executor(tmp_path):
 
 
 def test_assumptions_are_stated_from_the_options():
-    notes = B._assumptions(["fit", "x.csv", "--time-column", "none", "--noise-sigma", "free"])
+    notes = assumptions_from_options(["fit", "x.csv", "--time-column", "none", "--noise-sigma", "free"])
     assert any("time is the sample index" in n for n in notes)
     assert any("noise sigma is a free parameter" in n for n in notes)
-    assert B._assumptions(["fit", "x.csv", "--noise-sigma", "0.07"]) == [
+    assert assumptions_from_options(["fit", "x.csv", "--noise-sigma", "0.07"]) == [
         "no quiet segment used: noise sigma = 0.07 given in the config"
     ]
-    assert B._assumptions(["fit", "x.csv", "--time-column", "t"]) == []
+    assert assumptions_from_options(["fit", "x.csv", "--time-column", "t"]) == []
 
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -386,8 +388,8 @@ def test_a_run_that_did_not_converge_makes_the_batch_exit_1(tmp_path, capsys):
     row = read_summary(tmp_path / "runs")["good__default"]
     assert row["status"] == "ok" and row["verdict"] == "posterior NOT converged"
     assert "1 of the finished NOT converged" in (tmp_path / "runs" / "summary.md").read_text()
-    assert B._is_finding("step 40: ...\nexit code 1: the chain did NOT CONVERGE (raise --max-steps to extend it)\n")
-    assert not B._is_finding("exit code 1: the chain did NOT CONVERGE\nerror: unexpected OSError: disk full\n")
+    assert exit_is_finding("step 40: ...\nexit code 1: the chain did NOT CONVERGE (raise --max-steps to extend it)\n")
+    assert not exit_is_finding("exit code 1: the chain did NOT CONVERGE\nerror: unexpected OSError: disk full\n")
 
 
 def test_a_job_imports_this_very_package():
@@ -395,7 +397,5 @@ def test_a_job_imports_this_very_package():
     packages (so a batch runs this checkout's code even where the package is not installed)."""
     import os
 
-    from identify.workflows.batch import _job_environment
-
-    first = Path(_job_environment(1)["PYTHONPATH"].split(os.pathsep)[0])
+    first = Path(job_environment(1)["PYTHONPATH"].split(os.pathsep)[0])
     assert (first / "identify" / "__init__.py").is_file() and (first / "model" / "__init__.py").is_file()

@@ -312,8 +312,6 @@ MAX_MODULE_LINES = 1000
 LONG_MODULES_BEING_SPLIT = (
     "identify/fitting/posterior.py",
     "identify/output/report.py",
-    "identify/workflows/batch.py",
-    "identify/workflows/use.py",
 )
 
 
@@ -353,10 +351,6 @@ _FILTERS = (
 #: ``(test file, private name)`` -> why the test reads it. Only for a name with no public
 #: equivalent; the list only shrinks (an entry no test uses any more fails the test).
 PRIVATE_NAMES_IN_TESTS = {
-    ("test_batch.py", "identify.workflows.batch._assumptions"): _BEING_SPLIT,
-    ("test_batch.py", "identify.workflows.batch._error_from_log"): _BEING_SPLIT,
-    ("test_batch.py", "identify.workflows.batch._is_finding"): _BEING_SPLIT,
-    ("test_batch.py", "identify.workflows.batch._job_environment"): _BEING_SPLIT,
     ("test_ecosystem.py", "identify.fitting.posterior._diagnostics_verdict"): _BEING_SPLIT,
     ("test_posterior.py", "identify.fitting.posterior._anchor"): _BEING_SPLIT,
     ("test_posterior.py", "identify.fitting.posterior._check_due"): _BEING_SPLIT,
@@ -365,7 +359,6 @@ PRIVATE_NAMES_IN_TESTS = {
     ("test_report.py", "identify.output.report._diagnosis_html"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._glance_html"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._parameters_html"): _BEING_SPLIT,
-    ("test_use.py", "identify.workflows.use._compensation_theta"): _BEING_SPLIT,
     ("test_effects.py", "model.effects._filters"): _FILTERS,
     ("test_effects.py", "model.effects.creep._creep_kernel"): (
         "the test swaps creep's compiled kernel for its Python function (numba's py_func) as the "

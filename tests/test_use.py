@@ -298,11 +298,11 @@ def test_predict_names_the_effect_a_new_record_reveals(study_dir, tmp_path):
 def test_compensate_leaves_sensor_drift_out(study_dir):
     """sensor_drift moves the sensor's reading, not the transducer: a study with it
     compensates exactly as without it (same GPI parameters)."""
-    from identify.workflows.use import _compensation_theta
+    from identify.workflows.compensation import without_sensor_drift
 
     m = model.Model(["sensor_drift"])
     theta = m.theta_from_dict(dict(zip(m.names[:19], model.TABLE1)) | {"sensor_drift_linear": 5.0})
-    off = _compensation_theta(m, theta)
+    off = without_sensor_drift(m, theta)
     t, y = _triangle(duration=8.0)
     from model.inverse import invert
 
