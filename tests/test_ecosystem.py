@@ -110,18 +110,18 @@ def test_diagnostics_equal_az_summary_without_importing_arviz():
 
 def test_verdict_needs_rhat_and_bulk_ess(tmp_path):
     """tau alone passes on a short Gaussian chain; the verdict also needs bulk ESS >= 400."""
-    from identify.fitting import posterior as P
+    from identify.fitting.convergence import diagnostics_verdict
 
     good = np.random.default_rng(0).standard_normal((400, 40, 2))
     diag = chain_diagnostics(good)
-    ok, words = P._diagnostics_verdict(diag)
+    ok, words = diagnostics_verdict(diag)
     assert ok and "R-hat max" in words
     few = good[:8, :4]  # 32 draws: bulk ESS far below 400
-    ok, words = P._diagnostics_verdict(chain_diagnostics(few))
+    ok, words = diagnostics_verdict(chain_diagnostics(few))
     assert not ok and "need >= 400" in words
     shifted = good.copy()
     shifted[:, :20] += 1.0  # half the walkers elsewhere: R-hat >> 1.05
-    ok, _ = P._diagnostics_verdict(chain_diagnostics(shifted))
+    ok, _ = diagnostics_verdict(chain_diagnostics(shifted))
     assert not ok and np.max(chain_diagnostics(shifted)["rhat"]) > 1.05
 
 

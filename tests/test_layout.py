@@ -310,7 +310,6 @@ MAX_MODULE_LINES = 1000
 #: This list must become empty: it only shrinks (an entry whose module is short again fails
 #: :func:`test_no_module_is_over_1000_lines` until it is removed here).
 LONG_MODULES_BEING_SPLIT = (
-    "identify/fitting/posterior.py",
     "identify/output/report.py",
     "identify/workflows/batch.py",
     "identify/workflows/use.py",
@@ -357,10 +356,6 @@ PRIVATE_NAMES_IN_TESTS = {
     ("test_batch.py", "identify.workflows.batch._error_from_log"): _BEING_SPLIT,
     ("test_batch.py", "identify.workflows.batch._is_finding"): _BEING_SPLIT,
     ("test_batch.py", "identify.workflows.batch._job_environment"): _BEING_SPLIT,
-    ("test_ecosystem.py", "identify.fitting.posterior._diagnostics_verdict"): _BEING_SPLIT,
-    ("test_posterior.py", "identify.fitting.posterior._anchor"): _BEING_SPLIT,
-    ("test_posterior.py", "identify.fitting.posterior._check_due"): _BEING_SPLIT,
-    ("test_posterior.py", "identify.fitting.posterior._tau"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._calibration_reading"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._diagnosis_html"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._glance_html"): _BEING_SPLIT,

@@ -93,7 +93,7 @@ def write_chain_attributes(path, names, units) -> None:
     """Parameter names and units as attributes of ``chain.h5``'s emcee group."""
     from ..data.fileio import require_space
     from ..data.hdf5 import open_hdf5
-    from .posterior import BACKEND_GROUP, CHAIN_METADATA_BYTES
+    from .chain_file import BACKEND_GROUP, CHAIN_METADATA_BYTES
 
     require_space(path, CHAIN_METADATA_BYTES)  # HDF5 does not survive a full disk: checked first
     with open_hdf5(os.fspath(path), "a") as f:  # waits for a reader's lock instead of failing
