@@ -434,6 +434,55 @@ def test_walkers_along_a_near_exact_degeneracy_do_not_stop_a_resumed_run(tmp_pat
         )
 
 
+def test_a_finished_chain_file_is_compacted_and_extends_as_an_uninterrupted_run(tmp_path, monkeypatch):
+    """A run that stops by its rule rewrites chain.h5 without its batched writes' unused space
+    (smaller, the same chain, log-probabilities, acceptance and random state), and a run
+    extending the compacted file gives the chain of one uninterrupted run, bit for bit; a run
+    that adds no step leaves the file as it is."""
+    import h5py
+
+    from identify.fitting import chain_file
+
+    def start(n, r):
+        return r.standard_normal((n, 3))
+
+    sizes = []
+    real = chain_file.compact_chain_file
+
+    def measured(path):
+        before, after = real(path)
+        sizes.append((before, after))
+        return before, after
+
+    monkeypatch.setattr("identify.fitting.posterior.compact_chain_file", measured)
+    buffered = chain_file.BufferedHDFBackend.__init__
+
+    def flushing_every_step(self, *args, **kwargs):  # as a slow model's run does, a flush a second
+        buffered(self, *args, **kwargs)
+        self.flush_every, self.flush_seconds = 1, 0.0
+
+    monkeypatch.setattr(chain_file.BufferedHDFBackend, "__init__", flushing_every_step)
+    whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
+    sample_posterior(Gaussian(), start, whole, np.random.default_rng(2), max_steps=600, check_every=100, tau_factor=1e4)
+    sample_posterior(Gaussian(), start, part, np.random.default_rng(2), max_steps=300, check_every=100, tau_factor=1e4)
+    assert len(sizes) == 2 and all(after < 0.9 * before for before, after in sizes), sizes
+    with h5py.File(part, "r") as f:  # the copy keeps the stored layout: chunked, compressed, growable
+        chain = f[BACKEND_GROUP]["chain"]
+        assert chain.compression == "gzip" and chain.maxshape[0] is None and chain.shape[0] == 300
+    sample_posterior(Gaussian(), start, part, np.random.default_rng(2), max_steps=600, check_every=100, tau_factor=1e4)
+    a = emcee.backends.HDFBackend(str(whole), name=BACKEND_GROUP, read_only=True)
+    b = emcee.backends.HDFBackend(str(part), name=BACKEND_GROUP, read_only=True)
+    assert np.array_equal(a.get_chain(), b.get_chain()) and np.array_equal(a.get_log_prob(), b.get_log_prob())
+    assert np.array_equal(a.accepted, b.accepted)
+    assert all(
+        x == y if not isinstance(x, np.ndarray) else np.array_equal(x, y)
+        for x, y in zip(a.random_state, b.random_state)
+    )
+    stamp = os.stat(part).st_mtime_ns, os.stat(part).st_ino
+    sample_posterior(Gaussian(), start, part, np.random.default_rng(2), max_steps=600, check_every=100, tau_factor=1e4)
+    assert (os.stat(part).st_mtime_ns, os.stat(part).st_ino) == stamp and len(sizes) == 3
+
+
 def _gaussian_variance_ratio(moves, dim=18, n_walkers=36, n_steps=4000, discard=1000):
     """Sample a correlated ``dim``-D Gaussian (covariance ``C``, known) with ``moves``;
     return the mean over coordinates of sample variance / true variance."""

@@ -6,6 +6,8 @@
 * :class:`BufferedHDFBackend`: the sampler's writer, steps buffered and written in batches,
   the chain and log-probabilities stored losslessly compressed (chunked, shuffle + gzip), the
   step count written after the steps it claims, a CRC-32 of the last step with it.
+* :func:`compact_chain_file`: the finished chain rewritten without the unused space its
+  batched writes left in the file (same data, bit for bit).
 * :func:`chain_info`: the shape of a stored chain, every claimed step checked readable and
   written (what a resumed run needs), :class:`identify.data.hdf5.ChainFileError` otherwise.
 
@@ -22,7 +24,7 @@ import zlib
 import emcee
 import numpy as np
 
-from ..data.fileio import require_space
+from ..data.fileio import require_space, write_via_temporary
 from ..data.hdf5 import LOCK_WAIT_SECONDS, ChainFileError, open_hdf5
 
 __all__ = [
@@ -35,6 +37,7 @@ __all__ = [
     "BufferedHDFBackend",
     "ChainFileError",
     "chain_info",
+    "compact_chain_file",
 ]
 
 
@@ -200,6 +203,41 @@ def _create_chain_file(path) -> None:
     require_space(path, CHAIN_METADATA_BYTES)
     with h5py.File(os.fspath(path), "x", fs_strategy="fsm", fs_persist=True):
         pass
+
+
+def compact_chain_file(path) -> tuple[int, int]:
+    """Rewrite the finished chain file ``path`` without the space its batched writes left
+    behind; returns its size in bytes before and after.
+
+    Every flush of :class:`BufferedHDFBackend` rewrites the HDF5 chunk being filled, and
+    the free-space manager reuses only part of the old copies' space: a finished chain's
+    file holds some 15-20 % of unused space beyond its compressed data. The group is
+    copied, chunks as stored (HDF5's object copy: same datasets, chunking, filters,
+    maximum shape and attributes, so the chain, its random state and step count are
+    bit for bit the same and the file can be extended or resumed as before), into a new
+    file in the same folder (:func:`_create_chain_file`'s free-space settings), which
+    then replaces ``path`` (:func:`identify.data.fileio.write_via_temporary`: the old
+    file is intact until the rename; a reader holding it open keeps reading it).
+
+    Raises
+    ------
+    OSError
+        Including :class:`identify.data.fileio.DiskFullError` (less free space than the
+        file's size): ``path`` is then unchanged.
+    """
+    import h5py
+
+    path = os.fspath(path)
+    before = os.path.getsize(path)
+
+    def copy(tmp):
+        with open_hdf5(path, "r") as src, h5py.File(tmp, "w", fs_strategy="fsm", fs_persist=True) as dst:
+            for name in src:
+                src.copy(src[name], dst, name)
+            dst.attrs.update(src.attrs)
+
+    write_via_temporary(path, copy, need_bytes=before + CHAIN_METADATA_BYTES)
+    return before, os.path.getsize(path)
 
 
 def _step_check(iteration, coords, log_prob, chain_dtype, log_prob_dtype) -> str:
