@@ -141,6 +141,8 @@ def _thread_counts() -> str:
 
 
 def _instrument():
+    import identify.fitting.chain_file as chain_file
+    import identify.fitting.convergence as convergence
     import identify.fitting.coordinates as coordinates
     import identify.fitting.inference as inference
     import identify.fitting.lsq as lsq
@@ -158,10 +160,10 @@ def _instrument():
     _wrap(coordinates.CoordinateMove, "propose", "posterior: moves (incl. log-posterior)")
     for name in ("forward", "inverse", "log_det"):
         _wrap(coordinates.GPICoordinates, name, f"posterior: map {name}")
-    _wrap(posterior.BufferedHDFBackend, "flush", "posterior: HDF5 flush")
+    _wrap(chain_file.BufferedHDFBackend, "flush", "posterior: HDF5 flush")
     _wrap(posterior, "fastest_thread_count", "posterior: thread-count probe")
     _wrap(posterior, "_check", "posterior: convergence checks")
-    _wrap(posterior, "_tau", "posterior: autocorrelation time")
+    _wrap(convergence, "integrated_tau", "posterior: autocorrelation time")
     _wrap(posterior, "chain_diagnostics", "posterior: R-hat/ESS (chain_diagnostics)")
     _wrap(posterior, "posterior_from_backend", "posterior: final summary (reads chain.h5)")
     _wrap(inference, "write_inference_data", "posterior: InferenceData export")

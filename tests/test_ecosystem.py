@@ -110,18 +110,18 @@ def test_diagnostics_equal_az_summary_without_importing_arviz():
 
 def test_verdict_needs_rhat_and_bulk_ess(tmp_path):
     """tau alone passes on a short Gaussian chain; the verdict also needs bulk ESS >= 400."""
-    from identify.fitting import posterior as P
+    from identify.fitting.convergence import diagnostics_verdict
 
     good = np.random.default_rng(0).standard_normal((400, 40, 2))
     diag = chain_diagnostics(good)
-    ok, words = P._diagnostics_verdict(diag)
+    ok, words = diagnostics_verdict(diag)
     assert ok and "R-hat max" in words
     few = good[:8, :4]  # 32 draws: bulk ESS far below 400
-    ok, words = P._diagnostics_verdict(chain_diagnostics(few))
+    ok, words = diagnostics_verdict(chain_diagnostics(few))
     assert not ok and "need >= 400" in words
     shifted = good.copy()
     shifted[:, :20] += 1.0  # half the walkers elsewhere: R-hat >> 1.05
-    ok, _ = P._diagnostics_verdict(chain_diagnostics(shifted))
+    ok, _ = diagnostics_verdict(chain_diagnostics(shifted))
     assert not ok and np.max(chain_diagnostics(shifted)["rhat"]) > 1.05
 
 
@@ -157,7 +157,7 @@ def test_posterior_nc_pointwise_groups_are_rounded_to_their_stated_precision(stu
     recomputed from the stored draws, so az.loo's elpd and p_loo within T times that and
     every Pareto k within 0.1 (a fraction of k's own Monte Carlo error, about (1 + k) /
     sqrt(M) >= 0.15 for the M <= 40 tail draws of this file); the predictive on its grid of
-    a power of two <= sigma / 32; az.loo_pit pairs the two groups; writing the file imports
+    a power of two <= sigma / 16; az.loo_pit pairs the two groups; writing the file imports
     neither ArviZ nor xarray."""
     import subprocess
     import sys
@@ -188,7 +188,7 @@ def test_posterior_nc_pointwise_groups_are_rounded_to_their_stated_precision(stu
     assert np.array_equal(np.round(ll.values / LOG_LIKELIHOOD_QUANTUM), ll.values / LOG_LIKELIHOOD_QUANTUM)
     step = predictive_quantum(fit.noise.sigma)
     predictive = idata.posterior_predictive["displacement"]
-    assert step <= fit.noise.sigma / 32 < 2 * step and predictive.attrs["rounded_to"] == step
+    assert step <= fit.noise.sigma / 16 < 2 * step and predictive.attrs["rounded_to"] == step
     assert np.array_equal(np.round(predictive.values / step), predictive.values / step)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -218,6 +218,58 @@ def test_posterior_nc_pointwise_groups_are_rounded_to_their_stated_precision(stu
     subprocess.run([sys.executable, "-c", code], check=True)
     again = az.from_netcdf(copy / "posterior.nc")
     assert np.array_equal(again.log_likelihood["displacement"].values, ll.values)
+
+
+def test_posterior_nc_keeps_the_stated_draws_compressed_and_loads_in_arviz(study_dir):
+    """posterior.nc's storage as stated (identify.fitting.inference): every variable gzip +
+    shuffle at GZIP_LEVEL; the posterior, lp and the observed data float64, every draw of the
+    chain after burn-in and thinning (quantiles equal to the chain's); the pointwise groups
+    float32, K = MAX_POINTWISE // (walkers x samples) draws a walker, every draw_step-th, the
+    same chain/draw coordinates in both, drawn from the posterior group's draws (their
+    quantiles within Monte Carlo error of the whole posterior's); ArviZ opens the file and
+    az.loo, az.loo_pit run on it."""
+    import h5py
+
+    from identify.fitting.inference import GZIP_LEVEL, MAX_POINTWISE, pointwise_draws
+
+    summary = json.loads((study_dir / "summary.json").read_text())
+    path = study_dir / "posterior.nc"
+    with h5py.File(path, "r") as f:
+        for group in ("posterior", "sample_stats", "observed_data", "log_likelihood", "posterior_predictive"):
+            for name, stored in f[group].items():
+                if stored.ndim and stored.size > 64 and name not in ("chain", "draw"):
+                    assert stored.compression == "gzip" and stored.compression_opts == GZIP_LEVEL and stored.shuffle
+                    pointwise = group in ("log_likelihood", "posterior_predictive") and name == "displacement"
+                    assert stored.dtype == (np.float32 if pointwise else np.float64), (group, name)
+    idata = az.from_netcdf(path)
+    walkers, draws = idata.posterior.sizes["chain"], idata.posterior.sizes["draw"]
+    samples = idata.observed_data.sizes["time"]
+    kept, step = pointwise_draws(walkers, draws, samples)
+    ll, pp = idata.log_likelihood, idata.posterior_predictive
+    assert np.array_equal(ll["draw"].values, kept) and np.array_equal(pp["draw"].values, kept)
+    assert np.array_equal(ll["chain"].values, pp["chain"].values) and ll.attrs["draw_step"] == step
+    assert (
+        kept.size == min(draws, MAX_POINTWISE // (walkers * samples)) and walkers * kept.size * samples <= MAX_POINTWISE
+    )
+    chain = _stored_draws(study_dir, summary)  # (steps, walkers, D) from chain.h5
+    names = list(idata.posterior.data_vars)
+    whole = np.stack([idata.posterior[n].values for n in names], axis=-1)  # (walker, draw, D)
+    assert np.array_equal(whole, np.moveaxis(chain, 1, 0))
+    q = np.array([0.025, 0.5, 0.975])
+    assert np.array_equal(
+        np.quantile(whole.reshape(-1, len(names)), q, axis=0), np.quantile(chain.reshape(-1, len(names)), q, axis=0)
+    )
+    # the pointwise draws: where their quantiles fall in the whole posterior, within 4 binomial errors
+    sub = whole[:, kept].reshape(-1, len(names))
+    ranks = np.mean(whole.reshape(-1, len(names))[:, None, :] <= np.quantile(sub, q, axis=0)[None], axis=0)
+    assert np.all(np.abs(ranks - q[:, None]) <= 4 * np.sqrt(q * (1 - q) / sub.shape[0])[:, None] + 1 / sub.shape[0]), (
+        ranks
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        loo = az.loo(idata, pointwise=True)
+        pit = az.loo_pit(idata, y="displacement")
+    assert np.isfinite(loo.elpd_loo) and loo.pareto_k.size == samples and np.isfinite(pit).all()
 
 
 def test_chain_h5_carries_names_and_units(study_dir):

@@ -310,7 +310,6 @@ MAX_MODULE_LINES = 1000
 #: This list must become empty: it only shrinks (an entry whose module is short again fails
 #: :func:`test_no_module_is_over_1000_lines` until it is removed here).
 LONG_MODULES_BEING_SPLIT = (
-    "identify/fitting/posterior.py",
     "identify/output/report.py",
 )
 
@@ -351,10 +350,6 @@ _FILTERS = (
 #: ``(test file, private name)`` -> why the test reads it. Only for a name with no public
 #: equivalent; the list only shrinks (an entry no test uses any more fails the test).
 PRIVATE_NAMES_IN_TESTS = {
-    ("test_ecosystem.py", "identify.fitting.posterior._diagnostics_verdict"): _BEING_SPLIT,
-    ("test_posterior.py", "identify.fitting.posterior._anchor"): _BEING_SPLIT,
-    ("test_posterior.py", "identify.fitting.posterior._check_due"): _BEING_SPLIT,
-    ("test_posterior.py", "identify.fitting.posterior._tau"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._calibration_reading"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._diagnosis_html"): _BEING_SPLIT,
     ("test_report.py", "identify.output.report._glance_html"): _BEING_SPLIT,

@@ -365,14 +365,14 @@ def test_posterior_agrees_with_random_walk_metropolis_on_a_gpi_record(calibratio
 def test_autocorrelation_time_matches_emcee():
     """The vectorised estimator equals emcee.autocorr.integrated_time (tolerance: FFT
     round-off) on AR(1) chains with known tau = (1 + phi) / (1 - phi)."""
-    from identify.fitting.posterior import _tau
+    from identify.fitting.convergence import integrated_tau
 
     rng = np.random.default_rng(0)
     phis = np.array([0.0, 0.5, 0.9])
     chain = np.zeros((4000, 16, 3))
     for k in range(1, 4000):
         chain[k] = phis * chain[k - 1] + rng.standard_normal((16, 3))
-    ours = _tau(chain)
+    ours = integrated_tau(chain)
     reference = emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
     assert np.allclose(ours, reference, rtol=1e-10)
     assert np.allclose(ours, (1 + phis) / (1 - phis), rtol=0.15)
@@ -382,13 +382,13 @@ def test_checks_that_cannot_pass_are_skipped_by_the_anchor_rule():
     """A check is due only once the chain reaches tau_factor x tau_max of the prefix at
     the last anchor (geometric, ratio 2**(1/4), multiples of check_every); the anchor's
     tau is computed once."""
-    from identify.fitting.posterior import _anchor, _check_due, _tau
+    from identify.fitting.convergence import check_anchor, check_due, integrated_tau
 
-    anchors = sorted({_anchor(n, 500) for n in range(500, 60001, 500)})
+    anchors = sorted({check_anchor(n, 500) for n in range(500, 60001, 500)})
     assert anchors[:6] == [500, 1000, 1500, 2000, 2500, 3000]
     assert anchors[-4:] == [32000, 38000, 45500, 54000]
     assert all(a % 500 == 0 for a in anchors) and max(b / a for a, b in zip(anchors, anchors[1:])) <= 2.0
-    assert _anchor(2999, 500) == 2500 and _anchor(3000, 500) == 3000
+    assert check_anchor(2999, 500) == 2500 and check_anchor(3000, 500) == 3000
 
     rng = np.random.default_rng(1)
     phi = 0.98  # tau = 99 steps
@@ -396,18 +396,18 @@ def test_checks_that_cannot_pass_are_skipped_by_the_anchor_rule():
     for k in range(1, chain.shape[0]):
         chain[k] = phi * chain[k - 1] + rng.standard_normal((8, 2))
     cache = {}
-    tau_at_3000 = float(np.max(_tau(chain[:3000])))
+    tau_at_3000 = float(np.max(integrated_tau(chain[:3000])))
     assert 60 < tau_at_3000 < 140
     # 3400 steps: the anchor is 3000; 3400 < 50 x tau, so skipped
-    assert not _check_due(chain[:3400], 500, 50.0, cache)
+    assert not check_due(chain[:3400], 500, 50.0, cache)
     assert set(cache) == {3000} and float(np.max(cache[3000])) == tau_at_3000
     # a lower factor makes the same check due, from the cached anchor
-    assert _check_due(chain[:3400], 500, 0.99 * 3400 / tau_at_3000, cache)
+    assert check_due(chain[:3400], 500, 0.99 * 3400 / tau_at_3000, cache)
     # 8000 steps: anchor 8000, 8000 >= 50 x tau
-    assert _check_due(chain, 500, 50.0, cache)
+    assert check_due(chain, 500, 50.0, cache)
     assert 8000 in cache
     # no estimate yet (a chain that never moved): check
-    assert _check_due(np.zeros((1000, 8, 2)), 500, 50.0, {})
+    assert check_due(np.zeros((1000, 8, 2)), 500, 50.0, {})
 
 
 def test_walkers_along_a_near_exact_degeneracy_do_not_stop_a_resumed_run(tmp_path):
@@ -432,6 +432,55 @@ def test_walkers_along_a_near_exact_degeneracy_do_not_stop_a_resumed_run(tmp_pat
         sample_posterior(
             Gaussian(), coords, tmp_path / "fresh.h5", np.random.default_rng(1), max_steps=5, check_every=5
         )
+
+
+def test_a_finished_chain_file_is_compacted_and_extends_as_an_uninterrupted_run(tmp_path, monkeypatch):
+    """A run that stops by its rule rewrites chain.h5 without its batched writes' unused space
+    (smaller, the same chain, log-probabilities, acceptance and random state), and a run
+    extending the compacted file gives the chain of one uninterrupted run, bit for bit; a run
+    that adds no step leaves the file as it is."""
+    import h5py
+
+    from identify.fitting import chain_file
+
+    def start(n, r):
+        return r.standard_normal((n, 3))
+
+    sizes = []
+    real = chain_file.compact_chain_file
+
+    def measured(path):
+        before, after = real(path)
+        sizes.append((before, after))
+        return before, after
+
+    monkeypatch.setattr("identify.fitting.posterior.compact_chain_file", measured)
+    buffered = chain_file.BufferedHDFBackend.__init__
+
+    def flushing_every_step(self, *args, **kwargs):  # as a slow model's run does, a flush a second
+        buffered(self, *args, **kwargs)
+        self.flush_every, self.flush_seconds = 1, 0.0
+
+    monkeypatch.setattr(chain_file.BufferedHDFBackend, "__init__", flushing_every_step)
+    whole, part = tmp_path / "whole.h5", tmp_path / "part.h5"
+    sample_posterior(Gaussian(), start, whole, np.random.default_rng(2), max_steps=600, check_every=100, tau_factor=1e4)
+    sample_posterior(Gaussian(), start, part, np.random.default_rng(2), max_steps=300, check_every=100, tau_factor=1e4)
+    assert len(sizes) == 2 and all(after < 0.9 * before for before, after in sizes), sizes
+    with h5py.File(part, "r") as f:  # the copy keeps the stored layout: chunked, compressed, growable
+        chain = f[BACKEND_GROUP]["chain"]
+        assert chain.compression == "gzip" and chain.maxshape[0] is None and chain.shape[0] == 300
+    sample_posterior(Gaussian(), start, part, np.random.default_rng(2), max_steps=600, check_every=100, tau_factor=1e4)
+    a = emcee.backends.HDFBackend(str(whole), name=BACKEND_GROUP, read_only=True)
+    b = emcee.backends.HDFBackend(str(part), name=BACKEND_GROUP, read_only=True)
+    assert np.array_equal(a.get_chain(), b.get_chain()) and np.array_equal(a.get_log_prob(), b.get_log_prob())
+    assert np.array_equal(a.accepted, b.accepted)
+    assert all(
+        x == y if not isinstance(x, np.ndarray) else np.array_equal(x, y)
+        for x, y in zip(a.random_state, b.random_state)
+    )
+    stamp = os.stat(part).st_mtime_ns, os.stat(part).st_ino
+    sample_posterior(Gaussian(), start, part, np.random.default_rng(2), max_steps=600, check_every=100, tau_factor=1e4)
+    assert (os.stat(part).st_mtime_ns, os.stat(part).st_ino) == stamp and len(sizes) == 3
 
 
 def _gaussian_variance_ratio(moves, dim=18, n_walkers=36, n_steps=4000, discard=1000):

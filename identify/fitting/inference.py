@@ -18,12 +18,19 @@
   ``posterior_predictive``
       ``displacement``: model output plus a draw of the fitted noise.
 
-  The pointwise groups hold every ``k``-th draw of every walker, ``k`` chosen so that
-  draws x samples stays at most :data:`MAX_POINTWISE` (attribute ``draw_step``; 576
-  draws of the bundled 7001-sample record); the ``posterior`` group holds all draws.
-  Fewer pointwise draws would worsen ``az.loo``'s Pareto-k diagnostics: ArviZ takes the
+  Thinning: the pointwise groups hold the same ``K`` draws of every walker, every
+  ``draw_step``-th (attribute) from the first, ``K = MAX_POINTWISE // (walkers x
+  samples)`` (at least 1, at most all): draws x samples stays at most
+  :data:`MAX_POINTWISE` values a variable (12 draws a walker, 432 draws, for 36 walkers
+  and a 7001-sample record), which holds the file under 10 MB; the ``posterior`` group
+  holds all draws. Both pointwise groups have the same ``chain`` and ``draw``
+  coordinates, so ``az.loo_pit`` pairs them, and their ``draw`` values are the
+  ``posterior`` group's (``idata.posterior.sel(draw=idata.log_likelihood.draw)``). Far
+  fewer pointwise draws would worsen ``az.loo``'s Pareto-k diagnostics: ArviZ takes the
   relative efficiency from the ``posterior`` group's ESS over the pointwise draws, so its
-  tail fits shrink with them (docs/benchmarks.md, "The results folder").
+  tail fits shrink with them; at 12 a walker the Pareto k's scatter between draws of
+  the same chain is as large as at 15 or 16 (``benchmarks/pointwise_draws.py``;
+  docs/benchmarks.md, "The results folder").
 
   Storage: the posterior, ``lp`` and the observed data in float64 (``az.summary`` gives
   ``summary.json``'s means exactly). The pointwise groups are rounded to a stated
@@ -34,10 +41,11 @@
   by less than 0.1, a fraction of its own Monte Carlo error), the posterior predictive to
   the nearest multiple of the largest power of two at most
   :data:`PREDICTIVE_SIGMA_FRACTION` of the smallest noise sigma (rounding error at most
-  sigma/64, adding 1/12288 of the noise variance). Both are stored as float32 where
+  sigma/32, adding at most 1/3072 of the noise variance). Both are stored as float32 where
   float32 holds the rounded values exactly (float64 otherwise: a record with a large
   offset and little noise), so every reader gets plain floats. Every variable is
-  gzip-compressed with byte shuffle (HDF5 filters any netCDF4 or HDF5 reader decodes),
+  gzip-compressed (level :data:`GZIP_LEVEL`) with byte shuffle (HDF5 filters any netCDF4
+  or HDF5 reader decodes),
   the pointwise groups in chunks of all draws x :data:`POINTWISE_CHUNK_SAMPLES` samples.
   The file is written with h5netcdf in the layout ArviZ's ``to_netcdf`` writes, without
   importing ArviZ or xarray.
@@ -57,6 +65,8 @@ import numpy as np
 
 __all__ = [
     "MAX_POINTWISE",
+    "GZIP_LEVEL",
+    "pointwise_draws",
     "FILE",
     "write_inference_data",
     "write_netcdf",
@@ -65,9 +75,12 @@ __all__ = [
     "pointwise_log_likelihood",
 ]
 
-#: Largest number of draws x record samples in the pointwise groups (float32: 16 MB each
-#: before compression).
-MAX_POINTWISE = 4_000_000
+#: Largest number of draws x record samples in the pointwise groups (float32: 12.4 MB each
+#: before compression, 4-5 MB after).
+MAX_POINTWISE = 3_100_000
+#: gzip level of posterior.nc's variables (6: 3 % smaller than 4 for 0.3 s more on a 7001-sample
+#: record's pointwise groups; 9 saves 1.5 % more for ten times the time).
+GZIP_LEVEL = 6
 #: Record samples per HDF5 chunk of the pointwise groups (every walker and draw in a chunk:
 #: a sample's values over the draws lie 64 values apart, which gzip finds).
 POINTWISE_CHUNK_SAMPLES = 64
@@ -75,7 +88,7 @@ POINTWISE_CHUNK_SAMPLES = 64
 LOG_LIKELIHOOD_QUANTUM = 2.0**-15
 #: The posterior predictive is stored rounded to a multiple of the largest power of two at
 #: most this fraction of the smallest noise sigma.
-PREDICTIVE_SIGMA_FRACTION = 1.0 / 32.0
+PREDICTIVE_SIGMA_FRACTION = 1.0 / 16.0
 #: File name in the results folder.
 FILE = "posterior.nc"
 
@@ -93,7 +106,7 @@ def write_chain_attributes(path, names, units) -> None:
     """Parameter names and units as attributes of ``chain.h5``'s emcee group."""
     from ..data.fileio import require_space
     from ..data.hdf5 import open_hdf5
-    from .posterior import BACKEND_GROUP, CHAIN_METADATA_BYTES
+    from .chain_file import BACKEND_GROUP, CHAIN_METADATA_BYTES
 
     require_space(path, CHAIN_METADATA_BYTES)  # HDF5 does not survive a full disk: checked first
     with open_hdf5(os.fspath(path), "a") as f:  # waits for a reader's lock instead of failing
@@ -152,6 +165,15 @@ def quantised(values, quantum) -> np.ndarray:
     return rounded.astype(np.float32 if largest / quantum <= 2.0**24 else np.float64)
 
 
+def pointwise_draws(n_chain, n_draw, n_samples) -> tuple[np.ndarray, int]:
+    """``(indices, step)``: the draws of every walker the pointwise groups hold, ``K =
+    MAX_POINTWISE // (n_chain n_samples)`` of the ``n_draw`` (at least 1, at most all), every
+    ``step = n_draw // K``-th from the first (module docstring, "Thinning")."""
+    keep = max(1, min(int(n_draw), MAX_POINTWISE // max(1, int(n_chain) * int(n_samples))))
+    step = max(1, int(n_draw) // keep)
+    return np.arange(keep) * step, step
+
+
 def _group(n_chain, n_draw, draw_index):
     return {"chain": np.arange(n_chain), "draw": np.asarray(draw_index)}
 
@@ -165,7 +187,7 @@ def _write_netcdf(path, groups) -> None:
     gzip-compressed with byte shuffle."""
     import h5netcdf
 
-    packed = dict(compression="gzip", compression_opts=4, shuffle=True)
+    packed = dict(compression="gzip", compression_opts=GZIP_LEVEL, shuffle=True)
     with h5netcdf.File(path, "w") as f:
         for name, (coords, variables, attrs) in groups.items():
             g = f.create_group(name)
@@ -200,8 +222,8 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
     units = sampled_units(log_post, record)
     time = np.asarray(record.time, dtype=float)
     data = np.asarray(record.displacement, dtype=float)
-    step = max(1, math.ceil(n_chain * n_draw * time.size / MAX_POINTWISE))
-    sub = draws[:, ::step]  # (walker, draw', D)
+    kept, step = pointwise_draws(n_chain, n_draw, time.size)
+    sub = draws[:, kept]  # (walker, draw', D)
     flat = sub.reshape(-1, sub.shape[2])
     y, valid = log_post.model.evaluate(log_post.full_theta(flat), log_post.time, log_post.current)
     sigma = np.exp(flat[:, -1]) if log_post.free_sigma else None
@@ -230,7 +252,7 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
         "thin": int(posterior.thin),
     }
     draws_coords = _group(n_chain, n_draw, np.arange(n_draw))
-    pointwise_coords = {**_group(n_chain, sub.shape[1], np.arange(0, n_draw, step)), "time": time}
+    pointwise_coords = {**_group(n_chain, sub.shape[1], kept), "time": time}
     prior_names = getattr(log_post, "prior_names", {})
     whole = (n_chain, n_draw)
     dims3 = ("chain", "draw", "time")

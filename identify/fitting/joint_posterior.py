@@ -14,13 +14,13 @@ the next.
 record-wise groups: ``displacement_record<k>`` with its own time dimension
 ``time_record<k>`` in ``observed_data``, ``log_likelihood`` and ``posterior_predictive``, so
 ``az.loo(idata, var_name="displacement_record1")`` scores each record. The pointwise groups
-share one draw thinning (a group has one ``draw`` dimension), chosen so that draws x samples of
-all records together stays at most :data:`identify.fitting.inference.MAX_POINTWISE`.
+share one draw thinning (a group has one ``draw`` dimension),
+:func:`identify.fitting.inference.pointwise_draws` of the records' samples together, so that
+draws x samples of all records stays at most :data:`identify.fitting.inference.MAX_POINTWISE`.
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -28,9 +28,9 @@ import numpy as np
 from .inference import (
     FILE,
     LOG_LIKELIHOOD_QUANTUM,
-    MAX_POINTWISE,
     POINTWISE_CHUNK_SAMPLES,
     ar1_noise,
+    pointwise_draws,
     pointwise_log_likelihood,
     predictive_quantum,
     quantised,
@@ -202,8 +202,8 @@ def write_joint_inference_data(out_dir, records, log_post: JointLogPosterior, po
     lp = np.asarray(posterior.log_prob, dtype=float).reshape(-1, n_chain).T
     n_draw = draws.shape[1]
     total = sum(len(r.time) for r in records)
-    step = max(1, math.ceil(n_chain * n_draw * total / MAX_POINTWISE))
-    sub = draws[:, ::step]
+    kept, step = pointwise_draws(n_chain, n_draw, total)
+    sub = draws[:, kept]
     flat = sub.reshape(-1, sub.shape[2])
     try:
         version = {"arviz_version": metadata.version("arviz")}
@@ -214,7 +214,7 @@ def write_joint_inference_data(out_dir, records, log_post: JointLogPosterior, po
     prior_names = getattr(log_post, "prior_names", {})
     whole = (n_chain, n_draw)
     draws_coords = _group(n_chain, np.arange(n_draw))
-    pointwise_coords = _group(n_chain, np.arange(0, n_draw, step))
+    pointwise_coords = _group(n_chain, kept)
     observed_coords, observed, loglik, predictive = {}, {}, {}, {}
     rng = np.random.default_rng(seed)
     for r, (record, noise) in enumerate(zip(records, log_post.noises), start=1):

@@ -1,4 +1,5 @@
-r"""Posterior sampling of the model parameters with emcee: priors, log-posterior, resumable runs.
+r"""Posterior sampling of the model parameters with emcee: priors, log-posterior, moves,
+the walkers' start, the resumable sampling loop and its result.
 
 Priors (:data:`PRIORS`)
 -----------------------
@@ -34,11 +35,14 @@ Sampling
 --------
 :func:`sample_posterior` runs emcee's ensemble sampler with an
 :class:`emcee.backends.HDFBackend` (group ``"mcmc"``; written in batches by
-:class:`BufferedHDFBackend`, at least every second), so an interrupted run resumes where
+:class:`identify.fitting.chain_file.BufferedHDFBackend`, at least every second), so an interrupted run resumes where
 it stopped (the sampler's random state is stored with each step, so the resumed chain is
 the one an uninterrupted run gives, bit for bit). Ctrl-C (SIGINT) and ``kill PID``
 (SIGTERM) are honoured between two steps: the completed step is written and
-``KeyboardInterrupt`` raised; a second signal interrupts at once. It runs
+``KeyboardInterrupt`` raised; a second signal interrupts at once. A run that added steps
+and stopped by its rule (not by a signal) rewrites the file without the space its batched
+writes left unused (:func:`identify.fitting.chain_file.compact_chain_file`: the same data,
+about 15 % smaller). It runs
 in chunks of ``check_every`` steps (aligned to multiples of it, so stopping does not
 depend on interruptions) and stops when
 
@@ -47,12 +51,13 @@ depend on interruptions) and stops when
 * the chain is at least ``tau_factor`` (50) times the largest autocorrelation time,
 * and then (computed only when tau passes) every parameter's split-R-hat is below
   :data:`RHAT_MAX` (1.05) and its bulk ESS at least :data:`ESS_BULK_MIN` (400), ArviZ's
-  definitions on the chain after burn-in and thinning (:func:`chain_diagnostics`),
+  definitions on the chain after burn-in and thinning
+  (:func:`identify.fitting.convergence.chain_diagnostics`),
 
 or at ``max_steps``; then the result says plainly that it is **not converged**.
 A check whose chain is shorter than ``tau_factor`` times the autocorrelation time of the
 chain's prefix at the last *anchor* (nearly geometric, 19 % apart late in a run:
-:func:`_anchor`) is skipped, as it would almost surely fail: each check recomputes the
+:func:`identify.fitting.convergence.check_anchor`) is skipped, as it would almost surely fail: each check recomputes the
 autocorrelation time of the whole chain, which cost about 75 s of a 54000-step run when
 every check was made. The
 anchors depend only on the chain, so a resumed run checks where the uninterrupted one
@@ -61,6 +66,10 @@ anchor's overestimate of tau), never make it earlier.
 Burn-in ``discard = 2 tau_max`` and ``thin = max(1, tau_min / 2)`` are applied to the
 reported samples; the effective sample size of parameter ``j`` is
 ``n_walkers (n_steps - discard) / tau_j``.
+
+The chain file's backend and reader are :mod:`identify.fitting.chain_file`; the
+autocorrelation times, the tau rule, R-hat and ESS :mod:`identify.fitting.convergence`.
+Their public names are importable from here too, as before.
 
 Randomness: the walkers' start uses the ``numpy.random.Generator`` passed in; emcee's
 internal ``RandomState`` is seeded from the same generator; nothing touches global state.
@@ -74,18 +83,36 @@ import os
 import signal
 import threading
 import time as _time
-import zlib
 from dataclasses import dataclass, field
 
 import emcee
 import numpy as np
-import scipy.fft
 
 from model import Model
 
-from ..data.fileio import require_space
-from ..data.hdf5 import LOCK_WAIT_SECONDS, ChainFileError, open_hdf5
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
+from .chain_file import (
+    BACKEND_GROUP,
+    CHAIN_METADATA_BYTES,
+    BufferedHDFBackend,
+    ChainBackend,
+    ChainFileError,
+    chain_info,
+    compact_chain_file,
+)
+from .convergence import (
+    DIAGNOSTICS,
+    ESS_BULK_MIN,
+    RHAT_MAX,
+    autocorrelation_times,
+    burn_in,
+    chain_diagnostics,
+    check_due,
+    diagnostics_verdict,
+    finite_or_none,
+    import_arviz,
+    tau_convergence,
+)
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
 from .noise import NoiseModel, log_likelihood_of_rows
 from .parametrisation import in_record_units
@@ -116,277 +143,8 @@ __all__ = [
     "DIAGNOSTICS",
     "chain_diagnostics",
     "autocorrelation_times",
+    "CHAIN_METADATA_BYTES",
 ]
-
-
-#: HDF5 group of the emcee backend in ``chain.h5``.
-BACKEND_GROUP = "mcmc"
-
-
-#: Steps per HDF5 chunk of the stored chain (the unit of compression and of partial reads).
-CHAIN_CHUNK_STEPS = 256
-#: gzip level of the stored chain (4: within a few percent of level 9's size, several times faster).
-CHAIN_GZIP_LEVEL = 4
-#: Bytes kept free for HDF5's own bookkeeping (chunk index, attributes) beyond the chain's data [B].
-CHAIN_METADATA_BYTES = 256 * 1024
-#: Attribute of the emcee group: ``"<iteration>:<crc32>"`` of the last step, written with the count.
-LAST_STEP_CHECK = "last_step_check"
-
-
-class ChainBackend(emcee.backends.HDFBackend):
-    """emcee's HDF5 backend opening the file through :func:`identify.data.hdf5.open_hdf5`:
-    reading takes no HDF5 file lock (a reader never blocks the study writing the chain),
-    and a write waits, with a short back-off, for a lock another process holds (a person
-    reading ``chain.h5`` while the study runs) instead of failing. Same file format;
-    ``ChainBackend(path, name, read_only=True)`` is the package's reader of a chain.
-
-    A write never meets a full disk inside HDF5 (whose failed cache write ends the process
-    by a signal and leaves a chain that claims steps it does not hold): an open for
-    writing first checks that :data:`CHAIN_METADATA_BYTES` are free, and a flush of
-    :class:`BufferedHDFBackend` the whole of what it may write
-    (:func:`identify.data.fileio.require_space`); short of that, it raises
-    :class:`identify.data.fileio.DiskFullError` naming the file, with nothing written.
-    A link at the path is refused (:func:`identify.data.hdf5.open_hdf5`)."""
-
-    #: Longest wait [s] for another process's lock on the file before a write fails
-    #: (:data:`identify.data.hdf5.LOCK_WAIT_SECONDS`).
-    lock_wait = LOCK_WAIT_SECONDS
-
-    def open(self, mode="r"):
-        if self.read_only and mode != "r":
-            raise RuntimeError(
-                "The backend has been loaded in read-only mode. Set `read_only = False` to make changes."
-            )
-        if mode != "r":
-            require_space(self.filename, CHAIN_METADATA_BYTES)
-        f = open_hdf5(self.filename, mode, wait=self.lock_wait)
-        if not self.dtype_set and self.name in f:
-            g = f[self.name]
-            if "chain" in g:
-                self.dtype = g["chain"].dtype
-                self.dtype_set = True
-        return f
-
-
-class BufferedHDFBackend(ChainBackend):
-    """emcee's HDF5 backend, writing steps in batches instead of opening the file per step.
-
-    The stock :class:`emcee.backends.HDFBackend` opens, writes and closes the file for
-    every step (about 3-10 ms, as much as a 36-walker model evaluation). This subclass
-    keeps completed steps in memory and writes them in one go every ``flush_every``
-    steps or ``flush_seconds`` seconds, before the chain grows, and whenever
-    :meth:`flush` is called: :func:`sample_posterior` flushes after every chunk and on
-    any exception, including ``KeyboardInterrupt`` (Ctrl-C) and the ``SIGTERM`` that
-    ``study`` turns into one. Only a hard kill (``SIGKILL``, power loss) can lose the
-    unflushed steps, at most ``flush_seconds`` of work. The file format is emcee's,
-    readable by the stock backend.
-
-    The chain and log-probabilities are stored losslessly compressed (HDF5 chunks of
-    :data:`CHAIN_CHUNK_STEPS` steps, byte shuffle and gzip level
-    :data:`CHAIN_GZIP_LEVEL`): a rejected proposal repeats the walker's previous
-    position exactly, so a chain compresses 5-7 fold (a 16000-step, 36 x 18 chain: 87.6
-    MB raw, 13.3 MB stored), the values are bit-for-bit those sampled, and resuming
-    and the reproduction checks are unaffected. HDF5 readers decompress transparently.
-
-    A flush writes the steps' data first and hands them to the operating system
-    (``H5Fflush``), and only then the acceptance counts, the random state and the step count
-    ``iteration`` that claims them: a process that dies in between (a full disk, a signal)
-    leaves the previous count, whose steps are all stored, and the rerun resumes from it.
-    """
-
-    def __init__(self, filename, name=BACKEND_GROUP, *, flush_every=200, flush_seconds=1.0, **kwargs):
-        super().__init__(str(filename), name=name, **kwargs)
-        self.flush_every = int(flush_every)
-        self.flush_seconds = float(flush_seconds)
-        self._pending = []
-        self._last_flush = _time.monotonic()
-
-    def reset(self, nwalkers, ndim):
-        """emcee's :meth:`~emcee.backends.HDFBackend.reset` (same group, datasets and
-        attributes) with chunked, compressed ``chain`` and ``log_prob`` datasets, in a file
-        created by :func:`_create_chain_file` when there is none."""
-        if not os.path.lexists(self.filename):
-            _create_chain_file(self.filename)
-        with self.open("a") as f:
-            if self.name in f:
-                del f[self.name]
-            g = f.create_group(self.name)
-            g.attrs["version"] = emcee.__version__
-            g.attrs["nwalkers"] = nwalkers
-            g.attrs["ndim"] = ndim
-            g.attrs["has_blobs"] = False
-            g.attrs["iteration"] = 0
-            g.create_dataset("accepted", data=np.zeros(nwalkers))
-            packed = dict(compression="gzip", compression_opts=CHAIN_GZIP_LEVEL, shuffle=True, dtype=self.dtype)
-            g.create_dataset(
-                "chain",
-                (0, nwalkers, ndim),
-                maxshape=(None, nwalkers, ndim),
-                chunks=(CHAIN_CHUNK_STEPS, nwalkers, ndim),
-                **packed,
-            )
-            g.create_dataset(
-                "log_prob", (0, nwalkers), maxshape=(None, nwalkers), chunks=(CHAIN_CHUNK_STEPS, nwalkers), **packed
-            )
-
-    def save_step(self, state, accepted):
-        if state.blobs is not None:
-            raise ValueError("BufferedHDFBackend does not store blobs")
-        self._pending.append((np.array(state.coords), np.array(state.log_prob), np.array(accepted), state.random_state))
-        if len(self._pending) >= self.flush_every or _time.monotonic() - self._last_flush > self.flush_seconds:
-            self.flush()
-
-    def flush(self) -> None:
-        """Write the buffered steps (one file open); a no-op when nothing is pending.
-
-        The open waits for a lock held by another process's reader (:class:`ChainBackend`);
-        the steps leave the buffer only once written."""
-        self._last_flush = _time.monotonic()
-        if not self._pending:
-            return
-        pending = self._pending
-        n = len(pending)
-        with self.open("a") as f:
-            g = f[self.name]
-            chain, log_prob = g["chain"], g["log_prob"]
-            start = int(g.attrs["iteration"])
-            require_space(self.filename, CHAIN_METADATA_BYTES + _bytes_to_write(chain, start, n, log_prob))
-            if chain.shape[0] < start + n:
-                chain.resize(start + n, axis=0)
-                log_prob.resize(start + n, axis=0)
-            chain[start : start + n] = np.stack([p[0] for p in pending])
-            log_prob[start : start + n] = np.stack([p[1] for p in pending])
-            f.flush()  # the steps' data reach the file before the count that claims them
-            g["accepted"][:] += np.sum([p[2] for p in pending], axis=0)
-            for i, value in enumerate(pending[-1][3]):
-                g.attrs[f"random_state_{i}"] = value
-            last = pending[-1]
-            g.attrs[LAST_STEP_CHECK] = _step_check(start + n, last[0], last[1], chain.dtype, log_prob.dtype)
-            g.attrs["iteration"] = start + n
-        self._pending = []
-
-    def grow(self, ngrow, blobs):
-        self.flush()
-        super().grow(ngrow, blobs)
-
-
-def _create_chain_file(path) -> None:
-    """A new, empty HDF5 file at ``path`` that keeps its free space across opens (HDF5's
-    free-space manager, persistent): every flush rewrites the chunk being filled, and
-    without it the old copy's space is lost once the file closes, so a chain written
-    every second grew to several times its data (34.5 MB for 6.0 MB at load 12). ``"x"``
-    refuses anything already at the path, a link included."""
-    import h5py
-
-    require_space(path, CHAIN_METADATA_BYTES)
-    with h5py.File(os.fspath(path), "x", fs_strategy="fsm", fs_persist=True):
-        pass
-
-
-def _step_check(iteration, coords, log_prob, chain_dtype, log_prob_dtype) -> str:
-    """``"<iteration>:<crc32>"`` of the last stored step's walkers and log-probabilities as stored
-    (a text attribute: :mod:`identify.workflows.reproduce` compares numeric attributes only)."""
-    data = np.ascontiguousarray(coords, dtype=chain_dtype).tobytes()
-    data += np.ascontiguousarray(log_prob, dtype=log_prob_dtype).tobytes()
-    return f"{int(iteration)}:{zlib.crc32(data):08x}"
-
-
-def _bytes_to_write(chain, start, n, *others) -> int:
-    """Most bytes writing steps ``[start, start + n)`` of ``chain`` (and of ``others``, datasets
-    of the same steps) can add to the file: every HDF5 chunk they touch is rewritten whole,
-    and a compressed chunk is never larger than the raw one by more than a small header."""
-    total = 0
-    for ds in (chain, *others):
-        item = ds.dtype.itemsize
-        if ds.chunks is None:  # contiguous: written in place, at most the steps themselves
-            total += n * math.prod(ds.shape[1:]) * item
-            continue
-        per_chunk = math.prod(ds.chunks) * item + 1024
-        rows = ds.chunks[0]
-        across = math.prod(-(-size // c) for size, c in zip(ds.shape[1:], ds.chunks[1:]))
-        touched = (start + n - 1) // rows - start // rows + 1 if n > 0 else 0
-        total += touched * across * per_chunk
-    return total
-
-
-def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
-    """``(steps, walkers, dimension)`` of the chain stored in ``path``, checked readable.
-
-    Opens the file read-only and reads every stored step (in blocks of ``block_steps``,
-    so memory stays small), the log-probabilities, acceptance counts and the random state
-    a resumed run needs, and checks that the steps the count ``iteration`` claims are
-    stored: every value finite, no step all zeros (HDF5's fill value: a step counted but
-    never written, as a write cut short by a full disk or a crash leaves), and the last
-    step the one written with the count (its CRC-32, attribute :data:`LAST_STEP_CHECK`,
-    when the file has it). Returns None when there is no file.
-
-    Raises
-    ------
-    ChainFileError
-        The file cannot be opened or read, lacks what emcee's backend writes, holds steps
-        that were never written, or is a link (never followed).
-    """
-    path = os.fspath(path)
-    if not os.path.lexists(path):
-        return None
-    if os.path.islink(path):
-        raise ChainFileError(f"{path} is a symbolic link, not a chain written by study (a link is never followed)")
-    try:
-        with open_hdf5(path, "r") as f:
-            if BACKEND_GROUP not in f:
-                raise ChainFileError(f"{path} is damaged (no group {BACKEND_GROUP!r}: not a chain written by study)")
-            g = f[BACKEND_GROUP]
-            n_walkers, n_dim = int(g.attrs["nwalkers"]), int(g.attrs["ndim"])
-            steps = int(g.attrs["iteration"])
-            chain, log_prob, accepted = g["chain"], g["log_prob"], g["accepted"]
-            if (
-                chain.shape[1:] != (n_walkers, n_dim)
-                or log_prob.shape[1:] != (n_walkers,)
-                or accepted.shape != (n_walkers,)
-                or not 0 <= steps <= min(chain.shape[0], log_prob.shape[0])
-            ):
-                raise ChainFileError(
-                    f"{path} is damaged (inconsistent shapes: {steps} steps, chain {chain.shape}, "
-                    f"log_prob {log_prob.shape}, accepted {accepted.shape})"
-                )
-            accepted[()]
-            for start in range(0, steps, int(block_steps)):
-                stop = min(steps, start + int(block_steps))
-                block, block_log_prob = chain[start:stop], log_prob[start:stop]
-                _check_stored(path, steps, start, block, block_log_prob)
-            recorded = str(g.attrs.get(LAST_STEP_CHECK, ""))
-            if steps > 0 and recorded.startswith(f"{steps}:"):  # the check written with this count
-                found = _step_check(steps, block[-1], block_log_prob[-1], chain.dtype, log_prob.dtype)
-                if found != recorded:
-                    raise ChainFileError(
-                        f"{path} is damaged: its last stored step (step {steps}) is not the one written with its "
-                        f"count (checksum {found.partition(':')[2]}, written {recorded.partition(':')[2]}); it cannot "
-                        "be resumed"
-                    )
-            if steps > 0:
-                for i in range(5):
-                    g.attrs[f"random_state_{i}"]
-    except ChainFileError:
-        raise
-    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:
-        detail = " ".join(str(exc).split())[:200]
-        raise ChainFileError(f"{path} is damaged ({type(exc).__name__}: {detail})") from None
-    return steps, n_walkers, n_dim
-
-
-def _check_stored(path, steps, start, chain, log_prob) -> None:
-    """Steps ``start, start + 1, ...`` of a chain that claims ``steps``: raise :class:`ChainFileError`
-    at the first one that holds a non-finite value or was never written (all zeros)."""
-    finite = np.isfinite(chain).all(axis=(1, 2)) & np.isfinite(log_prob).all(axis=1)
-    blank = ~chain.any(axis=(1, 2)) & ~log_prob.any(axis=1)
-    bad = np.flatnonzero(~finite | blank)
-    if bad.size:
-        k = start + int(bad[0])
-        what = "holds non-finite values" if not finite[bad[0]] else "was never written (all zeros)"
-        raise ChainFileError(
-            f"{path} is damaged: it claims {steps} steps, but step {k} {what} (a write cut short by a full disk "
-            "or a crash); it cannot be resumed"
-        )
 
 
 def _uniform_logpdf(x, lower, upper):
@@ -760,7 +518,7 @@ class PosteriorResult:
     def diagnostic(self, name: str, j: int):
         """Diagnostic ``name`` (one of :data:`DIAGNOSTICS`) of coordinate ``j``; None when absent or not finite."""
         values = getattr(self, name)
-        return None if values is None else _finite_or_none(values[j])
+        return None if values is None else finite_or_none(values[j])
 
     @property
     def tau_max(self) -> float:
@@ -780,10 +538,10 @@ class PosteriorResult:
             "discard": int(self.discard),
             "thin": int(self.thin),
             "acceptance_fraction": float(self.acceptance_fraction),
-            "tau_max": _finite_or_none(self.tau_max),
-            "rhat_max": None if self.rhat is None else _finite_or_none(np.max(self.rhat)),
-            "ess_bulk_min": None if self.ess_bulk is None else _finite_or_none(np.min(self.ess_bulk)),
-            "ess_tail_min": None if self.ess_tail is None else _finite_or_none(np.min(self.ess_tail)),
+            "tau_max": finite_or_none(self.tau_max),
+            "rhat_max": None if self.rhat is None else finite_or_none(np.max(self.rhat)),
+            "ess_bulk_min": None if self.ess_bulk is None else finite_or_none(np.min(self.ess_bulk)),
+            "ess_tail_min": None if self.ess_tail is None else finite_or_none(np.min(self.ess_tail)),
             "rule": {"rhat_max": RHAT_MAX, "ess_bulk_min": ESS_BULK_MIN},
             "n_samples": int(self.samples.shape[0]),
             "n_errors": int(self.n_errors),
@@ -805,189 +563,6 @@ BENCH_COVERAGE = {
     "n_records": 200,
     "n_intervals": 3600,
 }
-
-#: The convergence verdict's thresholds beside tau (docs/method.md, "Convergence"): every
-#: parameter's rank-normalised split-R-hat below :data:`RHAT_MAX` and bulk effective sample
-#: size at least :data:`ESS_BULK_MIN` (Vehtari et al. 2021). Their 1.01 presumes independent
-#: chains; emcee's walkers move together and are not (the emcee author's caution, dfm/emcee
-#: #279), and split-R-hat of ~70 correlated walkers with ~35 autocorrelation times each
-#: scatters above 1.01 at convergence: the bundled record's seed-0 chain had passed the tau
-#: rule at 68.7 tau with R-hat 1.018 and was still refused at the 60000-step cap. 1.05 is
-#: the threshold commonly used for dependent or few-draw chains.
-RHAT_MAX = 1.05
-ESS_BULK_MIN = 400.0
-
-#: Names of the per-parameter diagnostics (:func:`chain_diagnostics`), as in summary.json.
-DIAGNOSTICS = ("rhat", "ess_bulk", "ess_tail", "mcse_mean", "mcse_sd")
-
-
-def import_arviz():
-    """The ``arviz`` module, imported without its FutureWarning about the coming refactor.
-
-    ArviZ 0.2x writes a once-a-day stamp file (``daily_warning`` in its user cache) when it
-    is imported, through a temporary file of a fixed name. Two processes that import it for
-    the first time that day race for it, and the loser's import raises FileNotFoundError
-    (seen on 2026-12-02: the two test workers' first run of the day; a batch's parallel
-    studies would meet it the same way). By then the winner has written the stamp, so the
-    import is tried once more, from a clean slate of ``arviz`` modules.
-    """
-    import sys
-    import warnings
-
-    with warnings.catch_warnings():  # arviz 0.2x announces its refactor on import
-        warnings.simplefilter("ignore", FutureWarning)
-        try:
-            import arviz
-        except FileNotFoundError:
-            for name in [m for m in sys.modules if m == "arviz" or m.startswith("arviz.")]:
-                del sys.modules[name]
-            import arviz
-
-    return arviz
-
-
-def chain_diagnostics(draws) -> dict[str, np.ndarray]:
-    """ArviZ's convergence diagnostics per parameter of ``draws`` ``(steps, walkers, D)``.
-
-    The walkers are ArviZ's chains (as in ``arviz.from_emcee``); ``draws`` is the chain
-    after burn-in and thinning, the draws ``posterior.nc`` holds. Returns ``{name: (D,)}``
-    for :data:`DIAGNOSTICS`: rank-normalised split-R-hat (``arviz.rhat``), bulk and tail
-    effective sample sizes (``arviz.ess``, ``method="bulk"``/``"tail"``), and the Monte
-    Carlo standard errors of the mean and of the standard deviation (``arviz.mcse``,
-    ``method="mean"``/``"sd"``). NaN where ArviZ gives no value (fewer than 4 draws per
-    walker). The figures are ``az.summary(kind="diagnostics")``'s, computed by
-    :func:`identify.fitting.mcmc_diagnostics.multichain_statistics` with ArviZ's
-    arithmetic but without importing ArviZ (2-6 s) or its xarray machinery.
-    """
-    from .mcmc_diagnostics import multichain_statistics
-
-    draws = np.asarray(draws, dtype=float)
-    n_dim = draws.shape[2]
-    out = {k: np.full(n_dim, np.nan) for k in DIAGNOSTICS}
-    if draws.shape[0] < 4:
-        return out
-    for d in range(n_dim):
-        with np.errstate(invalid="ignore", divide="ignore"):  # a parameter that never moved: NaN, as ArviZ's
-            stats = multichain_statistics(np.ascontiguousarray(draws[:, :, d].T))  # (chain, draw)
-        mcse_mean, mcse_sd, ess_bulk, ess_tail, rhat = stats
-        out["rhat"][d], out["ess_bulk"][d], out["ess_tail"][d] = rhat, ess_bulk, ess_tail
-        out["mcse_mean"][d], out["mcse_sd"][d] = mcse_mean, mcse_sd
-    return out
-
-
-def _burn_in(tau, n_steps) -> tuple[int, int]:
-    """``(discard, thin)`` for a chain of ``n_steps`` with autocorrelation times ``tau``."""
-    finite = np.isfinite(tau).all()
-    tau_max = float(np.max(tau)) if finite else float(n_steps)
-    discard = min(int(math.ceil(2 * tau_max)), n_steps - 1)
-    tau_min = float(np.min(tau)) if finite else 1.0
-    return discard, max(1, int(0.5 * tau_min))
-
-
-def _diagnostics_verdict(diag) -> tuple[bool, str]:
-    """(passes, words) of the R-hat and bulk-ESS rule on :func:`chain_diagnostics` output."""
-    rhat, ess = diag["rhat"], diag["ess_bulk"]
-    if not (np.isfinite(rhat).all() and np.isfinite(ess).all()):
-        return False, "R-hat and ESS not available (too few draws)"
-    ok = bool(np.max(rhat) < RHAT_MAX and np.min(ess) >= ESS_BULK_MIN)
-    words = (
-        f"R-hat max {np.max(rhat):.4f} (need < {RHAT_MAX:g}), bulk ESS min {np.min(ess):.0f} (need >= {ESS_BULK_MIN:g})"
-    )
-    return ok, words
-
-
-def _finite_or_none(x):
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def _tau(chain, c=5.0) -> np.ndarray:
-    """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain.
-
-    emcee's estimator (:func:`emcee.autocorr.integrated_time`: walker-averaged
-    autocorrelation, Sokal's automatic window with ``c = 5``; agrees with it to 1e-12
-    relative), with one real FFT per walker and parameter, one inverse FFT per parameter,
-    and no error for short chains (``inf`` where there is no estimate).
-    """
-    n_steps, _n_walkers, n_dim = chain.shape
-    if n_steps < 2:
-        return np.full(n_dim, np.inf)
-    # Any length >= 2 n - 1 gives the exact (non-circular) autocovariance; scipy's fast
-    # length and threads make a 54000-step check ~2.7x cheaper than numpy's power of two.
-    n_fft = scipy.fft.next_fast_len(2 * n_steps - 1, real=True)
-    tau = np.empty(n_dim)
-    for d in range(n_dim):
-        x = np.ascontiguousarray(chain[:, :, d].T)  # (walkers, steps): FFTs along the contiguous axis
-        x -= x.mean(axis=1, keepdims=True)
-        spectrum = scipy.fft.rfft(x, n=n_fft, axis=1, workers=-1)
-        # The walker average of the normalised autocorrelations, mean_w acf_w / acf_w[0],
-        # is linear in the power spectra: one inverse FFT per parameter, not one per walker.
-        with np.errstate(invalid="ignore", divide="ignore"):
-            power = (spectrum.real**2 + spectrum.imag**2) / np.sum(x * x, axis=1)[:, None]
-            f = scipy.fft.irfft(power.sum(axis=0), n=n_fft, workers=-1)[:n_steps] / x.shape[0]
-        taus = 2.0 * np.cumsum(f) - 1.0
-        inside = np.arange(n_steps) < c * taus
-        window = int(np.argmin(inside)) if inside.any() else n_steps - 1
-        tau[d] = taus[window]
-    return np.where(np.isfinite(tau), tau, np.inf)  # a chain that never moved: no estimate
-
-
-def autocorrelation_times(chain) -> np.ndarray:
-    """Integrated autocorrelation time per parameter of a ``(steps, walkers, D)`` chain
-    (:func:`_tau`: emcee's estimator to 1e-12 relative, one inverse FFT per parameter); NaN
-    where there is no estimate (a coordinate that never moved), as
-    :func:`emcee.autocorr.integrated_time` gives it."""
-    tau = _tau(np.asarray(chain, dtype=float))
-    return np.where(np.isfinite(tau), tau, np.nan)
-
-
-def _convergence(chain, check_every, tau_factor, tau_rtol, cache=None):
-    """(converged, tau, relative change, message) at the end of ``chain``.
-
-    ``cache`` (dict: chain length -> tau) avoids recomputing the previous check's tau.
-    """
-    cache = {} if cache is None else cache
-    n = chain.shape[0]
-    tau = cache[n] if n in cache else _tau(chain)
-    cache[n] = tau
-    prev_n = n - check_every
-    if prev_n >= check_every:
-        tau_prev = cache[prev_n] if prev_n in cache else _tau(chain[:prev_n])
-        with np.errstate(invalid="ignore"):
-            relative = np.abs(tau - tau_prev) / tau
-        change = float(np.max(relative)) if np.isfinite(relative).all() else math.inf
-    else:
-        change = math.inf
-    long_enough = bool(np.isfinite(tau).all() and n >= tau_factor * np.max(tau))
-    stable = change < tau_rtol
-    msg = (
-        f"{n} steps = {n / np.max(tau):.1f} x tau_max ({np.max(tau):.1f} steps; need >= {tau_factor:g}), "
-        f"tau change since the previous check {change:.1%} (need < {tau_rtol:.0%})"
-    )
-    return long_enough and stable, tau, change, msg
-
-
-def _anchor(n, check_every) -> int:
-    """The last anchor at or before step ``n``: anchors are ``check_every`` times
-    ``round(2**(i/4))``, i = 0, 1, ... (500, 1000, ..., 16000, 19000, 22500, 27000, 32000,
-    38000, 45500, 54000 for ``check_every = 500``): from the 16th on, each is at most 19 %
-    past the previous one."""
-    i = 0
-    while check_every * round(2.0 ** ((i + 1) / 4)) <= n:
-        i += 1
-    return check_every * round(2.0 ** (i / 4))
-
-
-def _check_due(chain, check_every, tau_factor, cache) -> bool:
-    """Whether the convergence check at the end of ``chain`` can pass: its length reaches
-    ``tau_factor`` times tau_max of the prefix at the last anchor (:func:`_anchor`; tau
-    computed once per anchor through ``cache``). See the module docstring."""
-    n = chain.shape[0]
-    anchor = _anchor(n, check_every)
-    if anchor not in cache:
-        cache[anchor] = _tau(chain[:anchor])
-    tau_max = float(np.max(cache[anchor]))
-    return not (math.isfinite(tau_max) and n < tau_factor * tau_max)
 
 
 def posterior_from_backend(
@@ -1018,12 +593,12 @@ def posterior_from_backend(
     if n_steps == 0:
         raise ValueError(f"{path}: the chain is empty")
     check_every = check_every or max(1, n_steps // 2)
-    ok, tau, _change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
-    discard, thin = _burn_in(tau, n_steps)
+    ok, tau, _change, msg = tau_convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
+    discard, thin = burn_in(tau, n_steps)
     diag = (diagnostics_cache or {}).get((n_steps, discard, thin))
     if diag is None:
         diag = chain_diagnostics(chain[discard::thin])
-    diag_ok, diag_msg = _diagnostics_verdict(diag)
+    diag_ok, diag_msg = diagnostics_verdict(diag)
     if converged is None:
         converged = ok and diag_ok
     if not message:
@@ -1145,6 +720,7 @@ def sample_posterior(
     diagnostics_cache: dict[tuple, dict] = {}  # (steps, discard, thin) -> chain_diagnostics of the check
     chain = _ChainInMemory(backend.get_chain() if resuming else np.empty((0, n_walkers, log_post.ndim)), max_steps)
     t0 = _time.perf_counter()
+    start_steps = backend.iteration
     try:
         while True:
             done = backend.iteration
@@ -1164,6 +740,12 @@ def sample_posterior(
         numba.set_num_threads(threads_before)
         backend.flush()  # also on Ctrl-C: no completed step is lost
         bar.close()
+    if backend.iteration > start_steps:  # the chain is finished: its file without the batched writes' leftovers
+        try:
+            before, after = compact_chain_file(path)
+            log(f"{path}: {after / 1e6:.1f} MB ({before / 1e6:.1f} MB before compaction)")
+        except OSError as exc:  # a full disk, say: the file as written is complete, only larger
+            log(f"{path} left as written, not compacted ({type(exc).__name__}: {exc})")
     return posterior_from_backend(
         path,
         log_post.names,
@@ -1245,21 +827,21 @@ def _check(chain, max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, 
     for the final summary (:func:`posterior_from_backend`), which reads the same chain."""
     done = chain.shape[0]
     on_check = done > 0 and done % check_every == 0
-    due = done >= max_steps or on_check and _check_due(chain, check_every, tau_factor, tau_cache)
+    due = done >= max_steps or on_check and check_due(chain, check_every, tau_factor, tau_cache)
     if on_check and tau_cache and not due:  # the anchor's tau: the projection of a skipped check
         bar.estimate(np.max(tau_cache[max(tau_cache)]))
     if not due:
         return False, False, ""
-    ok, tau, change, msg = _convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
+    ok, tau, change, msg = tau_convergence(chain, check_every, tau_factor, tau_rtol, tau_cache)
     bar.estimate(np.max(tau))
     log(f"step {done}: {msg}")
     diag_msg = ""
     if ok:  # tau says converged: R-hat and bulk ESS must agree (computed only then)
-        discard, thin = _burn_in(tau, done)
+        discard, thin = burn_in(tau, done)
         diag = chain_diagnostics(chain[discard::thin])
         if diagnostics_cache is not None:
             diagnostics_cache[(done, discard, thin)] = diag
-        diag_ok, diag_msg = _diagnostics_verdict(diag)
+        diag_ok, diag_msg = diagnostics_verdict(diag)
         log(f"step {done}: {diag_msg}")
         if diag_ok:
             return True, True, "converged: " + msg + "; " + diag_msg
