@@ -311,7 +311,6 @@ MAX_MODULE_LINES = 1000
 #: :func:`test_no_module_is_over_1000_lines` until it is removed here).
 LONG_MODULES_BEING_SPLIT = (
     "identify/fitting/posterior.py",
-    "identify/output/report.py",
     "identify/workflows/batch.py",
     "identify/workflows/use.py",
 )
@@ -361,10 +360,6 @@ PRIVATE_NAMES_IN_TESTS = {
     ("test_posterior.py", "identify.fitting.posterior._anchor"): _BEING_SPLIT,
     ("test_posterior.py", "identify.fitting.posterior._check_due"): _BEING_SPLIT,
     ("test_posterior.py", "identify.fitting.posterior._tau"): _BEING_SPLIT,
-    ("test_report.py", "identify.output.report._calibration_reading"): _BEING_SPLIT,
-    ("test_report.py", "identify.output.report._diagnosis_html"): _BEING_SPLIT,
-    ("test_report.py", "identify.output.report._glance_html"): _BEING_SPLIT,
-    ("test_report.py", "identify.output.report._parameters_html"): _BEING_SPLIT,
     ("test_use.py", "identify.workflows.use._compensation_theta"): _BEING_SPLIT,
     ("test_effects.py", "model.effects._filters"): _FILTERS,
     ("test_effects.py", "model.effects.creep._creep_kernel"): (

@@ -23,7 +23,7 @@ from scipy.stats import norm
 import model
 from identify.cli import main as identify_main
 from identify.data.reversals import default_min_swing, find_reversals
-from identify.output import plots, report
+from identify.output import plots, report, report_sections
 
 #: Relative tolerance of a number printed with report.DIGITS = 6 significant digits.
 PRINT_RTOL = 1e-5
@@ -463,7 +463,7 @@ def test_diagnosis_hook_renders_verdict_ranking_and_figures(folder_copy):
     (folder_copy / "diagnosis.json").write_text(json.dumps(diagnosis))
     (folder_copy / "diagnosis").mkdir()
     shutil.copy(folder_copy / "fig7_error.png", folder_copy / "diagnosis" / "residual_vs_time.png")
-    section = report._diagnosis_html(report.load_report_data(folder_copy))
+    section = report_sections.diagnosis_html(report.load_report_data(folder_copy))
     parser = PageParser()
     parser.feed(section)
     assert "diagnosis-ranking" in parser.table_ids and "diagnosis-verdict" in parser.element_ids
@@ -551,17 +551,17 @@ def test_no_domain_wall_note_even_for_a_summary_that_still_counts_proposals(fold
     summary["posterior"]["outside_domain_fraction"] = 0.07
     path.write_text(json.dumps(summary))
     data = report.load_report_data(folder_copy)
-    section = report._glance_html(data, report.analyse_report(data, 20, np.random.default_rng(0)))
+    section = report_sections.glance_html(data, report.analyse_report(data, 20, np.random.default_rng(0)))
     assert "domain-wall" not in section and "% of the proposals" not in section
 
 
 def test_the_calibration_note_says_calibrated_only_when_the_bench_coverage_is_near_nominal():
     from identify.fitting.posterior import BENCH_COVERAGE
-    from identify.output.report import _calibration_reading
+    from identify.output.report_sections import calibration_reading
 
     good = {**BENCH_COVERAGE, "posterior": 0.948, "least_squares": 0.951}
-    assert _calibration_reading(good).startswith("Both are calibrated there")
-    short = _calibration_reading({**BENCH_COVERAGE, "posterior": 0.91, "least_squares": 0.951})
+    assert calibration_reading(good).startswith("Both are calibrated there")
+    short = calibration_reading({**BENCH_COVERAGE, "posterior": 0.91, "least_squares": 0.951})
     assert "less than nominal" in short and "posterior 95 % interval holds the truth about 91%" in short
     assert "least-squares" not in short
 
@@ -578,7 +578,7 @@ def test_a_term_pinned_off_is_named_in_the_parameter_table(folder_copy):
     entry["vary"] = False
     path.write_text(json.dumps(summary))
     data = report.load_report_data(folder_copy)
-    html = report._parameters_html(data, report.analyse_report(data, 20, np.random.default_rng(0)), "")
+    html = report_sections.parameters_html(data, report.analyse_report(data, 20, np.random.default_rng(0)), "")
     assert (
         "<td>pinned off: thermal term &#x27;core&#x27; not supported by the record (chi-square +0.6 &lt;= BIC "
         "26.6)</td>" in html
