@@ -1,11 +1,12 @@
-"""The uncertainty report of a finished study: one self-contained HTML page plus PNGs.
+"""The uncertainty report of a finished study: one HTML page and its figures as PNGs beside it.
 
 :func:`write_report` reads a results folder written by ``study`` (layout in
 docs/CONTRACTS.md, read through :func:`identify.output.results.load_results`: ``data.npz``,
 ``chain.h5``, ``fit.json``, ``summary.json``, ``manifest.json``) and writes
-``DIR/report.html`` (figures embedded as base64 PNG, tables as HTML, no external files:
-it opens in any browser without a server) and every figure as ``DIR/<name>.png``
-(names in :data:`FIGURES`). It never refits: model curves come from posterior draws
+every figure as ``DIR/<name>.png`` (names in :data:`FIGURES`) and ``DIR/report.html``
+(tables as HTML, each figure shown from its PNG by a path relative to the folder: it opens in
+any browser without a server, from the folder or a copy of the whole folder; each figure is
+stored once). It never refits: model curves come from posterior draws
 pushed through the forward model in ONE vectorised :meth:`model.Model.evaluate` call.
 
 This module holds the figures (:func:`report_figures`), the page's assembly
@@ -37,7 +38,7 @@ What the page shows
 * **4. Diagnosis** (a small hook for issue 6): when ``DIR/diagnosis.json`` exists
   (keys ``status``, ``missing``, ``ranking`` = list of ``{effect, rms_after, ...}``)
   its verdict and ranking table are shown, and every ``DIR/diagnosis/*.png`` is
-  embedded (sorted by name; the file stem becomes the alt text).
+  shown (sorted by name; the file stem becomes the alt text).
 * **5. Provenance**: ``manifest.json`` (data file and sha256, seed, settings, versions,
   git commit, run times) and the convergence status stated plainly.
 
@@ -57,7 +58,7 @@ import numpy as np
 from ..data.fileio import atomic_write_bytes
 from . import plots, results
 from .diagnosis_files import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
-from .page import embedded_figure, escape, html_page, png_bytes
+from .page import escape, html_page, linked_figure, png_bytes
 from .report_analysis import (
     NOISE_COORDINATE,
     ZOOM_BAND_MULTIPLE,
@@ -127,12 +128,14 @@ __all__ = [
     "COMPARISON_FIGURE",
 ]
 
-#: At most this many rows per walker are drawn in the trace plots.
-MAX_TRACE_ROWS = 800
+#: At most this many rows per walker are drawn in the trace plots: about one per pixel column of
+#: a panel (a quarter of the figure's width), more would not show.
+MAX_TRACE_ROWS = 300
 #: At most this many samples go into the corner plot.
 MAX_CORNER_SAMPLES = 6000
-#: PNG resolution [dots per inch]; the corner plot is larger in inches, so lower.
-DPI = {"default": 100, "corner": 80}
+#: PNG resolution [dots per inch]; the corner plot and the traces are larger in inches, so lower:
+#: the page is at most 1250 px wide, and a wider PNG is only shrunk by the browser.
+DPI = {"default": 100, "corner": 80, "traces": 80}
 
 #: figure file stem -> alt text (also the caption's heading), in page order.
 FIGURES = {
@@ -357,7 +360,7 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
     for stem, figure, caption in report_figures(data, analysis, rng):
         png = png_bytes(figure, DPI.get(stem, DPI["default"]))
         atomic_write_bytes(data.directory / f"{stem}.png", png)
-        figure_html[stem] = embedded_figure(stem, FIGURES[stem], png, caption)
+        figure_html[stem] = linked_figure(stem, FIGURES[stem], f"{stem}.png", caption)
     comparison = load_comparison(data, analysis)
     if isinstance(comparison, Comparison):
         png = png_bytes(comparison_figure(data, comparison), DPI["default"])
@@ -366,7 +369,9 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
             "Left: the loops of the two least-squares models over the measurement. Middle: measurement minus "
             "each model. Right: each input cycle's RMS error (cycles split at the input's minima)."
         )
-        figure_html["comparison"] = embedded_figure("comparison", COMPARISON_FIGURE["comparison"], png, caption)
+        figure_html["comparison"] = linked_figure(
+            "comparison", COMPARISON_FIGURE["comparison"], "comparison.png", caption
+        )
     figure_html["comparison-section"] = comparison_html(data, comparison, figure_html.get("comparison", ""))
     page = page_html(data, analysis, figure_html, _time.perf_counter() - started)
     path = data.directory / results.FILES["report"]

@@ -17,7 +17,7 @@ import math
 from ..fitting.posterior import BENCH_COVERAGE
 from . import plots, results
 from .diagnosis_files import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE, next_step
-from .page import embedded_figure, escape, html_table, number_cell, number_text, plain_text, text_cell
+from .page import escape, html_table, linked_figure, number_cell, number_text, plain_text, text_cell
 from .report_analysis import ReportAnalysis, ReportData
 
 __all__ = [
@@ -587,7 +587,12 @@ def diagnosis_html(data: ReportData) -> str:
     for path in pngs:
         alt = f"Diagnosis: {path.stem.replace('_', ' ')}"  # "record1_residual_time" -> words
         parts.append(
-            embedded_figure(f"diagnosis-{path.stem}", alt, path.read_bytes(), f"From {DIAGNOSIS_FIGURES}/{path.name}.")
+            linked_figure(
+                f"diagnosis-{path.stem}",
+                alt,
+                f"{DIAGNOSIS_FIGURES}/{path.name}",
+                f"From {DIAGNOSIS_FIGURES}/{path.name}.",
+            )
         )
     return "\n".join(parts)
 
