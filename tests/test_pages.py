@@ -122,17 +122,23 @@ SAVED_FIGURES = []
 def pages(tmp_path_factory) -> dict:
     """``{name: path}`` of one page of each kind (every figure they save checked for overlapping
     labels as it is saved: :data:`SAVED_FIGURES`)."""
-    from matplotlib.figure import Figure
+    draw = FigureCanvasAgg.draw
+    checking = []
 
-    save = Figure.savefig
-
-    def checked_save(figure, *args, **kwargs):
-        SAVED_FIGURES.append((_kind[0], overlapping_labels(figure)))
-        return save(figure, *args, **kwargs)
+    def checked_draw(canvas):
+        """Every figure drawn on an Agg canvas: by ``savefig`` or by identify.output.page.png_bytes
+        (which draws on the canvas itself)."""
+        draw(canvas)
+        if not checking:  # the check draws the figure again
+            checking.append(True)
+            try:
+                SAVED_FIGURES.append((_kind[0], overlapping_labels(canvas.figure)))
+            finally:
+                checking.clear()
 
     _kind = ["study"]
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(Figure, "savefig", checked_save)
+        patch.setattr(FigureCanvasAgg, "draw", checked_draw)
         return _pages(tmp_path_factory, _kind)
 
 

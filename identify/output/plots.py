@@ -20,6 +20,8 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
 __all__ = [
     "unit_label",
+    "column_extremes",
+    "PIXEL_COLUMNS",
     "axis_label",
     "input_figure",
     "displacement_figure",
@@ -109,6 +111,43 @@ def styled(function):
     return wrapper
 
 
+#: Columns a long time series is reduced to before it is drawn (:func:`column_extremes`): about
+#: one per pixel of the axes of a 10-inch figure at 100 dpi.
+PIXEL_COLUMNS = 1000
+
+
+def column_extremes(x, lower, upper=None, *, columns=PIXEL_COLUMNS):
+    """A time series reduced to what ``columns`` pixel columns can show.
+
+    The samples are split into ``columns`` runs of equal length (a record is sampled at a
+    constant rate, so the runs are columns of equal width); of each run the lowest of
+    ``lower`` and the highest of ``upper`` are kept. A line (``upper`` None) keeps both at
+    their own samples, in the order they occur, so that it is drawn through every column's
+    extremes as before; a band keeps them at the run's first and last sample. A series of
+    at most twice ``columns`` samples is returned as it is.
+
+    Returns
+    -------
+    x, lower, upper : ndarray
+        For a line ``upper`` is ``lower``.
+    """
+    x, lower = np.asarray(x, dtype=float), np.asarray(lower, dtype=float)
+    band = upper is not None
+    upper = np.asarray(upper, dtype=float) if band else lower
+    run = int(np.ceil(x.size / columns))
+    if x.size <= 2 * columns or run < 2:
+        return x, lower, upper
+    pad = (-x.size) % run
+    index = np.concatenate([np.arange(x.size), np.full(pad, x.size - 1)]).reshape(-1, run)
+    lows = index[np.arange(index.shape[0]), np.argmin(lower[index], axis=1)]
+    highs = index[np.arange(index.shape[0]), np.argmax(upper[index], axis=1)]
+    if band:
+        ends = np.column_stack([index[:, 0], index[:, -1]]).ravel()
+        return x[ends], np.repeat(lower[lows], 2), np.repeat(upper[highs], 2)
+    kept = np.unique(np.concatenate([lows, highs, [0, x.size - 1]]))
+    return x[kept], lower[kept], lower[kept]
+
+
 @styled
 def input_figure(time, current, *, input_name="current", input_unit="A", reversals=None):
     """The drive against time, as the paper's Fig. 5.
@@ -174,19 +213,21 @@ def displacement_figure(
     else:
         keep = np.ones(time.shape, dtype=bool)
     t = time[keep]
+
+    def shown(lower, upper=None):  # the whole record: what the pixel columns show (a zoom: every sample)
+        if window is not None:
+            return t, lower[keep], (lower if upper is None else upper)[keep]
+        return column_extremes(t, lower, upper)
+
     ax.fill_between(
-        t,
-        predictive_lo[keep],
-        predictive_hi[keep],
+        *shown(predictive_lo, predictive_hi),
         color=PREDICTIVE_COLOUR,
         alpha=0.25,
         lw=0,
         label="95 % predictive band (model + noise)",
     )
     ax.fill_between(
-        t,
-        credible_lo[keep],
-        credible_hi[keep],
+        *shown(credible_lo, credible_hi),
         color=MODEL_COLOUR,
         alpha=0.45,
         lw=0,
@@ -194,15 +235,14 @@ def displacement_figure(
     )
     marker = "." if window is not None else None
     ax.plot(
-        t,
-        measured[keep],
+        *shown(measured)[:2],
         color=MEASUREMENT_COLOUR,
         lw=0.8 if window is None else 0.6,
         marker=marker,
         ms=3,
         label="measurement",
     )
-    ax.plot(t, median[keep], color=MODEL_COLOUR, lw=1.2, label="model (posterior median)")
+    ax.plot(*shown(median)[:2], color=MODEL_COLOUR, lw=1.2, label="model (posterior median)")
     ax.set_xlabel(axis_label("time", "s"))
     ax.set_ylabel(axis_label(output_name, output_unit))
     ax.set_title(title or f"{output_name.capitalize()} vs time (paper Fig. 6)")
@@ -255,9 +295,18 @@ def error_figure(
         label=f"±2σ sensor noise (σ = {noise_sigma:.3g} {unit_label(output_unit)})",
     )
     ax.fill_between(
-        time, error_lo, error_hi, color=MODEL_COLOUR, alpha=0.35, lw=0, label="95 % credible band of the error"
+        *column_extremes(time, error_lo, error_hi),
+        color=MODEL_COLOUR,
+        alpha=0.35,
+        lw=0,
+        label="95 % credible band of the error",
     )
-    ax.plot(time, error_median, color=MEASUREMENT_COLOUR, lw=0.7, label="measurement − model (posterior median)")
+    ax.plot(
+        *column_extremes(time, error_median)[:2],
+        color=MEASUREMENT_COLOUR,
+        lw=0.7,
+        label="measurement − model (posterior median)",
+    )
     ax.axhline(0.0, color="grey", lw=0.8)
     if energised_from is not None and energised_from > time[0]:
         ax.axvspan(time[0], energised_from, color="grey", alpha=0.12, lw=0, label="quiet segment (not energised)")
