@@ -306,13 +306,6 @@ def test_the_diagnosis_modules_and_functions_stay_small():
 #: code does, each new module's docstring saying what it holds.
 MAX_MODULE_LINES = 1000
 
-#: Modules still over :data:`MAX_MODULE_LINES` while other changes of issue 69 split them.
-#: This list must become empty: it only shrinks (an entry whose module is short again fails
-#: :func:`test_no_module_is_over_1000_lines` until it is removed here).
-LONG_MODULES_BEING_SPLIT = (
-    "identify/output/report.py",
-)
-
 
 def _line_counts() -> dict[str, int]:
     counts = {}
@@ -323,25 +316,15 @@ def _line_counts() -> dict[str, int]:
 
 
 def test_no_module_is_over_1000_lines():
-    """Every module of ``identify`` and ``model`` has at most :data:`MAX_MODULE_LINES` lines,
-    except those of :data:`LONG_MODULES_BEING_SPLIT`, which must all still be long (the list
-    shrinks as they are split)."""
-    counts = _line_counts()
-    long = {path: n for path, n in counts.items() if n > MAX_MODULE_LINES}
-    unexpected = [f"{path}: {n} lines" for path, n in long.items() if path not in LONG_MODULES_BEING_SPLIT]
-    stale = [path for path in LONG_MODULES_BEING_SPLIT if path not in long]
-    assert not unexpected, f"modules over {MAX_MODULE_LINES} lines (split them by what the code does): {unexpected}"
-    assert not stale, f"no longer over {MAX_MODULE_LINES} lines: remove from LONG_MODULES_BEING_SPLIT: {stale}"
+    """Every module of ``identify`` and ``model`` has at most :data:`MAX_MODULE_LINES` lines."""
+    long = [f"{path}: {n} lines" for path, n in _line_counts().items() if n > MAX_MODULE_LINES]
+    assert not long, f"modules over {MAX_MODULE_LINES} lines (split them by what the code does): {long}"
 
 
 # ----------------------------------------------------------------------------- private names in tests
 
 TESTS = ROOT / "tests"
 
-_BEING_SPLIT = (
-    "its module is being split by another change of issue 69 now: make the name public (or test "
-    "through the public API) when that lands"
-)
 _FILTERS = (
     "model.effects' shared filters are one private module by design (issue 69); the test checks its "
     "table of steps against the direct step, which has no public name"
@@ -350,10 +333,6 @@ _FILTERS = (
 #: ``(test file, private name)`` -> why the test reads it. Only for a name with no public
 #: equivalent; the list only shrinks (an entry no test uses any more fails the test).
 PRIVATE_NAMES_IN_TESTS = {
-    ("test_report.py", "identify.output.report._calibration_reading"): _BEING_SPLIT,
-    ("test_report.py", "identify.output.report._diagnosis_html"): _BEING_SPLIT,
-    ("test_report.py", "identify.output.report._glance_html"): _BEING_SPLIT,
-    ("test_report.py", "identify.output.report._parameters_html"): _BEING_SPLIT,
     ("test_effects.py", "model.effects._filters"): _FILTERS,
     ("test_effects.py", "model.effects.creep._creep_kernel"): (
         "the test swaps creep's compiled kernel for its Python function (numba's py_func) as the "

@@ -9,7 +9,8 @@ after), the prediction and compensation pages, the batch index and the design pa
   no snake_case identifier outside ``<code>`` (names a person types, such as effect,
   parameter and file names, are shown as code);
 * in headless Chromium at 1400 px no element is wider than the page (a wide table scrolls in
-  its own box). The browser is Debian's ``chromium`` found on PATH, driven by playwright
+  its own box), and every figure shows (the study's report links its PNGs by paths relative
+  to its folder). The browser is Debian's ``chromium`` found on PATH, driven by playwright
   (the ``test`` extra); without it the test is skipped with the reason, unless
   ``CI_REQUIRE_BROWSER=1`` (then it fails: CI installs the browser, ``.ci/run``);
 * no figure the report and the diagnosis draw has tick or axis labels that overlap.
@@ -121,17 +122,23 @@ SAVED_FIGURES = []
 def pages(tmp_path_factory) -> dict:
     """``{name: path}`` of one page of each kind (every figure they save checked for overlapping
     labels as it is saved: :data:`SAVED_FIGURES`)."""
-    from matplotlib.figure import Figure
+    draw = FigureCanvasAgg.draw
+    checking = []
 
-    save = Figure.savefig
-
-    def checked_save(figure, *args, **kwargs):
-        SAVED_FIGURES.append((_kind[0], overlapping_labels(figure)))
-        return save(figure, *args, **kwargs)
+    def checked_draw(canvas):
+        """Every figure drawn on an Agg canvas: by ``savefig`` or by identify.output.page.png_bytes
+        (which draws on the canvas itself)."""
+        draw(canvas)
+        if not checking:  # the check draws the figure again
+            checking.append(True)
+            try:
+                SAVED_FIGURES.append((_kind[0], overlapping_labels(canvas.figure)))
+            finally:
+                checking.clear()
 
     _kind = ["study"]
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(Figure, "savefig", checked_save)
+        patch.setattr(FigureCanvasAgg, "draw", checked_draw)
         return _pages(tmp_path_factory, _kind)
 
 
@@ -199,7 +206,7 @@ def test_the_report_states_the_verdict_and_the_next_study_shows_the_error_fall(p
         missing = pages["diagnosis"].missing
         assert f"--effects {missing} --out" in first and "--compare" in first
     second = pages["study report (compared)"].read_text()
-    assert 'id="comparison-table"' in second and "comparison.png" not in second  # the figure is embedded
+    assert 'id="comparison-table"' in second and 'src="comparison.png"' in second  # the figure beside the page
     assert (pages["study report (compared)"].parent / "comparison.png").exists()
     assert not (pages["study report (compared)"].parent / "diagnosis.json").exists()  # --no-diagnose
 
@@ -264,7 +271,13 @@ _TOO_WIDE = """() => {
 }"""
 
 
-def test_no_element_is_wider_than_the_page_in_chromium(pages):
+#: Figures whose image did not load (a page shows its PNGs from its folder by relative paths).
+_NOT_SHOWN = """() => Array.from(document.images)
+  .filter((img) => !(img.complete && img.naturalWidth > 0))
+  .map((img) => img.getAttribute('src').slice(0, 80))"""
+
+
+def test_no_element_is_wider_than_the_page_and_every_figure_shows_in_chromium(pages):
     executable = _browser()
     from playwright.sync_api import sync_playwright
 
@@ -277,6 +290,8 @@ def test_no_element_is_wider_than_the_page_in_chromium(pages):
                 view.goto(path.as_uri())
                 found = view.evaluate(_TOO_WIDE)
                 assert found["page"] <= found["width"] and not found["wide"], f"{name}: {found}"
+                missing = view.evaluate(_NOT_SHOWN)
+                assert not missing, f"{name}: figures the browser cannot show (a missing PNG?): {missing}"
         finally:
             browser.close()
 

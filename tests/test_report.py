@@ -2,13 +2,12 @@
 
 End-to-end tests run the real ``study`` on a small simulated record (tests/report_fixture.py,
 ~15 s of CPU once per session) and parse the page it writes back: every figure and table
-is there, the page is self-contained, and every number shown equals summary.json to the
+is there, the page refers only to files of its folder, and every number shown equals summary.json to the
 6 significant digits printed (relative tolerance 5e-6 plus rounding of the last digit).
 """
 
 from __future__ import annotations
 
-import base64
 import json
 import shutil
 from html.parser import HTMLParser
@@ -23,7 +22,7 @@ from scipy.stats import norm
 import model
 from identify.cli import main as identify_main
 from identify.data.reversals import default_min_swing, find_reversals
-from identify.output import plots, report
+from identify.output import plots, report, report_sections
 
 #: Relative tolerance of a number printed with report.DIGITS = 6 significant digits.
 PRINT_RTOL = 1e-5
@@ -265,7 +264,7 @@ def test_figures_label_their_axes_with_units():
         ax = fig.axes[0]
         assert ax.get_xlabel() == "time [s]"
         assert ax.get_ylabel().endswith(("[A]", "[µm]"))
-        assert ax.get_legend() is not None
+        assert ax.get_legend() is not None or fig.legends  # on the axes, or the figure's below them
     assert plots.unit_label("um") == "µm" and plots.unit_label("") == "-" and plots.unit_label("um/A") == "µm/A"
 
 
@@ -318,15 +317,15 @@ def test_corner_figure_shows_what_corner_corner_showed():
 # --------------------------------------------------------------------------------------
 # the page written by study
 # --------------------------------------------------------------------------------------
-def test_every_figure_is_embedded_and_written_as_png(misfit_folder, misfit_page):
+def test_every_figure_is_written_as_png_and_shown_from_the_folder(misfit_folder, misfit_page):
+    """Each figure is stored once, as ``DIR/<stem>.png``, and the page shows it by its path
+    relative to the folder (no base64 copy in the page)."""
     alts = [img["alt"] for img in misfit_page.images]
     assert alts == list(report.FIGURES.values())
     for stem, img in zip(report.FIGURES, misfit_page.images):
-        prefix = "data:image/png;base64,"
-        assert img["src"].startswith(prefix)
-        embedded = base64.b64decode(img["src"][len(prefix) :])
-        on_disk = (misfit_folder / f"{stem}.png").read_bytes()
-        assert embedded == on_disk and on_disk.startswith(b"\x89PNG\r\n\x1a\n")
+        assert img["src"] == f"{stem}.png"
+        assert (misfit_folder / img["src"]).read_bytes().startswith(b"\x89PNG\r\n\x1a\n")
+    assert "base64" not in (misfit_folder / "report.html").read_text()
 
 
 def test_every_table_is_present(misfit_page):
@@ -353,9 +352,16 @@ def test_every_table_is_present(misfit_page):
     assert "interval-calibration" in misfit_page.element_ids  # which interval to quote, with the bench's coverage
 
 
-def test_page_is_self_contained(misfit_folder, misfit_page):
+def test_page_refers_only_to_its_own_folder(misfit_folder, misfit_page):
+    """Every reference of the page is an anchor on it or a file of the results folder, by a
+    relative path that stays inside it: the folder (or a copy of it) shows the whole page."""
+    root = misfit_folder.resolve()
     for link in misfit_page.links:
-        assert link.startswith(("data:", "#")), f"external reference {link[:80]!r}"
+        if link.startswith("#"):
+            continue
+        assert ":" not in link and not link.startswith("/"), f"external reference {link[:80]!r}"
+        target = (misfit_folder / link).resolve()
+        assert target.is_relative_to(root) and target.is_file(), f"{link!r} is not a file of the folder"
     assert not list(misfit_folder.glob("*.tmp")) and not list(misfit_folder.glob(".*.tmp"))
 
 
@@ -463,7 +469,7 @@ def test_diagnosis_hook_renders_verdict_ranking_and_figures(folder_copy):
     (folder_copy / "diagnosis.json").write_text(json.dumps(diagnosis))
     (folder_copy / "diagnosis").mkdir()
     shutil.copy(folder_copy / "fig7_error.png", folder_copy / "diagnosis" / "residual_vs_time.png")
-    section = report._diagnosis_html(report.load_report_data(folder_copy))
+    section = report_sections.diagnosis_html(report.load_report_data(folder_copy))
     parser = PageParser()
     parser.feed(section)
     assert "diagnosis-ranking" in parser.table_ids and "diagnosis-verdict" in parser.element_ids
@@ -471,6 +477,7 @@ def test_diagnosis_hook_renders_verdict_ranking_and_figures(folder_copy):
     assert parser.values["diagnosis.thermal.rms_after"] == "0.51"
     assert parser.values["diagnosis.thermal.delta_bic"] == "-120"
     assert [img["alt"] for img in parser.images] == ["Diagnosis: residual vs time"]
+    assert [img["src"] for img in parser.images] == ["diagnosis/residual_vs_time.png"]  # relative to the folder
 
 
 def test_unreadable_folders_raise_clear_errors(tmp_path, folder_copy):
@@ -551,17 +558,17 @@ def test_no_domain_wall_note_even_for_a_summary_that_still_counts_proposals(fold
     summary["posterior"]["outside_domain_fraction"] = 0.07
     path.write_text(json.dumps(summary))
     data = report.load_report_data(folder_copy)
-    section = report._glance_html(data, report.analyse_report(data, 20, np.random.default_rng(0)))
+    section = report_sections.glance_html(data, report.analyse_report(data, 20, np.random.default_rng(0)))
     assert "domain-wall" not in section and "% of the proposals" not in section
 
 
 def test_the_calibration_note_says_calibrated_only_when_the_bench_coverage_is_near_nominal():
     from identify.fitting.posterior import BENCH_COVERAGE
-    from identify.output.report import _calibration_reading
+    from identify.output.report_sections import calibration_reading
 
     good = {**BENCH_COVERAGE, "posterior": 0.948, "least_squares": 0.951}
-    assert _calibration_reading(good).startswith("Both are calibrated there")
-    short = _calibration_reading({**BENCH_COVERAGE, "posterior": 0.91, "least_squares": 0.951})
+    assert calibration_reading(good).startswith("Both are calibrated there")
+    short = calibration_reading({**BENCH_COVERAGE, "posterior": 0.91, "least_squares": 0.951})
     assert "less than nominal" in short and "posterior 95 % interval holds the truth about 91%" in short
     assert "least-squares" not in short
 
@@ -578,7 +585,7 @@ def test_a_term_pinned_off_is_named_in_the_parameter_table(folder_copy):
     entry["vary"] = False
     path.write_text(json.dumps(summary))
     data = report.load_report_data(folder_copy)
-    html = report._parameters_html(data, report.analyse_report(data, 20, np.random.default_rng(0)), "")
+    html = report_sections.parameters_html(data, report.analyse_report(data, 20, np.random.default_rng(0)), "")
     assert (
         "<td>pinned off: thermal term &#x27;core&#x27; not supported by the record (chi-square +0.6 &lt;= BIC "
         "26.6)</td>" in html

@@ -1,8 +1,9 @@
 """``python -m identify report DIR``: the uncertainty report of a finished study.
 
 Reads the results folder ``DIR`` written by ``python -m identify study`` and writes
-``DIR/report.html`` (one self-contained page: figures embedded, opens in any browser
-without a server) and every figure as ``DIR/<name>.png``. Nothing is refitted; see
+every figure as ``DIR/<name>.png`` and ``DIR/report.html`` (one page showing those PNGs by
+paths relative to the folder: it opens in any browser without a server, from the folder or a
+copy of it). Nothing is refitted; see
 :mod:`identify.output.report` for what the page shows. ``study`` runs this at its end; run it
 again after adding ``DIR/diagnosis.json`` or to redraw with other draws.
 
@@ -22,7 +23,7 @@ from . import options
 
 __all__ = ["HELP", "add_arguments", "run"]
 
-HELP = "write DIR/report.html (self-contained page with credible bands) and the figures from a finished study"
+HELP = "write DIR/report.html (a page with credible bands) and its figures as PNGs from a finished study"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

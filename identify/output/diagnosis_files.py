@@ -35,8 +35,9 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
         Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure (the figures of an
         earlier diagnosis there are removed first, so they never mix).
     """
-    from ..data.fileio import atomic_write
+    from ..data.fileio import atomic_write_bytes
     from .diagnosis_plots import diagnosis_figures
+    from .page import png_bytes
     from .results import write_json
 
     content = diagnosis.to_dict()
@@ -58,7 +59,7 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
         prefix = f"record{r}_" if len(records) > 1 else ""  # each record's own figures
         for stem, figure in diagnosis_figures(one, rec).items():
             path = figure_dir / f"{prefix}{stem}.png"
-            atomic_write(path, lambda fh, figure=figure: figure.savefig(fh, format="png", dpi=100))
+            atomic_write_bytes(path, png_bytes(figure, 100))  # a 256-colour PNG, as the report's
             written.append(str(path))
     write_json(out / DIAGNOSIS_FILE, content)
     written.append(str(out / DIAGNOSIS_FILE))

@@ -16,9 +16,12 @@ import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch, Rectangle
+from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
 __all__ = [
     "unit_label",
+    "column_extremes",
+    "PIXEL_COLUMNS",
     "axis_label",
     "input_figure",
     "displacement_figure",
@@ -27,6 +30,7 @@ __all__ = [
     "corner_figure",
     "CORNER",
     "trace_figure",
+    "TRACES",
     "autocorrelation_figure",
     "STYLE",
     "new_figure",
@@ -107,6 +111,43 @@ def styled(function):
     return wrapper
 
 
+#: Columns a long time series is reduced to before it is drawn (:func:`column_extremes`): about
+#: one per pixel of the axes of a 10-inch figure at 100 dpi.
+PIXEL_COLUMNS = 1000
+
+
+def column_extremes(x, lower, upper=None, *, columns=PIXEL_COLUMNS):
+    """A time series reduced to what ``columns`` pixel columns can show.
+
+    The samples are split into ``columns`` runs of equal length (a record is sampled at a
+    constant rate, so the runs are columns of equal width); of each run the lowest of
+    ``lower`` and the highest of ``upper`` are kept. A line (``upper`` None) keeps both at
+    their own samples, in the order they occur, so that it is drawn through every column's
+    extremes as before; a band keeps them at the run's first and last sample. A series of
+    at most twice ``columns`` samples is returned as it is.
+
+    Returns
+    -------
+    x, lower, upper : ndarray
+        For a line ``upper`` is ``lower``.
+    """
+    x, lower = np.asarray(x, dtype=float), np.asarray(lower, dtype=float)
+    band = upper is not None
+    upper = np.asarray(upper, dtype=float) if band else lower
+    run = int(np.ceil(x.size / columns))
+    if x.size <= 2 * columns or run < 2:
+        return x, lower, upper
+    pad = (-x.size) % run
+    index = np.concatenate([np.arange(x.size), np.full(pad, x.size - 1)]).reshape(-1, run)
+    lows = index[np.arange(index.shape[0]), np.argmin(lower[index], axis=1)]
+    highs = index[np.arange(index.shape[0]), np.argmax(upper[index], axis=1)]
+    if band:
+        ends = np.column_stack([index[:, 0], index[:, -1]]).ravel()
+        return x[ends], np.repeat(lower[lows], 2), np.repeat(upper[highs], 2)
+    kept = np.unique(np.concatenate([lows, highs, [0, x.size - 1]]))
+    return x[kept], lower[kept], lower[kept]
+
+
 @styled
 def input_figure(time, current, *, input_name="current", input_unit="A", reversals=None):
     """The drive against time, as the paper's Fig. 5.
@@ -172,19 +213,21 @@ def displacement_figure(
     else:
         keep = np.ones(time.shape, dtype=bool)
     t = time[keep]
+
+    def shown(lower, upper=None):  # the whole record: what the pixel columns show (a zoom: every sample)
+        if window is not None:
+            return t, lower[keep], (lower if upper is None else upper)[keep]
+        return column_extremes(t, lower, upper)
+
     ax.fill_between(
-        t,
-        predictive_lo[keep],
-        predictive_hi[keep],
+        *shown(predictive_lo, predictive_hi),
         color=PREDICTIVE_COLOUR,
         alpha=0.25,
         lw=0,
         label="95 % predictive band (model + noise)",
     )
     ax.fill_between(
-        t,
-        credible_lo[keep],
-        credible_hi[keep],
+        *shown(credible_lo, credible_hi),
         color=MODEL_COLOUR,
         alpha=0.45,
         lw=0,
@@ -192,19 +235,18 @@ def displacement_figure(
     )
     marker = "." if window is not None else None
     ax.plot(
-        t,
-        measured[keep],
+        *shown(measured)[:2],
         color=MEASUREMENT_COLOUR,
         lw=0.8 if window is None else 0.6,
         marker=marker,
         ms=3,
         label="measurement",
     )
-    ax.plot(t, median[keep], color=MODEL_COLOUR, lw=1.2, label="model (posterior median)")
+    ax.plot(*shown(median)[:2], color=MODEL_COLOUR, lw=1.2, label="model (posterior median)")
     ax.set_xlabel(axis_label("time", "s"))
     ax.set_ylabel(axis_label(output_name, output_unit))
     ax.set_title(title or f"{output_name.capitalize()} vs time (paper Fig. 6)")
-    ax.legend(loc="best")
+    legend_below(fig, ax, ncols=4, fontsize=9)  # off the data, and no search for the emptiest corner
     if window is not None:
         ax.set_xlim(window)
     return fig
@@ -253,9 +295,18 @@ def error_figure(
         label=f"±2σ sensor noise (σ = {noise_sigma:.3g} {unit_label(output_unit)})",
     )
     ax.fill_between(
-        time, error_lo, error_hi, color=MODEL_COLOUR, alpha=0.35, lw=0, label="95 % credible band of the error"
+        *column_extremes(time, error_lo, error_hi),
+        color=MODEL_COLOUR,
+        alpha=0.35,
+        lw=0,
+        label="95 % credible band of the error",
     )
-    ax.plot(time, error_median, color=MEASUREMENT_COLOUR, lw=0.7, label="measurement − model (posterior median)")
+    ax.plot(
+        *column_extremes(time, error_median)[:2],
+        color=MEASUREMENT_COLOUR,
+        lw=0.7,
+        label="measurement − model (posterior median)",
+    )
     ax.axhline(0.0, color="grey", lw=0.8)
     if energised_from is not None and energised_from > time[0]:
         ax.axvspan(time[0], energised_from, color="grey", alpha=0.12, lw=0, label="quiet segment (not energised)")
@@ -429,12 +480,12 @@ def _padded_grid(H, X, Y):
     return extended(X1), extended(Y1), H2
 
 
-def _ticks(low, high, max_ticks):
+def _ticks(low, high, max_ticks, prune="lower"):
     """The tick values and labels (and offset text) an axis from ``low`` to ``high`` shows with
-    ``MaxNLocator(max_ticks, prune="lower")`` and a ``ScalarFormatter``, as corner's."""
+    ``MaxNLocator(max_ticks, prune=prune)`` and a ``ScalarFormatter``, as corner's."""
     from matplotlib.ticker import MaxNLocator, ScalarFormatter
 
-    locator = MaxNLocator(max_ticks, prune="lower")
+    locator = MaxNLocator(max_ticks, prune=prune)
     locs = locator.tick_values(low, high)
     formatter = ScalarFormatter()
     formatter.create_dummy_axis()
@@ -513,6 +564,13 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
             y0 + height * (np.asarray(y) - yview[0]) / (yview[1] - yview[0]),
         )
 
+    known_ticks = {}
+
+    def ticks_of(view):  # a column's or row's panels share their view: its ticks are found once
+        if view not in known_ticks:
+            known_ticks[view] = _ticks(*view, max_ticks)
+        return known_ticks[view]
+
     frames, contours, steps, dashed, lines, ticks, squares = [], [], [], [], [], [], []
     texts = []  # (x, y, text, keyword arguments)
     tick = c["tick_length"] * point
@@ -550,7 +608,7 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
             if reference is not None and xview[0] <= reference[j] <= xview[1]:
                 lines.append(np.column_stack(to_figure(i, j, [reference[j]] * 2, yview, xview, yview)))
             # ticks below every panel, left of every contour panel; labels at the figure's edges
-            locs, tick_labels, offset = _ticks(*xview, max_ticks)
+            locs, tick_labels, offset = ticks_of(xview)
             xs, _ = to_figure(i, j, locs, np.zeros_like(locs), xview, (0.0, 1.0))
             ticks += [((x, y0), (x, y0 - tick)) for x in xs]
             if i == n_dim - 1:
@@ -569,7 +627,7 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
                     )
                 )
             if i != j:
-                locs, tick_labels, offset = _ticks(*yview, max_ticks)
+                locs, tick_labels, offset = ticks_of(yview)
                 _, ys = to_figure(i, j, np.zeros_like(locs), locs, (0.0, 1.0), yview)
                 ticks += [((x0, y), (x0 - tick, y)) for y in ys]
                 if j == 0:
@@ -608,9 +666,50 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
     return fig
 
 
-@styled
+#: The trace figure's look: panels, ticks and texts as the axes of :data:`STYLE` drew them.
+TRACES = {
+    "columns": 4,
+    "panel_height": 1.9,  # inches per row of panels
+    "width": 15.0,  # inches
+    "hspace": 0.5,  # between rows, a fraction of a panel's height
+    "wspace": 0.22,  # between columns, a fraction of a panel's width
+    "max_ticks": (7, 4),  # along the steps, along the values
+    "margin": 0.05,  # of the data range on either side, as matplotlib's autoscaling
+    "tick_length": 3.5,  # points
+    "tick_pad": 3.5,  # points
+    "tick_label_size": 8,
+    "title_size": 10,
+    "grid_colour": "#b0b0b0",
+    "grid_alpha": 0.3,
+    "burn_in_colour": "tab:orange",
+}
+
+
+def _trace_views(values, steps, discard, is_log_prob):
+    """A panel's view (x range, y range): the data's ranges plus the 5 % margins; the log
+    posterior's y range follows the post-burn-in values (earlier, lower values leave the panel)."""
+    margin = TRACES["margin"]
+    x_low, x_high = float(min(steps[0], discard)), float(steps[-1])
+    x_view = (x_low - margin * (x_high - x_low), x_high + margin * (x_high - x_low))
+    finite = values[np.isfinite(values)]
+    settled = values[steps > discard]
+    settled = settled[np.isfinite(settled)]
+    if is_log_prob and settled.size:
+        low, high = float(settled.min()), float(settled.max())
+        return x_view, (low - 0.5 * (high - low + 1.0), high + 0.1 * (high - low + 1.0))
+    low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    span = high - low if high > low else max(abs(low), 1.0) * 1e-3
+    return x_view, (low - margin * span, high + margin * span)
+
+
 def trace_figure(chain, log_prob, labels, *, steps, discard):
     """Walker traces of every varying parameter and of the log-posterior, burn-in shaded.
+
+    The panels (:data:`TRACES`: four columns, a frame, grid, ticks and tick labels, the burn-in
+    shaded, the parameter as the panel's title, the steps labelled under the lowest panels) are
+    drawn as artists of one figure, as :func:`corner_figure` draws its panels, instead of one
+    matplotlib axes each: the axes' tick objects and layout took most of the report's drawing
+    time; each panel's walker lines are clipped to its frame.
 
     Parameters
     ----------
@@ -625,37 +724,91 @@ def trace_figure(chain, log_prob, labels, *, steps, discard):
     discard : int
         Burn-in steps (shaded and excluded from the posterior summaries).
     """
+    from matplotlib.collections import PatchCollection
+    from matplotlib.transforms import Bbox, TransformedBbox
+
+    c = TRACES
     n_steps, n_walkers, n_dim = chain.shape
-    n_cols = 4
+    n_cols = c["columns"]
     n_rows = int(np.ceil((n_dim + 1) / n_cols))
-    height = 1.9 * n_rows + 0.6
-    fig = Figure(figsize=(15, height))  # fixed margins: constrained layout triples the drawing time here
-    grid = dict(left=0.05, right=0.99, bottom=0.5 / height, top=1 - 0.8 / height, hspace=0.5, wspace=0.22)
-    # every panel's x range is that of the same steps: the same limits without sharing the
-    # axes (whose bookkeeping cost a third of the drawing), only the lowest panels labelled
-    axes = np.atleast_1d(fig.subplots(n_rows, n_cols, gridspec_kw=grid)).ravel()
-    for ax in axes:
-        ax.xaxis.set_tick_params(labelbottom=False)
+    height = c["panel_height"] * n_rows + 0.6
+    fig = Figure(figsize=(c["width"], height))
+    left, right, bottom, top = 0.05, 0.99, 0.5 / height, 1 - 0.8 / height
+    width = (right - left) / (n_cols + (n_cols - 1) * c["wspace"])
+    panel_height = (top - bottom) / (n_rows + (n_rows - 1) * c["hspace"])
+    point_x, point_y = 1.0 / (72.0 * c["width"]), 1.0 / (72.0 * height)  # one point as a figure fraction
+    steps = np.asarray(steps, dtype=float)
     line_alpha = float(np.clip(8.0 / n_walkers, 0.08, 0.6))
     series = [(chain[:, :, i], labels[i]) for i in range(n_dim)] + [(log_prob, "log posterior")]
-    for ax, (values, label) in zip(axes, series):
+    frames, shades, grid, ticks, texts = [], [], [], [], []
+    tick_text = dict(fontsize=c["tick_label_size"])
+    for k, (values, label) in enumerate(series):
+        row, col = divmod(k, n_cols)
+        x0 = left + col * width * (1 + c["wspace"])
+        y0 = top - row * panel_height * (1 + c["hspace"]) - panel_height
+        x_view, y_view = _trace_views(np.asarray(values, dtype=float), steps, discard, k == n_dim)
+
+        def fx(x, x0=x0, x_view=x_view):
+            return x0 + width * (np.asarray(x, dtype=float) - x_view[0]) / (x_view[1] - x_view[0])
+
+        def fy(y, y0=y0, y_view=y_view):
+            return y0 + panel_height * (np.asarray(y, dtype=float) - y_view[0]) / (y_view[1] - y_view[0])
+
+        frames.append(Rectangle((x0, y0), width, panel_height))
+        shade_to = min(max(float(fx(discard)), x0), x0 + width)
+        shades.append(
+            Rectangle((max(float(fx(steps[0])), x0), y0), shade_to - max(float(fx(steps[0])), x0), panel_height)
+        )
         finite = np.where(np.isfinite(values), values, np.nan)
-        walkers = [np.column_stack([steps, finite[:, w]]) for w in range(finite.shape[1])]
-        ax.add_collection(LineCollection(walkers, colors="black", linewidths=0.5, alpha=line_alpha))
-        ax.autoscale_view()
-        ax.axvspan(steps[0], discard, color="tab:orange", alpha=0.2, lw=0)
-        ax.set_title(label, fontsize=10, y=1.0)  # where matplotlib puts it; given, it is not searched for
-        ax.tick_params(labelsize=8)
-    settled = log_prob[steps > discard]
-    settled = settled[np.isfinite(settled)]
-    if settled.size:  # keep the post-burn-in spread readable; earlier, lower values leave the panel
-        low, high = settled.min(), settled.max()
-        axes[len(series) - 1].set_ylim(low - 0.5 * (high - low + 1.0), high + 0.1 * (high - low + 1.0))
-    for ax in axes[len(series) :]:
-        ax.set_visible(False)
-    for ax in axes[max(0, len(series) - n_cols) : len(series)]:
-        ax.set_xlabel("step", fontsize=9)
-        ax.xaxis.set_tick_params(labelbottom=True)
+        walkers = [np.column_stack([fx(steps), fy(finite[:, w])]) for w in range(finite.shape[1])]
+        lines = LineCollection(walkers, colors="black", linewidths=0.5, alpha=line_alpha, transform=fig.transFigure)
+        lines.set_clip_box(TransformedBbox(Bbox.from_bounds(x0, y0, width, panel_height), fig.transFigure))
+        fig.add_artist(lines)
+        texts.append(
+            (
+                x0 + 0.5 * width,
+                y0 + panel_height + 6 * point_y,
+                label,
+                dict(ha="center", va="bottom", fontsize=c["title_size"]),
+            )
+        )
+        locs, tick_labels, offset = _ticks(*y_view, c["max_ticks"][1], prune=None)
+        for y, text in zip(fy(locs), tick_labels):
+            grid.append(((x0, y), (x0 + width, y)))
+            ticks.append(((x0, y), (x0 - c["tick_length"] * point_x, y)))
+            texts.append(
+                (
+                    x0 - (c["tick_length"] + c["tick_pad"]) * point_x,
+                    y,
+                    text,
+                    dict(ha="right", va="center_baseline", **tick_text),
+                )
+            )
+        if offset:
+            texts.append((x0, y0 + panel_height + 2 * point_y, offset, dict(ha="left", va="bottom", **tick_text)))
+        locs, tick_labels, offset = _ticks(*x_view, c["max_ticks"][0], prune=None)
+        lowest = k >= len(series) - n_cols
+        for x, text in zip(fx(locs), tick_labels):
+            grid.append(((x, y0), (x, y0 + panel_height)))
+            ticks.append(((x, y0), (x, y0 - c["tick_length"] * point_y)))
+            if lowest:
+                texts.append(
+                    (
+                        x,
+                        y0 - (c["tick_length"] + c["tick_pad"]) * point_y,
+                        text,
+                        dict(ha="center", va="top", **tick_text),
+                    )
+                )
+        if lowest:
+            texts.append((x0 + 0.5 * width, y0 - 20 * point_y, "step", dict(ha="center", va="top", fontsize=9)))
+    figure = dict(transform=fig.transFigure)
+    fig.add_artist(PatchCollection(shades, facecolors=c["burn_in_colour"], edgecolors="none", alpha=0.2, **figure))
+    fig.add_artist(LineCollection(grid, colors=c["grid_colour"], alpha=c["grid_alpha"], linewidths=0.8, **figure))
+    fig.add_artist(LineCollection(ticks, colors="black", linewidths=0.8, **figure))
+    fig.add_artist(PatchCollection(frames, facecolors="none", edgecolors="black", linewidths=0.8, **figure))
+    for x, y, text, keywords in texts:
+        fig.text(x, y, text, **keywords)
     fig.suptitle(f"Walker traces ({n_walkers} walkers; shaded: burn-in, the first {discard} steps, discarded)")
     return fig
 
@@ -691,6 +844,10 @@ def autocorrelation_figure(chain_lengths, tau, labels, *, tau_reported=None):
     if tau_reported is not None and np.isfinite(tau_reported):
         ax.axhline(tau_reported, color="tab:purple", ls=":", lw=1.5, label=f"reported max τ = {tau_reported:.3g}")
     ax.plot([], [], color="grey", lw=0.8, label="other parameters")
+    for axis in (ax.xaxis, ax.yaxis):  # plain numbers at 1, 2, 5 x 10^k: no minor ticks to lay out
+        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        axis.set_minor_locator(NullLocator())
     ax.set_xlabel("chain length N [steps]")
     ax.set_ylabel("integrated autocorrelation time τ [steps]")
     ax.set_title("Autocorrelation time vs chain length")
