@@ -105,6 +105,12 @@ def _thermal_fall(y_stage, i0, ahead, first, thermal_on, th, thermal_c, lo, hi, 
     return 1.25 * (abs(th[2] - th[1] * y_stage) * rise + abs(th[6] - th[5] * y_stage) * rise2) + htol
 
 
+@njit(cache=True, inline="always")
+def _beyond_fall(f, y_stage, i, ahead, first, thermal_on, th, thermal_c, lo, hi, htol):
+    """Whether ``|F| = |f|`` at the current ``i`` exceeds what thermal can take off it before the limit."""
+    return abs(f) > _thermal_fall(y_stage, i, ahead, first, thermal_on, th, thermal_c, lo, hi, htol)
+
+
 @njit(cache=True)
 def _gap(x, s, first, st, lag_c, has_training, tr):
     """``s (u(s x) - u_prev)``: how far the drive moves toward side ``s`` (the input stage alone)."""
@@ -205,9 +211,9 @@ def _search(
        the root nearest the previous drive lies there;
     3. probes with steps growing 4x (from ``step0``) go first where a nondecreasing ``F``
        has its root (up when ``F < 0``), then, if that direction reaches its limit or the
-       side's edge without a sign change, the other way, but only where ``F`` can fall: when
-       ``thermal`` can lower it by ``|F(x0)|`` within the limits (:func:`_thermal_fall`: the
-       heating's weight in one step, bounded), or training's strain part is on. Only when
+       side's edge without a sign change, the other way, but only as far as ``F`` can still
+       fall to 0: while ``thermal`` can lower it by ``|F|`` before the limit (:func:`_thermal_fall`:
+       the heating's weight in one step, bounded), always with training's strain part on. Only when
        neither finds a sign change is the stretch between the side's edge and the last point on
        it examined (a root can lie there when the drive lags the current): the edge is located
        on the drive alone (:func:`_edge`; without input dynamics it is that point itself), and
@@ -308,11 +314,10 @@ def _search(
         down_done = True
         if abs(f0) <= htol:
             return s * x0, f0, n_eval
-    # 3. probe for a sign change; the way away from the root of a nondecreasing F only when the
-    # thermal stage can make F fall by |F(x0)| within the limits (and training's strain part is off)
-    away = (has_training and tr[4] != 0.0) or not (
-        abs(f0) > _thermal_fall(y_stage, s * x0, s * f0, first, thermal_on, th, thermal_c, lo, hi, htol)
-    )
+    # 3. probe for a sign change; away from the root of a nondecreasing F only while the thermal
+    # stage can still make F fall by |F| before the limit (always with training's strain part on)
+    bounded = not (has_training and tr[4] != 0.0)
+    y_stage0 = y_stage
     best_x, best_f = x0, f0
     up_done = x0 >= x_max
     direction = 1 if f0 < 0.0 else -1
@@ -327,14 +332,19 @@ def _search(
             direction = -direction
         if (direction > 0 and up_done) or (direction < 0 and down_done):
             continue
-        if not away and direction * f0 > 0.0:
+        away = direction * f0 > 0.0
+        if (
+            away
+            and bounded
+            and _beyond_fall(f0, y_stage0, s * x0, s * f0, first, thermal_on, th, thermal_c, lo, hi, htol)
+        ):
             continue
         xp, fp = x0, f0
         step = step0
         while True:
             x = min(xp + step, x_max) if direction > 0 else max(xp - step, x_min)
             step *= 4.0
-            f, _ = _objective(
+            f, y_stage = _objective(
                 x,
                 s,
                 target,
@@ -377,6 +387,12 @@ def _search(
                 best_x, best_f = x, f
             xp, fp = x, f
             if x >= x_max or x <= x_min:
+                break
+            if (
+                away
+                and bounded
+                and _beyond_fall(f, y_stage, s * x, s * f0, first, thermal_on, th, thermal_c, lo, hi, htol)
+            ):
                 break
         if found:
             break

@@ -645,11 +645,11 @@ static double objective(msma_inverse *c, double x, int s, double target, int fir
 
 static double magnitude(double f) { return f == -INFINITY ? INFINITY : fabs(f); }
 
-/* The most the thermal stage can lower F from the current i0 on a side (its input y_stage there,
- * from the last objective() on the side) to any current beyond i0 (ahead > 0: up to hi, < 0: down
+/* The most the thermal stage can lower F from the current i0 on a side (its input y_stage there)
+ * to any current beyond i0 (ahead > 0: up to hi, < 0: down
  * to lo): |E - S y_stage| times the most the rise can change, both nodes (the rise is affine in the
  * present heating (i / 5 A)^2, weight 1 - gain per node), a quarter's margin, plus htol (_thermal_fall). */
-static double thermal_fall(const msma_inverse *c, double i0, double ahead, int first) {
+static double thermal_fall(const msma_inverse *c, double y_stage, double i0, double ahead, int first) {
     const double *th = c->th, *tc = c->thermal_c;
     double a, b, h_max, h_min, heating, rise, rise2;
     if (!c->p.has_thermal || first) return 0.0;
@@ -660,7 +660,7 @@ static double thermal_fall(const msma_inverse *c, double i0, double ahead, int f
     heating = pmax(h_max - i0 * i0, i0 * i0 - h_min) / (th[3] * th[3]);
     rise = (tc[2] > 0.5 ? 1.0 - tc[0] : 1.0) * heating;
     rise2 = (tc[5] > 0.5 ? 1.0 - tc[3] : 1.0) * rise;
-    return 1.25 * (fabs(th[2] - th[1] * c->y_stage) * rise + fabs(th[6] - th[5] * c->y_stage) * rise2) + c->htol;
+    return 1.25 * (fabs(th[2] - th[1] * y_stage) * rise + fabs(th[6] - th[5] * y_stage) * rise2) + c->htol;
 }
 
 /* s (u(s x) - u_prev): how far the drive moves toward side s, the input stage alone (_gap). */
@@ -710,8 +710,8 @@ static double edge(const msma_inverse *c, double xa, double da, double xb, doubl
 static void search(msma_inverse *c, int s, double start, double step0, double target, int first, double *i_out,
                    double *f_out) {
     const double lo = c->lo, hi = c->hi, htol = c->htol, rtol = c->rtol, xtol = c->xtol;
-    double x_min, x_max, x0, f0, best_x, best_f, xl, fl, xr, fr, gl, gr, exl, efl, exr, efr;
-    int down_done, up_done, direction, found, edge_found, sweep, last, it, crawl = 0, away;
+    double x_min, x_max, x0, f0, best_x, best_f, xl, fl, xr, fr, gl, gr, exl, efl, exr, efr, y_stage0;
+    int down_done, up_done, direction, found, edge_found, sweep, last, it, crawl = 0, away, bounded;
     if (s > 0) {
         x_min = lo, x_max = hi;
     } else {
@@ -752,9 +752,10 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
             return;
         }
     }
-    /* 3. probes for a sign change; the way away from the root of a nondecreasing F only when the
-     * thermal stage can make F fall by |F(x0)| within the limits (and training's strain part is off) */
-    away = (c->p.has_training && c->tr[4] != 0.0) || !(fabs(f0) > thermal_fall(c, s * x0, s * f0, first));
+    /* 3. probes for a sign change; away from the root of a nondecreasing F only while the thermal
+     * stage can still make F fall by |F| before the limit (always with training's strain part on) */
+    bounded = !(c->p.has_training && c->tr[4] != 0.0);
+    y_stage0 = c->y_stage;
     best_x = x0, best_f = f0;
     up_done = x0 >= x_max;
     direction = f0 < 0.0 ? 1 : -1;
@@ -767,7 +768,8 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
         double xp, fp, step;
         if (sweep == 1) direction = -direction;
         if ((direction > 0 && up_done) || (direction < 0 && down_done)) continue;
-        if (!away && direction * f0 > 0.0) continue;
+        away = direction * f0 > 0.0;
+        if (away && bounded && fabs(f0) > thermal_fall(c, y_stage0, s * x0, s * f0, first)) continue;
         xp = x0, fp = f0;
         step = step0;
         for (;;) {
@@ -797,6 +799,7 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
             if (magnitude(f) < magnitude(best_f)) best_x = x, best_f = f;
             xp = x, fp = f;
             if (x >= x_max || x <= x_min) break;
+            if (away && bounded && fabs(f) > thermal_fall(c, c->y_stage, s * x, s * f0, first)) break;
         }
         if (found) break;
     }
