@@ -444,7 +444,8 @@ static void initial_envelopes(const double *g, double u, double excursion, doubl
 
 /* The input stage for current i (drive_step): the lag's output u1, the drive u the hysteresis sees,
  * the drive's travel and training's fading factor at it (1 without training). */
-static void drive(const msma_inverse *c, double i, int first, double *u1, double *u, double *travel, double *fade) {
+static inline void drive(const msma_inverse *c, double i, int first, double *u1, double *u, double *travel,
+                         double *fade) {
     const double *st = c->st, *tr = c->tr;
     *u1 = first ? i : filter_step(st[1], st[0], i, c->lag_c[0], c->lag_c[1], c->lag_c[2] > 0.5);
     *travel = 0.0;
