@@ -10,10 +10,14 @@ small timing harness, which steps a
 with ``clock_gettime(CLOCK_MONOTONIC)``. The whole run is repeated; per sample the fastest of
 the repeats is its cost (the calls take the same path every time, so what the repeats add is
 the scheduler's, not the algorithm's). Printed: median, 99th percentile and worst of those
-per-sample costs over the samples after the first (the worst lies at the target's reversals,
-where the inverse searches both sides of Omega's switch), the first sample's (once per run),
-and the worst single call seen in any repeat (with the scheduler's interruptions). Target
-(issue 68): under 2 us per sample for the inverse::
+per-sample costs over the samples after the first, with the model steps (``msma_inverse_step``'s
+evaluations of the model) the worst sample took, the first sample's cost (once per run), the
+worst single call seen in any repeat (that one is the scheduler's: milliseconds at a load above
+the cores), and the model steps per sample (mean, max) and the median cost of one. The worst
+samples are the target's reversals, where the inverse searches both sides of Omega's switch:
+their cost is their model steps times the cost of one, which moves with the machine's load (a
+shared core runs slower), so compare the steps, or costs measured in one run. Target (issue 68):
+under 2 us per sample for the inverse::
 
     python benchmarks/export_step.py [--repeats 7] [--study DIR]
 """
@@ -55,7 +59,7 @@ int main(int argc, char **argv) {
     double lo = atof(argv[3]), hi = atof(argv[4]), scale = atof(argv[5]);
     double *t = malloc(n * sizeof *t), *y = malloc(n * sizeof *y);
     double *inv = malloc(n * sizeof *inv), *fwd = malloc(n * sizeof *fwd), worst_inv = 0, worst_fwd = 0;
-    long long evaluations = 0;
+    long long evaluations = 0, *steps = malloc(n * sizeof *steps);
     msma_params p;
     static msma_inverse c;
     static msma_forward m;
@@ -69,7 +73,9 @@ int main(int argc, char **argv) {
     for (r = 0; r < repeats; r++) {
         if (msma_inverse_init(&c, &p, lo, hi, scale) || msma_forward_init(&m, &p)) return 1;
         for (k = 0; k < n; k++) {
+            long long before = c.evaluations;
             double a = now(), i = msma_inverse_step(&c, t[k], y[k], &status), b = now(), d;
+            steps[k] = c.evaluations - before;
             msma_forward_step(&m, t[k], i);
             d = now() - b;
             if (b - a < inv[k]) inv[k] = b - a;
@@ -80,7 +86,7 @@ int main(int argc, char **argv) {
         evaluations = c.evaluations;
     }
     printf("%.17g %.17g %lld\n", worst_inv, worst_fwd, evaluations);
-    for (k = 0; k < n; k++) printf("%.17g %.17g\n", inv[k], fwd[k]);
+    for (k = 0; k < n; k++) printf("%.17g %.17g %lld\n", inv[k], fwd[k], steps[k]);
     return 0;
 }
 """
@@ -133,13 +139,16 @@ def measure(c_dir: Path, work: Path, time, target, current_range, scale, repeats
 
 def _row(label, costs, worst_inv, worst_fwd, evaluations):
     """One line: the first sample apart (once per run: the initial memory in every model step)."""
-    inv, fwd = costs[1:, 0], costs[1:, 1]
+    inv, fwd, steps = costs[1:, 0], costs[1:, 1], costs[1:, 2] * 1000.0
     median = "met" if np.median(inv) < 2.0 else "NOT met"
     worst = "met" if inv.max() < 2.0 else "NOT met"
+    k = int(np.argmax(inv))
+    per_step = np.median(inv[steps > 0] / steps[steps > 0]) * 1000.0
     print(
         f"{label:<52} inverse median {np.median(inv):5.2f} us, p99 {np.percentile(inv, 99):5.2f}, worst "
-        f"{inv.max():5.2f} (sample {int(np.argmax(inv)) + 1}), first sample {costs[0, 0]:5.2f}, any call "
-        f"{worst_inv:7.1f}; {evaluations:4.1f} model steps/sample | forward median {np.median(fwd):5.3f} us, worst "
+        f"{inv.max():5.2f} (sample {k + 1}: {steps[k]:.0f} model steps), first sample {costs[0, 0]:5.2f}, any call "
+        f"{worst_inv:7.1f}; model steps/sample {evaluations:4.1f} mean, {steps.max():.0f} max, "
+        f"{per_step:.0f} ns each (median) | forward median {np.median(fwd):5.3f} us, worst "
         f"{fwd.max():5.2f} (any call {worst_fwd:6.1f}) | < 2 us: median {median}, worst {worst}"
     )
 

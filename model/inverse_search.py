@@ -4,10 +4,12 @@
 (parallel over the batch): it chooses the side (rising or falling) from the target, finds the
 current with an expanding probe and Illinois regula falsi safeguarded by bisection
 (``_search`` on ``_objective``, the output's distance from the target through
-:func:`model.inverse_step.evaluate_step`), handles the Omega switch at a reversal and the
-current limits, and commits the state (:func:`model.inverse_step.commit_step`). The method
-and the statuses are stated in :mod:`model.inverse`'s docstring; :func:`model.inverse.invert`
-checks the inputs and calls this kernel.
+:func:`model.inverse_step.evaluate_step`; a side's edge located on the drive alone, ``_edge``
+on ``_gap``), handles the Omega switch at a reversal and the current limits, and commits the
+state (:func:`model.inverse_step.commit_step`). The method and the statuses are stated in
+:mod:`model.inverse`'s docstring; :func:`model.inverse.invert` checks the inputs and calls
+this kernel. The exported C (``identify/export/c/msma_gpi.c``) repeats this search operation
+for operation: a change here is a change there.
 """
 
 from __future__ import annotations
@@ -17,13 +19,16 @@ from numba import njit, prange
 
 from .effects.thermal import REFERENCE_CURRENT
 from .gpi_kernels import operator_thresholds_and_weights
-from .inverse_step import commit_step, evaluate_step, filter_coefficients
+from .inverse_step import commit_step, drive_step, evaluate_step, filter_coefficients
 
 __all__ = ["inverse_kernel"]
 
 #: The cap on the iterations of each loop of the search (the bisection for a side's edge, the
 #: refinement of the bracket).
 _MAX_ITERATIONS = 200
+#: A side's edge is located to this many ``xtol`` (the width below which a bracket with an end off
+#: the side is not refined further).
+_EDGE_WIDTH = 16.0
 
 
 @njit(cache=True)
@@ -52,8 +57,9 @@ def _objective(
     thermal_c,
     drift,
 ):
-    """``s (y(s x) - target)`` on side ``s``, ``-inf`` off it (search coordinate ``x = s i``)."""
-    y, _, _, _, _, side, _, _ = evaluate_step(
+    """``(F, y_stage)``: ``F = s (y(s x) - target)`` on side ``s``, ``-inf`` off it (search coordinate
+    ``x = s i``); ``y_stage`` the thermal stage's input there (0 off the side)."""
+    y, _, _, _, _, side, _, _, y_stage = evaluate_step(
         s * x,
         first,
         n_ops,
@@ -77,8 +83,83 @@ def _objective(
         drift,
     )
     if not first and side != s:
-        return -np.inf
-    return s * (y - target)
+        return -np.inf, 0.0
+    return s * (y - target), y_stage
+
+
+@njit(cache=True)
+def _thermal_fall(y_stage, i0, ahead, first, thermal_on, th, thermal_c, lo, hi, htol):
+    """The most the thermal stage can lower ``F`` from the current ``i0`` on a side (its input
+    ``y_stage`` there) to any current beyond ``i0`` (``ahead`` > 0: up to ``hi``; < 0: down to
+    ``lo``): ``|E - S y_stage|`` times the most the rise can change, both nodes (the rise is affine in
+    the present heating ``(i / 5 A)^2``, weight ``1 - gain`` per node), with a quarter's margin plus
+    ``htol``. The other stages keep ``F`` nondecreasing on a side (:mod:`model.inverse`)."""
+    if not thermal_on or first:
+        return 0.0
+    a, b = (i0, hi) if ahead > 0 else (lo, i0)
+    h_max = max(a * a, b * b)
+    h_min = 0.0 if a < 0.0 < b else min(a * a, b * b)
+    heating = max(h_max - i0 * i0, i0 * i0 - h_min) / (th[3] * th[3])
+    rise = (1.0 - thermal_c[0] if thermal_c[2] > 0.5 else 1.0) * heating
+    rise2 = (1.0 - thermal_c[3] if thermal_c[5] > 0.5 else 1.0) * rise
+    return 1.25 * (abs(th[2] - th[1] * y_stage) * rise + abs(th[6] - th[5] * y_stage) * rise2) + htol
+
+
+@njit(cache=True, inline="always")
+def _beyond_fall(f, y_stage, i, ahead, first, thermal_on, th, thermal_c, lo, hi, htol):
+    """Whether ``|F| = |f|`` at the current ``i`` exceeds what thermal can take off it before the limit."""
+    return abs(f) > _thermal_fall(y_stage, i, ahead, first, thermal_on, th, thermal_c, lo, hi, htol)
+
+
+@njit(cache=True)
+def _gap(x, s, first, st, lag_c, has_training, tr):
+    """``s (u(s x) - u_prev)``: how far the drive moves toward side ``s`` (the input stage alone)."""
+    _, u, _, _ = drive_step(s * x, first, st, lag_c, has_training, tr)
+    return s * (u - st[4])
+
+
+@njit(cache=True, inline="always")
+def _on_side(d, s, st):
+    """Whether a drive gap ``d`` (:func:`_gap`) lies on side ``s``: a still drive keeps the last motion's."""
+    return d > 0.0 or (d == 0.0 and (st[5] > 0.5) == (s > 0))
+
+
+@njit(cache=True)
+def _edge(xa, da, xb, db, s, xtol, first, st, lag_c, has_training, tr):
+    """The point on side ``s`` within ``_EDGE_WIDTH xtol`` of its edge, between ``xa`` (off the side,
+    drive gap ``da``) and ``xb`` (on it, gap ``db``), found on the drive alone (:func:`_gap`).
+
+    Illinois regula falsi on the gap (affine in the current for a lag: one step), each point at
+    least ``_EDGE_WIDTH xtol`` inside the bracket (the point next to the edge ends it), a
+    bisection when the last two steps did not halve the bracket.
+    """
+    limit = _EDGE_WIDTH * xtol
+    ga, gb = da, db
+    last = 0
+    width_1, width_2 = np.inf, np.inf
+    for _ in range(_MAX_ITERATIONS):
+        width = abs(xb - xa)
+        if width <= limit:
+            break
+        toward = 1.0 if xb > xa else -1.0  # from xa to xb
+        if gb > ga and width <= 0.5 * width_2 and width > 2.0 * limit:
+            x = xb - gb * (xb - xa) / (gb - ga)
+            x = min(max(toward * (x - xa), limit), width - limit) * toward + xa
+        else:
+            x = 0.5 * (xa + xb)
+        width_2, width_1 = width_1, width
+        d = _gap(x, s, first, st, lag_c, has_training, tr)
+        if _on_side(d, s, st):
+            xb, gb = x, d
+            if last == 1:
+                ga *= 0.5
+            last = 1
+        else:
+            xa, ga = x, d
+            if last == -1:
+                gb *= 0.5
+            last = -1
+    return xb
 
 
 @njit(cache=True, inline="always")
@@ -123,18 +204,28 @@ def _search(
     In the search coordinate ``x = s i``:
 
     1. ``start`` itself when ``|F| <= htol`` there (a hold);
-    2. a start off the side (a reversal: ``F = -inf``) is first moved to the side's edge
-       (probes from ``start`` with steps growing 4x from ``16 xtol``, then bisection of the
-       off/on transition to ``xtol``): the root nearest the previous drive lies there;
+    2. a start off the side (a reversal: ``F = -inf``) is first moved to the side's edge, on
+       the drive alone (:func:`_gap`, no envelope evaluated): probes from ``start`` growing 4x
+       from ``_EDGE_WIDTH xtol`` (or to where the drive's gap, straight through the last two
+       probes, closes: a lag's edge in one step), then :func:`_edge` to ``_EDGE_WIDTH xtol``;
+       the root nearest the previous drive lies there;
     3. probes with steps growing 4x (from ``step0``) go first where a nondecreasing ``F``
        has its root (up when ``F < 0``), then, if that direction reaches its limit or the
-       side's edge without a sign change, the other way (``thermal`` can make ``F`` fall
-       slowly away from an edge in a dead zone); only when neither finds a sign change is the
-       bracket between the side's edge and the last point on it refined (a root can lie there
-       when the drive lags the current);
-    4. the first bracket is closed by Illinois regula falsi (bisection while one end is
-       off the side) to ``|F| <= rtol`` or a width of ``xtol``.
+       side's edge without a sign change, the other way, but only as far as ``F`` can still
+       fall to 0: while ``thermal`` can lower it by ``|F|`` before the limit (:func:`_thermal_fall`:
+       the heating's weight in one step, bounded), always with training's strain part on. Only when
+       neither finds a sign change is the stretch between the side's edge and the last point on
+       it examined (a root can lie there when the drive lags the current): the edge is located
+       on the drive alone (:func:`_edge`; without input dynamics it is that point itself), and
+       ``F`` there, if it changes sign, closes the bracket;
+    4. the bracket is closed by Illinois regula falsi to ``|F| <= rtol`` or a width of
+       ``xtol``, with a bisection after a step that did not halve ``|F|`` at the end it
+       replaced (``F`` flat there, steep at the other end: the end of a dead zone, where the
+       interpolation would crawl), and by bisection while an end is off the side (done at a
+       width of ``_EDGE_WIDTH xtol``).
 
+    Every loop is capped at ``_MAX_ITERATIONS``; a reversal costs about 20-30 model steps, a
+    sample in between 2-6.
     Without a sign change the evaluated point of smallest ``|F|`` is returned: a current
     limit (saturated) or the side's edge (an Omega switch). Returns ``(i, F, evaluations)``.
     """
@@ -144,7 +235,7 @@ def _search(
         x_min, x_max = -hi, -lo
     x0 = min(max(s * start, x_min), x_max)
     n_eval = 1
-    f0 = _objective(
+    f0, y_stage = _objective(
         x0,
         s,
         target,
@@ -173,83 +264,60 @@ def _search(
         return s * x0, f0, n_eval
     down_done = x0 <= x_min
     if f0 == -np.inf:
-        # 2. find the side's edge above x0
-        off = x0
-        step = 16.0 * xtol
-        x = x0
-        f = f0
-        while f == -np.inf and x < x_max:
-            off = x
-            x = min(x0 + step, x_max)
-            step *= 4.0
-            f = _objective(
-                x,
-                s,
-                target,
-                first,
-                n_ops,
-                g,
-                thresholds,
-                weights,
-                memory,
-                st,
-                lag_c,
-                has_training,
-                tr,
-                creep_on,
-                creep_params,
-                modes,
-                creep_gain,
-                creep_decay,
-                creep_active,
-                thermal_on,
-                th,
-                thermal_c,
-                drift,
-            )
-            n_eval += 1
-        if f == -np.inf:
-            return s * x0, f0, n_eval  # the side cannot be reached within the limits
-        on, f_on = x, f
+        # 2. the side's edge above x0, on the drive alone: probes growing 4x from _EDGE_WIDTH xtol
+        # (or to where the drive's gap, straight through the last two probes, closes), then _edge
+        xp, dp = x0, _gap(x0, s, first, st, lag_c, has_training, tr)
+        step = _EDGE_WIDTH * xtol
+        x = min(x0 + step, x_max)
+        d = dp
+        on = False
         for _ in range(_MAX_ITERATIONS):
-            if on - off <= 16.0 * xtol:  # without input dynamics the edge is x0 itself: no bisection
+            d = _gap(x, s, first, st, lag_c, has_training, tr)
+            on = _on_side(d, s, st)
+            if on or x >= x_max:
                 break
-            x = 0.5 * (off + on)
-            f = _objective(
-                x,
-                s,
-                target,
-                first,
-                n_ops,
-                g,
-                thresholds,
-                weights,
-                memory,
-                st,
-                lag_c,
-                has_training,
-                tr,
-                creep_on,
-                creep_params,
-                modes,
-                creep_gain,
-                creep_decay,
-                creep_active,
-                thermal_on,
-                th,
-                thermal_c,
-                drift,
-            )
-            n_eval += 1
-            if f == -np.inf:
-                off = x
-            else:
-                on, f_on = x, f
-        x0, f0 = on, f_on
+            step *= 4.0
+            x_next = x + step
+            if d > dp:
+                x_next = max(x_next, x - d * (x - xp) / (d - dp))
+            xp, dp = x, d
+            x = min(x_next, x_max)
+        if not on:
+            return s * x0, f0, n_eval  # the side cannot be reached within the limits
+        x0 = _edge(xp, dp, x, d, s, xtol, first, st, lag_c, has_training, tr)
+        f0, y_stage = _objective(
+            x0,
+            s,
+            target,
+            first,
+            n_ops,
+            g,
+            thresholds,
+            weights,
+            memory,
+            st,
+            lag_c,
+            has_training,
+            tr,
+            creep_on,
+            creep_params,
+            modes,
+            creep_gain,
+            creep_decay,
+            creep_active,
+            thermal_on,
+            th,
+            thermal_c,
+            drift,
+        )
+        n_eval += 1
         down_done = True
         if abs(f0) <= htol:
             return s * x0, f0, n_eval
-    # 3. probe for a sign change
+    # 3. probe for a sign change; away from the root of a nondecreasing F only while the thermal
+    # stage can still make F fall by |F| before the limit (always with training's strain part on)
+    bounded = not (has_training and tr[4] != 0.0)
+    y_stage0 = y_stage
     best_x, best_f = x0, f0
     up_done = x0 >= x_max
     direction = 1 if f0 < 0.0 else -1
@@ -264,12 +332,19 @@ def _search(
             direction = -direction
         if (direction > 0 and up_done) or (direction < 0 and down_done):
             continue
+        away = direction * f0 > 0.0
+        if (
+            away
+            and bounded
+            and _beyond_fall(f0, y_stage0, s * x0, s * f0, first, thermal_on, th, thermal_c, lo, hi, htol)
+        ):
+            continue
         xp, fp = x0, f0
         step = step0
         while True:
             x = min(xp + step, x_max) if direction > 0 else max(xp - step, x_min)
             step *= 4.0
-            f = _objective(
+            f, y_stage = _objective(
                 x,
                 s,
                 target,
@@ -313,26 +388,77 @@ def _search(
             xp, fp = x, f
             if x >= x_max or x <= x_min:
                 break
+            if (
+                away
+                and bounded
+                and _beyond_fall(f, y_stage, s * x, s * f0, first, thermal_on, th, thermal_c, lo, hi, htol)
+            ):
+                break
         if found:
             break
-    if not found and edge_found:  # no sign change on the side: the bracket at its edge
-        xl, fl, xr, fr = exl, efl, exr, efr
+    if not found and edge_found:  # no sign change on the side: between its edge and the last point on it
+        x_on, f_on, x_off = (exl, efl, exr) if efr == -np.inf else (exr, efr, exl)
+        d_on = _gap(x_on, s, first, st, lag_c, has_training, tr)
+        d_off = _gap(x_off, s, first, st, lag_c, has_training, tr)
+        x = _edge(x_off, d_off, x_on, d_on, s, xtol, first, st, lag_c, has_training, tr)
+        if x == x_on:
+            return s * x_on, f_on, n_eval
+        f, _ = _objective(
+            x,
+            s,
+            target,
+            first,
+            n_ops,
+            g,
+            thresholds,
+            weights,
+            memory,
+            st,
+            lag_c,
+            has_training,
+            tr,
+            creep_on,
+            creep_params,
+            modes,
+            creep_gain,
+            creep_decay,
+            creep_active,
+            thermal_on,
+            th,
+            thermal_c,
+            drift,
+        )
+        n_eval += 1
+        if (f < 0.0) == (f_on < 0.0):  # no root between: the point nearer the target
+            if abs(f) < abs(f_on):
+                return s * x, f, n_eval
+            return s * x_on, f_on, n_eval
+        xl, fl, xr, fr = (x, f, x_on, f_on) if x < x_on else (x_on, f_on, x, f)
         found = True
     if not found:
         return s * best_x, best_f, n_eval
-    # 4. refine the bracket xl < xr, F changing sign: Illinois, bisection while an end is -inf
+    # 4. refine the bracket xl < xr, F changing sign: Illinois regula falsi; a bisection after a
+    # step that did not halve |F| at the end it replaced (F flat there: a dead zone's end, where the
+    # interpolation crawls), and while an end is off the side (done at _EDGE_WIDTH xtol)
     gl, gr = fl, fr  # the values the interpolation uses (halved by Illinois)
     last = 0
+    crawl = False
     for _ in range(_MAX_ITERATIONS):
-        if abs(fl) <= rtol or abs(fr) <= rtol or xr - xl <= xtol:
+        width = xr - xl
+        if abs(fl) <= rtol or abs(fr) <= rtol or width <= xtol:
             break
-        if gl > -np.inf and gr > -np.inf:
+        finite = gl > -np.inf and gr > -np.inf
+        if finite and not crawl:
             x = xr - gr * (xr - xl) / (gr - gl)
             if not (xl < x < xr):
                 x = 0.5 * (xl + xr)
+        elif finite:
+            x = 0.5 * (xl + xr)
+        elif width <= _EDGE_WIDTH * xtol:
+            break
         else:
             x = 0.5 * (xl + xr)
-        f = _objective(
+        f, _ = _objective(
             x,
             s,
             target,
@@ -359,11 +485,13 @@ def _search(
         )
         n_eval += 1
         if (f < 0.0) == (fl < 0.0):
+            crawl = not (abs(f) <= 0.5 * abs(fl))
             xl, fl, gl = x, f, f
             if last == -1 and gr > -np.inf:
                 gr *= 0.5
             last = -1
         else:
+            crawl = not (abs(f) <= 0.5 * abs(fr))
             xr, fr, gr = x, f, f
             if last == 1 and gl > -np.inf:
                 gl *= 0.5

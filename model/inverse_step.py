@@ -3,7 +3,8 @@
 :func:`evaluate_step` is the model's output at one sample for a trial current, from the state
 of the previous sample (the input stage: lag, training; the GPI's operators and Omega; the
 output stage: training's strain part, creep, thermal, sensor drift); :func:`commit_step`
-advances that state with the current found. Both repeat :class:`model.Model`'s arithmetic
+advances that state with the current found; :func:`drive_step`, their input stage alone, tells the
+side a trial current moves the drive to. They repeat :class:`model.Model`'s arithmetic
 for these effects sample for sample, so the current found reproduces the target through the
 model itself (``tests/test_inverse.py``). :func:`filter_coefficients` is the exact step of a
 first-order filter, shared with the search's set-up. The root search that calls these is in
@@ -21,7 +22,7 @@ from .effects._filters import leg_end_level
 from .effects.creep import LOG_CREEP_MODE_WEIGHT
 from .gpi_kernels import initial_operator_memory
 
-__all__ = ["filter_coefficients", "evaluate_step", "commit_step"]
+__all__ = ["filter_coefficients", "drive_step", "evaluate_step", "commit_step"]
 
 
 @njit(cache=True)
@@ -63,6 +64,34 @@ def _initial_envelopes(g, u, excursion):
 
 
 @njit(cache=True)
+def drive_step(i, first, st, lag_c, has_training, tr):
+    """The input stage at the present sample for current ``i``: ``(u1, u, travel, fade)``.
+
+    ``u1`` the lag's output, ``u`` the drive the hysteresis sees (after training), ``travel``
+    the drive's travel so far and ``fade`` training's fading factor at it (1 without training).
+    Alone it tells the side of a trial current (the sign of ``u`` minus the previous drive) for
+    a few operations, without the hysteresis's envelopes.
+    """
+    if first:
+        u1 = i
+    else:
+        u1 = _filter_step(st[1], st[0], i, lag_c[0], lag_c[1], lag_c[2] > 0.5)
+    travel = 0.0
+    fade = 1.0
+    u = u1
+    if has_training:
+        if first:
+            travel = 0.0
+        else:
+            travel = st[3] + abs(u1 - st[1])
+        fade = math.exp(-((travel / tr[2]) ** tr[3]))
+        excursion = 0.0 if first else u1 - st[2]
+        kept = np.sign(excursion) * max(abs(excursion) - tr[1] * fade, 0.0)
+        u = u1 - (excursion - kept * (1.0 - tr[0] * fade))
+    return u1, u, travel, fade
+
+
+@njit(cache=True)
 def evaluate_step(
     i,
     first,
@@ -97,30 +126,16 @@ def evaluate_step(
     two nodes' step coefficients. ``drift``: the sensor drift at this sample.
     Before the first sample is committed, ``memory`` holds the initial memory held beyond
     the bounds (``initial_state``'s :math:`h_j`), which the first sample adds to the clamped
-    memory. Returns ``(y, y_gpi, u1, u, travel, side, y_strain, width)``; ``side`` +1 on Omega's c
+    memory. Returns ``(y, y_gpi, u1, u, travel, side, y_strain, width, y_stage)``; ``side`` +1 on Omega's c
     branch (the drive last moved up), -1 on d; ``y_strain`` the strain after training's strain part (the
-    output stage's input); ``width`` the factor on the thresholds in force.
+    output stage's input); ``width`` the factor on the thresholds in force; ``y_stage`` the thermal
+    stage's input (after creep).
     """
-    # input stage: lag, then training
-    if first:
-        u1 = i
-    else:
-        u1 = _filter_step(st[1], st[0], i, lag_c[0], lag_c[1], lag_c[2] > 0.5)
-    travel = 0.0
-    u = u1
-    if has_training:
-        if first:
-            travel = 0.0
-        else:
-            travel = st[3] + abs(u1 - st[1])
-        fade = math.exp(-((travel / tr[2]) ** tr[3]))
-        excursion = 0.0 if first else u1 - st[2]
-        kept = np.sign(excursion) * max(abs(excursion) - tr[1] * fade, 0.0)
-        u = u1 - (excursion - kept * (1.0 - tr[0] * fade))
+    u1, u, travel, fade = drive_step(i, first, st, lag_c, has_training, tr)
     # the play width in force (training's virgin width)
     width = 1.0
     if has_training and tr[5] != 0.0:
-        width = 1.0 + tr[5] * math.exp(-((travel / tr[2]) ** tr[3]))
+        width = 1.0 + tr[5] * fade
     # hysteresis
     if first:
         rising_env, falling_env, excursion_env = _initial_envelopes(g, u, st[14])
@@ -174,6 +189,7 @@ def evaluate_step(
             for m in range(n_sat, n_sat + n_log):
                 grown += _filter_step(modes[m], x_prev, x_now, creep_gain[m], creep_decay[m], creep_active[m]) - st[11]
             y = y + cp[2] * LOG_CREEP_MODE_WEIGHT * grown
+    y_stage = y  # the thermal stage's input
     if thermal_on:
         if first:
             rise = 0.0
@@ -187,7 +203,7 @@ def evaluate_step(
         else:
             y = y * (1.0 - th[1] * rise) + th[2] * rise
     y = y + drift
-    return y, y_gpi, u1, u, travel, side, y_strain, width
+    return y, y_gpi, u1, u, travel, side, y_strain, width, y_stage
 
 
 @njit(cache=True)
@@ -215,7 +231,7 @@ def commit_step(
     drift,
 ):
     """Advance the state with the chosen current ``i``; returns the output."""
-    y, y_gpi, u1, u, travel, side, y_strain, width = evaluate_step(
+    y, y_gpi, u1, u, travel, side, y_strain, width, _ = evaluate_step(
         i,
         first,
         n_ops,

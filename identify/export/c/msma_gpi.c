@@ -20,6 +20,7 @@
 #define LOG_CREEP_REACH 10.0
 #define CREEP_STEP_HOLD 1e-12
 #define MAX_ITERATIONS 200
+#define EDGE_WIDTH 16.0 /* a side's edge is located to this many xtol */
 #define DOUBLE_EPSILON 2.220446049250313e-16
 
 /* Python's max(a, b) and min(a, b): the first unless the second is strictly beyond it. */
@@ -411,7 +412,7 @@ int msma_forward_run(const msma_params *p, size_t n, const double *t, const doub
  * change, 17 the strain held at the last leg's end, 18 the logarithmic creep's input prev. */
 
 typedef struct {
-    double y, y_gpi, u1, u, travel, y_strain, width;
+    double y, y_gpi, u1, u, travel, y_strain, width, y_stage; /* y_stage: the thermal stage's input */
     int side;
 } evaluation;
 
@@ -441,6 +442,25 @@ static void initial_envelopes(const double *g, double u, double excursion, doubl
     *falling = envelope(g + 4, u);
 }
 
+/* The input stage for current i (drive_step): the lag's output u1, the drive u the hysteresis sees,
+ * the drive's travel and training's fading factor at it (1 without training). */
+static inline void drive(const msma_inverse *c, double i, int first, double *u1, double *u, double *travel,
+                         double *fade) {
+    const double *st = c->st, *tr = c->tr;
+    *u1 = first ? i : filter_step(st[1], st[0], i, c->lag_c[0], c->lag_c[1], c->lag_c[2] > 0.5);
+    *travel = 0.0;
+    *fade = 1.0;
+    *u = *u1;
+    if (c->p.has_training) {
+        double excursion, kept;
+        *travel = first ? 0.0 : st[3] + fabs(*u1 - st[1]);
+        *fade = exp(-pow(*travel / tr[2], tr[3]));
+        excursion = first ? 0.0 : *u1 - st[2];
+        kept = sign(excursion) * pmax(fabs(excursion) - tr[1] * *fade, 0.0);
+        *u = *u1 - (excursion - kept * (1.0 - tr[0] * *fade));
+    }
+}
+
 /* The model's output at the present sample for current i, from the committed state (_evaluate).
  * side != 0 (a search on that side): a drive off that side returns at once with e.side set and
  * nothing else computed (the search's objective is -inf there whatever the output). */
@@ -448,25 +468,16 @@ static evaluation evaluate(const msma_inverse *c, double i, int first, int side)
     const double *st = c->st, *g = c->g, *tr = c->tr, *cp = c->cp, *th = c->th;
     const msma_params *p = &c->p;
     evaluation e;
-    double s, fade, excursion, kept;
+    double s, fade;
     int j;
-    e.u1 = first ? i : filter_step(st[1], st[0], i, c->lag_c[0], c->lag_c[1], c->lag_c[2] > 0.5);
-    e.travel = 0.0;
-    e.u = e.u1;
-    if (p->has_training) {
-        e.travel = first ? 0.0 : st[3] + fabs(e.u1 - st[1]);
-        fade = exp(-pow(e.travel / tr[2], tr[3]));
-        excursion = first ? 0.0 : e.u1 - st[2];
-        kept = sign(excursion) * pmax(fabs(excursion) - tr[1] * fade, 0.0);
-        e.u = e.u1 - (excursion - kept * (1.0 - tr[0] * fade));
-    }
+    drive(c, i, first, &e.u1, &e.u, &e.travel, &fade);
     if (side != 0 && !first) {
         double dv = e.u - st[4];
         e.side = dv > 0.0 ? 1 : (dv < 0.0 ? -1 : (st[5] > 0.5 ? 1 : -1));
         if (e.side != side) return e;
     }
     e.width = 1.0;
-    if (p->has_training && tr[5] != 0.0) e.width = 1.0 + tr[5] * exp(-pow(e.travel / tr[2], tr[3]));
+    if (p->has_training && tr[5] != 0.0) e.width = 1.0 + tr[5] * fade;
     if (first) {
         double rising, falling, excursion_env;
         initial_envelopes(g, e.u, st[14], &rising, &falling, &excursion_env);
@@ -527,6 +538,7 @@ static evaluation evaluate(const msma_inverse *c, double i, int first, int side)
             e.y = e.y + cp[2] * LOG_CREEP_MODE_WEIGHT * grown;
         }
     }
+    e.y_stage = e.y;
     if (p->has_thermal) {
         double rise = 0.0, rise2 = 0.0;
         if (!first) {
@@ -628,17 +640,79 @@ static double objective(msma_inverse *c, double x, int s, double target, int fir
     evaluation e = evaluate(c, s * x, first, s);
     c->evaluations += 1;
     if (!first && e.side != s) return -INFINITY;
+    c->y_stage = e.y_stage;
     return s * (e.y - target);
 }
 
 static double magnitude(double f) { return f == -INFINITY ? INFINITY : fabs(f); }
 
+/* The most the thermal stage can lower F from the current i0 on a side (its input y_stage there)
+ * to any current beyond i0 (ahead > 0: up to hi, < 0: down
+ * to lo): |E - S y_stage| times the most the rise can change, both nodes (the rise is affine in the
+ * present heating (i / 5 A)^2, weight 1 - gain per node), a quarter's margin, plus htol (_thermal_fall). */
+static double thermal_fall(const msma_inverse *c, double y_stage, double i0, double ahead, int first) {
+    const double *th = c->th, *tc = c->thermal_c;
+    double a, b, h_max, h_min, heating, rise, rise2;
+    if (!c->p.has_thermal || first) return 0.0;
+    a = ahead > 0 ? i0 : c->lo;
+    b = ahead > 0 ? c->hi : i0;
+    h_max = pmax(a * a, b * b);
+    h_min = a < 0.0 && 0.0 < b ? 0.0 : pmin(a * a, b * b);
+    heating = pmax(h_max - i0 * i0, i0 * i0 - h_min) / (th[3] * th[3]);
+    rise = (tc[2] > 0.5 ? 1.0 - tc[0] : 1.0) * heating;
+    rise2 = (tc[5] > 0.5 ? 1.0 - tc[3] : 1.0) * rise;
+    return 1.25 * (fabs(th[2] - th[1] * y_stage) * rise + fabs(th[6] - th[5] * y_stage) * rise2) + c->htol;
+}
+
+/* s (u(s x) - u_prev): how far the drive moves toward side s, the input stage alone (_gap). */
+static double gap(const msma_inverse *c, double x, int s, int first) {
+    double u1, u, travel, fade;
+    drive(c, s * x, first, &u1, &u, &travel, &fade);
+    return s * (u - c->st[4]);
+}
+
+/* Whether a drive gap d lies on side s: a still drive keeps the last motion's (_on_side). */
+static int on_side(const msma_inverse *c, double d, int s) {
+    return d > 0.0 || (d == 0.0 && (c->st[5] > 0.5) == (s > 0));
+}
+
+/* The point on side s within EDGE_WIDTH xtol of its edge, between xa (off the side, gap da) and xb
+ * (on it, gap db), on the drive alone: Illinois on the gap, each point at least EDGE_WIDTH xtol
+ * inside the bracket, a bisection when the last two steps did not halve the bracket (_edge). */
+static double edge(const msma_inverse *c, double xa, double da, double xb, double db, int s, int first) {
+    const double limit = EDGE_WIDTH * c->xtol;
+    double ga = da, gb = db, width_1 = INFINITY, width_2 = INFINITY;
+    int last = 0, it;
+    for (it = 0; it < MAX_ITERATIONS; it++) {
+        double width = fabs(xb - xa), toward = xb > xa ? 1.0 : -1.0, x, d;
+        if (width <= limit) break;
+        if (gb > ga && width <= 0.5 * width_2 && width > 2.0 * limit) {
+            x = xb - gb * (xb - xa) / (gb - ga);
+            x = pmin(pmax(toward * (x - xa), limit), width - limit) * toward + xa;
+        } else {
+            x = 0.5 * (xa + xb);
+        }
+        width_2 = width_1, width_1 = width;
+        d = gap(c, x, s, first);
+        if (on_side(c, d, s)) {
+            xb = x, gb = d;
+            if (last == 1) ga *= 0.5;
+            last = 1;
+        } else {
+            xa = x, ga = d;
+            if (last == -1) gb *= 0.5;
+            last = -1;
+        }
+    }
+    return xb;
+}
+
 /* The current on side s whose output meets the target, nearest start (_search). */
 static void search(msma_inverse *c, int s, double start, double step0, double target, int first, double *i_out,
                    double *f_out) {
     const double lo = c->lo, hi = c->hi, htol = c->htol, rtol = c->rtol, xtol = c->xtol;
-    double x_min, x_max, x0, f0, best_x, best_f, xl, fl, xr, fr, gl, gr, exl, efl, exr, efr;
-    int down_done, up_done, direction, found, edge_found, sweep, last, it;
+    double x_min, x_max, x0, f0, best_x, best_f, xl, fl, xr, fr, gl, gr, exl, efl, exr, efr, y_stage0;
+    int down_done, up_done, direction, found, edge_found, sweep, last, it, crawl = 0, away, bounded;
     if (s > 0) {
         x_min = lo, x_max = hi;
     } else {
@@ -652,37 +726,37 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
     }
     down_done = x0 <= x_min;
     if (f0 == -INFINITY) {
-        /* 2. the side's edge above x0 */
-        double off = x0, step = 16.0 * xtol, x = x0, f = f0, on, f_on;
-        while (f == -INFINITY && x < x_max) {
-            off = x;
-            x = pmin(x0 + step, x_max);
+        /* 2. the side's edge above x0, on the drive alone: probes growing 4x from EDGE_WIDTH xtol (or
+         * to where the drive's gap, straight through the last two probes, closes), then edge() */
+        double xp = x0, dp = gap(c, x0, s, first), step = EDGE_WIDTH * xtol, x = pmin(x0 + step, x_max), d = dp;
+        int on = 0;
+        for (it = 0; it < MAX_ITERATIONS; it++) {
+            double x_next;
+            d = gap(c, x, s, first);
+            on = on_side(c, d, s);
+            if (on || x >= x_max) break;
             step *= 4.0;
-            f = objective(c, x, s, target, first);
+            x_next = x + step;
+            if (d > dp) x_next = pmax(x_next, x - d * (x - xp) / (d - dp));
+            xp = x, dp = d;
+            x = pmin(x_next, x_max);
         }
-        if (f == -INFINITY) {
+        if (!on) {
             *i_out = s * x0, *f_out = f0;
             return;
         }
-        on = x, f_on = f;
-        for (it = 0; it < MAX_ITERATIONS; it++) {
-            if (on - off <= 16.0 * xtol) break;
-            x = 0.5 * (off + on);
-            f = objective(c, x, s, target, first);
-            if (f == -INFINITY) {
-                off = x;
-            } else {
-                on = x, f_on = f;
-            }
-        }
-        x0 = on, f0 = f_on;
+        x0 = edge(c, xp, dp, x, d, s, first);
+        f0 = objective(c, x0, s, target, first);
         down_done = 1;
         if (fabs(f0) <= htol) {
             *i_out = s * x0, *f_out = f0;
             return;
         }
     }
-    /* 3. probes for a sign change */
+    /* 3. probes for a sign change; away from the root of a nondecreasing F only while the thermal
+     * stage can still make F fall by |F| before the limit (always with training's strain part on) */
+    bounded = !(c->p.has_training && c->tr[4] != 0.0);
+    y_stage0 = c->y_stage;
     best_x = x0, best_f = f0;
     up_done = x0 >= x_max;
     direction = f0 < 0.0 ? 1 : -1;
@@ -695,6 +769,8 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
         double xp, fp, step;
         if (sweep == 1) direction = -direction;
         if ((direction > 0 && up_done) || (direction < 0 && down_done)) continue;
+        away = direction * f0 > 0.0;
+        if (away && bounded && fabs(f0) > thermal_fall(c, y_stage0, s * x0, s * f0, first)) continue;
         xp = x0, fp = f0;
         step = step0;
         for (;;) {
@@ -724,35 +800,65 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
             if (magnitude(f) < magnitude(best_f)) best_x = x, best_f = f;
             xp = x, fp = f;
             if (x >= x_max || x <= x_min) break;
+            if (away && bounded && fabs(f) > thermal_fall(c, c->y_stage, s * x, s * f0, first)) break;
         }
         if (found) break;
     }
-    if (!found && edge_found) { /* no sign change on the side: the bracket at its edge */
-        xl = exl, fl = efl, xr = exr, fr = efr;
+    if (!found && edge_found) { /* no sign change on the side: between its edge and the last point on it */
+        double x_on = efr == -INFINITY ? exl : exr, f_on = efr == -INFINITY ? efl : efr;
+        double x_off = efr == -INFINITY ? exr : exl, x, f;
+        x = edge(c, x_off, gap(c, x_off, s, first), x_on, gap(c, x_on, s, first), s, first);
+        if (x == x_on) {
+            *i_out = s * x_on, *f_out = f_on;
+            return;
+        }
+        f = objective(c, x, s, target, first);
+        if ((f < 0.0) == (f_on < 0.0)) { /* no root between: the point nearer the target */
+            if (fabs(f) < fabs(f_on)) {
+                *i_out = s * x, *f_out = f;
+            } else {
+                *i_out = s * x_on, *f_out = f_on;
+            }
+            return;
+        }
+        if (x < x_on) {
+            xl = x, fl = f, xr = x_on, fr = f_on;
+        } else {
+            xl = x_on, fl = f_on, xr = x, fr = f;
+        }
         found = 1;
     }
     if (!found) {
         *i_out = s * best_x, *f_out = best_f;
         return;
     }
-    /* 4. refine the bracket xl < xr: Illinois, bisection while an end is -inf */
+    /* 4. refine the bracket xl < xr: Illinois regula falsi; a bisection after a step that did not
+     * halve |F| at the end it replaced (F flat there: a dead zone's end, where the interpolation
+     * crawls), and while an end is -inf (done at EDGE_WIDTH xtol) */
     gl = fl, gr = fr;
     last = 0;
     for (it = 0; it < MAX_ITERATIONS; it++) {
-        double x, f;
-        if (fabs(fl) <= rtol || fabs(fr) <= rtol || xr - xl <= xtol) break;
-        if (gl > -INFINITY && gr > -INFINITY) {
+        double x, f, width = xr - xl;
+        int finite = gl > -INFINITY && gr > -INFINITY;
+        if (fabs(fl) <= rtol || fabs(fr) <= rtol || width <= xtol) break;
+        if (finite && !crawl) {
             x = xr - gr * (xr - xl) / (gr - gl);
             if (!(xl < x && x < xr)) x = 0.5 * (xl + xr);
+        } else if (finite) {
+            x = 0.5 * (xl + xr);
+        } else if (width <= EDGE_WIDTH * xtol) {
+            break;
         } else {
             x = 0.5 * (xl + xr);
         }
         f = objective(c, x, s, target, first);
         if ((f < 0.0) == (fl < 0.0)) {
+            crawl = !(fabs(f) <= 0.5 * fabs(fl));
             xl = x, fl = f, gl = f;
             if (last == -1 && gr > -INFINITY) gr *= 0.5;
             last = -1;
         } else {
+            crawl = !(fabs(f) <= 0.5 * fabs(fr));
             xr = x, fr = f, gr = f;
             if (last == 1 && gl > -INFINITY) gl *= 0.5;
             last = 1;
