@@ -36,7 +36,6 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
         earlier diagnosis there are removed first, so they never mix).
     """
     from ..data.fileio import atomic_write
-    from .diagnosis_plots import diagnosis_figures
     from .results import write_json
 
     content = diagnosis.to_dict()
@@ -47,6 +46,8 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
         written.append(str(json_path))
     if out_dir is None:
         return written
+    from .diagnosis_plots import diagnosis_figures  # deferred: matplotlib, about 0.5 s of CPU, for the figures alone
+
     out = Path(out_dir)
     figure_dir = out / DIAGNOSIS_FIGURES
     figure_dir.mkdir(parents=True, exist_ok=True)
