@@ -30,7 +30,9 @@ transducer on the paper's input.
 workers do on the two cores), alternating numba's OpenMP threads waiting passively between
 kernel calls (``OMP_WAIT_POLICY=PASSIVE``, which the bench runners set) and as libgomp does
 unless told (spinning about 3 ms after each parallel region before it sleeps, which keeps a
-core busy between the calls of a diagnosis).
+core busy between the calls of a diagnosis). The command itself waits passively unless
+``OMP_WAIT_POLICY`` is set (:func:`identify.cli.diagnose.passive_waiting`); the empty value of
+the second policy is set, so it stays libgomp's default.
 """
 
 from __future__ import annotations

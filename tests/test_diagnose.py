@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 
 import numpy as np
@@ -809,3 +810,16 @@ def test_a_hidden_heating_is_named_and_the_reason_gives_its_evidence():
     assert content["decision"]["missing"] == "thermal"
     assert {e["name"] for e in content["evidence"]["explanations"]} >= {"thermal"}
     assert "Adding 'thermal'" in result.reason and result.verdict_text() == "missing_effect -> add 'thermal'"
+
+
+def test_the_diagnose_command_waits_passively_unless_told(monkeypatch):
+    """The command sets OMP_WAIT_POLICY=PASSIVE where it is unset (the results do not depend on
+    it, the CPU time does) and leaves a user's value alone."""
+    from identify.cli.diagnose import passive_waiting
+
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    passive_waiting()
+    assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    passive_waiting()
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"

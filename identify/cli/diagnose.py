@@ -15,11 +15,15 @@ Prints a short human summary (verdict, why, candidates) and writes, on request:
 Every file is written to a temporary name and renamed, so an interrupted run leaves no
 half-written file. ``--effects`` adds effects to the diagnosed model, as for ``fit`` and
 ``study``: diagnose, add the effect named, diagnose again.
+
+The command waits passively between the model's parallel kernel calls (:func:`passive_waiting`)
+unless ``OMP_WAIT_POLICY`` is set: the same results for a fraction of the CPU time.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -27,7 +31,7 @@ from ..logs import say
 from . import options
 from .common import add_model_arguments, add_record_arguments, model_from_args, noise_from_args, records_from_args
 
-__all__ = ["HELP", "add_arguments", "parse_window", "run", "write_outputs"]
+__all__ = ["HELP", "add_arguments", "parse_window", "passive_waiting", "run", "write_outputs"]
 
 HELP = "least squares + diagnosis: is the residual noise, and which physical effect is missing?"
 
@@ -68,8 +72,25 @@ def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[st
     return write_diagnosis(diagnosis, record, json_path=json_path, out_dir=out_dir)
 
 
+def passive_waiting() -> None:
+    """``OMP_WAIT_POLICY=PASSIVE`` for this process unless it is set (read once, when numba's
+    OpenMP threads first start, so before the first kernel call).
+
+    A diagnosis is thousands of short solver steps, each a few model calls between which the
+    process runs Python and SciPy alone; with libgomp's default each OpenMP thread then spins
+    for milliseconds after every parallel kernel call, and the calls come closer together than
+    that, so the second thread spins through the whole diagnosis: several times the CPU time of
+    waiting passively for the same results (every parameter set is computed alone, whatever
+    the threads do), and on a machine it shares, slower in wall time too. A study's sampler,
+    whose kernel calls are shorter and more frequent, gains from spinning; it runs in its own
+    command and is not affected.
+    """
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
 def run(args) -> int:
     """Diagnose; exit code 0 done, 2 bad input, 130 interrupted. ``--out DIR`` is locked from the start."""
+    passive_waiting()
     # deferred (--help imports every command's module): data.locks: json, fcntl, +7 ms
     from ..data.locks import FolderLock
 

@@ -36,8 +36,6 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
         earlier diagnosis there are removed first, so they never mix).
     """
     from ..data.fileio import atomic_write_bytes
-    from .diagnosis_plots import diagnosis_figures
-    from .page import png_bytes
     from .results import write_json
 
     content = diagnosis.to_dict()
@@ -48,6 +46,10 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
         written.append(str(json_path))
     if out_dir is None:
         return written
+    # deferred: matplotlib, about 0.5 s of CPU, for the figures alone
+    from .diagnosis_plots import diagnosis_figures
+    from .page import png_bytes
+
     out = Path(out_dir)
     figure_dir = out / DIAGNOSIS_FIGURES
     figure_dir.mkdir(parents=True, exist_ok=True)
