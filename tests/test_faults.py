@@ -806,14 +806,20 @@ def test_a_disk_that_fills_while_sampling_is_one_error_and_the_rerun_gives_the_c
         assert_same_results(run, finished)
 
 
-def test_a_full_disk_while_writing_the_posterior_leaves_no_temporary_file_and_no_lock(finished, tmp_path):
+def test_a_full_disk_while_writing_the_posterior_leaves_no_temporary_file_and_no_lock(tmp_path):
     """posterior.nc does not fit: one error line naming it (exit 1), no .posterior.nc temporary
     left; a rerun on a disk full to the last byte cannot even take its lock: one line naming
     the lock file, which is not left behind (nor anything else); once space is freed the rerun
     finishes with the uninterrupted run's results."""
-    # 4 MB: room for the chain (its 3.1 MB bound) but not for posterior.nc (2.7 MB of arrays and 1 MB of bookkeeping)
-    with small_disk(tmp_path / "disk", "4m") as disk:
-        shutil.copy2(finished.parent / "rec.csv", disk / "rec.csv")
+    # A 30 Hz record (2101 samples): its posterior.nc (about 5 MB, compressed) is larger than the
+    # chain's space bound (3.1 MB: its uncompressed steps and the HDF5 metadata), so a 4.5 MB
+    # disk has room for the chain but not for posterior.nc.
+    write_record(tmp_path / "rec.csv", simulate(fs=30.0, seed=4).record)
+    reference = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
+    assert reference.returncode == NOT_CONVERGED, reference.stderr[-3000:]
+    finished = tmp_path / "finished"
+    with small_disk(tmp_path / "disk", "4500k") as disk:
+        shutil.copy2(tmp_path / "rec.csv", disk / "rec.csv")
         completed = cli("study", "rec.csv", "--out", "run", *FINISHED, cwd=disk)
         one_error(completed, "run/posterior.nc: no space left on the device", code=1)
         run = disk / "run"
