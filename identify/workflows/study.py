@@ -38,6 +38,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..data.locks import FolderLock
+from ..data.records import Record, load_record
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, DEFAULT_N_STARTS
 from ..logs import show_progress
 from .joint_run import study_records
@@ -171,9 +173,6 @@ def study(
     failure of the computation itself; the command line maps them to exit code 2 (bad
     input) and 130 (interrupted).
     """
-    from ..data.locks import FolderLock
-    from ..data.records import Record, load_record
-
     if isinstance(record, (list, tuple)):  # several records of one transducer
         from ..fitting.joint import check_records
 
