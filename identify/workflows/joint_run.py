@@ -5,6 +5,7 @@ joint parts are built by :mod:`identify.workflows.joint_study`."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ from ..fitting.joint import (
 )
 from ..fitting.joint_posterior import JointLogPosterior, joint_sampled_units, write_joint_inference_data
 from ..fitting.lsq import parameter_units
-from ..fitting.priors import prior_table
+from ..fitting.priors import apply_priors, prior_table
 from ..fitting.terms import optional_terms
 from ..fitting.threads import single_threaded_blas
 from ..output.diagnosis_files import write_diagnosis
@@ -145,8 +146,6 @@ class _JointRun(StudyRun):
             write_json(out / FILES["fit"], fit.to_json())
         self.show(format_joint_fit_table(fit))
         if not fit.consistency.get("consistent", True):
-            import logging
-
             self.log(f"warning: {fit.consistency['message']}", logging.WARNING)
         self.lap("least_squares")
         return fit
@@ -179,8 +178,6 @@ class _JointRun(StudyRun):
         out, opts = self.out, self.options
         post_model, priors = fit.model, None
         if opts["priors"] is not None:
-            from ..fitting.priors import apply_priors
-
             post_model, priors = apply_priors(
                 fit.model, opts["priors"], start=fit.fits[0].theta, start_name="least-squares estimate"
             )

@@ -49,7 +49,7 @@ from ..data.hdf5 import open_hdf5
 from ..data.locks import FolderLock
 from ..defaults import EXIT_FINDING
 from ..fitting.posterior import ChainFileError, chain_info
-from ..output.results import DamagedResultsError, read_json
+from ..output.results import DamagedResultsError, jsonable, load_data, read_json
 
 __all__ = [
     "DataChangedError",
@@ -469,8 +469,6 @@ def _command_name(manifest: dict) -> str:
         if word in COMMANDS:
             return _reproducible(word)
     # no command line (e.g. run from Python): the one command whose options cover the settings
-    import argparse
-
     settings = set(manifest.get("settings", {}))
     matches = []
     for name, module_name in COMMANDS.items():
@@ -775,8 +773,6 @@ def _check_readable(directory: Path) -> None:
         if (directory / name).exists():
             read_json(directory / name, hint="the run cannot be compared with a rerun")
     if (directory / "data.npz").exists():
-        from ..output.results import load_data
-
         load_data(directory)
     try:
         chain_info(directory / "chain.h5")
@@ -876,7 +872,6 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
             threads=threads,
             expected_returncode=original_returncode(directory),
         )
-        from ..output.results import jsonable
 
         atomic_write(out / REPORT_FILE, json.dumps(jsonable(report.to_dict()), indent=2, default=str) + "\n")
     return report

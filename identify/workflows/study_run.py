@@ -27,8 +27,9 @@ from ..fitting.noise import estimate_noise
 from ..fitting.parametrisation import normalised_model
 from ..fitting.posterior import LogPosterior, default_n_walkers, initial_walkers, sample_posterior
 from ..fitting.priors import apply_priors, prior_table
+from ..fitting.terms import select_terms
 from ..output.diagnosis_files import COMPARISON_FILE, earlier_study, next_step, write_diagnosis
-from ..output.report import residual_above_noise
+from ..output.report import ResultsError, residual_above_noise, write_report
 from ..output.results import (
     FILES,
     RunMismatchError,
@@ -247,11 +248,6 @@ def chain_to_extend(chain: Path, state):
 def write_report_or_say(out: Path, log=say) -> None:
     """Write ``out/report.html``; a report that cannot be drawn is one line, not a failure."""
     try:
-        from ..output.report import ResultsError, write_report
-    except ImportError as exc:
-        log(f"report skipped: identify.output.report is not available ({exc})")
-        return
-    try:
         path = write_report(out)
     except ResultsError as exc:  # the results are complete; only the page could not be drawn
         log(f"report not written: {exc}")
@@ -401,8 +397,6 @@ class StudyRun:
                 record, model, noise=self.noise, n_starts=self.options["n_starts"], rng=lsq_rng, verbose=verbose
             )
             if self.options["select_terms"]:
-                from ..fitting.terms import select_terms
-
                 fit = select_terms(record, fit, rng=lsq_rng, log=self.log)
         # the first writes: the record, the manifest (the run is in progress), the fit
         if not state.has_data:
@@ -429,8 +423,6 @@ class StudyRun:
         out, record, opts = self.out, self.record, self.options
         post_model, priors = fit.model, None
         if opts["priors"] is not None:
-            from ..fitting.priors import apply_priors
-
             post_model, priors = apply_priors(
                 fit.model, opts["priors"], start=fit.theta, start_name="least-squares estimate"
             )
