@@ -17,6 +17,8 @@ folder, figures, reports), :mod:`identify.workflows` (study, use, batch, reprodu
 :mod:`identify.bench` (the simulated bench) and :mod:`identify.cli` (the commands).
 """
 
+import importlib
+
 from .version import __version__
 
 #: public name -> module it lives in (imported on first use).
@@ -48,7 +50,6 @@ def __getattr__(name):
     module = API.get(name)
     if module is None:
         raise AttributeError(f"module 'identify' has no attribute {name!r}")
-    import importlib
 
     value = getattr(importlib.import_module(module), name)
     globals()[name] = value

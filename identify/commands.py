@@ -6,6 +6,11 @@ command's module (:mod:`identify.cli`) defines ``HELP``, ``add_arguments(parser)
 look a command's options up here at run time, as the shell would run it.
 """
 
+import os
+from pathlib import Path
+
+from .logs import add_verbosity_arguments
+
 #: command name -> module, in the order ``--help`` lists them.
 COMMANDS = {
     "paper": "identify.cli.paper",
@@ -29,8 +34,6 @@ PARENT_VARIABLE = "IDENTIFY_PARENT_PID"
 def package_root():
     """The folder that holds this package (``identify/`` and ``model/``: a checkout's root), a
     :class:`pathlib.Path`."""
-    from pathlib import Path
-
     return Path(__file__).resolve().parents[1]
 
 
@@ -38,8 +41,6 @@ def package_environment(env=None) -> dict:
     """A copy of ``env`` (default :data:`os.environ`) whose ``PYTHONPATH`` starts with
     :func:`package_root`, so that a subprocess ``python -m identify ...`` runs this very code,
     installed or not, wherever it is started."""
-    import os
-
     env = dict(os.environ if env is None else env)
     root = str(package_root())
     env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
@@ -51,7 +52,5 @@ def add_command_arguments(parser, module) -> None:
     (:func:`identify.logs.add_verbosity_arguments`): the command line's parser of a command,
     also used by :mod:`identify.workflows.batch` and :mod:`identify.workflows.reproduce` to
     check a command line."""
-    from .logs import add_verbosity_arguments
-
     module.add_arguments(parser)
     add_verbosity_arguments(parser)

@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import time
 
 __all__ = [
     "LOGGER_NAME",
@@ -159,7 +160,6 @@ def progress_function(progress, prefix: str = ""):
         return progress
     if progress is False:
         return lambda message: None
-    import time
 
     show_progress()
     started = time.perf_counter()

@@ -225,6 +225,51 @@ def test_the_effects_package_modules_are_small_say_what_they_hold_and_import_at_
     assert not nested, f"{path.name}: imports inside functions or classes at lines {nested}"
 
 
+def undeclared_deferred_imports(text: str) -> list[int]:
+    """Lines of the imports inside functions of ``text`` with no ``deferred`` comment: on the
+    import's own line, or on the line just above it or just above the run of consecutive
+    import lines it belongs to (one comment may head a block of imports)."""
+    lines = text.splitlines()
+    tree = ast.parse(text)
+    found = set()
+    for function in ast.walk(tree):
+        if not isinstance(function, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        for node in ast.walk(function):
+            if not isinstance(node, (ast.Import, ast.ImportFrom)):
+                continue
+            first = node.lineno - 1
+            while first > 0 and lines[first - 1].lstrip().startswith(("import ", "from ")):
+                first -= 1
+            above = {lines[node.lineno - 2], lines[first - 1]} if first > 0 else set()
+            comments = [line for line in above if line.lstrip().startswith("#")]
+            if "deferred" not in lines[node.lineno - 1] and not any("deferred" in c for c in comments):
+                found.add(node.lineno)
+    return sorted(found)
+
+
+def test_imports_inside_functions_say_why_they_are_deferred():
+    """Imports belong at the module's top, where a reader sees what a module needs and an import
+    error shows at once; an import inside a function of ``identify/`` or ``model/`` is kept
+    there only for a reason worth stating (a measured start-up cost on a path that must start
+    fast, such as ``--help``; an optional extra; a genuine cycle), and a comment containing
+    ``deferred`` on its line, or just above it or the block of imports it opens, states it."""
+    bad = {}
+    for path in sorted([*PACKAGE.rglob("*.py"), *MODEL.rglob("*.py")]):
+        lines = undeclared_deferred_imports(path.read_text())
+        if lines:
+            bad[str(path.relative_to(PACKAGE.parent))] = lines
+    assert not bad, f"imports inside functions without a '# deferred: why' comment (move them to the top): {bad}"
+
+
+def test_the_deferred_import_check_can_fail():
+    """The check sees an unexplained import inside a function and accepts an explained block."""
+    assert undeclared_deferred_imports("def f():\n    import os\n    return os\n") == [2]
+    explained = "def f():\n    # deferred: an optional extra\n    import a\n    from b import c\n    return a, c\n"
+    assert undeclared_deferred_imports(explained) == []
+    assert undeclared_deferred_imports("import os\n\n\ndef f():\n    return os\n") == []
+
+
 @pytest.mark.parametrize("bad", ["identify.data.records imports identify.cli", "cycle"])
 def test_the_checks_can_fail(bad, monkeypatch):
     """The checks see a planted upward import and a planted cycle."""

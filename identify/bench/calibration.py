@@ -34,10 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
-from model import Model
+from model import TABLE1, THETA_NAMES, Model, bound_overlap
 
 from ..data.fileio import atomic_write_text
-from ..fitting.parametrisation import normalised_model, to_normalisation
+from ..fitting.lsq import WhitenedResiduals, fit_least_squares
+from ..fitting.parametrisation import gpi_scaling, normalised_model, to_normalisation
+from ..fitting.posterior import LogPosterior, initial_walkers, sample_posterior
+from .synthetic import simulate
 
 __all__ = [
     "RecordCoverage",
@@ -70,10 +73,6 @@ def calibration_truth(seed: int) -> np.ndarray:
     ``lo + (hi - lo) frac(0.3 + seed * 0.618...)`` (:data:`B3_SHIFT_RANGE`, a low-discrepancy
     spread, so consecutive seeds alternate between the two sides of where the operator bounds
     start to cross), scaled by :data:`GPI_SCALING_K` (raw; compare after :func:`to_normalisation`)."""
-    from model import TABLE1, THETA_NAMES
-
-    from ..fitting.parametrisation import gpi_scaling
-
     lo, hi = B3_SHIFT_RANGE
     base = TABLE1.copy()
     base[THETA_NAMES.index("b3")] += lo + (hi - lo) * ((0.3 + int(seed) * _GOLDEN) % 1.0)
@@ -287,10 +286,6 @@ def calibration_problem(seed: int, truth_raw, *, fs: float = 50.0, noise_sigma: 
 
     Parameters are those of :func:`interval_coverage`.
     """
-    from ..fitting.lsq import fit_least_squares
-    from ..fitting.posterior import LogPosterior
-    from .synthetic import simulate
-
     record = simulate(fs=fs, seed=100 + seed, gpi_theta=truth_raw, noise_sigma=noise_sigma).record
     model = normalised_model(Model())
     fit = fit_least_squares(record, model, n_starts=3, rng=np.random.default_rng(seed))
@@ -298,11 +293,6 @@ def calibration_problem(seed: int, truth_raw, *, fs: float = 50.0, noise_sigma: 
 
 
 def _record_coverage(seed, truth_raw, truth_free, fs, noise_sigma, chain_path, max_steps, check_every, progress):
-    from model import bound_overlap
-
-    from ..fitting.lsq import WhitenedResiduals
-    from ..fitting.posterior import initial_walkers, sample_posterior
-
     start = _time.perf_counter()
     problem = calibration_problem(seed, truth_raw, fs=fs, noise_sigma=noise_sigma)
     fit, log_post = problem.fit, problem.log_post

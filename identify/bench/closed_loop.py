@@ -24,13 +24,22 @@ own tools and nothing the user would not have:
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import time as _time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import minimize
 
 from model import Model
+
+from ..commands import package_environment
+from ..data.records import load_record, write_record
+from ..diagnosis import diagnose
+from ..workflows.use import Target, compensate, load_study, write_compensation
+from .synthetic import sensor_noise, simulate
 
 __all__ = [
     "bench_targets",
@@ -52,8 +61,6 @@ def bench_targets(fs: float = 100.0, duration: float = 64.0) -> dict:
     ``multisine``: ``150 + 60 sin(2 pi 0.05 t) + 35 sin(2 pi 0.13 t + 1) + 15 sin(2 pi 0.31 t + 2)`` um
     (nested minor loops). Both at ``fs`` over ``duration`` seconds, starting at ``t = 0``.
     """
-    from ..workflows.use import Target
-
     t = np.arange(0.0, duration, 1.0 / fs)
     phase = (t / 16.0) % 1.0
     triangle = 30.0 + 240.0 * np.where(phase < 0.5, 2 * phase, 2 - 2 * phase)
@@ -83,8 +90,6 @@ def best_linear_drive(response, time, target, current_range, start):
     -------
     (a, b, error) with ``error`` = response - target, shape (T,).
     """
-    from scipy.optimize import minimize
-
     lo, hi = current_range
 
     def rms(p):
@@ -180,8 +185,6 @@ def closed_loop(
     (:func:`_diagnosed`), the study of the named effect (:func:`_run_study`), and one
     compensation per target driven through the truth (:func:`_closed_loop_case`).
     """
-    from ..workflows.use import load_study
-
     say = progress or (lambda message: None)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -220,9 +223,6 @@ def closed_loop(
 def _bench_record(out: Path, record, effects: str, seed: int):
     """``(path, Record)`` of the bench record (simulated into ``out/record.csv`` when none is
     given), refused without the truth in its JSON sidecar."""
-    from ..data.records import load_record, write_record
-    from .synthetic import simulate
-
     if record is None:
         record = out / "record.csv"
         if not record.exists():
@@ -236,8 +236,6 @@ def _bench_record(out: Path, record, effects: str, seed: int):
 
 def _diagnosed(out: Path, record: Path, data, seed: int, say) -> tuple[str, str | None]:
     """``(status, named effect)`` of the plain GPI's diagnosis, kept in ``out/diagnosis.json`` (reused when there)."""
-    from ..diagnosis import diagnose
-
     diagnosis_path = out / "diagnosis.json"
     if diagnosis_path.exists():
         found = json.loads(diagnosis_path.read_text())
@@ -252,11 +250,6 @@ def _diagnosed(out: Path, record: Path, data, seed: int, say) -> tuple[str, str 
 def _run_study(out: Path, record: Path, chosen: list, seed: int, study_options, say) -> Path:
     """``out/study``: the study of the GPI with the ``chosen`` effects, run as ``python -m
     identify study`` in a subprocess (resumable); a chain not converged is a result all the same."""
-    import subprocess
-    import sys
-
-    from ..commands import package_environment
-
     study_dir = out / "study"
     say(f"study with effects {chosen or 'none'} into {study_dir}")
     argv = [
@@ -287,9 +280,6 @@ def _closed_loop_case(
 ) -> ClosedLoopCase:
     """One target: the compensation (written to ``out/compensate-<name>``) driven through the
     truth, beside the best linear drive, with the coverage of the predicted bands."""
-    from ..workflows.use import compensate, write_compensation
-    from .synthetic import sensor_noise
-
     truth_model, truth_theta = truth
     sigma, rho = noise
     clock = _time.perf_counter()

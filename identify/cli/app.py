@@ -24,6 +24,7 @@ import threading
 from ..commands import COMMANDS, PARENT_VARIABLE, add_command_arguments
 from ..data.fileio import DiskFullError, LinkedFileError, is_disk_full
 from ..data.hdf5 import ChainFileError
+from ..data.locks import FolderBusyError
 from ..logs import configure
 from .options import OptionError
 
@@ -94,9 +95,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def input_errors() -> tuple:
     """Exception types that mean bad input or usage (exit code 2)."""
-    # deferred (--help imports every command's module): data.locks: json, fcntl, +7 ms
-    from ..data.locks import FolderBusyError
-
     # deferred (--help imports every command's module): fitting.priors: numpy, scipy, numba, +550 ms
     from ..data.records import RecordError
     from ..fitting.priors import PriorsError

@@ -180,6 +180,7 @@ def check_input_moves(record, column) -> None:
     # deferred (--help imports every command's module): data.records: numpy, +110 ms
     import numpy as np
 
+    # deferred: --help imports every command's module; data.records loads numpy (+0.08 s CPU)
     from ..data.records import RecordError
 
     current = np.asarray(record.current, dtype=float)
@@ -195,6 +196,7 @@ def model_from_args(args, *, normalise=True):
     # deferred (--help imports every command's module): fitting.parametrisation: the model and numba, +380 ms
     from model import Model
 
+    # deferred: --help imports every command's module; fitting.parametrisation loads numpy/scipy (+0.32 s CPU)
     from ..fitting.parametrisation import normalised_model
 
     model = Model(parse_effects(args.effects), n_operators=args.n_operators, reading=args.reading)

@@ -66,6 +66,7 @@ def run(args) -> int:
     # deferred (--help imports every command's module): workflows.design: numpy, scipy, numba, +1.5 s
     import numpy as np
 
+    # deferred: --help imports every command's module; workflows.design loads numpy/scipy (+1.64 s CPU)
     from ..data.records import RecordError
     from ..output.design_report import write_design
     from ..workflows.design import RigLimits, design

@@ -67,6 +67,7 @@ def parse_window(text: str) -> tuple[float, float]:
 def write_outputs(diagnosis, record, *, json_path=None, out_dir=None) -> list[str]:
     """Write the JSON and (with ``out_dir``) the figures; returns the paths written
     (:func:`identify.output.diagnosis_files.write_diagnosis`)."""
+    # deferred: --help imports every command's module; output.diagnosis_files loads numpy/scipy (+1.00 s CPU)
     from ..output.diagnosis_files import write_diagnosis
 
     return write_diagnosis(diagnosis, record, json_path=json_path, out_dir=out_dir)
@@ -112,6 +113,7 @@ def _run(args) -> int:
     # deferred (--help imports every command's module): diagnosis: numpy, scipy, numba, +1.6 s
     import numpy as np
 
+    # deferred: --help imports every command's module; diagnosis loads numpy/scipy (+1.61 s CPU)
     from ..data.records import RecordError
     from ..diagnosis import diagnose
     from ..fitting.noise import NoQuietSegmentError
@@ -119,6 +121,7 @@ def _run(args) -> int:
     try:
         records = records_from_args(args)
         if getattr(args, "drop_window", None):
+            # deferred: --help imports every command's module; data.realdata loads numpy/scipy (+0.12 s CPU)
             from ..data.realdata import drop_window
 
             records = [drop_window(r, *parse_window(args.drop_window)) for r in records]

@@ -8,22 +8,27 @@ import sys
 import time as _time
 from pathlib import Path
 
+from ..data.locks import FolderLock
 from ..defaults import EXIT_FINDING
 from ..workflows.fit import (
     LONG_RECORD_SAMPLES,
     FitFailedError,
     fit_or_explain,
+    fit_records,
     format_fit_table,
+    format_joint_fit_table,
     print_record_notes,
     say,
 )
 from . import options
+from .app import input_errors
 from .common import (
     add_model_arguments,
     add_record_arguments,
     model_from_args,
     noise_from_args,
     record_from_args,
+    records_from_args,
     settings_from_args,
 )
 
@@ -88,7 +93,7 @@ def run(args) -> int:
     # deferred (--help imports every command's module): fitting.noise: numpy, scipy, numba, +280 ms; data.locks +7 ms
     import numpy as np
 
-    from ..data.locks import FolderLock
+    # deferred: --help imports every command's module; output.results loads numpy/scipy (+0.93 s CPU)
     from ..fitting.noise import NoQuietSegmentError
     from ..output.results import (
         FILES,
@@ -188,12 +193,10 @@ def _run_records(args, started, t_start) -> int:
     with ``--out`` the folder holds each record's data (``data.npz``, ``data_record<k>.npz``),
     ``fit.json`` (:meth:`identify.fitting.joint.JointFit.to_json`: record 1's fit plus ``joint``
     and a ``records`` list) and the manifest. Every input is checked before anything is written."""
-    import time as _time
-    from pathlib import Path
-
+    # deferred: --help imports every command's module; numpy: +0.09 s CPU
     import numpy as np
 
-    from ..data.locks import FolderLock
+    # deferred: --help imports every command's module; fitting.joint loads numpy/scipy (+0.93 s CPU)
     from ..fitting.joint import joint_manifest_data, record_noises
     from ..fitting.noise import NoQuietSegmentError
     from ..output.results import (
@@ -206,9 +209,6 @@ def _run_records(args, started, t_start) -> int:
         write_data,
         write_json,
     )
-    from ..workflows.fit import fit_records, format_joint_fit_table
-    from .app import input_errors
-    from .common import records_from_args
 
     out = Path(args.out) if args.out else None
     lock = FolderLock(out, command="python -m identify fit " + " ".join(map(str, args.data))) if out else None
@@ -243,8 +243,6 @@ def _run_records(args, started, t_start) -> int:
             return 2
         print(format_joint_fit_table(fit))
         if not fit.consistency.get("consistent", True):
-            import logging
-
             say(f"warning: {fit.consistency['message']}", logging.WARNING)
         content = fit.to_json()
         if args.json:

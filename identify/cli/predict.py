@@ -127,6 +127,7 @@ def run(args) -> int:
 
 
 def _run_several(args) -> int:
+    # deferred: --help imports every command's module; workflows.use loads numpy/scipy (+2.09 s CPU)
     from ..workflows.use import UseError, load_record_for_study, load_study
 
     paths = [Path(p) for p in args.data]
@@ -159,6 +160,7 @@ def _run_one(args) -> int:
     # deferred (--help imports every command's module): workflows.use: numpy, scipy, numba, matplotlib, +1.6 s
     import numpy as np
 
+    # deferred: --help imports every command's module; workflows.use loads numpy/scipy (+2.09 s CPU)
     from ..workflows.use import load_record_for_study, load_study, predict, write_prediction
 
     started, progress = timed_progress()

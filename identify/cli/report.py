@@ -19,6 +19,7 @@ import sys
 import time as _time
 from pathlib import Path
 
+from ..data.locks import FolderLock
 from . import options
 
 __all__ = ["HELP", "add_arguments", "run"]
@@ -46,7 +47,7 @@ def run(args) -> int:
     # deferred (--help imports every command's module): output.report: numpy, scipy, matplotlib, +1.4 s; locks +7 ms
     import numpy as np
 
-    from ..data.locks import FolderLock
+    # deferred: --help imports every command's module; output.report loads numpy/scipy (+1.21 s CPU)
     from ..fitting.posterior import ChainFileError, chain_info
     from ..output.report import ResultsError, write_report
 

@@ -162,6 +162,7 @@ def _simulation(args):
         except (OSError, ValueError) as exc:
             raise ValueError(f"{args.truth}: cannot read the truth ({exc})") from None
         if given is None:
+            # deferred: --help imports every command's module; model.signals loads numpy/scipy (+0.26 s CPU)
             from model.signals import drive_current
 
             given = drive_current(args.drive, fs=args.fs, reading=args.input)

@@ -34,6 +34,11 @@ import stat
 import tempfile
 from pathlib import Path
 
+try:
+    import tomllib  # Python >= 3.11
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
 __all__ = [
     "atomic_write",
     "atomic_write_bytes",
@@ -315,8 +320,4 @@ def temporary_files(folder) -> list[Path]:
 
 def toml_module():
     """The TOML reader: :mod:`tomllib` (Python >= 3.11) or its backport ``tomli`` (3.10)."""
-    try:
-        import tomllib  # Python >= 3.11
-    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
     return tomllib

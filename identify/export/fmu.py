@@ -32,6 +32,7 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..version import __version__
 from .compiler import shared_library
 from .sources import C_FILES, c_sources, package_text
 from .spec import ExportSpec
@@ -235,8 +236,6 @@ def _unit_element(parent, name: str) -> None:
 
 def model_description(spec: ExportSpec, kind: str, variables, guid: str, *, step_size: float, generated: str) -> str:
     """``modelDescription.xml`` (FMI 2.0, co-simulation) of the unit ``kind``."""
-    from ..version import __version__
-
     prov = spec.provenance
     what = FMU_NAMES[kind][2]
     description = (

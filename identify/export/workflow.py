@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import datetime as _datetime
 import json
+import os
 import shutil
 import tempfile
 import time as _time
@@ -33,6 +34,7 @@ import numpy as np
 
 from model import EFFECTS
 
+from ..version import __version__
 from ..workflows.use import Study, default_current_range, load_study, reachable_range
 from .compiler import CompilerError, find_compiler
 from .fmu import FMU_NAMES, build_fmu
@@ -117,7 +119,6 @@ def study_spec(study, *, draw=None, horizon=None, current_range=None) -> ExportS
     limits = default_current_range(study) if current_range is None else tuple(float(x) for x in current_range)
     manifest = study.manifest
     data, git = manifest.get("data", {}), manifest.get("git", {})
-    from ..version import __version__
 
     provenance = {
         "study": str(study.path),
@@ -166,8 +167,6 @@ def _prepare_out(out: Path) -> None:
 
 
 def _umask() -> int:
-    import os
-
     mask = os.umask(0o022)
     os.umask(mask)
     return mask

@@ -22,6 +22,7 @@ import time as _time
 import zlib
 
 import emcee
+import h5py
 import numpy as np
 
 from ..data.fileio import require_space, write_via_temporary
@@ -198,8 +199,6 @@ def _create_chain_file(path) -> None:
     without it the old copy's space is lost once the file closes, so a chain written
     every second grew to several times its data (34.5 MB for 6.0 MB at load 12). ``"x"``
     refuses anything already at the path, a link included."""
-    import h5py
-
     require_space(path, CHAIN_METADATA_BYTES)
     with h5py.File(os.fspath(path), "x", fs_strategy="fsm", fs_persist=True):
         pass
@@ -225,8 +224,6 @@ def compact_chain_file(path) -> tuple[int, int]:
         Including :class:`identify.data.fileio.DiskFullError` (less free space than the
         file's size): ``path`` is then unchanged.
     """
-    import h5py
-
     path = os.fspath(path)
     before = os.path.getsize(path)
 

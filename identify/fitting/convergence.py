@@ -16,9 +16,13 @@ The sampler that applies them is :func:`identify.fitting.posterior.sample_poster
 from __future__ import annotations
 
 import math
+import sys
+import warnings
 
 import numpy as np
 import scipy.fft
+
+from .mcmc_diagnostics import multichain_statistics
 
 __all__ = [
     "RHAT_MAX",
@@ -62,16 +66,15 @@ def import_arviz():
     studies would meet it the same way). By then the winner has written the stamp, so the
     import is tried once more, from a clean slate of ``arviz`` modules.
     """
-    import sys
-    import warnings
-
     with warnings.catch_warnings():  # arviz 0.2x announces its refactor on import
         warnings.simplefilter("ignore", FutureWarning)
         try:
+            # deferred: imported under the warning filter and retried on the stamp-file race above
             import arviz
         except FileNotFoundError:
             for name in [m for m in sys.modules if m == "arviz" or m.startswith("arviz.")]:
                 del sys.modules[name]
+            # deferred: the retry of the import above, from a clean slate of arviz modules
             import arviz
 
     return arviz
@@ -90,8 +93,6 @@ def chain_diagnostics(draws) -> dict[str, np.ndarray]:
     :func:`identify.fitting.mcmc_diagnostics.multichain_statistics` with ArviZ's
     arithmetic but without importing ArviZ (2-6 s) or its xarray machinery.
     """
-    from .mcmc_diagnostics import multichain_statistics
-
     draws = np.asarray(draws, dtype=float)
     n_dim = draws.shape[2]
     out = {k: np.full(n_dim, np.nan) for k in DIAGNOSTICS}

@@ -59,9 +59,18 @@ from __future__ import annotations
 
 import math
 import os
+from datetime import datetime, timezone
+from importlib import metadata
 from pathlib import Path
 
+import h5netcdf
 import numpy as np
+
+from ..data.fileio import require_space, write_via_temporary
+from ..data.hdf5 import open_hdf5
+from .chain_file import BACKEND_GROUP, CHAIN_METADATA_BYTES
+from .lsq import parameter_units
+from .noise import whiten
 
 __all__ = [
     "MAX_POINTWISE",
@@ -95,8 +104,6 @@ FILE = "posterior.nc"
 
 def sampled_units(log_post, record) -> list[str]:
     """Units of the sampled coordinates (``noise_log_sigma``: log of the output unit)."""
-    from .lsq import parameter_units
-
     units = parameter_units(log_post.model, record)
     by_name = dict(zip(log_post.model.names, units))
     return [by_name.get(n, f"log({record.output_unit})") for n in log_post.names]
@@ -104,10 +111,6 @@ def sampled_units(log_post, record) -> list[str]:
 
 def write_chain_attributes(path, names, units) -> None:
     """Parameter names and units as attributes of ``chain.h5``'s emcee group."""
-    from ..data.fileio import require_space
-    from ..data.hdf5 import open_hdf5
-    from .chain_file import BACKEND_GROUP, CHAIN_METADATA_BYTES
-
     require_space(path, CHAIN_METADATA_BYTES)  # HDF5 does not survive a full disk: checked first
     with open_hdf5(os.fspath(path), "a") as f:  # waits for a reader's lock instead of failing
         g = f[BACKEND_GROUP]
@@ -120,8 +123,6 @@ def pointwise_log_likelihood(residual, noise, sigma=None, *, time=None) -> np.nd
     """``(S, T)`` log-likelihood per sample: the AR(1) conditional Gaussian densities of the
     whitened residuals (:func:`identify.fitting.noise.whiten`, each step's own correlation
     on an uneven ``time`` grid); their sum over T is :func:`identify.fitting.noise.log_likelihood`."""
-    from .noise import whiten
-
     e = np.atleast_2d(np.asarray(residual, dtype=float))
     w = whiten(e, noise, sigma, time=time)
     sig = np.asarray(noise.sigma if sigma is None else sigma, dtype=float)
@@ -185,8 +186,6 @@ def _write_netcdf(path, groups) -> None:
     xarray's h5netcdf engine (dimension scales, coordinate variables), written here with
     h5netcdf alone, so writing it imports neither ArviZ nor xarray (2-3 s); every variable
     gzip-compressed with byte shuffle."""
-    import h5netcdf
-
     packed = dict(compression="gzip", compression_opts=GZIP_LEVEL, shuffle=True)
     with h5netcdf.File(path, "w") as f:
         for name, (coords, variables, attrs) in groups.items():
@@ -209,9 +208,6 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
     The draws are ``posterior.samples`` (the chain after burn-in and thinning, read from
     ``chain.h5`` by :func:`identify.fitting.posterior.posterior_from_backend`), walkers as
     ArviZ's chains."""
-    from datetime import datetime, timezone
-    from importlib import metadata
-
     out_dir = Path(out_dir)
     n_chain = int(posterior.n_walkers)
     draws = np.asarray(posterior.samples, dtype=float).reshape(-1, n_chain, posterior.samples.shape[1])
@@ -308,8 +304,6 @@ def write_netcdf(path, groups) -> None:
     on any error; the space the groups may take (their raw size and 1 MB of netCDF/HDF5
     bookkeeping; compression only shrinks them) is checked free first, so HDF5 never meets
     a full disk, which it does not survive."""
-    from ..data.fileio import write_via_temporary
-
     need = 2**20
     for coords, variables, _attrs in groups.values():
         need += sum(np.asarray(v[0] if isinstance(v, tuple) else v).nbytes for v in coords.values())

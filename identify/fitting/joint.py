@@ -26,15 +26,17 @@ record is named as disagreeing only when it also fits clearly worse jointly than
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import stats
 
 from model import Model, Parameter, ParameterSet
 
+from ..data.records import RecordError
 from .lsq import POLISH_EVALUATIONS, FitResult, WhitenedResiduals, bounded_solve, fit_least_squares
 from .noise import NoiseModel, NoQuietSegmentError, energised_mask, estimate_noise, whiten_rows
 from .threads import single_threaded_blas
@@ -68,8 +70,6 @@ DISAGREEING_RMS_RISE = 0.10
 def check_records(records) -> list:
     """The records as a list, refused with the record named when they cannot be one transducer's
     records: none, other units than the first's, or one given twice (the same data)."""
-    from ..data.records import RecordError
-
     records = list(records)
     if not records:
         raise RecordError("no record given: the list of records is empty")
@@ -356,8 +356,6 @@ def _record_fit(
     """Record's own :class:`FitResult` at a joint optimum (its vector, residual, RMS, max error;
     with ``covariance`` ``(P, P)``, the joint covariance of its vector's columns, also its
     covariance and standard errors)."""
-    from dataclasses import replace
-
     uncertainty = {}
     if covariance is not None:
         covariance = np.asarray(covariance, dtype=float)
@@ -593,8 +591,6 @@ def joint_fit_at(residuals: JointResiduals, x, separate, t0: float | None = None
 def joint_manifest_data(records) -> dict:
     """The manifest's ``data`` of several records: record 1's file, a SHA-256 over every record's
     (in order: any record changed, added, removed or moved is another run) and one entry per record."""
-    import hashlib
-
     digest = hashlib.sha256("\n".join(str(r.sha256) for r in records).encode()).hexdigest()
     return {
         "file": str(records[0].source),

@@ -21,6 +21,8 @@ draws x samples of all records stays at most :data:`identify.fitting.inference.M
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +39,7 @@ from .inference import (
     write_netcdf,
 )
 from .joint import JointModel
+from .lsq import parameter_units
 from .noise import log_likelihood_of_rows
 from .parametrisation import in_record_units
 from .posterior import LogPosterior
@@ -142,8 +145,6 @@ def _group(n_chain, draw_index):
 def joint_sampled_units(log_post: JointLogPosterior, record) -> list[str]:
     """Units of the sampled coordinates of a joint log-posterior (a record's own copy in its
     original's unit; a zero in the output unit)."""
-    from .lsq import parameter_units
-
     model = log_post.joint.model
     by_name = dict(zip(model.names, parameter_units(model, record)))
     units = []
@@ -192,9 +193,6 @@ def _record_groups(r, record, log_post, flat, noise, step_draws, shape_head, rng
 
 def write_joint_inference_data(out_dir, records, log_post: JointLogPosterior, posterior, *, seed=0) -> Path:
     """Write ``DIR/posterior.nc`` of a study of several records (module docstring); returns its path."""
-    from datetime import datetime, timezone
-    from importlib import metadata
-
     n_chain = int(posterior.n_walkers)
     draws = np.moveaxis(
         np.asarray(posterior.samples, dtype=float).reshape(-1, n_chain, posterior.samples.shape[1]), 1, 0

@@ -86,6 +86,7 @@ import time as _time
 from dataclasses import dataclass, field
 
 import emcee
+import numba
 import numpy as np
 
 from model import Model
@@ -116,6 +117,7 @@ from .convergence import (
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
 from .noise import NoiseModel, log_likelihood_of_rows
 from .parametrisation import in_record_units
+from .progress import ChainProgress, progress_mode
 from .threads import fastest_thread_count
 
 __all__ = [
@@ -708,12 +710,9 @@ def sample_posterior(
     )
     state = _start_state(sampler, initial, resuming, start_rng, emcee_seed, log)
 
-    from .progress import ChainProgress, progress_mode
-
     bar = ChainProgress(
         done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress)
     )
-    import numba
 
     threads_before = numba.get_num_threads()
     tau_cache: dict[int, np.ndarray] = {}

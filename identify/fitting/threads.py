@@ -3,11 +3,11 @@ algebra of a fit, numba's thread count chosen by measurement."""
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time as _time
 
 import numba
+from threadpoolctl import threadpool_limits
 
 __all__ = ["single_threaded_blas", "fastest_thread_count"]
 
@@ -15,10 +15,6 @@ __all__ = ["single_threaded_blas", "fastest_thread_count"]
 def single_threaded_blas():
     """Limit BLAS to one thread: the small SVDs of the solver are ~50x slower when
     OpenBLAS threads compete with the (numba-parallel) model on a loaded 2-core machine."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        return contextlib.nullcontext()
     return threadpool_limits(1, user_api="blas")
 
 

@@ -8,7 +8,12 @@ and renamed, so an interrupted run leaves no half-written file.
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
+
+from ..data.fileio import atomic_write_bytes
+from .page import png_bytes
+from .results import read_json, write_json
 
 __all__ = ["DIAGNOSIS_FILE", "DIAGNOSIS_FIGURES", "COMPARISON_FILE", "write_diagnosis", "next_step", "earlier_study"]
 
@@ -35,9 +40,6 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
         Gets ``diagnosis.json`` and ``diagnosis/<stem>.png`` for every figure (the figures of an
         earlier diagnosis there are removed first, so they never mix).
     """
-    from ..data.fileio import atomic_write_bytes
-    from .results import write_json
-
     content = diagnosis.to_dict()
     written = []
     if json_path is not None:
@@ -48,7 +50,6 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
         return written
     # deferred: matplotlib, about 0.5 s of CPU, for the figures alone
     from .diagnosis_plots import diagnosis_figures
-    from .page import png_bytes
 
     out = Path(out_dir)
     figure_dir = out / DIAGNOSIS_FIGURES
@@ -70,8 +71,6 @@ def write_diagnosis(diagnosis, record, *, json_path=None, out_dir=None) -> list[
 
 def _quoted(path) -> str:
     """A path as a shell word (quoted only when it needs to be)."""
-    import shlex
-
     return shlex.quote(str(path))
 
 
@@ -132,8 +131,6 @@ def earlier_study(out_dir, sha256: str, effects) -> Path | None:
     its effects are a strict subset of ``effects``; of several, the one whose diagnosis named an
     effect that was added, then the most recent. None when nothing qualifies.
     """
-    from .results import read_json
-
     out = Path(out_dir).resolve()
     wanted = set(effects)
     found = []

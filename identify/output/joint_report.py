@@ -14,9 +14,12 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from ..data.fileio import atomic_write_bytes
-from ..fitting.noise import energised_mask
+from ..fitting.joint import JointModel
+from ..fitting.lsq import FitResult
+from ..fitting.noise import NoiseModel, energised_mask
 from ..fitting.posterior import ChainBackend
 from . import results
 from .page import embedded_figure, escape, html_page, html_table, number_cell, png_bytes, text_cell
@@ -41,9 +44,6 @@ def is_joint_folder(result_dir) -> bool:
 
 def _load(directory: Path):
     """Records, joint layout, summary and fit content of the folder."""
-    from ..fitting.joint import JointModel
-    from ..fitting.lsq import FitResult
-
     summary = results.read_json(directory / results.FILES["summary"])
     content = results.read_json(directory / results.FILES["fit"])
     k = len(summary["records"])
@@ -71,8 +71,6 @@ def _draws(directory: Path, joint, summary, rng) -> np.ndarray:
 
 def _record_figure(r, record, joint, theta_hat, draws, noise_sigma, quiet_noise):
     """Record ``r``'s loop (measured, model) and its error over time with the 95 % bands."""
-    from matplotlib.figure import Figure
-
     rows, zero = joint.record_rows(theta_hat[None, :], r)
     y_hat = joint.model(rows[0], record.time, record.current) + zero[0]
     rows, zeros = joint.record_rows(draws, r)
@@ -235,8 +233,6 @@ def write_joint_report(result_dir, *, rng=None) -> Path:
     identify.output.results.DamagedResultsError, FileNotFoundError
         A file of the folder is missing or damaged.
     """
-    from ..fitting.noise import NoiseModel
-
     directory = Path(result_dir)
     rng = np.random.default_rng(0) if rng is None else rng
     try:

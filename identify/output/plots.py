@@ -12,11 +12,16 @@ colours the rising branches red and the falling branches blue.
 
 from __future__ import annotations
 
+import contourpy
+import matplotlib
 import numpy as np
-from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.collections import LineCollection, PatchCollection, PolyCollection
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
-from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
+from matplotlib.patches import Rectangle as _Rectangle
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullLocator, ScalarFormatter
+from matplotlib.transforms import Bbox, TransformedBbox
 
 __all__ = [
     "unit_label",
@@ -100,8 +105,6 @@ def styled(function):
     """Run a figure builder inside :data:`STYLE` (rcParams are read when artists are made)."""
 
     def wrapper(*args, **kwargs):
-        import matplotlib
-
         with matplotlib.rc_context(STYLE):
             return function(*args, **kwargs)
 
@@ -483,8 +486,6 @@ def _padded_grid(H, X, Y):
 def _ticks(low, high, max_ticks, prune="lower"):
     """The tick values and labels (and offset text) an axis from ``low`` to ``high`` shows with
     ``MaxNLocator(max_ticks, prune=prune)`` and a ``ScalarFormatter``, as corner's."""
-    from matplotlib.ticker import MaxNLocator, ScalarFormatter
-
     locator = MaxNLocator(max_ticks, prune=prune)
     locs = locator.tick_values(low, high)
     formatter = ScalarFormatter()
@@ -519,11 +520,6 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
     reference : ndarray, shape (D,), optional
         Values drawn as lines (the least-squares estimate).
     """
-    import contourpy
-    from matplotlib.collections import LineCollection
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Rectangle as _Rectangle
-
     c = CORNER
     samples = np.asarray(samples, dtype=float)
     n_dim = samples.shape[1]
@@ -645,7 +641,6 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
     fig.add_artist(LineCollection(steps, colors=colour, linewidths=c["hist_width"], **figure))
     fig.add_artist(LineCollection(dashed, colors=colour, linewidths=c["line_width"], linestyles="--", **figure))
     fig.add_artist(LineCollection(ticks, colors=colour, linewidths=c["frame_width"], **figure))
-    from matplotlib.collections import PatchCollection
 
     fig.add_artist(PatchCollection(frames, facecolors="none", edgecolors=colour, linewidths=c["frame_width"], **figure))
     if lines:
@@ -724,9 +719,6 @@ def trace_figure(chain, log_prob, labels, *, steps, discard):
     discard : int
         Burn-in steps (shaded and excluded from the posterior summaries).
     """
-    from matplotlib.collections import PatchCollection
-    from matplotlib.transforms import Bbox, TransformedBbox
-
     c = TRACES
     n_steps, n_walkers, n_dim = chain.shape
     n_cols = c["columns"]

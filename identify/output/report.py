@@ -58,6 +58,7 @@ import numpy as np
 from ..data.fileio import atomic_write_bytes
 from . import plots, results
 from .diagnosis_files import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE
+from .joint_report import is_joint_folder, write_joint_report
 from .page import escape, html_page, linked_figure, png_bytes
 from .report_analysis import (
     NOISE_COORDINATE,
@@ -350,7 +351,6 @@ def write_report(result_dir, *, n_draws: int = 200, rng: np.random.Generator | N
         raise ValueError(f"n_draws must be an integer >= 2, got {n_draws!r}")
     started = _time.perf_counter()
     rng = np.random.default_rng(0) if rng is None else rng
-    from .joint_report import is_joint_folder, write_joint_report
 
     if is_joint_folder(result_dir):  # a study of several records: its own page
         return write_joint_report(result_dir, rng=rng)

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+from model import EFFECTS
+
 from ..fitting.posterior import BENCH_COVERAGE
 from . import plots, results
 from .diagnosis_files import DIAGNOSIS_FIGURES, DIAGNOSIS_FILE, next_step
@@ -603,8 +605,6 @@ def _effect_parameters_cell(parameters: dict) -> str:
     ``parameters`` is ``{parameter name: value}`` (``diagnosis.json``'s ranking entry); the
     unit comes from the effect library (:data:`model.EFFECTS`), blank when unknown.
     """
-    from model import EFFECTS
-
     units = {p.name: p.unit for cls in EFFECTS.values() for p in cls.parameters}
     if not parameters:
         return text_cell("—")

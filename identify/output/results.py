@@ -22,17 +22,27 @@ before a rerun touches anything.
 from __future__ import annotations
 
 import datetime as _dt
+import importlib.metadata as md
 import json
 import math
+import os
 import platform
 import subprocess
 import sys
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
+from threadpoolctl import threadpool_info
+
+from model import TABLE1, THETA_NAMES
 
 from ..data.fileio import atomic_write
+from ..data.records import Record
+from ..fitting.lsq import FitResult, parameter_units
+from ..fitting.posterior import BACKEND_GROUP, DIAGNOSTICS, ChainBackend, ChainFileError, chain_info
 
 __all__ = [
     "FILES",
@@ -189,10 +199,6 @@ def load_data(out_dir, name=None):
     DamagedResultsError
         The file cannot be read or does not hold a valid record.
     """
-    import zipfile
-
-    from ..data.records import Record
-
     path = Path(out_dir) / (name or FILES["data"])
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing (not a complete results folder?)")
@@ -238,8 +244,6 @@ def load_fit(out_dir):
     DamagedResultsError
         Not valid JSON, or not a complete fit (the message says what to do).
     """
-    from ..fitting.lsq import FitResult
-
     path = Path(out_dir) / FILES["fit"]
     content = read_json(path, hint=_FIT_HINT)
     try:
@@ -266,11 +270,6 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
         When None (sampling not done yet) the ``posterior`` block is null and the
         parameters' posterior fields are null.
     """
-    from model import TABLE1, THETA_NAMES
-
-    from ..fitting.lsq import parameter_units
-    from ..fitting.posterior import DIAGNOSTICS
-
     model = fit.model
     units = parameter_units(model, record)
     post_index = {}
@@ -356,8 +355,6 @@ def build_summary(record, fit, identifiability=None, posterior=None) -> dict:
 
 def package_versions() -> dict:
     """Versions of Python, the platform and the packages the results depend on."""
-    import importlib.metadata as md
-
     versions = {"python": sys.version.split()[0], "platform": platform.platform()}
     for dist in ("msma-gpi", "numpy", "scipy", "numba", "emcee", "h5py", "matplotlib", "threadpoolctl", "arviz"):
         try:
@@ -380,25 +377,13 @@ def thread_counts() -> dict:
         (``threadpoolctl``; BLAS reductions change in the last bits with the thread count;
         the least squares limits BLAS to ``least_squares_blas`` threads); ``cpu_count``.
     """
-    import os
-
     counts: dict = {"cpu_count": os.cpu_count(), "least_squares_blas": 1}
-    try:
-        import numba
-
-        counts["numba"] = int(numba.get_num_threads())
-        counts["numba_max"] = int(numba.config.NUMBA_NUM_THREADS)
-    except ImportError:  # pragma: no cover - numba is a dependency
-        counts["numba"] = counts["numba_max"] = None
-    try:
-        from threadpoolctl import threadpool_info
-
-        counts["blas"] = [
-            {"library": info.get("internal_api"), "api": info.get("user_api"), "threads": info.get("num_threads")}
-            for info in threadpool_info()
-        ]
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
-        counts["blas"] = None
+    counts["numba"] = int(numba.get_num_threads())
+    counts["numba_max"] = int(numba.config.NUMBA_NUM_THREADS)
+    counts["blas"] = [
+        {"library": info.get("internal_api"), "api": info.get("user_api"), "threads": info.get("num_threads")}
+        for info in threadpool_info()
+    ]
     return counts
 
 
@@ -683,8 +668,6 @@ def inspect_run(out_dir, *, chain=True) -> RunState:
         except DamagedResultsError:
             state.has_data = False
     if chain:
-        from ..fitting.posterior import ChainFileError, chain_info
-
         try:
             info = chain_info(out / FILES["chain"])
         except ChainFileError as exc:
@@ -733,8 +716,6 @@ class StudyResults:
         names : tuple of str
             The sampled coordinates (free parameters, then ``noise_log_sigma`` if free).
         """
-        from ..fitting.posterior import BACKEND_GROUP, ChainBackend
-
         post = self.summary.get("posterior")
         if post is None:
             raise ValueError(f"{self.path}: no posterior yet (the study has not finished sampling)")

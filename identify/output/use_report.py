@@ -11,11 +11,13 @@ for a compensation, the CSV files. Nothing here computes a fit, a band or an inv
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..data.reversals import find_reversals
+from ..diagnosis import Thresholds
 from . import plots
 from .diagnosis_plots import (
     cycles_figure,
@@ -341,7 +343,6 @@ def _verdict_html(p) -> str:
         f'<b data-key="verdict">{escape(_VERDICTS[p.verdict])}</b>: {text}</div>'
     )
     a = adequacy.to_dict()
-    from ..diagnosis import Thresholds
 
     z_critical = Thresholds().z_critical
     rows = [
@@ -413,8 +414,6 @@ def prediction_files(p) -> dict:
         figure_html.append((stem, embedded_figure(stem, PREDICTION_FIGURES[stem], png, caption)))
     diagnosis_html = []
     if p.diagnosis is not None:
-        from dataclasses import replace
-
         window_record = replace(p.record, time=p.time, current=p.current, displacement=p.measured)
         for stem, figure in diagnosis_figures(p.diagnosis, window_record).items():
             png = png_bytes(figure, 100)

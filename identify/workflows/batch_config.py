@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import glob as _glob
 import hashlib
+import importlib
 import json
 import math
 import os
@@ -23,6 +24,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..commands import COMMANDS, add_command_arguments
 from ..data.fileio import toml_module
 from .batch_executors import EXECUTORS
 
@@ -299,7 +301,6 @@ def _task(data: dict, source: Path) -> str:
     task = data.get("task")
     if task not in TASKS:
         raise BatchConfigError(f"{source}: task must be one of {', '.join(TASKS)}, got {task!r}")
-    from ..commands import COMMANDS
 
     if task not in COMMANDS:
         raise BatchConfigError(
@@ -454,10 +455,6 @@ class _RaisingParser(argparse.ArgumentParser):
 
 
 def _command_parser(task: str) -> argparse.ArgumentParser:
-    import importlib
-
-    from ..commands import COMMANDS, add_command_arguments
-
     module = importlib.import_module(COMMANDS[task])
     parser = _RaisingParser(prog=f"python -m identify {task}", add_help=False)
     add_command_arguments(parser, module)

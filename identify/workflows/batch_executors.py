@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import CancelledError, ThreadPoolExecutor, as_completed
 
 __all__ = ["EXECUTORS", "register_executor", "get_executor", "LocalExecutor", "DaskExecutor"]
 
@@ -53,8 +54,6 @@ class LocalExecutor:
     """
 
     def __init__(self, workers: int, start_method: str | None = None):
-        from concurrent.futures import ThreadPoolExecutor
-
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="batch-job")
         self._futures: dict = {}
 
@@ -63,8 +62,6 @@ class LocalExecutor:
 
         A job cancelled before it started (:meth:`cancel`) is yielded with None as its result.
         """
-        from concurrent.futures import CancelledError, as_completed
-
         self._futures = {self._pool.submit(fn, job): job for job in jobs}
         try:
             for future in as_completed(self._futures):
@@ -106,6 +103,7 @@ class DaskExecutor:
 
     def __init__(self, workers: int, address: str | None = None, processes: bool = True, threads_per_worker: int = 1):
         try:
+            # deferred: dask.distributed is an optional extra (msma-gpi[dask])
             from distributed import Client, LocalCluster
         except ImportError:
             raise RuntimeError(
@@ -121,6 +119,7 @@ class DaskExecutor:
             self._client = Client(self._cluster)
 
     def submit_all(self, fn: Callable, jobs: Iterable) -> Iterator[tuple[object, object]]:
+        # deferred: dask.distributed is an optional extra (msma-gpi[dask])
         from distributed import as_completed
 
         futures = {}

@@ -19,12 +19,17 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from tqdm import tqdm
+
+from ..commands import PARENT_VARIABLE, package_environment
 from ..data.fileio import atomic_write, open_no_follow
+from ..data.locks import FolderBusyError, FolderLock
 from .batch_config import BatchConfig, BatchConfigError, Job, config_identity, expand_jobs
 from .batch_executors import get_executor
 from .batch_summary import (
@@ -146,8 +151,6 @@ def job_environment(threads: int) -> dict:
         ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS`` and ``MKL_NUM_THREADS`` set to ``threads``
         and ``PYTHONUNBUFFERED=1`` (the log shows the output as it comes).
     """
-    from ..commands import package_environment
-
     env = package_environment()  # the job must import this very package, wherever the batch was started from
     for name in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         env[name] = str(threads)
@@ -202,8 +205,6 @@ def run_job(job: Job) -> JobResult:
     -------
     JobResult
     """
-    from ..data.locks import FolderBusyError, FolderLock
-
     folder = Path(job.out_dir)
     base = dict(key=job.key, task=job.task, record=job.record, variant=job.variant)
     if _stop_requested(job):
@@ -220,8 +221,6 @@ def run_job(job: Job) -> JobResult:
 
 
 def _run_locked_job(job: Job, folder: Path, base: dict, lock) -> JobResult:
-    from ..commands import PARENT_VARIABLE
-
     for marker in (DONE_MARKER, FAILED_MARKER):
         (folder / marker).unlink(missing_ok=True)
     atomic_write(folder / _JOB_FILE, json.dumps(asdict(job), indent=2) + "\n")
@@ -355,8 +354,6 @@ def run_batch(
     BatchConfigError
         The folder belongs to another configuration (:data:`CONFIG_FILE`); nothing was changed.
     """
-    from ..data.locks import FolderLock
-
     lock = FolderLock(config.out, command=f"python -m identify batch {config.source}")
     lock.acquire()
     try:
@@ -390,8 +387,6 @@ class _StopSignals:
         self.on_stop()
 
     def __enter__(self):
-        import threading
-
         for name in (STOP_FILE, STOP_FILE + ".now"):
             (self.out / name).unlink(missing_ok=True)
         if threading.current_thread() is threading.main_thread():
@@ -408,8 +403,6 @@ class _StopSignals:
 
 
 def _run_batch_locked(config: BatchConfig, *, progress, rerun, stream, lock) -> BatchResult:
-    from tqdm import tqdm
-
     stream = sys.stderr if stream is None else stream
     started = time.perf_counter()
     jobs = expand_jobs(config)

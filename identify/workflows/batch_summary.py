@@ -22,8 +22,13 @@ import re
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from urllib.parse import quote
+
+import numpy as np
 
 from ..data.fileio import atomic_write
+from ..output.page import escape, html_page, plain_text
+from ..output.plots import unit_label
 from .batch_config import BatchConfig
 
 __all__ = [
@@ -161,8 +166,6 @@ def _output_unit(folder: Path) -> str:
     data = folder / "data.npz"
     if data.is_file():
         try:
-            import numpy as np
-
             with np.load(data, allow_pickle=False) as z:
                 return str(z["output_unit"]) if "output_unit" in z.files else ""
         except (OSError, ValueError, KeyError):
@@ -376,8 +379,6 @@ def _md(value) -> str:
 
 def _md_url(path: str) -> str:
     """A relative link target for Markdown: every character but ``A-Z a-z 0-9 / . - _ ~`` percent-encoded."""
-    from urllib.parse import quote
-
     return quote(str(path), safe="/.-_~")
 
 
@@ -431,8 +432,6 @@ _STATUS_WORDS = {"missing_effect": "an effect is missing", "not_adequate": "not 
 def _statistic_label(name: str) -> str:
     """A summary row's statistic name for a person: ``reduced_chi2`` -> "reduced χ²",
     ``delta_bic[thermal]`` -> "BIC gain of <code>thermal</code>" (markup)."""
-    from ..output.page import escape
-
     base, _, effect = name.partition("[")
     label = {"reduced_chi2": "reduced χ²", "delta_bic": "BIC gain"}.get(base, base.replace("_", " "))
     return escape(label) + (f" of <code>{escape(effect.rstrip(']'))}</code>" if effect else "")
@@ -440,8 +439,6 @@ def _statistic_label(name: str) -> str:
 
 def _index_page(title: str, counts: str, results: list[JobResult]) -> str:
     """``index.html``: one row per run, links to each run's report and log (:func:`identify.output.page.html_page`)."""
-    from ..output.page import escape, html_page, plain_text
-
     rows = []
     for r in results:
         link = f'<a href="{escape(r.report)}">{escape(r.key)}</a>' if r.report else plain_text(r.key)
@@ -477,6 +474,4 @@ def _index_page(title: str, counts: str, results: list[JobResult]) -> str:
 
 def unit_text(unit) -> str:
     """A unit as a page shows it (``um`` -> ``µm``)."""
-    from ..output.plots import unit_label
-
     return unit_label(unit) if unit else ""

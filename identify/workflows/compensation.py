@@ -24,6 +24,7 @@ from model import Model
 from model.inverse import DEFAULT_CURRENT_RANGE, STATUS_BRANCH, STATUS_EXACT, STATUS_NAMES, STATUS_SATURATED, invert
 
 from ..output import results
+from ..output.use_report import compensation_files
 from .use_study import Bands, Study, UseError, bands_of, prepared_inputs, progress_or_silence, replace_folder
 
 __all__ = [
@@ -511,7 +512,5 @@ def _compensation_summary(study: Study, target: Target, med, t: _Tracking) -> di
 
 def write_compensation(compensation: Compensation, out) -> Path:
     """Write ``OUT/compensation.csv`` (``time,current``), ``compensation.json``, the bands CSV, the page and figures."""
-    from ..output.use_report import compensation_files
-
     files = compensation_files(compensation)
     return replace_folder(files, out, COMPENSATION_FILE)

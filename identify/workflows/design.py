@@ -45,6 +45,7 @@ from scipy.optimize import least_squares
 from model import Model, get_effect
 
 from ..data.records import Record
+from ..data.reversals import find_reversals
 from ..diagnosis import Thresholds, diagnose
 from ..fitting.joint import check_records, fit_joint
 from ..fitting.lsq import WhitenedResiduals, fit_least_squares
@@ -543,8 +544,6 @@ class Design:
 
 def _period(records) -> float:
     """The records' drive period [s] (twice the median time between reversals), at least 2 s."""
-    from ..data.reversals import find_reversals
-
     periods = []
     for r in records:
         index = np.asarray(find_reversals(np.asarray(r.current)).index)

@@ -39,6 +39,7 @@ def say(message: str, level: int = logging.INFO) -> None:
 
 def parse_effects(text) -> list[str]:
     """``"thermal, creep"`` -> ``["thermal", "creep"]``; unknown names raise a ValueError listing the known ones."""
+    # deferred: --help loads this module (cli.common); model loads numpy/scipy (+0.28 s CPU)
     from model import EFFECTS
 
     if text is None:
@@ -79,6 +80,7 @@ def fit_or_explain(record, model, **options):
         The fit raised a ValueError (e.g. no start with a finite model output); the message
         names the model and the record and suggests options that change the starts.
     """
+    # deferred: --help loads this module (cli.common); fitting loads numpy/scipy (+0.91 s CPU)
     from ..fitting import lsq
 
     try:
@@ -110,8 +112,10 @@ def _flat(message) -> str:
 
 def format_fit_table(fit, record=None) -> str:
     """Human summary: parameter, value, stderr, unit, Table 1; then RMS vs noise, max error, chi2."""
+    # deferred: --help loads this module (cli.common); model loads numpy/scipy (+0.28 s CPU)
     from model import TABLE1, THETA_NAMES
 
+    # deferred: --help loads this module (cli.common); fitting.lsq loads numpy/scipy (+0.91 s CPU)
     from ..fitting.lsq import parameter_units
 
     units = parameter_units(fit.model, record)
@@ -167,6 +171,7 @@ def fit_records(records, model, *, noises=None, n_starts: int = 4, rng=None, pro
     -------
     identify.fitting.joint.JointFit
     """
+    # deferred: --help loads this module (cli.common); fitting.joint loads numpy/scipy (+0.93 s CPU)
     from ..fitting.joint import check_records, fit_joint, record_noises
 
     records = check_records(records)  # refused naming the record, before any fit
@@ -187,6 +192,7 @@ def format_joint_fit_table(fit) -> str:
     """Human summary of a joint fit: the shared parameters once (value, stderr), each record's own
     run parameters and zero, then one line per record (samples, noise, RMS, max error, its RMS
     alone) and the consistency test."""
+    # deferred: --help loads this module (cli.common); fitting.lsq loads numpy/scipy (+0.91 s CPU)
     from ..fitting.lsq import parameter_units
 
     record = fit.records[0]
@@ -220,6 +226,7 @@ def format_joint_fit_table(fit) -> str:
 def separate_fits_or_explain(records, model, noises, *, n_starts: int = 4, rng=None, log=None) -> list:
     """Each record fitted alone (:func:`identify.fitting.joint.separate_fits`), a failure turned
     into a :class:`FitFailedError` naming the records."""
+    # deferred: --help loads this module (cli.common); fitting.joint loads numpy/scipy (+0.93 s CPU)
     from ..fitting.joint import separate_fits
 
     try:
@@ -238,6 +245,7 @@ def select_terms_of_records(records, separate, *, rng=None, log=None) -> list:
     only when every record's selection pins it off, since one record that needs it is evidence
     the transducer has it. Returns the selected fits when every record pins off the same terms,
     else the fits given (every term kept)."""
+    # deferred: --help loads this module (cli.common); fitting.terms loads numpy/scipy (+1.14 s CPU)
     from ..fitting.terms import select_terms
 
     selected = [select_terms(record, fit, rng=rng, log=log) for record, fit in zip(records, separate)]

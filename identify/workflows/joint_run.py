@@ -5,9 +5,35 @@ joint parts are built by :mod:`identify.workflows.joint_study`."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
+import numpy as np
+
+from ..data.locks import FolderLock
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, DEFAULT_N_STARTS
+from ..diagnosis import diagnose
+from ..fitting.identifiability import analyse_identifiability
+from ..fitting.inference import write_chain_attributes
+from ..fitting.joint import (
+    JointModel,
+    JointResiduals,
+    check_records,
+    joint_fit_from_json,
+    joint_manifest_data,
+    leave_one_record_out,
+    record_noises,
+)
+from ..fitting.joint_posterior import JointLogPosterior, joint_sampled_units, write_joint_inference_data
+from ..fitting.lsq import parameter_units
+from ..fitting.priors import apply_priors, prior_table
+from ..fitting.terms import optional_terms
+from ..fitting.threads import single_threaded_blas
+from ..output.diagnosis_files import write_diagnosis
+from ..output.report import RMS_RATIO_LIMIT
+from ..output.results import FILES, read_json, record_data_file, write_data, write_json, write_summary
+from .fit import fit_records, format_joint_fit_table, select_terms_of_records, separate_fits_or_explain
+from .joint_study import build_joint_summary
 from .study_run import (
     StudyResult,
     StudyRun,
@@ -27,12 +53,6 @@ class _JointRun(StudyRun):
     def diagnose(self, fit, summary) -> None:
         """The joint diagnosis (each record alone, then the explanations on all together), when
         asked for and any record's residual is above its noise."""
-        import numpy as np
-
-        from ..diagnosis import diagnose
-        from ..output.diagnosis_files import write_diagnosis
-        from ..output.report import RMS_RATIO_LIMIT
-
         rows = summary.get("records") or []
         if not self.options["diagnose"] or not any(r["rms"] > RMS_RATIO_LIMIT * r["noise_sigma"] for r in rows):
             return
@@ -61,8 +81,6 @@ class _JointRun(StudyRun):
         self.records = records
 
     def execute(self):
-        from ..fitting.joint import joint_manifest_data, record_noises
-
         if self.options["noise_sigma"] is not None:
             raise ValueError(
                 "several records are each whitened with the noise of their own quiet start: noise_sigma "
@@ -84,8 +102,6 @@ class _JointRun(StudyRun):
         return super().inspect_folder()
 
     def repair_finished(self, state) -> None:
-        from ..output.results import record_data_file, write_data
-
         for r, record in enumerate(self.records, start=1):
             if not (self.out / record_data_file(r)).exists():
                 write_data(self.out, record, record_data_file(r))
@@ -93,19 +109,12 @@ class _JointRun(StudyRun):
         super().repair_finished(state)
 
     def finished_before(self):
-        from ..output.results import FILES, read_json
-
         summary_path = self.out / FILES["summary"]
         summary = read_json(summary_path) if summary_path.exists() else {}
         return StudyResult(self.out, self.records, None, summary, "finished before", paths=self.paths())
 
     def least_squares(self, state, lsq_rng, extending):
         """The joint fit (reused when the folder holds it), then the first writes."""
-        from ..fitting.joint import joint_fit_from_json
-        from ..fitting.terms import optional_terms
-        from ..output.results import FILES, read_json, record_data_file, write_data, write_json
-        from .fit import fit_records, format_joint_fit_table, select_terms_of_records, separate_fits_or_explain
-
         out = self.out
         if state.has_fit:
             fit = joint_fit_from_json(read_json(out / FILES["fit"]), self.records, self.noises)
@@ -137,19 +146,11 @@ class _JointRun(StudyRun):
             write_json(out / FILES["fit"], fit.to_json())
         self.show(format_joint_fit_table(fit))
         if not fit.consistency.get("consistent", True):
-            import logging
-
             self.log(f"warning: {fit.consistency['message']}", logging.WARNING)
         self.lap("least_squares")
         return fit
 
     def identifiability(self, state, fit):
-        from ..fitting.identifiability import analyse_identifiability
-        from ..fitting.joint import JointResiduals
-        from ..fitting.threads import single_threaded_blas
-        from ..output.results import write_summary
-        from .joint_study import build_joint_summary
-
         residuals = JointResiduals(fit.records, fit.joint, fit.noises)
         x = fit.theta[residuals.free]
         with single_threaded_blas():
@@ -163,8 +164,6 @@ class _JointRun(StudyRun):
         return ident
 
     def units(self, fit) -> dict:
-        from ..fitting.lsq import parameter_units
-
         record = self.records[0]
         by_name = dict(zip(fit.model.names, parameter_units(fit.model, record)))
         units = {}
@@ -176,20 +175,9 @@ class _JointRun(StudyRun):
     def posterior(self, state, fit, ident, posterior_rng):
         """The emcee chain of the joint layout from the joint fit's Laplace approximation, leave one
         record out, the summary and the exports."""
-        import numpy as np
-
-        from ..fitting.inference import write_chain_attributes
-        from ..fitting.joint import JointModel, leave_one_record_out
-        from ..fitting.joint_posterior import JointLogPosterior, joint_sampled_units, write_joint_inference_data
-        from ..fitting.priors import prior_table
-        from ..output.results import FILES, write_summary
-        from .joint_study import build_joint_summary
-
         out, opts = self.out, self.options
         post_model, priors = fit.model, None
         if opts["priors"] is not None:
-            from ..fitting.priors import apply_priors
-
             post_model, priors = apply_priors(
                 fit.model, opts["priors"], start=fit.fits[0].theta, start_name="least-squares estimate"
             )
@@ -222,9 +210,6 @@ def study_records(records, model=None, *, out, settings=None, lock: bool = True,
     :func:`study`'s, and so are the result (its ``record`` the list) and the errors. A record that
     cannot join the others (other units, the same data twice, no quiet start) is a ValueError naming
     it, raised before anything is written; ``select_terms`` does not apply (every term is fitted)."""
-    from ..data.locks import FolderLock
-    from ..fitting.joint import check_records
-
     records = check_records(records)
     model = default_model(model)
     if options.get("noise_sigma") is not None:
@@ -270,6 +255,4 @@ def study_records(records, model=None, *, out, settings=None, lock: bool = True,
 
 def _joint_layout(model, n_records):
     """The joint layout of ``model`` for ``n_records`` records (what the sampler moves)."""
-    from ..fitting.joint import JointModel
-
     return JointModel(model, n_records)

@@ -24,14 +24,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..fitting.posterior import DIAGNOSTICS
+from ..output.results import build_summary, jsonable
+
 __all__ = ["build_joint_summary"]
 
 
 def _extra_parameters(fit, posterior, units) -> list[dict]:
     """``summary.json`` entries of the joint parameters beyond the model's (each further record's
     own run parameters and zero), with the keys of the model's entries."""
-    from ..fitting.posterior import DIAGNOSTICS
-
     joint = fit.joint
     index = {n: j for j, n in enumerate(posterior.names)} if posterior is not None else {}
     quantiles = posterior.quantiles((0.025, 0.5, 0.975)) if posterior is not None else None
@@ -70,8 +71,6 @@ def build_joint_summary(fit, identifiability=None, posterior=None, units=None, l
     further records' own, with ``records`` (file, samples, noise sigma, rms, max error, rms alone,
     per record), ``consistency``, ``alone`` (each record's separate least squares: value and
     stderr of every model parameter) and ``leave_one_record_out`` when given."""
-    from ..output.results import build_summary, jsonable
-
     summary = build_summary(fit.records[0], fit.fits[0], identifiability, posterior)
     summary["parameters"] += _extra_parameters(fit, posterior, units or {})
     summary["records"] = [

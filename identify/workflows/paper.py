@@ -28,11 +28,14 @@ import time as wallclock
 from dataclasses import dataclass
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+from matplotlib.figure import Figure
 
 from model import QUIET_SECONDS, READINGS, TABLE1, envelope, gpi, paper_current
 
 from ..data.fileio import atomic_write
+from ..data.locks import FolderLock
 
 __all__ = ["ReadingEvidence", "reading_evidence", "paper_input", "write_paper", "FIGURE_FILES", "N_OPERATORS"]
 
@@ -153,8 +156,6 @@ def _save_figure(figure, path: Path) -> None:
 
 def _single_curve_figure(figsize, x, y, *, xlabel, ylabel, title, label=None, legend_loc=None, **style):
     """One curve on one grid-lined axes, labelled; returns ``(figure, axes)`` (Agg canvas, no pyplot)."""
-    from matplotlib.figure import Figure
-
     figure = Figure(figsize=figsize, layout="constrained")
     axes = figure.add_subplot()
     axes.plot(x, y, label=label, **style)
@@ -167,8 +168,6 @@ def _single_curve_figure(figsize, x, y, *, xlabel, ylabel, title, label=None, le
 
 def _make_figures(time, current, chosen, other, input_reading):
     """The four figures as ``{key: matplotlib.figure.Figure}`` (Agg canvas, no pyplot)."""
-    from matplotlib.figure import Figure
-
     model_label = f"GPI, Table 1 ({chosen.reading} reading)"
     figures = {}
     figures["input"], axes = _single_curve_figure(
@@ -307,10 +306,7 @@ def write_paper(out, time, current, *, fs: float = 100.0, input_reading: str = "
     chosen = reading_evidence(time, current, reading)
     other = reading_evidence(time, current, "literal" if reading == "swapped" else "swapped")
 
-    import matplotlib
-
     matplotlib.use("Agg")
-    from ..data.locks import FolderLock
 
     folder = Path(out)
     with FolderLock(folder, command=f"python -m identify paper --out {folder}"):

@@ -21,8 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from ..data.records import Record
+from ..diagnosis import assess_adequacy, diagnose
+from ..diagnosis.residuals import ARNoise, fit_ar_noise, residual_profile
+from ..fitting.lsq import WhitenedResiduals
 from ..fitting.noise import MIN_QUIET_SAMPLES, NoiseModel, energised_mask, estimate_noise, quiet_segment
 from ..output import results
+from ..output.use_report import prediction_files
 from .use_study import (
     MIN_WINDOW_SAMPLES,
     Bands,
@@ -460,9 +464,6 @@ def _training_figures(study: Study, draws, draw_sigma) -> dict:
 def _residual_check(v: _Validation, noise: NoiseModel, quiet: slice, start: int):
     """``(profile, adequacy)`` of the least-squares residual on the window: where it fails,
     and is it noise (as the diagnosis: the quiet start's AR noise, else white noise of sigma)."""
-    from ..diagnosis import assess_adequacy
-    from ..diagnosis.residuals import ARNoise, fit_ar_noise, residual_profile
-
     residual_lsq = v.measured - v.bands.lsq
     quiet_w = None
     if start == 0 and quiet.stop >= 20:
@@ -482,8 +483,6 @@ def _diagnose_window(
     """``(diagnosis, verdict, missing)``: which effect the window reveals, the study's
     least-squares vector as the baseline; ``parameters_differ`` when a refitted baseline is
     adequate there."""
-    from ..diagnosis import diagnose
-
     time, current, measured = v.time, v.current, v.measured
     window_record = replace(
         record,
@@ -516,8 +515,6 @@ def _diagnose_window(
 
 def _baseline_fit(fit, record: Record, model_output, noise: NoiseModel):
     """The study's least-squares fit re-expressed on another record (same theta, its residual)."""
-    from ..fitting.lsq import WhitenedResiduals
-
     residual = np.asarray(record.displacement) - model_output
     energised = np.ones(len(record), dtype=bool)
     energised[quiet_segment(record.current)] = False
@@ -540,7 +537,5 @@ def _baseline_fit(fit, record: Record, model_output, noise: NoiseModel):
 
 def write_prediction(prediction: Prediction, out) -> Path:
     """Write ``OUT/prediction.json``, ``OUT/prediction.html`` and the figures (``OUT/*.png``), all at once."""
-    from ..output.use_report import prediction_files
-
     files = prediction_files(prediction)
     return replace_folder(files, out, PREDICTION_FILE)

@@ -29,7 +29,10 @@ by ``batch`` records its thread count in ``DIR/batch_job.json``, and the rerun g
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import hashlib
+import importlib
 import json
 import math
 import subprocess
@@ -37,10 +40,16 @@ import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import h5py
 import numpy as np
 
-from ..commands import package_environment, package_root
+from ..commands import COMMANDS, add_command_arguments, package_environment, package_root
 from ..data.fileio import atomic_write
+from ..data.hdf5 import open_hdf5
+from ..data.locks import FolderLock
+from ..defaults import EXIT_FINDING
+from ..fitting.posterior import ChainFileError, chain_info
+from ..output.results import DamagedResultsError, jsonable, load_data, read_json
 
 __all__ = [
     "DataChangedError",
@@ -452,8 +461,6 @@ def _locate_records(manifest: dict, directory, first: DataLocation) -> list[str]
 
 
 def _command_name(manifest: dict) -> str:
-    from ..commands import COMMANDS, add_command_arguments
-
     name = manifest.get("settings", {}).get("command") or manifest.get("task")
     if isinstance(name, str) and name in COMMANDS:
         return _reproducible(name)
@@ -462,9 +469,6 @@ def _command_name(manifest: dict) -> str:
         if word in COMMANDS:
             return _reproducible(word)
     # no command line (e.g. run from Python): the one command whose options cover the settings
-    import argparse
-    import importlib
-
     settings = set(manifest.get("settings", {}))
     matches = []
     for name, module_name in COMMANDS.items():
@@ -525,11 +529,6 @@ def rerun_arguments(manifest: dict, data_file, out) -> list[str]:
         option that is never replayed (e.g. ``json``: an output path), or a setting the
         command's parser no longer accepts.
     """
-    import argparse
-    import importlib
-
-    from ..commands import COMMANDS, add_command_arguments
-
     name = _command_name(manifest)
     module = importlib.import_module(COMMANDS[name])
     parser = argparse.ArgumentParser(prog=f"python -m identify {name}", add_help=False, allow_abbrev=False)
@@ -581,8 +580,6 @@ def original_returncode(directory) -> int:
     """The exit code the run in ``directory`` ended with, from its results: 1 (a finding) for a
     study whose chain did NOT CONVERGE (``summary.json``) or a fit whose solver did not
     converge (``fit.json`` without a posterior), else 0."""
-    from ..defaults import EXIT_FINDING
-
     directory = Path(directory)
     for name, verdict in (
         ("summary.json", lambda d: (d.get("posterior") or {}).get("converged")),
@@ -634,10 +631,6 @@ def compare_arrays(file: str, name: str, a, b) -> ArrayComparison:
 
 
 def _h5_datasets(path: Path) -> dict:
-    import h5py
-
-    from ..data.hdf5 import open_hdf5
-
     out = {}
     with open_hdf5(path, "r") as f:
 
@@ -776,15 +769,10 @@ def _check_readable(directory: Path) -> None:
     ------
     identify.output.results.DamagedResultsError
     """
-    from ..fitting.posterior import ChainFileError, chain_info
-    from ..output.results import DamagedResultsError, read_json
-
     for name in _JSON_FILES:
         if (directory / name).exists():
             read_json(directory / name, hint="the run cannot be compared with a rerun")
     if (directory / "data.npz").exists():
-        from ..output.results import load_data
-
         load_data(directory)
     try:
         chain_info(directory / "chain.h5")
@@ -817,8 +805,6 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     ManifestError, DataChangedError
         Before anything runs.
     """
-    from ..data.locks import FolderLock
-
     directory = Path(directory).resolve()
     manifest = read_manifest(directory)
     _check_readable(directory)
@@ -848,7 +834,6 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
     if threads is not None:
         for name in _THREAD_VARIABLES:
             env[name] = str(threads)
-    import contextlib
 
     with contextlib.ExitStack() as stack:
         reading = FolderLock(directory, command=f"python -m identify reproduce {directory} (reading it)")
@@ -887,7 +872,6 @@ def reproduce(directory, out=None, *, data=None, stream=None) -> ReproductionRep
             threads=threads,
             expected_returncode=original_returncode(directory),
         )
-        from ..output.results import jsonable
 
         atomic_write(out / REPORT_FILE, json.dumps(jsonable(report.to_dict()), indent=2, default=str) + "\n")
     return report

@@ -38,7 +38,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..data.locks import FolderLock
+from ..data.records import Record, load_record
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS, DEFAULT_N_STARTS
+from ..fitting.joint import check_records
 from ..logs import show_progress
 from .joint_run import study_records
 from .study_run import (
@@ -171,12 +174,7 @@ def study(
     failure of the computation itself; the command line maps them to exit code 2 (bad
     input) and 130 (interrupted).
     """
-    from ..data.locks import FolderLock
-    from ..data.records import Record, load_record
-
     if isinstance(record, (list, tuple)):  # several records of one transducer
-        from ..fitting.joint import check_records
-
         records = check_records([r if isinstance(r, Record) else load_record(r) for r in record])
         if len(records) > 1:
             return study_records(

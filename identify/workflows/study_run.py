@@ -7,6 +7,7 @@ is written."""
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import logging
 import os
 import shutil
@@ -14,7 +15,39 @@ import time as _time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
+from model import Model
+
 from ..defaults import EXIT_FINDING, EXIT_OK
+from ..diagnosis import diagnose
+from ..fitting.identifiability import analyse_fit
+from ..fitting.inference import sampled_units, write_chain_attributes, write_inference_data
+from ..fitting.noise import estimate_noise
+from ..fitting.parametrisation import normalised_model
+from ..fitting.posterior import LogPosterior, default_n_walkers, initial_walkers, sample_posterior
+from ..fitting.priors import apply_priors, prior_table
+from ..fitting.terms import select_terms
+from ..output.diagnosis_files import COMPARISON_FILE, earlier_study, next_step, write_diagnosis
+from ..output.report import ResultsError, residual_above_noise, write_report
+from ..output.results import (
+    FILES,
+    RunMismatchError,
+    RunState,
+    build_manifest,
+    build_summary,
+    check_resumable,
+    finish_manifest,
+    inspect_run,
+    load_fit,
+    now_iso,
+    read_json,
+    remove_run,
+    write_data,
+    write_fit,
+    write_json,
+    write_summary,
+)
 from .fit import LONG_RECORD_SAMPLES, fit_or_explain, format_fit_table, say
 
 __all__ = [
@@ -98,8 +131,6 @@ def sampled_dimension(model, noise_sigma) -> int:
 
 def check_walkers(walkers, model, noise_sigma, flag="walkers") -> None:
     """Raise a ValueError naming ``flag`` unless ``walkers`` (None: the default) suits the model."""
-    from ..fitting.posterior import default_n_walkers
-
     if walkers is None:
         return
     ndim = sampled_dimension(model, noise_sigma)
@@ -115,7 +146,6 @@ def check_priors(priors, model):
     (None: none) suits ``model`` (names, distributions, bounds around the defaults)."""
     if priors is None:
         return
-    from ..fitting.priors import apply_priors
 
     apply_priors(model, priors)
 
@@ -125,7 +155,6 @@ def priors_settings(priors) -> dict:
     file edited between runs is another study)."""
     if priors is None:
         return {"priors": None}
-    import hashlib
 
     settings = {"priors": str(priors)}
     try:
@@ -137,10 +166,6 @@ def priors_settings(priors) -> dict:
 
 def default_model(model):
     """The study's model: the paper's GPI by default; alpha pinned (the normalisation) unless it is."""
-    from model import Model
-
-    from ..fitting.parametrisation import normalised_model
-
     if model is None:
         return normalised_model(Model([], n_operators=12, reading="swapped"))
     alpha_free = dict(zip(model.names, model.parameters.vary)).get("alpha", False)
@@ -223,11 +248,6 @@ def chain_to_extend(chain: Path, state):
 def write_report_or_say(out: Path, log=say) -> None:
     """Write ``out/report.html``; a report that cannot be drawn is one line, not a failure."""
     try:
-        from ..output.report import ResultsError, write_report
-    except ImportError as exc:
-        log(f"report skipped: identify.output.report is not available ({exc})")
-        return
-    try:
         path = write_report(out)
     except ResultsError as exc:  # the results are complete; only the page could not be drawn
         log(f"report not written: {exc}")
@@ -253,9 +273,6 @@ class StudyRun:
 
     def execute(self) -> StudyResult:
         """Check everything that can be checked, then run or resume (the study's order of steps)."""
-        from ..fitting.noise import estimate_noise
-        from ..output.results import build_manifest, now_iso
-
         self.t_start, self.started = _time.perf_counter(), now_iso()
         # everything that can be checked is checked before the first write
         self.noise = estimate_noise(self.record, noise_sigma=self.options["noise_sigma"])
@@ -274,8 +291,6 @@ class StudyRun:
 
     def inspect_folder(self):
         """The folder's :class:`~identify.output.results.RunState`, or None when it holds this study, finished."""
-        from ..output.results import FILES, RunMismatchError, RunState, check_resumable, inspect_run, remove_run
-
         out = self.out
         if self.options["force"]:
             removed = remove_run(out)
@@ -305,8 +320,6 @@ class StudyRun:
 
     def repair_finished(self, state) -> None:
         """A finished study: rewrite a missing data file, say so, write a missing report."""
-        from ..output.results import FILES, write_data
-
         out = self.out
         if not state.has_data:  # derived from the record, whose SHA-256 matched: repaired
             write_data(out, self.record)
@@ -321,23 +334,15 @@ class StudyRun:
             write_report_or_say(out, self.log)
 
     def finished_before(self) -> StudyResult:
-        from ..output.results import FILES, load_fit, read_json
-
         summary_path = self.out / FILES["summary"]
         summary = read_json(summary_path) if summary_path.exists() else {}
         return StudyResult(self.out, self.record, load_fit(self.out), summary, "finished before", paths=self.paths())
 
     def paths(self) -> dict:
-        from ..output.results import FILES
-
         return {role: self.out / name for role, name in FILES.items() if (self.out / name).exists()}
 
     def compute(self, state) -> StudyResult:
         """Least squares, identifiability, posterior and report, with the manifest kept current."""
-        import numpy as np
-
-        from ..output.results import FILES, finish_manifest, write_json
-
         status, error, self.wrote_manifest = "interrupted", None, False
         extending = _holds_finished_result(state)
         try:
@@ -380,8 +385,6 @@ class StudyRun:
 
     def least_squares(self, state, lsq_rng, extending):
         """The fit (reused when the folder holds it), then the first writes: record, manifest, fit."""
-        from ..output.results import FILES, load_fit, write_data, write_fit, write_json
-
         out, record, model = self.out, self.record, self.model
         fit_path = out / FILES["fit"]
         if state.has_fit:
@@ -394,8 +397,6 @@ class StudyRun:
                 record, model, noise=self.noise, n_starts=self.options["n_starts"], rng=lsq_rng, verbose=verbose
             )
             if self.options["select_terms"]:
-                from ..fitting.terms import select_terms
-
                 fit = select_terms(record, fit, rng=lsq_rng, log=self.log)
         # the first writes: the record, the manifest (the run is in progress), the fit
         if not state.has_data:
@@ -410,9 +411,6 @@ class StudyRun:
         return fit
 
     def identifiability(self, state, fit):
-        from ..fitting.identifiability import analyse_fit
-        from ..output.results import build_summary, write_summary
-
         ident = analyse_fit(fit, self.record)
         self.show(ident.describe())
         if state.posterior is None:  # never replace a finished posterior summary by an unfinished one
@@ -422,18 +420,9 @@ class StudyRun:
 
     def posterior(self, state, fit, ident, posterior_rng):
         """The emcee chain from the fit's Laplace approximation, its summary and exports."""
-        import numpy as np
-
-        from ..fitting.inference import sampled_units, write_chain_attributes, write_inference_data
-        from ..fitting.posterior import LogPosterior
-        from ..fitting.priors import prior_table
-        from ..output.results import FILES, build_summary, write_summary
-
         out, record, opts = self.out, self.record, self.options
         post_model, priors = fit.model, None
         if opts["priors"] is not None:
-            from ..fitting.priors import apply_priors
-
             post_model, priors = apply_priors(
                 fit.model, opts["priors"], start=fit.theta, start_name="least-squares estimate"
             )
@@ -466,9 +455,6 @@ class StudyRun:
     def sample(self, log_post, mean, cov, state, posterior_rng, what: str):
         """The emcee chain of ``log_post`` from walkers around ``mean``/``cov`` into chain.h5 (a
         raised max_steps extends a finished chain's copy); ``what`` heads the log line."""
-        from ..fitting.posterior import default_n_walkers, initial_walkers, sample_posterior
-        from ..output.results import FILES
-
         opts = self.options
         n_walkers = opts["walkers"] or default_n_walkers(log_post.ndim)
         self.log(
@@ -492,12 +478,6 @@ class StudyRun:
     def diagnose(self, fit, summary) -> None:
         """The diagnosis, when asked for and the residual is above the noise (not for a free sigma,
         which the residual itself sets); its verdict and the next command are printed."""
-        import numpy as np
-
-        from ..diagnosis import diagnose
-        from ..output.diagnosis_files import next_step, write_diagnosis
-        from ..output.report import residual_above_noise
-
         if not self.options["diagnose"] or not residual_above_noise(summary):
             return
         self.log("the residual is above the noise: diagnosing which effect is missing (--no-diagnose skips it) ...")
@@ -523,9 +503,6 @@ class StudyRun:
 
     def comparison(self) -> None:
         """Name the earlier study this one is compared with (``compare``, else found by manifest)."""
-        from ..output.diagnosis_files import COMPARISON_FILE, earlier_study
-        from ..output.results import write_json
-
         earlier, found = self.options["compare"], "given (--compare)"
         if earlier is None:
             earlier, found = earlier_study(self.out, self.record.sha256, self.model.effect_names), "found by manifest"

@@ -13,6 +13,7 @@ folder at once. Every input problem raises :class:`UseError`.
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -25,6 +26,7 @@ from model import Model
 from ..data.records import Record, RecordError, load_record
 from ..fitting.noise import NoiseModel
 from ..output import results
+from ..output.bands import mixture_quantile
 from ..output.report import ModelBands
 
 __all__ = [
@@ -231,8 +233,6 @@ def bands_of(
     curves_out : list, optional
         Gets the draws' curves inside the domain, shape (N_inside, T), appended.
     """
-    from ..output.bands import mixture_quantile
-
     batch = np.vstack([draws, np.asarray(lsq_theta)[None, :]])
     curves, valid = model.evaluate(batch, time, drive)
     if not valid[-1]:
@@ -399,8 +399,6 @@ def replace_folder(files: dict, out, marker: str) -> Path:
 
 
 def _umask() -> int:
-    import os
-
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
