@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import stat
 import tempfile
 from pathlib import Path
@@ -53,6 +54,7 @@ __all__ = [
     "refuse_link",
     "open_no_follow",
     "is_disk_full",
+    "move_folder_into_place",
 ]
 
 #: Glob of the temporary files :func:`atomic_write` creates (and removes).
@@ -321,3 +323,23 @@ def temporary_files(folder) -> list[Path]:
 def toml_module():
     """The TOML reader: :mod:`tomllib` (Python >= 3.11) or its backport ``tomli`` (3.10)."""
     return tomllib
+
+
+def move_folder_into_place(staging, out) -> None:
+    """Give the finished folder ``staging`` the usual mode and rename it to ``out``.
+
+    ``staging`` is a folder beside ``out`` made by :func:`tempfile.mkdtemp` (mode ``0o700``);
+    it gets ``0o777`` less the umask, as a folder made as usual. An existing ``out`` is renamed
+    aside first and removed only after the new folder is in place, so a failure leaves one of the
+    two whole.
+    """
+    staging, out = Path(staging), Path(out)
+    staging.chmod(0o777 & ~_current_umask())
+    old = None
+    if out.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
+        old.rmdir()
+        out.rename(old)
+    staging.rename(out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

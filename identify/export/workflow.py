@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import datetime as _datetime
 import json
-import os
 import shutil
 import tempfile
 import time as _time
@@ -34,6 +33,7 @@ import numpy as np
 
 from model import EFFECTS
 
+from ..data.fileio import move_folder_into_place
 from ..version import __version__
 from ..workflows.use import Study, default_current_range, load_study, reachable_range
 from .compiler import CompilerError, find_compiler
@@ -166,23 +166,6 @@ def _prepare_out(out: Path) -> None:
             raise ExportError(f"{out}: exists and holds other files (no {EXPORT_FILE}); choose another --out")
 
 
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def _move_into_place(staging: Path, out: Path) -> None:
-    old = None
-    if out.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
-        old.rmdir()
-        out.rename(old)
-    staging.rename(out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-
-
 def export(study, out, *, draw=None, horizon=None, current_range=None, compiler=None, progress=None) -> Export:
     """Export a finished study's model and inverse as C (``OUT/c/``) and FMI 2.0 units (module docstring).
 
@@ -259,8 +242,7 @@ def export(study, out, *, draw=None, horizon=None, current_range=None, compiler=
             result.files = [f for f in result.files if f.startswith("c/")]
         result.files.append(EXPORT_FILE)
         (staging / EXPORT_FILE).write_text(json.dumps(result.to_dict(), indent=2, default=str) + "\n")
-        staging.chmod(0o777 & ~_umask())  # mkdtemp's 0700 -> the permissions of a folder made as usual
-        _move_into_place(staging, out)
+        move_folder_into_place(staging, out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise

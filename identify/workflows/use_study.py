@@ -13,7 +13,6 @@ folder at once. Every input problem raises :class:`UseError`.
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ import numpy as np
 
 from model import Model
 
+from ..data.fileio import move_folder_into_place
 from ..data.records import Record, RecordError, load_record
 from ..fitting.noise import NoiseModel
 from ..output import results
@@ -383,22 +383,8 @@ def replace_folder(files: dict, out, marker: str) -> Path:
             target = staging / name
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_bytes(data)
-        staging.chmod(0o777 & ~_umask())
-        old = None
-        if out.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
-            old.rmdir()
-            out.rename(old)
-        staging.rename(out)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        move_folder_into_place(staging, out)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return out
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
