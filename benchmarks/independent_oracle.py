@@ -7,26 +7,12 @@ folder keeps each record's noiseless displacement in ``records/STEM.npz``)::
 
 `benchmarks/independent_separability.py` classes the whole-record refits of the *noisy*
 record: a bound on the naming given those refits. This script asks the question of the
-data instead. For every saved diagnosis whose model lacks a true library effect (as the
-separability script selects them), it takes the best missing true effect and the best
-effect that is not there (by the noisy refits' delta BIC) and fits the step's model with
-each of them to the record's **noiseless** displacement, whitened by the same noise model
-the diagnosis used (sigma and AR(1) correlation from the quiet start). With noise added,
-each chi-square grows by about the number of samples ``n``, the same for both, so the
-noiseless fits give the likelihood gap the decision compares on average over noise
-realisations, ``n ln((chi2_other + n) / (chi2_true + n))`` (no charge for parameters, as in
-:mod:`identify.diagnosis.decision`). The noise moves that gap by about ``2 ||d||``, ``d`` the
-whitened difference of the two fits' predictions (:mod:`identify.diagnosis.evidence`). So:
-
-* ``data separate``: the true effect is ahead by more than
-  :attr:`~identify.diagnosis.Thresholds.bic_significant` and by at least
-  :attr:`~identify.diagnosis.Thresholds.gap_z` noise standard deviations: a rule
-  that names by the fit's evidence without risking a wrong name can name it on most noise
-  realisations;
-* ``data tie``: the gap is within either margin: on this record's noise level no such
-  rule can name the true effect without naming the rival on about as many realisations;
-* ``data favour other``: the rival fits the noiseless truth better (by both margins): the
-  true effect's form in the library fits this physics worse than the rival does.
+data instead (:mod:`identify.bench.oracle`, where the classes are defined). For every saved
+diagnosis whose model lacks a true library effect (as the separability script selects them),
+it takes the best missing true effect and the best effect that is not there (by the noisy
+refits' delta BIC) and fits the step's model with each of them to the record's **noiseless**
+displacement, whitened by the same noise model the diagnosis used (sigma and AR(1)
+correlation from the quiet start): the expected likelihood gap and what the noise gives it.
 
 The fits are least squares from the diagnosis's starts (``fit_baseline``: several starts,
 both threshold signs), so a class can also reflect a fit that missed its best basin; each
@@ -49,13 +35,10 @@ from pathlib import Path
 import numpy as np
 from independent_diagnosis import OPTIONAL, check_outputs, refitted_singles, saved_diagnoses
 
-from identify import Model, estimate_noise, load_record
+from identify import estimate_noise, load_record
+from identify.bench.oracle import CLASSES, separability
 from identify.data.fileio import atomic_write
-from identify.diagnosis import Thresholds, fit_baseline
 from identify.fitting.lsq import fit_least_squares
-from identify.fitting.noise import whiten
-
-CLASSES = ("data separate", "data tie", "data favour other")
 
 
 def noiseless_record(csv: Path):
@@ -93,37 +76,25 @@ def steps(out: Path, only: list[str]):
 
 
 def oracle_step(csv: Path, effects: list[str], names: list[str], seed: int) -> dict:
-    """Fit ``effects`` with each of ``names`` to the noiseless record: the expected likelihood gap
-    of the second against the first and its noise sd; and each refitted on the noisy record from
-    its noiseless optimum."""
+    """:func:`identify.bench.oracle.separability` of ``names`` (true, other) on the record, and each
+    model refitted on the noisy record from its noiseless optimum."""
     record, clean = noiseless_record(csv)
     noise = estimate_noise(record)
-    n_obs = float(len(record.time))  # a noisy fit's chi-square is this much larger, for every model alike
-    fits = {
-        name: fit_baseline(clean, Model(effects + [name]), noise, rng=np.random.default_rng(seed)) for name in names
-    }
-    first, second = (fits[n] for n in names)
-    gap = n_obs * math.log((second.chi2 + n_obs) / (first.chi2 + n_obs))
-    d = whiten((clean.displacement - first.residual) - (clean.displacement - second.residual), noise, time=record.time)
+    result = separability(
+        record, clean.displacement, effects, names[0], names[1], noise=noise, rng=np.random.default_rng(seed)
+    )
     from_truth = {
-        name: fit_least_squares(record, f.model, noise=noise, start=f.theta, n_starts=1) for name, f in fits.items()
+        name: fit_least_squares(record, fit.model, noise=noise, start=fit.theta, n_starts=1)
+        for name, fit in result.fits.items()
     }
     return {
         "noise_sigma": float(noise.sigma),
-        "chi2": {k: float(f.chi2) for k, f in fits.items()},
-        "gap": float(gap),
-        "gap_sd": 2.0 * float(np.sqrt(np.sum(d * d))),
+        "chi2": result.chi2,
+        "gap": result.gap,
+        "gap_sd": result.gap_sd,
+        "class": result.kind,
         "from_truth_basin": {k: float(f.chi2) for k, f in from_truth.items()},
     }
-
-
-def classify(gap: float, sd: float, thresholds: Thresholds) -> str:
-    z = gap / sd if sd > 0 else math.copysign(math.inf, gap)
-    if gap > thresholds.bic_significant and z >= thresholds.gap_z:
-        return "data separate"
-    if gap < -thresholds.bic_significant and z <= -thresholds.gap_z:
-        return "data favour other"
-    return "data tie"
 
 
 def main(argv=None) -> int:
@@ -133,7 +104,6 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed of the fits' random starts (default 0)")
     args = parser.parse_args(argv)
     check_outputs(parser, args.outs)
-    thresholds = Thresholds()
     only = [o for o in args.only.split(",") if o]
     counts = Counter()
     print(
@@ -148,7 +118,7 @@ def main(argv=None) -> int:
             names = [true["effect"], other["effect"]]
             result = oracle_step(csv, effects, names, args.seed)
             gap, sd = result["gap"], result["gap_sd"]
-            kind = classify(gap, sd, thresholds)
+            kind = result["class"]
             counts[kind] += 1
             details = diagnosis.get("details", {})
             noisy = [details.get(n, {}).get("chi2") or float("nan") for n in names]
@@ -163,7 +133,7 @@ def main(argv=None) -> int:
             )
             atomic_write(
                 out / "work" / f"{stem}.{'+'.join(effects) or 'plain'}.oracle.json",
-                json.dumps({"true": true["effect"], "other": other["effect"], "class": kind, **result}, indent=1),
+                json.dumps({"true": true["effect"], "other": other["effect"], **result}, indent=1),
             )
     total = sum(counts.values())
     print()
