@@ -66,6 +66,7 @@ def run_case(effect: str, spec: str, seed: int) -> dict:
         "wrong": named is not None and named != effect,
         "tie_with_truth": joint.status == "tied" and effect in members,
         "seconds": time.perf_counter() - started,
+        "reason": joint.reason,
     }
 
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from model import Model
 
-from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at
+from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at, joint_start
 from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
 from ..fitting.noise import energised_mask
 from ..fitting.threads import single_threaded_blas
@@ -222,20 +222,16 @@ def _fit_candidate(ctx: _Joint, name: str):
     own = _own_fits(ctx.alone, name)
     donors = [f for f in own if f is not None]
     base_model = ctx.baseline.joint.model
-    best = None
+    best, embedded = None, False
     for donor in donors:
         model_e = donor.model
         joint = JointModel(model_e, len(ctx.records), ctx.baseline.joint.zero_bound)
-        thetas = []
-        for fit in own:
-            source = fit if fit is not None and same_threshold_sign(fit.model, model_e) else donor
-            thetas.append(np.asarray(source.theta, dtype=float))
-        thetas[0] = np.asarray(donor.theta, dtype=float) if own[0] is None else thetas[0]
-        names = ctx.baseline.joint.names
-        zeros = [0.0] + [float(ctx.baseline.theta[names.index(f"zero_r{r}")]) for r in range(2, len(ctx.records) + 1)]
-        starts = [joint.joint_theta(thetas, zeros)]
-        if same_threshold_sign(model_e, base_model):
+        # each donor's transducer parameters for every record (a record on another drive may
+        # see the physics better than the first), each record's run parameters its own
+        starts = [joint_start(joint, donor, [donor if f is None else f for f in own], ctx.records)]
+        if not embedded and same_threshold_sign(model_e, base_model):  # the same start for every donor
             starts.append(_embedded(ctx.baseline, joint))
+            embedded = True
         residuals = JointResiduals(ctx.records, joint, ctx.noises)
         for start in starts:
             x0 = np.clip(np.asarray(start)[residuals.free], residuals.lower, residuals.upper)

@@ -47,6 +47,7 @@ __all__ = [
     "JointResiduals",
     "JointFit",
     "fit_joint",
+    "joint_start",
     "joint_fit_at",
     "consistency",
     "record_suffix",
@@ -464,7 +465,7 @@ def fit_joint(
     best = None
     for donor in separate:
         joint = JointModel(donor.model, len(records), zero_bound=max(10.0 * span, 1.0))
-        start = _joint_start(joint, donor, separate, records)
+        start = joint_start(joint, donor, separate, records)
         residuals = JointResiduals(records, joint, noises)
         x0 = np.clip(start[residuals.free], residuals.lower, residuals.upper)
         with single_threaded_blas():
@@ -534,9 +535,10 @@ def _noise_of(record) -> NoiseModel:
         raise ValueError(f"{record.source}: {exc}") from None
 
 
-def _joint_start(joint: JointModel, donor: FitResult, separate, records) -> np.ndarray:
-    """The joint start of ``donor``: its vector for every record, each record's run parameters
-    from its own fit where it has ``donor``'s threshold sign, the zeros from the mean residuals."""
+def joint_start(joint: JointModel, donor: FitResult, separate, records) -> np.ndarray:
+    """The joint start of ``donor`` (one record's fit): its transducer parameters for every record,
+    each record's run parameters from its own fit in ``separate`` where that has ``donor``'s
+    threshold sign, the zeros from the mean residuals. Shape ``(joint.n_parameters,)``."""
     model = joint.model
     thetas = []
     for fit in separate:
