@@ -39,9 +39,16 @@ GENERATOR = ROOT / "benchmarks" / "independent" / "generator.py"
 
 
 def record_of(case: dict, cache: Path):
-    """The case's record: the independent generator's (generated once per seed into ``cache``) or the bench's."""
+    """The case's record: the independent generator's (generated once per seed into ``cache``) or the
+    bench's (a list of two for ``own-pair``)."""
     if case["source"] == "own":
         return simulate(case["effects_hidden"], seed=int(case["seed"]), noise_sigma=0.5).record
+    if case["source"] == "own-pair":  # two records of one transducer, diagnosed together
+        seed = int(case["seed"])
+        return [
+            simulate(case["effects_hidden"], seed=seed, noise_sigma=0.5).record,
+            simulate(case["effects_hidden"], seed=seed + 500, noise_sigma=0.5, drive="holds").record,
+        ]
     folder = cache / f"seed{case['seed']}"
     csv = folder / f"{case['stem']}.csv"
     if not csv.exists():
