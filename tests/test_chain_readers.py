@@ -24,6 +24,7 @@ import pytest
 from identify.bench import simulate
 from identify.data import hdf5
 from identify.data.records import write_record
+from identify.fitting.chain_file import CHAIN_DTYPE, LAST_STEP, ChainFileError, chain_info
 from identify.fitting.posterior import BACKEND_GROUP, BufferedHDFBackend, ChainBackend
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -65,6 +66,11 @@ def _new_chain(path, n_walkers=8, ndim=3, **kwargs) -> BufferedHDFBackend:
     return backend
 
 
+def _as_stored(coords) -> np.ndarray:
+    """Coordinates as the chain file stores them (CHAIN_DTYPE), read back as float64."""
+    return np.stack(coords).astype(CHAIN_DTYPE).astype(np.float64)
+
+
 def _steps(n, n_walkers=8, ndim=3, seed=0):
     rng = np.random.default_rng(seed)
     state = np.random.RandomState(seed).get_state()
@@ -88,7 +94,10 @@ def test_the_writer_waits_for_a_reader_holding_the_lock(tmp_path):
     holder.wait(timeout=30)
     stored = ChainBackend(str(path), name=BACKEND_GROUP, read_only=True)
     assert stored.iteration == 5
-    assert np.array_equal(stored.get_chain(), np.stack([s.coords for s in steps]))
+    assert np.array_equal(stored.get_chain(), _as_stored([s.coords for s in steps]))
+    # the last step also in full precision: what a resumed run continues from
+    last = stored.get_last_sample()
+    assert np.array_equal(last.coords, steps[-1].coords) and np.array_equal(last.log_prob, steps[-1].log_prob)
 
 
 def test_a_reader_holding_the_file_too_long_is_one_clear_error_and_no_step_is_lost(tmp_path):
@@ -155,7 +164,7 @@ def test_buffered_writes_under_a_hammering_reader_are_all_kept(tmp_path, monkeyp
     assert reads > 0
     stored = ChainBackend(str(path), name=BACKEND_GROUP, read_only=True)
     assert stored.iteration == 400
-    assert np.array_equal(stored.get_chain(), np.stack([s.coords for s in steps]))
+    assert np.array_equal(stored.get_chain(), _as_stored([s.coords for s in steps]))
     assert np.array_equal(stored.get_log_prob(), np.stack([s.log_prob for s in steps]))
     print(f"{reads} reads, {len(lock_errors)} opens refused by the reader's lock and retried")
 
@@ -238,3 +247,29 @@ def test_open_hdf5_backs_off_and_gives_up_after_its_wait(tmp_path, monkeypatch):
     monkeypatch.setattr(h5py, "File", missing)
     with pytest.raises(FileNotFoundError):  # not a lock error: raised at once
         hdf5.open_hdf5(tmp_path / "x.h5", "a", sleep=lambda s: pytest.fail("slept"))
+
+
+def test_the_last_step_is_kept_in_full_precision_in_two_slots(tmp_path):
+    """Each flush writes the slot not holding the present count's step; a slot that does not round
+    to the stored last step is damage that chain_info names."""
+    path = tmp_path / "chain.h5"
+    backend = _new_chain(path, flush_every=10**6, flush_seconds=1e9)
+    steps = list(_steps(6))
+    backend.grow(6, None)
+    for k, state in enumerate(steps):
+        backend.save_step(state, np.ones(8, dtype=bool))
+        if k in (2, 5):
+            backend.flush()
+    with h5py.File(path, "r") as f:
+        slots = f[BACKEND_GROUP][LAST_STEP]
+        assert sorted(slots.attrs["iterations"]) == [3, 6]
+        assert f[BACKEND_GROUP]["chain"].dtype == CHAIN_DTYPE
+    assert chain_info(path)[0] == 6
+    last = ChainBackend(str(path), name=BACKEND_GROUP, read_only=True).get_last_sample()
+    assert np.array_equal(last.coords, steps[-1].coords)
+    with h5py.File(path, "r+") as f:
+        slots = f[BACKEND_GROUP][LAST_STEP]
+        which = list(slots.attrs["iterations"]).index(6)
+        slots[which, 0, 0] += 1.0
+    with pytest.raises(ChainFileError, match="full-precision copy of its last step"):
+        chain_info(path)

@@ -36,7 +36,8 @@ def study_dir(tmp_path_factory):
 def _stored_draws(folder, summary):
     backend = emcee.backends.HDFBackend(str(folder / "chain.h5"), name=BACKEND_GROUP, read_only=True)
     post = summary["posterior"]
-    return backend.get_chain()[post["discard"] :: post["thin"]]  # (steps, walkers, D)
+    # (steps, walkers, D); stored in float32, computed on in float64 as the package's reader gives them
+    return backend.get_chain()[post["discard"] :: post["thin"]].astype(np.float64)
 
 
 @contextlib.contextmanager

@@ -779,7 +779,7 @@ def others(folder: Path, inside: str) -> dict:
 
 
 @pytest.mark.parametrize(
-    "size, fills", [("1m", "before the first step is stored"), ("3m", "after some steps")], ids=["1m", "3m"]
+    "size, fills", [("1m", "before the first step is stored"), ("1500k", "after some steps")], ids=["1m", "1500k"]
 )
 def test_a_disk_that_fills_while_sampling_is_one_error_and_the_rerun_gives_the_chain_bit_for_bit(
     finished, tmp_path, size, fills

@@ -4,8 +4,9 @@
   :func:`identify.data.hdf5.open_hdf5` (readers take no lock, writers wait for one, free disk
   space checked before HDF5 writes).
 * :class:`BufferedHDFBackend`: the sampler's writer, steps buffered and written in batches,
-  the chain and log-probabilities stored losslessly compressed (chunked, shuffle + gzip), the
-  step count written after the steps it claims, a CRC-32 of the last step with it.
+  the chain stored in float32 and the log-probabilities in float64, compressed (chunked,
+  shuffle + gzip), the last step also in full precision (what a resumed run continues from),
+  the step count written after the steps it claims, a CRC-32 of the last step with it.
 * :func:`compact_chain_file`: the finished chain rewritten without the unused space its
   batched writes left in the file (same data, bit for bit).
 * :func:`chain_info`: the shape of a stored chain, every claimed step checked readable and
@@ -31,7 +32,9 @@ from ..data.hdf5 import LOCK_WAIT_SECONDS, ChainFileError, open_hdf5
 __all__ = [
     "BACKEND_GROUP",
     "CHAIN_CHUNK_STEPS",
+    "CHAIN_DTYPE",
     "CHAIN_GZIP_LEVEL",
+    "LAST_STEP",
     "CHAIN_METADATA_BYTES",
     "LAST_STEP_CHECK",
     "ChainBackend",
@@ -39,6 +42,7 @@ __all__ = [
     "ChainFileError",
     "chain_info",
     "compact_chain_file",
+    "last_step",
 ]
 
 
@@ -48,6 +52,16 @@ BACKEND_GROUP = "mcmc"
 
 #: Steps per HDF5 chunk of the stored chain (the unit of compression and of partial reads).
 CHAIN_CHUNK_STEPS = 256
+#: Type of the stored chain's coordinates. float32 keeps 24 bits of each coordinate (a relative
+#: rounding of at most 6e-8, far below the spread of any posterior the chain describes) and
+#: halves the file's largest part; the sampler itself runs in float64, and the last step is
+#: also kept in float64 (:data:`LAST_STEP`), so a resumed run continues exactly where it stopped.
+CHAIN_DTYPE = np.float32
+#: Dataset of the emcee group: the last step in full precision, in two slots written in turn,
+#: shape ``(2, walkers, dimension + 1)`` (the coordinates, then the log-probability); its
+#: attribute ``iterations`` holds each slot's step count. The slot whose count is the group's
+#: ``iteration`` is the one a resumed run continues from.
+LAST_STEP = "last_step"
 #: gzip level of the stored chain (4: within a few percent of level 9's size, several times faster).
 CHAIN_GZIP_LEVEL = 4
 #: Bytes kept free for HDF5's own bookkeeping (chunk index, attributes) beyond the chain's data [B].
@@ -82,13 +96,21 @@ class ChainBackend(emcee.backends.HDFBackend):
             )
         if mode != "r":
             require_space(self.filename, CHAIN_METADATA_BYTES)
-        f = open_hdf5(self.filename, mode, wait=self.lock_wait)
-        if not self.dtype_set and self.name in f:
-            g = f[self.name]
-            if "chain" in g:
-                self.dtype = g["chain"].dtype
-                self.dtype_set = True
-        return f
+        return open_hdf5(self.filename, mode, wait=self.lock_wait)
+
+    def get_value(self, name, flat=False, thin=1, discard=0):
+        """emcee's reader, the chain given as float64 (stored in :data:`CHAIN_DTYPE`): every
+        computation on it runs in double precision, whatever the file holds."""
+        value = super().get_value(name, flat=flat, thin=thin, discard=discard)
+        return value if value is None or value.dtype == np.float64 else value.astype(np.float64)
+
+    def get_last_sample(self):
+        """The last stored step with its random state: its full-precision slot (:data:`LAST_STEP`)
+        when the file has one for the present count, else the stored chain's last row."""
+        last = last_step(self.filename, self.name)
+        if last is None:
+            return super().get_last_sample()
+        return emcee.State(last[0], log_prob=last[1], blobs=None, random_state=self.random_state)
 
 
 class BufferedHDFBackend(ChainBackend):
@@ -104,12 +126,14 @@ class BufferedHDFBackend(ChainBackend):
     unflushed steps, at most ``flush_seconds`` of work. The file format is emcee's,
     readable by the stock backend.
 
-    The chain and log-probabilities are stored losslessly compressed (HDF5 chunks of
-    :data:`CHAIN_CHUNK_STEPS` steps, byte shuffle and gzip level
-    :data:`CHAIN_GZIP_LEVEL`): a rejected proposal repeats the walker's previous
-    position exactly, so a chain compresses 5-7 fold (a 16000-step, 36 x 18 chain: 87.6
-    MB raw, 13.3 MB stored), the values are bit-for-bit those sampled, and resuming
-    and the reproduction checks are unaffected. HDF5 readers decompress transparently.
+    The chain is stored in :data:`CHAIN_DTYPE` (float32) and the log-probabilities in
+    float64, compressed (HDF5 chunks of :data:`CHAIN_CHUNK_STEPS` steps, byte shuffle and
+    gzip level :data:`CHAIN_GZIP_LEVEL`): a rejected proposal repeats the walker's previous
+    position exactly, so a chain compresses several fold (a 6000-step, 36 x 18 chain: 15.6
+    MB raw in float32, 2.5 MB stored). The last step is kept in float64 as well
+    (:data:`LAST_STEP`, two slots written in turn, so a write cut short leaves the previous
+    count's slot whole): a resumed run continues from exactly the walkers an uninterrupted
+    run would, and its chain is bit for bit the same. HDF5 readers decompress transparently.
 
     A flush writes the steps' data first and hands them to the operating system
     (``H5Fflush``), and only then the acceptance counts, the random state and the step count
@@ -140,17 +164,25 @@ class BufferedHDFBackend(ChainBackend):
             g.attrs["has_blobs"] = False
             g.attrs["iteration"] = 0
             g.create_dataset("accepted", data=np.zeros(nwalkers))
-            packed = dict(compression="gzip", compression_opts=CHAIN_GZIP_LEVEL, shuffle=True, dtype=self.dtype)
+            packed = dict(compression="gzip", compression_opts=CHAIN_GZIP_LEVEL, shuffle=True)
             g.create_dataset(
                 "chain",
                 (0, nwalkers, ndim),
                 maxshape=(None, nwalkers, ndim),
                 chunks=(CHAIN_CHUNK_STEPS, nwalkers, ndim),
+                dtype=CHAIN_DTYPE,
                 **packed,
             )
             g.create_dataset(
-                "log_prob", (0, nwalkers), maxshape=(None, nwalkers), chunks=(CHAIN_CHUNK_STEPS, nwalkers), **packed
+                "log_prob",
+                (0, nwalkers),
+                maxshape=(None, nwalkers),
+                chunks=(CHAIN_CHUNK_STEPS, nwalkers),
+                dtype=np.float64,
+                **packed,
             )
+            last = g.create_dataset(LAST_STEP, data=np.zeros((2, nwalkers, ndim + 1)))
+            last.attrs["iterations"] = np.array([-1, -1])
 
     def save_step(self, state, accepted):
         if state.blobs is not None:
@@ -173,12 +205,20 @@ class BufferedHDFBackend(ChainBackend):
             g = f[self.name]
             chain, log_prob = g["chain"], g["log_prob"]
             start = int(g.attrs["iteration"])
-            require_space(self.filename, CHAIN_METADATA_BYTES + _bytes_to_write(chain, start, n, log_prob))
+            slot_bytes = g[LAST_STEP].nbytes if LAST_STEP in g else 0  # rewritten in place: its size at most
+            require_space(self.filename, CHAIN_METADATA_BYTES + slot_bytes + _bytes_to_write(chain, start, n, log_prob))
             if chain.shape[0] < start + n:
                 chain.resize(start + n, axis=0)
                 log_prob.resize(start + n, axis=0)
             chain[start : start + n] = np.stack([p[0] for p in pending])
             log_prob[start : start + n] = np.stack([p[1] for p in pending])
+            if LAST_STEP in g:  # the slot not holding the present count's step: that one stays intact
+                slots = g[LAST_STEP]
+                counts = np.array(slots.attrs["iterations"])
+                slot = 1 if counts[0] == start else 0
+                slots[slot] = np.column_stack([pending[-1][0], pending[-1][1]])
+                counts[slot] = start + n
+                slots.attrs["iterations"] = counts
             f.flush()  # the steps' data reach the file before the count that claims them
             g["accepted"][:] += np.sum([p[2] for p in pending], axis=0)
             for i, value in enumerate(pending[-1][3]):
@@ -191,6 +231,22 @@ class BufferedHDFBackend(ChainBackend):
     def grow(self, ngrow, blobs):
         self.flush()
         super().grow(ngrow, blobs)
+
+
+def last_step(path, name=BACKEND_GROUP):
+    """``(coordinates (walkers, dimension), log-probabilities (walkers,))`` of the last stored step
+    in full precision, or None when the file has no slot for its present count (an empty
+    chain, or a file written without one)."""
+    with open_hdf5(os.fspath(path), "r") as f:
+        g = f[name]
+        if LAST_STEP not in g:
+            return None
+        steps = int(g.attrs["iteration"])
+        counts = list(np.array(g[LAST_STEP].attrs["iterations"]))
+        if steps <= 0 or steps not in counts:
+            return None
+        values = g[LAST_STEP][counts.index(steps)]
+    return values[:, :-1], values[:, -1]
 
 
 def _create_chain_file(path) -> None:
@@ -317,6 +373,8 @@ def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
                         f"count (checksum {found.partition(':')[2]}, written {recorded.partition(':')[2]}); it cannot "
                         "be resumed"
                     )
+            if steps > 0 and LAST_STEP in g:
+                _check_last_slot(path, g, steps, block[-1], chain.dtype)
             if steps > 0:
                 for i in range(5):
                     g.attrs[f"random_state_{i}"]
@@ -326,6 +384,20 @@ def chain_info(path, *, block_steps=2000) -> tuple[int, int, int] | None:
         detail = " ".join(str(exc).split())[:200]
         raise ChainFileError(f"{path} is damaged ({type(exc).__name__}: {detail})") from None
     return steps, n_walkers, n_dim
+
+
+def _check_last_slot(path, g, steps: int, stored_last, chain_dtype) -> None:
+    """The full-precision slot of the present count, where the file has one, must round to the
+    chain's stored last step."""
+    counts = list(np.array(g[LAST_STEP].attrs["iterations"]))
+    if steps not in counts:
+        return
+    coords = g[LAST_STEP][counts.index(steps)][:, :-1]
+    if not np.array_equal(coords.astype(chain_dtype), np.asarray(stored_last, dtype=chain_dtype)):
+        raise ChainFileError(
+            f"{path} is damaged: the full-precision copy of its last step (step {steps}) is not that step; "
+            "it cannot be resumed"
+        )
 
 
 def _check_stored(path, steps, start, chain, log_prob) -> None:

@@ -94,6 +94,7 @@ from model import Model
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
 from .chain_file import (
     BACKEND_GROUP,
+    CHAIN_DTYPE,
     CHAIN_METADATA_BYTES,
     BufferedHDFBackend,
     ChainBackend,
@@ -809,6 +810,9 @@ class _ChainInMemory:
         return self._buffer[: self.n_steps]
 
     def append(self, block):
+        # the chain as the file stores it (CHAIN_DTYPE): the checks of an uninterrupted run read
+        # the same values as those of a run resumed from the file
+        block = np.asarray(block).astype(CHAIN_DTYPE).astype(float)
         stored, buffer = self.n_steps, self._buffer
         if stored + len(block) > buffer.shape[0]:
             capacity = max(stored + len(block), min(self._max_steps, 2 * buffer.shape[0]))
