@@ -151,23 +151,34 @@ def test_training_screening_grid_spans_the_records_travel():
 
 def test_incomplete_reset_screening_grid_keeps_the_proportional_forms_and_adds_the_loading_shapes(monkeypatch):
     """incomplete_reset's own grid: first exactly the grid the generic rule gives its
-    strain-proportional form (drive share 0 and shape 1 pinned: 15 points, in order), then
-    each loading shape with the retained fraction at 0, 0.5 and 1 (15 more); with the two
+    strain-proportional form (drive share 0, shape 1 and no step pinned: 15 points, in order),
+    then each loading shape with the retained fraction at 0, 0.5 and 1 (24 more); with the
     terms pinned off (as a study does where the record does not pay for them) only the first."""
     sim = simulate(None, seed=0)
     model_e = normalised_model(Model()) + "incomplete_reset"
     grid = SCREENING_GRIDS["incomplete_reset"](model_e, sim.record)
     parameters = model_e.parameters
-    for name in ("incomplete_reset_drive", "incomplete_reset_shape"):
+    for name in (
+        "incomplete_reset_drive",
+        "incomplete_reset_shape",
+        "incomplete_reset_onset",
+        "incomplete_reset_sharpness",
+    ):
         parameters = parameters.replace(name, vary=False)
     pinned = model_e.with_parameters(parameters)
     monkeypatch.delitem(SCREENING_GRIDS, "incomplete_reset")
     generic = screening_grid(pinned, "incomplete_reset", pinned.default_theta(), sim.record)
     monkeypatch.undo()
-    assert len(generic) == 15 and grid[:15] == generic and len(grid) == 30
+    assert len(generic) == 15 and grid[:15] == generic and len(grid) == 39
     assert grid[0] == EFFECTS["incomplete_reset"].off
-    shapes = {(g["incomplete_reset_drive"], g["incomplete_reset_shape"]) for g in grid[15:]}
-    assert shapes == {(0.0, 0.4), (0.0, 2.5), (1.0, 0.4), (1.0, 1.0), (1.0, 2.5)}
+    shapes = {
+        (g["incomplete_reset_drive"], g["incomplete_reset_shape"], g["incomplete_reset_onset"])
+        for g in grid[15:]
+        if g["incomplete_reset_sharpness"] == 0.0
+    }
+    assert shapes == {(0.0, 0.4, 0.5), (0.0, 2.5, 0.5), (1.0, 0.4, 0.5), (1.0, 1.0, 0.5), (1.0, 2.5, 0.5)}
+    steps = {(g["incomplete_reset_onset"], g["incomplete_reset_sharpness"]) for g in grid[15:]}
+    assert steps >= {(0.3, 10.0), (0.5, 10.0), (0.7, 10.0)}
     assert all(g["incomplete_reset_strain"] == 0.0 for g in grid)
     assert {g["incomplete_reset_retained"] for g in grid[15:]} == {0.0, 0.5, 1.0}
     assert SCREENING_GRIDS["incomplete_reset"](pinned, sim.record) == generic

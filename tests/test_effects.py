@@ -581,6 +581,37 @@ def signature_incomplete_reset_loading_shape(paper_input, plain_gpi):
         incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0], shape=[0.0])
 
 
+def signature_incomplete_reset_step(paper_input, plain_gpi):
+    """The virgin reorientation setting in with a step: the level u = (e/E)^p becomes
+    S(u) = (tanh(k (u - c)) + tanh(k c)) / (tanh(k (1 - c)) + tanh(k c)). k = 0 is the level
+    itself bit for bit (whatever c), and the general path's limit; with the drive's excursion
+    (m = 1) the virgin loading adds A S(i / i_max); a large k puts almost all of it past c."""
+    time, current = paper_input
+    m = Model(["incomplete_reset"])
+    A, R = 6.0, 0.4
+
+    def change(**values):
+        theta = m.theta_from_dict({"incomplete_reset_strain": A, "incomplete_reset_retained": R, **values})
+        return m(theta, time, current) - plain_gpi
+
+    by_drive = change(incomplete_reset_drive=1.0)
+    assert np.array_equal(by_drive, change(incomplete_reset_drive=1.0, incomplete_reset_onset=0.2))
+    near = change(incomplete_reset_drive=1.0, incomplete_reset_sharpness=1e-4)
+    np.testing.assert_allclose(near, by_drive, rtol=0, atol=1e-6)
+    u = np.abs(current - current[0]) / np.abs(current - current[0]).max()
+    k, c = 12.0, 0.55
+    step = (np.tanh(k * (u - c)) + np.tanh(k * c)) / (np.tanh(k * (1.0 - c)) + np.tanh(k * c))
+    stepped = change(incomplete_reset_drive=1.0, incomplete_reset_onset=c, incomplete_reset_sharpness=k)
+    top = int(np.argmax(u))
+    rising = np.arange(np.searchsorted(time, 10.0), top + 1)
+    np.testing.assert_allclose(stepped[rising], A * step[rising], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(stepped, _incomplete_reset_reference(current, step, A, R, 0.0), atol=1e-9)
+    below, above = rising[u[rising] < c - 0.2], rising[u[rising] > c + 0.2]
+    assert np.all(stepped[below] < 0.1 * A) and np.all(stepped[above] > 0.9 * A)
+    with pytest.raises(ValueError, match="incomplete_reset_onset within"):
+        incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0], drive=[1.0], onset=[1.0], sharpness=[5.0])
+
+
 def signature_thermal_two_nodes(paper_input, plain_gpi):
     """Node 2 follows node 1 through its own time constant: against the analytic two-pole
     response to a constant heating switched on at t_on; node 2's gains 0 is the one-node form bit for bit."""
@@ -837,6 +868,7 @@ GENERAL_FORMS = {
     "settling drift": signature_settling_drift,
     "ambient drift": signature_ambient_drift,
     "incomplete_reset loading shape": signature_incomplete_reset_loading_shape,
+    "incomplete_reset step": signature_incomplete_reset_step,
 }
 
 

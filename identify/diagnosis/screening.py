@@ -114,8 +114,20 @@ def _initial_state_grid(model_e: Model, record) -> list[dict]:
 
 
 #: ``incomplete_reset``'s virgin-loading shapes on its screening grid beside the strain-proportional
-#: form: ``(drive share m, shape p)``, front-loaded (p < 1), late (p > 1) and set by the drive (m = 1)
-INCOMPLETE_RESET_SHAPES = ((0.0, 0.4), (0.0, 2.5), (1.0, 0.4), (1.0, 1.0), (1.0, 2.5))
+#: form: ``(drive share m, shape p, onset c, sharpness k)``, front-loaded (p < 1), late (p > 1),
+#: set by the drive (m = 1), and setting in with a step in the drive at a low, middle and high
+#: level (k = 10: over about a fifth of the range). The step's sharpness has no slope at k = 0
+#: (the level's first change is of order k^2), so only the grid can start it.
+INCOMPLETE_RESET_SHAPES = (
+    (0.0, 0.4, 0.5, 0.0),
+    (0.0, 2.5, 0.5, 0.0),
+    (1.0, 0.4, 0.5, 0.0),
+    (1.0, 1.0, 0.5, 0.0),
+    (1.0, 2.5, 0.5, 0.0),
+    (1.0, 1.0, 0.3, 10.0),
+    (1.0, 1.0, 0.5, 10.0),
+    (1.0, 1.0, 0.7, 10.0),
+)
 
 
 def _incomplete_reset_grid(model_e: Model, record) -> list[dict]:
@@ -125,10 +137,10 @@ def _incomplete_reset_grid(model_e: Model, record) -> list[dict]:
     The strain ``A`` stays off and enters through its Jacobian column; the retained fraction
     ``R``, the fade, the drive share ``m`` and the shape ``p`` do nothing while ``A = 0``,
     so only the grid gives them values. First the grid the generic rule gave the
-    strain-proportional form (``m = 0``, ``p = 1``): ``R`` at 0, the middle and the top of
-    its range, the fade at five values over its range (15 points, the same order); then
-    each shape of :data:`INCOMPLETE_RESET_SHAPES` with ``R`` at the same three values and
-    no fade (15 points). The generic rule over all four would thin ``R`` to its two ends
+    strain-proportional form (``m = 0``, ``p = 1``, no step): ``R`` at 0, the middle and the
+    top of its range, the fade at five values over its range (15 points, the same order);
+    then each shape of :data:`INCOMPLETE_RESET_SHAPES` with ``R`` at the same three values
+    and no fade (24 points). The generic rule over all four would thin ``R`` to its two ends
     and miss ``p = 1``. A pinned parameter keeps its value (a shape that needs it moved is
     left out); the short refits move them together.
     """
@@ -150,8 +162,13 @@ def _incomplete_reset_grid(model_e: Model, record) -> list[dict]:
             point = off | {"incomplete_reset_retained": r, "incomplete_reset_fade": fade}
             if point not in points:
                 points.append(point)
-    for share, shape in INCOMPLETE_RESET_SHAPES:
-        values = {"incomplete_reset_drive": share, "incomplete_reset_shape": shape}
+    for share, shape, onset, sharpness in INCOMPLETE_RESET_SHAPES:
+        values = {
+            "incomplete_reset_drive": share,
+            "incomplete_reset_shape": shape,
+            "incomplete_reset_onset": onset,
+            "incomplete_reset_sharpness": sharpness,
+        }
         if any(
             (not params[n].vary and v != off[n]) or not params[n].lower <= v <= params[n].upper
             for n, v in values.items()

@@ -224,9 +224,30 @@ class IncompleteReset(Effect):
                 description="exponent p of the extra strain along the virgin loading, (e/E)^p "
                 "(< 1: front-loaded, an early overshoot; 1: proportional)",
             ),
+            Parameter(
+                "incomplete_reset_onset",
+                0.5,
+                0.02,
+                0.98,
+                unit="",
+                description="level c (of the loading variable's largest) around which the virgin reorientation "
+                "sets in, with a step",
+            ),
+            Parameter(
+                "incomplete_reset_sharpness",
+                0.0,
+                0.0,
+                40.0,
+                unit="",
+                description="steepness k of that step, tanh(k (u - c)) (0: no step, the level itself)",
+            ),
         ]
     )
-    terms = {"drive": ("incomplete_reset_drive",), "shape": ("incomplete_reset_shape",)}
+    terms = {
+        "drive": ("incomplete_reset_drive",),
+        "shape": ("incomplete_reset_shape",),
+        "step": ("incomplete_reset_onset", "incomplete_reset_sharpness"),
+    }
     summary = (
         "first-cycle strain: extra strain A (e/E)^p on the virgin loading (e the strain's excursion, or part the "
         "drive's), fraction R kept after unloading (fading with travel)"
@@ -245,6 +266,8 @@ class IncompleteReset(Effect):
             "incomplete_reset_fade": 0.0,
             "incomplete_reset_drive": 0.0,
             "incomplete_reset_shape": 1.0,
+            "incomplete_reset_onset": 0.5,
+            "incomplete_reset_sharpness": 0.0,
         }
 
     def output(self, params, time, current, displacement):
@@ -253,11 +276,15 @@ class IncompleteReset(Effect):
         displacement = np.atleast_2d(np.asarray(displacement, dtype=float))
         if not p.strain.any():  # off: the displacement itself, bit for bit
             return displacement
-        extra = incomplete_reset_strain(current, displacement, p.strain, p.retained, p.fade, p.drive, p.shape)
+        extra = incomplete_reset_strain(
+            current, displacement, p.strain, p.retained, p.fade, p.drive, p.shape, p.onset, p.sharpness
+        )
         return displacement + extra
 
 
-def incomplete_reset_strain(current, displacement, strain, retained, fade, drive=0.0, shape=1.0):
+def incomplete_reset_strain(
+    current, displacement, strain, retained, fade, drive=0.0, shape=1.0, onset=0.5, sharpness=0.0
+):
     r"""The extra strain :math:`A (|S| + q)` of :class:`IncompleteReset`, shape ``(W, T)`` [um].
 
     Parameters
@@ -273,6 +300,9 @@ def incomplete_reset_strain(current, displacement, strain, retained, fade, drive
     drive, shape : array_like, shape (W,), default 0 and 1
         :math:`m` and :math:`p` (> 0), the virgin loading's variable and shape
         (:func:`loading_levels`); the defaults are the strain's own excursion.
+    onset, sharpness : array_like, shape (W,), default 0.5 and 0
+        :math:`c` in (0, 1) and :math:`k \ge 0` of the step the reorientation sets in with
+        (:func:`loading_levels`); ``k = 0``: no step.
     """
     current = np.ascontiguousarray(current, dtype=float)
     strain = np.ascontiguousarray(np.atleast_1d(strain), dtype=float)
@@ -280,6 +310,8 @@ def incomplete_reset_strain(current, displacement, strain, retained, fade, drive
     fade = np.broadcast_to(np.asarray(fade, dtype=float), strain.shape)  # contiguous and writeable
     drive = np.broadcast_to(np.asarray(drive, dtype=float), strain.shape)
     shape = np.broadcast_to(np.asarray(shape, dtype=float), strain.shape)
+    onset = np.broadcast_to(np.asarray(onset, dtype=float), strain.shape)
+    sharpness = np.broadcast_to(np.asarray(sharpness, dtype=float), strain.shape)
     y = np.atleast_2d(np.asarray(displacement, dtype=float))
     if y.shape[0] not in (1, strain.size) or y.shape[1] != current.size:
         raise ValueError(
@@ -287,29 +319,36 @@ def incomplete_reset_strain(current, displacement, strain, retained, fade, drive
             f"{current.size} samples"
         )
     bad = ~(np.isfinite(drive) & np.isfinite(shape) & (shape > 0.0))
+    bad |= ~(np.isfinite(sharpness) & (sharpness >= 0.0) & np.isfinite(onset) & (onset > 0.0) & (onset < 1.0))
     if bad.any():
         raise ValueError(
-            "incomplete_reset: incomplete_reset_drive must be finite and incomplete_reset_shape finite and > 0; "
+            "incomplete_reset: incomplete_reset_drive must be finite, incomplete_reset_shape finite and > 0, "
+            "incomplete_reset_sharpness finite and >= 0 and incomplete_reset_onset within (0, 1); "
             f"parameter set(s) {np.flatnonzero(bad)[:5].tolist()} are not"
         )
     excursion = np.ascontiguousarray(np.abs(y - y[:, :1]))
     out = np.zeros((strain.size, current.size))
     if current.size:
-        if np.any((drive != 0.0) | (shape != 1.0)):
-            excursion = loading_levels(current, excursion, drive, shape)
+        if np.any((drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)):
+            excursion = loading_levels(current, excursion, drive, shape, onset, sharpness)
         _incomplete_reset_kernel(
             kernel_array(current), excursion, kernel_array(strain), kernel_array(retained), kernel_array(fade), out
         )
     return out
 
 
-def loading_levels(current, excursion, drive, shape):
+def loading_levels(current, excursion, drive, shape, onset=None, sharpness=None):
     r"""The virgin loading's variable of :class:`IncompleteReset` per parameter set, shape ``(W, T)``.
 
-    A row with :math:`m \ne 0` or :math:`p \ne 1` is the level :math:`l = \varphi(e/E)`,
-    :math:`\varphi(x) = x^p`, of the mixed excursion :math:`e = (1 - m)\,|y_g - y_{g,0}|/E_y +
+    A row with :math:`m \ne 0`, :math:`p \ne 1` or :math:`k \ne 0` is the level
+    :math:`l = \varphi(e/E)` of the mixed excursion :math:`e = (1 - m)\,|y_g - y_{g,0}|/E_y +
     m\,|i - i_0|/E_i` (each part 0 where its largest :math:`E_y`, :math:`E_i` is 0; :math:`l`
-    is 0 where :math:`E` is); a row with :math:`m = 0, p = 1` is the strain's excursion
+    is 0 where :math:`E` is), :math:`\varphi(x) = S(x^p)` with the step
+
+    .. math::  S(u) = \frac{\tanh(k (u - c)) + \tanh(k c)}{\tanh(k (1 - c)) + \tanh(k c)}
+
+    (:math:`S(0) = 0`, :math:`S(1) = 1`, increasing; :math:`S(u) = u` at :math:`k = 0`, its
+    limit as :math:`k \to 0`); a row with :math:`m = 0, p = 1, k = 0` is the strain's excursion
     itself, as the form before the general one ran on it (the kernel measures the levels in
     units of the row's largest, so both give the same extra strain, the latter bit for bit
     that form).
@@ -322,10 +361,14 @@ def loading_levels(current, excursion, drive, shape):
         The strain's excursion :math:`|y_g - y_{g,0}|` [um].
     drive, shape : ndarray, shape (W,)
         :math:`m` and :math:`p > 0`.
+    onset, sharpness : ndarray, shape (W,), optional
+        :math:`c \in (0, 1)` and :math:`k \ge 0` (default 0.5 and 0: no step).
     """
     n_sets = drive.shape[0]
+    onset = np.full(n_sets, 0.5) if onset is None else np.asarray(onset, dtype=float)
+    sharpness = np.zeros(n_sets) if sharpness is None else np.asarray(sharpness, dtype=float)
     levels = np.array(np.broadcast_to(excursion, (n_sets, excursion.shape[1])))
-    general = (drive != 0.0) | (shape != 1.0)
+    general = (drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)
     largest = excursion.max(axis=1, keepdims=True)
     strain_part = np.divide(excursion, largest, out=np.zeros_like(excursion), where=largest > 0.0)
     if strain_part.shape[0] > 1:
@@ -337,5 +380,12 @@ def loading_levels(current, excursion, drive, shape):
     mixed = (1.0 - share) * strain_part + share * drive_part[None, :]
     top = mixed.max(axis=1, keepdims=True)
     level = np.divide(mixed, top, out=np.zeros_like(mixed), where=top > 0.0)
-    levels[general] = level ** shape[general, None]
+    level = level ** shape[general, None]
+    k, c = sharpness[general, None], onset[general, None]
+    stepped = (k != 0.0)[:, 0]
+    if stepped.any():
+        k, c = k[stepped], c[stepped]
+        low = np.tanh(k * c)
+        level[stepped] = (np.tanh(k * (level[stepped] - c)) + low) / (np.tanh(k * (1.0 - c)) + low)
+    levels[general] = level
     return levels
