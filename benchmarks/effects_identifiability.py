@@ -66,6 +66,15 @@ SETTINGS = {
         "incomplete_reset_drive": 0.3,
         "incomplete_reset_shape": 0.6,
     },
+    "incomplete_reset (step in the drive: m 1, c 0.55, k 12)": {
+        "incomplete_reset_strain": 5.0,
+        "incomplete_reset_retained": 0.5,
+        "incomplete_reset_fade": 0.05,
+        "incomplete_reset_drive": 1.0,
+        "incomplete_reset_shape": 1.0,
+        "incomplete_reset_onset": 0.55,
+        "incomplete_reset_sharpness": 12.0,
+    },
     "creep": {
         "creep_amplitude": 0.02,
         "creep_tau": 2.0,
@@ -96,6 +105,8 @@ SETTINGS = {
 
 #: pairs of rows of :data:`SETTINGS` measured together (first-cycle effects that trade off)
 PAIRS = (
+    ("incomplete_reset (step in the drive: m 1, c 0.55, k 12)", "training"),
+    ("incomplete_reset (step in the drive: m 1, c 0.55, k 12)", "initial_state"),
     ("incomplete_reset (loading shape: drive share 0.3, p 0.6)", "training"),
     ("incomplete_reset (loading shape: drive share 0.3, p 0.6)", "initial_state"),
     ("incomplete_reset", "training"),
@@ -157,6 +168,7 @@ def projected_sv(basis_matrix, columns):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fs", type=float, default=100.0)
+    parser.add_argument("--only", default="", help="only rows and pairs whose label contains this text")
     args = parser.parse_args(argv)
     time, current = paper_current(args.fs)
     plain = normalised_model(Model())
@@ -173,6 +185,8 @@ def main(argv=None) -> int:
     )
     print("|---|---|---|---|---|---|")
     for label in SETTINGS:
+        if args.only not in label:
+            continue
         model, theta, values = configured(plain, [label], theta0)
         free = np.flatnonzero(model.parameters.vary)
         jac = jacobian(model, theta, time, current, free)
@@ -198,6 +212,8 @@ def main(argv=None) -> int:
     )
     print("|---|---|---|---|---|---|---|")
     for first, second in PAIRS:
+        if args.only not in first + second:
+            continue
         model, theta, values = configured(plain, [first, second], theta0)
         free = np.flatnonzero(model.parameters.vary)
         jac = jacobian(model, theta, time, current, free)
