@@ -147,7 +147,11 @@ class IncompleteReset(Effect):
     of) the :math:`\varphi`-measure of the levels it comes back through, so the first
     unloading gives back the shape the first loading took. Both are optional terms
     (:attr:`Effect.terms` ``drive`` and ``shape``): while :math:`A = 0` they do nothing,
-    and a record of the strain-proportional form is not charged for them.
+    and a record of the strain-proportional form is not charged for them. The virgin
+    material may also switch around a level of its loading variable, spread over a range
+    of it (its switching field, when the drive sets it): the optional term ``step`` takes
+    the level through :math:`S(u) = (\tanh(k(u - c)) + \tanh(kc)) / (\tanh(k(1 - c)) +
+    \tanh(kc))` (:func:`loading_levels`; :math:`k = 0` is no step, bit for bit).
 
     What the GPI cannot do: its first branch is tied to the later ones, and its rest
     level after the first cycle is set by the same operators. A raised level after the
@@ -249,8 +253,9 @@ class IncompleteReset(Effect):
         "step": ("incomplete_reset_onset", "incomplete_reset_sharpness"),
     }
     summary = (
-        "first-cycle strain: extra strain A (e/E)^p on the virgin loading (e the strain's excursion, or part the "
-        "drive's), fraction R kept after unloading (fading with travel)"
+        "first-cycle strain: extra strain A S((e/E)^p) on the virgin loading (e the strain's excursion, or part the "
+        "drive's; S a tanh step at c of sharpness k, none at k = 0), fraction R kept after unloading (fading with "
+        "travel)"
     )
     signature = (
         "the first loading reaches further than the later ones and part of it stays after unloading; the "
