@@ -20,7 +20,6 @@ never a wrong name.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -33,6 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import numpy as np
+from resumable_rows import append_row, read_rows
 
 from identify.bench.synthetic import simulate
 from identify.diagnosis import diagnose
@@ -81,19 +81,14 @@ def main(argv=None) -> int:
         parser.error(f"--effects: unknown {unknown}; known: {', '.join(SLOW_EFFECTS)}")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "results.jsonl"
-    done = {}
-    if path.exists():
-        for line in path.read_text().splitlines():
-            row = json.loads(line)
-            done[row["case"]] = row
+    done = read_rows(path, key=lambda row: row["case"])
     for seed in [int(s) for s in args.seeds.split(",") if s]:
         for effect in args.effects.split(","):
             name = f"{effect}_s{seed}"
             if name in done:
                 continue
             row = run_case(effect, SLOW_EFFECTS[effect], seed)
-            with path.open("a") as fh:
-                fh.write(json.dumps(row) + "\n")
+            append_row(path, row)
             done[name] = row
             print(f"{name:<28} {row['verdict']:<48} ({row['seconds']:.0f} s)", flush=True)
     rows = list(done.values())

@@ -17,7 +17,6 @@ keeps what it did.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -34,6 +33,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from resumable_rows import append_row, read_rows
 from test_diagnose_slow import CASES, SEEDS, _case_record, format_confusion
 
 from identify.diagnosis import diagnose
@@ -53,11 +53,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "results.jsonl"
-    done = {}
-    if path.exists():
-        for line in path.read_text().splitlines():
-            row = json.loads(line)
-            done[row["case"], row["seed"]] = row
+    done = read_rows(path, key=lambda row: (row["case"], row["seed"]))
     seeds = [int(s) for s in args.seeds.split(",") if s]
     for seed in seeds:
         for case in CASES:
@@ -80,8 +76,7 @@ def main(argv=None) -> int:
                 "cpu_s": time.process_time() - cpu,
                 "reason": d.reason,
             }
-            with path.open("a") as f:
-                f.write(json.dumps(row) + "\n")
+            append_row(path, row)
             done[case, seed] = row
             verdict = d.missing if d.status == "missing_effect" else d.status
             print(
