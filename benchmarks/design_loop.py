@@ -173,7 +173,9 @@ def main(argv=None) -> int:
     parser.add_argument("--own", action="store_true", help="the own bench's slow effects")
     parser.add_argument("--seeds", default="41,42", help="the own bench's seeds (default 41,42)")
     parser.add_argument("--independent", type=Path, default=None, help="a folder of independent_diagnosis.py")
+    parser.add_argument("--only", default="", help="comma-separated substrings: only cases whose name contains one")
     args = parser.parse_args(argv)
+    only = [o for o in args.only.split(",") if o]
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "results.json"
     results = json.loads(path.read_text()) if path.exists() else {}
@@ -183,7 +185,7 @@ def main(argv=None) -> int:
     if args.independent is not None:
         cases += list(independent_cases(args.independent))
     for name, first, truth, measure in cases:
-        if name in results:
+        if name in results or (only and not any(o in name for o in only)):
             continue
         results[name] = run_case(name, first, truth, measure, args.out)
         atomic_write(path, json.dumps(results, indent=1, default=float))
