@@ -43,6 +43,7 @@ from ..logs import ordinal
 from .adequacy import Adequacy, Thresholds, assess_adequacy
 from .baseline import challenge_baseline, reparametrisation_paths, tied_sign
 from .candidates import CandidateResult, Reference, evaluate, failed_candidate
+from .evidence import gap_noise_sd
 from .fits import (
     Point,
     Working,
@@ -348,37 +349,60 @@ def _finish_best(s: Setting, rnd: Round) -> None:
             _keep_better(rnd, finish_candidate(s, rnd, name, other))
 
 
+def _unseparated(best: CandidateResult, other: CandidateResult, th: Thresholds) -> bool:
+    """Do the data leave ``other``'s fit as good as ``best``'s: a likelihood gap within
+    ``bic_significant`` or ``gap_z`` noise standard deviations of it (the decision's margins,
+    :mod:`identify.diagnosis.evidence`; no charge for parameters)?"""
+    if best.chi2 is None or other.chi2 is None or best.whitened is None or other.whitened is None:
+        return False
+    gap = best.n_eff * math.log(max(other.chi2, 1e-300) / max(best.chi2, 1e-300))
+    sd = gap_noise_sd(best.whitened, other.whitened, best.n_eff)
+    return gap <= th.bic_significant or (sd > 0 and gap / sd <= th.gap_z)
+
+
 def _other_sign_from_best(s: Setting, rnd: Round) -> None:
     """Step 5 (the best candidate leaves structure and the signs do not tie): the best candidate
-    fitted from scratch in the other sign; where that fits it better, the next candidates that
-    leave structure are refitted in that sign from its GPI. A misspecified plain GPI can settle
-    on the other sign, a different model, and refits from its basin stay there."""
+    fitted from scratch in the other sign, and so is every other candidate leaving structure
+    whose fit the data do not separate from the best's (which of two such candidates is "best"
+    is the noise's choice, or their parameter counts'); where that fits one better, the next
+    candidates that leave structure are refitted in that sign from its GPI. A misspecified
+    plain GPI can settle on the other sign, a different model, and refits from its basin stay
+    there."""
     variants = threshold_sign_variants(rnd.fit.model)
     if len(variants) == 1:
         return
     ranked = rnd.ranked()
     best = ranked[0]
+    contenders = [best] + [
+        c for c in ranked[1 : s.thresholds.max_refits] if not c.adequate_after and _unseparated(best, c, s.thresholds)
+    ]
     other = "positive" if rnd.fit.model.parameters["alpha"].value < 0 else "negative"
-    s.say(f"refitting with '{best.effect}' from scratch with the other threshold sign (alpha {other})")
-    model_e = rnd.fit.model + best.effect
-    fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, other, s.n_starts), s.say, "not possible")
-    if not fresh:
+    improved = None
+    for c in contenders:
+        s.say(f"refitting with '{c.effect}' from scratch with the other threshold sign (alpha {other})")
+        model_e = rnd.fit.model + c.effect
+        fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, other, s.n_starts), s.say, "not possible")
+        if not fresh:
+            continue
+        model_f, theta = fresh[0]
+        short = Short(working_chi2(s.work, model_f, theta), model_f, theta)
+        if not _starts_lower(s, rnd, c.effect, short):
+            s.say(f"with alpha {other} '{c.effect}' starts no lower on the whole record; not refitted there")
+            continue
+        anchor = finish_candidate(s, rnd, c.effect, short)
+        _keep_better(rnd, anchor)
+        if anchor is not None and anchor.delta_bic > c.delta_bic and improved is None:
+            improved = (c.effect, anchor)
+    if improved is None:
         return
-    model_f, theta = fresh[0]
-    short = Short(working_chi2(s.work, model_f, theta), model_f, theta)
-    if not _starts_lower(s, rnd, best.effect, short):
-        s.say(f"with alpha {other} '{best.effect}' starts no lower on the whole record; not refitted there")
-        return
-    anchor = finish_candidate(s, rnd, best.effect, short)
-    _keep_better(rnd, anchor)
-    if anchor is None or anchor.delta_bic <= best.delta_bic:
-        return
+    name, anchor = improved
     plain = plain_of(anchor.fit.model, rnd.fit.model)
     donor = Point(plain, embed(anchor.fit.model, anchor.fit.theta, plain, drop_extra=True))
+    done = {c.effect for c in contenders}
     for c in ranked[1 : s.thresholds.max_refits]:
-        if c.adequate_after:
+        if c.adequate_after or c.effect in done:
             continue
-        s.say(f"refitting with '{c.effect}' with the other threshold sign, from the GPI of '{best.effect}' there")
+        s.say(f"refitting with '{c.effect}' with the other threshold sign, from the GPI of '{name}' there")
         model_c = plain + c.effect
         short = attempt(lambda: refit_short(s, rnd, c.effect, model_c, donor), s.say, "not possible")
         if short is not None and _starts_lower(s, rnd, c.effect, short):
