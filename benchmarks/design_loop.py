@@ -78,10 +78,14 @@ def score(truth: set, joint) -> dict:
     }
 
 
-def calibration(plan, joint) -> list:
-    """Each designed pair's predicted gap and sd beside the gap the joint evidence shows."""
+def calibration(plan, joint, truth: set) -> list:
+    """Each designed pair whose truth is the record's hidden physics (the others' predictions
+    are for a transducer that was not measured): its predicted gap and sd beside the gap the
+    joint evidence shows."""
     rows = []
     for p in plan.best.pairs:
+        if not set(p["truth"].split("+")) <= truth:
+            continue
         g = joint.evidence.gap(p["truth"], p["rival"]) if joint.evidence is not None else None
         if g is None:
             continue
@@ -116,7 +120,7 @@ def run_case(name: str, first, truth_names: set, measure, out: Path) -> dict:
         "drive": plan.best.family,
         "predicted": plan.best.pairs,
         **score(truth_names, joint),
-        "calibration": calibration(plan, joint),
+        "calibration": calibration(plan, joint, truth_names),
         "seconds": time.perf_counter() - started,
     }
 
