@@ -365,7 +365,9 @@ def _other_sign_from_best(s: Setting, rnd: Round) -> None:
     """Step 5 (the best candidate leaves structure and the signs do not tie): the best candidate
     fitted from scratch in the other sign, and so is every other candidate leaving structure
     whose fit the data do not separate from the best's (which of two such candidates is "best"
-    is the noise's choice, or their parameter counts'); where that fits one better, the next
+    is the noise's choice, or their parameter counts'); where no candidate repairs the model,
+    every one of the ``max_refits`` best is (before the verdict says no library effect repairs
+    it, each leading candidate has had every start). Where that fits one better, the next
     candidates that leave structure are refitted in that sign from its GPI. A misspecified
     plain GPI can settle on the other sign, a different model, and refits from its basin stay
     there."""
@@ -374,8 +376,11 @@ def _other_sign_from_best(s: Setting, rnd: Round) -> None:
         return
     ranked = rnd.ranked()
     best = ranked[0]
+    none_repairs = not any(c.adequate_after for c in ranked)
     contenders = [best] + [
-        c for c in ranked[1 : s.thresholds.max_refits] if not c.adequate_after and _unseparated(best, c, s.thresholds)
+        c
+        for c in ranked[1 : s.thresholds.max_refits]
+        if not c.adequate_after and (none_repairs or _unseparated(best, c, s.thresholds))
     ]
     other = "positive" if rnd.fit.model.parameters["alpha"].value < 0 else "negative"
     improved = None
