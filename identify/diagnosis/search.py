@@ -253,7 +253,7 @@ def _short_refits(s: Setting, rnd: Round) -> None:
         rnd.short[name] = short
         if _short_of_screening(s, rnd, one, short.chi2):
             s.say(f"fitting '{name}' from scratch (its short refit stayed above the screening's prediction)")
-            fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng), s.say, "not possible")
+            fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, n_starts=s.n_starts), s.say, "not possible")
             for model_f, theta in fresh or ():
                 _keep_short(rnd, name, Short(working_chi2(s.work, model_f, theta), model_f, theta))
 
