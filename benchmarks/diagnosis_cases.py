@@ -49,14 +49,16 @@ def record_of(case: dict, cache: Path):
             simulate(case["effects_hidden"], seed=seed, noise_sigma=0.5).record,
             simulate(case["effects_hidden"], seed=seed + 500, noise_sigma=0.5, drive="holds").record,
         ]
-    folder = cache / f"seed{case['seed']}"
+    options = [str(o) for o in case.get("generator_options", [])]
+    folder = cache / "_".join([f"seed{case['seed']}", *(o.lstrip("-") for o in options)])
     csv = folder / f"{case['stem']}.csv"
     if not csv.exists():
         matches = sorted(folder.glob(f"{case['stem']}_*.csv")) if folder.is_dir() else []
         if not matches:
             folder.mkdir(parents=True, exist_ok=True)
             command = [sys.executable, str(GENERATOR), "--suite", "effects", "--out", str(folder)]
-            subprocess.run([*command, "--seed", str(case["seed"]), "--per-form", "1"], check=True, capture_output=True)
+            command += ["--seed", str(case["seed"]), "--per-form", "1", *options]
+            subprocess.run(command, check=True, capture_output=True)
             matches = sorted(folder.glob(f"{case['stem']}_*.csv"))
         if not matches:
             raise SystemExit(f"error: {case['name']}: no record {case['stem']} in the generator's seed {case['seed']}")
