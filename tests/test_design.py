@@ -124,7 +124,13 @@ def test_the_design_command_writes_the_drive_its_numbers_and_a_page(creep_csv, t
     pairs = content["best"]["pairs"]
     assert {(p["truth"], p["rival"]) for p in pairs} == {("creep", "thermal"), ("thermal", "creep")}
     assert all(p["gap"] >= 0 and p["noise_sd"] >= 0 and 0 <= p["p_right"] <= 1 for p in pairs)
-    assert content["best"]["confirmed"]  # the best drives were simulated
+    confirmed = content["best"]["confirmed"]  # the best drive was simulated: a mean and sd per pair
+    assert {(c["truth"], c["rival"]) for c in confirmed} == {("creep", "thermal"), ("thermal", "creep")}
+    for c in confirmed:
+        gaps = np.array(c["realised_gaps"])
+        assert (
+            gaps.size >= 2 and c["gap"] == pytest.approx(gaps.mean()) and c["gap_sd"] == pytest.approx(gaps.std(ddof=1))
+        )
     page = (out / "design.html").read_text()
     assert "next_input.csv" in page and "data:image/png;base64," in page
     # the same transducer driven by the proposed drive: the bench's simulate takes it
@@ -174,3 +180,15 @@ def test_fitted_contenders_hold_what_the_records_say():
     names = drift.model.names
     column = names.index("sensor_drift_linear")
     assert np.all(drift.info[column] == 0) and drift.info[names.index("rho"), names.index("rho")] > 0
+
+
+@pytest.mark.parametrize(
+    "gaps, mean, sd",
+    [([], None, None), ([5.0], None, None), ([1.0, 3.0], 2.0, 2.0**0.5), ([2.0, 2.0, 2.0], 2.0, 0.0)],
+)
+def test_simulated_gap(gaps, mean, sd):
+    """The calibrated prediction of one pair: the mean and sample sd of its simulated gaps, none from one draw."""
+    from identify.workflows.design import simulated_gap
+
+    got_mean, got_sd = simulated_gap(gaps)
+    assert (got_mean, got_sd) == (None, None) if mean is None else (got_mean, got_sd) == pytest.approx((mean, sd))

@@ -76,7 +76,8 @@ def _pairs_table(design) -> str:
     rows = []
     for p in design.best.pairs:
         c = confirmed.get((p["truth"], p["rival"]))
-        realised = ", ".join(f"{g:.0f}" for g in c["realised_gaps"]) if c else "—"
+        simulated = c is not None and c.get("gap") is not None
+        realised = f"{c['gap']:.4g} ± {c['gap_sd']:.3g} ({len(c['realised_gaps'])} draws)" if simulated else "—"
         right = f"{c['right_names']} of {c['draws']}" if c else "—"
         rows.append(
             [
@@ -95,7 +96,7 @@ def _pairs_table(design) -> str:
         "predicted gap",
         "noise sd of the gap",
         "chance of a right name (%)",
-        "simulated gaps",
+        "simulated gap (mean ± sd)",
         "right names in the simulation",
     ]
     caption = "Every ordered pair: the chi-square gap after the rival is refitted to mimic the truth"

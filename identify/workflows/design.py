@@ -66,14 +66,18 @@ __all__ = [
     "discrimination",
     "random_drive_parameters",
     "confirm",
+    "simulated_gap",
 ]
 
 #: Drives evaluated per family in the search.
 DRIVES_PER_FAMILY = 40
 #: Best drives confirmed by simulation.
 CONFIRMED = 3
-#: Noise realisations per contender in a confirmation.
-CONFIRM_DRAWS = 2
+#: Draws per contender in a confirmation: the contender's parameters from its fit's covariance and
+#: the noise, both fresh in each draw. Their realised gaps are the calibrated prediction (their mean
+#: and sample sd): the linear gap holds the truth at its fit, and a record's truth is only known to
+#: within that covariance.
+CONFIRM_DRAWS = 6
 #: Samples of a drive in the search and the confirmation: longer drives are evaluated on every
 #: k-th sample (the same drive; the best ones again on every sample, and the confirmation's gaps
 #: scaled by the ratio of the two predictions).
@@ -487,16 +491,29 @@ def confirm(
                 ok &= gap > th.bic_significant and (sd == 0 or gap / sd > th.gap_z)
             right += ok
         for rival, gaps in realised.items():
+            mean, sd = simulated_gap(gaps)
             rows.append(
                 {
                     "truth": truth.name,
                     "rival": rival,
                     "realised_gaps": [float(g) for g in gaps],
+                    "gap": mean,
+                    "gap_sd": sd,
                     "right_names": right,
                     "draws": draws,
                 }
             )
     return rows
+
+
+def simulated_gap(gaps) -> tuple[float | None, float | None]:
+    """The prediction a confirmation gives for one ordered pair: the mean of its realised ``gaps``
+    and their sample standard deviation (over the truth's parameter draws and the noise together;
+    None where fewer than two draws gave a gap)."""
+    gaps = np.asarray(gaps, dtype=float)
+    if gaps.size < 2:
+        return None, None
+    return float(gaps.mean()), float(gaps.std(ddof=1))
 
 
 def _drawn(c: Contender, rng) -> np.ndarray:
