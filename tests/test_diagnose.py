@@ -691,6 +691,12 @@ def test_a_name_is_explained_with_its_closest_rival_and_a_first_loading_caution(
     assert "Add 'training'" in shared and "contains it too" in shared
 
 
+def test_a_name_whose_misfit_size_was_already_at_the_noise_says_what_it_removes():
+    evidence = _evidence([_ex("creep", 1.0, 300.0, explained=0.0)], baseline_rms=1.05)
+    text = explain(decide(evidence), evidence, Thresholds(), "")
+    assert text.startswith("Adding 'creep' explains the structure the noise tests found") and "0 %" not in text
+
+
 def test_the_other_verdicts_are_explained():
     assert "No library effect, alone or with another" in _text("none repairs") and "Where: here." in _text(
         "none repairs"

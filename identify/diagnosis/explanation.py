@@ -204,10 +204,18 @@ def _alternatives(d: Decision) -> str:
     )
 
 
+def _share(explained: float) -> str:
+    """What an explanation removes: its share of the misfit, or, where the baseline's misfit measure
+    was already at the noise's (the structure was in the tests' pattern, not in the size), that."""
+    if explained > 0:
+        return f"{100 * explained:.0f} % of the misfit"
+    return "the structure the noise tests found (the misfit's size was already within the noise)"
+
+
 def _named(c: _Context) -> str:
     d, best = c.d, c.best
     return (
-        f"Adding '{d.missing}' explains {100 * best.explained:.0f} % of the misfit (delta BIC {best.delta_bic:.0f}) "
+        f"Adding '{d.missing}' explains {_share(best.explained)} (delta BIC {best.delta_bic:.0f}) "
         "and leaves a residual consistent with the noise."
         + (_alternatives(d) if d.tied else _closest(c.ev, d, c.th))
         + _first_loading_caution(d)
@@ -228,7 +236,7 @@ def _named_from_pair(c: _Context) -> str:
         else (f"The explanation '{best.name}'")
     )
     return (
-        f"{lead} explain {100 * best.explained:.0f} % of the misfit (delta BIC {best.delta_bic:.0f}; RMS "
+        f"{lead} explain {_share(best.explained)} (delta BIC {best.delta_bic:.0f}; RMS "
         f"{c.ev.baseline_rms:.4g} -> {best.rms:.4g}, consistent with the noise).{_alternatives(d)} Add "
         f"'{d.missing}'{stronger} and diagnose again." + _first_loading_caution(d)
     )
