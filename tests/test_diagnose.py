@@ -584,6 +584,22 @@ DECISIONS = [
         ("thermal+incomplete_reset", "creep+sensor_drift"),
     ),
     (
+        "tied: a pair best is compared with a single given a second effect's freedom too",
+        _evidence(
+            [
+                _ex("incomplete_reset", 1.02, 1392.0),
+                _ex("training", 1.012, 1358.0),
+                _ex("thermal", 1.04, 1291.0),
+                _ex("incomplete_reset+thermal", 1.006, 1418.0),
+                _ex("training+rate_width", 1.0055, 1484.0),
+            ]
+        ),
+        "tied",
+        "tied",
+        None,
+        ("incomplete_reset+thermal", "training+rate_width"),
+    ),
+    (
         "tied: a single and a pair without it",
         _evidence([_ex("thermal", 1.0, 3103.0), _ex("creep+sensor_drift", 0.999, 3128.0)]),
         "tied",

@@ -13,7 +13,9 @@ against the noise (the practical size). Then:
    a likelihood gap of at most ``bic_significant``, or within ``gap_z`` noise standard
    deviations of the gap (:mod:`identify.diagnosis.evidence`). Parameters are not counted
    here: a penalty for parameters may say whether a term or a second effect is needed, never
-   which physics it is.
+   which physics it is. So explanations are compared at the same number of effects: a pair
+   that is best is also compared with the pairs that add nothing beside a single that repairs
+   alone (that single given a second effect's freedom, as the best has).
 3. The verdict is what all of them share: one effect common to the best and its rivals is
    named (from a pair, the member stronger alone); none in common is a tie, and ``tied`` lists
    them. A tie is a verdict: the record cannot tell them apart, and another record can.
@@ -164,11 +166,14 @@ def _judge(repairing: list, ev: Evidence, th: Thresholds) -> Decision:
     minimal, superfluous = _minimal(repairing, ev, th)
     best = min(minimal, key=lambda e: e.chi2)
     # every other explanation is compared, but a pair that only adds to the best (a superset of
-    # it) or adds nothing to a repairing member says no other physics
+    # it) says no other physics, nor, against a single, a pair that adds nothing to a repairing
+    # member; against a pair it is that member at the same number of effects
     compared = [
         e
         for e in ev.explanations
-        if e.name != best.name and e.name not in superfluous and not set(best.effects) < set(e.effects)
+        if e.name != best.name
+        and (e.name not in superfluous or len(e.effects) <= len(best.effects))
+        and not set(best.effects) < set(e.effects)
     ]
     rivals = [e for e in compared if not _separated(ev, best, e, th)]
     group = [best, *sorted(rivals, key=lambda e: e.chi2)]
