@@ -122,7 +122,8 @@ def test_screening_grid_classifies_parameters_by_what_they_do():
     ):
         model_e = base_model + name
         grid = screening_grid(model_e, name, model_e.default_theta(), sim.record)
-        assert 1 <= len(grid) <= 28
+        # initial_state's excursion: EXCURSION_VALUES_PER_OPERATOR per operator above v0 (its own axis)
+        assert 1 <= len(grid) <= (28 if name != "initial_state" else 1 + 48 + 6 + 12)
         for p in fixed:
             assert {g[p] for g in grid} == {model_e.parameters[p].value}
         for p in gridded:
@@ -130,12 +131,12 @@ def test_screening_grid_classifies_parameters_by_what_they_do():
         for g in grid:
             for p, v in g.items():
                 assert model_e.parameters[p].lower <= v <= model_e.parameters[p].upper
-        if name == "initial_state":  # the excursion spans the drive's range above v0, evenly
+        if name == "initial_state":  # the excursion spans the drive's range above v0, evenly, 4 per operator
             excursions = sorted({g["initial_state_excursion"] for g in grid} - {0.0})
             above = float(sim.record.current.max() - sim.record.current[0])
             positive = [e for e in excursions if e > 0]
-            assert len(positive) == 12 and positive[-1] == pytest.approx(above)
-            np.testing.assert_allclose(np.diff(positive), above / 12)
+            assert len(positive) == 4 * model_e.n_operators and positive[-1] == pytest.approx(above)
+            np.testing.assert_allclose(np.diff(positive), above / (4 * model_e.n_operators))
 
 
 def test_training_screening_grid_spans_the_records_travel():

@@ -73,6 +73,12 @@ def _training_grid(model_e: Model, record) -> list[dict]:
     return points
 
 
+#: Values of ``initial_state``'s prior excursion per play operator over the drive's range above
+#: its first value (half as many below): its objective changes only where the excursion's envelope
+#: passes an operator's memory, so the grid must fall between every two such places.
+EXCURSION_VALUES_PER_OPERATOR = 4
+
+
 def _initial_state_grid(model_e: Model, record) -> list[dict]:
     """Screening grid of ``initial_state``: each part of the history on its own axis.
 
@@ -101,8 +107,9 @@ def _initial_state_grid(model_e: Model, record) -> list[dict]:
         half = 0.5 * (float(parameter.upper) - float(parameter.lower))
         beyond = [size * half for size in (0.02, 0.1, 0.5)]
         if name == "initial_state_excursion":
-            up = list(np.linspace(0.0, above, 13)[1:]) if above > 0 else beyond
-            down = list(np.linspace(0.0, below, 7)[1:]) if below > 0 else beyond
+            per = EXCURSION_VALUES_PER_OPERATOR * model_e.n_operators
+            up = list(np.linspace(0.0, above, per + 1)[1:]) if above > 0 else beyond
+            down = list(np.linspace(0.0, below, per // 2 + 1)[1:]) if below > 0 else beyond
             values = [off[name] + e for e in up] + [off[name] - e for e in down]
         else:
             values = [off[name] + sign * size for size in beyond for sign in (-1.0, 1.0)]
