@@ -23,6 +23,7 @@ from ..data.reversals import find_reversals
 from ..fitting.lsq import FitResult, WhitenedResiduals
 from ..fitting.terms import best_form
 from .adequacy import Adequacy, Thresholds, assess_adequacy
+from .evidence import Explanation
 from .fits import embed, finish, n_eff, plain_of, profile_of, same_threshold_sign, whitened
 from .residuals import ARNoise, ResidualProfile
 from .screening import ScreeningResult
@@ -113,6 +114,19 @@ class CandidateResult:
     def effects(self) -> tuple[str, ...]:
         """The effects this candidate adds (one, or two for a pair)."""
         return tuple(self.effect.split("+"))
+
+    def explanation(self) -> Explanation:
+        """This finished candidate as the decision sees it (its ``chi2`` must be set)."""
+        return Explanation(
+            self.effect,
+            float(self.chi2),
+            float(self.n_eff),
+            float(self.delta_bic),
+            bool(self.adequate_after),
+            float(self.rms_after),
+            float(self.explained),
+            self.first_loading_share,
+        )
 
     def to_dict(self) -> dict:
         """The ranking entry: flat numbers (a table row) plus the fitted ``parameters``."""

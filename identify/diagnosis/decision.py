@@ -29,9 +29,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .adequacy import Thresholds, excess_over_noise, rms_change_and_size
-from .evidence import Evidence, Explanation
+from .evidence import Evidence, Explanation, Gap
 
-__all__ = ["STATUSES", "RULES", "Decision", "decide", "repairs", "FIRST_LOADING_SHARE"]
+__all__ = ["STATUSES", "RULES", "Decision", "decide", "repairs", "separated", "FIRST_LOADING_SHARE"]
 
 #: The four verdicts.
 STATUSES = ("adequate", "missing_effect", "tied", "unexplained")
@@ -145,11 +145,16 @@ def _minimal(repairing: list, ev: Evidence, th: Thresholds) -> tuple[list, set]:
     return kept, superfluous
 
 
+def separated(g: Gap | None, better: str, th: Thresholds) -> bool:
+    """Does gap ``g`` put explanation ``better`` ahead of the other: ``better`` the lower
+    chi-square, the likelihood gap above ``bic_significant`` and above ``gap_z`` noise standard
+    deviations of it?"""
+    return g is not None and g.better == better and g.gap > th.bic_significant and g.z > th.gap_z
+
+
 def _separated(ev: Evidence, best: Explanation, other: Explanation, th: Thresholds) -> bool:
-    """Do the data put ``best`` ahead of ``other``: a likelihood gap above ``bic_significant``
-    and above ``gap_z`` noise standard deviations of it?"""
-    g = ev.gap(best.name, other.name)
-    return g is not None and g.better == best.name and g.gap > th.bic_significant and g.z > th.gap_z
+    """Do the data put ``best`` ahead of ``other`` (:func:`separated`)?"""
+    return separated(ev.gap(best.name, other.name), best.name, th)
 
 
 def _gap_numbers(ev: Evidence, best: Explanation, others) -> list:

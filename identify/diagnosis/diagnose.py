@@ -42,7 +42,7 @@ from .adequacy import Adequacy, Thresholds, rms_change_and_size
 from .baseline import best_baseline, fit_baselines, known_noise, model_and_candidates, noise_reference
 from .candidates import CandidateResult, explained_fraction, unrefitted_candidate
 from .decision import STATUSES, Decision, decide
-from .evidence import Evidence, Explanation, gap_between
+from .evidence import Evidence, gap_between
 from .explanation import explain, where_text
 from .fits import attempt, effect_values, working_copy
 from .joint import JointDiagnosis, diagnose_records
@@ -289,24 +289,11 @@ def _pairs_worth(s: Setting, rnd: Round) -> bool:
     return best.explained >= s.thresholds.explained_minor
 
 
-def _explanation(c: CandidateResult) -> Explanation:
-    return Explanation(
-        c.effect,
-        float(c.chi2),
-        float(c.n_eff),
-        float(c.delta_bic),
-        bool(c.adequate_after),
-        float(c.rms_after),
-        float(c.explained),
-        c.first_loading_share,
-    )
-
-
 def gather_evidence(rnd: Round) -> Evidence:
     """The evidence of a round: every finished single and pair, the gaps between them, the
     singles' strength alone (finished, else their working-copy gain)."""
     finished = [c for c in [*rnd.refitted.values(), *rnd.pairs.values()] if c.fit is not None and c.chi2 is not None]
-    explanations = [_explanation(c) for c in finished]
+    explanations = [c.explanation() for c in finished]
     gaps = [
         gap_between(explanations[i], finished[i].whitened, explanations[j], finished[j].whitened)
         for i in range(len(finished))

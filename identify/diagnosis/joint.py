@@ -34,7 +34,7 @@ from ..fitting.threads import single_threaded_blas
 from .adequacy import Adequacy, Thresholds, assess_adequacy
 from .candidates import CandidateResult, explained_fraction, first_loading_share
 from .decision import Decision, decide
-from .evidence import Evidence, Explanation, gap_between
+from .evidence import Evidence, gap_between
 from .explanation import explain, where_text
 from .fits import n_eff, profile_of, same_threshold_sign
 
@@ -357,19 +357,7 @@ def _worst(ctx: _Joint) -> int:
 def _evidence(ctx: _Joint, ranking) -> Evidence:
     """The joint evidence: the joint baseline (inadequate when any record is), every joint
     explanation and the gaps between them on the concatenated residual."""
-    explanations = [
-        Explanation(
-            c.effect,
-            float(c.chi2),
-            float(c.n_eff),
-            float(c.delta_bic),
-            bool(c.adequate_after),
-            float(c.rms_after),
-            float(c.explained),
-            c.first_loading_share,
-        )
-        for c in ranking
-    ]
+    explanations = [c.explanation() for c in ranking]
     gaps = [
         gap_between(explanations[i], ranking[i].whitened, explanations[j], ranking[j].whitened)
         for i in range(len(ranking))

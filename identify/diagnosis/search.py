@@ -44,7 +44,8 @@ from ..logs import ordinal
 from .adequacy import Adequacy, Thresholds, assess_adequacy
 from .baseline import challenge_baseline, reparametrisation_paths, tied_sign
 from .candidates import CandidateResult, Reference, evaluate, failed_candidate
-from .evidence import gap_noise_sd
+from .decision import separated
+from .evidence import gap_between
 from .fits import (
     Point,
     Working,
@@ -351,14 +352,12 @@ def _finish_best(s: Setting, rnd: Round) -> None:
 
 
 def _unseparated(best: CandidateResult, other: CandidateResult, th: Thresholds) -> bool:
-    """Do the data leave ``other``'s fit as good as ``best``'s: a likelihood gap within
-    ``bic_significant`` or ``gap_z`` noise standard deviations of it (the decision's margins,
-    :mod:`identify.diagnosis.evidence`; no charge for parameters)?"""
+    """Do the data leave ``other``'s fit as good as ``best``'s: not separated by the decision's
+    margins (:func:`identify.diagnosis.decision.separated`; no charge for parameters)?"""
     if best.chi2 is None or other.chi2 is None or best.whitened is None or other.whitened is None:
         return False
-    gap = best.n_eff * math.log(max(other.chi2, 1e-300) / max(best.chi2, 1e-300))
-    sd = gap_noise_sd(best.whitened, other.whitened, best.n_eff)
-    return gap <= th.bic_significant or (sd > 0 and gap / sd <= th.gap_z)
+    g = gap_between(best.explanation(), best.whitened, other.explanation(), other.whitened)
+    return not separated(g, best.effect, th)
 
 
 def _other_sign_from_best(s: Setting, rnd: Round) -> None:
