@@ -16,8 +16,9 @@ One round against one baseline:
    best short refits and every further one that gains significantly; a candidate's fit of the
    other sign is finished where it starts lower on the whole record than its own.
 5. When the best candidate still leaves structure, it is fitted from scratch in the other sign,
-   and so is every candidate leaving structure whose fit the data do not separate from it;
-   where that fits one better, the next candidates are refitted there from its GPI.
+   and so is every candidate leaving structure whose fit the data do not separate from it (every
+   one of the ``max_refits`` best where none repairs the model); where that fits one better, the
+   next candidates are refitted there from its GPI.
 6. **One basin**: every finished candidate is refitted from the GPI of the best one of its sign
    where that promises to matter, so that effects are ranked on the same GPI basin and no
    effect loses to a rival for its GPI's sake.
