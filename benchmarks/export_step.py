@@ -19,7 +19,7 @@ their cost is their model steps times the cost of one, which moves with the mach
 shared core runs slower), so compare the steps, or costs measured in one run. Target (issue 68):
 under 2 us per sample for the inverse::
 
-    python benchmarks/export_step.py [--repeats 7] [--study DIR]
+    python benchmarks/export_step.py [--repeats 7] [--study DIR] [--each]
 """
 
 from __future__ import annotations
@@ -101,9 +101,10 @@ def targets(fs=100.0, n=7001):
     return t, np.where(t < t[n // 2], triangle, sine)
 
 
-def table1_models():
+def table1_models(each: bool = False):
     """(label, Model, theta): Table 1 alone, with the bench's thermal effect, with every exportable
-    effect but the lag at its test setting (creep with its logarithmic part on), and with the lag alone."""
+    effect but the lag at its test setting, and with the lag alone; ``each``: also with each of
+    those effects alone at its test setting (what a model step costs per effect)."""
     gpi = dict(zip(model.THETA_NAMES, model.TABLE1))
 
     def at(effects, **extra):
@@ -119,7 +120,7 @@ def table1_models():
         ("GPI + thermal (the bench's)", *at(["thermal"], **bench)),
         ("GPI + training, initial_state, creep, thermal", *at(["training", "initial_state", "creep", "thermal"])),
         ("GPI + lag (tau 0.05 s)", *at(["lag"])),
-    ]
+    ] + ([(f"GPI + {name}", *at([name])) for name in ("training", "initial_state", "creep", "thermal")] if each else [])
 
 
 def measure(c_dir: Path, work: Path, time, target, current_range, scale, repeats):
@@ -157,6 +158,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--study", default=None, help="also time the export of this finished study")
+    parser.add_argument("--each", action="store_true", help="also each effect alone at its test setting")
     args = parser.parse_args()
     print(
         f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "
@@ -167,7 +169,7 @@ def main():
     with tempfile.TemporaryDirectory(prefix="export-step-") as work:
         work = Path(work)
         cases = []
-        for label, m, theta in table1_models():
+        for label, m, theta in table1_models(args.each):
             spec = export_spec(m, theta, horizon=float(time[-1]), current_range=(0.0, 5.0), output_scale=scale)
             cases.append((label, spec))
         if args.study:
