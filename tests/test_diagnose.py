@@ -25,7 +25,7 @@ from identify.data.reversals import find_reversals
 from identify.diagnosis import RULES, STATUSES, Adequacy, Thresholds, assess_adequacy, decide, diagnose, explain
 from identify.diagnosis.adequacy import excess_over_noise, rms_change_and_size
 from identify.diagnosis.candidates import first_loading_share
-from identify.diagnosis.evidence import Evidence, Explanation, Gap, gap_noise_sd
+from identify.diagnosis.evidence import Evidence, Explanation, Gap, gap_noise_sd, gaps_among
 from identify.diagnosis.explanation import noise_tests_text
 from identify.diagnosis.fits import (
     SCREENING_SAMPLES,
@@ -360,6 +360,20 @@ def test_gap_noise_sd_is_the_spread_another_noise_realisation_gives_the_gap():
     e = rng.standard_normal(n)
     z = n * math.log(float((e + d) @ (e + d)) / float(e @ e)) / gap_noise_sd(e, e + d, n)
     assert z == pytest.approx(math.sqrt(float(d @ d)) / 2, abs=1.5)
+
+
+def test_gaps_among_every_two_explanations_the_better_first():
+    """Three explanations give the three gaps, each led by the lower chi-square, its size the
+    likelihood gap at the better one's effective size."""
+    e = np.random.default_rng(2).standard_normal(500)
+    whitened = [e, 1.1 * e, 1.3 * e]
+    chi2 = [float(w @ w) for w in whitened]
+    explanations = [Explanation(name, c, 400.0, 0.0, True, 1.0) for name, c in zip("bac", chi2)]
+    gaps = gaps_among(explanations, whitened)
+    assert [(g.better, g.other) for g in gaps] == [("b", "a"), ("b", "c"), ("a", "c")]
+    assert gaps[2].gap == pytest.approx(400.0 * math.log(chi2[2] / chi2[1]))
+    assert all(g.gap > 0 and g.noise_sd > 0 for g in gaps)
+    assert gaps_among(explanations[:1], whitened[:1]) == ()
 
 
 def test_the_first_loading_share_of_a_fit():

@@ -42,7 +42,7 @@ from .adequacy import Adequacy, Thresholds, rms_change_and_size
 from .baseline import best_baseline, fit_baselines, known_noise, model_and_candidates, noise_reference
 from .candidates import CandidateResult, explained_fraction, unrefitted_candidate
 from .decision import STATUSES, Decision, decide
-from .evidence import Evidence, gap_between
+from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
 from .fits import attempt, effect_values, working_copy
 from .joint import JointDiagnosis, diagnose_records
@@ -294,11 +294,7 @@ def gather_evidence(rnd: Round) -> Evidence:
     singles' strength alone (finished, else their working-copy gain)."""
     finished = [c for c in [*rnd.refitted.values(), *rnd.pairs.values()] if c.fit is not None and c.chi2 is not None]
     explanations = [c.explanation() for c in finished]
-    gaps = [
-        gap_between(explanations[i], finished[i].whitened, explanations[j], finished[j].whitened)
-        for i in range(len(finished))
-        for j in range(i + 1, len(finished))
-    ]
+    gaps = gaps_among(explanations, [c.whitened for c in finished])
     strength = {c.effect: c.delta_bic for c in _unrefitted(rnd)} | {
         c.effect: c.delta_bic for c in rnd.refitted.values()
     }
@@ -307,7 +303,7 @@ def gather_evidence(rnd: Round) -> Evidence:
         baseline_rms=float(rnd.fit.rms),
         baseline=rnd.adequacy,
         explanations=tuple(explanations),
-        gaps=tuple(gaps),
+        gaps=gaps,
         strength=strength,
         first_cycle=tuple(e.name for e in rnd.fit.model.effects if e.first_cycle),
         targeted=bool(rnd.adequacy.adequate),

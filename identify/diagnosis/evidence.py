@@ -29,7 +29,7 @@ import numpy as np
 
 from .adequacy import Adequacy
 
-__all__ = ["Explanation", "Gap", "Evidence", "gap_between", "gap_noise_sd"]
+__all__ = ["Explanation", "Gap", "Evidence", "gap_between", "gaps_among", "gap_noise_sd"]
 
 
 @dataclass(frozen=True)
@@ -120,6 +120,17 @@ def gap_between(a: Explanation, w_a, b: Explanation, w_b) -> Gap:
         a, w_a, b, w_b = b, w_b, a, w_a
     gap = a.n_eff * math.log(max(b.chi2, 1e-300) / max(a.chi2, 1e-300))
     return Gap(a.name, b.name, float(gap), gap_noise_sd(w_a, w_b, a.n_eff))
+
+
+def gaps_among(explanations, whitened) -> tuple:
+    """The :class:`Gap` between every two of ``explanations`` (each with its whitened residual
+    in ``whitened``, the same order), in the order of the pairs ``(i, j)``, ``i < j``."""
+    n = len(explanations)
+    return tuple(
+        gap_between(explanations[i], whitened[i], explanations[j], whitened[j])
+        for i in range(n)
+        for j in range(i + 1, n)
+    )
 
 
 @dataclass(frozen=True)

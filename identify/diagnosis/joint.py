@@ -34,7 +34,7 @@ from ..fitting.threads import single_threaded_blas
 from .adequacy import Adequacy, Thresholds, assess_adequacy
 from .candidates import CandidateResult, explained_fraction, first_loading_share
 from .decision import Decision, decide
-from .evidence import Evidence, gap_between
+from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
 from .fits import n_eff, profile_of, same_threshold_sign
 
@@ -358,11 +358,7 @@ def _evidence(ctx: _Joint, ranking) -> Evidence:
     """The joint evidence: the joint baseline (inadequate when any record is), every joint
     explanation and the gaps between them on the concatenated residual."""
     explanations = [c.explanation() for c in ranking]
-    gaps = [
-        gap_between(explanations[i], ranking[i].whitened, explanations[j], ranking[j].whitened)
-        for i in range(len(ranking))
-        for j in range(i + 1, len(ranking))
-    ]
+    gaps = gaps_among(explanations, [c.whitened for c in ranking])
     worst = ctx.adequacies[_worst(ctx)]
     adequate = all(a.adequate for a in ctx.adequacies)
     baseline = worst if adequate == worst.adequate else Adequacy(adequate, *list(worst.__dict__.values())[1:])
@@ -378,7 +374,7 @@ def _evidence(ctx: _Joint, ranking) -> Evidence:
         rms,
         baseline,
         tuple(explanations),
-        tuple(gaps),
+        gaps,
         strength,
         tuple(e.name for e in model.effects if e.first_cycle),
         bool(adequate),
