@@ -15,7 +15,9 @@ displacement, whitened by the same noise model the diagnosis used (sigma and AR(
 correlation from the quiet start): the expected likelihood gap and what the noise gives it.
 
 The fits are least squares from the diagnosis's starts (``fit_baseline``: several starts,
-both threshold signs), so a class can also reflect a fit that missed its best basin; each
+both threshold signs) and from the diagnosis's own fit of each candidate on the noisy record
+(the baseline's GPI with the candidate's parameters, as its JSON saves them), the lower
+kept; a class can still reflect a fit that missed its best basin. Each
 candidate is then refitted on the noisy record from its noiseless optimum, and that chi-square
 is printed beside the diagnosis's own (a shortfall of the search shows as a diagnosis chi-square
 far above it). Prints one row per step and the
@@ -39,6 +41,8 @@ from identify import estimate_noise, load_record
 from identify.bench.oracle import CLASSES, separability
 from identify.data.fileio import atomic_write
 from identify.fitting.lsq import fit_least_squares
+from identify.fitting.parametrisation import normalised_model
+from model import Model
 
 
 def noiseless_record(csv: Path):
@@ -75,13 +79,38 @@ def steps(out: Path, only: list[str]):
             yield stem, effects, min(true, key=closest), min(other, key=closest), diagnosis
 
 
-def oracle_step(csv: Path, effects: list[str], names: list[str], seed: int) -> dict:
-    """:func:`identify.bench.oracle.separability` of ``names`` (true, other) on the record, and each
-    model refitted on the noisy record from its noiseless optimum."""
+def diagnosis_starts(diagnosis: dict, effects: list[str], names: list[str]) -> dict:
+    """``{name: [start]}``: each of ``names`` as the diagnosis fitted it on the noisy record (the
+    baseline's GPI with the candidate's fitted parameters), an extra start of its noiseless fit:
+    the noisy optimum lies near the noiseless one, which the oracle's own starts can miss."""
+    gpi = (diagnosis.get("fit") or {}).get("theta")
+    if not isinstance(gpi, dict):
+        return {}
+    starts = {}
+    for c in diagnosis.get("ranking", []):
+        if c["effect"] not in names or not c.get("parameters"):
+            continue
+        model = normalised_model(Model([*effects, *c["effect"].split("+")]))
+        values = {k: v for k, v in {**gpi, **c["parameters"]}.items() if k in model.names}
+        starts[c["effect"]] = [model.theta_from_dict(values)]
+    return starts
+
+
+def oracle_step(csv: Path, effects: list[str], names: list[str], seed: int, starts: dict | None = None) -> dict:
+    """:func:`identify.bench.oracle.separability` of ``names`` (true, other) on the record (with
+    ``starts``, ``{name: [vectors]}``, beside its own), and each model refitted on the noisy record
+    from its noiseless optimum."""
     record, clean = noiseless_record(csv)
     noise = estimate_noise(record)
     result = separability(
-        record, clean.displacement, effects, names[0], names[1], noise=noise, rng=np.random.default_rng(seed)
+        record,
+        clean.displacement,
+        effects,
+        names[0],
+        names[1],
+        noise=noise,
+        rng=np.random.default_rng(seed),
+        starts=starts,
     )
     from_truth = {
         name: fit_least_squares(record, fit.model, noise=noise, start=fit.theta, n_starts=1)
@@ -116,7 +145,7 @@ def main(argv=None) -> int:
             started = clock.perf_counter()
             csv = out / "records" / f"{stem}.csv"
             names = [true["effect"], other["effect"]]
-            result = oracle_step(csv, effects, names, args.seed)
+            result = oracle_step(csv, effects, names, args.seed, diagnosis_starts(diagnosis, effects, names))
             gap, sd = result["gap"], result["gap_sd"]
             kind = result["class"]
             counts[kind] += 1
