@@ -192,3 +192,38 @@ def test_simulated_gap(gaps, mean, sd):
 
     got_mean, got_sd = simulated_gap(gaps)
     assert (got_mean, got_sd) == (None, None) if mean is None else (got_mean, got_sd) == pytest.approx((mean, sd))
+
+
+def _confirmed(*rows):
+    return [{"truth": t, "rival": r, "right_names": k, "draws": 6} for t, r, k in rows]
+
+
+@pytest.mark.parametrize(
+    "rows, share, truth",
+    [
+        ((), 1.0, None),
+        ((("creep", "thermal", 6), ("thermal", "creep", 6)), 1.0, "creep"),
+        ((("creep", "thermal", 6), ("thermal", "creep", 2)), 2 / 6, "thermal"),
+        ((("a", "b", 5), ("a", "c", 5), ("b", "a", 3), ("c", "a", 4)), 3 / 6, "b"),
+    ],
+)
+def test_the_confirmed_share_is_the_weakest_truths(rows, share, truth):
+    """A drive's confirmation is as good as the truth it names least often."""
+    from identify.workflows.design import DesignedDrive, confirmed_share
+
+    drive = DesignedDrive("hold", {}, np.zeros(2), np.zeros(2), confirmed=_confirmed(*rows))
+    assert confirmed_share(drive) == (pytest.approx(share), truth)
+
+
+def test_the_chosen_drive_is_the_confirmed_one_with_the_most_right_names():
+    """The linear ranking's first drive loses to one the simulation confirms more often; the
+    reason says where the linear prediction was optimistic."""
+    from identify.workflows.design import DesignedDrive, _confirmed_rank, _simulation_text
+
+    linear_best = DesignedDrive("hold", {}, np.zeros(2), np.zeros(2), value=1.0)
+    linear_best.confirmed = _confirmed(("creep", "thermal", 6), ("thermal", "creep", 2))
+    confirmed_best = DesignedDrive("steps", {}, np.zeros(2), np.zeros(2), value=0.9)
+    confirmed_best.confirmed = _confirmed(("creep", "thermal", 5), ("thermal", "creep", 5))
+    assert sorted([linear_best, confirmed_best], key=_confirmed_rank)[0] is confirmed_best
+    assert "only 2 of 6 draws where 'thermal' was the truth" in _simulation_text(linear_best)
+    assert "only 5 of 6" in _simulation_text(confirmed_best)
