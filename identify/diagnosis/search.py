@@ -9,8 +9,7 @@ One round against one baseline:
    the groups of its start strategies (:mod:`identify.diagnosis.starts`): carried and near the
    baseline, data-driven, the screening's step. A short refit that ends above the screening's
    linearised promise has stayed in the baseline's basin: the candidate is fitted from scratch
-   in both threshold signs too, where that promise would make it compete with the best short
-   refit reached.
+   in both threshold signs too.
 3. **The other threshold sign**, where the data do not choose it (the plain model's two signs
    fit alike): every candidate is short-refitted from the other sign's baseline as well.
 4. **Finishes** on the whole record: the :attr:`~identify.diagnosis.adequacy.Thresholds.max_refits`
@@ -242,44 +241,23 @@ def _short_of_screening(s: Setting, rnd: Round, one: ScreeningResult, chi2: floa
     return rnd.n_eff_small * math.log(chi2 / max(one.chi2_after, 1e-300)) > s.thresholds.bic_significant
 
 
-def _promise_competes(s: Setting, rnd: Round, one: ScreeningResult, best_chi2: float) -> bool:
-    """Would candidate ``one`` at its screening's linearised chi-square be within
-    ``bic_significant`` (the working copy's BIC units, no charge for parameters) of the lowest
-    short refit reached, ``best_chi2``, or below it?"""
-    return rnd.n_eff_small * math.log(max(one.chi2_after, 1e-300) / max(best_chi2, 1e-300)) <= (
-        s.thresholds.bic_significant
-    )
-
-
 def _short_refits(s: Setting, rnd: Round) -> None:
-    """Step 2: a short refit of every screened candidate in the baseline's sign; then each one
-    that stayed above its screening's promise is also fitted from scratch in both signs (the
-    better of a sign replaces the short refit of that sign where it is lower), where that
-    promise would bring it within ``bic_significant`` of the lowest short refit reached.
-
-    The fit from scratch looks for the basin the screening promised; a candidate whose promise
-    still leaves it significantly behind what another candidate has already reached cannot
-    lead or tie through it (the decision compares fits by their chi-square alone), and a fit from
-    scratch costs as much as the baseline's."""
+    """Step 2: a short refit of every screened candidate in the baseline's sign; one that stays
+    above its screening's promise is also fitted from scratch in both signs (the better of a
+    sign replaces the short refit of that sign where it is lower)."""
     for name, one in rnd.screened.items():
         s.say(f"short refit with '{name}'")
         model_e = rnd.fit.model + name
         failure = _on_failure(rnd, name, one, "short refit")
         short = attempt(lambda: refit_short(s, rnd, name, model_e, rnd.fit), s.say, "not possible", failure)
-        if short is not None:
-            rnd.short[name] = short
-    best_chi2 = min((short.chi2 for short in rnd.short.values()), default=math.inf)
-    for name, one in rnd.screened.items():
-        short = rnd.short.get(name)
-        if short is None or not _short_of_screening(s, rnd, one, short.chi2):
+        if short is None:
             continue
-        if not _promise_competes(s, rnd, one, best_chi2):
-            continue
-        s.say(f"fitting '{name}' from scratch (its short refit stayed above the screening's prediction)")
-        model_e = rnd.fit.model + name
-        fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, n_starts=s.n_starts), s.say, "not possible")
-        for model_f, theta in fresh or ():
-            _keep_short(rnd, name, Short(working_chi2(s.work, model_f, theta), model_f, theta))
+        rnd.short[name] = short
+        if _short_of_screening(s, rnd, one, short.chi2):
+            s.say(f"fitting '{name}' from scratch (its short refit stayed above the screening's prediction)")
+            fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, n_starts=s.n_starts), s.say, "not possible")
+            for model_f, theta in fresh or ():
+                _keep_short(rnd, name, Short(working_chi2(s.work, model_f, theta), model_f, theta))
 
 
 def _keep_short(rnd: Round, name: str, short: Short, gain: float = 0.0) -> bool:
