@@ -177,14 +177,19 @@ class Model:
         return theta
 
     def _symmetric_effects(self):
-        """The effects whose parameters all vary and whose form has a labelling symmetry (their
+        """The effects whose parameters all vary (or are pinned at an off value the symmetry
+        keeps, :attr:`Effect.labelling_keeps_off`) and whose form has a labelling symmetry (their
         own :meth:`Effect.in_canonical_domain`): only there does the labelling matter."""
-        vary = dict(zip(self.names, self.parameters.vary))
+
+        def free(e, n):
+            p = self.parameters[n]
+            return p.vary or (n in type(e).labelling_keeps_off and p.value == type(e).off[n])
+
         return [
             e
             for e in self.effects
             if type(e).in_canonical_domain.__func__ is not Effect.in_canonical_domain.__func__
-            and all(vary[n] for n in e.parameters.names)
+            and all(free(e, n) for n in e.parameters.names)
         ]
 
     @property

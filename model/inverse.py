@@ -281,7 +281,7 @@ def invert(model: Model, theta, time, target, *, current_range=DEFAULT_CURRENT_R
         creep_taus = np.ones((n_sets, 1))
         creep_params = np.zeros((n_sets, 5))
     thermal_on = "thermal" in model.effect_names
-    thermal = _effect_columns(model, theta2, "thermal", 6, [30.0, 0.0, 0.0, 300.0, 0.0, 0.0])
+    thermal = _effect_columns(model, theta2, "thermal", 8, [30.0, 0.0, 0.0, 300.0, 0.0, 0.0, 0.0, 0.0])
     # the sensor drift is an offset per sample whatever its form: the effect's own output on 0
     drift = np.zeros((n_sets, time.size))
     if "sensor_drift" in model.effect_names:

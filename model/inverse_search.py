@@ -569,7 +569,7 @@ def inverse_kernel(
         lag_c = np.zeros(3)
         thermal_c = np.zeros(6)
         tr = training[w]
-        th = np.empty(7)
+        th = np.empty(9)
         th[0] = thermal[w, 0]
         th[1] = thermal[w, 1]
         th[2] = thermal[w, 2]
@@ -577,6 +577,8 @@ def inverse_kernel(
         th[4] = thermal[w, 3]
         th[5] = thermal[w, 4]
         th[6] = thermal[w, 5]
+        th[7] = thermal[w, 6]
+        th[8] = thermal[w, 7]
         n_eval_total = 0
         previous_step = 0.1 * (hi - lo)
         for k in range(n_samples):

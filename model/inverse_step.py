@@ -122,7 +122,8 @@ def evaluate_step(
     parameters. ``cp``: creep's saturating amplitude, number of saturating modes, logarithmic
     rate, number of logarithmic modes, the part held to the leg's end (``modes`` holds the
     saturating modes, then the logarithmic ones). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
-    reference current, node 2's time constant, sensitivity, expansion; ``thermal_c`` the
+    reference current, node 2's time constant, sensitivity, expansion, the nodes' rises at the
+    record's start; ``thermal_c`` the
     two nodes' step coefficients. ``drift``: the sensor drift at this sample.
     Before the first sample is committed, ``memory`` holds the initial memory held beyond
     the bounds (``initial_state``'s :math:`h_j`), which the first sample adds to the clamped
@@ -192,8 +193,8 @@ def evaluate_step(
     y_stage = y  # the thermal stage's input
     if thermal_on:
         if first:
-            rise = 0.0
-            rise2 = 0.0
+            rise = th[7]  # the nodes' rises at the record's start
+            rise2 = th[8]
         else:
             heating = (i / th[3]) ** 2
             rise = _filter_step(st[7], st[9], heating, thermal_c[0], thermal_c[1], thermal_c[2] > 0.5)
@@ -267,8 +268,8 @@ def commit_step(
         st[16] = 0.0
         st[17] = y_strain
         st[18] = y_strain
-        st[7] = 0.0
-        st[13] = 0.0
+        st[7] = th[7]
+        st[13] = th[8]
         st[5] = 1.0
         st[10] = 0.0
         st[11] = y_gpi

@@ -218,12 +218,12 @@ def test_the_confirmed_share_is_the_weakest_truths(rows, share, truth):
 def test_the_chosen_drive_is_the_confirmed_one_with_the_most_right_names():
     """The linear ranking's first drive loses to one the simulation confirms more often; the
     reason says where the linear prediction was optimistic."""
-    from identify.workflows.design import DesignedDrive, _confirmed_rank, _simulation_text
+    from identify.workflows.design import DesignedDrive, confirmed_rank, simulation_text
 
     linear_best = DesignedDrive("hold", {}, np.zeros(2), np.zeros(2), value=1.0)
     linear_best.confirmed = _confirmed(("creep", "thermal", 6), ("thermal", "creep", 2))
     confirmed_best = DesignedDrive("steps", {}, np.zeros(2), np.zeros(2), value=0.9)
     confirmed_best.confirmed = _confirmed(("creep", "thermal", 5), ("thermal", "creep", 5))
-    assert sorted([linear_best, confirmed_best], key=_confirmed_rank)[0] is confirmed_best
-    assert "only 2 of 6 draws where 'thermal' was the truth" in _simulation_text(linear_best)
-    assert "only 5 of 6" in _simulation_text(confirmed_best)
+    assert sorted([linear_best, confirmed_best], key=confirmed_rank)[0] is confirmed_best
+    assert "only 2 of 6 draws where 'thermal' was the truth" in simulation_text(linear_best)
+    assert "only 5 of 6" in simulation_text(confirmed_best)

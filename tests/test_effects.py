@@ -270,7 +270,9 @@ def signature_thermal(paper_input, plain_gpi):
     tau, sensitivity, expansion = 8.0, 0.1, 4.0
     y_g = 100.0 + 30.0 * np.sin(time)
     thermal = EFFECTS["thermal"]()
-    y = thermal.output(np.array([[tau, sensitivity, expansion, 300.0, 0.0, 0.0]]), time, current, y_g[None, :])[0]
+    y = thermal.output(
+        np.array([[tau, sensitivity, expansion, 300.0, 0.0, 0.0, 0.0, 0.0]]), time, current, y_g[None, :]
+    )[0]
     # tau th' = rate (t - t_on) - th, th(t_on) = 0: th = rate ((t - t_on) - tau (1 - exp(-(t - t_on)/tau))).
     dt = np.clip(time - t_on, 0.0, None)
     rise = rate * (dt - tau * -np.expm1(-dt / tau))
@@ -622,7 +624,7 @@ def signature_thermal_two_nodes(paper_input, plain_gpi):
     tau1, tau2 = 5.0, 60.0
     thermal = EFFECTS["thermal"]()
     y_g = np.full((1, time.size), 100.0)
-    params = np.array([[tau1, 0.0, 0.0, tau2, 0.0, 1.0]])  # node 2 expansion only: y - y_g = theta2
+    params = np.array([[tau1, 0.0, 0.0, tau2, 0.0, 1.0, 0.0, 0.0]])  # node 2 expansion only: y - y_g = theta2
     y = thermal.output(params, time, current, y_g)[0] - 100.0
     dt = np.clip(time - t_on, 0.0, None)
     # theta1 = 1 - exp(-t/tau1) (after a ramp over one 10 ms sample); theta2 = 1 - (tau2 e^{-t/tau2} - tau1
@@ -969,7 +971,7 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
     """The thermal kernel tabulates the filter coefficients per distinct sample step and runs
     four parameter sets in lockstep: bit for bit the per-sample computation of each set
     alone (a step jittered in its last bits is another entry), also with more distinct
-    steps than the table holds (then computed at every sample)."""
+    steps than the table holds (then computed at every sample), from cold and warm starts."""
     from model.effects._filters import MAX_DISTINCT_STEPS, distinct_steps, lowpass_step
 
     rng = np.random.default_rng(3)
@@ -981,13 +983,13 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
     # four sets with both nodes on (run in lockstep), then the other cases one by one
     params = np.array(
         [
-            [20.0, 0.08, 3.0, 300.0, -0.3, 2.0],
-            [1e6, 0.1, 1.0, 1e-4, 0.2, 1.0],
-            [5.0, 0.05, 1.0, 50.0, 0.1, 0.3],
-            [0.5, 0.2, 2.0, 3000.0, 0.05, 0.4],
-            [0.0, 0.1, 1.0, 5.0, 0.0, 0.0],
-            [7.0, 0.1, 1.0, 0.0, 0.1, 0.5],
-            [3.0, 0.1, 1.0, 10.0, 0.0, 0.0],
+            [20.0, 0.08, 3.0, 300.0, -0.3, 2.0, 0.0, 0.0],
+            [1e6, 0.1, 1.0, 1e-4, 0.2, 1.0, 0.3, -0.1],
+            [5.0, 0.05, 1.0, 50.0, 0.1, 0.3, 0.0, 0.5],
+            [0.5, 0.2, 2.0, 3000.0, 0.05, 0.4, 1.2, 0.7],
+            [0.0, 0.1, 1.0, 5.0, 0.0, 0.0, 0.4, 0.0],
+            [7.0, 0.1, 1.0, 0.0, 0.1, 0.5, 0.0, 0.2],
+            [3.0, 0.1, 1.0, 10.0, 0.0, 0.0, 0.0, 0.0],
         ]
     )
     y_g = rng.normal(size=(params.shape[0], uniform.size)).cumsum(axis=1)
@@ -995,9 +997,12 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
     for time in (uniform, jittered):
         y = thermal.output(params, time, current, y_g)
         heating = (current / REFERENCE_CURRENT) ** 2
-        for w, (tau, s, e, tau2, s2, e2) in enumerate(params):
-            rise = rise2 = 0.0
-            expected = [y_g[w, 0]]
+        for w, (tau, s, e, tau2, s2, e2, start, start2) in enumerate(params):
+            rise, rise2 = start, start2  # the nodes' rises at the record's start
+            if s2 != 0.0 or e2 != 0.0:
+                expected = [y_g[w, 0] * (1.0 - s * rise - s2 * rise2) + e * rise + e2 * rise2]
+            else:
+                expected = [y_g[w, 0] * (1.0 - s * rise) + e * rise]
             for k in range(1, time.size):
                 step, previous = time[k] - time[k - 1], rise
                 rise = lowpass_step.py_func(rise, heating[k - 1], heating[k], step, tau)
@@ -1079,6 +1084,42 @@ def test_thermal_nodes_swapped_give_the_same_output_and_the_canonical_labelling_
     # a pinned node is no labelling to choose: left as it is, and in the domain
     pinned = m.with_parameters(m.parameters.replace("thermal_tau_core", vary=False))
     assert np.array_equal(pinned.canonical_theta(a), a) and pinned.in_canonical_domain(a)[0]
+
+
+@pytest.mark.parametrize("start, start_core", [(0.3, 0.0), (0.0, 0.4), (0.5, -0.2)])
+def test_a_warm_start_cools_through_both_nodes_and_swaps_with_the_labelling(start, start_core):
+    """Heat left by earlier runs: with no current the nodes decay from their start rises as the
+    network's free response (node 1 through tau, node 2 through both), and the mirror labelling
+    maps the start rises so that the output is the same."""
+    from model.effects import Thermal
+
+    time = np.linspace(0.0, 200.0, 20001)
+    tau1, tau2 = 6.0, 40.0
+    thermal = EFFECTS["thermal"]()
+    y_g = np.full((1, time.size), 50.0)
+    node1 = thermal.output(np.array([[tau1, 0.0, 1.0, tau2, 0.0, 0.0, start, start_core]]), time, 0 * time, y_g)
+    node2 = thermal.output(np.array([[tau1, 0.0, 0.0, tau2, 0.0, 1.0, start, start_core]]), time, 0 * time, y_g)
+    c = tau1 / (tau1 - tau2)
+    e1, e2 = np.exp(-time / tau1), np.exp(-time / tau2)
+    np.testing.assert_allclose(node1[0] - 50.0, start * e1, atol=1e-12)
+    np.testing.assert_allclose(node2[0] - 50.0, start_core * e2 + start * c * (e1 - e2), atol=2e-6)
+    time_p, current = paper_current(fs=100.0)
+    m = Model(["thermal"])
+    values = {
+        **m.theta_dict(m.default_theta()),
+        **TWO_NODE_SWAPPED,
+        "thermal_initial": start,
+        "thermal_initial_core": start_core,
+    }
+    a = m.theta_from_dict(values)
+    b = m.theta_from_dict(Thermal.swap_nodes(values))
+    assert np.max(np.abs(m(a, time_p, current) - m(b, time_p, current))) < 1e-4
+    cold = m.theta_from_dict({**values, "thermal_initial": 0.0, "thermal_initial_core": 0.0})
+    quiet = current == 0.0
+    quiet[np.argmax(current > 0.0) :] = False  # the unenergised start
+    assert np.max(np.abs(m(a, time_p, current) - m(cold, time_p, current))[quiet]) > 0.05  # um: it cools there
+    back = Thermal.swap_nodes(Thermal.swap_nodes(values))
+    assert math.isclose(back["thermal_initial"], start, abs_tol=1e-12)
 
 
 def test_the_posterior_samples_only_the_canonical_half():
@@ -1171,3 +1212,27 @@ def test_read_only_inputs_give_the_same_output_without_another_compiled_kernel(p
     assert np.array_equal(m(*frozen), expected)
     assert np.array_equal(m(single, frozen[1], frozen[2]), expected[0])
     assert _compiled_versions() == before
+
+
+def test_a_record_that_starts_warm_is_fitted_with_the_start_freed_and_not_by_the_cold_default():
+    """The start rises are pinned at 0 by default (a cold start); freed, the least squares
+    recovers the heat a run started with, which the cold model cannot reach."""
+    from identify.bench import simulate
+    from identify.fitting.lsq import fit_least_squares
+    from identify.fitting.noise import estimate_noise
+    from identify.fitting.parametrisation import normalised_model
+
+    spec = "thermal_tau=8,thermal_sensitivity=0.03,thermal_expansion=3,thermal_initial=0.5,thermal_initial_core=0.2"
+    record = simulate(spec, fs=10.0, seed=4, noise_sigma=0.05).record
+    noise = estimate_noise(record)
+    cold = Model(["thermal"])
+    assert not cold.parameters["thermal_initial"].vary and not cold.parameters["thermal_initial_core"].vary
+    freed = cold.with_parameters(
+        cold.parameters.replace("thermal_initial", vary=True).replace("thermal_initial_core", vary=True)
+    )
+    fits = [
+        fit_least_squares(record, normalised_model(m), noise=noise, n_starts=2, rng=np.random.default_rng(0))
+        for m in (cold, freed)
+    ]
+    assert fits[1].rms < 1.05 * 0.05 < fits[0].rms / 1.5  # the record's noise sigma: 0.05 um
+    assert fits[1].theta_dict()["thermal_initial"] == pytest.approx(0.5, abs=0.05)

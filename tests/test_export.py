@@ -99,6 +99,12 @@ CASES = {
         {"thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0}
         | {"thermal_tau_core": 200.0, "thermal_sensitivity_core": 0.03, "thermal_expansion_core": -1.0},
     ),
+    "thermal, two nodes, a warm start": (
+        ["thermal"],
+        {"thermal_tau": 20.0, "thermal_sensitivity": 0.08, "thermal_expansion": 3.0}
+        | {"thermal_tau_core": 200.0, "thermal_sensitivity_core": 0.03, "thermal_expansion_core": -1.0}
+        | {"thermal_initial": 0.3, "thermal_initial_core": 0.5},
+    ),
     "training, every part": (
         ["training"],
         {"training_deficit": 0.1, "training_threshold": 0.2, "training_gain": 0.1, "training_width": 0.3}

@@ -18,10 +18,12 @@ def test_the_joint_layout_shares_the_transducer_and_gives_each_record_its_run():
     model = normalised_model(Model(["thermal", "sensor_drift"]))
     joint = JointModel(model, 3)
     drift = [p.name for p in EFFECTS["sensor_drift"].parameters]
-    assert joint.per_record == tuple(drift)
-    assert joint.n_parameters == model.n_parameters + 2 * (len(drift) + 1)
+    warm = ["thermal_initial", "thermal_initial_core"]  # the heat each run starts with
+    assert joint.per_record == tuple(warm + drift)
+    assert joint.n_parameters == model.n_parameters + 2 * (len(warm) + len(drift) + 1)
     assert "sensor_drift_linear_r2" in joint.names and "zero_r3" in joint.names
-    assert not any(n.startswith("thermal") and n.endswith("_r2") for n in joint.names)
+    thermal_per_run = {n for n in joint.names if n.startswith("thermal") and n.endswith("_r2")}
+    assert thermal_per_run == {"thermal_initial_r2", "thermal_initial_core_r2"}  # the network is shared
     rng = np.random.default_rng(0)
     thetas = [model.default_theta() for _ in range(3)]
     for theta in thetas:

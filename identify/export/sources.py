@@ -168,7 +168,8 @@ cc {flags} -o example example.c msma_gpi.c msma_params.c -lm && ./example
 
 - `msma_forward_step(&m, t, i)`: the displacement at time `t` [s] for the drive `i`; the first
   call is the first sample, where the model starts from its identified initial state
-  (thermal cold, training virgin, creep at rest), as `Model.evaluate` does at a record's start.
+  (thermal at the rises the record started with, cold unless the study found a warm start;
+  training virgin, creep at rest), as `Model.evaluate` does at a record's start.
 - `msma_inverse_step(&c, t, y, &status)`: the drive in `[lo, hi]` that makes the model follow
   the target `y`, exactly as `python -m identify compensate` computes it (model/inverse.py,
   sample by sample). `status` is `MSMA_EXACT`, `MSMA_SATURATED` (the current at a limit, the

@@ -58,6 +58,8 @@ C_EFFECTS = {
         "thermal_tau_core",
         "thermal_sensitivity_core",
         "thermal_expansion_core",
+        "thermal_initial",
+        "thermal_initial_core",
     ),
     "sensor_drift": (
         "sensor_drift_linear",

@@ -615,13 +615,15 @@ def confirmed_share(drive: DesignedDrive) -> tuple[float, str | None]:
     return shares[truth], truth
 
 
-def _confirmed_rank(drive: DesignedDrive):
+def confirmed_rank(drive: DesignedDrive):
     """The confirmed drives, best first: the highest smallest share of right names in the
     simulation (the nonlinear refits, the parameters' uncertainty), then :func:`_rank`."""
     return (-confirmed_share(drive)[0], *_rank(drive))
 
 
-def _simulation_text(drive: DesignedDrive) -> str:
+def simulation_text(drive: DesignedDrive) -> str:
+    """The sentence the design's reason ends with: how often the simulation put the truth ahead,
+    the weakest truth named where that is less than always ("" without a confirmation)."""
     share, truth = confirmed_share(drive)
     if truth is None:
         return ""
@@ -693,7 +695,7 @@ def design_drive(
         every = f" (every {ordinal(step)} sample)" if step > 1 else ""
         say(f"confirming a '{drive.family}' drive by simulation{every}")
         drive.confirmed = confirm(drive, contenders, noise, th, rng, step=step)
-    top.sort(key=_confirmed_rank)
+    top.sort(key=confirmed_rank)
     ranked = top + ranked[len(top) :]
     best = ranked[0]
     if step > 1 and n_confirm > 0:
@@ -704,7 +706,7 @@ def design_drive(
         f"The '{best.family}' drive separates every pair: its weakest, '{worst['truth']}' against "
         f"'{worst['rival']}', shows a gap of {worst['gap']:.0f} (noise sd {worst['noise_sd']:.3g}) after the rival "
         f"is refitted to mimic it, a {100 * worst['p_right']:.0f} % chance that the joint diagnosis names the right "
-        f"one.{_simulation_text(best)}"
+        f"one.{simulation_text(best)}"
     )
     return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0)
 

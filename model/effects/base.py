@@ -139,6 +139,9 @@ class Effect:
     #: (a virgin material that trains, a prior state, a strain the first cycle leaves). A
     #: record with one first loading can hold such parts without telling them apart.
     first_cycle: ClassVar[bool] = False
+    #: parameters a labelling symmetry (:meth:`canonical`) maps to themselves while they are at
+    #: their :attr:`off` value: pinned there, they leave the symmetry in force
+    labelling_keeps_off: ClassVar[tuple[str, ...]] = ()
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

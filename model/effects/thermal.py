@@ -32,9 +32,7 @@ def _thermal_lane(rise, rise2, x_prev, x_now, gain1, decay1, gain2, decay2, y, s
 
 
 @njit(cache=True)
-def _thermal_four(
-    w0, index, steps, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2, displacement, out
-):
+def _thermal_four(w0, index, steps, heating, p, displacement, out):
     """Parameter sets ``w0 .. w0 + 3`` of :func:`_thermal_kernel` in lockstep (both nodes,
     tabulated): four independent recursions interleaved, so one's latency hides behind the
     others'; each set's operations are those of :func:`_thermal_one`, bit for bit."""
@@ -45,18 +43,20 @@ def _thermal_four(
     a2 = np.empty((4, n_steps))
     g2 = np.empty((4, n_steps))
     for lane in range(4):
-        lowpass_table(steps, tau[w0 + lane], a1[lane], g1[lane])
-        lowpass_table(steps, tau2[w0 + lane], a2[lane], g2[lane])
+        lowpass_table(steps, p[w0 + lane, 0], a1[lane], g1[lane])
+        lowpass_table(steps, p[w0 + lane, 3], a2[lane], g2[lane])
     w1, w2, w3 = w0 + 1, w0 + 2, w0 + 3
-    s0, s1, s2, s3 = sensitivity[w0], sensitivity[w1], sensitivity[w2], sensitivity[w3]
-    e0, e1, e2, e3 = expansion[w0], expansion[w1], expansion[w2], expansion[w3]
-    t0, t1, t2, t3 = sensitivity2[w0], sensitivity2[w1], sensitivity2[w2], sensitivity2[w3]
-    f0, f1, f2, f3 = expansion2[w0], expansion2[w1], expansion2[w2], expansion2[w3]
+    s0, s1, s2, s3 = p[w0, 1], p[w1, 1], p[w2, 1], p[w3, 1]
+    e0, e1, e2, e3 = p[w0, 2], p[w1, 2], p[w2, 2], p[w3, 2]
+    t0, t1, t2, t3 = p[w0, 4], p[w1, 4], p[w2, 4], p[w3, 4]
+    f0, f1, f2, f3 = p[w0, 5], p[w1, 5], p[w2, 5], p[w3, 5]
     for lane in range(4):
         w = w0 + lane
-        out[w, 0] = displacement[w, 0] * (1.0 - sensitivity[w] * 0.0) + expansion[w] * 0.0
-    r0 = r1 = r2 = r3 = 0.0
-    q0 = q1 = q2 = q3 = 0.0
+        out[w, 0] = (
+            displacement[w, 0] * (1.0 - p[w, 1] * p[w, 6] - p[w, 4] * p[w, 7]) + p[w, 2] * p[w, 6] + p[w, 5] * p[w, 7]
+        )
+    r0, r1, r2, r3 = p[w0, 6], p[w1, 6], p[w2, 6], p[w3, 6]
+    q0, q1, q2, q3 = p[w0, 7], p[w1, 7], p[w2, 7], p[w3, 7]
     for k in range(1, n_samples):
         m = index[k]
         x_prev = heating[k - 1]
@@ -80,27 +80,28 @@ def _thermal_four(
 
 
 @njit(cache=True)
-def _thermal_one(
-    w, time, steps, index, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2, displacement, out
-):
+def _thermal_one(w, time, steps, index, heating, p, displacement, out):
     """Parameter set ``w`` of :func:`_thermal_kernel`, alone (any case)."""
     n_samples = displacement.shape[1]
     n_steps = steps.shape[0]
     tabulated = n_steps > 0
-    second = sensitivity2[w] != 0.0 or expansion2[w] != 0.0
-    table1 = tabulated and tau[w] > 0.0
-    table2 = tabulated and tau2[w] > 0.0
+    second = p[w, 4] != 0.0 or p[w, 5] != 0.0
+    table1 = tabulated and p[w, 0] > 0.0
+    table2 = tabulated and p[w, 3] > 0.0
     decay1 = np.empty(n_steps)
     gain1 = np.empty(n_steps)
     decay2 = np.empty(n_steps)
     gain2 = np.empty(n_steps)
     if table1:
-        lowpass_table(steps, tau[w], decay1, gain1)
+        lowpass_table(steps, p[w, 0], decay1, gain1)
     if table2 and second:
-        lowpass_table(steps, tau2[w], decay2, gain2)
-    rise = 0.0
-    rise2 = 0.0
-    out[w, 0] = displacement[w, 0] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
+        lowpass_table(steps, p[w, 3], decay2, gain2)
+    rise = p[w, 6]
+    rise2 = p[w, 7]
+    if second:
+        out[w, 0] = displacement[w, 0] * (1.0 - p[w, 1] * rise - p[w, 4] * rise2) + p[w, 2] * rise + p[w, 5] * rise2
+    else:
+        out[w, 0] = displacement[w, 0] * (1.0 - p[w, 1] * rise) + p[w, 2] * rise
     for k in range(1, n_samples):
         previous = rise
         x_prev = heating[k - 1]
@@ -109,26 +110,24 @@ def _thermal_one(
             m = index[k]
             rise = x_now - (x_now - x_prev) * gain1[m] + decay1[m] * (rise - x_prev)
         else:
-            rise = lowpass_step(rise, x_prev, x_now, time[k] - time[k - 1], tau[w])
+            rise = lowpass_step(rise, x_prev, x_now, time[k] - time[k - 1], p[w, 0])
         if second:
             if table2:
                 m = index[k]
                 rise2 = rise - (rise - previous) * gain2[m] + decay2[m] * (rise2 - previous)
             else:
-                rise2 = lowpass_step(rise2, previous, rise, time[k] - time[k - 1], tau2[w])
-            out[w, k] = (
-                displacement[w, k] * (1.0 - sensitivity[w] * rise - sensitivity2[w] * rise2)
-                + expansion[w] * rise
-                + expansion2[w] * rise2
-            )
+                rise2 = lowpass_step(rise2, previous, rise, time[k] - time[k - 1], p[w, 3])
+            out[w, k] = displacement[w, k] * (1.0 - p[w, 1] * rise - p[w, 4] * rise2) + p[w, 2] * rise + p[w, 5] * rise2
         else:
-            out[w, k] = displacement[w, k] * (1.0 - sensitivity[w] * rise) + expansion[w] * rise
+            out[w, k] = displacement[w, k] * (1.0 - p[w, 1] * rise) + p[w, 2] * rise
 
 
 @njit(parallel=True, cache=True)
-def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivity2, expansion2, displacement, out):
+def _thermal_kernel(time, heating, p, displacement, out):
     """Two-node thermal network: ``rise`` (node 1) low-passes ``heating``, ``rise2`` (node 2)
-    low-passes ``rise`` (both from 0); ``out = displacement (1 - S rise - S2 rise2) + E rise + E2 rise2``.
+    low-passes ``rise`` (from the start rises); ``out = displacement (1 - S rise - S2 rise2) + E
+    rise + E2 rise2``. ``p``: shape ``(W, 8)``, per parameter set ``tau, S, E, tau2, S2, E2``
+    and the two start rises (:class:`Thermal`'s parameter order).
     Node 2 is skipped (exactly the one-node form) where both of its gains are 0.
 
     With at most :data:`MAX_DISTINCT_STEPS` distinct sample steps (uniform sampling has a
@@ -147,40 +146,13 @@ def _thermal_kernel(time, heating, tau, sensitivity, expansion, tau2, sensitivit
         w_end = min(w0 + 4, n_sets)
         lockstep = tabulated and w_end - w0 == 4
         for w in range(w0, w_end):
-            if not (tau[w] > 0.0 and tau2[w] > 0.0 and (sensitivity2[w] != 0.0 or expansion2[w] != 0.0)):
+            if not (p[w, 0] > 0.0 and p[w, 3] > 0.0 and (p[w, 4] != 0.0 or p[w, 5] != 0.0)):
                 lockstep = False
         if lockstep:
-            _thermal_four(
-                w0,
-                index,
-                steps,
-                heating,
-                tau,
-                sensitivity,
-                expansion,
-                tau2,
-                sensitivity2,
-                expansion2,
-                displacement,
-                out,
-            )
+            _thermal_four(w0, index, steps, heating, p, displacement, out)
         else:
             for w in range(w0, w_end):
-                _thermal_one(
-                    w,
-                    time,
-                    steps,
-                    index,
-                    heating,
-                    tau,
-                    sensitivity,
-                    expansion,
-                    tau2,
-                    sensitivity2,
-                    expansion2,
-                    displacement,
-                    out,
-                )
+                _thermal_one(w, time, steps, index, heating, p, displacement, out)
 
 
 def thermal_rise(time, current, tau):
@@ -216,7 +188,7 @@ class Thermal(Effect):
 
         \tau_T \dot\vartheta_1 = \Big(\frac{i}{i_\mathrm{ref}}\Big)^2 - \vartheta_1, \quad
         \tau_2 \dot\vartheta_2 = \vartheta_1 - \vartheta_2, \quad
-        \vartheta_{1,2}(t_0) = 0,
+        \vartheta_1(t_0) = \vartheta_{1,0}, \quad \vartheta_2(t_0) = \vartheta_{2,0},
 
         y = y_g\,(1 - S\,\vartheta_1 - S_2\,\vartheta_2) + E\,\vartheta_1 + E_2\,\vartheta_2
 
@@ -227,8 +199,11 @@ class Thermal(Effect):
     its transformation temperatures; e.g. Heczko and Straka, J. Appl. Phys. 2003; the
     sample sits in the core, node 2, but a fast node is also what a thin sample close to
     the coil sees), :math:`E, E_2` [um] the thermal expansion seen by the sensor (coil
-    former and frame follow the coil, rod and core follow node 2). :math:`\vartheta = 0`
-    before the coils are energised, so the quiet start is untouched. Any linear two-node
+    former and frame follow the coil, rod and core follow node 2). The rises at the record's
+    start, :math:`\vartheta_{1,0}, \vartheta_{2,0}`, are the heat earlier runs left (run
+    parameters: each record of a transducer has its own); at 0 (off, the default) the network
+    starts cold and the quiet start is untouched, otherwise the quiet start shows the nodes
+    cooling. Any linear two-node
     network (coil and sample/core, each with a heat capacity, coupled to each other and to
     the ambient) has a response of this two-pole form with two gains per output term;
     :math:`S_2 = E_2 = 0` is the one-pole form (exactly: node 2 is not computed), and a
@@ -244,7 +219,10 @@ class Thermal(Effect):
     :math:`\vartheta_1'` the one-pole rise through :math:`\tau_2`, so swapping the time
     constants and mapping each gain pair :math:`(G_1, G_2) \to (G_1 \tau_2/\tau_T,\;
     G_2 + G_1 (1 - \tau_2/\tau_T))` (for :math:`G = S` and :math:`G = E`) gives the same
-    output exactly (:meth:`swap_nodes`). The canonical labelling, the physical one, has
+    output exactly (:meth:`swap_nodes`; the start's rises map as
+    :math:`(\vartheta_{1,0}, \vartheta_{2,0}) \to ((\vartheta_{2,0} - c\,\vartheta_{1,0})/c',\;
+    \vartheta_{2,0})`, :math:`c = \tau_T/(\tau_T - \tau_2)`, :math:`c' = \tau_2/(\tau_2 - \tau_T)`,
+    which matches both free decays). The canonical labelling, the physical one, has
     the coil faster than the core, :math:`\tau_T \le \tau_2`; the least squares maps
     its result there and the posterior's support is that half (when all six parameters
     vary), so the posterior has one mode, not two mirror images.
@@ -261,7 +239,13 @@ class Thermal(Effect):
     Parameters: ``thermal_tau`` [s] (1-2000), ``thermal_sensitivity`` (-0.5-0.5),
     ``thermal_expansion`` [um] (-50-50) for node 1 (the coil); ``thermal_tau_core`` [s]
     (1-5000), ``thermal_sensitivity_core`` (-0.5-0.5), ``thermal_expansion_core`` [um]
-    (-50-50) for node 2 (sample and core). Off: every sensitivity and expansion 0.
+    (-50-50) for node 2 (sample and core); ``thermal_initial``, ``thermal_initial_core``
+    (0-2, run parameters) the nodes' normalised rises at the record's start, pinned at 0 (a cold
+    start: on a record that starts cold a free start is a flat direction that only slows a fit)
+    unless freed (``model.parameters.replace("thermal_initial", vary=True)``; optional terms
+    ``warm_start``, ``warm_start_core``: a study with them free pins them off where the record
+    starts cold).
+    Off: every sensitivity and expansion 0.
     """
 
     name = "thermal"
@@ -311,6 +295,26 @@ class Thermal(Effect):
                 unit="um",
                 description="displacement from thermal expansion at unit normalised rise of node 2",
             ),
+            Parameter(
+                "thermal_initial",
+                0.0,
+                0.0,
+                2.0,
+                unit="",
+                description="normalised rise of node 1 at the record's start (heat left by earlier runs)",
+                per_record=True,
+                vary=False,
+            ),
+            Parameter(
+                "thermal_initial_core",
+                0.0,
+                0.0,
+                2.0,
+                unit="",
+                description="normalised rise of node 2 at the record's start (heat left by earlier runs)",
+                per_record=True,
+                vary=False,
+            ),
         ]
     )
     summary = (
@@ -321,12 +325,17 @@ class Thermal(Effect):
         "follows the drive's power, not the strain: builds up while current flows and decays with its time "
         "constants once the drive stops (a record that ends with the drive off for a few time constants shows it)"
     )
-    terms = {"core": ("thermal_tau_core", "thermal_sensitivity_core", "thermal_expansion_core")}
+    terms = {
+        "core": ("thermal_tau_core", "thermal_sensitivity_core", "thermal_expansion_core"),
+        "warm_start": ("thermal_initial",),
+        "warm_start_core": ("thermal_initial_core",),
+    }
+    labelling_keeps_off = ("thermal_initial", "thermal_initial_core")
 
     @staticmethod
     def swap_nodes(values: dict[str, float]) -> dict[str, float]:
-        """The other labelling of the same output: time constants swapped, gains mapped
-        (class docstring, "Symmetry"). Its own inverse; needs distinct time constants."""
+        """The other labelling of the same output: time constants swapped, gains and the start's
+        rises mapped (class docstring, "Symmetry"). Its own inverse; needs distinct time constants."""
         tau1, tau2 = values["thermal_tau"], values["thermal_tau_core"]
         ratio = tau2 / tau1
         out = dict(values)
@@ -337,6 +346,10 @@ class Thermal(Effect):
         ):
             out[g1] = values[g1] * ratio
             out[g2] = values[g2] + values[g1] * (1.0 - ratio)
+        if "thermal_initial" in values:
+            a, b = values["thermal_initial"], values.get("thermal_initial_core", 0.0)
+            out["thermal_initial"] = (b - a * tau1 / (tau1 - tau2)) * (tau2 - tau1) / tau2
+            out["thermal_initial_core"] = b
         return out
 
     @classmethod
@@ -356,18 +369,24 @@ class Thermal(Effect):
         by a fast node 1 without gains feeding node 2, so a two-node fit may have put it on
         either node."""
         starts = super().reduced_starts(values, term)
+        if term != "core":
+            return starts
         moved = {
             "thermal_tau": values["thermal_tau_core"],
             "thermal_sensitivity": values["thermal_sensitivity_core"],
             "thermal_expansion": values["thermal_expansion_core"],
         }
+        if "thermal_initial_core" in values:
+            moved["thermal_initial"] = values["thermal_initial_core"]
         return starts + [{**starts[0], **moved}]  # the caller clips a start to the model's bounds
 
     @classmethod
     def term_reductions(cls, term):
-        """Node 2 off, or node 1 without gains at its fastest (1 s): a one-pole heating fitted
-        on node 2 behind a fast node 1, the second labelling of the one-node form (up to node
-        1's residual lag of 1 s)."""
+        """The core: node 2 off, or node 1 without gains at its fastest (1 s): a one-pole heating
+        fitted on node 2 behind a fast node 1, the second labelling of the one-node form (up to
+        node 1's residual lag of 1 s). A warm start: the node's start rise 0."""
+        if term != "core":
+            return super().term_reductions(term)
         fastest = cls.parameters["thermal_tau"].lower
         return super().term_reductions(term) + [
             {"thermal_tau": fastest, "thermal_sensitivity": 0.0, "thermal_expansion": 0.0}
@@ -382,6 +401,8 @@ class Thermal(Effect):
             "thermal_tau_core": 300.0,
             "thermal_sensitivity_core": 0.0,
             "thermal_expansion_core": 0.0,
+            "thermal_initial": 0.0,
+            "thermal_initial_core": 0.0,
         }
 
     def output(self, params, time, current, displacement):
@@ -391,8 +412,6 @@ class Thermal(Effect):
         displacement = np.ascontiguousarray(np.atleast_2d(displacement), dtype=float)
         out = np.empty_like(displacement)
         p = self.values(params)
-        columns = (p.tau, p.sensitivity, p.expansion, p.tau_core, p.sensitivity_core, p.expansion_core)
-        _thermal_kernel(
-            kernel_array(time), heating, *(kernel_array(c) for c in columns), kernel_array(displacement), out
-        )
+        network = np.ascontiguousarray(np.column_stack(tuple(p)), dtype=float)  # (W, 8), the parameter order
+        _thermal_kernel(kernel_array(time), heating, network, kernel_array(displacement), out)
         return out

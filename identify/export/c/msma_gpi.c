@@ -115,9 +115,10 @@ static int check_params(const msma_params *p) {
         if (!finite_all(p->creep_log_tau, (size_t)p->creep_log_modes)) return MSMA_BAD_PARAMETER;
     }
     if (p->has_thermal) {
-        const double th[6] = {p->thermal_tau,      p->thermal_sensitivity,      p->thermal_expansion,
-                              p->thermal_tau_core, p->thermal_sensitivity_core, p->thermal_expansion_core};
-        if (!finite_all(th, 6)) return MSMA_BAD_PARAMETER;
+        const double th[8] = {p->thermal_tau,      p->thermal_sensitivity,      p->thermal_expansion,
+                              p->thermal_tau_core, p->thermal_sensitivity_core, p->thermal_expansion_core,
+                              p->thermal_initial,  p->thermal_initial_core};
+        if (!finite_all(th, 8)) return MSMA_BAD_PARAMETER;
     }
     if (p->has_sensor_drift) {
         const double sd[7] = {p->sensor_drift_linear,         p->sensor_drift_quadratic,
@@ -332,9 +333,16 @@ double msma_forward_step(msma_forward *m, double t, double i) {
         m->creep_direction = 0.0;
         m->creep_x_prev = y_strain;
         y = y_strain;
-        m->rise = 0.0;
-        m->rise2 = 0.0;
-        if (p->has_thermal) y = y * (1.0 - p->thermal_sensitivity * 0.0) + p->thermal_expansion * 0.0;
+        m->rise = p->has_thermal ? p->thermal_initial : 0.0; /* the nodes' rises at the run's start */
+        m->rise2 = p->has_thermal ? p->thermal_initial_core : 0.0;
+        if (p->has_thermal) {
+            if (p->thermal_sensitivity_core != 0.0 || p->thermal_expansion_core != 0.0) {
+                y = y * (1.0 - p->thermal_sensitivity * m->rise - p->thermal_sensitivity_core * m->rise2) +
+                    p->thermal_expansion * m->rise + p->thermal_expansion_core * m->rise2;
+            } else {
+                y = y * (1.0 - p->thermal_sensitivity * m->rise) + p->thermal_expansion * m->rise;
+            }
+        }
     } else {
         double h = t - m->t_prev, dv;
         if (p->has_lag) u1 = lowpass_step(m->u1_prev, m->i_prev, i, h, p->lag_tau);
@@ -540,7 +548,7 @@ static evaluation evaluate(const msma_inverse *c, double i, int first, int side)
     }
     e.y_stage = e.y;
     if (p->has_thermal) {
-        double rise = 0.0, rise2 = 0.0;
+        double rise = th[7], rise2 = th[8]; /* the nodes' rises at the run's start */
         if (!first) {
             double quotient = i / th[3];
             double heating = quotient * quotient;
@@ -575,8 +583,8 @@ static double commit(msma_inverse *c, double i, int first) {
         st[16] = 0.0;
         st[17] = e.y_strain;
         st[18] = e.y_strain;
-        st[7] = 0.0;
-        st[13] = 0.0;
+        st[7] = c->th[7];
+        st[13] = c->th[8];
         st[5] = 1.0;
         st[10] = 0.0;
         st[11] = e.y_gpi;
@@ -907,6 +915,7 @@ int msma_inverse_init(msma_inverse *c, const msma_params *p, double lo, double h
     c->th[0] = p->thermal_tau, c->th[1] = p->thermal_sensitivity, c->th[2] = p->thermal_expansion;
     c->th[3] = REFERENCE_CURRENT, c->th[4] = p->thermal_tau_core, c->th[5] = p->thermal_sensitivity_core;
     c->th[6] = p->thermal_expansion_core;
+    c->th[7] = p->has_thermal ? p->thermal_initial : 0.0, c->th[8] = p->has_thermal ? p->thermal_initial_core : 0.0;
     c->previous_step = 0.1 * (hi - lo);
     c->step = -1.0;
     return MSMA_OK;
