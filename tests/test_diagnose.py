@@ -871,3 +871,23 @@ def test_the_diagnose_command_waits_passively_unless_told(monkeypatch):
     monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
     passive_waiting()
     assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+
+
+def test_a_parameter_pinned_by_default_is_neither_charged_nor_moved_by_a_mimicking_start():
+    """thermal's start rises are pinned (a cold start): adding thermal costs its six network
+    parameters (initial_state its three free ones), and the start that mimics another
+    explanation leaves the rises at 0."""
+    from identify.diagnosis.mimic import mimic_start
+    from model import EFFECTS, TABLE1, THETA_NAMES
+
+    assert EFFECTS["thermal"].n_varying() == len(EFFECTS["thermal"].parameters) - 2 == 6
+    assert EFFECTS["initial_state"].n_varying() == 3  # its memory level: pinned, an exact reparametrisation
+    record = simulate("creep_amplitude=0.03", fs=10.0, seed=2).record
+    gpi = dict(zip(THETA_NAMES, TABLE1))
+    named = Model(["creep"])
+    named_theta = named.theta_from_dict({**gpi, "creep_amplitude": 0.03})
+    model_e = Model(["thermal"])
+    theta = mimic_start(named, named_theta, model_e, "thermal", record.time, record.current)
+    values = model_e.theta_dict(theta)
+    assert values["thermal_initial"] == 0.0 and values["thermal_initial_core"] == 0.0
+    assert values["thermal_expansion"] != 0.0 or values["thermal_sensitivity"] != 0.0  # it did mimic

@@ -281,7 +281,7 @@ def evaluate(ref: Reference, name: str, model_e: Model, start, screening=None, m
 def failed_candidate(name: str, screening, fit: FitResult, n: float, stage: str, exc: Exception) -> CandidateResult:
     """A ranking entry for a candidate whose refit could not start or failed: no gain (delta BIC
     = -k ln n_eff, the cost of its parameters), the reason in ``note``."""
-    k = sum(len(get_effect(e).parameters) for e in name.split("+"))
+    k = sum(get_effect(e).n_varying() for e in name.split("+"))
     return CandidateResult(
         name,
         screening,

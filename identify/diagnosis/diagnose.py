@@ -221,7 +221,7 @@ def _unrefitted(rnd: Round) -> list:
             else (short.chi2, short.model, short.theta)
         )
         chi2 = min(max(chi2, 1e-300), rnd.chi2_small)
-        gain = rnd.working_gain(chi2, len(get_effect(name).parameters))
+        gain = rnd.working_gain(chi2, get_effect(name).n_varying())
         drop = rnd.chi2_small - chi2
         entry = unrefitted_candidate(
             name,
@@ -241,7 +241,7 @@ def _not_identifiable(redundant, rnd: Round) -> list:
     """Ranking entries of the exact reparametrisations: no gain, the reason in the note."""
     entries = []
     for name in redundant:
-        k = len(get_effect(name).parameters)
+        k = get_effect(name).n_varying()
         entries.append(
             CandidateResult(
                 name,

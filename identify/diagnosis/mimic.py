@@ -60,7 +60,7 @@ def mimic_start(
         return None
     target = np.asarray(named_model(np.asarray(named_theta, dtype=float), time, current), dtype=float)
     base = embed(named_model, named_theta, model_e, drop_extra=True)
-    own = list(get_effect(name).parameters.names)
+    own = [n for n in get_effect(name).parameters.names if model_e.parameters[n].vary]  # a pinned one stays
     index = [model_e.names.index(n) for n in own]
     lower = np.array([model_e.parameters[n].lower for n in own])
     upper = np.array([model_e.parameters[n].upper for n in own])

@@ -58,7 +58,7 @@ def pair_pool(rnd: Round) -> list:
             seen.add(c.effect)
     for name in sorted(rnd.short, key=lambda n: rnd.short[n].chi2):
         short = rnd.short[name]
-        if name not in seen and rnd.working_gain(short.chi2, len(get_effect(name).parameters)) > 0.0:
+        if name not in seen and rnd.working_gain(short.chi2, get_effect(name).n_varying()) > 0.0:
             pool.append((name, fit.model + name, short.theta))
             seen.add(name)
     return pool
@@ -72,7 +72,7 @@ def _charged(rnd: Round) -> dict:
         if c.fit is not None:
             effect = get_effect(c.effect)
             unused = sum(len(effect.terms[entry.split(".", 1)[1]]) for entry in c.uncharged_terms)
-            charged[c.effect] = len(effect.parameters) - unused
+            charged[c.effect] = effect.n_varying() - unused
     return charged
 
 
@@ -168,7 +168,7 @@ def search_pairs(s: Setting, rnd: Round) -> None:
     charged = _charged(rnd)
 
     def gain(name):
-        k = sum(charged.get(n, len(get_effect(n).parameters)) for n in name.split("+"))
+        k = sum(charged.get(n, get_effect(n).n_varying()) for n in name.split("+"))
         return rnd.working_gain(rnd.pair_shorts[name].chi2, k)
 
     ranked = sorted(rnd.pair_shorts, key=gain, reverse=True)

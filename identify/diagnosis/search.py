@@ -292,7 +292,7 @@ def _worth_finishing(s: Setting, rnd: Round, name: str, chi2: float, rank: int) 
     candidate's gain from below)."""
     if chi2 >= rnd.chi2_small:
         return False
-    k = len(get_effect(name).parameters)
+    k = get_effect(name).n_varying()
     return rank < s.thresholds.max_refits or rnd.working_gain(chi2, k) > s.thresholds.bic_significant
 
 

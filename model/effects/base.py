@@ -166,6 +166,12 @@ class Effect:
             cls._values_type = view
         return view(*(np.ascontiguousarray(params[:, i]) for i in range(params.shape[1])))
 
+    @classmethod
+    def n_varying(cls) -> int:
+        """How many of the effect's parameters vary by default: what adding it costs in a
+        parameter count (one pinned by default, e.g. the state a run starts in, is not charged)."""
+        return sum(1 for p in cls.parameters if p.vary)
+
     def drive(self, params, time, current):  # pragma: no cover - protocol
         """Stage ``"input"``: drive seen by the hysteresis, shape ``(W, T)`` [A]."""
         raise NotImplementedError
