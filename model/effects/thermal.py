@@ -22,13 +22,22 @@ REFERENCE_CURRENT = 5.0
 
 
 @njit(cache=True, inline="always")
+def _thermal_output(y, s, e, s2, e2, rise, rise2, second):
+    """The displacement ``y`` with the network's effect at the nodes' rises (node 2 only where
+    ``second``: its gains are not both 0), the kernels' one formula."""
+    if second:
+        return y * (1.0 - s * rise - s2 * rise2) + e * rise + e2 * rise2
+    return y * (1.0 - s * rise) + e * rise
+
+
+@njit(cache=True, inline="always")
 def _thermal_lane(rise, rise2, x_prev, x_now, gain1, decay1, gain2, decay2, y, s, e, s2, e2):
     """One sample of one parameter set of :func:`_thermal_kernel` (both nodes, tabulated
     coefficients): ``(rise, rise2, output)``, the kernel's operations in its order."""
     previous = rise
     rise = x_now - (x_now - x_prev) * gain1 + decay1 * (rise - x_prev)
     rise2 = rise - (rise - previous) * gain2 + decay2 * (rise2 - previous)
-    return rise, rise2, y * (1.0 - s * rise - s2 * rise2) + e * rise + e2 * rise2
+    return rise, rise2, _thermal_output(y, s, e, s2, e2, rise, rise2, True)
 
 
 @njit(cache=True)
@@ -52,9 +61,7 @@ def _thermal_four(w0, index, steps, heating, p, displacement, out):
     f0, f1, f2, f3 = p[w0, 5], p[w1, 5], p[w2, 5], p[w3, 5]
     for lane in range(4):
         w = w0 + lane
-        out[w, 0] = (
-            displacement[w, 0] * (1.0 - p[w, 1] * p[w, 6] - p[w, 4] * p[w, 7]) + p[w, 2] * p[w, 6] + p[w, 5] * p[w, 7]
-        )
+        out[w, 0] = _thermal_output(displacement[w, 0], p[w, 1], p[w, 2], p[w, 4], p[w, 5], p[w, 6], p[w, 7], True)
     r0, r1, r2, r3 = p[w0, 6], p[w1, 6], p[w2, 6], p[w3, 6]
     q0, q1, q2, q3 = p[w0, 7], p[w1, 7], p[w2, 7], p[w3, 7]
     for k in range(1, n_samples):
@@ -98,10 +105,7 @@ def _thermal_one(w, time, steps, index, heating, p, displacement, out):
         lowpass_table(steps, p[w, 3], decay2, gain2)
     rise = p[w, 6]
     rise2 = p[w, 7]
-    if second:
-        out[w, 0] = displacement[w, 0] * (1.0 - p[w, 1] * rise - p[w, 4] * rise2) + p[w, 2] * rise + p[w, 5] * rise2
-    else:
-        out[w, 0] = displacement[w, 0] * (1.0 - p[w, 1] * rise) + p[w, 2] * rise
+    out[w, 0] = _thermal_output(displacement[w, 0], p[w, 1], p[w, 2], p[w, 4], p[w, 5], rise, rise2, second)
     for k in range(1, n_samples):
         previous = rise
         x_prev = heating[k - 1]
@@ -117,9 +121,7 @@ def _thermal_one(w, time, steps, index, heating, p, displacement, out):
                 rise2 = rise - (rise - previous) * gain2[m] + decay2[m] * (rise2 - previous)
             else:
                 rise2 = lowpass_step(rise2, previous, rise, time[k] - time[k - 1], p[w, 3])
-            out[w, k] = displacement[w, k] * (1.0 - p[w, 1] * rise - p[w, 4] * rise2) + p[w, 2] * rise + p[w, 5] * rise2
-        else:
-            out[w, k] = displacement[w, k] * (1.0 - p[w, 1] * rise) + p[w, 2] * rise
+        out[w, k] = _thermal_output(displacement[w, k], p[w, 1], p[w, 2], p[w, 4], p[w, 5], rise, rise2, second)
 
 
 @njit(parallel=True, cache=True)

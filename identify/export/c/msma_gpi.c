@@ -233,6 +233,16 @@ static double gpi_move(msma_forward *m, double u, int d, double width) {
 }
 
 /* The sensor drift at elapsed time e (model.effects.SensorDrift.drift). */
+/* The displacement y with the thermal network's effect at the nodes' rises; node 2 only where its
+ * gains are not both 0 (model.effects.thermal's _thermal_output). */
+static double thermal_output(const msma_params *p, double y, double rise, double rise2) {
+    if (p->thermal_sensitivity_core != 0.0 || p->thermal_expansion_core != 0.0) {
+        return y * (1.0 - p->thermal_sensitivity * rise - p->thermal_sensitivity_core * rise2) +
+               p->thermal_expansion * rise + p->thermal_expansion_core * rise2;
+    }
+    return y * (1.0 - p->thermal_sensitivity * rise) + p->thermal_expansion * rise;
+}
+
 static double sensor_drift(const msma_params *p, double e) {
     double s = p->horizon > 0.0 ? e / p->horizon : 0.0;
     double drift = p->sensor_drift_linear * s + p->sensor_drift_quadratic * (s * s);
@@ -335,14 +345,7 @@ double msma_forward_step(msma_forward *m, double t, double i) {
         y = y_strain;
         m->rise = p->has_thermal ? p->thermal_initial : 0.0; /* the nodes' rises at the run's start */
         m->rise2 = p->has_thermal ? p->thermal_initial_core : 0.0;
-        if (p->has_thermal) {
-            if (p->thermal_sensitivity_core != 0.0 || p->thermal_expansion_core != 0.0) {
-                y = y * (1.0 - p->thermal_sensitivity * m->rise - p->thermal_sensitivity_core * m->rise2) +
-                    p->thermal_expansion * m->rise + p->thermal_expansion_core * m->rise2;
-            } else {
-                y = y * (1.0 - p->thermal_sensitivity * m->rise) + p->thermal_expansion * m->rise;
-            }
-        }
+        if (p->has_thermal) y = thermal_output(p, y, m->rise, m->rise2);
     } else {
         double h = t - m->t_prev, dv;
         if (p->has_lag) u1 = lowpass_step(m->u1_prev, m->i_prev, i, h, p->lag_tau);
@@ -379,11 +382,8 @@ double msma_forward_step(msma_forward *m, double t, double i) {
             m->rise = lowpass_step(m->rise, m->heating_prev, heating, h, p->thermal_tau);
             if (p->thermal_sensitivity_core != 0.0 || p->thermal_expansion_core != 0.0) {
                 m->rise2 = lowpass_step(m->rise2, previous, m->rise, h, p->thermal_tau_core);
-                y = y * (1.0 - p->thermal_sensitivity * m->rise - p->thermal_sensitivity_core * m->rise2) +
-                    p->thermal_expansion * m->rise + p->thermal_expansion_core * m->rise2;
-            } else {
-                y = y * (1.0 - p->thermal_sensitivity * m->rise) + p->thermal_expansion * m->rise;
             }
+            y = thermal_output(p, y, m->rise, m->rise2);
         }
         m->y_strain_before = m->y_strain_prev;
     }
