@@ -33,7 +33,7 @@ function :math:`y_k(i)` of the present current alone, and on each *side* it is m
 
 So sample by sample, the inverse solves :math:`y_k(i) = y^*_k` on one side by a
 bracketed search in the current (an expanding probe from the previous current, then
-Illinois regula falsi with bisection as the safeguard; the edge of a side located on the
+Brent's method; the edge of a side located on the
 input stage alone; the details in :mod:`model.inverse_search`), commits the state with the
 current found, and moves on. Each root is found to ``ytol`` in the output (default
 ``1e-12 (1 + max|y*|)``, rounding level): the model driven by the returned current

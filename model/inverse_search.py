@@ -2,7 +2,7 @@
 
 :func:`inverse_kernel` walks the target sample by sample for a batch of parameter sets
 (parallel over the batch): it chooses the side (rising or falling) from the target, finds the
-current with an expanding probe and Illinois regula falsi safeguarded by bisection
+current with an expanding probe and Brent's method
 (``_search`` on ``_objective``, the output's distance from the target through
 :func:`model.inverse_step.evaluate_step`; a side's edge located on the drive alone, ``_edge``
 on ``_gap``), handles the Omega switch at a reversal and the current limits, and commits the
@@ -14,12 +14,14 @@ for operation: a change here is a change there.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
 from .effects.thermal import REFERENCE_CURRENT
 from .gpi_kernels import operator_thresholds_and_weights
-from .inverse_step import commit_step, drive_step, evaluate_step, filter_coefficients
+from .inverse_step import commit_step, creep_prepare, drive_step, evaluate_step, filter_coefficients
 
 __all__ = ["inverse_kernel"]
 
@@ -48,10 +50,7 @@ def _objective(
     tr,
     creep_on,
     creep_params,
-    modes,
-    creep_gain,
-    creep_decay,
-    creep_active,
+    creep_affine,
     thermal_on,
     th,
     thermal_c,
@@ -73,10 +72,7 @@ def _objective(
         tr,
         creep_on,
         creep_params,
-        modes,
-        creep_gain,
-        creep_decay,
-        creep_active,
+        creep_affine,
         thermal_on,
         th,
         thermal_c,
@@ -116,6 +112,45 @@ def _gap(x, s, first, st, lag_c, has_training, tr):
     """``s (u(s x) - u_prev)``: how far the drive moves toward side ``s`` (the input stage alone)."""
     _, u, _, _ = drive_step(s * x, first, st, lag_c, has_training, tr)
     return s * (u - st[4])
+
+
+@njit(cache=True)
+def _dead_zone_end(x0, s, first, g, thresholds, memory, n_ops, st, lag_c, has_training, tr):
+    """Where on side ``s`` the drive reaches the first operator it moves (search coordinate).
+
+    The end of the dead zone a reversal leaves, where the output starts to follow the drive: on
+    the rising side the operators move once the envelope passes :math:`\\min_j (m_j + r_j w)`, on
+    the falling side once it passes below :math:`\\max_j (m_j - r_j w)`; the envelope's tanh is
+    inverted there. The current is one secant step on the drive alone (:func:`_gap`) from ``x0``
+    and a unit slope, exact for an affine input stage. A start for the probes, not a root: NaN
+    when no operator is reached or the end lies behind ``x0``.
+    """
+    if first:
+        return np.nan
+    k = 0 if s > 0 else 4
+    _, u, _, fade = drive_step(s * x0, first, st, lag_c, has_training, tr)
+    width = 1.0
+    if has_training and tr[5] != 0.0:
+        width = 1.0 + tr[5] * fade
+    level = np.inf if s > 0 else -np.inf
+    for j in range(n_ops):
+        v = memory[j] + s * thresholds[j] * width
+        level = min(level, v) if s > 0 else max(level, v)
+    arg = (level - g[k + 3]) / g[k]
+    if not abs(arg) < 1.0:
+        return np.nan
+    distance = s * ((math.atanh(arg) - g[k + 2]) / g[k + 1] - st[4])  # the drive's way there
+    d0 = s * (u - st[4])
+    if not distance > d0:
+        return np.nan
+    xb = x0 + (distance - d0)
+    db = _gap(xb, s, first, st, lag_c, has_training, tr)
+    if db == distance:
+        return xb
+    if not db != d0:
+        return np.nan
+    x = xb + (distance - db) * (xb - x0) / (db - d0)
+    return x if np.isfinite(x) and x > x0 else np.nan
 
 
 @njit(cache=True, inline="always")
@@ -190,10 +225,7 @@ def _search(
     tr,
     creep_on,
     creep_params,
-    modes,
-    creep_gain,
-    creep_decay,
-    creep_active,
+    creep_affine,
     thermal_on,
     th,
     thermal_c,
@@ -210,7 +242,8 @@ def _search(
        probes, closes: a lag's edge in one step), then :func:`_edge` to ``_EDGE_WIDTH xtol``;
        the root nearest the previous drive lies there;
     3. probes with steps growing 4x (from ``step0``) go first where a nondecreasing ``F``
-       has its root (up when ``F < 0``), then, if that direction reaches its limit or the
+       has its root (up when ``F < 0``; after a reversal the first probe is at the end of the
+       dead zone it leaves, :func:`_dead_zone_end`, and the steps grow from there), then, if that direction reaches its limit or the
        side's edge without a sign change, the other way, but only as far as ``F`` can still
        fall to 0: while ``thermal`` can lower it by ``|F|`` before the limit (:func:`_thermal_fall`:
        the heating's weight in one step, bounded), always with training's strain part on. Only when
@@ -218,13 +251,13 @@ def _search(
        it examined (a root can lie there when the drive lags the current): the edge is located
        on the drive alone (:func:`_edge`; without input dynamics it is that point itself), and
        ``F`` there, if it changes sign, closes the bracket;
-    4. the bracket is closed by Illinois regula falsi to ``|F| <= rtol`` or a width of
-       ``xtol``, with a bisection after a step that did not halve ``|F|`` at the end it
-       replaced (``F`` flat there, steep at the other end: the end of a dead zone, where the
-       interpolation would crawl), and by bisection while an end is off the side (done at a
-       width of ``_EDGE_WIDTH xtol``).
+    4. the bracket is closed by Brent's method (Brent 1973, as scipy's ``brentq``) to
+       ``|F| <= rtol`` or a width of ``xtol``: the secant or inverse quadratic step while it
+       is short against the steps before it, bisection otherwise (``F`` flat at one end and
+       steep at the other, the end of a dead zone, is where interpolation alone would crawl),
+       and bisection while an end is off the side (done at a width of ``_EDGE_WIDTH xtol``).
 
-    Every loop is capped at ``_MAX_ITERATIONS``; a reversal costs about 20-30 model steps, a
+    Every loop is capped at ``_MAX_ITERATIONS``; a reversal costs about 15-25 model steps, a
     sample in between 2-6.
     Without a sign change the evaluated point of smallest ``|F|`` is returned: a current
     limit (saturated) or the side's edge (an Omega switch). Returns ``(i, F, evaluations)``.
@@ -251,10 +284,7 @@ def _search(
         tr,
         creep_on,
         creep_params,
-        modes,
-        creep_gain,
-        creep_decay,
-        creep_active,
+        creep_affine,
         thermal_on,
         th,
         thermal_c,
@@ -301,10 +331,7 @@ def _search(
             tr,
             creep_on,
             creep_params,
-            modes,
-            creep_gain,
-            creep_decay,
-            creep_active,
+            creep_affine,
             thermal_on,
             th,
             thermal_c,
@@ -341,9 +368,18 @@ def _search(
             continue
         xp, fp = x0, f0
         step = step0
+        # toward the root after a reversal: the first probe at the dead zone's end, the steps grow
+        # from there
+        hint = np.nan
+        if direction > 0 and not away and (st[5] > 0.5) != (s > 0):
+            hint = _dead_zone_end(x0, s, first, g, thresholds, memory, n_ops, st, lag_c, has_training, tr)
         while True:
             x = min(xp + step, x_max) if direction > 0 else max(xp - step, x_min)
-            step *= 4.0
+            if hint > x:
+                x = min(hint, x_max)
+            else:
+                step *= 4.0
+            hint = np.nan
             f, y_stage = _objective(
                 x,
                 s,
@@ -360,10 +396,7 @@ def _search(
                 tr,
                 creep_on,
                 creep_params,
-                modes,
-                creep_gain,
-                creep_decay,
-                creep_active,
+                creep_affine,
                 thermal_on,
                 th,
                 thermal_c,
@@ -419,10 +452,7 @@ def _search(
             tr,
             creep_on,
             creep_params,
-            modes,
-            creep_gain,
-            creep_decay,
-            creep_active,
+            creep_affine,
             thermal_on,
             th,
             thermal_c,
@@ -437,29 +467,30 @@ def _search(
         found = True
     if not found:
         return s * best_x, best_f, n_eval
-    # 4. refine the bracket xl < xr, F changing sign: Illinois regula falsi; a bisection after a
-    # step that did not halve |F| at the end it replaced (F flat there: a dead zone's end, where the
-    # interpolation crawls), and while an end is off the side (done at _EDGE_WIDTH xtol)
-    gl, gr = fl, fr  # the values the interpolation uses (halved by Illinois)
-    last = 0
-    crawl = False
+    # 4. refine the bracket xl < xr, F changing sign: Brent's method (as scipy's brentq: the
+    # secant or inverse quadratic step when it is short, bisection otherwise), by bisection
+    # while an end is off the side (done at a width of _EDGE_WIDTH xtol)
+    xpre, fpre, xcur, fcur, xblk, fblk = xl, fl, xr, fr, xl, fl
+    spre = scur = 0.0
+    delta = 0.5 * xtol
     for _ in range(_MAX_ITERATIONS):
-        width = xr - xl
-        if abs(fl) <= rtol or abs(fr) <= rtol or width <= xtol:
+        if fpre != 0.0 and fcur != 0.0 and (fpre < 0.0) != (fcur < 0.0):
+            xblk, fblk = xpre, fpre
+            spre = scur = xcur - xpre
+        if _magnitude(fblk) < _magnitude(fcur):  # xcur: the better end of the bracket
+            xpre, xcur, xblk = xcur, xblk, xcur
+            fpre, fcur, fblk = fcur, fblk, fcur
+        sbis = 0.5 * (xblk - xcur)
+        if _magnitude(fcur) <= rtol or abs(sbis) <= delta:
             break
-        finite = gl > -np.inf and gr > -np.inf
-        if finite and not crawl:
-            x = xr - gr * (xr - xl) / (gr - gl)
-            if not (xl < x < xr):
-                x = 0.5 * (xl + xr)
-        elif finite:
-            x = 0.5 * (xl + xr)
-        elif width <= _EDGE_WIDTH * xtol:
+        finite = fcur > -np.inf and fpre > -np.inf and fblk > -np.inf
+        if not finite and abs(sbis) <= 0.5 * _EDGE_WIDTH * xtol:
             break
-        else:
-            x = 0.5 * (xl + xr)
-        f, _ = _objective(
-            x,
+        scur, spre = _brent_step(xpre, fpre, xcur, fcur, xblk, fblk, spre, scur, sbis, delta, finite)
+        xpre, fpre = xcur, fcur
+        xcur += scur if abs(scur) > delta else (delta if sbis > 0.0 else -delta)
+        fcur, _ = _objective(
+            xcur,
             s,
             target,
             first,
@@ -474,31 +505,34 @@ def _search(
             tr,
             creep_on,
             creep_params,
-            modes,
-            creep_gain,
-            creep_decay,
-            creep_active,
+            creep_affine,
             thermal_on,
             th,
             thermal_c,
             drift,
         )
         n_eval += 1
-        if (f < 0.0) == (fl < 0.0):
-            crawl = not (abs(f) <= 0.5 * abs(fl))
-            xl, fl, gl = x, f, f
-            if last == -1 and gr > -np.inf:
-                gr *= 0.5
-            last = -1
+    if _magnitude(fblk) < _magnitude(fcur):
+        return s * xblk, fblk, n_eval
+    return s * xcur, fcur, n_eval
+
+
+@njit(cache=True)
+def _brent_step(xpre, fpre, xcur, fcur, xblk, fblk, spre, scur, sbis, delta, finite):
+    """Brent's next step from ``xcur`` and the step before it, ``(scur, spre)``: the secant
+    (``xpre`` is the bracket's other end) or inverse quadratic step when the last steps shrank
+    and it stays well inside the bracket, else the bisection ``sbis`` (always while an end is
+    off the side)."""
+    if finite and abs(spre) > delta and abs(fcur) < abs(fpre):
+        if xpre == xblk:
+            stry = -fcur * (xcur - xpre) / (fcur - fpre)
         else:
-            crawl = not (abs(f) <= 0.5 * abs(fr))
-            xr, fr, gr = x, f, f
-            if last == 1 and gl > -np.inf:
-                gl *= 0.5
-            last = 1
-    if _magnitude(fl) < _magnitude(fr):
-        return s * xl, fl, n_eval
-    return s * xr, fr, n_eval
+            dpre = (fpre - fcur) / (xpre - xcur)
+            dblk = (fblk - fcur) / (xblk - xcur)
+            stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre))
+        if 2.0 * abs(stry) < min(abs(spre), 3.0 * abs(sbis) - delta):
+            return stry, scur
+    return sbis, sbis
 
 
 @njit(parallel=True, cache=True)
@@ -556,6 +590,7 @@ def inverse_kernel(
         creep_gain = np.empty(n_modes)
         creep_decay = np.empty(n_modes)
         creep_active = np.empty(n_modes, dtype=np.bool_)
+        creep_affine = np.zeros(5)  # creep at the present sample, affine in the strain (creep_prepare)
         # scalar state: 0 i_prev, 1 u1_prev (lag output), 2 training's i_0, 3 travel,
         # 4 u_prev (GPI drive), 5 previous sample on Omega's c branch, 6 GPI output prev,
         # 7 temperature rise (node 1), 8 initial memory level z0, 9 heating prev,
@@ -596,6 +631,8 @@ def inverse_kernel(
                     thermal_c[0], thermal_c[1], thermal_c[2] = gain, decay, 1.0 if active else 0.0
                     gain, decay, active = filter_coefficients(h, th[4])
                     thermal_c[3], thermal_c[4], thermal_c[5] = gain, decay, 1.0 if active else 0.0
+                if creep_on:
+                    creep_prepare(st, creep_params[w], modes, creep_gain, creep_decay, creep_active, creep_affine)
             d = drift[w, k]
             tk = target[k]
             if first:
@@ -628,10 +665,7 @@ def inverse_kernel(
                 tr,
                 creep_on,
                 creep_params[w],
-                modes,
-                creep_gain,
-                creep_decay,
-                creep_active,
+                creep_affine,
                 thermal_on,
                 th,
                 thermal_c,
@@ -661,10 +695,7 @@ def inverse_kernel(
                     tr,
                     creep_on,
                     creep_params[w],
-                    modes,
-                    creep_gain,
-                    creep_decay,
-                    creep_active,
+                    creep_affine,
                     thermal_on,
                     th,
                     thermal_c,
@@ -709,6 +740,7 @@ def inverse_kernel(
                 creep_gain,
                 creep_decay,
                 creep_active,
+                creep_affine,
                 thermal_on,
                 th,
                 thermal_c,

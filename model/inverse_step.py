@@ -22,7 +22,7 @@ from .effects._filters import leg_end_level
 from .effects.creep import LOG_CREEP_MODE_WEIGHT
 from .gpi_kernels import initial_operator_memory
 
-__all__ = ["filter_coefficients", "drive_step", "evaluate_step", "commit_step"]
+__all__ = ["filter_coefficients", "drive_step", "evaluate_step", "creep_prepare", "commit_step"]
 
 
 @njit(cache=True)
@@ -106,10 +106,7 @@ def evaluate_step(
     tr,
     creep_on,
     cp,
-    modes,
-    creep_gain,
-    creep_decay,
-    creep_active,
+    creep_affine,
     thermal_on,
     th,
     thermal_c,
@@ -120,8 +117,8 @@ def evaluate_step(
     ``g``: the 16 envelope/Omega coefficients (rising env 0-3, falling env 4-7, Omega c
     8-11, Omega d 12-15). ``st``: scalar state (see the kernel). ``tr``: training's six
     parameters. ``cp``: creep's saturating amplitude, number of saturating modes, logarithmic
-    rate, number of logarithmic modes, the part held to the leg's end (``modes`` holds the
-    saturating modes, then the logarithmic ones). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
+    rate, number of logarithmic modes, the part held to the leg's end; ``creep_affine`` its modes
+    advanced to this sample as sums affine in the strain (:func:`creep_prepare`). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
     reference current, node 2's time constant, sensitivity, expansion, the nodes' rises at the
     record's start; ``thermal_c`` the
     two nodes' step coefficients. ``drift``: the sensor drift at this sample.
@@ -170,26 +167,16 @@ def evaluate_step(
     # training's strain part (the commanded current's travel), then creep, thermal, drift
     y_strain = y_gpi
     if has_training and tr[4] != 0.0 and not first:
-        travel_i = st[10] + abs(i - st[0])
-        y_strain = y_gpi + tr[4] * math.exp(-((travel_i / tr[2]) ** tr[3])) * (y_gpi - st[11])
+        travel_i = st[10] + abs(i - st[0])  # the drive's travel itself without a lag
+        fade_i = fade if travel_i == travel else math.exp(-((travel_i / tr[2]) ** tr[3]))
+        y_strain = y_gpi + tr[4] * fade_i * (y_gpi - st[11])
     y = y_strain
-    if creep_on and not first:
-        n_sat = int(cp[1])
-        n_log = int(cp[3])
+    if creep_on and not first:  # the modes' filter steps, summed ahead (creep_prepare)
         if cp[0] != 0.0:
-            total = 0.0
-            for m in range(n_sat):
-                total += _filter_step(modes[m], st[12], y_strain, creep_gain[m], creep_decay[m], creep_active[m])
-            y = y - cp[0] * (y_strain - total / n_sat)
-        if cp[2] != 0.0 and n_log > 0:
-            x_prev, x_now = st[12], y_strain
-            if cp[4] != 0.0:  # the part creeping from the leg's end sees the held strain
-                held, _ = leg_end_level(st[12], st[15], st[17], st[16])
-                x_prev, x_now = st[18], (1.0 - cp[4]) * y_strain + cp[4] * held
-            grown = 0.0
-            for m in range(n_sat, n_sat + n_log):
-                grown += _filter_step(modes[m], x_prev, x_now, creep_gain[m], creep_decay[m], creep_active[m]) - st[11]
-            y = y + cp[2] * LOG_CREEP_MODE_WEIGHT * grown
+            y = y - cp[0] * (y_strain - (creep_affine[0] * y_strain + creep_affine[1]) / cp[1])
+        if cp[2] != 0.0 and cp[3] > 0.0:
+            x_now = (1.0 - cp[4]) * y_strain + cp[4] * creep_affine[4] if cp[4] != 0.0 else y_strain
+            y = y + cp[2] * LOG_CREEP_MODE_WEIGHT * (creep_affine[2] * x_now + creep_affine[3])
     y_stage = y  # the thermal stage's input
     if thermal_on:
         if first:
@@ -205,6 +192,38 @@ def evaluate_step(
             y = y * (1.0 - th[1] * rise) + th[2] * rise
     y = y + drift
     return y, y_gpi, u1, u, travel, side, y_strain, width, y_stage
+
+
+@njit(cache=True)
+def creep_prepare(st, cp, modes, creep_gain, creep_decay, creep_active, out):
+    """Creep's modes advanced to the present sample, as sums affine in the strain there.
+
+    Each mode is one filter step of the strain (the logarithmic ones of their input) from the
+    committed state, so their sums are ``out[0] y + out[1]`` (the saturating modes) and
+    ``out[2] x + out[3]`` (the logarithmic ones, less their level at the first sample); ``out[4]``
+    the strain held at the last leg's end. Computed once per sample instead of at every model
+    step of the search (``evaluate_step`` reads them).
+    """
+    n_sat = int(cp[1])
+    n_log = int(cp[3])
+    out[:] = 0.0
+    for m in range(n_sat):
+        if creep_active[m]:
+            out[0] += 1.0 - creep_gain[m]
+            out[1] += creep_gain[m] * st[12] + creep_decay[m] * (modes[m] - st[12])
+        else:
+            out[0] += 1.0
+    x_prev = st[12]
+    if cp[4] != 0.0:
+        out[4], _ = leg_end_level(st[12], st[15], st[17], st[16])
+        x_prev = st[18]
+    for m in range(n_sat, n_sat + n_log):
+        if creep_active[m]:
+            out[2] += 1.0 - creep_gain[m]
+            out[3] += creep_gain[m] * x_prev + creep_decay[m] * (modes[m] - x_prev)
+        else:
+            out[2] += 1.0
+        out[3] -= st[11]
 
 
 @njit(cache=True)
@@ -226,6 +245,7 @@ def commit_step(
     creep_gain,
     creep_decay,
     creep_active,
+    creep_affine,
     thermal_on,
     th,
     thermal_c,
@@ -246,10 +266,7 @@ def commit_step(
         tr,
         creep_on,
         cp,
-        modes,
-        creep_gain,
-        creep_decay,
-        creep_active,
+        creep_affine,
         thermal_on,
         th,
         thermal_c,

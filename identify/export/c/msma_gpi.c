@@ -469,6 +469,40 @@ static inline void drive(const msma_inverse *c, double i, int first, double *u1,
     }
 }
 
+/* Creep's modes advanced to the present sample are affine in the strain there (each is one
+ * filter step of it from the committed state): their sums' slope and offset (a[0], a[1] the
+ * saturating modes; a[2], a[3] the logarithmic ones, in their input) and the level held at the
+ * last leg's end (a[4]), once per sample instead of at every model step of the search. */
+static void creep_prepare(msma_inverse *c) {
+    const double *st = c->st, *cp = c->cp;
+    double *a = c->creep_affine, x_prev = st[12];
+    int n_sat = (int)cp[1], n_log = (int)cp[3], q;
+    a[0] = a[1] = a[2] = a[3] = 0.0;
+    a[4] = 0.0;
+    for (q = 0; q < n_sat; q++) {
+        if (c->creep_active[q]) {
+            a[0] += 1.0 - c->creep_gain[q];
+            a[1] += c->creep_gain[q] * st[12] + c->creep_decay[q] * (c->modes[q] - st[12]);
+        } else {
+            a[0] += 1.0;
+        }
+    }
+    if (cp[4] != 0.0) {
+        double direction;
+        leg_end_level(st[12], st[15], st[17], st[16], &a[4], &direction);
+        x_prev = st[18];
+    }
+    for (q = n_sat; q < n_sat + n_log; q++) {
+        if (c->creep_active[q]) {
+            a[2] += 1.0 - c->creep_gain[q];
+            a[3] += c->creep_gain[q] * x_prev + c->creep_decay[q] * (c->modes[q] - x_prev);
+        } else {
+            a[2] += 1.0;
+        }
+        a[3] -= st[11];
+    }
+}
+
 /* The model's output at the present sample for current i, from the committed state (_evaluate).
  * side != 0 (a search on that side): a drive off that side returns at once with e.side set and
  * nothing else computed (the search's objective is -inf there whatever the output). */
@@ -517,33 +551,17 @@ static evaluation evaluate(const msma_inverse *c, double i, int first, int side)
     }
     e.y_strain = e.y_gpi;
     if (p->has_training && tr[4] != 0.0 && !first) {
-        double travel_i = st[10] + fabs(i - st[0]);
-        e.y_strain = e.y_gpi + tr[4] * exp(-pow(travel_i / tr[2], tr[3])) * (e.y_gpi - st[11]);
+        double travel_i = st[10] + fabs(i - st[0]); /* the drive's travel itself without a lag */
+        double fade_i = travel_i == e.travel ? fade : exp(-pow(travel_i / tr[2], tr[3]));
+        e.y_strain = e.y_gpi + tr[4] * fade_i * (e.y_gpi - st[11]);
     }
     e.y = e.y_strain;
-    if (p->has_creep && !first) {
-        int n_sat = (int)cp[1], n_log = (int)cp[3], q;
-        if (cp[0] != 0.0) {
-            double total = 0.0;
-            for (q = 0; q < n_sat; q++) {
-                total += filter_step(c->modes[q], st[12], e.y_strain, c->creep_gain[q], c->creep_decay[q],
-                                     c->creep_active[q]);
-            }
-            e.y = e.y - cp[0] * (e.y_strain - total / n_sat);
-        }
-        if (cp[2] != 0.0 && n_log > 0) {
-            double x_prev = st[12], x_now = e.y_strain, grown = 0.0;
-            if (cp[4] != 0.0) {
-                double held, direction;
-                leg_end_level(st[12], st[15], st[17], st[16], &held, &direction);
-                x_prev = st[18];
-                x_now = (1.0 - cp[4]) * e.y_strain + cp[4] * held;
-            }
-            for (q = n_sat; q < n_sat + n_log; q++) {
-                grown += filter_step(c->modes[q], x_prev, x_now, c->creep_gain[q], c->creep_decay[q], c->creep_active[q]) -
-                         st[11];
-            }
-            e.y = e.y + cp[2] * LOG_CREEP_MODE_WEIGHT * grown;
+    if (p->has_creep && !first) { /* the modes' filter steps, summed ahead (creep_prepare) */
+        const double *a = c->creep_affine;
+        if (cp[0] != 0.0) e.y = e.y - cp[0] * (e.y_strain - (a[0] * e.y_strain + a[1]) / cp[1]);
+        if (cp[2] != 0.0 && cp[3] > 0.0) {
+            double x_now = cp[4] != 0.0 ? (1.0 - cp[4]) * e.y_strain + cp[4] * a[4] : e.y_strain;
+            e.y = e.y + cp[2] * LOG_CREEP_MODE_WEIGHT * (a[2] * x_now + a[3]);
         }
     }
     e.y_stage = e.y;
@@ -715,12 +733,64 @@ static double edge(const msma_inverse *c, double xa, double da, double xb, doubl
     return xb;
 }
 
+/* Brent's next step from xcur (*scur) and the step before it (*spre): the secant (xpre the bracket's
+ * other end) or inverse quadratic step when the last steps shrank and it stays well inside the
+ * bracket, else the bisection sbis (always while an end is off the side) (_brent_step). */
+static void brent_step(double xpre, double fpre, double xcur, double fcur, double xblk, double fblk, double sbis,
+                       double delta, int finite, double *spre, double *scur) {
+    if (finite && fabs(*spre) > delta && fabs(fcur) < fabs(fpre)) {
+        double stry;
+        if (xpre == xblk) {
+            stry = -fcur * (xcur - xpre) / (fcur - fpre);
+        } else {
+            double dpre = (fpre - fcur) / (xpre - xcur), dblk = (fblk - fcur) / (xblk - xcur);
+            stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre));
+        }
+        if (2.0 * fabs(stry) < pmin(fabs(*spre), 3.0 * fabs(sbis) - delta)) {
+            *spre = *scur, *scur = stry;
+            return;
+        }
+    }
+    *spre = sbis, *scur = sbis;
+}
+
+/* Where on side s the drive reaches the first operator it moves, in the search coordinate: the
+ * end of the dead zone a reversal leaves, where the output starts to follow the drive (on the
+ * rising side the operators move once the envelope passes min_j (m_j + r_j w), on the falling side
+ * once it passes below max_j (m_j - r_j w); the envelope's tanh inverted there). The current: one
+ * secant step on the drive alone from x0 and a unit slope (exact for an affine input stage). A
+ * start for the probes, not a root: NAN when no operator is reached or the end lies behind x0
+ * (_dead_zone_end). */
+static double dead_zone_end(const msma_inverse *c, double x0, int s, int first) {
+    const double *g = c->g + (s > 0 ? 0 : 4);
+    double u1, u, travel, fade, width = 1.0, level = s * INFINITY, arg, distance, d0, xb, db, x;
+    int j;
+    if (first) return NAN;
+    drive(c, s * x0, first, &u1, &u, &travel, &fade);
+    if (c->p.has_training && c->tr[5] != 0.0) width = 1.0 + c->tr[5] * fade;
+    for (j = 0; j < MSMA_N_OPERATORS; j++) {
+        double v = c->memory[j] + s * c->threshold[j] * width;
+        level = s > 0 ? pmin(level, v) : pmax(level, v);
+    }
+    arg = (level - g[3]) / g[0];
+    if (!(fabs(arg) < 1.0)) return NAN;
+    distance = s * ((atanh(arg) - g[2]) / g[1] - c->st[4]); /* the drive's way there, toward the side */
+    d0 = s * (u - c->st[4]);
+    if (!(distance > d0)) return NAN;
+    xb = x0 + (distance - d0);
+    db = gap(c, xb, s, first);
+    if (db == distance) return xb;
+    if (!(db != d0)) return NAN;
+    x = xb + (distance - db) * (xb - x0) / (db - d0);
+    return isfinite(x) && x > x0 ? x : NAN;
+}
+
 /* The current on side s whose output meets the target, nearest start (_search). */
 static void search(msma_inverse *c, int s, double start, double step0, double target, int first, double *i_out,
                    double *f_out) {
     const double lo = c->lo, hi = c->hi, htol = c->htol, rtol = c->rtol, xtol = c->xtol;
-    double x_min, x_max, x0, f0, best_x, best_f, xl, fl, xr, fr, gl, gr, exl, efl, exr, efr, y_stage0;
-    int down_done, up_done, direction, found, edge_found, sweep, last, it, crawl = 0, away, bounded;
+    double x_min, x_max, x0, f0, best_x, best_f, xl, fl, xr, fr, exl, efl, exr, efr, y_stage0, hint;
+    int down_done, up_done, direction, found, edge_found, sweep, it, away, bounded;
     if (s > 0) {
         x_min = lo, x_max = hi;
     } else {
@@ -781,9 +851,17 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
         if (away && bounded && fabs(f0) > thermal_fall(c, y_stage0, s * x0, s * f0, first)) continue;
         xp = x0, fp = f0;
         step = step0;
+        /* toward the root after a reversal: the first probe at the dead zone's end, the steps grow
+         * from there */
+        hint = direction > 0 && !away && (c->st[5] > 0.5) != (s > 0) ? dead_zone_end(c, x0, s, first) : NAN;
         for (;;) {
             double x = direction > 0 ? pmin(xp + step, x_max) : pmax(xp - step, x_min), f;
-            step *= 4.0;
+            if (hint > x) {
+                x = pmin(hint, x_max);
+            } else {
+                step *= 4.0;
+            }
+            hint = NAN;
             f = objective(c, x, s, target, first);
             if (f == -INFINITY) { /* off the side: a root may lie between its edge and xp when F > 0 at xp */
                 if (fp > 0.0 && !edge_found) {
@@ -840,42 +918,36 @@ static void search(msma_inverse *c, int s, double start, double step0, double ta
         *i_out = s * best_x, *f_out = best_f;
         return;
     }
-    /* 4. refine the bracket xl < xr: Illinois regula falsi; a bisection after a step that did not
-     * halve |F| at the end it replaced (F flat there: a dead zone's end, where the interpolation
-     * crawls), and while an end is -inf (done at EDGE_WIDTH xtol) */
-    gl = fl, gr = fr;
-    last = 0;
-    for (it = 0; it < MAX_ITERATIONS; it++) {
-        double x, f, width = xr - xl;
-        int finite = gl > -INFINITY && gr > -INFINITY;
-        if (fabs(fl) <= rtol || fabs(fr) <= rtol || width <= xtol) break;
-        if (finite && !crawl) {
-            x = xr - gr * (xr - xl) / (gr - gl);
-            if (!(xl < x && x < xr)) x = 0.5 * (xl + xr);
-        } else if (finite) {
-            x = 0.5 * (xl + xr);
-        } else if (width <= EDGE_WIDTH * xtol) {
-            break;
-        } else {
-            x = 0.5 * (xl + xr);
+    /* 4. refine the bracket xl < xr: Brent's method (as scipy's brentq), by bisection while an end
+     * is off the side (done at EDGE_WIDTH xtol) (_search, _brent_step) */
+    {
+        double xpre = xl, fpre = fl, xcur = xr, fcur = fr, xblk = xl, fblk = fl, spre = 0.0, scur = 0.0;
+        const double delta = 0.5 * xtol;
+        for (it = 0; it < MAX_ITERATIONS; it++) {
+            double sbis;
+            int finite;
+            if (fpre != 0.0 && fcur != 0.0 && ((fpre < 0.0) != (fcur < 0.0))) {
+                xblk = xpre, fblk = fpre;
+                spre = scur = xcur - xpre;
+            }
+            if (magnitude(fblk) < magnitude(fcur)) { /* xcur: the better end of the bracket */
+                xpre = xcur, xcur = xblk, xblk = xpre;
+                fpre = fcur, fcur = fblk, fblk = fpre;
+            }
+            sbis = 0.5 * (xblk - xcur);
+            if (magnitude(fcur) <= rtol || fabs(sbis) <= delta) break;
+            finite = fcur > -INFINITY && fpre > -INFINITY && fblk > -INFINITY;
+            if (!finite && fabs(sbis) <= 0.5 * EDGE_WIDTH * xtol) break;
+            brent_step(xpre, fpre, xcur, fcur, xblk, fblk, sbis, delta, finite, &spre, &scur);
+            xpre = xcur, fpre = fcur;
+            xcur += fabs(scur) > delta ? scur : (sbis > 0.0 ? delta : -delta);
+            fcur = objective(c, xcur, s, target, first);
         }
-        f = objective(c, x, s, target, first);
-        if ((f < 0.0) == (fl < 0.0)) {
-            crawl = !(fabs(f) <= 0.5 * fabs(fl));
-            xl = x, fl = f, gl = f;
-            if (last == -1 && gr > -INFINITY) gr *= 0.5;
-            last = -1;
+        if (magnitude(fblk) < magnitude(fcur)) {
+            *i_out = s * xblk, *f_out = fblk;
         } else {
-            crawl = !(fabs(f) <= 0.5 * fabs(fr));
-            xr = x, fr = f, gr = f;
-            if (last == 1 && gl > -INFINITY) gl *= 0.5;
-            last = 1;
+            *i_out = s * xcur, *f_out = fcur;
         }
-    }
-    if (magnitude(fl) < magnitude(fr)) {
-        *i_out = s * xl, *f_out = fl;
-    } else {
-        *i_out = s * xr, *f_out = fr;
     }
 }
 
@@ -947,7 +1019,10 @@ double msma_inverse_step(msma_inverse *c, double t, double target, int *status) 
     const double lo = c->lo, hi = c->hi;
     int first = c->k == 0, pref;
     double start, step0, i_best, f_best, y;
-    if (!first) step_coefficients(c, t - c->t_prev);
+    if (!first) {
+        step_coefficients(c, t - c->t_prev);
+        if (c->p.has_creep) creep_prepare(c);
+    }
     if (first) {
         pref = 1;
         start = lo;
