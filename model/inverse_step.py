@@ -118,9 +118,9 @@ def evaluate_step(
     8-11, Omega d 12-15). ``st``: scalar state (see the kernel). ``tr``: training's six
     parameters. ``cp``: creep's saturating amplitude, number of saturating modes, logarithmic
     rate, number of logarithmic modes, the part held to the leg's end; ``creep_affine`` its modes
-    advanced to this sample as sums affine in the strain (:func:`creep_prepare`). ``th``: thermal's node-1 time constant, sensitivity, expansion, the
-    reference current, node 2's time constant, sensitivity, expansion, the nodes' rises at the
-    record's start; ``thermal_c`` the
+    advanced to this sample as sums affine in the strain (:func:`creep_prepare`). ``th``:
+    thermal's node-1 time constant, sensitivity, expansion, the reference current, node 2's time
+    constant, sensitivity, expansion, the nodes' rises at the record's start; ``thermal_c`` the
     two nodes' step coefficients. ``drift``: the sensor drift at this sample.
     Before the first sample is committed, ``memory`` holds the initial memory held beyond
     the bounds (``initial_state``'s :math:`h_j`), which the first sample adds to the clamped
