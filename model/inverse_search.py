@@ -245,11 +245,12 @@ def _search(
        has its root (up when ``F < 0``; after a reversal the first probe is at the end of the
        dead zone it leaves, :func:`_dead_zone_end`, and the steps grow from there), then, if
        that direction reaches its limit or the side's edge without a sign change, the other way,
-       but only as far as ``F`` can still fall to 0: while ``thermal`` can lower it by ``|F|`` before the limit (:func:`_thermal_fall`:
-       the heating's weight in one step, bounded), always with training's strain part on. Only when
-       neither finds a sign change is the stretch between the side's edge and the last point on
-       it examined (a root can lie there when the drive lags the current): the edge is located
-       on the drive alone (:func:`_edge`; without input dynamics it is that point itself), and
+       but only as far as ``F`` can still fall to 0: while ``thermal`` can lower it by ``|F|``
+       before the limit (:func:`_thermal_fall`: the heating's weight in one step, bounded),
+       always with training's strain part on. Only when neither finds a sign change is the
+       stretch between the side's edge and the last point on it examined (a root can lie there
+       when the drive lags the current): the edge is located on the drive alone (:func:`_edge`;
+       without input dynamics it is that point itself), and
        ``F`` there, if it changes sign, closes the bracket;
     4. the bracket is closed by Brent's method (Brent 1973, as scipy's ``brentq``) to
        ``|F| <= rtol`` or a width of ``xtol``: the secant or inverse quadratic step while it
