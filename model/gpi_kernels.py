@@ -199,7 +199,7 @@ def _omega_values(current, rising, row, c0, c1, c2, c3, d0, d1, d2, d3, omega):
         )
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, error_model="numpy", nogil=True)
 def gpi_kernel(
     theta,
     current,

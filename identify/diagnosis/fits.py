@@ -14,10 +14,13 @@ so a vector moves between two models only when they pin the same sign
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from dataclasses import replace as _replace
 
+import numba
 import numpy as np
 
 from model import Model, get_effect
@@ -299,9 +302,70 @@ def short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tupl
     return best_chi2, inner.full(best_x)
 
 
+#: How many independent fits :func:`concurrently` runs at once (two: the dense algebra of each
+#: solver iteration runs on one core).
+CONCURRENT_FITS = 2
+
 #: What a candidate's refit may raise without stopping the diagnosis (the candidate is then
 #: listed with the reason; see :func:`failed_candidate`).
 CANDIDATE_ERRORS = (ValueError, ArithmeticError)
+
+
+def concurrently(actions: list[Callable[[], object]]) -> list[tuple[object, Exception | None]]:
+    """``[(result, None) or (None, exception)]`` of ``actions`` in order, run on the machine's
+    cores at once (at most :data:`CONCURRENT_FITS`), each with numba on one thread.
+
+    For independent fits (each reads the round and writes nothing shared): a fit's iterations
+    alternate the model's kernels, which use the cores together, with the solver's dense algebra
+    (SVD, QR), which uses one, so two fits side by side keep both cores busy. Every fit computes
+    what it would alone: BLAS stays on one thread, and numba's thread count does not change a
+    result (each parameter set is computed apart). An exception of :data:`CANDIDATE_ERRORS` is
+    returned with its action's place, any other raised here.
+    """
+    workers = min(CONCURRENT_FITS, len(actions), _cores())
+    if workers <= 1:
+        return [_run_one(action) for action in actions]
+
+    def one_thread(action):
+        numba.set_num_threads(1)  # thread-local
+        return _run_one(action)
+
+    with single_threaded_blas(), ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(one_thread, action) for action in actions]
+        try:
+            return [future.result() for future in futures]
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+
+
+def _run_one(action):
+    try:
+        return action(), None
+    except CANDIDATE_ERRORS as exc:
+        return None, exc
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def attempt_each(actions, say: Callable[[str], None], whats, on_failures=None) -> list:
+    """:func:`attempt` of every action of ``actions``, run side by side (:func:`concurrently`);
+    the results in order, each failure said as ``"  {what}: {exc}"`` and handed to its
+    ``on_failures`` entry (when given and not None) in order."""
+    results = []
+    for k, (result, exc) in enumerate(concurrently(list(actions))):
+        if exc is not None:
+            say(f"  {whats[k]}: {exc}")
+            if on_failures is not None and on_failures[k] is not None:
+                on_failures[k](exc)
+        results.append(result)
+    return results
 
 
 def attempt(action: Callable[[], object], say: Callable[[str], None], what: str, on_failure=None):

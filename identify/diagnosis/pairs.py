@@ -19,6 +19,7 @@ pair must hold against the pairs that would name another effect.
 from __future__ import annotations
 
 import itertools
+from functools import partial
 
 from model import get_effect
 
@@ -26,6 +27,7 @@ from .candidates import CandidateResult
 from .fits import (
     Point,
     attempt,
+    attempt_each,
     effect_values,
     embed,
     plain_of,
@@ -34,7 +36,7 @@ from .fits import (
     whitened,
     with_values,
 )
-from .search import Round, Setting, Short, finish_candidate, shared_basin
+from .search import Round, Setting, Short, finish_candidates, shared_basin
 from .starts import members, near, shapes
 
 __all__ = ["search_pairs", "rival_pairs", "pair_pool"]
@@ -130,7 +132,10 @@ def _member_fits(s: Setting, rnd: Round) -> dict:
     return fits
 
 
-def _finish_pair(s: Setting, rnd: Round, name: str, short: Short, member_fits: dict) -> None:
+def _pair_job(s: Setting, rnd: Round, name: str, short: Short, member_fits: dict) -> tuple:
+    """``(name, start, members)`` to finish pair ``name``: from its member finished in the other
+    threshold sign where that one reaches the noise (:func:`_from_flipped_member`), else from
+    ``short``."""
     one, other = name.split("+")
     pool = {entry[0]: entry for entry in rnd.pair_pool}
     flipped = None
@@ -140,11 +145,15 @@ def _finish_pair(s: Setting, rnd: Round, name: str, short: Short, member_fits: d
             s.say,
             "the pair refit with the other threshold sign failed",
         )
-    start = flipped or short
     s.say(f"refitting with '{one}' and '{other}' together")
-    result = finish_candidate(s, rnd, name, start, [member_fits[n] for n in (one, other) if n in member_fits])
-    if result is not None:
-        rnd.pairs[name] = result
+    return name, flipped or short, [member_fits[n] for n in (one, other) if n in member_fits]
+
+
+def _finish_pairs(s: Setting, rnd: Round, jobs: list) -> None:
+    """The pairs of ``jobs`` (:func:`_pair_job`) finished side by side, each kept in ``rnd.pairs``."""
+    for (name, _, _), result in zip(jobs, finish_candidates(s, rnd, jobs)):
+        if result is not None:
+            rnd.pairs[name] = result
 
 
 def search_pairs(s: Setting, rnd: Round) -> None:
@@ -158,9 +167,15 @@ def search_pairs(s: Setting, rnd: Round) -> None:
         )
         if values is not None:
             shaped[name] = values
-    for one, other in itertools.combinations(rnd.pair_pool, 2):
+    combinations = list(itertools.combinations(rnd.pair_pool, 2))
+    for one, other in combinations:
         s.say(f"short refit with '{one[0]}' and '{other[0]}' together")
-        short = attempt(lambda: _short_pair(s, rnd, one, other, shaped), s.say, "the pair refit failed")
+    shorts = attempt_each(
+        [partial(_short_pair, s, rnd, one, other, shaped) for one, other in combinations],
+        s.say,
+        ["the pair refit failed"] * len(combinations),
+    )
+    for (one, other), short in zip(combinations, shorts):
         if short is not None:
             rnd.pair_shorts[f"{one[0]}+{other[0]}"] = short
     if not rnd.pair_shorts:
@@ -177,8 +192,7 @@ def search_pairs(s: Setting, rnd: Round) -> None:
         n for i, n in enumerate(ranked) if i < s.thresholds.max_refits or gain(n) >= top - s.thresholds.bic_significant
     ]
     member_fits = _member_fits(s, rnd)
-    for name in chosen:
-        _finish_pair(s, rnd, name, rnd.pair_shorts[name], member_fits)
+    _finish_pairs(s, rnd, [_pair_job(s, rnd, name, rnd.pair_shorts[name], member_fits) for name in chosen])
     shared_basin(s, rnd, rnd.pairs, lambda name: [member_fits[n] for n in name.split("+") if n in member_fits])
 
 
@@ -199,15 +213,16 @@ def rival_pairs(s: Setting, rnd: Round, named: str, pair: CandidateResult) -> li
         key=lambda c: -c.delta_bic,
     )
     member_fits = _member_fits(s, rnd)
-    finished = []
+    finished, jobs = [], []
     for c in rivals:
         key = next((k for k in rnd.pair_shorts if set(k.split("+")) == {c.effect, partner}), None)
         if key is None or frozenset((c.effect, partner)) in done or len(finished) >= s.thresholds.max_refits:
             continue
         s.say(f"before '{pair.effect}' names '{named}': the pair '{key}' from its GPI")
         start = _swap_start(pair, c, rnd.pair_shorts[key])
-        _finish_pair(s, rnd, key, start, member_fits)
+        jobs.append(_pair_job(s, rnd, key, start, member_fits))
         finished.append(key)
+    _finish_pairs(s, rnd, jobs)
     if finished:
         shared_basin(s, rnd, rnd.pairs, lambda name: [member_fits[n] for n in name.split("+") if n in member_fits])
     return finished

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -51,6 +52,7 @@ from .fits import (
     Point,
     Working,
     attempt,
+    attempt_each,
     effect_values,
     embed,
     n_eff,
@@ -245,11 +247,17 @@ def _short_refits(s: Setting, rnd: Round) -> None:
     """Step 2: a short refit of every screened candidate in the baseline's sign; one that stays
     above its screening's promise is also fitted from scratch in both signs (the better of a
     sign replaces the short refit of that sign where it is lower)."""
-    for name, one in rnd.screened.items():
+    names = list(rnd.screened)
+    for name in names:
         s.say(f"short refit with '{name}'")
-        model_e = rnd.fit.model + name
-        failure = _on_failure(rnd, name, one, "short refit")
-        short = attempt(lambda: refit_short(s, rnd, name, model_e, rnd.fit), s.say, "not possible", failure)
+    shorts = attempt_each(
+        [partial(refit_short, s, rnd, name, rnd.fit.model + name, rnd.fit) for name in names],
+        s.say,
+        [f"'{name}' not possible" for name in names],
+        [_on_failure(rnd, name, rnd.screened[name], "short refit") for name in names],
+    )
+    for name, short in zip(names, shorts):  # the fits from scratch in order: they draw from the one generator
+        one, model_e = rnd.screened[name], rnd.fit.model + name
         if short is None:
             continue
         rnd.short[name] = short
@@ -278,9 +286,13 @@ def _other_sign_shorts(s: Setting, rnd: Round) -> None:
     tied = rnd.tied_sign
     sign = "positive" if tied.model.parameters["alpha"].value > 0 else "negative"
     s.say(f"the plain model's two threshold signs fit alike; the candidates are refitted with alpha {sign} too")
-    for name in list(rnd.short):
-        model_e = tied.model + name
-        short = attempt(lambda: refit_short(s, rnd, name, model_e, tied), s.say, f"'{name}' not possible")
+    names = list(rnd.short)
+    shorts = attempt_each(
+        [partial(refit_short, s, rnd, name, tied.model + name, tied) for name in names],
+        s.say,
+        [f"'{name}' not possible" for name in names],
+    )
+    for name, short in zip(names, shorts):
         if short is not None and short.chi2 < rnd.short[name].chi2 - SHARED_BASIN_GAIN:
             _keep_short(rnd, name, short)
 
@@ -315,12 +327,22 @@ def finish_candidate(s: Setting, rnd: Round, name: str, start, members=()) -> Ca
     """Candidate ``name`` finished on the whole record from ``start`` (a :class:`Short` or any
     point with ``model`` and ``theta``) and measured
     (:func:`identify.diagnosis.candidates.evaluate`); None when that fails."""
-    failure = _on_failure(rnd, name, rnd.screened.get(name), "refit")
-    return attempt(
-        lambda: evaluate(rnd.ref, name, start.model, start.theta, rnd.screened.get(name), members),
+    return finish_candidates(s, rnd, [(name, start, members)])[0]
+
+
+def finish_candidates(s: Setting, rnd: Round, jobs) -> list[CandidateResult | None]:
+    """:func:`finish_candidate` of every ``(name, start, members)`` of ``jobs``, run side by side
+    (:func:`identify.diagnosis.fits.concurrently`: each finish reads the round and writes nothing
+    shared, so each is what it would be alone); in order, None where one failed (said, and
+    listed with the reason, in order)."""
+    return attempt_each(
+        [
+            partial(evaluate, rnd.ref, name, start.model, start.theta, rnd.screened.get(name), members)
+            for name, start, members in jobs
+        ],
         s.say,
-        f"refit with '{name}' failed",
-        failure,
+        [f"refit with '{name}' failed" for name, _, _ in jobs],
+        [_on_failure(rnd, name, rnd.screened.get(name), "refit") for name, _, _ in jobs],
     )
 
 
@@ -341,15 +363,18 @@ def _finish_best(s: Setting, rnd: Round) -> None:
     """Step 4: the short refits worth it finished on the whole record, in the baseline's sign and,
     where a lower short refit of the other sign starts lower on the whole record, in that one."""
     best = {n: min(rnd.short[n].chi2, rnd.other[n].chi2 if n in rnd.other else math.inf) for n in rnd.short}
+    jobs = []
     for rank, name in enumerate(sorted(best, key=best.get)):
         if not _worth_finishing(s, rnd, name, best[name], rank):
             continue
         s.say(f"refitting with '{name}'")
-        _keep_better(rnd, finish_candidate(s, rnd, name, rnd.short[name]))
+        jobs.append((name, rnd.short[name], ()))
         other = rnd.other.get(name)
         if other is not None and _starts_lower(s, rnd, name, other):
             s.say(f"refitting with '{name}' in the other threshold sign")
-            _keep_better(rnd, finish_candidate(s, rnd, name, other))
+            jobs.append((name, other, ()))
+    for result in finish_candidates(s, rnd, jobs):
+        _keep_better(rnd, result)
 
 
 def _unseparated(best: CandidateResult, other: CandidateResult, th: Thresholds) -> bool:
@@ -430,30 +455,33 @@ def shared_basin(s: Setting, rnd: Round, candidates: dict, members_of=None) -> N
     if len(fitted) < 2:
         return
     best_bic = max(c.delta_bic for c in fitted)
+    starts = []  # (candidate, donor, start) of each candidate a GPI of its sign could move
     for c in fitted:
         same = [d for d in fitted if same_threshold_sign(d.fit.model, c.fit.model)]
         donor = min(same, key=lambda d: d.fit.chi2)
         if donor is c:
             continue
-        model_e = c.fit.model
         shared = {p: float(donor.fit.theta[donor.fit.model.names.index(p)]) for p in rnd.fit.model.names}
-        start = with_values(model_e, c.fit.theta, shared)
-        if not model_e.in_bounds(start)[0]:
-            continue
-        small = attempt(
-            lambda: short_refit(s.work.record, model_e, s.work.noise, [[start]]),
-            s.say,
-            f"no short refit of '{c.effect}' from the GPI of '{donor.effect}'",
-        )
+        start = with_values(c.fit.model, c.fit.theta, shared)
+        if c.fit.model.in_bounds(start)[0]:
+            starts.append((c, donor, start))
+    smalls = attempt_each(
+        [partial(short_refit, s.work.record, c.fit.model, s.work.noise, [[start]]) for c, _, start in starts],
+        s.say,
+        [f"no short refit of '{c.effect}' from the GPI of '{donor.effect}'" for c, donor, _ in starts],
+    )
+    jobs = []
+    for (c, donor, _), small in zip(starts, smalls):
         if small is None:
             continue
-        chi2_start = whole_record_chi2(s.record, model_e, rnd.fit.noise, small[1])
+        chi2_start = whole_record_chi2(s.record, c.fit.model, rnd.fit.noise, small[1])
         reach = c.delta_bic + c.n_eff * math.log(c.fit.chi2 / chi2_start) if chi2_start > 0 else -math.inf
         if not (chi2_start < c.fit.chi2 - SHARED_BASIN_GAIN and reach > best_bic - s.thresholds.bic_significant):
             continue
         s.say(f"refitting '{c.effect}' from the GPI of '{donor.effect}'")
         members = () if members_of is None else members_of(c.effect)
-        again = finish_candidate(s, rnd, c.effect, Point(model_e, small[1]), members)
+        jobs.append((c, (c.effect, Point(c.fit.model, small[1]), members)))
+    for (c, _), again in zip(jobs, finish_candidates(s, rnd, [job for _, job in jobs])):
         if again is not None and again.fit.chi2 < c.fit.chi2:
             candidates[c.effect] = again
 

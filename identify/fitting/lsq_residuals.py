@@ -27,7 +27,7 @@ DOMAIN_PENALTY = 1e5
 CENTRAL_STEP_POWER = 0.45
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def difference_columns(rows, base, steps, columns, out):
     """Forward differences laid out as a Jacobian: ``out[k, j] = (rows[j + 1, k] - base[k]) / steps[j]``
     for each ``j`` in ``columns`` (``rows`` of shape ``(P + 1, T)``, ``out`` ``(T, P)``; other

@@ -450,7 +450,7 @@ def _whitened(e, noise: NoiseModel, sigma, correlations) -> np.ndarray:
     return w / sig
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _whitened_rows(data, model_rows, rho, scale, sigma, out, finite):
     """``out[r] = whiten(data - model_rows[r])`` (scalar ``sigma``; AR(1) with ``rho``, ``scale
     = sqrt(1 - rho^2)``) with the same operations in the same order, and ``finite[r]``
@@ -476,7 +476,7 @@ def _whitened_rows(data, model_rows, rho, scale, sigma, out, finite):
         finite[r] = check == 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _whitened_rows_uneven(data, model_rows, correlations, scales, sigma, out, finite):
     """:func:`_whitened_rows` with each step's own correlation ``correlations[k - 1]`` and
     ``scales[k - 1] = sqrt(1 - correlations[k - 1]^2)`` (an uneven grid)."""

@@ -57,7 +57,7 @@ def lowpass_step(state, x_prev, x_now, step, tau):
     return x_now - (x_now - x_prev) * gain + decay * (state - x_prev)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _lowpass_kernel(time, signal, tau, initial, out):
     """``out[w] = lowpass(signal[w or 0], tau[w])`` starting from ``initial[w]``."""
     n_sets = out.shape[0]

@@ -40,7 +40,7 @@ LOG_CREEP_MAX_MODES = 24
 CREEP_STEP_HOLD = 1e-12
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _creep_kernel(time, displacement, amplitude, taus, log_rate, log_taus, n_log, hold, out):
     """Creep of each row of ``displacement``: ``taus.shape[1]`` equal-weight saturating modes
     (amplitude ``amplitude[w]``) plus ``n_log[w]`` logarithmic-creep modes ``log_taus[w, :n_log[w]]``

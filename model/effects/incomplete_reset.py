@@ -19,7 +19,7 @@ from .base import Effect
 __all__ = ["IncompleteReset", "incomplete_reset_strain", "loading_levels"]
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_extra):
     """Extra strain of :class:`IncompleteReset` per row (see its docstring), shape ``(W, T)``:
     ``excursion[w]`` is row ``w``'s loading variable (the strain's excursion from its first

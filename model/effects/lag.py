@@ -18,7 +18,7 @@ from .base import Effect
 __all__ = ["Lag", "delayed_lowpass"]
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _delay_kernel(time, signal, lagged, tau, delay, out):
     """``out[w, k]`` = the first-order lag of ``signal`` (``lagged[w]`` at the samples) at time
     ``t_k - delay[w]``: from the sample ``m`` before it, an exact partial step with the signal

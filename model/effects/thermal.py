@@ -124,7 +124,7 @@ def _thermal_one(w, time, steps, index, heating, p, displacement, out):
         out[w, k] = _thermal_output(displacement[w, k], p[w, 1], p[w, 2], p[w, 4], p[w, 5], rise, rise2, second)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, nogil=True)
 def _thermal_kernel(time, heating, p, displacement, out):
     """Two-node thermal network: ``rise`` (node 1) low-passes ``heating``, ``rise2`` (node 2)
     low-passes ``rise`` (from the start rises); ``out = displacement (1 - S rise - S2 rise2) + E
