@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 
@@ -26,6 +27,7 @@ from ..fitting.noise import NoiseModel, estimate_noise
 from ..fitting.parametrisation import normalised_model
 from .fits import (
     attempt,
+    concurrently,
     embed,
     finish,
     n_eff,
@@ -69,17 +71,21 @@ def fit_baselines(
     say = progress or (lambda message: None)
     rng = np.random.default_rng(0) if rng is None else rng
     work = working_copy(record, noise, find_reversals(record.current).index)
-    baselines = []
+    finishes = []  # the fits in order (they draw from the one generator), their finishes side by side
     for sign_model, sign in threshold_sign_variants(model):
         say(f"least squares of {sign_model!r} ({n_starts} starts{'' if sign is None else ', alpha ' + sign})")
         options = {} if sign is None else {"threshold_sign": sign}
         if work.step == 1:
             one = fit_least_squares(record, sign_model, noise=noise, n_starts=n_starts, rng=rng, **options)
-            one = finish(record, one.model, noise, one.theta[one.vary], rng, fit=one)
+            finishes.append(partial(finish, record, one.model, noise, one.theta[one.vary], rng, fit=one))
         else:
             small = fit_least_squares(work.record, sign_model, noise=work.noise, n_starts=n_starts, rng=rng, **options)
             say(f"polishing on the whole record ({len(record)} samples)")
-            one = finish(record, small.model, noise, small.theta[small.vary], rng)
+            finishes.append(partial(finish, record, small.model, noise, small.theta[small.vary], rng))
+    baselines = []
+    for one, exc in concurrently(finishes):
+        if exc is not None:
+            raise exc
         baselines.append(one)
     return baselines
 

@@ -28,6 +28,7 @@ import math
 import time as _time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -40,17 +41,17 @@ from ..fitting.noise import NoiseModel, quiet_segment
 from ..logs import progress_function
 from .adequacy import Adequacy, Thresholds, rms_change_and_size
 from .baseline import best_baseline, fit_baselines, known_noise, model_and_candidates, noise_reference
-from .candidates import CandidateResult, explained_fraction, unrefitted_candidate
+from .candidates import CandidateResult, evaluate, explained_fraction, failed_candidate, unrefitted_candidate
 from .decision import STATUSES, Decision, decide
 from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
-from .fits import attempt, effect_values, working_copy
+from .fits import attempt, concurrently, effect_values, working_copy
 from .joint import JointDiagnosis, diagnose_records
 from .mimic import mimic_start
 from .pairs import rival_pairs, search_pairs
 from .reparametrisation import exact_reparametrisation
 from .residuals import ResidualProfile
-from .search import Round, Setting, finish_candidate, own_values, refit_short, search
+from .search import Round, Setting, finish_candidates, own_values, refit_short, search
 
 __all__ = ["STATUSES", "Diagnosis", "diagnose"]
 
@@ -264,11 +265,15 @@ def _targeted(s: Setting, rnd: Round, names) -> None:
     """Candidates ``names`` refitted from their screening and finished on the whole record (on a
     residual that passes the noise tests, a score aimed at one effect's signature has more power
     than the omnibus tests)."""
+    names = list(names)
     for name in names:
         s.say(f"targeted check: refitting with '{name}'")
-        model_e = rnd.fit.model + name
-        start = refit_short(s, rnd, name, model_e, rnd.fit)
-        result = finish_candidate(s, rnd, name, start)
+    shorts = concurrently([partial(refit_short, s, rnd, name, rnd.fit.model + name, rnd.fit) for name in names])
+    for _, exc in shorts:
+        if exc is not None:
+            raise exc
+    jobs = [(name, short, ()) for name, (short, _) in zip(names, shorts)]
+    for name, result in zip(names, finish_candidates(s, rnd, jobs)):
         if result is not None:
             rnd.refitted[name] = result
 
@@ -335,25 +340,42 @@ def _unfinished_rivals(s: Setting, rnd: Round, decision: Decision) -> list:
         return []
     inside = set(named.effect.split("+"))
     pending = [n for n in rnd.screened if n not in rnd.refitted and n not in rnd.failed and n not in inside]
-    finished = []
     for name in pending:
         s.say(f"before naming '{decision.missing}': '{name}' started where it mimics '{named.effect}'")
-        model_e = rnd.fit.model + name
-        work = s.work.record
-        mimic = attempt(
-            lambda: mimic_start(
-                named.fit.model, named.fit.theta, model_e, name, work.time, work.current, own_values(rnd, name, model_e)
-            ),
-            s.say,
-            "no start",
-        )
-        extra = [] if mimic is None else [mimic]
-        short = attempt(lambda: refit_short(s, rnd, name, model_e, rnd.fit, extra=extra), s.say, "not possible")
-        result = None if short is None else finish_candidate(s, rnd, name, short)
+    finished = []
+    outcomes = concurrently([partial(_from_mimic, s, rnd, named, name) for name in pending])
+    for name, (outcome, exc) in zip(pending, outcomes):
+        lines, result = ([], None) if outcome is None else outcome
+        for line in lines:
+            s.say(line)
+        if exc is not None:
+            s.say(f"  refit with '{name}' failed: {exc}")
+            rnd.failed[name] = failed_candidate(name, rnd.screened.get(name), rnd.fit, rnd.n_eff_small, "refit", exc)
         if result is not None:
             rnd.refitted[name] = result
             finished.append(name)
     return finished
+
+
+def _from_mimic(s: Setting, rnd: Round, named: CandidateResult, name: str) -> tuple[list, CandidateResult | None]:
+    """``(lines to say, finish)`` of candidate ``name`` short-refitted from where it mimics
+    ``named`` (besides its usual starts) and finished on the whole record (the finish raises
+    what it raises); None where the short refit failed."""
+    lines = []
+    model_e = rnd.fit.model + name
+    work = s.work.record
+    mimic = attempt(
+        lambda: mimic_start(
+            named.fit.model, named.fit.theta, model_e, name, work.time, work.current, own_values(rnd, name, model_e)
+        ),
+        lines.append,
+        "no start",
+    )
+    extra = [] if mimic is None else [mimic]
+    short = attempt(lambda: refit_short(s, rnd, name, model_e, rnd.fit, extra=extra), lines.append, "not possible")
+    if short is None:
+        return lines, None
+    return lines, evaluate(rnd.ref, name, short.model, short.theta, rnd.screened.get(name))
 
 
 def diagnose(
