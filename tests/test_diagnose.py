@@ -206,6 +206,34 @@ def test_screening_ranks_the_hidden_effect_first_and_its_refit_realises_it():
     assert model_e.theta_dict(theta_short)["thermal_tau"] > 1.0
 
 
+def test_fits_side_by_side_are_the_fits_alone_in_order_with_failures_in_place():
+    """``concurrently``: independent fits run two at a time compute what each computes alone (the
+    same bits: BLAS and numba on one thread each), in the order given; a candidate's failure
+    comes back in its place, any other exception is raised."""
+    from identify.diagnosis.fits import CONCURRENT_FITS, concurrently, finish
+
+    sim = simulate("thermal", seed=1, fs=25.0)
+    model = normalised_model(Model())
+    fit = fit_least_squares(sim.record, model, n_starts=1)
+    model_e = model + "thermal"
+    starts = [embed(fit.model, fit.theta, model_e), embed(fit.model, fit.theta, model_e)]
+    starts[1][model_e.names.index("thermal_tau")] = 5.0
+    actions = [lambda x=x: finish(sim.record, model_e, fit.noise, x[model_e.parameters.vary], None) for x in starts]
+
+    def failing():
+        raise ValueError("no start")
+
+    together = concurrently([actions[0], failing, actions[1]])
+    alone = [actions[0](), actions[1]()]
+    assert CONCURRENT_FITS == 2
+    assert together[1][0] is None and isinstance(together[1][1], ValueError)
+    for (result, exc), single in zip([together[0], together[2]], alone):
+        assert exc is None
+        assert np.array_equal(result.theta, single.theta) and result.chi2 == single.chi2
+    with pytest.raises(KeyError):
+        concurrently([actions[0], lambda: {}["missing"]])
+
+
 def _increasing_amplitude_input(fs=50.0):
     """10 s quiet, then a 0.1 Hz sine whose amplitude grows from 0.5 A to 2.5 A (peaks 1-5 A)."""
     time = np.arange(0.0, 70.0 + 0.5 / fs, 1.0 / fs)

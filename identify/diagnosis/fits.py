@@ -324,7 +324,8 @@ def concurrently(actions: list[Callable[[], object]]) -> list[tuple[object, Exce
     """
     workers = min(CONCURRENT_FITS, len(actions), _cores())
     if workers <= 1:
-        return [_run_one(action) for action in actions]
+        with single_threaded_blas():
+            return [_run_one(action) for action in actions]
 
     def one_thread(action):
         numba.set_num_threads(1)  # thread-local

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 import time as _time
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -36,7 +37,7 @@ from .candidates import CandidateResult, explained_fraction, first_loading_share
 from .decision import Decision, decide
 from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
-from .fits import n_eff, profile_of, same_threshold_sign
+from .fits import concurrently, n_eff, profile_of, same_threshold_sign
 
 __all__ = ["JointDiagnosis", "diagnose_records"]
 
@@ -300,9 +301,13 @@ def diagnose_records(
     baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
     ranking, adequate_by_record, joint_fits = [], {}, {}
-    for name in _candidates_of(alone, thresholds):
+    names = _candidates_of(alone, thresholds)
+    for name in names:
         say(f"'{name}' on every record together")
-        fitted = _fit_candidate(ctx, name)
+    outcomes = concurrently([partial(_fit_candidate, ctx, name) for name in names])  # each reads ctx alone
+    for name, (fitted, exc) in zip(names, outcomes):
+        if exc is not None:
+            raise exc
         if fitted is None:
             continue
         joint_fits[name] = fitted[0]
