@@ -272,7 +272,9 @@ def test_corner_figure_shows_what_corner_corner_showed():
     """The corner plot drawn as artists on one figure labels what corner.corner (2.3) labelled
     with the report's former options: the same tick labels on the outer panels (the same
     axis ranges, MaxNLocator and ScalarFormatter) and the names under the bottom row and left
-    of the first column (the figures were compared by eye on the bundled study)."""
+    of the first column (the figures were compared by eye on the bundled study); a tick label
+    within a line of a panel's low edge is left out (there it meets the next panel's label or the
+    other axis's at the corner), one at most per axis."""
     import corner
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -305,13 +307,21 @@ def test_corner_figure_shows_what_corner_corner_showed():
         low, high = sorted(view)
         return {t.get_text() for t, x in zip(axis.get_ticklabels(), axis.get_ticklocs()) if low <= x <= high}
 
-    expected = set(labels)
+    def lowest(axis, view):  # the label of the lowest tick inside the view
+        low, high = sorted(view)
+        inside = [(x, t.get_text()) for t, x in zip(axis.get_ticklabels(), axis.get_ticklocs()) if low <= x <= high]
+        return {min(inside)[1]} if inside else set()
+
+    expected, at_low_edges = set(labels), set()
     for j in range(3):
         expected |= drawn(axes[2, j].xaxis, axes[2, j].get_xlim())
+        at_low_edges |= lowest(axes[2, j].xaxis, axes[2, j].get_xlim())
     for i in range(1, 3):
         expected |= drawn(axes[i, 0].yaxis, axes[i, 0].get_ylim())
+        at_low_edges |= lowest(axes[i, 0].yaxis, axes[i, 0].get_ylim())
     shown = {t.get_text() for t in ours.texts} - {ours.get_suptitle()}
-    assert expected <= shown and len(shown - expected) == 0
+    assert shown <= expected and set(labels) <= shown
+    assert expected - shown <= at_low_edges, expected - shown
 
 
 # --------------------------------------------------------------------------------------

@@ -248,6 +248,25 @@ def _fit_candidate(ctx: _Joint, name: str):
     return jf, residuals(x)
 
 
+def _fit_candidates(ctx: _Joint, names, say) -> tuple[list, dict, dict]:
+    """``(ranking, adequate by record, joint fits)`` of every explanation of ``names`` fitted on
+    every record together, side by side (each reads ``ctx`` alone); the ranking by delta BIC."""
+    ranking, adequate_by_record, joint_fits = [], {}, {}
+    for name in names:
+        say(f"'{name}' on every record together")
+    for name, (fitted, exc) in zip(names, concurrently([partial(_fit_candidate, ctx, name) for name in names])):
+        if exc is not None:
+            raise exc
+        if fitted is None:
+            continue
+        joint_fits[name] = fitted[0]
+        candidate, adequate = ctx.measure(name, *fitted)
+        ranking.append(candidate)
+        adequate_by_record[name] = adequate
+    ranking.sort(key=lambda c: -c.delta_bic)
+    return ranking, adequate_by_record, joint_fits
+
+
 def _embedded(baseline: JointFit, joint: JointModel) -> np.ndarray:
     """The joint baseline's vector in ``joint`` (its new effects off)."""
     theta = joint.default_theta()
@@ -300,21 +319,7 @@ def diagnose_records(
     separate = [d.fit if same_threshold_sign(d.fit.model, base_model) else alone[0].fit for d in alone]
     baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
-    ranking, adequate_by_record, joint_fits = [], {}, {}
-    names = _candidates_of(alone, thresholds)
-    for name in names:
-        say(f"'{name}' on every record together")
-    outcomes = concurrently([partial(_fit_candidate, ctx, name) for name in names])  # each reads ctx alone
-    for name, (fitted, exc) in zip(names, outcomes):
-        if exc is not None:
-            raise exc
-        if fitted is None:
-            continue
-        joint_fits[name] = fitted[0]
-        candidate, adequate = ctx.measure(name, *fitted)
-        ranking.append(candidate)
-        adequate_by_record[name] = adequate
-    ranking.sort(key=lambda c: -c.delta_bic)
+    ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, _candidates_of(alone, thresholds), say)
     evidence = _evidence(ctx, ranking)
     decision = decide(evidence, thresholds)
     reason = explain(decision, evidence, thresholds, where_text(ctx.profiles[_worst(ctx)]))

@@ -483,9 +483,10 @@ def _padded_grid(H, X, Y):
     return extended(X1), extended(Y1), H2
 
 
-def _ticks(low, high, max_ticks, prune="lower"):
+def _ticks(low, high, max_ticks, prune="lower", clear=0.0):
     """The tick values and labels (and offset text) an axis from ``low`` to ``high`` shows with
-    ``MaxNLocator(max_ticks, prune=prune)`` and a ``ScalarFormatter``, as corner's."""
+    ``MaxNLocator(max_ticks, prune=prune)`` and a ``ScalarFormatter``, as corner's; a tick closer
+    than ``clear`` (a fraction of the range) to ``low`` is left out."""
     locator = MaxNLocator(max_ticks, prune=prune)
     locs = locator.tick_values(low, high)
     formatter = ScalarFormatter()
@@ -493,7 +494,7 @@ def _ticks(low, high, max_ticks, prune="lower"):
     formatter.axis.set_view_interval(low, high)
     labels = formatter.format_ticks(locs)
     tolerance = 1e-10 * (high - low)
-    inside = (locs >= low - tolerance) & (locs <= high + tolerance)
+    inside = (locs >= low - tolerance + clear * (high - low)) & (locs <= high + tolerance)
     return locs[inside], [t for t, k in zip(labels, inside) if k], formatter.get_offset()
 
 
@@ -562,9 +563,14 @@ def corner_figure(samples, labels, *, reference=None, reference_label="least squ
 
     known_ticks = {}
 
+    # the locator prunes its lowest tick, which can lie outside the view, so a tick can remain at
+    # a panel's low edge, where its label (one line high along the axis) meets the next panel's
+    # label across the gap, or the other axis's at the corner: none within a line of the low edge
+    clear = c["tick_label_size"] * point / min(width, height)
+
     def ticks_of(view):  # a column's or row's panels share their view: its ticks are found once
         if view not in known_ticks:
-            known_ticks[view] = _ticks(*view, max_ticks)
+            known_ticks[view] = _ticks(*view, max_ticks, clear=clear)
         return known_ticks[view]
 
     frames, contours, steps, dashed, lines, ticks, squares = [], [], [], [], [], [], []
