@@ -408,7 +408,7 @@ def _other_sign_from_best(s: Setting, rnd: Round) -> None:
         if not c.adequate_after and (none_repairs or _unseparated(best, c, s.thresholds))
     ]
     other = "positive" if rnd.fit.model.parameters["alpha"].value < 0 else "negative"
-    improved = None
+    jobs = []  # the fits from scratch in order (one generator), their finishes side by side
     for c in contenders:
         s.say(f"refitting with '{c.effect}' from scratch with the other threshold sign (alpha {other})")
         model_e = rnd.fit.model + c.effect
@@ -420,7 +420,9 @@ def _other_sign_from_best(s: Setting, rnd: Round) -> None:
         if not _starts_lower(s, rnd, c.effect, short):
             s.say(f"with alpha {other} '{c.effect}' starts no lower on the whole record; not refitted there")
             continue
-        anchor = finish_candidate(s, rnd, c.effect, short)
+        jobs.append((c, (c.effect, short, ())))
+    improved = None
+    for (c, _), anchor in zip(jobs, finish_candidates(s, rnd, [job for _, job in jobs])):
         _keep_better(rnd, anchor)
         if anchor is not None and anchor.delta_bic > c.delta_bic and improved is None:
             improved = (c.effect, anchor)
@@ -430,14 +432,18 @@ def _other_sign_from_best(s: Setting, rnd: Round) -> None:
     plain = plain_of(anchor.fit.model, rnd.fit.model)
     donor = Point(plain, embed(anchor.fit.model, anchor.fit.theta, plain, drop_extra=True))
     done = {c.effect for c in contenders}
-    for c in ranked[1 : s.thresholds.max_refits]:
-        if c.adequate_after or c.effect in done:
-            continue
+    rest = [c for c in ranked[1 : s.thresholds.max_refits] if not (c.adequate_after or c.effect in done)]
+    for c in rest:
         s.say(f"refitting with '{c.effect}' with the other threshold sign, from the GPI of '{name}' there")
-        model_c = plain + c.effect
-        short = attempt(lambda: refit_short(s, rnd, c.effect, model_c, donor), s.say, "not possible")
-        if short is not None and _starts_lower(s, rnd, c.effect, short):
-            _keep_better(rnd, finish_candidate(s, rnd, c.effect, short))
+    shorts = attempt_each(
+        [partial(refit_short, s, rnd, c.effect, plain + c.effect, donor) for c in rest],
+        s.say,
+        ["not possible"] * len(rest),
+    )
+    jobs = [(c.effect, short, ()) for c, short in zip(rest, shorts) if short is not None]
+    jobs = [job for job in jobs if _starts_lower(s, rnd, job[0], job[1])]
+    for result in finish_candidates(s, rnd, jobs):
+        _keep_better(rnd, result)
 
 
 def shared_basin(s: Setting, rnd: Round, candidates: dict, members_of=None) -> None:
