@@ -234,6 +234,35 @@ def test_fits_side_by_side_are_the_fits_alone_in_order_with_failures_in_place():
         concurrently([actions[0], lambda: {}["missing"]])
 
 
+def test_a_fit_side_by_side_measures_at_most_its_threads_cap_and_the_caller_keeps_its_own():
+    """A worker of ``concurrently`` runs numba on one thread, its fits' thread-count measurements
+    included; the calling thread keeps numba's maximum (a posterior that once measured one
+    thread faster may measure two again)."""
+    import threading
+
+    import numba
+
+    from identify.fitting.threads import cap_numba_threads, fastest_thread_count, numba_thread_cap
+
+    seen = {}
+
+    def worker():
+        cap_numba_threads(1)
+        seen["cap"] = numba_thread_cap()
+        seen["chosen"] = fastest_thread_count(lambda x: x, 0, repeats=1)
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    thread.join()
+    assert seen == {"cap": 1, "chosen": 1}
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)  # as a measurement that found one thread faster leaves it
+    try:
+        assert numba_thread_cap() == numba.config.NUMBA_NUM_THREADS
+    finally:
+        numba.set_num_threads(before)
+
+
 def _increasing_amplitude_input(fs=50.0):
     """10 s quiet, then a 0.1 Hz sine whose amplitude grows from 0.5 A to 2.5 A (peaks 1-5 A)."""
     time = np.arange(0.0, 70.0 + 0.5 / fs, 1.0 / fs)

@@ -20,7 +20,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from dataclasses import replace as _replace
 
-import numba
 import numpy as np
 
 from model import Model, get_effect
@@ -29,7 +28,7 @@ from ..data.records import Record, thinning_indices
 from ..fitting.lsq import FitResult, WhitenedResiduals, bounded_solve, fit_least_squares
 from ..fitting.noise import NoiseModel
 from ..fitting.parametrisation import with_threshold_sign
-from ..fitting.threads import single_threaded_blas
+from ..fitting.threads import cap_numba_threads, single_threaded_blas
 from .residuals import ARNoise, ResidualProfile, autocorrelation, residual_profile
 
 __all__ = [
@@ -328,7 +327,7 @@ def concurrently(actions: list[Callable[[], object]]) -> list[tuple[object, Exce
             return [_run_one(action) for action in actions]
 
     def one_thread(action):
-        numba.set_num_threads(1)  # thread-local
+        cap_numba_threads(1)  # this worker thread's fits, their thread-count measurements included
         return _run_one(action)
 
     with single_threaded_blas(), ThreadPoolExecutor(max_workers=workers) as pool:
