@@ -210,7 +210,8 @@ def test_fits_side_by_side_are_the_fits_alone_in_order_with_failures_in_place():
     """``concurrently``: independent fits run two at a time compute what each computes alone (the
     same bits: BLAS and numba on one thread each), in the order given; a candidate's failure
     comes back in its place, any other exception is raised."""
-    from identify.diagnosis.fits import CONCURRENT_FITS, concurrently, finish
+    from identify.diagnosis.fits import concurrently, finish
+    from identify.fitting.threads import SIDE_BY_SIDE
 
     sim = simulate("thermal", seed=1, fs=25.0)
     model = normalised_model(Model())
@@ -225,7 +226,7 @@ def test_fits_side_by_side_are_the_fits_alone_in_order_with_failures_in_place():
 
     together = concurrently([actions[0], failing, actions[1]])
     alone = [actions[0](), actions[1]()]
-    assert CONCURRENT_FITS == 2
+    assert SIDE_BY_SIDE == 2
     assert together[1][0] is None and isinstance(together[1][1], ValueError)
     for (result, exc), single in zip([together[0], together[2]], alone):
         assert exc is None

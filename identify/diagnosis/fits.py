@@ -14,9 +14,7 @@ so a vector moves between two models only when they pin the same sign
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from dataclasses import replace as _replace
 
@@ -28,7 +26,7 @@ from ..data.records import Record, thinning_indices
 from ..fitting.lsq import FitResult, WhitenedResiduals, bounded_solve, fit_least_squares
 from ..fitting.noise import NoiseModel
 from ..fitting.parametrisation import with_threshold_sign
-from ..fitting.threads import cap_numba_threads, single_threaded_blas
+from ..fitting.threads import side_by_side, single_threaded_blas
 from .residuals import ARNoise, ResidualProfile, autocorrelation, residual_profile
 
 __all__ = [
@@ -301,57 +299,16 @@ def short_refit(record, model_e: Model, noise: NoiseModel, start_groups) -> tupl
     return best_chi2, inner.full(best_x)
 
 
-#: How many independent fits :func:`concurrently` runs at once (two: the dense algebra of each
-#: solver iteration runs on one core).
-CONCURRENT_FITS = 2
-
 #: What a candidate's refit may raise without stopping the diagnosis (the candidate is then
 #: listed with the reason; see :func:`failed_candidate`).
 CANDIDATE_ERRORS = (ValueError, ArithmeticError)
 
 
 def concurrently(actions: list[Callable[[], object]]) -> list[tuple[object, Exception | None]]:
-    """``[(result, None) or (None, exception)]`` of ``actions`` in order, run on the machine's
-    cores at once (at most :data:`CONCURRENT_FITS`), each with numba on one thread.
-
-    For independent fits (each reads the round and writes nothing shared): a fit's iterations
-    alternate the model's kernels, which use the cores together, with the solver's dense algebra
-    (SVD, QR), which uses one, so two fits side by side keep both cores busy. Every fit computes
-    what it would alone: BLAS stays on one thread, and numba's thread count does not change a
-    result (each parameter set is computed apart). An exception of :data:`CANDIDATE_ERRORS` is
-    returned with its action's place, any other raised here.
-    """
-    workers = min(CONCURRENT_FITS, len(actions), _cores())
-    if workers <= 1:
-        with single_threaded_blas():
-            return [_run_one(action) for action in actions]
-
-    def one_thread(action):
-        cap_numba_threads(1)  # this worker thread's fits, their thread-count measurements included
-        return _run_one(action)
-
-    with single_threaded_blas(), ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(one_thread, action) for action in actions]
-        try:
-            return [future.result() for future in futures]
-        except BaseException:
-            for future in futures:
-                future.cancel()
-            raise
-
-
-def _run_one(action):
-    try:
-        return action(), None
-    except CANDIDATE_ERRORS as exc:
-        return None, exc
-
-
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
+    """``[(result, None) or (None, exception)]`` of independent fits ``actions`` in order, run side
+    by side (:func:`identify.fitting.threads.side_by_side`: each computes what it would alone);
+    an exception of :data:`CANDIDATE_ERRORS` is returned in its action's place, any other raised."""
+    return side_by_side(actions, catch=CANDIDATE_ERRORS)
 
 
 def attempt_each(actions, say: Callable[[str], None], whats, on_failures=None) -> list:

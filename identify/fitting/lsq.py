@@ -87,6 +87,7 @@ import logging
 import math
 import time as _time
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numba
 import numpy as np
@@ -115,7 +116,7 @@ from .lsq_solver import (
 from .lsq_starts import PAPER_PEAK_INPUT, TABLE1_N_OPERATORS, candidate_starts
 from .noise import NoiseModel, energised_mask, estimate_noise
 from .parametrisation import in_record_units, with_threshold_sign
-from .threads import fastest_thread_count, single_threaded_blas
+from .threads import fastest_thread_count, side_by_side, single_threaded_blas
 
 _log = logging.getLogger(__name__)  # a child of the "identify" logger (identify.logs)
 
@@ -352,16 +353,14 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
     log = _StartLog(verbose)
     try:
         with single_threaded_blas():
-            # Phase 1: screen every start with a few steps of each method.
-            screened, origins, alternate = [], [], []
-            for label, theta0 in starts:
-                x0 = np.clip(theta0[free], residuals.lower, residuals.upper)
-                before = residuals.n_evaluations
-                sol = bounded_solve(residuals, x0, SCREEN_EVALUATIONS)
-                sol_alternate = bounded_solve(residuals, x0, SCREEN_EVALUATIONS, method=ALTERNATE_METHOD)
-                screened.append((label, sol, residuals.n_evaluations - before))
+            # Phase 1: screen every start with a few steps of each method. Phases 1 and 2 run
+            # their starts side by side, each on its own copy of the residuals.
+            origins = [np.clip(theta0[free], residuals.lower, residuals.upper) for _, theta0 in starts]
+            runs = _side_by_side(residuals, [partial(_screen_start, x0=x0) for x0 in origins])
+            screened, alternate = [], []
+            for (label, _), ((sol, sol_alternate), n_eval) in zip(starts, runs):
+                screened.append((label, sol, n_eval))
                 alternate.append(sol_alternate)
-                origins.append(x0)
                 _log.log(
                     log.level,
                     f"  screen {label:<14} chi2 = {2 * sol.cost:.6g} ({SOLVER_METHOD}), "
@@ -373,26 +372,50 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
             polish = set(order[:n_polish])
             order_alternate = sorted(range(len(screened)), key=lambda k: alternate[k].cost)
             polish_alternate = set(order_alternate[:N_POLISH_ALTERNATE]) if n_polish > 0 else set()
+            note = f" (run on from {ALTERNATE_METHOD}'s screening)"
+            tasks = [(k, False) for k in sorted(polish)] + [(k, True) for k in sorted(polish_alternate)]
+            runs = [
+                partial(_converged, sol=alternate[k], note=note) if alt else partial(_converged, sol=screened[k][1])
+                for k, alt in tasks
+            ]
+            ends = dict(zip(tasks, _side_by_side(residuals, runs)))
             for k, (label, sol, n_eval) in enumerate(screened):
                 if k not in polish | polish_alternate:
                     log.screened_out(label, sol, n_eval)
                     continue
                 if k in polish:
-                    before = residuals.n_evaluations
-                    end = _converged(residuals, sol)
-                    log.keep(label, end, n_eval + residuals.n_evaluations - before)
+                    end, used = ends[(k, False)]
+                    log.keep(label, end, n_eval + used)
                 if k in polish_alternate:
-                    before = residuals.n_evaluations
-                    end = _converged(residuals, alternate[k], f" (run on from {ALTERNATE_METHOD}'s screening)")
+                    end, used = ends[(k, True)]
                     screening = 0 if k in polish else n_eval  # the screening's evaluations, counted once
-                    log.keep(
-                        f"{label} ({ALTERNATE_METHOD} screening)", end, screening + residuals.n_evaluations - before
-                    )
+                    log.keep(f"{label} ({ALTERNATE_METHOD} screening)", end, screening + used)
             _polish_at_bound(residuals, screened, origins, polish, log)
             _polish_in_coordinates(residuals, log)
     finally:
         numba.set_num_threads(threads_before)
     return log.best, log.outcomes
+
+
+def _screen_start(residuals: WhitenedResiduals, x0):
+    """Phase 1 for one start: a few steps of each solver method from ``x0``."""
+    sol = bounded_solve(residuals, x0, SCREEN_EVALUATIONS)
+    return sol, bounded_solve(residuals, x0, SCREEN_EVALUATIONS, method=ALTERNATE_METHOD)
+
+
+def _side_by_side(residuals: WhitenedResiduals, tasks) -> list:
+    """``[(result, evaluations)]`` of ``tasks`` (each called with its own copy of ``residuals``),
+    run side by side (:func:`identify.fitting.threads.side_by_side`: each computes what it would
+    alone); their evaluations are added to ``residuals``'s count."""
+    copies = [residuals.copy() for _ in tasks]
+    outcomes = side_by_side([partial(task, twin) for task, twin in zip(tasks, copies)])
+    results = []
+    for (result, exc), twin in zip(outcomes, copies):
+        if exc is not None:  # pragma: no cover - side_by_side raises what it does not catch
+            raise exc
+        residuals.n_evaluations += twin.n_evaluations
+        results.append((result, twin.n_evaluations))
+    return results
 
 
 def _polish_at_bound(residuals, screened, origins, polish, log: _StartLog) -> None:

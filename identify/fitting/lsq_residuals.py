@@ -8,6 +8,8 @@ The method (whitening, the penalty outside the domain, the steps) is stated in
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 from numba import njit
 
@@ -85,6 +87,14 @@ class WhitenedResiduals:
         self.n_evaluations = 0
         self._cache_x = None
         self._cache_r = None
+
+    def copy(self) -> WhitenedResiduals:
+        """The same residuals with their own last-point cache and evaluation count (for a fit run
+        beside another on this one's data: the arrays are shared, read only)."""
+        twin = copy.copy(self)
+        twin.n_evaluations = 0
+        twin._cache_x = twin._cache_r = None
+        return twin
 
     def full(self, x) -> np.ndarray:
         """Full vector(s) ``(…, P)`` from free values ``(…, P_free)``."""

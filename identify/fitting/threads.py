@@ -4,13 +4,26 @@ algebra of a fit, numba's thread count chosen by measurement."""
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time as _time
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 from threadpoolctl import threadpool_limits
 
-__all__ = ["single_threaded_blas", "fastest_thread_count", "cap_numba_threads", "numba_thread_cap"]
+__all__ = [
+    "single_threaded_blas",
+    "fastest_thread_count",
+    "cap_numba_threads",
+    "numba_thread_cap",
+    "side_by_side",
+    "SIDE_BY_SIDE",
+]
+
+#: How many independent fits :func:`side_by_side` runs at once (two: the dense algebra of each
+#: solver iteration runs on one core).
+SIDE_BY_SIDE = 2
 
 _local = threading.local()
 
@@ -61,3 +74,50 @@ def fastest_thread_count(fn, argument, repeats=3) -> int:
             best_count, best_time = count, min(timings)
     numba.set_num_threads(best_count)
     return best_count
+
+
+def side_by_side(actions, catch=()) -> list:
+    """``[(result, None) or (None, exception)]`` of ``actions`` (callables without arguments) in
+    order, run on the machine's cores at once (at most :data:`SIDE_BY_SIDE`), each worker with
+    numba capped at one thread (:func:`cap_numba_threads`) and BLAS on one thread.
+
+    For independent fits (each reads shared inputs and writes nothing shared): a fit's
+    iterations alternate the model's kernels, which use the cores together, with the solver's
+    dense algebra (SVD, QR), which uses one, so two fits side by side keep both cores busy.
+    Every fit computes what it would alone: BLAS stays on one thread, and numba's thread count
+    does not change a result (each parameter set is computed apart). A thread already capped at
+    one (a worker) runs its actions in turn. An exception of the types ``catch`` is returned in
+    its action's place, any other raised here.
+    """
+    actions = list(actions)
+    workers = min(SIDE_BY_SIDE, len(actions), _cores(), numba_thread_cap())
+
+    def run(action):
+        try:
+            return action(), None
+        except catch as exc:
+            return None, exc
+
+    if workers <= 1:
+        with single_threaded_blas():
+            return [run(action) for action in actions]
+
+    def one_thread(action):
+        cap_numba_threads(1)  # this worker thread's fits, their thread-count measurements included
+        return run(action)
+
+    with single_threaded_blas(), ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(one_thread, action) for action in actions]
+        try:
+            return [future.result() for future in futures]
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
