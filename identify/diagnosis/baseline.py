@@ -25,9 +25,9 @@ from ..data.reversals import find_reversals
 from ..fitting.lsq import FitResult, WhitenedResiduals, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise
 from ..fitting.parametrisation import normalised_model
+from ..fitting.threads import results_side_by_side
 from .fits import (
     attempt,
-    concurrently,
     embed,
     finish,
     n_eff,
@@ -82,12 +82,7 @@ def fit_baselines(
             small = fit_least_squares(work.record, sign_model, noise=work.noise, n_starts=n_starts, rng=rng, **options)
             say(f"polishing on the whole record ({len(record)} samples)")
             finishes.append(partial(finish, record, small.model, noise, small.theta[small.vary], rng))
-    baselines = []
-    for one, exc in concurrently(finishes):
-        if exc is not None:
-            raise exc
-        baselines.append(one)
-    return baselines
+    return results_side_by_side(finishes)
 
 
 def best_baseline(record, baselines) -> FitResult:

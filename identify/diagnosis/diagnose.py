@@ -38,20 +38,21 @@ from ..data.reversals import find_reversals
 from ..fitting.joint import check_records
 from ..fitting.lsq import FitResult
 from ..fitting.noise import NoiseModel, quiet_segment
+from ..fitting.threads import results_side_by_side
 from ..logs import progress_function
 from .adequacy import Adequacy, Thresholds, rms_change_and_size
 from .baseline import best_baseline, fit_baselines, known_noise, model_and_candidates, noise_reference
-from .candidates import CandidateResult, evaluate, explained_fraction, failed_candidate, unrefitted_candidate
+from .candidates import CandidateResult, explained_fraction, unrefitted_candidate
 from .decision import STATUSES, Decision, decide
 from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
-from .fits import attempt, concurrently, effect_values, working_copy
+from .fits import attempt, effect_values, working_copy
 from .joint import JointDiagnosis, diagnose_records
 from .mimic import mimic_start
 from .pairs import rival_pairs, search_pairs
 from .reparametrisation import exact_reparametrisation
 from .residuals import ResidualProfile
-from .search import Round, Setting, finish_candidates, own_values, refit_short, search
+from .search import Round, Setting, Short, finish_candidates, own_values, refit_short, search
 
 __all__ = ["STATUSES", "Diagnosis", "diagnose"]
 
@@ -268,11 +269,8 @@ def _targeted(s: Setting, rnd: Round, names) -> None:
     names = list(names)
     for name in names:
         s.say(f"targeted check: refitting with '{name}'")
-    shorts = concurrently([partial(refit_short, s, rnd, name, rnd.fit.model + name, rnd.fit) for name in names])
-    for _, exc in shorts:
-        if exc is not None:
-            raise exc
-    jobs = [(name, short, ()) for name, (short, _) in zip(names, shorts)]
+    shorts = results_side_by_side([partial(refit_short, s, rnd, name, rnd.fit.model + name, rnd.fit) for name in names])
+    jobs = [(name, short, ()) for name, short in zip(names, shorts)]
     for name, result in zip(names, finish_candidates(s, rnd, jobs)):
         if result is not None:
             rnd.refitted[name] = result
@@ -342,25 +340,25 @@ def _unfinished_rivals(s: Setting, rnd: Round, decision: Decision) -> list:
     pending = [n for n in rnd.screened if n not in rnd.refitted and n not in rnd.failed and n not in inside]
     for name in pending:
         s.say(f"before naming '{decision.missing}': '{name}' started where it mimics '{named.effect}'")
-    finished = []
-    outcomes = concurrently([partial(_from_mimic, s, rnd, named, name) for name in pending])
-    for name, (outcome, exc) in zip(pending, outcomes):
-        lines, result = ([], None) if outcome is None else outcome
+    jobs = []  # the short refits from where each mimics the name side by side, then their finishes
+    for name, (lines, short) in zip(
+        pending, results_side_by_side([partial(_from_mimic, s, rnd, named, n) for n in pending])
+    ):
         for line in lines:
             s.say(line)
-        if exc is not None:
-            s.say(f"  refit with '{name}' failed: {exc}")
-            rnd.failed[name] = failed_candidate(name, rnd.screened.get(name), rnd.fit, rnd.n_eff_small, "refit", exc)
+        if short is not None:
+            jobs.append((name, short, ()))
+    finished = []
+    for (name, _, _), result in zip(jobs, finish_candidates(s, rnd, jobs)):
         if result is not None:
             rnd.refitted[name] = result
             finished.append(name)
     return finished
 
 
-def _from_mimic(s: Setting, rnd: Round, named: CandidateResult, name: str) -> tuple[list, CandidateResult | None]:
-    """``(lines to say, finish)`` of candidate ``name`` short-refitted from where it mimics
-    ``named`` (besides its usual starts) and finished on the whole record (the finish raises
-    what it raises); None where the short refit failed."""
+def _from_mimic(s: Setting, rnd: Round, named: CandidateResult, name: str) -> tuple[list, Short | None]:
+    """``(lines to say, short refit)`` of candidate ``name`` from where it mimics ``named``
+    (besides its usual starts); None where the short refit failed."""
     lines = []
     model_e = rnd.fit.model + name
     work = s.work.record
@@ -372,10 +370,9 @@ def _from_mimic(s: Setting, rnd: Round, named: CandidateResult, name: str) -> tu
         "no start",
     )
     extra = [] if mimic is None else [mimic]
-    short = attempt(lambda: refit_short(s, rnd, name, model_e, rnd.fit, extra=extra), lines.append, "not possible")
-    if short is None:
-        return lines, None
-    return lines, evaluate(rnd.ref, name, short.model, short.theta, rnd.screened.get(name))
+    return lines, attempt(
+        lambda: refit_short(s, rnd, name, model_e, rnd.fit, extra=extra), lines.append, "not possible"
+    )
 
 
 def diagnose(

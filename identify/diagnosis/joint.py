@@ -31,13 +31,13 @@ from model import Model
 from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at, joint_start
 from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
 from ..fitting.noise import energised_mask
-from ..fitting.threads import single_threaded_blas
+from ..fitting.threads import results_side_by_side, single_threaded_blas
 from .adequacy import Adequacy, Thresholds, assess_adequacy
 from .candidates import CandidateResult, explained_fraction, first_loading_share
 from .decision import Decision, decide
 from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
-from .fits import concurrently, n_eff, profile_of, same_threshold_sign
+from .fits import n_eff, profile_of, same_threshold_sign
 
 __all__ = ["JointDiagnosis", "diagnose_records"]
 
@@ -254,9 +254,7 @@ def _fit_candidates(ctx: _Joint, names, say) -> tuple[list, dict, dict]:
     ranking, adequate_by_record, joint_fits = [], {}, {}
     for name in names:
         say(f"'{name}' on every record together")
-    for name, (fitted, exc) in zip(names, concurrently([partial(_fit_candidate, ctx, name) for name in names])):
-        if exc is not None:
-            raise exc
+    for name, fitted in zip(names, results_side_by_side([partial(_fit_candidate, ctx, name) for name in names])):
         if fitted is None:
             continue
         joint_fits[name] = fitted[0]

@@ -116,7 +116,7 @@ from .lsq_solver import (
 from .lsq_starts import PAPER_PEAK_INPUT, TABLE1_N_OPERATORS, candidate_starts
 from .noise import NoiseModel, energised_mask, estimate_noise
 from .parametrisation import in_record_units, with_threshold_sign
-from .threads import fastest_thread_count, side_by_side, single_threaded_blas
+from .threads import fastest_thread_count, results_side_by_side, single_threaded_blas
 
 _log = logging.getLogger(__name__)  # a child of the "identify" logger (identify.logs)
 
@@ -405,17 +405,12 @@ def _screen_start(residuals: WhitenedResiduals, x0):
 
 def _side_by_side(residuals: WhitenedResiduals, tasks) -> list:
     """``[(result, evaluations)]`` of ``tasks`` (each called with its own copy of ``residuals``),
-    run side by side (:func:`identify.fitting.threads.side_by_side`: each computes what it would
-    alone); their evaluations are added to ``residuals``'s count."""
+    run side by side (:func:`identify.fitting.threads.results_side_by_side`: each computes what it
+    would alone); their evaluations are added to ``residuals``'s count."""
     copies = [residuals.copy() for _ in tasks]
-    outcomes = side_by_side([partial(task, twin) for task, twin in zip(tasks, copies)])
-    results = []
-    for (result, exc), twin in zip(outcomes, copies):
-        if exc is not None:  # pragma: no cover - side_by_side raises what it does not catch
-            raise exc
-        residuals.n_evaluations += twin.n_evaluations
-        results.append((result, twin.n_evaluations))
-    return results
+    results = results_side_by_side([partial(task, twin) for task, twin in zip(tasks, copies)])
+    residuals.n_evaluations += sum(twin.n_evaluations for twin in copies)
+    return [(result, twin.n_evaluations) for result, twin in zip(results, copies)]
 
 
 def _polish_at_bound(residuals, screened, origins, polish, log: _StartLog) -> None:

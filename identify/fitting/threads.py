@@ -4,7 +4,6 @@ algebra of a fit, numba's thread count chosen by measurement."""
 from __future__ import annotations
 
 import math
-import os
 import threading
 import time as _time
 from concurrent.futures import ThreadPoolExecutor
@@ -18,6 +17,7 @@ __all__ = [
     "cap_numba_threads",
     "numba_thread_cap",
     "side_by_side",
+    "results_side_by_side",
     "SIDE_BY_SIDE",
 ]
 
@@ -85,12 +85,13 @@ def side_by_side(actions, catch=()) -> list:
     iterations alternate the model's kernels, which use the cores together, with the solver's
     dense algebra (SVD, QR), which uses one, so two fits side by side keep both cores busy.
     Every fit computes what it would alone: BLAS stays on one thread, and numba's thread count
-    does not change a result (each parameter set is computed apart). A thread already capped at
-    one (a worker) runs its actions in turn. An exception of the types ``catch`` is returned in
-    its action's place, any other raised here.
+    does not change a result (each parameter set is computed apart). As many workers as numba
+    may use threads here (:func:`numba_thread_cap`: the cores, or ``NUMBA_NUM_THREADS``), so a
+    thread already capped at one (a worker) runs its actions in turn. An exception of the types
+    ``catch`` is returned in its action's place, any other raised here.
     """
     actions = list(actions)
-    workers = min(SIDE_BY_SIDE, len(actions), _cores(), numba_thread_cap())
+    workers = min(SIDE_BY_SIDE, len(actions), numba_thread_cap())
 
     def run(action):
         try:
@@ -116,8 +117,6 @@ def side_by_side(actions, catch=()) -> list:
             raise
 
 
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
+def results_side_by_side(actions) -> list:
+    """The results of ``actions`` in order, run as :func:`side_by_side`; any exception raised."""
+    return [result for result, _ in side_by_side(actions)]
