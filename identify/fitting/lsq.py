@@ -417,16 +417,21 @@ def _polish_at_bound(residuals, screened, origins, polish, log: _StartLog) -> No
     """Phase 3: an optimum with a GPI parameter on its box bound is a degenerate limit (e.g.
     an Omega branch whose tanh is stretched into a line: c0 at -1000, c1 -> 0), into which
     dogbox's large steps can fall; the same starts are then polished from their origin with
-    the interior, reflective method (trf) too, finished by dogbox."""
+    the interior, reflective method (trf) too, finished by dogbox (side by side, each on its
+    own copy of the residuals)."""
     gpi_at_bound = _gpi_at_bound(residuals, log.best.x)
     if not gpi_at_bound:
         return
     note = f" ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum had {', '.join(gpi_at_bound)} on a bound)"
-    for k in sorted(polish):
-        before = residuals.n_evaluations
-        sol = bounded_solve(residuals, origins[k], POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
-        end = _converged(residuals, sol, note)
-        log.keep(f"{screened[k][0]} ({ALTERNATE_METHOD})", end, residuals.n_evaluations - before)
+    ks = sorted(polish)
+    tasks = [partial(_interior_end, x0=origins[k], note=note) for k in ks]
+    for k, (end, used) in zip(ks, _side_by_side(residuals, tasks)):
+        log.keep(f"{screened[k][0]} ({ALTERNATE_METHOD})", end, used)
+
+
+def _interior_end(residuals: WhitenedResiduals, x0, note: str) -> _PolishedStart:
+    """A start run to convergence with :data:`ALTERNATE_METHOD`, finished by :func:`_converged`."""
+    return _converged(residuals, bounded_solve(residuals, x0, POLISH_EVALUATIONS, method=ALTERNATE_METHOD), note)
 
 
 class _ResidualsInCoordinates:
@@ -476,40 +481,47 @@ def _polish_in_coordinates(residuals: WhitenedResiduals, log: _StartLog) -> None
     from the floor. In the sampler coordinates those valleys are nearly straight: on the
     SMA record (``docs/realdata.md``) the ends that had stopped at the cap reached lower
     optima in 25-40 steps. The solver is trf without bounds in ``u``; a step whose
-    parameters leave their box is refused through :data:`DOMAIN_PENALTY`.
+    parameters leave their box is refused through :data:`DOMAIN_PENALTY`. The ends are
+    polished side by side, each on its own copy of the residuals.
     """
     coordinates = GPICoordinates.for_model(residuals.model, residuals.time, residuals.current)
     if not getattr(coordinates, "blocks", ()):
         return
+    ends = list(log.ends)
+    tasks = [partial(_polish_end_in_coordinates, coordinates=coordinates, x=end.x) for _, end in ends]
+    for (label, end), (polished, used) in zip(ends, _side_by_side(residuals, tasks)):
+        if polished is not None and polished.chi2 < end.chi2:
+            log.keep(f"{label} (coordinates)", polished, used)
+
+
+def _polish_end_in_coordinates(residuals: WhitenedResiduals, coordinates, x) -> _PolishedStart | None:
+    """One end ``x`` polished in the sampler coordinates (:func:`_polish_in_coordinates`); None
+    where it has no coordinates or the solver ended outside the box."""
+    try:
+        u0 = coordinates.forward(x[None, :])[0]
+    except (ValueError, FloatingPointError):
+        return None
+    if not np.isfinite(u0).all():
+        return None
     in_u = _ResidualsInCoordinates(residuals, coordinates)
-    for label, end in list(log.ends):
-        before = residuals.n_evaluations
-        try:
-            u0 = coordinates.forward(end.x[None, :])[0]
-        except (ValueError, FloatingPointError):
-            continue
-        if not np.isfinite(u0).all():
-            continue
-        sol = least_squares(
-            in_u,
-            u0,
-            jac=in_u.jacobian,
-            method=ALTERNATE_METHOD,
-            x_scale="jac",
-            ftol=TOLERANCE,
-            xtol=TOLERANCE,
-            gtol=TOLERANCE,
-            max_nfev=POLISH_EVALUATIONS,
-            callback=StallStop(),
-        )
-        x, inside = in_u.parameters(sol.x)
-        if not inside[0]:
-            continue
-        chi2 = 2.0 * float(sol.cost)  # the residual at sol.x is the parameters' (inside the box), as in _converged
-        if chi2 < end.chi2:
-            success, message = solver_verdict(sol)
-            polished = _PolishedStart(x[0], chi2, success, f"{message} (again in the sampler coordinates)")
-            log.keep(f"{label} (coordinates)", polished, residuals.n_evaluations - before)
+    sol = least_squares(
+        in_u,
+        u0,
+        jac=in_u.jacobian,
+        method=ALTERNATE_METHOD,
+        x_scale="jac",
+        ftol=TOLERANCE,
+        xtol=TOLERANCE,
+        gtol=TOLERANCE,
+        max_nfev=POLISH_EVALUATIONS,
+        callback=StallStop(),
+    )
+    polished, inside = in_u.parameters(sol.x)
+    if not inside[0]:
+        return None
+    chi2 = 2.0 * float(sol.cost)  # the residual at sol.x is the parameters' (inside the box), as in _converged
+    success, message = solver_verdict(sol)
+    return _PolishedStart(polished[0], chi2, success, f"{message} (again in the sampler coordinates)")
 
 
 def _canonical(residuals: WhitenedResiduals, x) -> np.ndarray:
