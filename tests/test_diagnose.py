@@ -949,3 +949,19 @@ def test_a_parameter_pinned_by_default_is_neither_charged_nor_moved_by_a_mimicki
     values = model_e.theta_dict(theta)
     assert values["thermal_initial"] == 0.0 and values["thermal_initial_core"] == 0.0
     assert values["thermal_expansion"] != 0.0 or values["thermal_sensitivity"] != 0.0  # it did mimic
+
+
+def test_before_a_name_every_rival_that_repairs_too_is_started_where_it_mimics_the_name():
+    """A rival that repairs the model as well but lost may have lost to its finish's basin, not to
+    the data: before the name stands it is started once where it reproduces the named fit, and its
+    better fit kept (a hidden heating at 25 Hz where training repairs too)."""
+    sim = simulate("thermal", seed=5, fs=25.0, noise_sigma=0.5)
+    said = []
+    candidates = ["thermal", "creep", "sensor_drift", "training"]
+    result = diagnose(sim.record, n_starts=2, rng=np.random.default_rng(0), candidates=candidates, progress=said.append)
+    assert result.status == "missing_effect" and result.missing == "thermal"
+    repairing = {c.effect for c in result.ranking if c.refitted and c.adequate_after} - {"thermal"}
+    assert repairing, "the record must have a rival that repairs too"
+    started = [m for m in said if "started where it mimics 'thermal'" in m]
+    expected = [f"before naming 'thermal': '{n}' started where it mimics 'thermal'" for n in repairing]
+    assert sorted(started) == sorted(expected)

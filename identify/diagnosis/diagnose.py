@@ -323,21 +323,33 @@ def _check_rivals(s: Setting, rnd: Round, decision: Decision) -> bool:
         pending = [c.effect for c in _unrefitted(rnd) if c.delta_bic > 0.0]
         _targeted(s, rnd, pending)
         return bool(pending)
-    finished = _unfinished_rivals(s, rnd, decision) if decision.status == "missing_effect" else []
+    finished = []
+    while decision.status == "missing_effect":
+        more = _rivals_from_the_name(s, rnd, decision)
+        if not more:
+            break
+        finished += more
+        decision = decide(gather_evidence(rnd), s.thresholds)
     if decision.rule == "named_from_pair" and decision.best in rnd.pairs:
         finished += rival_pairs(s, rnd, decision.missing, rnd.pairs[decision.best])
     return bool(finished)
 
 
-def _unfinished_rivals(s: Setting, rnd: Round, decision: Decision) -> list:
-    """Before a name stands, every candidate the search did not finish is finished from the start
-    that reproduces the named explanation's output (:mod:`identify.diagnosis.mimic`): a
-    screening is no evidence that a rival cannot explain what the name explains. Their names."""
+def _rivals_from_the_name(s: Setting, rnd: Round, decision: Decision) -> list:
+    """Before a name stands, its rivals are started where they reproduce the named
+    explanation's output (:mod:`identify.diagnosis.mimic`), once per rival and name: every
+    candidate the search did not finish (a screening is no evidence that a rival cannot explain
+    what the name explains), and every finished one that repairs the model too (that it lost
+    may be the basin its finish ended in, not the data: the fit from the new start is kept
+    where its chi-square is lower). The names whose fit was finished or improved."""
     named = rnd.pairs.get(decision.best) or rnd.refitted.get(decision.best)
     if named is None or named.fit is None:
         return []
     inside = set(named.effect.split("+"))
-    pending = [n for n in rnd.screened if n not in rnd.refitted and n not in rnd.failed and n not in inside]
+    unfinished = [n for n in rnd.screened if n not in rnd.refitted and n not in rnd.failed]
+    repairing = [n for n, c in rnd.refitted.items() if c.adequate_after]
+    pending = [n for n in [*unfinished, *repairing] if n not in inside and (n, named.effect) not in rnd.mimicked]
+    rnd.mimicked.update((n, named.effect) for n in pending)
     for name in pending:
         s.say(f"before naming '{decision.missing}': '{name}' started where it mimics '{named.effect}'")
     jobs = []  # the short refits from where each mimics the name side by side, then their finishes
@@ -348,12 +360,13 @@ def _unfinished_rivals(s: Setting, rnd: Round, decision: Decision) -> list:
             s.say(line)
         if short is not None:
             jobs.append((name, short, ()))
-    finished = []
+    changed = []
     for (name, _, _), result in zip(jobs, finish_candidates(s, rnd, jobs)):
-        if result is not None:
+        before = rnd.refitted.get(name)
+        if result is not None and (before is None or result.chi2 < before.chi2):
             rnd.refitted[name] = result
-            finished.append(name)
-    return finished
+            changed.append(name)
+    return changed
 
 
 def _from_mimic(s: Setting, rnd: Round, named: CandidateResult, name: str) -> tuple[list, Short | None]:

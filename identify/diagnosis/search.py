@@ -118,7 +118,8 @@ class Round:
     the baseline's sign where the other sign's replaced it (pairs of the baseline's sign start
     from it); ``pairs`` and ``pair_shorts``: the pairs (:mod:`identify.diagnosis.pairs`);
     ``failed``: candidates whose screening or refit failed; ``carried``: what the round before
-    reached with each candidate."""
+    reached with each candidate; ``mimicked``: the ``(rival, named)`` pairs whose rival was
+    started where it reproduces the named explanation."""
 
     ref: Reference
     profile: ResidualProfile
@@ -137,6 +138,7 @@ class Round:
     reparametrised: list = field(default_factory=list)
     carried: dict = field(default_factory=dict)
     tied_sign: FitResult | None = None
+    mimicked: set = field(default_factory=set)
 
     @property
     def fit(self) -> FitResult:
