@@ -52,7 +52,7 @@ from .mimic import mimic_start
 from .pairs import rival_pairs, search_pairs
 from .reparametrisation import exact_reparametrisation
 from .residuals import ResidualProfile
-from .search import Round, Setting, Short, finish_candidates, own_values, refit_short, search
+from .search import Round, Setting, Short, finish_candidates, own_values, refit_short, search, worth_finishing
 
 __all__ = ["STATUSES", "Diagnosis", "diagnose"]
 
@@ -341,7 +341,9 @@ def _rivals_from_the_name(s: Setting, rnd: Round, decision: Decision) -> list:
     candidate the search did not finish (a screening is no evidence that a rival cannot explain
     what the name explains), and every finished one that repairs the model too (that it lost
     may be the basin its finish ended in, not the data: the fit from the new start is kept
-    where its chi-square is lower). The names whose fit was finished or improved."""
+    where its chi-square is lower). An unfinished one is finished where its short refit from
+    there is worth it as any candidate's beyond the best few (it beats the baseline on the
+    working copy and gains significantly there). The names whose fit was finished or improved."""
     named = rnd.pairs.get(decision.best) or rnd.refitted.get(decision.best)
     if named is None or named.fit is None:
         return []
@@ -353,13 +355,18 @@ def _rivals_from_the_name(s: Setting, rnd: Round, decision: Decision) -> list:
     for name in pending:
         s.say(f"before naming '{decision.missing}': '{name}' started where it mimics '{named.effect}'")
     jobs = []  # the short refits from where each mimics the name side by side, then their finishes
+    beyond_the_best = s.thresholds.max_refits
     for name, (lines, short) in zip(
         pending, results_side_by_side([partial(_from_mimic, s, rnd, named, n) for n in pending])
     ):
         for line in lines:
             s.say(line)
-        if short is not None:
+        if short is None:
+            continue
+        if name in rnd.refitted or worth_finishing(s, rnd, name, short.chi2, beyond_the_best):
             jobs.append((name, short, ()))
+        else:
+            s.say(f"'{name}' from there gains nothing significant on the working copy: not finished")
     changed = []
     for (name, _, _), result in zip(jobs, finish_candidates(s, rnd, jobs)):
         before = rnd.refitted.get(name)

@@ -70,7 +70,16 @@ from .residuals import ARNoise, ResidualProfile
 from .screening import ScreeningResult, screen_one
 from .starts import carried, data_driven, from_scratch, near, screening_step, working_chi2
 
-__all__ = ["Setting", "Round", "Short", "search", "start_round", "MAX_BASELINE_CHALLENGES", "SHARED_BASIN_GAIN"]
+__all__ = [
+    "Setting",
+    "Round",
+    "Short",
+    "search",
+    "start_round",
+    "worth_finishing",
+    "MAX_BASELINE_CHALLENGES",
+    "SHARED_BASIN_GAIN",
+]
 
 #: How often a candidate's GPI may replace the baseline before the verdict.
 MAX_BASELINE_CHALLENGES = 1
@@ -299,7 +308,7 @@ def _other_sign_shorts(s: Setting, rnd: Round) -> None:
             _keep_short(rnd, name, short)
 
 
-def _worth_finishing(s: Setting, rnd: Round, name: str, chi2: float, rank: int) -> bool:
+def worth_finishing(s: Setting, rnd: Round, name: str, chi2: float, rank: int) -> bool:
     """Is candidate ``name``, whose best short refit ends at ``chi2`` (``rank``-th lowest, from 0),
     finished on the whole record? When it beats the baseline on the working copy and is among
     the ``max_refits`` best, or beyond them gains significantly (a short refit only bounds a
@@ -367,7 +376,7 @@ def _finish_best(s: Setting, rnd: Round) -> None:
     best = {n: min(rnd.short[n].chi2, rnd.other[n].chi2 if n in rnd.other else math.inf) for n in rnd.short}
     jobs = []
     for rank, name in enumerate(sorted(best, key=best.get)):
-        if not _worth_finishing(s, rnd, name, best[name], rank):
+        if not worth_finishing(s, rnd, name, best[name], rank):
             continue
         s.say(f"refitting with '{name}'")
         jobs.append((name, rnd.short[name], ()))
