@@ -264,6 +264,46 @@ def test_a_fit_side_by_side_measures_at_most_its_threads_cap_and_the_caller_keep
         numba.set_num_threads(before)
 
 
+def test_a_worker_whose_fellows_are_idle_runs_numba_on_their_cores_too():
+    """While both workers of a call run an action, each batch of model evaluations runs numba on
+    one thread; once the other action is done (nothing left to start), on two."""
+    import threading
+    import time as clock
+
+    import numba
+
+    from identify.fitting.threads import side_by_side, use_idle_cores
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one numba thread on this machine")
+    both = threading.Barrier(2, timeout=10)
+    first_done = threading.Event()
+
+    def first():
+        both.wait()
+        use_idle_cores()
+        together = numba.get_num_threads()
+        first_done.set()
+        return together
+
+    def second():
+        both.wait()
+        use_idle_cores()
+        together = numba.get_num_threads()
+        first_done.wait(10)
+        deadline = clock.monotonic() + 10
+        while clock.monotonic() < deadline:  # the first worker stops counting as busy after its return
+            use_idle_cores()
+            if numba.get_num_threads() == 2:
+                break
+            clock.sleep(0.01)
+        return together, numba.get_num_threads()
+
+    (together_first, _), ((together_second, alone), _) = side_by_side([first, second])
+    assert together_first == 1 and together_second == 1
+    assert alone == 2
+
+
 def _increasing_amplitude_input(fs=50.0):
     """10 s quiet, then a 0.1 Hz sine whose amplitude grows from 0.5 A to 2.5 A (peaks 1-5 A)."""
     time = np.arange(0.0, 70.0 + 0.5 / fs, 1.0 / fs)

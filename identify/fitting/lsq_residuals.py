@@ -16,6 +16,7 @@ from numba import njit
 from model import Model
 
 from .noise import NoiseModel, whiten_rows
+from .threads import use_idle_cores
 
 __all__ = ["WhitenedResiduals", "difference_columns", "DOMAIN_PENALTY", "CENTRAL_STEP_POWER"]
 
@@ -106,6 +107,7 @@ class WhitenedResiduals:
     def batch(self, x_rows) -> tuple[np.ndarray, np.ndarray]:
         """Whitened residuals ``(B, T)`` and validity ``(B,)`` for free vectors ``(B, P_free)``."""
         thetas = self.full(np.atleast_2d(x_rows))
+        use_idle_cores()
         y, valid = self.model.evaluate(thetas, self.time, self.current)
         self.n_evaluations += thetas.shape[0]
         w, finite = whiten_rows(self.data, y, self.noise, self.sigma, time=self._uneven_time)

@@ -16,6 +16,7 @@ __all__ = [
     "fastest_thread_count",
     "cap_numba_threads",
     "numba_thread_cap",
+    "use_idle_cores",
     "side_by_side",
     "results_side_by_side",
     "SIDE_BY_SIDE",
@@ -38,6 +39,35 @@ def cap_numba_threads(count: int) -> None:
 def numba_thread_cap() -> int:
     """The most numba threads the calling thread may use: its cap, else numba's maximum."""
     return int(getattr(_local, "cap", None) or numba.config.NUMBA_NUM_THREADS)
+
+
+class _Workers:
+    """The workers of one :func:`side_by_side` call: how many there are and how many run an action now."""
+
+    def __init__(self, count: int):
+        self.count = int(count)
+        self.busy = 0
+        self.lock = threading.Lock()
+
+    def start(self) -> None:
+        with self.lock:
+            self.busy += 1
+
+    def stop(self) -> None:
+        with self.lock:
+            self.busy -= 1
+
+
+def use_idle_cores() -> None:
+    """In a worker of :func:`side_by_side`: numba's thread count for the next kernels, its own core
+    plus those of the call's workers that are idle now (a worker idles only when no action is
+    left to start, so in the call's last actions). Elsewhere nothing: a fit alone has its count
+    from :func:`fastest_thread_count`. A kernel computes every parameter set apart, so the
+    count never changes a result."""
+    workers = getattr(_local, "workers", None)
+    if workers is not None:
+        idle = max(0, workers.count - workers.busy)
+        numba.set_num_threads(max(1, min(1 + idle, numba.config.NUMBA_NUM_THREADS)))
 
 
 def single_threaded_blas():
@@ -81,6 +111,9 @@ def side_by_side(actions, catch=()) -> list:
     order, run on the machine's cores at once (at most :data:`SIDE_BY_SIDE`), each worker with
     numba capped at one thread (:func:`cap_numba_threads`) and BLAS on one thread.
 
+    In the call's last actions a worker whose fellows are idle runs numba on their cores too
+    (:func:`use_idle_cores`, called before each batch of model evaluations).
+
     For independent fits (each reads shared inputs and writes nothing shared): a fit's
     iterations alternate the model's kernels, which use the cores together, with the solver's
     dense algebra (SVD, QR), which uses one, so two fits side by side keep both cores busy.
@@ -103,9 +136,16 @@ def side_by_side(actions, catch=()) -> list:
         with single_threaded_blas():
             return [run(action) for action in actions]
 
+    pool_workers = _Workers(workers)
+
     def one_thread(action):
         cap_numba_threads(1)  # this worker thread's fits, their thread-count measurements included
-        return run(action)
+        _local.workers = pool_workers  # idle workers' cores lent at each batch (use_idle_cores)
+        pool_workers.start()
+        try:
+            return run(action)
+        finally:
+            pool_workers.stop()
 
     with single_threaded_blas(), ThreadPoolExecutor(max_workers=workers) as pool:
         futures = [pool.submit(one_thread, action) for action in actions]
