@@ -198,14 +198,17 @@ def main(argv=None) -> int:
     for name, first, truth, measure in cases:
         if name in results or (only and not any(o in name for o in only)):
             continue
-        results[name] = run_case(name, first, truth, measure, args.out)
+        r = run_case(name, first, truth, measure, args.out)
+        # read again before writing: another run into the same folder may have added records
+        results = json.loads(path.read_text()) if path.exists() else {}
+        results[name] = r
         atomic_write(path, json.dumps(results, indent=1, default=float))
-        r = results[name]
         print(
             f"{name:<40} truth {'+'.join(sorted(truth)):<24} alone {r['alone']:<32} -> "
             f"{r.get('verdict', r.get('skipped'))} ({r['seconds']:.0f} s)",
             flush=True,
         )
+    results = json.loads(path.read_text()) if path.exists() else {}  # with any other run's
     done = [r for r in results.values() if "verdict" in r]
     if done:
         right = sum(r["right"] for r in done)

@@ -96,13 +96,17 @@ def main(argv=None) -> int:
         started = time.perf_counter()
         d = diagnose(record, case.get("effects"), rng=np.random.default_rng(0))
         right, answer = judge(case, d.status, d.missing, d.tied)
-        results[case["name"]] = {
+        outcome = {
             "right": right,
             "answer": answer,
             "rule": d.rule,
             "seconds": time.perf_counter() - started,
         }
+        # read again before writing: another run into the same folder may have added cases
+        results = json.loads(path.read_text()) if path.exists() else {}
+        results[case["name"]] = outcome
         atomic_write(path, json.dumps(results, indent=1))
+    results = json.loads(path.read_text()) if path.exists() else {}  # with any other run's
     for case in cases:
         r = results.get(case["name"])
         if r is not None and (not only or case["name"] in only):
