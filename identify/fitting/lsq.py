@@ -91,7 +91,6 @@ from functools import partial
 
 import numba
 import numpy as np
-from scipy.optimize import least_squares
 
 from model import THETA_NAMES, Model
 
@@ -112,6 +111,7 @@ from .lsq_solver import (
     StallStop,
     bounded_solve,
     solver_verdict,
+    stalling_solve,
 )
 from .lsq_starts import PAPER_PEAK_INPUT, TABLE1_N_OPERATORS, candidate_starts
 from .noise import NoiseModel, energised_mask, estimate_noise
@@ -504,18 +504,7 @@ def _polish_end_in_coordinates(residuals: WhitenedResiduals, coordinates, x) -> 
     if not np.isfinite(u0).all():
         return None
     in_u = _ResidualsInCoordinates(residuals, coordinates)
-    sol = least_squares(
-        in_u,
-        u0,
-        jac=in_u.jacobian,
-        method=ALTERNATE_METHOD,
-        x_scale="jac",
-        ftol=TOLERANCE,
-        xtol=TOLERANCE,
-        gtol=TOLERANCE,
-        max_nfev=POLISH_EVALUATIONS,
-        callback=StallStop(),
-    )
+    sol = stalling_solve(in_u, u0, in_u.jacobian, POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
     polished, inside = in_u.parameters(sol.x)
     if not inside[0]:
         return None

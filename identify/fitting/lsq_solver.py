@@ -26,6 +26,7 @@ __all__ = [
     "STALLED",
     "StallStop",
     "solver_verdict",
+    "stalling_solve",
     "bounded_solve",
 ]
 
@@ -115,15 +116,15 @@ def solver_verdict(sol, stall: StallStop | None = None) -> tuple[bool, str]:
     return bool(sol.success), str(sol.message)
 
 
-def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METHOD, tolerance=TOLERANCE):
-    """One bounded solver run on ``residuals`` from free vector ``x0``: ``method`` with
-    Jacobian scaling, relative tolerances ``tolerance`` and the stall rule (:class:`StallStop`).
-    The diagnosis' short refits and polishes run it too."""
+def stalling_solve(fun, x0, jac, max_nfev, method=SOLVER_METHOD, tolerance=TOLERANCE, bounds=(-np.inf, np.inf)):
+    """One solver run of ``fun`` from ``x0`` (:func:`scipy.optimize.least_squares`, Jacobian
+    ``jac``): ``method`` with Jacobian scaling, relative tolerances ``tolerance``, the stall rule
+    (:class:`StallStop`) and ``bounds`` (none by default)."""
     return least_squares(
-        residuals,
+        fun,
         x0,
-        jac=residuals.jacobian,
-        bounds=(residuals.lower, residuals.upper),
+        jac=jac,
+        bounds=bounds,
         method=method,
         x_scale="jac",
         ftol=tolerance,
@@ -132,3 +133,10 @@ def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METH
         max_nfev=max_nfev,
         callback=StallStop(),
     )
+
+
+def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METHOD, tolerance=TOLERANCE):
+    """One bounded solver run on ``residuals`` from free vector ``x0`` (:func:`stalling_solve`
+    within the parameters' box). The diagnosis' short refits and polishes run it too."""
+    bounds = (residuals.lower, residuals.upper)
+    return stalling_solve(residuals, x0, residuals.jacobian, max_nfev, method, tolerance, bounds)
