@@ -178,6 +178,11 @@ def independent_cases(folder: Path):
         yield path.stem, load_record(str(csv)), set(physics), measure
 
 
+def saved(path: Path) -> dict:
+    """The results written so far (an empty dict before the first)."""
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, type=Path)
@@ -189,7 +194,7 @@ def main(argv=None) -> int:
     only = [o for o in args.only.split(",") if o]
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "results.json"
-    results = json.loads(path.read_text()) if path.exists() else {}
+    results = saved(path)
     cases = []
     if args.own:
         cases += list(own_cases([int(s) for s in args.seeds.split(",") if s]))
@@ -199,8 +204,7 @@ def main(argv=None) -> int:
         if name in results or (only and not any(o in name for o in only)):
             continue
         r = run_case(name, first, truth, measure, args.out)
-        # read again before writing: another run into the same folder may have added records
-        results = json.loads(path.read_text()) if path.exists() else {}
+        results = saved(path)  # read again: another run into the same folder may have added records
         results[name] = r
         atomic_write(path, json.dumps(results, indent=1, default=float))
         print(
@@ -208,7 +212,7 @@ def main(argv=None) -> int:
             f"{r.get('verdict', r.get('skipped'))} ({r['seconds']:.0f} s)",
             flush=True,
         )
-    results = json.loads(path.read_text()) if path.exists() else {}  # with any other run's
+    results = saved(path)  # with any other run's
     done = [r for r in results.values() if "verdict" in r]
     if done:
         right = sum(r["right"] for r in done)

@@ -76,6 +76,11 @@ def judge(case: dict, status: str, missing, tied) -> tuple[bool, str]:
     return status == case["expect"], answer
 
 
+def saved(path: Path) -> dict:
+    """The results written so far (an empty dict before the first)."""
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True, type=Path)
@@ -88,7 +93,7 @@ def main(argv=None) -> int:
         parser.error(f"unknown case(s): {', '.join(sorted(unknown))}")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "results.json"
-    results = json.loads(path.read_text()) if path.exists() else {}
+    results = saved(path)
     for case in cases:
         if (only and case["name"] not in only) or case["name"] in results:
             continue
@@ -102,11 +107,10 @@ def main(argv=None) -> int:
             "rule": d.rule,
             "seconds": time.perf_counter() - started,
         }
-        # read again before writing: another run into the same folder may have added cases
-        results = json.loads(path.read_text()) if path.exists() else {}
+        results = saved(path)  # read again: another run into the same folder may have added cases
         results[case["name"]] = outcome
         atomic_write(path, json.dumps(results, indent=1))
-    results = json.loads(path.read_text()) if path.exists() else {}  # with any other run's
+    results = saved(path)  # with any other run's
     for case in cases:
         r = results.get(case["name"])
         if r is not None and (not only or case["name"] in only):
