@@ -60,13 +60,12 @@ themselves); or any callable ``f(log_post)`` returning an object with ``forward`
 
 from __future__ import annotations
 
-import math
-
 import emcee
 import numpy as np
-from numba import njit
 
 from model import TABLE1, THETA_NAMES
+
+from . import _coordinate_kernels as kernels
 
 __all__ = ["GPICoordinates", "IdentityCoordinates", "CoordinateMove", "COORDINATES", "coordinates_for"]
 
@@ -80,69 +79,6 @@ _THERMAL_NODES = {
 _THERMAL = tuple(n for names in _THERMAL_NODES.values() for n in names)
 #: Most safeguarded Newton steps for ``tau`` in the inverse map (typically 4-6 are used).
 MAX_NEWTON_STEPS = 100
-
-
-@njit(cache=True, error_model="numpy")
-def _moment_rows(rho, tau, r, out):
-    """Per row ``w``: ``out[:, w] = (S, R, central second moment, s0)`` of the weights
-    ``p_j = rho e^{-tau r_j}`` (``s0 = sum_j e^{-tau r_j}``), one pass over the thresholds."""
-    for w in range(rho.shape[0]):
-        s0 = s1 = s2 = 0.0
-        for j in range(r.shape[0]):
-            e = math.exp(-tau[w] * r[j])
-            s0 += e
-            s1 += e * r[j]
-            s2 += e * r[j] * r[j]
-        out[0, w] = rho[w] * s0
-        out[1, w] = rho[w] * s1
-        out[2, w] = rho[w] * (s2 - s1 * s1 / s0)
-        out[3, w] = s0
-
-
-@njit(cache=True, error_model="numpy")
-def _mean_and_var(t, r, r2):
-    """Mean and variance of the thresholds ``r`` under the weights ``e^{-t r}``; the
-    exponent's maximum is at the first or the last threshold (``-t r_j`` is monotone in
-    ``j``), so the weights are scaled by it (no overflow)."""
-    top = max(-t * r[0], -t * r[-1])
-    s0 = s1 = s2 = 0.0
-    for j in range(r.shape[0]):
-        e = math.exp(-t * r[j] - top)
-        s0 += e
-        s1 += e * r[j]
-        s2 += e * r2[j]
-    m = s1 / s0
-    return m, s2 / s0 - m * m
-
-
-@njit(cache=True, error_model="numpy")
-def _solve_tau_rows(mean, r, r2, lower, upper, mean_lo, mean_hi, m0, v0, max_steps, out):
-    """Per row: the ``tau`` in ``[lower, upper]`` whose weighted mean threshold is ``mean``
-    (safeguarded Newton from the linearisation at ``tau = 0``, a bisection step whenever
-    Newton leaves the bracket, until a step moves ``tau`` by at most ``1e-13 (1 + |tau|)``);
-    NaN where ``mean`` is not finite or outside ``[mean_hi, mean_lo]`` (the means at the
-    bounds)."""
-    for w in range(mean.shape[0]):
-        target = mean[w]
-        if not (target <= mean_lo and target >= mean_hi and math.isfinite(target)):
-            out[w] = math.nan
-            continue
-        lo, hi = lower, upper
-        t = min(max((m0 - target) / v0, lo), hi)
-        for _ in range(max_steps):
-            m, var = _mean_and_var(t, r, r2)
-            f = m - target  # > 0: the root lies at larger tau
-            if f > 0:
-                lo = t
-            else:
-                hi = t
-            newton = t + f / var
-            t_new = newton if lo <= newton <= hi else 0.5 * (lo + hi)
-            done = abs(t_new - t) <= 1e-13 * (1.0 + abs(t))
-            t = t_new
-            if done:
-                break
-        out[w] = t
 
 
 class IdentityCoordinates:
@@ -193,8 +129,6 @@ class GPICoordinates:
         template = np.asarray(template, dtype=float)
         self.alpha = float(template[THETA_NAMES.index("alpha")])
         self.r = self.alpha * np.arange(1, int(n_operators) + 1)
-        self._r2 = self.r**2
-        self._at_bounds = None  # (mean at the tau bounds, mean and variance at tau = 0): _solve_tau
         self._pinned = {n: float(template[THETA_NAMES.index(n)]) for n in ("rho", "tau")}
         self.tau_bounds = (float(tau_bounds[0]), float(tau_bounds[1]))
         lo, hi = float(input_range[0]), float(input_range[1])
@@ -219,12 +153,19 @@ class GPICoordinates:
                 if {tau_name, *gains} <= idx.keys() and lower[idx[tau_name]] > 0:
                     blocks.append(node)
         self.blocks = tuple(blocks)
-        #: The thermal blocks in use: (index into ``_thermal_scales``, time constant, gains).
-        self._thermal = [
-            (k, tau_name, gains)
-            for k, (node, (tau_name, *gains)) in enumerate(_THERMAL_NODES.items())
-            if node in self.blocks
-        ]
+        self._tau_bounds = np.array(self.tau_bounds)
+        column = idx.get
+        self.layout = kernels.Layout(
+            np.array([b in self.blocks for b in kernels.BLOCKS]),
+            np.array([column("rho", -1), column("tau", -1)]),
+            np.array([[column(p + str(n), -1) for n in range(4)] for p in "ab"]),
+            np.array([[column(p + str(n), -1) for n in (1, 2)] for p in "cd"]),
+            np.array([[column(n, -1) for n in names] for names in _THERMAL_NODES.values()]),
+            np.array([self._pinned.get(n, np.nan) for n in ("rho", "tau", "thermal_tau", "thermal_tau_core")]),
+            np.array(self.points, dtype=float),
+            self.r,
+            np.nan if self.duration is None else self.duration,
+        )
 
     @classmethod
     def for_model(cls, model, time, current, names=None, lower=None):
@@ -270,134 +211,24 @@ class GPICoordinates:
             return IdentityCoordinates()
         return cls.for_model(model, log_post.time, log_post.current, log_post.names, log_post.lower)
 
-    # -- the weight block ------------------------------------------------------------
-    def _moments(self, rho, tau):
-        """``S = sum p_j``, ``R = sum p_j r_j``, the centred second moment and ``sum e^{-tau r_j}`` (W,)."""
-        out = np.empty((4, np.size(rho)))
-        _moment_rows(np.ascontiguousarray(rho, dtype=float), np.ascontiguousarray(tau, dtype=float), self.r, out)
-        return out[0], out[1], out[2], out[3]
+    # -- the map (compiled loops, row by row: :mod:`identify.fitting._coordinate_kernels`) --
+    def _rows(self, a):
+        return np.ascontiguousarray(np.atleast_2d(np.asarray(a, dtype=float)))
 
-    def _gpi(self, x, name):
-        if name in self.idx:
-            return x[:, self.idx[name]]
-        return np.full(x.shape[0], self._pinned[name])
-
-    def _thermal_scales(self, x):
-        """``(g1, g2)`` (W,): a node's rise at the end of the record under a constant unit
-        heating, ``g(tau) = 1 - exp(-duration / tau)``, node 2 (heated through node 1)
-        ``g(tau_1) g(tau_2)``; the gains' coordinates are the gains times these (what the
-        record pins when a time constant is longer than the record is gain / tau)."""
-        g1 = -np.expm1(-self.duration / self._gpi(x, "thermal_tau"))
-        return g1, g1 * -np.expm1(-self.duration / self._gpi(x, "thermal_tau_core"))
-
-    def _total_weight(self, x):
-        rho, tau = self._gpi(x, "rho"), self._gpi(x, "tau")
-        return self._moments(rho, tau)[0]
-
-    def _mean_and_var(self, t):
-        """Mean and variance of the thresholds under the weights ``e^{-t r}`` (W,)."""
-        m, var = np.empty(np.size(t)), np.empty(np.size(t))
-        for w, tw in enumerate(np.atleast_1d(np.asarray(t, dtype=float))):
-            m[w], var[w] = _mean_and_var(tw, self.r, self._r2)
-        return m, var
-
-    def _solve_tau(self, mean):
-        """``tau`` with weighted mean threshold ``sum r e^{-tau r} / sum e^{-tau r} = mean``;
-        NaN where ``mean`` is outside the range ``tau_bounds`` gives.
-
-        The mean decreases in tau with slope ``-var`` (the weights' variance of the
-        thresholds), so Newton's method, kept inside a shrinking bracket (a bisection step
-        whenever Newton would leave it), converges to machine precision in a few steps
-        (:func:`_solve_tau_rows`, row by row).
-        """
-        if self._at_bounds is None:  # the same for every row: computed once
-            mean_lo, _ = _mean_and_var(self.tau_bounds[0], self.r, self._r2)
-            mean_hi, _ = _mean_and_var(self.tau_bounds[1], self.r, self._r2)
-            m0, v0 = _mean_and_var(0.0, self.r, self._r2)
-            self._at_bounds = (mean_lo, mean_hi, m0, v0)
-        out = np.empty(np.size(mean))
-        _solve_tau_rows(
-            np.ascontiguousarray(mean, dtype=float),
-            self.r,
-            self._r2,
-            self.tau_bounds[0],
-            self.tau_bounds[1],
-            *self._at_bounds,
-            MAX_NEWTON_STEPS,
-            out,
-        )
-        return out
-
-    # -- the map ---------------------------------------------------------------------
     def forward(self, x) -> np.ndarray:
         """Sampler coordinates ``u`` ``(W, D)`` of parameters ``x`` ``(W, D)``."""
-        x = np.atleast_2d(np.asarray(x, dtype=float))
-        u = x.copy()
-        i = self.idx
-        S, R, _, _ = self._moments(self._gpi(x, "rho"), self._gpi(x, "tau"))
-        if "weights" in self.blocks:
-            u[:, i["rho"]], u[:, i["tau"]] = S, R
-        for p in "ab":
-            if "envelope_" + p in self.blocks:
-                k0, k1, k2, k3 = (x[:, i[p + str(n)]] for n in range(4))
-                t1, t2 = (np.tanh(k1 * v + k2) for v in self.points)
-                u[:, i[p + "0"]] = S * (k0 * t1 + k3)
-                u[:, i[p + "3"]] = S * (k0 * t2 + k3)
-                u[:, i[p + "2"]] = -k2 / k1
-        for p in "cd":
-            if "omega_" + p in self.blocks:
-                k1, k2 = x[:, i[p + "1"]], x[:, i[p + "2"]]
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    u[:, i[p + "1"]] = np.log(k1)
-                u[:, i[p + "2"]] = -k2 / k1
-        if self._thermal:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                scales = self._thermal_scales(x)
-                for k, tau_name, gains in self._thermal:
-                    u[:, i[tau_name]] = np.log(x[:, i[tau_name]])
-                    for name in gains:
-                        u[:, i[name]] = x[:, i[name]] * scales[k]
+        x = self._rows(x)
+        u = np.empty_like(x)
+        kernels.forward_rows(x, *self.layout, u)
         return u
 
     def inverse(self, u) -> np.ndarray:
         """Parameters ``x`` ``(W, D)`` of sampler coordinates ``u``; rows outside the map's
         range (a total weight <= 0, a threshold moment no ``tau`` in its bounds gives, a
         zero slope) are NaN."""
-        u = np.atleast_2d(np.asarray(u, dtype=float))
-        x = u.copy()
-        i = self.idx
-        bad = np.zeros(u.shape[0], dtype=bool)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            if "weights" in self.blocks:
-                S, R = u[:, i["rho"]], u[:, i["tau"]]
-                tau = self._solve_tau(R / np.where(S > 0, S, np.nan))
-                e = np.exp(-tau[:, None] * self.r[None, :]).sum(axis=1)
-                x[:, i["rho"]], x[:, i["tau"]] = S / e, tau
-                bad |= ~(S > 0) | ~np.isfinite(tau)
-            S = self._total_weight(x)
-            for p in "cd":
-                if "omega_" + p in self.blocks:
-                    k1 = np.exp(u[:, i[p + "1"]])
-                    x[:, i[p + "1"]], x[:, i[p + "2"]] = k1, -u[:, i[p + "2"]] * k1
-            for p in "ab":
-                if "envelope_" + p in self.blocks:
-                    k1 = u[:, i[p + "1"]]
-                    k2 = -u[:, i[p + "2"]] * k1
-                    t1, t2 = (np.tanh(k1 * v + k2) for v in self.points)
-                    e1, e2 = u[:, i[p + "0"]] / S, u[:, i[p + "3"]] / S
-                    k0 = (e1 - e2) / (t1 - t2)
-                    x[:, i[p + "0"]], x[:, i[p + "2"]], x[:, i[p + "3"]] = k0, k2, e1 - k0 * t1
-                    bad |= ~(k1 != 0) | ~(t1 != t2)
-            if self._thermal:
-                for _k, tau_name, _gains in self._thermal:  # both time constants before the scales
-                    x[:, i[tau_name]] = np.exp(u[:, i[tau_name]])
-                scales = self._thermal_scales(x)
-                for k, _tau, gains in self._thermal:
-                    for name in gains:
-                        x[:, i[name]] = u[:, i[name]] / scales[k]
-                    bad |= ~(scales[k] > 0)
-        bad |= ~np.isfinite(x).all(axis=1)
-        x[bad] = np.nan
+        u = self._rows(u)
+        x = np.empty_like(u)
+        kernels.inverse_rows(u, *self.layout, self._tau_bounds, MAX_NEWTON_STEPS, x)
         return x
 
     def log_det(self, x) -> np.ndarray:
@@ -415,27 +246,9 @@ class GPICoordinates:
           time constant); node 2's ``g`` depends on node 1's time constant, which comes
           before it, so the blocks stay triangular.
         """
-        x = np.atleast_2d(np.asarray(x, dtype=float))
-        i = self.idx
-        out = np.zeros(x.shape[0])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rho, tau = self._gpi(x, "rho"), self._gpi(x, "tau")
-            S, _, central, s0 = self._moments(rho, tau)
-            if "weights" in self.blocks:
-                # d(S, R)/d(rho, tau) = [[s0, -rho s1], [s1, -rho s2]]: |det| = rho (s0 s2 - s1^2) = s0 central
-                out += np.log(np.abs(s0)) + np.log(np.abs(central))
-            for p in "ab":
-                if "envelope_" + p in self.blocks:
-                    k1, k2 = x[:, i[p + "1"]], x[:, i[p + "2"]]
-                    t1, t2 = (np.tanh(k1 * v + k2) for v in self.points)
-                    out += 2 * np.log(np.abs(S)) + np.log(np.abs(t1 - t2)) - np.log(np.abs(k1))
-            for p in "cd":
-                if "omega_" + p in self.blocks:
-                    out -= 2 * np.log(np.abs(x[:, i[p + "1"]]))
-            if self._thermal:
-                scales = self._thermal_scales(x)
-                for k, tau_name, gains in self._thermal:
-                    out += len(gains) * np.log(np.abs(scales[k])) - np.log(np.abs(x[:, i[tau_name]]))
+        x = self._rows(x)
+        out = np.empty(x.shape[0])
+        kernels.log_det_rows(x, *self.layout, out)
         return out
 
     @staticmethod
