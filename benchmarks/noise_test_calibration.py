@@ -6,9 +6,11 @@ Run from the repository root::
 
 Each draw is pure AR(1) noise (no structure at all): the record of the paper's input length
 (70 s, the first 10 s quiet) at 100 Hz and at 1 kHz. The noise model is fitted to the quiet
-segment and the three tests are applied to the record exactly as the diagnosis does it
-(:func:`identify.diagnosis.residuals.residual_profile`). Under the null each test's ``z``
-should have mean 0, sd 1 and a normal tail; the diagnosis calls a residual structured at ``z > 5``
+segment and the four tests are applied to the record exactly as the diagnosis does it
+(:func:`identify.diagnosis.residuals.residual_profile`; the level test with the drive as the
+model's output, a level the noise does not depend on). Under the null each test's ``z``
+should have mean 0, sd 1 and a normal tail (the level test: at most a normal tail, it is
+conservative by construction); the diagnosis calls a residual structured at ``z > 5``
 (:attr:`identify.diagnosis.Thresholds.z_critical`). Printed per noise correlation
 ``phi`` and rate: the mean, sd and maximum of ``z``, and how often it passes 3 and 5
 (a normal tail: 0.13 % and 3e-7).
@@ -34,12 +36,13 @@ def ar1(rng, n, phi):
 
 
 def null_z(rng, phi, fs, draws):
-    """z of the three tests on ``draws`` pure-noise records at ``fs`` Hz, as the diagnosis computes them."""
+    """z of the four tests on ``draws`` pure-noise records at ``fs`` Hz, as the diagnosis computes them."""
     time, current = paper_current(fs)
     quiet = slice(0, int(np.searchsorted(time, 10.0, side="right")))
-    out = {"variance": [], "ljung_box": [], "low_frequency": []}
+    out = {"variance": [], "ljung_box": [], "low_frequency": [], "level": []}
     for _ in range(draws):
-        profile = residual_profile(time, current, ar1(rng, time.size, phi), quiet, output_range=1.0)
+        residual = ar1(rng, time.size, phi)
+        profile = residual_profile(time, current, residual, quiet, output_range=1.0, level=current)
         for name in out:
             out[name].append(profile.tests[name].z)
     return {k: np.array(v) for k, v in out.items()}

@@ -8,6 +8,7 @@ from scipy import stats
 from scipy.signal import lfilter
 
 from identify.data.reversals import branch_direction, find_reversals, input_rate, time_since_reversal
+from identify.diagnosis.adequacy import assess_adequacy
 from identify.diagnosis.residuals import (
     ARNoise,
     autocorrelation,
@@ -15,6 +16,7 @@ from identify.diagnosis.residuals import (
     cycle_statistics,
     extremum_levels,
     fit_ar_noise,
+    level_test,
     ljung_box,
     low_frequency_test,
     residual_profile,
@@ -260,6 +262,72 @@ def test_low_frequency_test_is_calibrated_with_an_estimated_reference():
     assert 0.85 < z.std() < 1.15
     assert abs(z.mean()) < 0.35
     assert np.mean(z > 3.0) < 0.02 and z.max() < 4.5
+
+
+def _levels(time):
+    """A drive-like output: a triangle of falling amplitude (levels visited at many times)."""
+    return 100.0 * np.abs((time / 7.0) % 2.0 - 1.0) * np.exp(-time / 40.0)
+
+
+def test_level_test_is_conservative_on_noise_with_an_estimated_reference():
+    """On noise (white, AR(1) of either sign) with the noise model fitted on a 1000-sample
+    quiet segment, the level test's z has at most a normal tail: the bound on the interval
+    means' variance and the correction over intervals only make it smaller."""
+    rng = np.random.default_rng(5)
+    t = np.arange(7000) / 100.0
+    level = _levels(t)
+    for phi in (0.0, 0.6, -0.3):
+        z = []
+        for _ in range(150):
+            e = ar1(rng, 8001, phi)
+            z.append(level_test(level, e[1001:], fit_ar_noise(e[:1001])).z)
+        z = np.array(z)
+        assert np.all(np.isfinite(z))
+        assert np.mean(z > 2.0) <= 0.05 and z.max() < 4.0
+
+
+def test_level_test_finds_a_mean_at_the_top_levels_that_the_tests_in_time_dilute():
+    """An end stop's mark after a fit: a mean of -0.6 sigma over the top 2 % of the output levels.
+    The low-frequency test spreads it over the whole record; the level test finds it, at the top."""
+    rng = np.random.default_rng(8)
+    t = np.arange(7000) / 100.0
+    level = _levels(t)
+    noise = ARNoise(np.zeros(0), 1.0, 1.0, 1000)
+    residual = rng.standard_normal(t.size)
+    top = level >= np.quantile(level, 0.98)
+    residual[top] -= 0.6
+    found = level_test(level, residual, noise)
+    assert found.z > 5 and low_frequency_test(residual, noise, 20).z < 5
+    lo, hi = found.details["level_range"]
+    assert found.details["mean"] < 0 and lo >= np.quantile(level, 0.9) and hi == level.max()
+    # its size: the mean square of that mean over the record, 0.02 * 0.36 (within the noise's error)
+    assert found.structure_variance == pytest.approx(0.0072, abs=0.004)
+    # the same residual in time order is no evidence of a mean by level: shuffled levels
+    assert level_test(rng.permutation(level), residual, noise).z < 4.0
+
+
+def test_level_test_without_intervals_to_test():
+    noise = ARNoise(np.zeros(0), 1.0, 1.0, 1000)
+    few = level_test(np.arange(40.0), np.zeros(40), noise)
+    assert few.details["intervals"] == 0 and few.p_value == 1.0 and few.z == 0.0
+    with pytest.raises(ValueError, match="level"):
+        level_test(np.arange(39.0), np.zeros(40), noise)
+
+
+def test_residual_profile_runs_the_level_test_where_the_model_output_is_given():
+    time, current = paper_current(100.0)
+    rng = np.random.default_rng(9)
+    residual = 0.5 * rng.standard_normal(time.size)
+    level = 10.0 * current
+    without = residual_profile(time, current, residual, slice(0, 1001), output_range=50.0)
+    assert "level" not in without.tests
+    residual[level > np.quantile(level, 0.97)] += 0.5
+    with_level = residual_profile(time, current, residual, slice(0, 1001), output_range=50.0, level=level)
+    assert with_level.tests["level"].z > 5
+    assert with_level.to_dict()["tests"]["level"]["details"]["intervals"] > 0
+    adequacy = assess_adequacy(with_level)
+    assert "level" in adequacy.failed and not adequacy.adequate
+    assert adequacy.size_ratio == pytest.approx(np.sqrt(with_level.tests["level"].structure_variance) / 0.5, rel=0.1)
 
 
 def test_residual_profile_locates_an_error_at_the_troughs():

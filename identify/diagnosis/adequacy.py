@@ -1,7 +1,8 @@
 """Is a residual the sensor's noise? The decision thresholds and the adequacy rule.
 
 A residual is *adequate* unless one of the noise tests of :mod:`identify.diagnosis.residuals`
-(variance, Ljung-Box, low-frequency block means) has a standardised excess ``z`` above
+(variance, Ljung-Box, low-frequency block means, and the mean by output level where the
+model's output is known) has a standardised excess ``z`` above
 :attr:`Thresholds.z_critical` **and** the non-noise part that test sees is at least
 :attr:`Thresholds.structure_floor` noise sigmas RMS: a long record resolves structure of a few
 per cent of sigma, which is detectable but negligible. The tests' nulls include the error of
@@ -118,8 +119,8 @@ class Adequacy:
         0 when none failed).
     excess_kind : str
         Which measure quantifies the misfit: ``"low_frequency"`` (slow structure),
-        ``"variance"`` (extra variance that is not slow), ``"ljung_box"`` (correlation only)
-        or ``"none"``.
+        ``"variance"`` (extra variance that is not slow), ``"ljung_box"`` (correlation only),
+        ``"level"`` (a mean that depends on the output level) or ``"none"``.
     excess : float
         The misfit in that measure (a variance [units^2], or the Ljung-Box excess).
     """
@@ -146,9 +147,15 @@ class Adequacy:
         }
 
 
+#: The tests in the order the misfit's measure is taken from (the first failed).
+TESTS = ("low_frequency", "variance", "ljung_box", "level")
+
+
 def _excess_measure(profile: ResidualProfile, kind: str) -> float:
     tests = profile.tests
-    if kind in ("low_frequency", "variance"):
+    if kind == "level" and "level" not in tests:
+        return 0.0
+    if kind in ("low_frequency", "variance", "level"):
         return float(tests[kind].structure_variance)
     if kind == "ljung_box":
         lb = tests["ljung_box"]
@@ -165,17 +172,20 @@ def assess_adequacy(profile: ResidualProfile, thresholds: Thresholds = Threshold
     thresholds : Thresholds
     excess_kind : str, optional
         Force the excess measure (to compare a refit with its baseline in the same measure);
-        default: the first failed of low_frequency, variance, ljung_box.
+        default: the first failed of :data:`TESTS`.
     """
     tests = profile.tests
     sigma = profile.noise.sigma
     z = {name: float(t.z) for name, t in tests.items()}
-    failed = tuple(name for name in ("low_frequency", "variance", "ljung_box") if z[name] > thresholds.z_critical)
+    failed = tuple(name for name in TESTS if name in z and z[name] > thresholds.z_critical)
     structure_rms = math.sqrt(tests["low_frequency"].structure_variance)
     excess_rms = math.sqrt(tests["variance"].structure_variance)
     # each failed test's misfit in its own measure: slow structure for the low-frequency
-    # test, the excess variance for the others (the Ljung-Box statistic has no size)
+    # test, the mean by output level for the level test, the excess variance for the others
+    # (the Ljung-Box statistic has no size)
     size_of = {"low_frequency": structure_rms, "variance": excess_rms, "ljung_box": excess_rms}
+    if "level" in tests:
+        size_of["level"] = math.sqrt(tests["level"].structure_variance)
     size_ratio = max((size_of[name] for name in failed), default=0.0) / sigma
     if excess_kind is None:
         excess_kind = failed[0] if failed else "none"

@@ -207,6 +207,7 @@ def profile_of(record, fit: FitResult, quiet: slice, noise_ref: ARNoise) -> Resi
         output_range=float(np.ptp(record.displacement)),
         noise=noise_ref,
         n_fitted=int(fit.vary.sum()),
+        level=record.displacement - fit.residual,
     )
 
 

@@ -57,6 +57,7 @@ __all__ = [
     "ljung_box",
     "variance_ratio_test",
     "low_frequency_test",
+    "level_test",
 ]
 
 
@@ -511,3 +512,118 @@ def low_frequency_test(residual, noise: ARNoise, block_length) -> StatTest:
 
 
 # -- the whole profile --------------------------------------------------------------------
+
+
+#: Finest scale of :func:`level_test`: the record's samples split into ``2**LEVEL_SCALES``
+#: output levels. Finer than that, a level interval holds only a few passes of the drive
+#: through it, and the test becomes one of time, which the low-frequency test is.
+LEVEL_SCALES = 6
+
+#: Fewest samples in a level interval of :func:`level_test` (the normal approximation of its mean).
+LEVEL_MIN_SAMPLES = 32
+
+
+def _largest_level_mean(x, r, long_run, scales, min_samples):
+    """``(best, n_intervals)``: the level interval of largest ``|z|`` over the scales of
+    :func:`level_test` (its ``z``, scale, index, mean, level range and the scale's mean square
+    in excess of the noise), and how many intervals were tested."""
+    n = r.size
+    order = np.argsort(x, kind="stable")
+    cumulative = np.concatenate(([0.0], np.cumsum(r[order])))
+    best = {"z": 0.0, "intervals": 0, "structure": 0.0, "interval": -1, "mean": 0.0, "lo": np.nan, "hi": np.nan}
+    n_intervals = 0
+    for j in range(1, scales + 1):
+        count = 2**j
+        if n // count < min_samples:
+            break
+        edges = np.linspace(0, n, count + 1).round().astype(np.int64)
+        size = np.diff(edges)
+        means = (cumulative[edges[1:]] - cumulative[edges[:-1]]) / size
+        z = means / np.sqrt(long_run / size)
+        n_intervals += count
+        b = int(np.argmax(np.abs(z)))
+        if abs(z[b]) > abs(best["z"]):
+            best = {
+                "z": float(z[b]),
+                "intervals": count,
+                "structure": float(max(np.sum(size * means**2 - long_run) / n, 0.0)),
+                "interval": b,
+                "mean": float(means[b]),
+                "lo": float(x[order[edges[b]]]),
+                "hi": float(x[order[edges[b + 1] - 1]]),
+            }
+    return best, n_intervals
+
+
+def _log_p_largest_of(statistic, n_intervals, rel_sd_reference):
+    """log P(the largest of ``n_intervals`` ``|z|`` exceeds ``statistic``): each interval's
+    two-sided tail mixed over the reference variance's error, ``P(|Z| > s exp(eps / 2))`` with
+    ``eps ~ N(0, rel^2)``, then Sidak over the intervals (Bonferroni's bound where one tail is tiny)."""
+    eps = rel_sd_reference * _HERMITE_NODES
+    tails = np.log(2.0) + special.log_ndtr(-statistic * np.exp(0.5 * eps))
+    log_p_one = min(float(special.logsumexp(tails + np.log(_HERMITE_WEIGHTS / np.sqrt(2.0 * np.pi)))), 0.0)
+    if log_p_one < -30.0:
+        return log_p_one + float(np.log(n_intervals))
+    return float(np.log(-np.expm1(n_intervals * np.log1p(-np.exp(log_p_one)))))
+
+
+def level_test(level, residual, noise: ARNoise, scales=LEVEL_SCALES, min_samples=LEVEL_MIN_SAMPLES) -> StatTest:
+    r"""Does the residual have a mean that depends on the output level?
+
+    An adequate model leaves no mean in the residual at any level of its own output; physics
+    that acts by level (an end stop, a saturating sensor, a stiffening spring) leaves one over
+    a narrow range of levels, which the tests in time dilute over the whole record. The
+    samples are sorted by the model's output ``level`` and split into ``2, 4, ..,
+    2**scales`` intervals of equal count (every interval at least ``min_samples``); each
+    interval's mean residual is standardised by its noise standard deviation, bounded above
+    by that of consecutive samples, :math:`\bar r_b \sim N(0, \le \gamma_0 (1 + 2
+    \sum_{k \ge 1} \max(\rho_k, 0)) / n_b)`. The statistic is the largest ``|z_b|``; its
+    p-value is Sidak's over every interval, each interval's two-sided tail mixed over
+    the reference's error as in :func:`low_frequency_test`. The bound and the correction for
+    intervals that overlap make the test conservative; a fitted model absorbs part of any such
+    mean, which does the same.
+
+    Parameters
+    ----------
+    level : array_like, shape (n,)
+        The model's output at the residual's samples [output units].
+    residual : array_like, shape (n,)
+    noise : ARNoise
+    scales : int, default :data:`LEVEL_SCALES`
+    min_samples : int, default :data:`LEVEL_MIN_SAMPLES`
+
+    Returns
+    -------
+    StatTest
+        ``structure_variance``: the mean square over all samples of the interval means in
+        excess of their noise, at the scale of the largest ``|z_b|``. ``details``: that scale
+        (intervals), the interval and its level range, its mean and ``z``.
+    """
+    r = as_1d("residual", residual)
+    x = as_1d("level", level, r.size)
+    rho = noise.autocorrelation(400)
+    long_run = noise.sigma**2 * (1.0 + 2.0 * float(np.sum(np.maximum(rho[1:], 0.0))))
+    best, n_intervals = _largest_level_mean(x, r, long_run, int(scales), int(min_samples))
+    statistic = abs(best["z"])
+    if n_intervals == 0:
+        return StatTest("level", 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, {"intervals": 0, "n_tested": 0})
+    rel_sd_reference = noise.block_mean_variance_relative_sd(min(r.size, 400))
+    log_p = _log_p_largest_of(statistic, n_intervals, rel_sd_reference)
+    return StatTest(
+        "level",
+        statistic,
+        0.0,
+        1.0,
+        _z_of(log_p, statistic),
+        float(np.exp(log_p)),
+        best["structure"],
+        {
+            "intervals": int(best["intervals"]),
+            "n_tested": int(n_intervals),
+            "interval": int(best["interval"]),
+            "level_range": [best["lo"], best["hi"]],
+            "mean": best["mean"],
+            "interval_z": best["z"],
+            "reference_relative_sd": float(rel_sd_reference),
+        },
+    )

@@ -12,9 +12,9 @@ lies on (rising/falling between reversals), the input rate, the time since the l
 reversal, and the residual binned against each of them; the residual level at every
 peak and trough; RMS, max and mean error cycle by cycle (trough to trough).
 
-*Is it noise?* The noise reference of the quiet segment and the three tests
-(``variance``, ``ljung_box``, ``low_frequency``) are in :mod:`identify.diagnosis.noise_tests`;
-:func:`residual_profile` runs them.
+*Is it noise?* The noise reference of the quiet segment and the tests (``variance``,
+``ljung_box``, ``low_frequency``, and ``level`` where the model's output is given) are in
+:mod:`identify.diagnosis.noise_tests`; :func:`residual_profile` runs them.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from .noise_tests import (
     StatTest,
     autocorrelation,
     fit_ar_noise,
+    level_test,
     ljung_box,
     low_frequency_test,
     variance_ratio_test,
@@ -49,6 +50,7 @@ __all__ = [
     "ljung_box",
     "variance_ratio_test",
     "low_frequency_test",
+    "level_test",
     "ResidualProfile",
     "residual_profile",
     "noise_tests",
@@ -382,6 +384,7 @@ def residual_profile(
     n_bins=20,
     n_fitted=0,
     min_swing=None,
+    level=None,
 ) -> ResidualProfile:
     """Compute every "where it fails" statistic of a residual.
 
@@ -399,11 +402,11 @@ def residual_profile(
     noise : ARNoise, optional
         Noise model; by default fitted to ``residual[quiet]`` (detrended).
     block_seconds, n_lags, n_fitted : optional
-        Passed to :func:`noise_tests`.
+        Passed to :func:`noise_tests`; ``min_swing`` to :func:`find_reversals`.
     n_bins : int, default 20
         Bins of the binned views.
-    min_swing : float, optional
-        Passed to :func:`find_reversals`.
+    level : array_like, shape (T,), optional
+        The model's output [output units]: adds the ``level`` test.
     """
     t = as_1d("time", time)
     v = as_1d("current", current, t.size)
@@ -423,6 +426,7 @@ def residual_profile(
     r_en = r[energised]
     lags, residual_acf, quiet_acf = _autocorrelations(r_en, r[q_start:q_stop], noise, n_lags)
     max_abs = float(np.abs(r_en).max())
+    level_en = None if level is None else as_1d("level", level, t.size)[energised]
     return ResidualProfile(
         t,
         v,
@@ -442,7 +446,7 @@ def residual_profile(
         residual_acf,
         quiet_acf,
         noise,
-        noise_tests(t, r, r_en, noise, n_fitted=n_fitted, n_lags=n_lags, block_seconds=block_seconds),
+        noise_tests(t, r, r_en, noise, n_fitted=n_fitted, n_lags=n_lags, block_seconds=block_seconds, level=level_en),
         float(np.sqrt(np.mean(r_en**2))),
         max_abs,
         100.0 * max_abs / float(output_range),
@@ -476,13 +480,16 @@ def _autocorrelations(energised, quiet, noise: ARNoise, n_lags: int):
     return np.arange(n_acf + 1), autocorrelation(energised, n_acf), quiet_acf
 
 
-def noise_tests(time, residual, energised, noise: ARNoise, *, n_fitted=0, n_lags=40, block_seconds=0.2) -> dict:
-    """The three noise tests of a residual (:mod:`identify.diagnosis.noise_tests`):
+def noise_tests(
+    time, residual, energised, noise: ARNoise, *, n_fitted=0, n_lags=40, block_seconds=0.2, level=None
+) -> dict:
+    """The noise tests of a residual (:mod:`identify.diagnosis.noise_tests`):
     ``{"variance", "ljung_box", "low_frequency"}`` -> :class:`StatTest`, on the whole residual
     (``energised``: its energised part, for the variance test). ``block_seconds`` is the
     low-frequency test's block [s], far longer than the noise's correlation, far shorter than the
     drive's period; ``n_lags`` the Ljung-Box lags; ``n_fitted`` the parameters fitted (the
-    variance test's expectation)."""
+    variance test's expectation). ``level``: the model's output on the energised samples,
+    which adds ``"level"`` (:func:`level_test`, on the energised residual)."""
     dt = float(np.median(np.diff(time)))
     block = max(int(round(block_seconds / dt)), 1)
     block = min(block, max(time.size // 8, 1))
@@ -493,4 +500,4 @@ def noise_tests(time, residual, energised, noise: ARNoise, *, n_fitted=0, n_lags
             noise.whiten(residual), n_lags, filter_error=time.size / noise.n_samples * filter_dof, filter_dof=filter_dof
         ),
         "low_frequency": low_frequency_test(residual, noise, block),
-    }
+    } | ({} if level is None else {"level": level_test(level, energised, noise)})

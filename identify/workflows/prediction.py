@@ -472,7 +472,13 @@ def _residual_check(v: _Validation, noise: NoiseModel, quiet: slice, start: int)
     else:
         noise_ref = ARNoise(np.zeros(0), float(noise.sigma), float(noise.sigma), 10**9)
     profile = residual_profile(
-        v.time, v.current, residual_lsq, quiet_w, output_range=float(np.ptp(v.measured)), noise=noise_ref
+        v.time,
+        v.current,
+        residual_lsq,
+        quiet_w,
+        output_range=float(np.ptp(v.measured)),
+        noise=noise_ref,
+        level=v.bands.lsq,
     )
     return profile, assess_adequacy(profile)
 
