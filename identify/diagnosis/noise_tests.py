@@ -42,6 +42,7 @@ on pure noise: ``benchmarks/noise_test_calibration.py``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy import special, stats
@@ -141,6 +142,18 @@ class ARNoise:
         """:math:`\\sum_k \\rho_k^2` over all lags: the sample-variance inflation (1 for white)."""
         rho = self.autocorrelation(400)
         return float(1.0 + 2.0 * np.sum(rho[1:] ** 2))
+
+    @cached_property
+    def positive_long_run_variance(self) -> float:
+        r""":math:`\gamma_0 (1 + 2 \sum_{k \ge 1} \max(\rho_k, 0))` over 400 lags [units^2]: a
+        bound on ``n`` times the variance of the mean of any ``n`` noise samples (computed once)."""
+        rho = self.autocorrelation(400)
+        return float(self.sigma**2 * (1.0 + 2.0 * np.sum(np.maximum(rho[1:], 0.0))))
+
+    @cached_property
+    def long_run_relative_sd(self) -> float:
+        """:meth:`block_mean_variance_relative_sd` of blocks of 400 samples (computed once)."""
+        return self.block_mean_variance_relative_sd(400)
 
     def block_mean_variance(self, block_length) -> float:
         """Variance of the mean of ``block_length`` consecutive noise samples [units^2]."""
@@ -601,13 +614,12 @@ def level_test(level, residual, noise: ARNoise, scales=LEVEL_SCALES, min_samples
     """
     r = as_1d("residual", residual)
     x = as_1d("level", level, r.size)
-    rho = noise.autocorrelation(400)
-    long_run = noise.sigma**2 * (1.0 + 2.0 * float(np.sum(np.maximum(rho[1:], 0.0))))
+    long_run = noise.positive_long_run_variance
     best, n_intervals = _largest_level_mean(x, r, long_run, int(scales), int(min_samples))
     statistic = abs(best["z"])
     if n_intervals == 0:
         return StatTest("level", 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, {"intervals": 0, "n_tested": 0})
-    rel_sd_reference = noise.block_mean_variance_relative_sd(min(r.size, 400))
+    rel_sd_reference = noise.long_run_relative_sd
     log_p = _log_p_largest_of(statistic, n_intervals, rel_sd_reference)
     return StatTest(
         "level",
