@@ -9,6 +9,7 @@ from scipy.signal import lfilter
 
 from identify.data.reversals import branch_direction, find_reversals, input_rate, time_since_reversal
 from identify.diagnosis.adequacy import assess_adequacy
+from identify.diagnosis.explanation import where_text
 from identify.diagnosis.residuals import (
     ARNoise,
     autocorrelation,
@@ -327,6 +328,10 @@ def test_residual_profile_runs_the_level_test_where_the_model_output_is_given():
     assert with_level.to_dict()["tests"]["level"]["details"]["intervals"] > 0
     adequacy = assess_adequacy(with_level)
     assert "level" in adequacy.failed and not adequacy.adequate
+    # the explanation says where: the levels of the interval with the mean
+    lo, hi = with_level.tests["level"].details["level_range"]
+    assert f"at model outputs {lo:.4g} to {hi:.4g}" in where_text(with_level)
+    assert "model outputs" not in where_text(without)
     assert adequacy.size_ratio == pytest.approx(np.sqrt(with_level.tests["level"].structure_variance) / 0.5, rel=0.1)
 
 

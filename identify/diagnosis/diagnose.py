@@ -500,7 +500,7 @@ def _diagnose_several(records, model, noise, fit, candidates, thresholds, n_star
 
 def _diagnosis(rnd: Round, decision: Decision, evidence: Evidence, redundant, t_start: float) -> Diagnosis:
     fit, thresholds = rnd.fit, rnd.ref.thresholds
-    reason = explain(decision, evidence, thresholds, where_text(rnd.profile))
+    reason = explain(decision, evidence, thresholds, where_text(rnd.profile, thresholds.z_critical))
     ranking = rnd.ranked() + _unrefitted(rnd) + _not_identifiable(redundant, rnd) + list(rnd.failed.values())
     pairs = sorted(rnd.pairs.values(), key=lambda c: -c.delta_bic)
     pair = rnd.pairs.get(decision.best) or (pairs[0] if pairs else None)

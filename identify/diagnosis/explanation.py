@@ -273,10 +273,15 @@ def explain(d: Decision, ev: Evidence, th: Thresholds | None = None, where: str 
     return TEXTS[d.rule](_Context(d, ev, th, noise_tests_text(ev.baseline, th), best, tail))
 
 
-def where_text(profile) -> str:
+def where_text(profile, z_critical: float = 5.0) -> str:
     """One sentence on where the error of a residual profile concentrates (largest per-cycle RMS,
-    rising against falling branches); empty when there is nothing to say."""
+    rising against falling branches, and the output levels where the residual has a mean when
+    the level test's ``z`` exceeds ``z_critical``); empty when there is nothing to say."""
     parts = []
+    level = profile.tests.get("level")
+    if level is not None and level.z > z_critical:
+        lo, hi = level.details["level_range"]
+        parts.append(f"a mean error of {level.details['mean']:+.3g} at model outputs {lo:.4g} to {hi:.4g}")
     if len(profile.cycles):
         worst = int(np.argmax(profile.cycles.rms))
         parts.append(

@@ -320,7 +320,7 @@ def diagnose_records(
     ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, _candidates_of(alone, thresholds), say)
     evidence = _evidence(ctx, ranking)
     decision = decide(evidence, thresholds)
-    reason = explain(decision, evidence, thresholds, where_text(ctx.profiles[_worst(ctx)]))
+    reason = explain(decision, evidence, thresholds, where_text(ctx.profiles[_worst(ctx)], thresholds.z_critical))
     rows = _record_rows(records, baseline, ctx, alone)
     return JointDiagnosis(
         decision.status,
