@@ -278,8 +278,14 @@ def test_two_studies_on_one_folder_one_runs_the_other_refuses_at_once(base, tmp_
     shutil.copy2(base / "rec.csv", tmp_path / "rec.csv")
     first = start("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path)
     wait_for(lambda: steps(tmp_path / "run") >= 20, first, "the first study's steps")
-    second = cli("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path)
-    assert first.poll() is None, "the second command waited for the first one"
+    # the first is held (alive, holding its lock) while the second runs: a loaded machine can
+    # start the second more slowly than the first finishes its steps. A second command that
+    # waited for the lock would wait for the held first one forever: the timeout fails the test.
+    first.send_signal(signal.SIGSTOP)
+    try:
+        second = cli("study", "rec.csv", "--out", "run", *RESUMABLE, cwd=tmp_path, timeout=120)
+    finally:
+        first.send_signal(signal.SIGCONT)
     one_error(second, "is in use by process", str(first.pid))
     out, err = first.communicate(timeout=600)
     assert first.returncode == verdict_code(tmp_path / "run") and "Traceback" not in err, err[-3000:]
