@@ -23,6 +23,7 @@ from identify.diagnosis.residuals import (
     residual_profile,
     variance_ratio_test,
 )
+from identify.output.diagnosis_plots import residual_rate_figure
 from model import paper_current
 
 
@@ -332,6 +333,12 @@ def test_residual_profile_runs_the_level_test_where_the_model_output_is_given():
     lo, hi = with_level.tests["level"].details["level_range"]
     assert f"at model outputs {lo:.4g} to {hi:.4g}" in where_text(with_level)
     assert "model outputs" not in where_text(without)
+    # the view by level: bins of equal count over the energised samples, and its panel
+    assert without.by_level is None and "by_level" not in without.to_dict()
+    counts = with_level.by_level.count
+    assert counts.sum() == with_level.energised.sum() and counts.max() - counts.min() <= 0.05 * counts.max()
+    assert with_level.by_level.mean[-1] > 0.3 and "by_level" in with_level.to_dict()
+    assert len(residual_rate_figure(without).axes) == 2 and len(residual_rate_figure(with_level).axes) == 3
     assert adequacy.size_ratio == pytest.approx(np.sqrt(with_level.tests["level"].structure_variance) / 0.5, rel=0.1)
 
 

@@ -314,9 +314,13 @@ class ResidualProfile:
     noise : ARNoise
         Noise model of the quiet segment.
     tests : dict of str -> StatTest
-        ``variance``, ``ljung_box``, ``low_frequency`` over the whole record.
+        ``variance``, ``ljung_box``, ``low_frequency`` over the whole record; ``level`` where
+        the model's output is given.
     rms, max_abs, max_error_pct : float
         Over the energised part; % of the measured output range.
+    by_level : BinnedResidual or None
+        Residual vs the model's output, in bins of equal count (energised samples); None
+        without the model's output.
     """
 
     time: np.ndarray
@@ -341,6 +345,7 @@ class ResidualProfile:
     rms: float
     max_abs: float
     max_error_pct: float
+    by_level: BinnedResidual | None = None
 
     @property
     def structure_rms(self) -> float:
@@ -363,6 +368,7 @@ class ResidualProfile:
             "falling": self.falling.to_dict(),
             "by_rate": self.by_rate.to_dict(),
             "by_since_reversal": self.by_since_reversal.to_dict(),
+            **({} if self.by_level is None else {"by_level": self.by_level.to_dict()}),
             "acf": {
                 "lags": [int(k) for k in self.lags],
                 "residual": [float(x) for x in self.residual_acf],
@@ -401,12 +407,10 @@ def residual_profile(
         Measured output range [output units] for % figures.
     noise : ARNoise, optional
         Noise model; by default fitted to ``residual[quiet]`` (detrended).
-    block_seconds, n_lags, n_fitted : optional
-        Passed to :func:`noise_tests`; ``min_swing`` to :func:`find_reversals`.
-    n_bins : int, default 20
-        Bins of the binned views.
+    block_seconds, n_lags, n_fitted, min_swing : optional
+        Passed to :func:`noise_tests` and :func:`find_reversals`; ``n_bins`` (20): binned views.
     level : array_like, shape (T,), optional
-        The model's output [output units]: adds the ``level`` test.
+        The model's output [output units]: adds the ``level`` test and the view by level.
     """
     t = as_1d("time", time)
     v = as_1d("current", current, t.size)
@@ -450,7 +454,16 @@ def residual_profile(
         float(np.sqrt(np.mean(r_en**2))),
         max_abs,
         100.0 * max_abs / float(output_range),
+        None if level_en is None else _binned_by_level(level_en, r_en, n_bins),
     )
+
+
+def _binned_by_level(level, residual, n_bins) -> BinnedResidual:
+    """The residual in ``n_bins`` bins of the model's output holding equal numbers of samples."""
+    edges = np.unique(np.quantile(level, np.linspace(0.0, 1.0, n_bins + 1)))
+    if edges.size < 2:
+        edges = np.array([edges[0], edges[0] + 1.0])
+    return binned_residual(level, residual, edges=edges)
 
 
 def _quiet_bounds(quiet, noise, size: int) -> tuple[int, int]:

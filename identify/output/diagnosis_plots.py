@@ -118,13 +118,17 @@ def residual_branches_figure(profile, *, input_unit="A", output_unit="um"):
 
 @styled
 def residual_rate_figure(profile, *, input_unit="A", output_unit="um"):
-    """Residual (binned mean and RMS) against input rate and against time since the last reversal."""
-    fig = new_figure(11, 4.2)
-    axes = fig.subplots(1, 2)
-    for ax, binned, xlabel, title in (
-        (axes[0], profile.by_rate, axis_label("input rate", f"{unit_label(input_unit)}/s"), "vs input rate"),
-        (axes[1], profile.by_since_reversal, axis_label("time since last reversal", "s"), "vs time since reversal"),
-    ):
+    """Residual (binned mean and RMS) against input rate, against time since the last reversal
+    and, where the profile has it, against the model's output (bins of equal count)."""
+    views = [
+        (profile.by_rate, axis_label("input rate", f"{unit_label(input_unit)}/s"), "vs input rate"),
+        (profile.by_since_reversal, axis_label("time since last reversal", "s"), "vs time since reversal"),
+    ]
+    if profile.by_level is not None:
+        views.append((profile.by_level, axis_label("model output", output_unit), "vs model output"))
+    fig = new_figure(5.5 * len(views), 4.2)
+    axes = fig.subplots(1, len(views))
+    for ax, (binned, xlabel, title) in zip(axes, views):
         ok = binned.count > 0
         ax.errorbar(
             binned.centres[ok],

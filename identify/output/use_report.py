@@ -66,7 +66,9 @@ PREDICTION_FIGURES = {
     "loops": "Hysteresis loops: measured vs predicted, 95% credible band along each branch",
     "where_1_residual_vs_time": "Where it fails: validation residual vs time",
     "where_2_residual_vs_current": "Where it fails: validation residual vs current, by branch",
-    "where_3_residual_vs_rate": "Where it fails: validation residual vs input rate and time since reversal",
+    "where_3_residual_vs_rate": (
+        "Where it fails: validation residual vs input rate, time since reversal and model output"
+    ),
     "where_4_cycles": "Where it fails: per-cycle RMS and max error, levels at the extrema",
     "where_5_autocorrelation": "Where it fails: autocorrelation of the validation residual",
 }
