@@ -135,17 +135,15 @@ def _mean_and_var(t, r):
 
 
 @njit(cache=True, error_model="numpy")
-def solve_tau(target, r, lower, upper, max_steps):
+def solve_tau(target, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps):
     """The ``tau`` in ``[lower, upper]`` whose weighted mean threshold is ``target``:
-    safeguarded Newton from the linearisation at ``tau = 0`` (a bisection step whenever Newton
-    leaves the bracket) until a step moves ``tau`` by at most ``1e-13 (1 + |tau|)``; NaN where
-    ``target`` is not finite or outside the means at the bounds. The mean decreases in ``tau``
-    with slope ``-var``, the weights' variance of the thresholds."""
-    mean_lo, _ = _mean_and_var(lower, r)
-    mean_hi, _ = _mean_and_var(upper, r)
+    safeguarded Newton from the linearisation at ``tau = 0`` (mean ``m0``, variance ``v0``; a
+    bisection step whenever Newton leaves the bracket) until a step moves ``tau`` by at most
+    ``1e-13 (1 + |tau|)``; NaN where ``target`` is not finite or outside ``[mean_hi, mean_lo]``,
+    the means at the bounds. The mean decreases in ``tau`` with slope ``-var``, the weights'
+    variance of the thresholds."""
     if not (target <= mean_lo and target >= mean_hi and math.isfinite(target)):
         return math.nan
-    m0, v0 = _mean_and_var(0.0, r)
     lo, hi = lower, upper
     t = min(max((m0 - target) / v0, lo), hi)
     for _ in range(max_steps):
@@ -168,6 +166,10 @@ def solve_tau(target, r, lower, upper, max_steps):
 def inverse_rows(u, blocks, weights, envelopes, omegas, thermal, pinned, points, r, duration, tau_bounds, max_steps, x):
     """Parameters ``x`` (W, D) of sampler coordinates ``u`` (W, D); rows outside the map's
     range are NaN."""
+    lower, upper = tau_bounds[0], tau_bounds[1]
+    mean_lo, _ = _mean_and_var(lower, r)  # the same for every row
+    mean_hi, _ = _mean_and_var(upper, r)
+    m0, v0 = _mean_and_var(0.0, r)
     for w in range(u.shape[0]):
         row = u[w]
         out = x[w]
@@ -176,7 +178,8 @@ def inverse_rows(u, blocks, weights, envelopes, omegas, thermal, pinned, points,
         bad = False
         if blocks[0]:
             S, R = row[weights[0]], row[weights[1]]
-            tau = solve_tau(R / S if S > 0 else math.nan, r, tau_bounds[0], tau_bounds[1], max_steps)
+            mean = R / S if S > 0 else math.nan
+            tau = solve_tau(mean, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps)
             e = 0.0
             for j in range(r.shape[0]):
                 e += math.exp(-tau * r[j])
