@@ -273,7 +273,7 @@ def explain(d: Decision, ev: Evidence, th: Thresholds | None = None, where: str 
     return TEXTS[d.rule](_Context(d, ev, th, noise_tests_text(ev.baseline, th), best, tail))
 
 
-def where_text(profile, z_critical: float = 5.0) -> str:
+def where_text(profile, z_critical: float = Thresholds.z_critical) -> str:
     """One sentence on where the error of a residual profile concentrates (largest per-cycle RMS,
     rising against falling branches, and the output levels where the residual has a mean when
     the level test's ``z`` exceeds ``z_critical``); empty when there is nothing to say."""
