@@ -614,6 +614,54 @@ def signature_incomplete_reset_step(paper_input, plain_gpi):
         incomplete_reset_strain(current, plain_gpi, [A], [R], [0.0], drive=[1.0], onset=[1.0], sharpness=[5.0])
 
 
+def signature_incomplete_reset_stroke(paper_input, plain_gpi):
+    """The retained strain narrowing the later strokes: y = y_g + A (|S| + q (1 - b x)), x the
+    strain's excursion over its largest. b = 0 is the form without it bit for bit; the virgin
+    loading (nothing retained yet) is untouched by b; after a first cycle that resets nothing
+    (R = 1, no fade) b = 1 leaves the top of a later stroke that reaches the largest excursion
+    where the GPI has it and raises the rest level by A; b = 2 lowers that top by A."""
+    time, current = paper_input
+    m = Model(["incomplete_reset"])
+    A = 6.0
+
+    def change(**values):
+        theta = m.theta_from_dict({"incomplete_reset_strain": A, **values})
+        return m(theta, time, current) - plain_gpi
+
+    assert np.array_equal(
+        change(incomplete_reset_retained=0.4), change(incomplete_reset_retained=0.4, incomplete_reset_stroke=0.0)
+    )
+    off = m.theta_from_dict({"incomplete_reset_stroke": 2.0})
+    assert np.array_equal(m(off, time, current), plain_gpi)
+    # a drive that goes to its largest, back to 0 and to the same largest again
+    i2 = np.concatenate([np.linspace(0, 2, 101), np.linspace(2, 0, 101)[1:], np.linspace(0, 2, 101)[1:]])
+    y2 = 10.0 * i2
+    x = y2 / y2.max()
+    for b in (0.0, 1.0, 2.0):
+        extra = incomplete_reset_strain(i2, y2, [A], [1.0], [0.0], stroke=[b])[0]
+        np.testing.assert_allclose(extra[:101], A * x[:101], rtol=1e-12, atol=1e-12)  # virgin: no retained yet
+        # the first unloading: the levels above x reset and all retained (q = 1 - x), the rest still set
+        back = slice(101, 201)
+        expected = A * (x[back] + (1.0 - x[back]) * (1.0 - b * x[back]))
+        np.testing.assert_allclose(extra[back], expected, rtol=1e-12, atol=1e-12)
+        # the second stroke, within the range reached: q = 1, nothing set
+        np.testing.assert_allclose(extra[201:], A * (1.0 - b * x[201:]), rtol=1e-12, atol=1e-12)
+    top = incomplete_reset_strain(i2, y2, [A], [1.0], [0.0], stroke=[1.0])[0]
+    assert top[200] == pytest.approx(A) and abs(top[-1]) < 1e-12  # rest raised by A, the top where it was
+    # with the general loading shape the narrowing still follows the strain's own excursion
+    shaped = incomplete_reset_strain(i2, y2, [A], [0.5], [0.0], shape=[0.5], stroke=[1.0])[0]
+    unshaped = incomplete_reset_strain(i2, y2, [A], [0.5], [0.0], shape=[0.5])[0]
+    kept = A * 0.5  # the whole first stroke unloaded: the retained half of A
+    np.testing.assert_allclose(unshaped[201:] - shaped[201:], kept * x[201:], rtol=1e-12, atol=1e-12)
+    # a batch row by row, and a Jacobian's batch with the term on
+    rows = incomplete_reset_strain(i2, y2, [A, A], [1.0, 1.0], [0.0, 0.0], stroke=[0.0, 1.0])
+    np.testing.assert_array_equal(rows[1], top)
+    theta = m.theta_from_dict({"incomplete_reset_strain": A, "incomplete_reset_stroke": 1.5})
+    _assert_jacobian_batch_rows_are_single(m, theta, time[::4], current[::4], repeats=(0,))
+    with pytest.raises(ValueError, match="incomplete_reset_stroke finite"):
+        incomplete_reset_strain(i2, y2, [A], [1.0], [0.0], stroke=[np.nan])
+
+
 def signature_thermal_two_nodes(paper_input, plain_gpi):
     """Node 2 follows node 1 through its own time constant: against the analytic two-pole
     response to a constant heating switched on at t_on; node 2's gains 0 is the one-node form bit for bit."""
@@ -871,6 +919,7 @@ GENERAL_FORMS = {
     "ambient drift": signature_ambient_drift,
     "incomplete_reset loading shape": signature_incomplete_reset_loading_shape,
     "incomplete_reset step": signature_incomplete_reset_step,
+    "incomplete_reset stroke": signature_incomplete_reset_stroke,
 }
 
 

@@ -137,6 +137,11 @@ INCOMPLETE_RESET_SHAPES = (
 )
 
 
+#: ``incomplete_reset``'s stroke shares b on its screening grid (the retained strain keeps the top
+#: of the later strokes where it was at b = 1, lowers it at b = 2): nothing moves b while A = 0.
+INCOMPLETE_RESET_STROKES = (1.0, 2.0)
+
+
 def _incomplete_reset_grid(model_e: Model, record) -> list[dict]:
     """Screening grid of ``incomplete_reset``: the strain-proportional form's grid, then the
     virgin loading's other shapes.
@@ -146,10 +151,11 @@ def _incomplete_reset_grid(model_e: Model, record) -> list[dict]:
     so only the grid gives them values. First the grid the generic rule gave the
     strain-proportional form (``m = 0``, ``p = 1``, no step): ``R`` at 0, the middle and the
     top of its range, the fade at five values over its range (15 points, the same order);
-    then each shape of :data:`INCOMPLETE_RESET_SHAPES` with ``R`` at the same three values
-    and no fade (24 points). The generic rule over all four would thin ``R`` to its two ends
-    and miss ``p = 1``. A pinned parameter keeps its value (a shape that needs it moved is
-    left out); the short refits move them together.
+    then the retained strain narrowing the later strokes (:data:`INCOMPLETE_RESET_STROKES`,
+    at each ``R`` above 0, no fade); then each shape of :data:`INCOMPLETE_RESET_SHAPES` with
+    ``R`` at the same three values and no fade (24 points). The generic rule over all four
+    would thin ``R`` to its two ends and miss ``p = 1``. A pinned parameter keeps its value
+    (a shape that needs it moved is left out); the short refits move them together.
     """
     effect = get_effect("incomplete_reset")
     names = effect.parameters.names
@@ -169,6 +175,16 @@ def _incomplete_reset_grid(model_e: Model, record) -> list[dict]:
             point = off | {"incomplete_reset_retained": r, "incomplete_reset_fade": fade}
             if point not in points:
                 points.append(point)
+    if params["incomplete_reset_stroke"].vary:
+        for r in retained:
+            for stroke in INCOMPLETE_RESET_STROKES:
+                point = off | {"incomplete_reset_retained": r, "incomplete_reset_stroke": stroke}
+                if (
+                    r > 0.0
+                    and params["incomplete_reset_stroke"].lower <= stroke <= params["incomplete_reset_stroke"].upper
+                    and point not in points
+                ):
+                    points.append(point)
     for share, shape, onset, sharpness in INCOMPLETE_RESET_SHAPES:
         values = {
             "incomplete_reset_drive": share,

@@ -20,7 +20,7 @@ __all__ = ["IncompleteReset", "incomplete_reset_strain", "loading_levels"]
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_extra):
+def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_extra, out_kept):
     """Extra strain of :class:`IncompleteReset` per row (see its docstring), shape ``(W, T)``:
     ``excursion[w]`` is row ``w``'s loading variable (the strain's excursion from its first
     value, or its level :func:`loading_levels`; measured in units of its largest),
@@ -30,16 +30,22 @@ def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_ext
     disjoint intervals ``[low, high]`` (ascending); an unloading to ``e`` resets every set
     level above ``e`` (it pops or cuts the top intervals), a new largest excursion sets the
     levels between the previous largest and it. Each level is pushed and popped at most
-    once per new excursion, so the cost is linear in the samples."""
+    once per new excursion, so the cost is linear in the samples. ``out_kept`` of shape
+    ``(W, T)`` receives the retained part :math:`q` at every sample, or is ``(W, 0)`` when
+    not wanted."""
     n_sets = out_extra.shape[0]
     n_samples = out_extra.shape[1]
     row_step = 0 if excursion.shape[0] == 1 else 1
+    want_kept = out_kept.shape[1] == n_samples
     for w in prange(n_sets):
         row = w * row_step
         scale = 0.0
         for k in range(n_samples):
             scale = max(scale, excursion[row, k])
         out_extra[w, 0] = 0.0
+        if want_kept:
+            for k in range(n_samples):
+                out_kept[w, k] = 0.0
         if not scale > 0.0:
             for k in range(1, n_samples):
                 out_extra[w, k] = 0.0
@@ -76,6 +82,8 @@ def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_ext
                     kept += retained[w] * moved / scale
             previous = e
             out_extra[w, k] = strain[w] * (max(unreset, 0.0) / scale + kept)
+            if want_kept:
+                out_kept[w, k] = kept
 
 
 class IncompleteReset(Effect):
@@ -107,7 +115,13 @@ class IncompleteReset(Effect):
         q \leftarrow q\, e^{-\lambda |i_k - i_{k-1}|}, \qquad
         y = y_g + A\,\big(|S| + q\big)
 
-    (:math:`S` empty, :math:`q = 0` at the start). :math:`m = 0, p = 1` is the strain's own
+    (:math:`S` empty, :math:`q = 0` at the start), and with the optional stroke term
+    :math:`b` the retained strain also narrows the later strokes (below):
+
+    .. math::  y = y_g + A\,\big(|S| + q\,(1 - b\,x)\big), \qquad
+        x_k = \frac{|y_{g,k} - y_{g,0}|}{E_y}.
+
+    :math:`m = 0, p = 1` is the strain's own
     excursion, :math:`l = e / E` (the form before the general one; computed on
     :math:`|y_g - y_{g,0}|` itself there, bit for bit that form). Then the virgin loading
     adds the extra strain :math:`A` (at the record's largest excursion, in proportion to
@@ -153,6 +167,17 @@ class IncompleteReset(Effect):
     the level through :math:`S(u) = (\tanh(k(u - c)) + \tanh(kc)) / (\tanh(k(1 - c)) +
     \tanh(kc))` (:func:`loading_levels`; :math:`k = 0` is no step, bit for bit).
 
+    **The stroke the retained strain takes** (:math:`b`, the optional term ``stroke``): the
+    variants the spring did not reset are the ones the field reorients, so the retained
+    strain raises the rest level more than the top of the later strokes, which the crystal's
+    full reorientation bounds. The retained :math:`A q` then shrinks with the strain's
+    excursion :math:`x` (its fraction of the record's largest): :math:`b = 0` raises every
+    level alike (the form above), :math:`b = 1` leaves the top of the stroke where it was
+    (a later stroke narrower by the retained strain), :math:`b > 1` lowers it (the paper's
+    "maximum strain is reduced"; 3 at most, a later stroke that keeps a third of its
+    range with everything retained). It acts only where some strain is retained and
+    fades with it.
+
     What the GPI cannot do: its first branch is tied to the later ones, and its rest
     level after the first cycle is set by the same operators. A raised level after the
     first cycle is partly within the GPI's reach (its initial memory already makes the
@@ -176,9 +201,10 @@ class IncompleteReset(Effect):
     ``incomplete_reset_fade`` :math:`\lambda` [1/A] (0-2), how fast the retained strain
     fades with the drive's travel (0: fixed); ``incomplete_reset_drive`` :math:`m` (0-1),
     the drive's share of the loading variable; ``incomplete_reset_shape`` :math:`p`
-    (0.2-5, symmetric about 1 on a log scale), the exponent of the loading's shape. Off:
-    :math:`A = 0` (whatever the others); :math:`m = 0, p = 1` is the strain-proportional
-    form.
+    (0.2-5, symmetric about 1 on a log scale), the exponent of the loading's shape;
+    ``incomplete_reset_stroke`` :math:`b` (0-3), how much of the retained strain the top of
+    the later strokes does not keep. Off: :math:`A = 0` (whatever the others); :math:`m = 0,
+    p = 1, b = 0` is the strain-proportional form.
     """
 
     name = "incomplete_reset"
@@ -245,17 +271,27 @@ class IncompleteReset(Effect):
                 unit="",
                 description="steepness k of that step, tanh(k (u - c)) (0: no step, the level itself)",
             ),
+            Parameter(
+                "incomplete_reset_stroke",
+                0.0,
+                0.0,
+                3.0,
+                unit="",
+                description="share b of the retained strain the top of the later strokes does not keep "
+                "(0: every level raised alike; 1: the top where it was)",
+            ),
         ]
     )
     terms = {
         "drive": ("incomplete_reset_drive",),
         "shape": ("incomplete_reset_shape",),
         "step": ("incomplete_reset_onset", "incomplete_reset_sharpness"),
+        "stroke": ("incomplete_reset_stroke",),
     }
     summary = (
         "first-cycle strain: extra strain A S((e/E)^p) on the virgin loading (e the strain's excursion, or part the "
         "drive's; S a tanh step at c of sharpness k, none at k = 0), fraction R kept after unloading (fading with "
-        "travel)"
+        "travel), narrowing the later strokes by b"
     )
     signature = (
         "the first loading reaches further than the later ones and part of it stays after unloading; the "
@@ -273,6 +309,7 @@ class IncompleteReset(Effect):
             "incomplete_reset_shape": 1.0,
             "incomplete_reset_onset": 0.5,
             "incomplete_reset_sharpness": 0.0,
+            "incomplete_reset_stroke": 0.0,
         }
 
     def output(self, params, time, current, displacement):
@@ -282,15 +319,15 @@ class IncompleteReset(Effect):
         if not p.strain.any():  # off: the displacement itself, bit for bit
             return displacement
         extra = incomplete_reset_strain(
-            current, displacement, p.strain, p.retained, p.fade, p.drive, p.shape, p.onset, p.sharpness
+            current, displacement, p.strain, p.retained, p.fade, p.drive, p.shape, p.onset, p.sharpness, p.stroke
         )
         return displacement + extra
 
 
 def incomplete_reset_strain(
-    current, displacement, strain, retained, fade, drive=0.0, shape=1.0, onset=0.5, sharpness=0.0
+    current, displacement, strain, retained, fade, drive=0.0, shape=1.0, onset=0.5, sharpness=0.0, stroke=0.0
 ):
-    r"""The extra strain :math:`A (|S| + q)` of :class:`IncompleteReset`, shape ``(W, T)`` [um].
+    r"""The extra strain :math:`A (|S| + q (1 - b x))` of :class:`IncompleteReset`, shape ``(W, T)`` [um].
 
     Parameters
     ----------
@@ -308,6 +345,9 @@ def incomplete_reset_strain(
     onset, sharpness : array_like, shape (W,), default 0.5 and 0
         :math:`c` in (0, 1) and :math:`k \ge 0` of the step the reorientation sets in with
         (:func:`loading_levels`); ``k = 0``: no step.
+    stroke : array_like, shape (W,), default 0
+        :math:`b`, the share of the retained strain the top of the later strokes does not keep
+        (0: the retained strain raises every level alike, bit for bit the form without it).
     """
     current = np.ascontiguousarray(current, dtype=float)
     strain = np.ascontiguousarray(np.atleast_1d(strain), dtype=float)
@@ -317,6 +357,7 @@ def incomplete_reset_strain(
     shape = np.broadcast_to(np.asarray(shape, dtype=float), strain.shape)
     onset = np.broadcast_to(np.asarray(onset, dtype=float), strain.shape)
     sharpness = np.broadcast_to(np.asarray(sharpness, dtype=float), strain.shape)
+    stroke = np.broadcast_to(np.asarray(stroke, dtype=float), strain.shape)
     y = np.atleast_2d(np.asarray(displacement, dtype=float))
     if y.shape[0] not in (1, strain.size) or y.shape[1] != current.size:
         raise ValueError(
@@ -325,20 +366,36 @@ def incomplete_reset_strain(
         )
     bad = ~(np.isfinite(drive) & np.isfinite(shape) & (shape > 0.0))
     bad |= ~(np.isfinite(sharpness) & (sharpness >= 0.0) & np.isfinite(onset) & (onset > 0.0) & (onset < 1.0))
+    bad |= ~np.isfinite(stroke)
     if bad.any():
         raise ValueError(
             "incomplete_reset: incomplete_reset_drive must be finite, incomplete_reset_shape finite and > 0, "
-            "incomplete_reset_sharpness finite and >= 0 and incomplete_reset_onset within (0, 1); "
+            "incomplete_reset_sharpness finite and >= 0, incomplete_reset_onset within (0, 1) and "
+            "incomplete_reset_stroke finite; "
             f"parameter set(s) {np.flatnonzero(bad)[:5].tolist()} are not"
         )
     excursion = np.ascontiguousarray(np.abs(y - y[:, :1]))
     out = np.zeros((strain.size, current.size))
     if current.size:
+        strain_excursion = excursion
         if np.any((drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)):
             excursion = loading_levels(current, excursion, drive, shape, onset, sharpness)
+        narrows = stroke != 0.0
+        kept = np.zeros((strain.size, current.size if narrows.any() else 0))
         _incomplete_reset_kernel(
-            kernel_array(current), excursion, kernel_array(strain), kernel_array(retained), kernel_array(fade), out
+            kernel_array(current),
+            excursion,
+            kernel_array(strain),
+            kernel_array(retained),
+            kernel_array(fade),
+            out,
+            kept,
         )
+        if narrows.any():
+            largest = strain_excursion.max(axis=1, keepdims=True)
+            level = np.divide(strain_excursion, largest, out=np.zeros_like(strain_excursion), where=largest > 0.0)
+            level = np.broadcast_to(level, out.shape)
+            out[narrows] -= (strain * stroke)[narrows, None] * kept[narrows] * level[narrows]
     return out
 
 
