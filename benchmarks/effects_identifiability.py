@@ -66,6 +66,12 @@ SETTINGS = {
         "incomplete_reset_drive": 0.3,
         "incomplete_reset_shape": 0.6,
     },
+    "incomplete_reset (stroke: b 1)": {
+        "incomplete_reset_strain": 5.0,
+        "incomplete_reset_retained": 0.5,
+        "incomplete_reset_fade": 0.05,
+        "incomplete_reset_stroke": 1.0,
+    },
     "incomplete_reset (step in the drive: m 1, c 0.55, k 12)": {
         "incomplete_reset_strain": 5.0,
         "incomplete_reset_retained": 0.5,
@@ -109,6 +115,8 @@ PAIRS = (
     ("incomplete_reset (step in the drive: m 1, c 0.55, k 12)", "initial_state"),
     ("incomplete_reset (loading shape: drive share 0.3, p 0.6)", "training"),
     ("incomplete_reset (loading shape: drive share 0.3, p 0.6)", "initial_state"),
+    ("incomplete_reset (stroke: b 1)", "training"),
+    ("incomplete_reset (stroke: b 1)", "initial_state"),
     ("incomplete_reset", "training"),
     ("incomplete_reset", "initial_state"),
 )
