@@ -282,12 +282,12 @@ def test_other_functional_forms_are_named_by_their_physics(kind, expected):
     assert d.status == "missing_effect" and d.missing == expected, d.reason
     # the library's general form absorbs the differently shaped physics (within 15 % of the noise)
     assert d.best.rms_after / d.noise_sigma < 1.15
-    # the name holds against every other refitted candidate that also repairs the model: each
-    # gap beyond the noise's reach (a rival that leaves structure need not be separated)
-    repairing = {e.name for e in d.evidence.explanations if e.adequate}
-    rows = [g for g in d.gaps if g["better"] == expected and g["other"] in repairing]
-    assert all(g["gap"] >= d.thresholds.gap_z * g["noise_sd"] for g in rows), rows
-    assert any(g["better"] == expected for g in d.gaps), d.gaps
+    # the name holds: the explanation it rests on (the effect, or a pair with it) is ahead of
+    # every compared explanation without it by more than the noise gives the gap
+    rows = d.decision.numbers["rivals"]
+    assert expected in d.decision.best.split("+") and rows, d.decision
+    without = [g for g in rows if expected not in g["other"].split("+")]
+    assert without and all(g["better"] == d.decision.best and g["z"] > d.thresholds.gap_z for g in without), rows
 
 
 def training_alternative_drive(kind: str, current, size: float):
