@@ -417,3 +417,74 @@ def test_a_stalled_solver_run_counts_as_converged_with_its_own_message():
     assert solver_verdict(stalled)[1] == (
         f"stalled: the chi-square fell by less than {default.chi2:g} over the last {default.window} iterations"
     )
+
+
+def test_separation_bound_is_below_the_gap_in_noise_sd_of_any_two_fits():
+    """The bound on the gap's z between a fit of chi-square chi2 and one of the reference holds
+    for residuals of any shape (white, correlated, one the other's part, opposite)."""
+    from identify.diagnosis.evidence import gap_noise_sd
+    from identify.diagnosis.fits import n_eff
+    from identify.fitting.lsq_solver import separation_bound
+
+    rng = np.random.default_rng(4)
+    T = 5000
+    checked = 0
+    for _ in range(200):
+        better = rng.standard_normal(T) * rng.uniform(0.5, 2.0)
+        kind = rng.integers(4)
+        if kind == 0:
+            other = better + rng.standard_normal(T) * rng.uniform(0.1, 2.0)
+        elif kind == 1:
+            other = better * rng.uniform(1.01, 2.0)
+        elif kind == 2:
+            other = -better * rng.uniform(1.01, 2.0)
+        else:
+            other = np.convolve(rng.standard_normal(T), np.ones(25) / 5.0, mode="same") + better
+        chi2_a, chi2_b = float(better @ better), float(other @ other)
+        if chi2_b <= chi2_a:
+            continue
+        n = n_eff(better)
+        z = n * math.log(chi2_b / chi2_a) / gap_noise_sd(better, other, n)
+        assert 0.0 < separation_bound(chi2_b, chi2_a, T) <= z * (1 + 1e-12)
+        checked += 1
+    assert checked > 100
+    assert separation_bound(5.0, 5.0, T) == 0.0 and separation_bound(4.0, 5.0, T) == 0.0
+    # it grows with the record: the same share of chi-square behind is further out on a longer one
+    assert separation_bound(1.2e5, 1e5, 70001) > 3 * separation_bound(1.2e4, 1e4, 7001)
+
+
+def test_out_of_reach_stops_a_slow_run_far_behind_the_reference_and_nothing_else():
+    """Within out_of_reach a run whose chi-square, at its pace, stays far behind the reference
+    stops early with its own message; the same run with a reference it reaches runs on exactly
+    as outside the rule."""
+    from identify.fitting.lsq import solver_verdict, stalling_solve
+    from identify.fitting.lsq_solver import out_of_reach, separation_bound
+
+    T = 20000
+    t = np.linspace(0.0, 1.0, T)
+    data = np.sin(7.0 * t) + 0.3 * np.random.default_rng(0).standard_normal(T)
+
+    # a model crawling along a curved valley (a Rosenbrock term added to a sine fit)
+    def residuals(x):
+        return np.concatenate([data - x[0] * np.sin(x[1] * t), [1000.0 * (x[3] - x[2] ** 2), 1.0 - x[2]]])
+
+    x0 = np.array([0.5, 6.0, -1.2, 1.0])
+
+    def run():
+        return stalling_solve(residuals, x0, "2-point", 400, method="trf", tolerance=1e-15)
+
+    free = run()
+    end = 2.0 * free.cost
+    far = end / 1.5  # a reference this run never comes near: 1.5 times behind at best
+    assert separation_bound(end, far, T + 2) > 10.0
+    with out_of_reach(far, 10.0):
+        stopped = run()
+    with out_of_reach(end, 10.0):
+        reached = run()
+    assert stopped.nfev < free.nfev / 2 and stopped.stall.reason == "out_of_reach"
+    assert 2.0 * stopped.cost > end
+    assert solver_verdict(stopped) == (
+        True,
+        "stopped: too far behind the best fit to matter, at the pace it was gaining",
+    )
+    assert reached.nfev == free.nfev and np.array_equal(reached.x, free.x)

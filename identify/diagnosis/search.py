@@ -41,6 +41,7 @@ import numpy as np
 from model import Model, get_effect
 
 from ..fitting.lsq import FitResult
+from ..fitting.lsq_solver import out_of_reach
 from ..fitting.threads import single_threaded_blas
 from ..logs import ordinal
 from .adequacy import Adequacy, Thresholds, assess_adequacy
@@ -79,6 +80,7 @@ __all__ = [
     "worth_finishing",
     "MAX_BASELINE_CHALLENGES",
     "SHARED_BASIN_GAIN",
+    "OUT_OF_REACH_Z",
 ]
 
 #: How often a candidate's GPI may replace the baseline before the verdict.
@@ -86,6 +88,12 @@ MAX_BASELINE_CHALLENGES = 1
 #: A start beats a candidate's own fit when it is lower by more than this in chi-square (one
 #: evaluation on the whole record); less is the rounding of two polished optima.
 SHARED_BASIN_GAIN = 1.0
+#: A finish stops once it cannot come within this many noise standard deviations of the gap
+#: of the lowest chi-square the round holds (:func:`identify.fitting.lsq_solver.out_of_reach`):
+#: four times the decision's ``gap_z``, so a run that would have sped up again still ends far
+#: beyond anything the decision compares. On a long record a candidate that leaves a share of
+#: structure behind crawls for hundreds of evaluations without ever coming near.
+OUT_OF_REACH_Z = 4.0 * Thresholds().gap_z
 
 
 @dataclass
@@ -345,16 +353,47 @@ def finish_candidates(s: Setting, rnd: Round, jobs) -> list[CandidateResult | No
     """:func:`finish_candidate` of every ``(name, start, members)`` of ``jobs``, run side by side
     (:func:`identify.diagnosis.fits.concurrently`: each finish reads the round and writes nothing
     shared, so each is what it would be alone); in order, None where one failed (said, and
-    listed with the reason, in order)."""
+    listed with the reason, in order). Each finish stops once it is out of reach
+    (:data:`OUT_OF_REACH_Z`) of the lowest chi-square among the jobs' starts and the round's
+    finished explanations."""
+    reference = _lowest_chi2(s, rnd, jobs)
     return attempt_each(
         [
-            partial(evaluate, rnd.ref, name, start.model, start.theta, rnd.screened.get(name), members)
+            partial(
+                _within_reach,
+                reference,
+                evaluate,
+                rnd.ref,
+                name,
+                start.model,
+                start.theta,
+                rnd.screened.get(name),
+                members,
+            )
             for name, start, members in jobs
         ],
         s.say,
         [f"refit with '{name}' failed" for name, _, _ in jobs],
         [_on_failure(rnd, name, rnd.screened.get(name), "refit") for name, _, _ in jobs],
     )
+
+
+def _lowest_chi2(s: Setting, rnd: Round, jobs) -> float:
+    """The lowest whole-record chi-square some fit of the round reaches: the jobs' starts (one
+    evaluation each) and the singles and pairs finished so far."""
+    noise = rnd.fit.noise
+    values = [whole_record_chi2(s.record, start.model, noise, start.theta) for _, start, _ in jobs]
+    values += [c.chi2 for c in (*rnd.refitted.values(), *rnd.pairs.values()) if c is not None and c.chi2]
+    finite = [v for v in values if math.isfinite(v) and v > 0.0]
+    return min(finite) if finite else math.inf
+
+
+def _within_reach(reference: float, function, *args):
+    """``function(*args)`` with every solver run stopped once out of reach of ``reference``."""
+    if not math.isfinite(reference):
+        return function(*args)
+    with out_of_reach(reference, OUT_OF_REACH_Z):
+        return function(*args)
 
 
 def _keep_better(rnd: Round, result: CandidateResult | None) -> None:

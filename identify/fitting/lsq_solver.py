@@ -8,6 +8,10 @@ How the fit uses them (screening, polishing, the alternate method) is in
 
 from __future__ import annotations
 
+import contextlib
+import math
+from contextvars import ContextVar
+
 import numpy as np
 from scipy.optimize import least_squares
 
@@ -25,6 +29,8 @@ __all__ = [
     "STALL_CHI2",
     "STALLED",
     "StallStop",
+    "out_of_reach",
+    "separation_bound",
     "solver_verdict",
     "stalling_solve",
     "bounded_solve",
@@ -78,6 +84,48 @@ STALL_CHI2 = 0.1
 STALLED = -2
 
 
+#: The rule of :func:`out_of_reach` in force in this thread: ``(reference chi-square, z)`` or None.
+_OUT_OF_REACH: ContextVar[tuple[float, float] | None] = ContextVar("out_of_reach", default=None)
+
+
+def separation_bound(chi2: float, reference: float, n_samples: int) -> float:
+    r"""A lower bound on how many noise standard deviations separate a fit of whitened
+    chi-square ``chi2`` from any fit of ``reference`` or less, on ``n_samples`` samples.
+
+    The likelihood gap of two fits is :math:`n_\mathrm{eff} \ln \rho`, :math:`\rho` the ratio of
+    their chi-squares, and the noise gives it the standard deviation
+    :math:`2 \sigma_w \lVert d \rVert n_\mathrm{eff} / \chi^2_a`
+    (:func:`identify.diagnosis.evidence.gap_noise_sd`; :math:`d` the difference of the whitened
+    residuals, :math:`\sigma_w^2 = \chi^2_a / T`). With :math:`\lVert d \rVert \le \sqrt{\chi^2_a} +
+    \sqrt{\chi^2_b}` the effective size cancels and
+
+    .. math::  z \ge \frac{\sqrt{T}\,\ln \rho}{2\,(1 + \sqrt{\rho})},
+
+    whatever the two residuals are; it grows with the record, so a fit a fixed share of the
+    chi-square behind is hopelessly behind on a long record. 0 when ``chi2 <= reference``.
+    """
+    if not (chi2 > reference > 0.0):
+        return 0.0
+    ratio = chi2 / reference
+    return math.sqrt(n_samples) * math.log(ratio) / (2.0 * (1.0 + math.sqrt(ratio)))
+
+
+@contextlib.contextmanager
+def out_of_reach(reference_chi2: float, z: float):
+    """Within the block (in this thread), every solver run stops once it cannot come near
+    ``reference_chi2``: its chi-square, less what it would still gain at its last
+    :data:`STALL_ITERATIONS` iterations' pace over every evaluation it has left, stays at least
+    ``z`` noise standard deviations of the gap behind a fit of ``reference_chi2``
+    (:func:`separation_bound`). A fit that far behind is told apart from the reference's by
+    the data whatever it would end at, so the evaluations it would spend crawling decide
+    nothing. ``reference_chi2`` must be a chi-square some fit reaches (e.g. a start's)."""
+    token = _OUT_OF_REACH.set((float(reference_chi2), float(z)))
+    try:
+        yield
+    finally:
+        _OUT_OF_REACH.reset(token)
+
+
 class StallStop:
     """Callback of :func:`scipy.optimize.least_squares` that stops a stalled run.
 
@@ -86,22 +134,41 @@ class StallStop:
     ``window`` iterations together lowered it by less than ``chi2`` (the solver then returns
     status :data:`STALLED`; :func:`solver_verdict` reads that as converged).
 
+    Within :func:`out_of_reach`, it also stops a run that cannot come near the rule's
+    reference (``reason`` says which rule stopped it).
+
     Parameters
     ----------
     window : int, default :data:`STALL_ITERATIONS`
     chi2 : float, default :data:`STALL_CHI2`
         Absolute chi-square (whitened residuals).
+    max_nfev : int, optional
+        The run's evaluation cap (the iterations it has left bound the gain still to come);
+        without it :func:`out_of_reach` does not apply.
     """
 
-    def __init__(self, window: int = STALL_ITERATIONS, chi2: float = STALL_CHI2):
+    def __init__(self, window: int = STALL_ITERATIONS, chi2: float = STALL_CHI2, max_nfev: int | None = None):
         self.window, self.chi2 = int(window), float(chi2)
+        self.max_nfev = max_nfev
         self.history: list[float] = []
+        self.reason = ""
 
     def __call__(self, intermediate_result) -> None:
         f = np.asarray(intermediate_result.fun, dtype=float)
         self.history.append(float(f @ f))
-        if len(self.history) > self.window and self.history[-1 - self.window] - self.history[-1] < self.chi2:
+        if len(self.history) <= self.window:
+            return
+        recent = self.history[-1 - self.window] - self.history[-1]
+        if recent < self.chi2:
+            self.reason = "stalled"
             raise StopIteration
+        rule = _OUT_OF_REACH.get()
+        if rule is not None and self.max_nfev is not None:
+            left = max(self.max_nfev - len(self.history), 0)
+            lowest = self.history[-1] - max(recent, 0.0) * left / self.window
+            if separation_bound(lowest, rule[0], f.size) >= rule[1]:
+                self.reason = "out_of_reach"
+                raise StopIteration
 
 
 def solver_verdict(sol, stall: StallStop | None = None) -> tuple[bool, str]:
@@ -109,7 +176,10 @@ def solver_verdict(sol, stall: StallStop | None = None) -> tuple[bool, str]:
     counting as converged with its own message, which states the rule of ``stall`` (the
     :class:`StallStop` the run was given; default the default rule)."""
     if sol.status == STALLED:
+        stall = getattr(sol, "stall", None) if stall is None else stall
         stall = StallStop() if stall is None else stall
+        if stall.reason == "out_of_reach":
+            return True, "stopped: too far behind the best fit to matter, at the pace it was gaining"
         return True, (
             f"stalled: the chi-square fell by less than {stall.chi2:g} over the last {stall.window} iterations"
         )
@@ -120,7 +190,8 @@ def stalling_solve(fun, x0, jac, max_nfev, method=SOLVER_METHOD, tolerance=TOLER
     """One solver run of ``fun`` from ``x0`` (:func:`scipy.optimize.least_squares`, Jacobian
     ``jac``): ``method`` with Jacobian scaling, relative tolerances ``tolerance``, the stall rule
     (:class:`StallStop`) and ``bounds`` (none by default)."""
-    return least_squares(
+    stall = StallStop(max_nfev=max_nfev)
+    sol = least_squares(
         fun,
         x0,
         jac=jac,
@@ -131,8 +202,10 @@ def stalling_solve(fun, x0, jac, max_nfev, method=SOLVER_METHOD, tolerance=TOLER
         xtol=tolerance,
         gtol=tolerance,
         max_nfev=max_nfev,
-        callback=StallStop(),
+        callback=stall,
     )
+    sol.stall = stall  # which rule stopped it (solver_verdict)
+    return sol
 
 
 def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METHOD, tolerance=TOLERANCE):
