@@ -152,9 +152,10 @@ def test_training_screening_grid_spans_the_records_travel():
 
 def test_incomplete_reset_screening_grid_keeps_the_proportional_forms_and_adds_the_loading_shapes(monkeypatch):
     """incomplete_reset's own grid: first exactly the grid the generic rule gives its
-    strain-proportional form (drive share 0, shape 1 and no step pinned: 15 points, in order),
-    then each loading shape with the retained fraction at 0, 0.5 and 1 (24 more); with the
-    terms pinned off (as a study does where the record does not pay for them) only the first."""
+    strain-proportional form (drive share 0, shape 1, no step and no stroke pinned: 15 points,
+    in order), then the stroke at 1 and 2 with the retained fraction at 0.5 and 1 (4 more), then
+    each loading shape with the retained fraction at 0, 0.5 and 1 (24 more); with the terms
+    pinned off (as a study does where the record does not pay for them) only the first."""
     sim = simulate(None, seed=0)
     model_e = normalised_model(Model()) + "incomplete_reset"
     grid = SCREENING_GRIDS["incomplete_reset"](model_e, sim.record)
@@ -164,24 +165,28 @@ def test_incomplete_reset_screening_grid_keeps_the_proportional_forms_and_adds_t
         "incomplete_reset_shape",
         "incomplete_reset_onset",
         "incomplete_reset_sharpness",
+        "incomplete_reset_stroke",
     ):
         parameters = parameters.replace(name, vary=False)
     pinned = model_e.with_parameters(parameters)
     monkeypatch.delitem(SCREENING_GRIDS, "incomplete_reset")
     generic = screening_grid(pinned, "incomplete_reset", pinned.default_theta(), sim.record)
     monkeypatch.undo()
-    assert len(generic) == 15 and grid[:15] == generic and len(grid) == 39
+    assert len(generic) == 15 and grid[:15] == generic and len(grid) == 43
     assert grid[0] == EFFECTS["incomplete_reset"].off
+    strokes = {(g["incomplete_reset_retained"], g["incomplete_reset_stroke"]) for g in grid[15:19]}
+    assert strokes == {(0.5, 1.0), (0.5, 2.0), (1.0, 1.0), (1.0, 2.0)}
+    assert all(g["incomplete_reset_stroke"] == 0.0 for g in grid[:15] + grid[19:])
     shapes = {
         (g["incomplete_reset_drive"], g["incomplete_reset_shape"], g["incomplete_reset_onset"])
-        for g in grid[15:]
+        for g in grid[19:]
         if g["incomplete_reset_sharpness"] == 0.0
     }
     assert shapes == {(0.0, 0.4, 0.5), (0.0, 2.5, 0.5), (1.0, 0.4, 0.5), (1.0, 1.0, 0.5), (1.0, 2.5, 0.5)}
-    steps = {(g["incomplete_reset_onset"], g["incomplete_reset_sharpness"]) for g in grid[15:]}
+    steps = {(g["incomplete_reset_onset"], g["incomplete_reset_sharpness"]) for g in grid[19:]}
     assert steps >= {(0.3, 10.0), (0.5, 10.0), (0.7, 10.0)}
     assert all(g["incomplete_reset_strain"] == 0.0 for g in grid)
-    assert {g["incomplete_reset_retained"] for g in grid[15:]} == {0.0, 0.5, 1.0}
+    assert {g["incomplete_reset_retained"] for g in grid[19:]} == {0.0, 0.5, 1.0}
     assert SCREENING_GRIDS["incomplete_reset"](pinned, sim.record) == generic
 
 
