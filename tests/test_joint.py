@@ -134,6 +134,11 @@ def test_the_joint_diagnosis_names_creep_with_a_record_of_holds():
     assert d.status == "missing_effect" and d.missing == "creep", d.reason
     assert d.adequate_by_record["creep"] == [True, True]
     assert len(d.to_dict()["records"]) == 2
+    # a pair never ends above one of its members, as a model never ends above one it contains
+    chi2 = {e.name: e.chi2 for e in d.evidence.explanations}
+    for name, value in chi2.items():
+        members = [chi2[m] for m in name.split("+") if "+" in name and m in chi2]
+        assert all(value <= m + 1e-6 * m for m in members), (name, value, members)
 
 
 def test_the_diagnose_command_refuses_a_record_given_twice(tmp_path, capsys):

@@ -217,9 +217,13 @@ def _own_fits(alone, name: str) -> list:
     return fits
 
 
-def _fit_candidate(ctx: _Joint, name: str):
+def _fit_candidate(ctx: _Joint, name: str, members=()):
     """Explanation ``name`` fitted on every record together from each record's own fit of it and
-    from the joint baseline with it off: ``(JointFit, whitened residual)`` of the lowest chi-square."""
+    from the joint baseline with it off: ``(JointFit, whitened residual)`` of the lowest chi-square.
+
+    A pair never ends above one of its members fitted jointly (``members``: their
+    :class:`JointFit`): where it would, it is fitted again from that member's joint fit with the
+    partner off, as a model never ends above one it contains."""
     own = _own_fits(ctx.alone, name)
     donors = [f for f in own if f is not None]
     base_model = ctx.baseline.joint.model
@@ -241,6 +245,17 @@ def _fit_candidate(ctx: _Joint, name: str):
             chi2 = 2.0 * float(sol.cost)
             if best is None or chi2 < best[0]:
                 best = (chi2, residuals, sol.x)
+    for member in sorted(members, key=lambda m: m.chi2):
+        if best is not None and best[0] <= member.chi2:
+            break
+        partner = [e for e in name.split("+") if e not in {x.name for x in member.joint.model.effects}]
+        joint = JointModel(member.joint.model + partner[0], len(ctx.records), ctx.baseline.joint.zero_bound)
+        residuals = JointResiduals(ctx.records, joint, ctx.noises)
+        x0 = np.clip(_embedded(member, joint)[residuals.free], residuals.lower, residuals.upper)
+        with single_threaded_blas():
+            sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
+        if best is None or 2.0 * float(sol.cost) < best[0]:
+            best = (2.0 * float(sol.cost), residuals, sol.x)
     if best is None:
         return None
     _, residuals, x = best
@@ -254,13 +269,20 @@ def _fit_candidates(ctx: _Joint, names, say) -> tuple[list, dict, dict]:
     ranking, adequate_by_record, joint_fits = [], {}, {}
     for name in names:
         say(f"'{name}' on every record together")
-    for name, fitted in zip(names, results_side_by_side([partial(_fit_candidate, ctx, name) for name in names])):
-        if fitted is None:
-            continue
-        joint_fits[name] = fitted[0]
-        candidate, adequate = ctx.measure(name, *fitted)
-        ranking.append(candidate)
-        adequate_by_record[name] = adequate
+    singles = [n for n in names if "+" not in n]
+    pairs = [n for n in names if "+" in n]
+    for group in (singles, pairs):  # the pairs after the singles: a pair never ends above a member
+        jobs = [
+            partial(_fit_candidate, ctx, name, [joint_fits[m] for m in name.split("+") if m in joint_fits])
+            for name in group
+        ]
+        for name, fitted in zip(group, results_side_by_side(jobs)):
+            if fitted is None:
+                continue
+            joint_fits[name] = fitted[0]
+            candidate, adequate = ctx.measure(name, *fitted)
+            ranking.append(candidate)
+            adequate_by_record[name] = adequate
     ranking.sort(key=lambda c: -c.delta_bic)
     return ranking, adequate_by_record, joint_fits
 
