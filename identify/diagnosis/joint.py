@@ -227,7 +227,7 @@ def _fit_candidate(ctx: _Joint, name: str, members=()):
     own = _own_fits(ctx.alone, name)
     donors = [f for f in own if f is not None]
     base_model = ctx.baseline.joint.model
-    best, embedded = None, False
+    runs, embedded = [], False
     for donor in donors:
         model_e = donor.model
         joint = JointModel(model_e, len(ctx.records), ctx.baseline.joint.zero_bound)
@@ -238,29 +238,30 @@ def _fit_candidate(ctx: _Joint, name: str, members=()):
             starts.append(_embedded(ctx.baseline, joint))
             embedded = True
         residuals = JointResiduals(ctx.records, joint, ctx.noises)
-        for start in starts:
-            x0 = np.clip(np.asarray(start)[residuals.free], residuals.lower, residuals.upper)
-            with single_threaded_blas():
-                sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
-            chi2 = 2.0 * float(sol.cost)
-            if best is None or chi2 < best[0]:
-                best = (chi2, residuals, sol.x)
+        runs += [_solve_from(residuals, start) for start in starts]
+    best = min(runs, key=lambda run: run[0], default=None)
     for member in sorted(members, key=lambda m: m.chi2):
         if best is not None and best[0] <= member.chi2:
             break
         partner = [e for e in name.split("+") if e not in {x.name for x in member.joint.model.effects}]
         joint = JointModel(member.joint.model + partner[0], len(ctx.records), ctx.baseline.joint.zero_bound)
-        residuals = JointResiduals(ctx.records, joint, ctx.noises)
-        x0 = np.clip(_embedded(member, joint)[residuals.free], residuals.lower, residuals.upper)
-        with single_threaded_blas():
-            sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
-        if best is None or 2.0 * float(sol.cost) < best[0]:
-            best = (2.0 * float(sol.cost), residuals, sol.x)
+        run = _solve_from(JointResiduals(ctx.records, joint, ctx.noises), _embedded(member, joint))
+        if best is None or run[0] < best[0]:
+            best = run
     if best is None:
         return None
     _, residuals, x = best
     jf = joint_fit_at(residuals, x, ctx.baseline.fits)
     return jf, residuals(x)
+
+
+def _solve_from(residuals: JointResiduals, start) -> tuple[float, JointResiduals, np.ndarray]:
+    """``(chi2, residuals, free vector)`` of one bounded solver run on ``residuals`` from the full
+    joint vector ``start`` (clipped into the bounds)."""
+    x0 = np.clip(np.asarray(start)[residuals.free], residuals.lower, residuals.upper)
+    with single_threaded_blas():
+        sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
+    return 2.0 * float(sol.cost), residuals, sol.x
 
 
 def _fit_candidates(ctx: _Joint, names, say) -> tuple[list, dict, dict]:

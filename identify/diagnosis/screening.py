@@ -175,16 +175,13 @@ def _incomplete_reset_grid(model_e: Model, record) -> list[dict]:
             point = off | {"incomplete_reset_retained": r, "incomplete_reset_fade": fade}
             if point not in points:
                 points.append(point)
-    if params["incomplete_reset_stroke"].vary:
-        for r in retained:
-            for stroke in INCOMPLETE_RESET_STROKES:
-                point = off | {"incomplete_reset_retained": r, "incomplete_reset_stroke": stroke}
-                if (
-                    r > 0.0
-                    and params["incomplete_reset_stroke"].lower <= stroke <= params["incomplete_reset_stroke"].upper
-                    and point not in points
-                ):
-                    points.append(point)
+    b = params["incomplete_reset_stroke"]
+    strokes = [v for v in INCOMPLETE_RESET_STROKES if b.vary and b.lower <= v <= b.upper]
+    for r in (r for r in retained if r > 0.0):  # nothing is retained at R = 0: no stroke to narrow
+        for stroke in strokes:
+            point = off | {"incomplete_reset_retained": r, "incomplete_reset_stroke": stroke}
+            if point not in points:
+                points.append(point)
     for share, shape, onset, sharpness in INCOMPLETE_RESET_SHAPES:
         values = {
             "incomplete_reset_drive": share,

@@ -392,11 +392,15 @@ def incomplete_reset_strain(
             kept,
         )
         if narrows.any():
-            largest = strain_excursion.max(axis=1, keepdims=True)
-            level = np.divide(strain_excursion, largest, out=np.zeros_like(strain_excursion), where=largest > 0.0)
-            level = np.broadcast_to(level, out.shape)
+            level = np.broadcast_to(_share_of_largest(strain_excursion), out.shape)
             out[narrows] -= (strain * stroke)[narrows, None] * kept[narrows] * level[narrows]
     return out
+
+
+def _share_of_largest(excursion):
+    """Each row of ``excursion`` (shape ``(W, T)``) over its largest value; 0 where that is 0."""
+    largest = excursion.max(axis=1, keepdims=True)
+    return np.divide(excursion, largest, out=np.zeros_like(excursion), where=largest > 0.0)
 
 
 def loading_levels(current, excursion, drive, shape, onset=None, sharpness=None):
@@ -431,8 +435,7 @@ def loading_levels(current, excursion, drive, shape, onset=None, sharpness=None)
     sharpness = np.zeros(n_sets) if sharpness is None else np.asarray(sharpness, dtype=float)
     levels = np.array(np.broadcast_to(excursion, (n_sets, excursion.shape[1])))
     general = (drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)
-    largest = excursion.max(axis=1, keepdims=True)
-    strain_part = np.divide(excursion, largest, out=np.zeros_like(excursion), where=largest > 0.0)
+    strain_part = _share_of_largest(excursion)
     if strain_part.shape[0] > 1:
         strain_part = strain_part[general]
     drive_excursion = np.abs(current - current[0])
