@@ -20,7 +20,7 @@ __all__ = ["IncompleteReset", "incomplete_reset_strain", "loading_levels"]
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_extra, out_kept):
+def _incomplete_reset_kernel(current, excursion, strain, retained, fade, narrowing, strain_excursion, out_extra):
     """Extra strain of :class:`IncompleteReset` per row (see its docstring), shape ``(W, T)``:
     ``excursion[w]`` is row ``w``'s loading variable (the strain's excursion from its first
     value, or its level :func:`loading_levels`; measured in units of its largest),
@@ -30,22 +30,25 @@ def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_ext
     disjoint intervals ``[low, high]`` (ascending); an unloading to ``e`` resets every set
     level above ``e`` (it pops or cuts the top intervals), a new largest excursion sets the
     levels between the previous largest and it. Each level is pushed and popped at most
-    once per new excursion, so the cost is linear in the samples. ``out_kept`` of shape
-    ``(W, T)`` receives the retained part :math:`q` at every sample, or is ``(W, 0)`` when
-    not wanted."""
+    once per new excursion, so the cost is linear in the samples. ``narrowing[w]`` is
+    :math:`A b`: where it is not 0, the retained part :math:`q` is taken off again in
+    proportion to the strain's excursion ``strain_excursion[w]`` (shape ``(1 or W, T)``) over
+    its largest, the narrowing of the later strokes."""
     n_sets = out_extra.shape[0]
     n_samples = out_extra.shape[1]
     row_step = 0 if excursion.shape[0] == 1 else 1
-    want_kept = out_kept.shape[1] == n_samples
+    strain_row_step = 0 if strain_excursion.shape[0] == 1 else 1
     for w in prange(n_sets):
         row = w * row_step
+        strain_row = w * strain_row_step
         scale = 0.0
         for k in range(n_samples):
             scale = max(scale, excursion[row, k])
-        out_extra[w, 0] = 0.0
-        if want_kept:
+        largest = 0.0
+        if narrowing[w] != 0.0:
             for k in range(n_samples):
-                out_kept[w, k] = 0.0
+                largest = max(largest, strain_excursion[strain_row, k])
+        out_extra[w, 0] = 0.0
         if not scale > 0.0:
             for k in range(1, n_samples):
                 out_extra[w, k] = 0.0
@@ -82,8 +85,43 @@ def _incomplete_reset_kernel(current, excursion, strain, retained, fade, out_ext
                     kept += retained[w] * moved / scale
             previous = e
             out_extra[w, k] = strain[w] * (max(unreset, 0.0) / scale + kept)
-            if want_kept:
-                out_kept[w, k] = kept
+            if largest > 0.0:
+                out_extra[w, k] -= narrowing[w] * kept * (strain_excursion[strain_row, k] / largest)
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _levels_kernel(drive_part, excursion, drive, shape, onset, sharpness, general, levels):
+    """The rows ``general`` of ``levels`` (shape ``(W, T)``) as :func:`loading_levels` defines
+    them, the others the strain's excursion itself; ``drive_part`` is the drive's excursion over
+    its largest (shape ``(T,)``), ``excursion`` the strain's (shape ``(1 or W, T)``)."""
+    n_sets = levels.shape[0]
+    n_samples = levels.shape[1]
+    row_step = 0 if excursion.shape[0] == 1 else 1
+    for w in prange(n_sets):
+        row = w * row_step
+        if not general[w]:
+            for k in range(n_samples):
+                levels[w, k] = excursion[row, k]
+            continue
+        largest = 0.0
+        for k in range(n_samples):
+            largest = max(largest, excursion[row, k])
+        share = drive[w]
+        top = 0.0
+        for k in range(n_samples):
+            strain_part = excursion[row, k] / largest if largest > 0.0 else 0.0
+            mixed = (1.0 - share) * strain_part + share * drive_part[k]
+            levels[w, k] = mixed
+            top = max(top, mixed)
+        k_step, c = sharpness[w], onset[w]
+        low = math.tanh(k_step * c)
+        span = math.tanh(k_step * (1.0 - c)) + low
+        for k in range(n_samples):
+            level = levels[w, k] / top if top > 0.0 else 0.0
+            level = level ** shape[w]
+            if k_step != 0.0:
+                level = (math.tanh(k_step * (level - c)) + low) / span
+            levels[w, k] = level
 
 
 class IncompleteReset(Effect):
@@ -377,30 +415,20 @@ def incomplete_reset_strain(
     excursion = np.ascontiguousarray(np.abs(y - y[:, :1]))
     out = np.zeros((strain.size, current.size))
     if current.size:
-        strain_excursion = excursion
+        levels = excursion
         if np.any((drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)):
-            excursion = loading_levels(current, excursion, drive, shape, onset, sharpness)
-        narrows = stroke != 0.0
-        kept = np.zeros((strain.size, current.size if narrows.any() else 0))
+            levels = loading_levels(current, excursion, drive, shape, onset, sharpness)
         _incomplete_reset_kernel(
             kernel_array(current),
-            excursion,
+            levels,
             kernel_array(strain),
             kernel_array(retained),
             kernel_array(fade),
+            kernel_array(strain * stroke),
+            excursion,
             out,
-            kept,
         )
-        if narrows.any():
-            level = np.broadcast_to(_share_of_largest(strain_excursion), out.shape)
-            out[narrows] -= (strain * stroke)[narrows, None] * kept[narrows] * level[narrows]
     return out
-
-
-def _share_of_largest(excursion):
-    """Each row of ``excursion`` (shape ``(W, T)``) over its largest value; 0 where that is 0."""
-    largest = excursion.max(axis=1, keepdims=True)
-    return np.divide(excursion, largest, out=np.zeros_like(excursion), where=largest > 0.0)
 
 
 def loading_levels(current, excursion, drive, shape, onset=None, sharpness=None):
@@ -431,26 +459,17 @@ def loading_levels(current, excursion, drive, shape, onset=None, sharpness=None)
         :math:`c \in (0, 1)` and :math:`k \ge 0` (default 0.5 and 0: no step).
     """
     n_sets = drive.shape[0]
-    onset = np.full(n_sets, 0.5) if onset is None else np.asarray(onset, dtype=float)
-    sharpness = np.zeros(n_sets) if sharpness is None else np.asarray(sharpness, dtype=float)
-    levels = np.array(np.broadcast_to(excursion, (n_sets, excursion.shape[1])))
-    general = (drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)
-    strain_part = _share_of_largest(excursion)
-    if strain_part.shape[0] > 1:
-        strain_part = strain_part[general]
+    drive = kernel_array(drive)
+    shape = kernel_array(shape)
+    onset = np.full(n_sets, 0.5) if onset is None else kernel_array(onset)
+    sharpness = np.zeros(n_sets) if sharpness is None else kernel_array(sharpness)
+    current = np.asarray(current, dtype=float)
     drive_excursion = np.abs(current - current[0])
     largest_drive = drive_excursion.max()
     drive_part = drive_excursion / largest_drive if largest_drive > 0.0 else np.zeros_like(drive_excursion)
-    share = drive[general, None]
-    mixed = (1.0 - share) * strain_part + share * drive_part[None, :]
-    top = mixed.max(axis=1, keepdims=True)
-    level = np.divide(mixed, top, out=np.zeros_like(mixed), where=top > 0.0)
-    level = level ** shape[general, None]
-    k, c = sharpness[general, None], onset[general, None]
-    stepped = (k != 0.0)[:, 0]
-    if stepped.any():
-        k, c = k[stepped], c[stepped]
-        low = np.tanh(k * c)
-        level[stepped] = (np.tanh(k * (level[stepped] - c)) + low) / (np.tanh(k * (1.0 - c)) + low)
-    levels[general] = level
+    general = (drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)
+    levels = np.empty((n_sets, excursion.shape[1]))
+    _levels_kernel(
+        drive_part, np.ascontiguousarray(excursion, dtype=float), drive, shape, onset, sharpness, general, levels
+    )
     return levels
