@@ -8,8 +8,8 @@ One round against one baseline:
 2. **Short refits** on the working copy (:func:`identify.diagnosis.fits.short_refit`), each from
    the groups of its start strategies (:mod:`identify.diagnosis.starts`): carried and near the
    baseline, data-driven, the screening's step. A short refit that ends above the screening's
-   linearised promise has stayed in the baseline's basin: the candidate is fitted from scratch
-   in both threshold signs too.
+   linearised promise, where that promise is a significant gain, has stayed in the baseline's
+   basin: the candidate is fitted from scratch in both threshold signs too.
 3. **The other threshold sign**, where the data do not choose it (the plain model's two signs
    fit alike): every candidate is short-refitted from the other sign's baseline as well.
 4. **Finishes** on the whole record: the :attr:`~identify.diagnosis.adequacy.Thresholds.max_refits`
@@ -256,15 +256,21 @@ def refit_short(s: Setting, rnd: Round, name: str, model_e: Model, donor, extra=
     return Short(chi2, model_e, theta)
 
 
-def _short_of_screening(s: Setting, rnd: Round, one: ScreeningResult, chi2: float) -> bool:
-    """Did a short refit ending at ``chi2`` fall short of the screening's linearised chi-square
-    by more than ``bic_significant`` in the working copy's BIC units?"""
-    return rnd.n_eff_small * math.log(chi2 / max(one.chi2_after, 1e-300)) > s.thresholds.bic_significant
+def _short_of_screening(s: Setting, rnd: Round, name: str, one: ScreeningResult, chi2: float) -> bool:
+    """Did a short refit ending at ``chi2`` fall short of a significant screening promise? The
+    screening's linearised chi-square gains significantly over the baseline (delta BIC on the
+    working copy above ``bic_significant``: a promise that would not matter if kept is no
+    reason to search further), and the short refit ends above it by more than
+    ``bic_significant`` in the working copy's BIC units."""
+    significant = s.thresholds.bic_significant
+    if rnd.working_gain(one.chi2_after, get_effect(name).n_varying()) <= significant:
+        return False
+    return rnd.n_eff_small * math.log(chi2 / max(one.chi2_after, 1e-300)) > significant
 
 
 def _short_refits(s: Setting, rnd: Round) -> None:
     """Step 2: a short refit of every screened candidate in the baseline's sign; one that stays
-    above its screening's promise is also fitted from scratch in both signs (the better of a
+    above its screening's significant promise is also fitted from scratch in both signs (the better of a
     sign replaces the short refit of that sign where it is lower)."""
     names = list(rnd.screened)
     for name in names:
@@ -280,7 +286,7 @@ def _short_refits(s: Setting, rnd: Round) -> None:
         if short is None:
             continue
         rnd.short[name] = short
-        if _short_of_screening(s, rnd, one, short.chi2):
+        if _short_of_screening(s, rnd, name, one, short.chi2):
             s.say(f"fitting '{name}' from scratch (its short refit stayed above the screening's prediction)")
             fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, n_starts=s.n_starts), s.say, "not possible")
             for model_f, theta in fresh or ():
