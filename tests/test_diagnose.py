@@ -38,6 +38,7 @@ from identify.diagnosis.fits import (
 from identify.diagnosis.reparametrisation import GPI_EQUIVALENTS, exact_reparametrisation
 from identify.diagnosis.residuals import ARNoise, residual_profile
 from identify.diagnosis.screening import SCREENING_GRIDS, screen_candidates, screening_grid
+from identify.diagnosis.search import short_of_promise
 from identify.diagnosis.starts import carried, data_driven, members, near, screening_step
 from identify.fitting.lsq import fit_least_squares
 from identify.fitting.noise import estimate_noise
@@ -1010,3 +1011,20 @@ def test_before_a_name_every_rival_that_repairs_too_is_started_where_it_mimics_t
     started = [m for m in said if "started where it mimics 'thermal'" in m]
     expected = [f"before naming 'thermal': '{n}' started where it mimics 'thermal'" for n in repairing]
     assert sorted(started) == sorted(expected)
+
+
+@pytest.mark.parametrize(
+    ("promised_gain", "promise", "short", "fresh"),
+    [
+        (200.0, 5000.0, 5240.0, True),  # a significant promise missed by far: fitted from scratch
+        (200.0, 5000.0, 5020.0, False),  # missed by less than the significance (1423 ln(5020/5000) = 5.7)
+        (200.0, 5000.0, 4900.0, False),  # kept: the short refit beat its promise
+        (6.5, 5678.8, 5719.8, False),  # missed (10.2 BIC), but the promise itself gains too little
+        (10.0, 5678.8, 5719.8, False),  # a promise of exactly the significance is not significant
+        (10.1, 5678.8, 5719.8, True),
+    ],
+)
+def test_fresh_fit_only_for_a_significant_promise_missed(promised_gain, promise, short, fresh):
+    """The search fits a candidate from scratch only when its screening promised a significant gain
+    and its short refit fell significantly short of that promise (n_eff 1423, significance 10)."""
+    assert short_of_promise(promised_gain, 1423.0, promise, short, 10.0) is fresh

@@ -256,16 +256,24 @@ def refit_short(s: Setting, rnd: Round, name: str, model_e: Model, donor, extra=
     return Short(chi2, model_e, theta)
 
 
-def _short_of_screening(s: Setting, rnd: Round, name: str, one: ScreeningResult, chi2: float) -> bool:
-    """Did a short refit ending at ``chi2`` fall short of a significant screening promise? The
-    screening's linearised chi-square gains significantly over the baseline (delta BIC on the
-    working copy above ``bic_significant``: a promise that would not matter if kept is no
-    reason to search further), and the short refit ends above it by more than
-    ``bic_significant`` in the working copy's BIC units."""
-    significant = s.thresholds.bic_significant
-    if rnd.working_gain(one.chi2_after, get_effect(name).n_varying()) <= significant:
+def short_of_promise(promised_gain: float, n_eff: float, promise: float, short: float, significant: float) -> bool:
+    """Did a short refit ending at chi-square ``short`` fall short of a significant screening
+    promise (all on the working copy, ``n_eff`` its effective sample count)?
+
+    The promise (the screening's linearised chi-square ``promise``) gains significantly over the
+    baseline (``promised_gain``, its delta BIC :meth:`Round.working_gain`, above ``significant``:
+    a promise that would not matter if kept is no reason to search further), and the short refit
+    ends above it by more than ``significant`` in BIC units (``n ln(short / promise)``).
+    """
+    if promised_gain <= significant:
         return False
-    return rnd.n_eff_small * math.log(chi2 / max(one.chi2_after, 1e-300)) > significant
+    return n_eff * math.log(short / max(promise, 1e-300)) > significant
+
+
+def _short_of_screening(s: Setting, rnd: Round, name: str, one: ScreeningResult, chi2: float) -> bool:
+    """:func:`short_of_promise` of candidate ``name``'s short refit at ``chi2`` in round ``rnd``."""
+    gain = rnd.working_gain(one.chi2_after, get_effect(name).n_varying())
+    return short_of_promise(gain, rnd.n_eff_small, one.chi2_after, chi2, s.thresholds.bic_significant)
 
 
 def _short_refits(s: Setting, rnd: Round) -> None:
