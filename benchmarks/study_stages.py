@@ -25,7 +25,11 @@ average before and after (a shared 2-core machine: other processes slow everythi
 Usage::
 
     python benchmarks/study_stages.py data/bench_clean.csv [--effects thermal] [--seed 0]
-        [--max-steps N] [--no-report] [--out DIR] [--save chain.npy]
+        [--max-steps N] [--no-report] [--interleaved] [--out DIR] [--save chain.npy]
+
+``--interleaved`` evaluates every sampler call a second time right after it, timed apart: the
+sampling over the pure model at the same minute (this machine's speed drifts by a third between
+minutes, which a replay after the study cannot follow).
 
 ``--save`` writes the chain (``(steps, walkers, D)``, from ``chain.h5``) for a
 bit-identity comparison between two versions of the code (``np.array_equal``).
@@ -54,6 +58,9 @@ CALLS: dict[str, int] = defaultdict(int)
 SAMPLER_BATCHES: list = []
 _SAMPLING = [False]
 _EVALUATE = []  # Model.evaluate before any wrapper (the replay calls it)
+#: With ``--interleaved``: every sampler model call is evaluated a second time right after it, timed apart.
+_INTERLEAVED = [False]
+INTERLEAVED = "posterior: the sampler's calls again, interleaved"
 
 
 def _wrap(owner, attribute, label):
@@ -96,6 +103,12 @@ def _record_sampler_batches(composite, posterior):
             TIMES["posterior: model.evaluate inside the sampler"] += time.perf_counter() - t0
             CPU["posterior: model.evaluate inside the sampler"] += time.process_time() - c0
             CALLS["posterior: model.evaluate inside the sampler"] += 1
+            if _INTERLEAVED[0]:  # the same call again at once: the pure model at the same minute
+                t1, c1 = time.perf_counter(), time.process_time()
+                evaluate(self, theta, t, current)
+                TIMES[INTERLEAVED] += time.perf_counter() - t1
+                CPU[INTERLEAVED] += time.process_time() - c1
+                CALLS[INTERLEAVED] += 1
 
     composite.Model.evaluate = recorded
     sample = posterior.sample_posterior
@@ -191,7 +204,15 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=None)
     parser.add_argument("--save", default=None, help="save the chain as .npy (bit-identity checks)")
     parser.add_argument("--skip-startup", action="store_true", help="do not time the command line's start-up")
+    parser.add_argument(
+        "--interleaved",
+        action="store_true",
+        help="evaluate every sampler model call a second time right after it (timed apart and taken off the "
+        "sampling time): the ratio at the same minute, which this machine's drifting speed makes the replay "
+        "after the study miss; the other per-part times include these evaluations",
+    )
     args = parser.parse_args(argv)
+    _INTERLEAVED[0] = args.interleaved
 
     load_before = _load()
     if not args.skip_startup:
@@ -293,6 +314,16 @@ def main(argv=None) -> int:
         f"(CPU {replay_cpu:.2f} s); ratio {sampling / max(replay_wall, 1e-9):.2f} (target <= 1.5); CPU ratio "
         f"{CPU.get('posterior: sample_posterior', 0.0) / max(replay_cpu, 1e-9):.2f}; calls {_thread_counts()}"
     )
+    if args.interleaved:
+        again = TIMES.get(INTERLEAVED, 0.0)
+        own = sampling - again
+        own_cpu = CPU.get("posterior: sample_posterior", 0.0) - CPU.get(INTERLEAVED, 0.0)
+        print(
+            f"interleaved: sampling {own:.2f} s (less the {again:.2f} s of the second evaluations) beside the same "
+            f"{CALLS.get(INTERLEAVED, 0)} calls evaluated again right after each: ratio {own / max(again, 1e-9):.2f} "
+            f"(target <= 1.5); CPU ratio "
+            f"{own_cpu / max(CPU.get(INTERLEAVED, 0.0), 1e-9):.2f}"
+        )
     sizes = {p.name: p.stat().st_size for p in out.rglob("*") if p.is_file()}
     print(
         f"results folder {sum(sizes.values()) / 1e6:.1f} MB (target <= 15), posterior.nc "
