@@ -113,6 +113,37 @@ class Setting:
     candidates: list
     redundant: list
     sign_baselines: list = field(default_factory=list)
+    fresh: dict = field(default_factory=dict)
+
+
+def _fresh_key(model_e: Model, sign: str | None) -> tuple:
+    """What a fit from scratch of ``model_e`` in ``sign`` depends on: the model's structure, its
+    bounds and its pinned values (its free values are not starts, :func:`from_scratch`)."""
+    columns = tuple((p.name, p.vary, p.lower, p.upper, None if p.vary else p.value) for p in model_e.parameters)
+    return model_e.effect_names, model_e.n_operators, model_e.reading, columns, sign
+
+
+def fresh_fits(s: Setting, models, whats, signs=None) -> list:
+    """:func:`~identify.diagnosis.starts.from_scratch` of every model of ``models`` (each in its
+    sign of ``signs``, default None: the better of both) on the working copy, side by side, each
+    from its own generator spawned in order from the diagnosis's one; once per diagnosis: a fit
+    from scratch does not depend on the round's baseline, so a later round takes the earlier
+    one's (said so). One entry per model, None where the fit fails (said as its ``whats``)."""
+    signs = [None] * len(models) if signs is None else list(signs)
+    keys = [_fresh_key(model_e, sign) for model_e, sign in zip(models, signs)]
+    todo = [k for k, key in enumerate(keys) if key not in s.fresh]
+    if len(todo) < len(keys):
+        s.say("  (fits from scratch of the round before taken again: they do not depend on the baseline)")
+    rngs = s.rng.spawn(len(todo)) if todo else []
+    fitted = attempt_each(
+        [partial(from_scratch, s.work, models[k], rng, signs[k], s.n_starts) for k, rng in zip(todo, rngs)],
+        s.say,
+        [whats[k] for k in todo],
+    )
+    for k, fresh in zip(todo, fitted):
+        if fresh:
+            s.fresh[keys[k]] = fresh
+    return [s.fresh.get(key) for key in keys]
 
 
 @dataclass(frozen=True)
@@ -289,16 +320,18 @@ def _short_refits(s: Setting, rnd: Round) -> None:
         [f"'{name}' not possible" for name in names],
         [_on_failure(rnd, name, rnd.screened[name], "short refit") for name in names],
     )
-    for name, short in zip(names, shorts):  # the fits from scratch in order: they draw from the one generator
-        one, model_e = rnd.screened[name], rnd.fit.model + name
+    fresh = []
+    for name, short in zip(names, shorts):
         if short is None:
             continue
         rnd.short[name] = short
-        if _short_of_screening(s, rnd, name, one, short.chi2):
+        if _short_of_screening(s, rnd, name, rnd.screened[name], short.chi2):
             s.say(f"fitting '{name}' from scratch (its short refit stayed above the screening's prediction)")
-            fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, n_starts=s.n_starts), s.say, "not possible")
-            for model_f, theta in fresh or ():
-                _keep_short(rnd, name, Short(working_chi2(s.work, model_f, theta), model_f, theta))
+            fresh.append(name)
+    models = [rnd.fit.model + name for name in fresh]
+    for name, fitted in zip(fresh, fresh_fits(s, models, ["not possible"] * len(fresh))):
+        for model_f, theta in fitted or ():
+            _keep_short(rnd, name, Short(working_chi2(s.work, model_f, theta), model_f, theta))
 
 
 def _keep_short(rnd: Round, name: str, short: Short, gain: float = 0.0) -> bool:
@@ -472,11 +505,12 @@ def _other_sign_from_best(s: Setting, rnd: Round) -> None:
         if not c.adequate_after and (none_repairs or _unseparated(best, c, s.thresholds))
     ]
     other = "positive" if rnd.fit.model.parameters["alpha"].value < 0 else "negative"
-    jobs = []  # the fits from scratch in order (one generator), their finishes side by side
     for c in contenders:
         s.say(f"refitting with '{c.effect}' from scratch with the other threshold sign (alpha {other})")
-        model_e = rnd.fit.model + c.effect
-        fresh = attempt(lambda: from_scratch(s.work, model_e, s.rng, other, s.n_starts), s.say, "not possible")
+    models = [rnd.fit.model + c.effect for c in contenders]
+    fitted = fresh_fits(s, models, ["not possible"] * len(contenders), [other] * len(contenders))
+    jobs = []  # their finishes side by side
+    for c, fresh in zip(contenders, fitted):
         if not fresh:
             continue
         model_f, theta = fresh[0]
