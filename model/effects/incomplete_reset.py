@@ -116,9 +116,11 @@ def _levels_kernel(drive_part, excursion, drive, shape, onset, sharpness, genera
         k_step, c = sharpness[w], onset[w]
         low = math.tanh(k_step * c)
         span = math.tanh(k_step * (1.0 - c)) + low
+        power = shape[w]
         for k in range(n_samples):
             level = levels[w, k] / top if top > 0.0 else 0.0
-            level = level ** shape[w]
+            if power != 1.0:  # x ** 1 is x: the power function only where it changes the level
+                level = level**power
             if k_step != 0.0:
                 level = (math.tanh(k_step * (level - c)) + low) / span
             levels[w, k] = level
