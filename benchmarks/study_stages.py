@@ -63,6 +63,13 @@ _INTERLEAVED = [False]
 INTERLEAVED = "posterior: the sampler's calls again, interleaved"
 
 
+def _charge(label, t0, c0) -> None:
+    """Add the wall and CPU time since ``t0``, ``c0`` and one call to ``label``."""
+    TIMES[label] += time.perf_counter() - t0
+    CPU[label] += time.process_time() - c0
+    CALLS[label] += 1
+
+
 def _wrap(owner, attribute, label):
     """Time every call of ``owner.attribute`` under ``label`` (inclusive; re-entrant calls count once)."""
     original = getattr(owner, attribute)
@@ -77,9 +84,7 @@ def _wrap(owner, attribute, label):
         finally:
             depth[0] -= 1
             if depth[0] == 0:
-                TIMES[label] += time.perf_counter() - t0
-                CPU[label] += time.process_time() - c0
-                CALLS[label] += 1
+                _charge(label, t0, c0)
 
     setattr(owner, attribute, timed)
 
@@ -100,15 +105,11 @@ def _record_sampler_batches(composite, posterior):
         try:
             return evaluate(self, theta, t, current)
         finally:
-            TIMES["posterior: model.evaluate inside the sampler"] += time.perf_counter() - t0
-            CPU["posterior: model.evaluate inside the sampler"] += time.process_time() - c0
-            CALLS["posterior: model.evaluate inside the sampler"] += 1
+            _charge("posterior: model.evaluate inside the sampler", t0, c0)
             if _INTERLEAVED[0]:  # the same call again at once: the pure model at the same minute
                 t1, c1 = time.perf_counter(), time.process_time()
                 evaluate(self, theta, t, current)
-                TIMES[INTERLEAVED] += time.perf_counter() - t1
-                CPU[INTERLEAVED] += time.process_time() - c1
-                CALLS[INTERLEAVED] += 1
+                _charge(INTERLEAVED, t1, c1)
 
     composite.Model.evaluate = recorded
     sample = posterior.sample_posterior

@@ -123,12 +123,12 @@ def _fresh_key(model_e: Model, sign: str | None) -> tuple:
     return model_e.effect_names, model_e.n_operators, model_e.reading, columns, sign
 
 
-def fresh_fits(s: Setting, models, whats, signs=None) -> list:
+def fresh_fits(s: Setting, models, signs=None) -> list:
     """:func:`~identify.diagnosis.starts.from_scratch` of every model of ``models`` (each in its
     sign of ``signs``, default None: the better of both) on the working copy, side by side, each
     from its own generator spawned in order from the diagnosis's one; once per diagnosis: a fit
     from scratch does not depend on the round's baseline, so a later round takes the earlier
-    one's (said so). One entry per model, None where the fit fails (said as its ``whats``)."""
+    one's (said so). One entry per model, None where the fit fails (said)."""
     signs = [None] * len(models) if signs is None else list(signs)
     keys = [_fresh_key(model_e, sign) for model_e, sign in zip(models, signs)]
     todo = [k for k, key in enumerate(keys) if key not in s.fresh]
@@ -138,7 +138,7 @@ def fresh_fits(s: Setting, models, whats, signs=None) -> list:
     fitted = attempt_each(
         [partial(from_scratch, s.work, models[k], rng, signs[k], s.n_starts) for k, rng in zip(todo, rngs)],
         s.say,
-        [whats[k] for k in todo],
+        ["not possible"] * len(todo),
     )
     for k, fresh in zip(todo, fitted):
         if fresh:
@@ -329,7 +329,7 @@ def _short_refits(s: Setting, rnd: Round) -> None:
             s.say(f"fitting '{name}' from scratch (its short refit stayed above the screening's prediction)")
             fresh.append(name)
     models = [rnd.fit.model + name for name in fresh]
-    for name, fitted in zip(fresh, fresh_fits(s, models, ["not possible"] * len(fresh))):
+    for name, fitted in zip(fresh, fresh_fits(s, models)):
         for model_f, theta in fitted or ():
             _keep_short(rnd, name, Short(working_chi2(s.work, model_f, theta), model_f, theta))
 
@@ -508,7 +508,7 @@ def _other_sign_from_best(s: Setting, rnd: Round) -> None:
     for c in contenders:
         s.say(f"refitting with '{c.effect}' from scratch with the other threshold sign (alpha {other})")
     models = [rnd.fit.model + c.effect for c in contenders]
-    fitted = fresh_fits(s, models, ["not possible"] * len(contenders), [other] * len(contenders))
+    fitted = fresh_fits(s, models, [other] * len(contenders))
     jobs = []  # their finishes side by side
     for c, fresh in zip(contenders, fitted):
         if not fresh:

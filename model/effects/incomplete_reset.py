@@ -418,7 +418,7 @@ def incomplete_reset_strain(
     out = np.zeros((strain.size, current.size))
     if current.size:
         levels = excursion
-        if np.any((drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)):
+        if _general_rows(drive, shape, sharpness).any():
             levels = loading_levels(current, excursion, drive, shape, onset, sharpness)
         _incomplete_reset_kernel(
             kernel_array(current),
@@ -431,6 +431,12 @@ def incomplete_reset_strain(
             out,
         )
     return out
+
+
+def _general_rows(drive, shape, sharpness):
+    """Which parameter sets take the general loading variable (:func:`loading_levels`) rather
+    than the strain's own excursion: a drive share, a shape other than 1 or a step."""
+    return (drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)
 
 
 def loading_levels(current, excursion, drive, shape, onset=None, sharpness=None):
@@ -469,7 +475,7 @@ def loading_levels(current, excursion, drive, shape, onset=None, sharpness=None)
     drive_excursion = np.abs(current - current[0])
     largest_drive = drive_excursion.max()
     drive_part = drive_excursion / largest_drive if largest_drive > 0.0 else np.zeros_like(drive_excursion)
-    general = (drive != 0.0) | (shape != 1.0) | (sharpness != 0.0)
+    general = _general_rows(drive, shape, sharpness)
     levels = np.empty((n_sets, excursion.shape[1]))
     _levels_kernel(
         drive_part, np.ascontiguousarray(excursion, dtype=float), drive, shape, onset, sharpness, general, levels
