@@ -112,6 +112,31 @@ def test_log_posterior_is_likelihood_plus_normalised_prior(problem):
     assert total == pytest.approx(log_likelihood(residual, fit.noise) + expected_prior, rel=1e-12)
 
 
+def test_compiled_prior_pass_agrees_with_the_array_code(problem):
+    """The one compiled pass over the rows (box support, built-in priors, full parameter
+    vectors) gives the array code's rows, parameter vectors and log prior (the logarithm comes
+    from another library: the last bits may differ)."""
+    rec, model, fit, _log_post, mean, cov = problem
+    compiled = LogPosterior(rec, model, fit.noise)
+    array_code = LogPosterior(rec, model, fit.noise)
+    array_code._compiled_prior = False
+    assert compiled._compiled_prior
+    rng = np.random.default_rng(5)
+    x = rng.multivariate_normal(mean, 400.0 * cov, size=200)  # wide: many rows outside the box
+    x[3, 2] = np.nan
+    x[4, 0] = np.inf
+    x[5] = compiled.lower  # on the bounds: inside
+    x[6] = compiled.upper
+    prior_c, inside_c, theta_c = compiled._prior_of_rows(x)
+    prior_a, inside_a, theta_a = array_code._prior_of_rows(x)
+    assert 10 < inside_c.size < 190 and 3 not in inside_c and 4 not in inside_c
+    assert {5, 6} <= set(inside_c)
+    np.testing.assert_array_equal(inside_c, inside_a)
+    np.testing.assert_array_equal(theta_c, theta_a)
+    np.testing.assert_allclose(prior_c, prior_a, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(compiled(x), array_code(x), rtol=1e-13)
+
+
 def test_default_priors_are_log_uniform_for_scale_parameters_only():
     priors = default_priors(Model(["thermal", "lag", "creep"]))
     for name in ("rho", "a0", "a1", "b0", "b1", "thermal_tau", "creep_tau"):

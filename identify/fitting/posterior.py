@@ -115,6 +115,7 @@ from .convergence import (
     import_arviz,
     tau_convergence,
 )
+from ._posterior_kernels import support_prior_theta
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
 from .noise import NoiseModel, log_likelihood_of_rows
 from .parametrisation import in_record_units
@@ -314,6 +315,7 @@ class LogPosterior:
             if b
         )
         self._other_priors = [(j, fn) for j, (fn, b) in enumerate(zip(self._prior_fns, builtin)) if not b]
+        self._compiled_prior = not self._labelled and not self._other_priors
         self.n_errors = 0
 
     @property
@@ -341,16 +343,25 @@ class LogPosterior:
         """Log prior density ``(W,)``; ``-inf`` outside the support."""
         x = np.atleast_2d(np.asarray(x, dtype=float))
         out = np.full(x.shape[0], -np.inf)
-        ok = self.in_support(x)
-        if ok.any():
-            xs = x[ok]
-            total = np.full(xs.shape[0], self._prior_constant)
-            if self._log_uniform_columns.size:
-                total -= np.log(xs[:, self._log_uniform_columns]).sum(axis=1)
-            for j, fn in self._other_priors:
-                total += fn(xs[:, j], self.lower[j], self.upper[j])
-            out[ok] = total
+        prior, inside, _theta = self._prior_of_rows(x)
+        out[inside] = prior
         return out
+
+    def _prior_of_rows(self, x):
+        """``(prior, inside, theta)``: the log prior of the rows of ``x`` (2-D) inside the support,
+        which rows those are, and their full parameter vectors (:meth:`full_theta`)."""
+        if self._compiled_prior:  # box support and built-in priors: one compiled pass
+            return support_prior_theta(
+                x, self.lower, self.upper, self._prior_constant, self._log_uniform_columns, self.template, self.free
+            )
+        inside = np.flatnonzero(self.in_support(x))
+        xs = x[inside]
+        total = np.full(xs.shape[0], self._prior_constant)
+        if self._log_uniform_columns.size:
+            total -= np.log(xs[:, self._log_uniform_columns]).sum(axis=1)
+        for j, fn in self._other_priors:
+            total += fn(xs[:, j], self.lower[j], self.upper[j])
+        return total, inside, self.full_theta(xs)
 
     def _evaluate_rows(self, theta):
         try:
@@ -370,18 +381,18 @@ class LogPosterior:
         """Log-posterior (up to the evidence) of ``(W, D)`` coordinates -> ``(W,)``; 1-D in -> float."""
         x_in = np.asarray(x, dtype=float)
         x2 = np.atleast_2d(x_in)
-        out = self.log_prior(x2)
-        ok = np.flatnonzero(np.isfinite(out))
-        if ok.size:
-            y, valid = self._evaluate_rows(self.full_theta(x2[ok]))
-            if valid.any():
-                rows = ok[valid]
+        out = np.full(x2.shape[0], -np.inf)
+        prior, inside, theta = self._prior_of_rows(x2)
+        if inside.size:
+            y, valid = self._evaluate_rows(theta)
+            scored = np.flatnonzero(valid)
+            if scored.size:
+                rows = inside[scored]
                 sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
-                out[rows] += log_likelihood_of_rows(
-                    self.data, y, np.flatnonzero(valid), self.noise, sigma, time=self._uneven_time
+                total = prior[scored] + log_likelihood_of_rows(
+                    self.data, y, scored, self.noise, sigma, time=self._uneven_time
                 )
-            out[ok[~valid]] = -np.inf
-        out[~np.isfinite(out)] = -np.inf
+                out[rows] = np.where(np.isfinite(total), total, -np.inf)
         return float(out[0]) if x_in.ndim == 1 else out
 
 

@@ -1,0 +1,69 @@
+"""The log-posterior's per-row prior work in one compiled pass.
+
+:class:`identify.fitting.posterior.LogPosterior` is called two to four times per sampler step
+with a few dozen rows. In array code, the support test, the built-in priors and the full
+parameter vectors of the rows inside the support are a dozen small NumPy calls, about 20 us a
+call (a few per cent of the sampling time on a 7001-sample record). Here they are one pass
+over the rows. The values are the array code's: the same operations in the same order.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def support_prior_theta(x, lower, upper, constant, log_uniform, template, free):
+    """The rows of ``x`` inside the box support, their log prior and their full parameter vectors.
+
+    Parameters
+    ----------
+    x : ndarray, shape (W, D)
+        Sampled coordinates.
+    lower, upper : ndarray, shape (D,)
+        The finite box support; a row with a value outside it, or NaN, is out.
+    constant : float
+        The log prior's constant (every built-in prior's normalisation).
+    log_uniform : ndarray of int, shape (L,)
+        Columns whose prior is log-uniform: ``log x`` is subtracted, summed in column order.
+    template : ndarray, shape (P,)
+        The model's parameter vector (pinned values).
+    free : ndarray of int, shape (F,)
+        Where the first F coordinates go in the parameter vector.
+
+    Returns
+    -------
+    prior : ndarray, shape (R,)
+        ``constant - sum(log x[log_uniform])`` of each row inside.
+    inside : ndarray of int, shape (R,)
+        The rows inside, in order.
+    theta : ndarray, shape (R, P)
+        Their parameter vectors.
+    """
+    n_rows, n_dim = x.shape
+    prior = np.empty(n_rows)
+    inside = np.empty(n_rows, dtype=np.int64)
+    count = 0
+    for i in range(n_rows):
+        ok = True
+        for j in range(n_dim):
+            value = x[i, j]
+            if not (value >= lower[j] and value <= upper[j]):
+                ok = False
+                break
+        if ok:
+            logs = 0.0
+            for c in log_uniform:
+                logs += math.log(x[i, c])
+            prior[count] = constant - logs
+            inside[count] = i
+            count += 1
+    theta = np.empty((count, template.shape[0]))
+    for r in range(count):
+        theta[r, :] = template
+        for k in range(free.shape[0]):
+            theta[r, free[k]] = x[inside[r], k]
+    return prior[:count], inside[:count], theta
