@@ -92,6 +92,7 @@ import numpy as np
 from model import Model
 
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
+from ._posterior_kernels import support_prior_theta
 from .chain_file import (
     BACKEND_GROUP,
     CHAIN_DTYPE,
@@ -115,7 +116,6 @@ from .convergence import (
     import_arviz,
     tau_convergence,
 )
-from ._posterior_kernels import support_prior_theta
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
 from .noise import NoiseModel, log_likelihood_of_rows
 from .parametrisation import in_record_units
