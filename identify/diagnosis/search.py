@@ -18,7 +18,8 @@ One round against one baseline:
 5. When the best candidate still leaves structure, it is fitted from scratch in the other sign,
    and so is every candidate leaving structure whose fit the data do not separate from it (every
    one of the ``max_refits`` best where none repairs the model); where that fits one better, the
-   next candidates are refitted there from its GPI.
+   next candidates are refitted there from its GPI. Such a fit serves only where it starts
+   lower than the candidate's own short refit, so its runs stop once out of reach of that.
 6. **One basin**: every finished candidate is refitted from the GPI of the best one of its sign
    where that promises to matter, so that effects are ranked on the same GPI basin and no
    effect loses to a rival for its GPI's sake.
@@ -123,20 +124,27 @@ def _fresh_key(model_e: Model, sign: str | None) -> tuple:
     return model_e.effect_names, model_e.n_operators, model_e.reading, columns, sign
 
 
-def fresh_fits(s: Setting, models, signs=None) -> list:
+def fresh_fits(s: Setting, models, signs=None, references=None) -> list:
     """:func:`~identify.diagnosis.starts.from_scratch` of every model of ``models`` (each in its
     sign of ``signs``, default None: the better of both) on the working copy, side by side, each
     from its own generator spawned in order from the diagnosis's one; once per diagnosis: a fit
     from scratch does not depend on the round's baseline, so a later round takes the earlier
-    one's (said so). One entry per model, None where the fit fails (said)."""
+    one's (said so). One entry per model, None where the fit fails (said).
+
+    ``references``: for each model, a working-copy chi-square its fit is of use only below
+    (default none); its solver runs stop once out of reach of it (:data:`OUT_OF_REACH_Z`)."""
     signs = [None] * len(models) if signs is None else list(signs)
+    references = [math.inf] * len(models) if references is None else list(references)
     keys = [_fresh_key(model_e, sign) for model_e, sign in zip(models, signs)]
     todo = [k for k, key in enumerate(keys) if key not in s.fresh]
     if len(todo) < len(keys):
         s.say("  (fits from scratch of the round before taken again: they do not depend on the baseline)")
     rngs = s.rng.spawn(len(todo)) if todo else []
     fitted = attempt_each(
-        [partial(from_scratch, s.work, models[k], rng, signs[k], s.n_starts) for k, rng in zip(todo, rngs)],
+        [
+            partial(_within_reach, references[k], from_scratch, s.work, models[k], rng, signs[k], s.n_starts)
+            for k, rng in zip(todo, rngs)
+        ],
         s.say,
         ["not possible"] * len(todo),
     )
@@ -508,7 +516,10 @@ def _other_sign_from_best(s: Setting, rnd: Round) -> None:
     for c in contenders:
         s.say(f"refitting with '{c.effect}' from scratch with the other threshold sign (alpha {other})")
     models = [rnd.fit.model + c.effect for c in contenders]
-    fitted = fresh_fits(s, models, [other] * len(contenders))
+    # a fit of the other sign is used only where it starts lower than the candidate's own short
+    # refit (_starts_lower): a run that cannot come near that chi-square is stopped
+    references = [rnd.short[c.effect].chi2 if c.effect in rnd.short else math.inf for c in contenders]
+    fitted = fresh_fits(s, models, [other] * len(contenders), references)
     jobs = []  # their finishes side by side
     for c, fresh in zip(contenders, fitted):
         if not fresh:
