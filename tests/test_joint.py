@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
+from identify.diagnosis.joint import rival_pair_names
 from identify.fitting.joint import JointModel, JointResiduals, fit_joint
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
@@ -178,3 +179,31 @@ def test_the_joint_log_likelihood_is_the_sum_of_each_records_own(two_records):
     outside = x.copy()
     outside[log_post.names.index("zero_r2")] = 1e9
     assert log_post(outside) == -np.inf
+
+
+@pytest.mark.parametrize(
+    "strength, max_refits, expected",
+    [
+        ({"a": 100.0, "b": 50.0}, 3, []),  # no pair fitted: nothing to name from a pair
+        # the best pair a+b; c alone is stronger than the partner b and than a: both swaps
+        (
+            {"a": 1000.0, "b": 300.0, "c": 1343.0, "d": 200.0, "a+b": 1876.0, "c+d": 1500.0},
+            3,
+            [("c+b", "a+b", "c"), ("a+c", "a+b", "c")],
+        ),
+        # c+b fitted already (in the other order): only the other swap
+        ({"a": 1000.0, "b": 300.0, "c": 1343.0, "a+b": 1876.0, "b+c": 1700.0}, 3, [("a+c", "a+b", "c")]),
+        # c weaker than the partner b alone: it could not be that pair's first name
+        ({"a": 1000.0, "b": 300.0, "c": 250.0, "a+b": 1876.0}, 3, []),
+        # c too far behind a alone for the pair's gain to close (bar 2 x 1000 - 1100 = 900)
+        ({"a": 1000.0, "b": 100.0, "c": 800.0, "a+b": 1100.0}, 3, []),
+        # at most max_refits swaps per member, strongest first
+        (
+            {"a": 1000.0, "b": 900.0, "c": 1200.0, "d": 1100.0, "a+b": 2500.0},
+            1,
+            [("c+b", "a+b", "c"), ("a+c", "a+b", "c")],
+        ),
+    ],
+)
+def test_rival_pairs_of_the_best_joint_pair(strength, max_refits, expected):
+    assert rival_pair_names(strength, max_refits) == expected

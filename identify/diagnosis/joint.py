@@ -10,7 +10,9 @@ again). The joint diagnosis:
    few by their gain) and fits each on all records together
    (:class:`identify.fitting.joint.JointResiduals`: the transducer's parameters shared, each
    record's run parameters and sensor zero its own), from each record's own fit of it and
-   from the joint baseline with the effect off;
+   from the joint baseline with the effect off; before a member of the best joint pair may be
+   named, the pairs that keep its partner and swap it for a single as strong jointly
+   (:func:`rival_pair_names`) are fitted jointly too;
 3. measures each joint fit as one candidate: its chi-square summed over the records, its delta
    BIC against the joint baseline, and whether it repairs *every* record (each record's residual
    against its own quiet start);
@@ -212,22 +214,33 @@ def _own_fits(alone, name: str) -> list:
     """Each record's own fit of explanation ``name`` (None where it has none)."""
     fits = []
     for d in alone:
-        found = next((c for c in [*d.ranking, *d.pairs_tried] if c.effect == name and c.fit is not None), None)
+        found = next(
+            (c for c in [*d.ranking, *d.pairs_tried] if _same_explanation(c.effect, name) and c.fit is not None), None
+        )
         fits.append(None if found is None else found.fit)
     return fits
 
 
-def _fit_candidate(ctx: _Joint, name: str, members=()):
+def _same_explanation(one: str, other: str) -> bool:
+    """Do two explanation names (``"a"``, ``"a+b"``) hold the same effects, in any order?"""
+    return set(one.split("+")) == set(other.split("+"))
+
+
+def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None):
     """Explanation ``name`` fitted on every record together from each record's own fit of it and
     from the joint baseline with it off: ``(JointFit, whitened residual)`` of the lowest chi-square.
 
     A pair never ends above one of its members fitted jointly (``members``: their
     :class:`JointFit`): where it would, it is fitted again from that member's joint fit with the
-    partner off, as a model never ends above one it contains."""
+    partner off, as a model never ends above one it contains. ``swap``: ``(pair, single)`` joint
+    fits of a pair that keeps this pair's partner and of the member swapped in: also started from
+    the pair's fit with the single's own parameters (the partner in the pair's basin)."""
     own = _own_fits(ctx.alone, name)
     donors = [f for f in own if f is not None]
     base_model = ctx.baseline.joint.model
     runs, embedded = [], False
+    if swap is not None and same_threshold_sign(swap[0].joint.model, base_model):
+        runs.append(_swap_run(ctx, name, *swap))
     for donor in donors:
         model_e = donor.model
         joint = JointModel(model_e, len(ctx.records), ctx.baseline.joint.zero_bound)
@@ -255,6 +268,21 @@ def _fit_candidate(ctx: _Joint, name: str, members=()):
     return jf, residuals(x)
 
 
+def _swap_run(ctx: _Joint, name: str, pair: JointFit, single: JointFit):
+    """One solver run of pair ``name`` from ``pair``'s joint fit for every parameter the two pairs
+    share and ``single``'s for the swapped-in member's own."""
+    model = ctx.baseline.joint.model
+    for effect in name.split("+"):
+        model = model + effect
+    joint = JointModel(model, len(ctx.records), ctx.baseline.joint.zero_bound)
+    theta = _embedded(pair, joint)
+    own = set(single.joint.names) - set(ctx.baseline.joint.names)
+    for parameter, value in zip(single.joint.names, single.theta):
+        if parameter in own and parameter in joint.names:
+            theta[joint.names.index(parameter)] = value
+    return _solve_from(JointResiduals(ctx.records, joint, ctx.noises), theta)
+
+
 def _solve_from(residuals: JointResiduals, start) -> tuple[float, JointResiduals, np.ndarray]:
     """``(chi2, residuals, free vector)`` of one bounded solver run on ``residuals`` from the full
     joint vector ``start`` (clipped into the bounds)."""
@@ -264,17 +292,26 @@ def _solve_from(residuals: JointResiduals, start) -> tuple[float, JointResiduals
     return 2.0 * float(sol.cost), residuals, sol.x
 
 
-def _fit_candidates(ctx: _Joint, names, say) -> tuple[list, dict, dict]:
+def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None) -> tuple[list, dict, dict]:
     """``(ranking, adequate by record, joint fits)`` of every explanation of ``names`` fitted on
-    every record together, side by side (each reads ``ctx`` alone); the ranking by delta BIC."""
-    ranking, adequate_by_record, joint_fits = [], {}, {}
+    every record together, side by side (each reads ``ctx`` alone); the ranking by delta BIC.
+    ``earlier``: joint fits already made (``{name: JointFit}``), a pair's members among them;
+    ``swaps``: ``{name: (pair, single)}`` of :func:`_fit_candidate`."""
+    swaps = swaps or {}
+    ranking, adequate_by_record, joint_fits = [], {}, dict(earlier or {})
     for name in names:
         say(f"'{name}' on every record together")
     singles = [n for n in names if "+" not in n]
     pairs = [n for n in names if "+" in n]
     for group in (singles, pairs):  # the pairs after the singles: a pair never ends above a member
         jobs = [
-            partial(_fit_candidate, ctx, name, [joint_fits[m] for m in name.split("+") if m in joint_fits])
+            partial(
+                _fit_candidate,
+                ctx,
+                name,
+                [joint_fits[m] for m in name.split("+") if m in joint_fits],
+                swaps.get(name),
+            )
             for name in group
         ]
         for name, fitted in zip(group, results_side_by_side(jobs)):
@@ -286,6 +323,54 @@ def _fit_candidates(ctx: _Joint, names, say) -> tuple[list, dict, dict]:
             adequate_by_record[name] = adequate
     ranking.sort(key=lambda c: -c.delta_bic)
     return ranking, adequate_by_record, joint_fits
+
+
+def rival_pair_names(strength: dict, max_refits: int) -> list[str]:
+    """The pairs to fit before the best pair's members may be named: for each member, the pairs
+    that keep its partner and swap it for a single at least as strong alone as the partner and
+    behind it alone by less than the pair gains over it (it could be that pair's first name too),
+    strongest first, at most ``max_refits`` per member, those not fitted yet. The rule of
+    :func:`identify.diagnosis.pairs.rival_pairs` on the joint fits: a name taken from a pair must
+    hold against the pairs that would name another effect, wherever the records' own searches
+    left those unfinished.
+
+    Parameters
+    ----------
+    strength : dict
+        ``{explanation: delta BIC}`` of every joint fit, singles and pairs (``"a+b"``).
+    max_refits : int
+
+    Returns
+    -------
+    list of (str, str, str)
+        Each new pair's name (the swapped-in single in the member's place), the best pair's name
+        and the swapped-in single's.
+    """
+    pairs = {n: v for n, v in strength.items() if "+" in n}
+    if not pairs:
+        return []
+    best = max(pairs, key=pairs.get)
+    fitted = {frozenset(n.split("+")) for n in pairs}
+    members = best.split("+")
+    names = []
+    for position, named in enumerate(members):
+        partner = members[1 - position]
+        if named not in strength or partner not in strength:
+            continue
+        bar = max(strength[partner], 2.0 * strength[named] - pairs[best])
+        rivals = sorted(
+            (n for n, v in strength.items() if "+" not in n and n not in members and v >= bar),
+            key=lambda n: -strength[n],
+        )
+        taken = 0
+        for rival in rivals:
+            if frozenset((rival, partner)) in fitted or taken >= max_refits:
+                continue
+            pair = [rival, partner] if position == 0 else [partner, rival]
+            names.append(("+".join(pair), best, rival))
+            fitted.add(frozenset(pair))
+            taken += 1
+    return names
 
 
 def _embedded(baseline: JointFit, joint: JointModel) -> np.ndarray:
@@ -341,6 +426,13 @@ def diagnose_records(
     baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
     ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, _candidates_of(alone, thresholds), say)
+    rivals = rival_pair_names({c.effect: c.delta_bic for c in ranking}, thresholds.max_refits)
+    if rivals:
+        say("before a member of the best pair is named, the pairs that swap it for a single as strong:")
+        swaps = {name: (joint_fits[best], joint_fits[single]) for name, best, single in rivals}
+        more, more_adequate, joint_fits = _fit_candidates(ctx, [r[0] for r in rivals], say, joint_fits, swaps)
+        ranking = sorted(ranking + more, key=lambda c: -c.delta_bic)
+        adequate_by_record.update(more_adequate)
     evidence = _evidence(ctx, ranking)
     decision = decide(evidence, thresholds)
     reason = explain(decision, evidence, thresholds, where_text(ctx.profiles[_worst(ctx)], thresholds.z_critical))
