@@ -9,7 +9,8 @@ import time as _time
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
-from threadpoolctl import threadpool_limits
+import scipy.linalg  # noqa: F401  (its BLAS loaded before the libraries are listed, _blas_libraries)
+from threadpoolctl import ThreadpoolController
 
 __all__ = [
     "single_threaded_blas",
@@ -70,10 +71,22 @@ def use_idle_cores() -> None:
         numba.set_num_threads(max(1, min(1 + idle, numba.config.NUMBA_NUM_THREADS)))
 
 
+_controller: list = []
+
+
+def _blas_libraries() -> ThreadpoolController:
+    """The process's thread-pool libraries, listed once: listing them scans every loaded shared
+    library (``threadpool_limits`` does so at every call, a few milliseconds, thousands of times
+    in a diagnosis). NumPy's and SciPy's BLAS are loaded by then (this module imports both)."""
+    if not _controller:
+        _controller.append(ThreadpoolController())
+    return _controller[0]
+
+
 def single_threaded_blas():
     """Limit BLAS to one thread: the small SVDs of the solver are ~50x slower when
     OpenBLAS threads compete with the (numba-parallel) model on a loaded 2-core machine."""
-    return threadpool_limits(1, user_api="blas")
+    return _blas_libraries().limit(limits=1, user_api="blas")
 
 
 def fastest_thread_count(fn, argument, repeats=3) -> int:
