@@ -488,3 +488,21 @@ def test_out_of_reach_stops_a_slow_run_far_behind_the_reference_and_nothing_else
         "stopped: too far behind the best fit to matter, at the pace it was gaining",
     )
     assert reached.nfev == free.nfev and np.array_equal(reached.x, free.x)
+
+
+def test_single_threaded_blas_limits_every_blas_and_restores_it():
+    """The libraries are listed once (:func:`identify.fitting.threads.single_threaded_blas`):
+    every BLAS loaded (NumPy's and SciPy's) runs on one thread inside, as many as before after."""
+    from threadpoolctl import threadpool_info
+
+    from identify.fitting.threads import single_threaded_blas
+
+    before = [(i["filepath"], i["num_threads"]) for i in threadpool_info() if i["user_api"] == "blas"]
+    assert before
+    for _ in range(2):  # the second call reuses the listing
+        with single_threaded_blas():
+            inside = [(i["filepath"], i["num_threads"]) for i in threadpool_info() if i["user_api"] == "blas"]
+        assert {path for path, _ in inside} == {path for path, _ in before}
+        assert all(n == 1 for _, n in inside)
+        after = [(i["filepath"], i["num_threads"]) for i in threadpool_info() if i["user_api"] == "blas"]
+        assert after == before
