@@ -197,6 +197,10 @@ def test_the_joint_log_likelihood_is_the_sum_of_each_records_own(two_records):
         ({"a": 1000.0, "b": 300.0, "c": 250.0, "a+b": 1876.0}, 3, []),
         # c too far behind a alone for the pair's gain to close (bar 2 x 1000 - 1100 = 900)
         ({"a": 1000.0, "b": 100.0, "c": 800.0, "a+b": 1100.0}, 3, []),
+        # the partner b never fitted alone (no record found it worth finishing): it gains nothing
+        # alone, so c, stronger than a, is swapped in for a (bar max(0, 2000 - 1876)) and for b
+        # (bar a's 1000)
+        ({"a": 1000.0, "c": 1343.0, "a+b": 1876.0}, 3, [("c+b", "a+b", "c"), ("a+c", "a+b", "c")]),
         # at most max_refits swaps per member, strongest first
         (
             {"a": 1000.0, "b": 900.0, "c": 1200.0, "d": 1100.0, "a+b": 2500.0},

@@ -337,7 +337,9 @@ def rival_pair_names(strength: dict, max_refits: int) -> list[str]:
     Parameters
     ----------
     strength : dict
-        ``{explanation: delta BIC}`` of every joint fit, singles and pairs (``"a+b"``).
+        ``{explanation: delta BIC}`` of every joint fit, singles and pairs (``"a+b"``); a member
+        of the best pair that is not among them (no record found it worth finishing alone)
+        counts as gaining nothing alone.
     max_refits : int
 
     Returns
@@ -355,9 +357,8 @@ def rival_pair_names(strength: dict, max_refits: int) -> list[str]:
     names = []
     for position, named in enumerate(members):
         partner = members[1 - position]
-        if named not in strength or partner not in strength:
-            continue
-        bar = max(strength[partner], 2.0 * strength[named] - pairs[best])
+        # a member no record found worth finishing alone was not fitted jointly: it gains nothing
+        bar = max(strength.get(partner, 0.0), 2.0 * strength.get(named, 0.0) - pairs[best])
         rivals = sorted(
             (n for n, v in strength.items() if "+" not in n and n not in members and v >= bar),
             key=lambda n: -strength[n],
