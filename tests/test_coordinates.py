@@ -199,3 +199,46 @@ def test_the_move_gives_emcees_stock_chain_bit_for_bit():
         chains.append((sampler.get_chain(), sampler.get_log_prob(), sampler.acceptance_fraction))
     for new, stock in zip(*chains):
         np.testing.assert_array_equal(new, stock)
+
+
+def test_the_compiled_way_back_is_the_inverse_and_log_det_bit_for_bit():
+    """``GPICoordinates.back`` (one compiled pass) gives what the map's ``inverse`` and ``log_det``
+    give step by step, rows outside the map's range and non-finite factors included."""
+    from identify.fitting.coordinates import back_in_steps
+
+    coords, x = _coords()
+    rng = np.random.default_rng(8)
+    s = _spread(x, rng, 12)
+    u = coords.forward(s)
+    q_u = u + 0.2 * (u[rng.permutation(12)] - u)
+    q_u[2, coords.names.index("rho")] = -1.0  # total weight <= 0: outside the map's range
+    factors = rng.normal(size=12)
+    factors[4] = -np.inf
+    log_det_s = coords.log_det(s)
+    fused = coords.back(s, q_u, factors, log_det_s)
+    steps = back_in_steps(coords, s, q_u, factors, log_det_s)
+    for a, b in zip(fused, steps):
+        np.testing.assert_array_equal(a, b)
+    assert fused[1][2] == -np.inf and fused[1][4] == -np.inf and np.array_equal(fused[0][2], s[2])
+    assert np.isfinite(fused[1][[0, 1, 3, 5]]).all()
+
+
+def test_the_snooker_proposal_is_ter_braak_and_vrugts_update():
+    """The compiled arithmetic of ``SnookerMove.get_proposal``: ``x + gamma e e^T (z1 - z2)`` with
+    ``e = (x - z)/|x - z|`` and the factor ``(d - 1) log(|x' - z| / |x - z|)``, ``z, z1, z2`` one
+    walker from each other split in a random order (the same draws as the array code)."""
+    rng = np.random.default_rng(2)
+    s = rng.normal(size=(7, 5))
+    c = [rng.normal(size=(7, 5)) + j for j in range(3)]
+    move = SnookerMove()
+    proposal, log_factor = move.get_proposal(s, c, np.random.RandomState(4))
+    random = np.random.RandomState(4)
+    picks = np.stack([c[j][random.randint(7, size=7)] for j in range(3)], axis=1)
+    roles = np.argsort(random.uniform(size=(7, 3)), axis=1)
+    for i in range(7):
+        z, z1, z2 = picks[i, roles[i]]
+        e = (s[i] - z) / np.linalg.norm(s[i] - z)
+        expected = s[i] + move.gammas * e * (e @ (z1 - z2))
+        np.testing.assert_allclose(proposal[i], expected, rtol=1e-13, atol=1e-13)
+        ratio = np.linalg.norm(expected - z) / np.linalg.norm(s[i] - z)
+        assert log_factor[i] == pytest.approx(4.0 * np.log(ratio), abs=1e-12)

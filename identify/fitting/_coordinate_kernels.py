@@ -253,3 +253,48 @@ def log_det_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, points,
                 if blocks[5 + k]:
                     total += 2.0 * _log_abs(g[k]) - _log_abs(row[thermal[k, 0]])
         out[w] = total
+
+
+@njit(cache=True, error_model="numpy")
+def back_rows(
+    s,
+    q_u,
+    factors,
+    log_det_s,
+    blocks,
+    weights,
+    envelopes,
+    omegas,
+    thermal,
+    pinned,
+    points,
+    r,
+    duration,
+    tau_bounds,
+    max_steps,
+    q,
+    factors_out,
+    log_det_q,
+):
+    """A move's proposals ``q_u`` (W, D) in the sampler coordinates back in the parameters ``q``,
+    their log factors with the Jacobian ratio added and their log-determinants, in one pass
+    (:meth:`identify.fitting.coordinates.CoordinateMove._back`, the same operations): a row
+    outside the map's range, or whose factor is not finite, stays at ``s`` with factor ``-inf``
+    (its log-determinant NaN where the map gave none)."""
+    layout = (blocks, weights, envelopes, omegas, thermal, pinned, points, r, duration)
+    inverse_rows(q_u, *layout, tau_bounds, max_steps, q)
+    for w in range(q.shape[0]):
+        ok = True
+        for k in range(q.shape[1]):
+            ok = ok and math.isfinite(q[w, k])
+        log_det_q[w] = math.nan
+        factor = factors[w]
+        if ok:
+            log_det_rows(q[w : w + 1], *layout, log_det_q[w : w + 1])
+            factor = factor + (log_det_s[w] - log_det_q[w])
+            ok = math.isfinite(factor)
+        if not ok:
+            for k in range(q.shape[1]):
+                q[w, k] = s[w, k]
+            factor = -math.inf
+        factors_out[w] = factor

@@ -1,4 +1,4 @@
-"""The log-posterior's per-row prior work in one compiled pass.
+"""The log-posterior's per-row prior work and the snooker move's arithmetic in compiled passes.
 
 :class:`identify.fitting.posterior.LogPosterior` is called two to four times per sampler step
 with a few dozen rows. In array code, the support test, the built-in priors and the full
@@ -67,3 +67,45 @@ def support_prior_theta(x, lower, upper, constant, log_uniform, template, free):
         for k in range(free.shape[0]):
             theta[r, free[k]] = x[inside[r], k]
     return prior[:count], inside[:count], theta
+
+
+@njit(cache=True)
+def snooker_proposals(s, pool, picks, roles, gamma, proposal, log_factor):
+    """The snooker update of :class:`identify.fitting.posterior.SnookerMove` for every walker.
+
+    Parameters
+    ----------
+    s : ndarray, shape (n, D)
+        The walkers.
+    pool : ndarray, shape (m, D)
+        The other splits' walkers, stacked.
+    picks : ndarray of int, shape (n, 3)
+        Each walker's three rows of ``pool`` (drawn by the move).
+    roles : ndarray of int, shape (n, 3)
+        A random order of the three per walker: ``z``, ``z1``, ``z2`` are the picks at
+        ``roles[:, 0]``, ``roles[:, 1]`` and ``roles[:, 2]``.
+    gamma : float
+    proposal : ndarray, shape (n, D)
+        Out: ``x + gamma e e^T (z1 - z2)`` with ``e = (x - z) / |x - z|``.
+    log_factor : ndarray, shape (n,)
+        Out: ``(D - 1) log(|x' - z| / |x - z|)``.
+    """
+    n, d = s.shape
+    for i in range(n):
+        z = pool[picks[i, roles[i, 0]]]
+        z1 = pool[picks[i, roles[i, 1]]]
+        z2 = pool[picks[i, roles[i, 2]]]
+        distance = 0.0
+        for k in range(d):
+            distance += (s[i, k] - z[k]) ** 2
+        distance = math.sqrt(distance)
+        along = 0.0
+        for k in range(d):
+            along += (s[i, k] - z[k]) / distance * (z1[k] - z2[k])
+        step = gamma * along
+        moved = 0.0
+        for k in range(d):
+            unit = (s[i, k] - z[k]) / distance
+            proposal[i, k] = s[i, k] + unit * step
+            moved += (proposal[i, k] - z[k]) ** 2
+        log_factor[i] = (d - 1.0) * (math.log(math.sqrt(moved)) - math.log(distance))

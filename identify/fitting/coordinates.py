@@ -231,6 +231,31 @@ class GPICoordinates:
         kernels.inverse_rows(u, *self.layout, self._tau_bounds, MAX_NEWTON_STEPS, x)
         return x
 
+    def back(self, s, q_u, factors, log_det_s):
+        """:meth:`CoordinateMove._back` in one compiled pass: the proposals ``q_u`` ``(W, D)`` in the
+        parameters, their log factors ``(W,)`` with the Jacobian ratio added (``log_det_s``: the
+        walkers' ``s`` log-determinants) and their log-determinants; a row outside the map's
+        range or with a non-finite factor stays at ``s`` with factor ``-inf``."""
+        if type(self).inverse is not GPICoordinates.inverse or type(self).log_det is not GPICoordinates.log_det:
+            return back_in_steps(self, s, q_u, factors, log_det_s)  # a subclass's own map
+        q_u = self._rows(q_u)
+        q = np.empty_like(q_u)
+        out_factors = np.empty(q_u.shape[0])
+        log_det_q = np.empty(q_u.shape[0])
+        kernels.back_rows(
+            self._rows(s),
+            q_u,
+            np.ascontiguousarray(factors, dtype=float),
+            np.ascontiguousarray(log_det_s, dtype=float),
+            *self.layout,
+            self._tau_bounds,
+            MAX_NEWTON_STEPS,
+            q,
+            out_factors,
+            log_det_q,
+        )
+        return q, out_factors, log_det_q
+
     def log_det(self, x) -> np.ndarray:
         r"""``log |det du/dx|`` ``(W,)`` at parameters ``x`` ``(W, D)`` (closed form).
 
@@ -280,6 +305,23 @@ def coordinates_for(spec, log_post):
     if spec not in COORDINATES:
         raise ValueError(f"unknown sampler coordinates {spec!r}; known: {', '.join(COORDINATES)}")
     return COORDINATES[spec](log_post)
+
+
+def back_in_steps(coordinates, s, q_u, factors, log_det_s):
+    """:meth:`CoordinateMove._back` with the map's ``inverse`` and ``log_det``: ``(q, factors,
+    log_det_q)``; a row outside the map's range or with a non-finite factor stays at ``s`` with
+    factor ``-inf`` (emcee refuses non-finite positions: the walker stays, and is rejected)."""
+    q = coordinates.inverse(q_u)
+    ok = np.isfinite(q).all(axis=1)
+    factors = np.array(factors, dtype=float)
+    log_det_q = np.full(q.shape[0], np.nan)
+    with np.errstate(invalid="ignore"):
+        log_det_q[ok] = coordinates.log_det(q[ok])
+        factors[ok] += log_det_s[ok] - log_det_q[ok]
+    ok &= np.isfinite(factors)
+    q[~ok] = s[~ok]
+    factors[~ok] = -np.inf
+    return q, factors, log_det_q
 
 
 def _log_probabilities(model, q):
@@ -336,18 +378,10 @@ class CoordinateMove(emcee.moves.RedBlueMove):
     def _back(self, s, q_u, factors, log_det_s):
         """The proposals in the parameters, their log factors (Jacobian ratio added; -inf
         outside the map's range) and, where finite, the proposals' log-determinants."""
-        cs = self.coordinates
-        q = cs.inverse(q_u)
-        ok = np.isfinite(q).all(axis=1)
-        factors = np.array(factors, dtype=float)
-        log_det_q = np.full(q.shape[0], np.nan)
-        with np.errstate(invalid="ignore"):
-            log_det_q[ok] = cs.log_det(q[ok])
-            factors[ok] += log_det_s[ok] - log_det_q[ok]
-        ok &= np.isfinite(factors)
-        q[~ok] = s[~ok]  # emcee refuses non-finite positions: stay, and reject below
-        factors[~ok] = -np.inf
-        return q, factors, log_det_q
+        back = getattr(self.coordinates, "back", None)
+        if back is not None:  # the same in one compiled pass (GPICoordinates)
+            return back(s, q_u, factors, log_det_s)
+        return back_in_steps(self.coordinates, s, q_u, factors, log_det_s)
 
     def _ensemble(self, coords):
         """Sampler coordinates and log-determinants of the walkers ``coords``: kept from the

@@ -92,7 +92,7 @@ import numpy as np
 from model import Model
 
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
-from ._posterior_kernels import support_prior_theta
+from ._posterior_kernels import snooker_proposals, support_prior_theta
 from .chain_file import (
     BACKEND_GROUP,
     CHAIN_DTYPE,
@@ -183,19 +183,19 @@ class SnookerMove(emcee.moves.DESnookerMove):
 
     def get_proposal(self, s, c, random):
         """Proposals ``(n, D)`` for the walkers ``s`` and the log Jacobian factors ``(n,)``,
-        all walkers at once (emcee's loops over them in Python)."""
-        n_walkers, ndim = s.shape
-        picks = np.stack([c[j][random.randint(len(c[j]), size=n_walkers)] for j in range(3)], axis=1)  # (n, 3, D)
-        roles = np.argsort(random.uniform(size=(n_walkers, 3)), axis=1)  # a random order of the three per walker
-        picks = np.take_along_axis(picks, roles[:, :, None], axis=1)
-        z, z1, z2 = picks[:, 0], picks[:, 1], picks[:, 2]
-        delta = s - z
-        distance = np.linalg.norm(delta, axis=1)
-        unit = delta / distance[:, None]
-        step = self.gammas * np.einsum("nd,nd->n", unit, z1 - z2)
-        proposal = s + unit * step[:, None]
-        log_factor = np.log(np.linalg.norm(proposal - z, axis=1)) - np.log(distance)
-        return proposal, (ndim - 1.0) * log_factor
+        all walkers at once (emcee's loops over them in Python): the draws here, the arithmetic
+        in one compiled pass (:func:`identify.fitting._posterior_kernels.snooker_proposals`)."""
+        n_walkers = s.shape[0]
+        # each walker's z, z1, z2 from the three other splits, one from each, in a random order
+        offsets = np.cumsum([0] + [len(c[j]) for j in range(3)])
+        picks = np.stack([offsets[j] + random.randint(len(c[j]), size=n_walkers) for j in range(3)], axis=1)
+        roles = np.argsort(random.uniform(size=(n_walkers, 3)), axis=1)
+        s = np.ascontiguousarray(s, dtype=float)
+        proposal = np.empty_like(s)
+        log_factor = np.empty(n_walkers)
+        pool = np.ascontiguousarray(np.concatenate([c[j] for j in range(3)]), dtype=float)
+        snooker_proposals(s, pool, picks, roles, float(self.gammas), proposal, log_factor)
+        return proposal, log_factor
 
 
 #: move name -> factory of an emcee move schedule.
