@@ -52,6 +52,10 @@ from there to convergence with :data:`SOLVER_METHOD` (at most :data:`POLISH_EVAL
 evaluations, tolerances :data:`TOLERANCE`, and every run stopped once it has stalled:
 :class:`StallStop`) and the best of those wins. The polished set
 contains dogbox's alone, so the search only adds ends to what dogbox's ranking polishes.
+Only the lowest end is kept, so a polish (and the later phases' runs) stops once it cannot
+come near the lowest chi-square a start has reached
+(:func:`identify.fitting.lsq_solver.within_reach_of_best`): its verdict then says so, and the
+fit's optimum is the one the full runs reach.
 
 Table-1-shaped starts (``table1``, ``data_scaled``, ``classical``) are made for Table 1's
 12 operators; for ``N`` operators they are rescaled so the operators keep the same
@@ -112,6 +116,7 @@ from .lsq_solver import (
     bounded_solve,
     solver_verdict,
     stalling_solve,
+    within_reach_of_best,
 )
 from .lsq_starts import PAPER_PEAK_INPUT, TABLE1_N_OPERATORS, candidate_starts
 from .noise import NoiseModel, energised_mask, estimate_noise
@@ -374,8 +379,12 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
             polish_alternate = set(order_alternate[:N_POLISH_ALTERNATE]) if n_polish > 0 else set()
             note = f" (run on from {ALTERNATE_METHOD}'s screening)"
             tasks = [(k, False) for k in sorted(polish)] + [(k, True) for k in sorted(polish_alternate)]
+            # a chi-square some start has reached: a polish that cannot come near it cannot end lowest
+            reached = min(2.0 * float(sol.cost) for sol in [*alternate, *(sol for _, sol, _ in screened)])
             runs = [
-                partial(_converged, sol=alternate[k], note=note) if alt else partial(_converged, sol=screened[k][1])
+                _within_reach_of(reached, partial(_converged, sol=alternate[k], note=note))
+                if alt
+                else _within_reach_of(reached, partial(_converged, sol=screened[k][1]))
                 for k, alt in tasks
             ]
             ends = dict(zip(tasks, _side_by_side(residuals, runs)))
@@ -395,6 +404,17 @@ def _run_starts(residuals, starts, n_polish: int, verbose: bool) -> tuple[_Polis
     finally:
         numba.set_num_threads(threads_before)
     return log.best, log.outcomes
+
+
+def _within_reach_of(best_chi2: float, task):
+    """``task(residuals)`` with its solver runs stopped once out of reach of ``best_chi2``
+    (:func:`identify.fitting.lsq_solver.within_reach_of_best`, set in the thread that runs it)."""
+
+    def run(residuals):
+        with within_reach_of_best(best_chi2):
+            return task(residuals)
+
+    return run
 
 
 def _screen_start(residuals: WhitenedResiduals, x0):
@@ -424,7 +444,7 @@ def _polish_at_bound(residuals, screened, origins, polish, log: _StartLog) -> No
         return
     note = f" ({ALTERNATE_METHOD} from the start: the {SOLVER_METHOD} optimum had {', '.join(gpi_at_bound)} on a bound)"
     ks = sorted(polish)
-    tasks = [partial(_interior_end, x0=origins[k], note=note) for k in ks]
+    tasks = [_within_reach_of(log.best.chi2, partial(_interior_end, x0=origins[k], note=note)) for k in ks]
     for k, (end, used) in zip(ks, _side_by_side(residuals, tasks)):
         log.keep(f"{screened[k][0]} ({ALTERNATE_METHOD})", end, used)
 
@@ -488,7 +508,10 @@ def _polish_in_coordinates(residuals: WhitenedResiduals, log: _StartLog) -> None
     if not getattr(coordinates, "blocks", ()):
         return
     ends = list(log.ends)
-    tasks = [partial(_polish_end_in_coordinates, coordinates=coordinates, x=end.x) for _, end in ends]
+    tasks = [
+        _within_reach_of(log.best.chi2, partial(_polish_end_in_coordinates, coordinates=coordinates, x=end.x))
+        for _, end in ends
+    ]
     for (label, end), (polished, used) in zip(ends, _side_by_side(residuals, tasks)):
         if polished is not None and polished.chi2 < end.chi2:
             log.keep(f"{label} (coordinates)", polished, used)

@@ -110,6 +110,25 @@ def separation_bound(chi2: float, reference: float, n_samples: int) -> float:
     return math.sqrt(n_samples) * math.log(ratio) / (2.0 * (1.0 + math.sqrt(ratio)))
 
 
+#: A start of a multi-start fit stops once out of reach, by this many noise standard deviations of
+#: the gap, of the lowest chi-square some start has reached (:func:`within_reach_of_best`): such
+#: a start cannot end lowest, the only end the fit keeps. Generous, so a run that would have
+#: sped up again still ends far behind.
+START_OUT_OF_REACH_Z = 10.0
+
+
+@contextlib.contextmanager
+def within_reach_of_best(best_chi2: float):
+    """:func:`out_of_reach` of ``best_chi2`` with :data:`START_OUT_OF_REACH_Z`, unless a rule in
+    force already stops runs behind a lower chi-square (whose own ``z`` is kept)."""
+    rule = _OUT_OF_REACH.get()
+    if rule is not None and rule[0] <= best_chi2 or not math.isfinite(best_chi2):
+        yield
+        return
+    with out_of_reach(best_chi2, START_OUT_OF_REACH_Z):
+        yield
+
+
 @contextlib.contextmanager
 def out_of_reach(reference_chi2: float, z: float):
     """Within the block (in this thread), every solver run stops once it cannot come near
