@@ -506,3 +506,42 @@ def test_single_threaded_blas_limits_every_blas_and_restores_it():
         assert all(n == 1 for _, n in inside)
         after = [(i["filepath"], i["num_threads"]) for i in threadpool_info() if i["user_api"] == "blas"]
         assert after == before
+
+
+def test_within_reach_of_best_keeps_a_rule_behind_a_lower_chi_square():
+    from identify.fitting.lsq_solver import _OUT_OF_REACH, START_OUT_OF_REACH_Z, out_of_reach, within_reach_of_best
+
+    assert _OUT_OF_REACH.get() is None
+    with within_reach_of_best(500.0):
+        assert _OUT_OF_REACH.get() == (500.0, START_OUT_OF_REACH_Z)
+    with out_of_reach(400.0, 3.0):
+        with within_reach_of_best(500.0):  # the rule behind the lower chi-square stays
+            assert _OUT_OF_REACH.get() == (400.0, 3.0)
+        with within_reach_of_best(300.0):
+            assert _OUT_OF_REACH.get() == (300.0, START_OUT_OF_REACH_Z)
+        assert _OUT_OF_REACH.get() == (400.0, 3.0)
+    with within_reach_of_best(math.inf):  # no chi-square reached: no rule
+        assert _OUT_OF_REACH.get() is None
+    assert _OUT_OF_REACH.get() is None
+
+
+def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it(monkeypatch):
+    """A thin loop fitted in the sign that fits it worse (many starts far behind): the fit with
+    the hopeless polishes stopped ends at the optimum of the fit that runs every start in full,
+    with fewer evaluations, and says which starts it stopped."""
+    import identify.fitting.lsq as lsq
+
+    rec, _ = classical_record()
+    model = normalised_model(Model())
+
+    def fit():
+        return fit_least_squares(rec, model, n_starts=6, rng=np.random.default_rng(0), threshold_sign="negative")
+
+    stopped = fit()
+    monkeypatch.setattr(lsq, "_within_reach_of", lambda best, task: task)
+    full = fit()
+    assert stopped.chi2 == full.chi2 and stopped.n_agree == full.n_agree
+    np.testing.assert_array_equal(stopped.theta, full.theta)
+    used = [sum(o.n_evaluations for o in f.starts) for f in (stopped, full)]
+    assert any("too far behind" in o.message for o in stopped.starts), [o.message for o in stopped.starts]
+    assert used[0] < used[1]
