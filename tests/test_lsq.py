@@ -509,20 +509,20 @@ def test_single_threaded_blas_limits_every_blas_and_restores_it():
 
 
 def test_within_reach_of_best_keeps_a_rule_behind_a_lower_chi_square():
-    from identify.fitting.lsq_solver import _OUT_OF_REACH, START_OUT_OF_REACH_Z, out_of_reach, within_reach_of_best
+    from identify.fitting.lsq_solver import START_OUT_OF_REACH_Z, out_of_reach, reach_rule, within_reach_of_best
 
-    assert _OUT_OF_REACH.get() is None
+    assert reach_rule() is None
     with within_reach_of_best(500.0):
-        assert _OUT_OF_REACH.get() == (500.0, START_OUT_OF_REACH_Z)
+        assert reach_rule() == (500.0, START_OUT_OF_REACH_Z)
     with out_of_reach(400.0, 3.0):
         with within_reach_of_best(500.0):  # the rule behind the lower chi-square stays
-            assert _OUT_OF_REACH.get() == (400.0, 3.0)
+            assert reach_rule() == (400.0, 3.0)
         with within_reach_of_best(300.0):
-            assert _OUT_OF_REACH.get() == (300.0, START_OUT_OF_REACH_Z)
-        assert _OUT_OF_REACH.get() == (400.0, 3.0)
+            assert reach_rule() == (300.0, START_OUT_OF_REACH_Z)
+        assert reach_rule() == (400.0, 3.0)
     with within_reach_of_best(math.inf):  # no chi-square reached: no rule
-        assert _OUT_OF_REACH.get() is None
-    assert _OUT_OF_REACH.get() is None
+        assert reach_rule() is None
+    assert reach_rule() is None
 
 
 def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it(monkeypatch):

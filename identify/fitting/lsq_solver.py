@@ -30,6 +30,9 @@ __all__ = [
     "STALLED",
     "StallStop",
     "out_of_reach",
+    "reach_rule",
+    "within_reach_of_best",
+    "START_OUT_OF_REACH_Z",
     "separation_bound",
     "solver_verdict",
     "stalling_solve",
@@ -115,6 +118,11 @@ def separation_bound(chi2: float, reference: float, n_samples: int) -> float:
 #: a start cannot end lowest, the only end the fit keeps. Generous, so a run that would have
 #: sped up again still ends far behind.
 START_OUT_OF_REACH_Z = 10.0
+
+
+def reach_rule() -> tuple[float, float] | None:
+    """The rule of :func:`out_of_reach` in force in this thread: ``(reference chi-square, z)``, or None."""
+    return _OUT_OF_REACH.get()
 
 
 @contextlib.contextmanager

@@ -3,13 +3,13 @@ algebra of a fit, numba's thread count chosen by measurement."""
 
 from __future__ import annotations
 
+import importlib
 import math
 import threading
 import time as _time
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
-import scipy.linalg  # noqa: F401  (its BLAS loaded before the libraries are listed, _blas_libraries)
 from threadpoolctl import ThreadpoolController
 
 __all__ = [
@@ -77,8 +77,9 @@ _controller: list = []
 def _blas_libraries() -> ThreadpoolController:
     """The process's thread-pool libraries, listed once: listing them scans every loaded shared
     library (``threadpool_limits`` does so at every call, a few milliseconds, thousands of times
-    in a diagnosis). NumPy's and SciPy's BLAS are loaded by then (this module imports both)."""
+    in a diagnosis). SciPy's BLAS is loaded first, so NumPy's and SciPy's are both listed."""
     if not _controller:
+        importlib.import_module("scipy.linalg")
         _controller.append(ThreadpoolController())
     return _controller[0]
 
