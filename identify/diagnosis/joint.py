@@ -41,7 +41,7 @@ from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
 from .fits import n_eff, profile_of, same_threshold_sign
 
-__all__ = ["JointDiagnosis", "diagnose_records"]
+__all__ = ["JointDiagnosis", "diagnose_records", "rival_pair_names"]
 
 
 @dataclass
@@ -325,7 +325,7 @@ def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None) -> tuple[
     return ranking, adequate_by_record, joint_fits
 
 
-def rival_pair_names(strength: dict, max_refits: int) -> list[str]:
+def rival_pair_names(strength: dict, max_refits: int) -> list[tuple[str, str, str]]:
     """The pairs to fit before the best pair's members may be named: for each member, the pairs
     that keep its partner and swap it for a single at least as strong alone as the partner and
     behind it alone by less than the pair gains over it (it could be that pair's first name too),

@@ -383,6 +383,9 @@ class LogPosterior:
         x2 = np.atleast_2d(x_in)
         out = np.full(x2.shape[0], -np.inf)
         prior, inside, theta = self._prior_of_rows(x2)
+        finite = np.isfinite(prior)  # a prior of its own may be -inf inside the box: no model call there
+        if not finite.all():
+            prior, inside, theta = prior[finite], inside[finite], theta[finite]
         if inside.size:
             y, valid = self._evaluate_rows(theta)
             scored = np.flatnonzero(valid)
