@@ -40,7 +40,8 @@ GENERATOR = ROOT / "benchmarks" / "independent" / "generator.py"
 
 def record_of(case: dict, cache: Path):
     """The case's record: the independent generator's (generated once per seed into ``cache``) or the
-    bench's (a list of two for ``own-pair``)."""
+    bench's; a list of two for ``own-pair`` and for ``independent-next`` (the generator's record and
+    the one it measures on the case's designed drive)."""
     if case["source"] == "own":
         return simulate(case["effects_hidden"], seed=int(case["seed"]), noise_sigma=0.5).record
     if case["source"] == "own-pair":  # two records of one transducer, diagnosed together
@@ -51,6 +52,14 @@ def record_of(case: dict, cache: Path):
         ]
     options = [str(o) for o in case.get("generator_options", [])]
     folder = cache / "_".join([f"seed{case['seed']}", *(o.lstrip("-") for o in options)])
+    first = _generated(case, folder, options)
+    if case["source"] == "independent-next":  # and the designed record of the same hidden transducer
+        return [load_record(str(first)), load_record(str(_measured_next(case, first, cache)))]
+    return load_record(str(first))
+
+
+def _generated(case: dict, folder: Path, options: list) -> Path:
+    """The CSV of the independent generator's record ``case['stem']`` (generated once per seed)."""
     csv = folder / f"{case['stem']}.csv"
     if not csv.exists():
         matches = sorted(folder.glob(f"{case['stem']}_*.csv")) if folder.is_dir() else []
@@ -63,7 +72,19 @@ def record_of(case: dict, cache: Path):
         if not matches:
             raise SystemExit(f"error: {case['name']}: no record {case['stem']} in the generator's seed {case['seed']}")
         csv = matches[0]
-    return load_record(str(csv))
+    return csv
+
+
+def _measured_next(case: dict, first: Path, cache: Path) -> Path:
+    """The record the generator measures on the case's designed drive (``next_input``, stored with
+    the cases) from the same hidden transducer as ``first`` (``--like``), generated once."""
+    target = cache / f"{case['name']}_next"
+    csv = target / f"{first.stem}_next.csv"
+    if not csv.exists():
+        command = [sys.executable, str(GENERATOR), "--like", str(first.with_suffix(".truth.json"))]
+        command += ["--input", str(CASES.parent / case["next_input"]), "--out", str(target), "--stem", csv.stem]
+        subprocess.run(command, check=True, capture_output=True)
+    return csv
 
 
 def judge(case: dict, status: str, missing, tied) -> tuple[bool, str]:
