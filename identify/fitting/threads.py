@@ -3,6 +3,7 @@ algebra of a fit, numba's thread count chosen by measurement."""
 
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 import threading
@@ -71,17 +72,13 @@ def use_idle_cores() -> None:
         numba.set_num_threads(max(1, min(1 + idle, numba.config.NUMBA_NUM_THREADS)))
 
 
-_controller: list = []
-
-
+@functools.cache
 def _blas_libraries() -> ThreadpoolController:
     """The process's thread-pool libraries, listed once: listing them scans every loaded shared
     library (``threadpool_limits`` does so at every call, a few milliseconds, thousands of times
     in a diagnosis). SciPy's BLAS is loaded first, so NumPy's and SciPy's are both listed."""
-    if not _controller:
-        importlib.import_module("scipy.linalg")
-        _controller.append(ThreadpoolController())
-    return _controller[0]
+    importlib.import_module("scipy.linalg")
+    return ThreadpoolController()
 
 
 def single_threaded_blas():
