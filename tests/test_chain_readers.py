@@ -24,7 +24,14 @@ import pytest
 from identify.bench import simulate
 from identify.data import hdf5
 from identify.data.records import write_record
-from identify.fitting.chain_file import CHAIN_DTYPE, LAST_STEP, ChainFileError, chain_info
+from identify.fitting.chain_file import (
+    CHAIN_DTYPE,
+    LAST_STEP,
+    LOG_PROB_QUANTUM,
+    ChainFileError,
+    chain_info,
+    stored_log_prob,
+)
 from identify.fitting.posterior import BACKEND_GROUP, BufferedHDFBackend, ChainBackend
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -71,6 +78,14 @@ def _as_stored(coords) -> np.ndarray:
     return np.stack(coords).astype(CHAIN_DTYPE).astype(np.float64)
 
 
+def test_stored_log_probabilities_lie_within_half_a_step_and_keep_what_is_not_finite():
+    log_prob = np.array([-1708826.5623137, -12345.678901, 0.3, 4e-4, -np.inf, np.nan])
+    kept = stored_log_prob(log_prob)
+    assert np.all(np.abs(kept[:4] - log_prob[:4]) <= LOG_PROB_QUANTUM / 2)
+    assert np.array_equal(np.round(kept[:4] / LOG_PROB_QUANTUM), kept[:4] / LOG_PROB_QUANTUM)  # multiples
+    assert kept[3] == 0.0 and kept[4] == -np.inf and np.isnan(kept[5])
+
+
 def _steps(n, n_walkers=8, ndim=3, seed=0):
     rng = np.random.default_rng(seed)
     state = np.random.RandomState(seed).get_state()
@@ -95,6 +110,7 @@ def test_the_writer_waits_for_a_reader_holding_the_lock(tmp_path):
     stored = ChainBackend(str(path), name=BACKEND_GROUP, read_only=True)
     assert stored.iteration == 5
     assert np.array_equal(stored.get_chain(), _as_stored([s.coords for s in steps]))
+    assert np.array_equal(stored.get_log_prob(), stored_log_prob([s.log_prob for s in steps]))
     # the last step also in full precision: what a resumed run continues from
     last = stored.get_last_sample()
     assert np.array_equal(last.coords, steps[-1].coords) and np.array_equal(last.log_prob, steps[-1].log_prob)
@@ -165,7 +181,7 @@ def test_buffered_writes_under_a_hammering_reader_are_all_kept(tmp_path, monkeyp
     stored = ChainBackend(str(path), name=BACKEND_GROUP, read_only=True)
     assert stored.iteration == 400
     assert np.array_equal(stored.get_chain(), _as_stored([s.coords for s in steps]))
-    assert np.array_equal(stored.get_log_prob(), np.stack([s.log_prob for s in steps]))
+    assert np.array_equal(stored.get_log_prob(), stored_log_prob([s.log_prob for s in steps]))
     print(f"{reads} reads, {len(lock_errors)} opens refused by the reader's lock and retried")
 
 

@@ -189,7 +189,7 @@ def test_posterior_nc_pointwise_groups_are_rounded_to_their_stated_precision(stu
     assert np.array_equal(np.round(ll.values / LOG_LIKELIHOOD_QUANTUM), ll.values / LOG_LIKELIHOOD_QUANTUM)
     step = predictive_quantum(fit.noise.sigma)
     predictive = idata.posterior_predictive["displacement"]
-    assert step <= fit.noise.sigma / 16 < 2 * step and predictive.attrs["rounded_to"] == step
+    assert step <= fit.noise.sigma / 8 < 2 * step and predictive.attrs["rounded_to"] == step
     assert np.array_equal(np.round(predictive.values / step), predictive.values / step)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

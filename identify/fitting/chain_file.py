@@ -4,8 +4,9 @@
   :func:`identify.data.hdf5.open_hdf5` (readers take no lock, writers wait for one, free disk
   space checked before HDF5 writes).
 * :class:`BufferedHDFBackend`: the sampler's writer, steps buffered and written in batches,
-  the chain stored in float32 and the log-probabilities in float64, compressed (chunked,
-  shuffle + gzip), the last step also in full precision (what a resumed run continues from),
+  the chain stored in float32 and the log-probabilities in float64 rounded to a stated
+  precision (:func:`stored_log_prob`), compressed (chunked, shuffle + gzip), the last step
+  also in full precision (what a resumed run continues from),
   the step count written after the steps it claims, a CRC-32 of the last step with it.
 * :func:`compact_chain_file`: the finished chain rewritten without the unused space its
   batched writes left in the file (same data, bit for bit).
@@ -36,6 +37,8 @@ __all__ = [
     "CHAIN_GZIP_LEVEL",
     "LAST_STEP",
     "CHAIN_METADATA_BYTES",
+    "LOG_PROB_QUANTUM",
+    "stored_log_prob",
     "LAST_STEP_CHECK",
     "ChainBackend",
     "BufferedHDFBackend",
@@ -62,6 +65,11 @@ CHAIN_DTYPE = np.float32
 #: attribute ``iterations`` holds each slot's step count. The slot whose count is the group's
 #: ``iteration`` is the one a resumed run continues from.
 LAST_STEP = "last_step"
+#: The stored log-probabilities are rounded to a multiple of this [nats] (2^-10, about 1e-3).
+#: Their digits below it are noise and cost half of their share of the file; the posterior's
+#: own spread of log-probabilities is about sqrt(dimension / 2) nats, and a resumed run
+#: continues from the full-precision last step (:data:`LAST_STEP`), never from these.
+LOG_PROB_QUANTUM = 2.0**-10
 #: gzip level of the stored chain (4: within a few percent of level 9's size, several times faster).
 CHAIN_GZIP_LEVEL = 4
 #: Bytes kept free for HDF5's own bookkeeping (chunk index, attributes) beyond the chain's data [B].
@@ -127,7 +135,8 @@ class BufferedHDFBackend(ChainBackend):
     readable by the stock backend.
 
     The chain is stored in :data:`CHAIN_DTYPE` (float32) and the log-probabilities in
-    float64, compressed (HDF5 chunks of :data:`CHAIN_CHUNK_STEPS` steps, byte shuffle and
+    float64 rounded to :data:`LOG_PROB_QUANTUM` (:func:`stored_log_prob`), compressed (HDF5
+    chunks of :data:`CHAIN_CHUNK_STEPS` steps, byte shuffle and
     gzip level :data:`CHAIN_GZIP_LEVEL`): a rejected proposal repeats the walker's previous
     position exactly, so a chain compresses several fold (a 6000-step, 36 x 18 chain: 15.6
     MB raw in float32, 2.5 MB stored). The last step is kept in float64 as well
@@ -210,8 +219,9 @@ class BufferedHDFBackend(ChainBackend):
             if chain.shape[0] < start + n:
                 chain.resize(start + n, axis=0)
                 log_prob.resize(start + n, axis=0)
+            log_probs = stored_log_prob(np.stack([p[1] for p in pending]))
             chain[start : start + n] = np.stack([p[0] for p in pending])
-            log_prob[start : start + n] = np.stack([p[1] for p in pending])
+            log_prob[start : start + n] = log_probs
             if LAST_STEP in g:  # the slot not holding the present count's step: that one stays intact
                 slots = g[LAST_STEP]
                 counts = np.array(slots.attrs["iterations"])
@@ -223,8 +233,8 @@ class BufferedHDFBackend(ChainBackend):
             g["accepted"][:] += np.sum([p[2] for p in pending], axis=0)
             for i, value in enumerate(pending[-1][3]):
                 g.attrs[f"random_state_{i}"] = value
-            last = pending[-1]
-            g.attrs[LAST_STEP_CHECK] = _step_check(start + n, last[0], last[1], chain.dtype, log_prob.dtype)
+            last = pending[-1][0]
+            g.attrs[LAST_STEP_CHECK] = _step_check(start + n, last, log_probs[-1], chain.dtype, log_prob.dtype)
             g.attrs["iteration"] = start + n
         self._pending = []
 
@@ -247,6 +257,13 @@ def last_step(path, name=BACKEND_GROUP):
             return None
         values = g[LAST_STEP][counts.index(steps)]
     return values[:, :-1], values[:, -1]
+
+
+def stored_log_prob(log_prob) -> np.ndarray:
+    """Log-probabilities as the chain file stores them: rounded to the nearest multiple of
+    :data:`LOG_PROB_QUANTUM` (a power of two, so the division and product are exact),
+    non-finite values kept."""
+    return np.round(np.asarray(log_prob, dtype=float) / LOG_PROB_QUANTUM) * LOG_PROB_QUANTUM
 
 
 def _create_chain_file(path) -> None:
