@@ -575,3 +575,46 @@ def test_posterior_quantiles_agree_with_those_before_the_speed_up_within_monte_c
     assert z.size == 54
     assert np.max(np.abs(z)) < 4.5, z
     assert 0.6 < np.sqrt(np.mean(z**2)) < 1.6, z
+
+
+@pytest.mark.parametrize(("probe_seconds", "probes"), [(0.0, 6), (1e9, 1)])
+def test_the_thread_count_is_measured_before_the_first_chunk_and_then_every_few_seconds(
+    tmp_path, monkeypatch, probe_seconds, probes
+):
+    """Six 10-step chunks: with no interval every chunk measures the fastest thread count, with
+    an interval longer than the run only the first one; the chain is the same either way."""
+    from identify.fitting import posterior
+
+    calls = []
+    real = posterior.fastest_thread_count
+
+    def counted(fn, argument, repeats=3):
+        calls.append(len(argument))
+        return real(fn, argument, repeats)
+
+    monkeypatch.setattr(posterior, "fastest_thread_count", counted)
+    monkeypatch.setattr(posterior, "THREAD_PROBE_SECONDS", probe_seconds)
+    path = tmp_path / f"chain_{probe_seconds:g}.h5"
+    result = sample_posterior(
+        Gaussian(),
+        lambda n, r: r.standard_normal((n, 3)),
+        path,
+        np.random.default_rng(4),
+        max_steps=60,
+        check_every=10,
+        tau_factor=1e4,
+    )
+    assert result.n_steps == 60 and len(calls) == probes
+    reference = tmp_path / "reference.h5"
+    sample_posterior(
+        Gaussian(),
+        lambda n, r: r.standard_normal((n, 3)),
+        reference,
+        np.random.default_rng(4),
+        max_steps=60,
+        check_every=10,
+        tau_factor=1e4,
+    )
+    a = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP, read_only=True)
+    b = emcee.backends.HDFBackend(str(reference), name=BACKEND_GROUP, read_only=True)
+    assert np.array_equal(a.get_chain(), b.get_chain())

@@ -148,6 +148,7 @@ __all__ = [
     "chain_diagnostics",
     "autocorrelation_times",
     "CHAIN_METADATA_BYTES",
+    "THREAD_PROBE_SECONDS",
 ]
 
 
@@ -730,6 +731,7 @@ def sample_posterior(
     )
 
     threads_before = numba.get_num_threads()
+    last_probe = -math.inf
     tau_cache: dict[int, np.ndarray] = {}
     diagnostics_cache: dict[tuple, dict] = {}  # (steps, discard, thin) -> chain_diagnostics of the check
     chain = _ChainInMemory(backend.get_chain() if resuming else np.empty((0, n_walkers, log_post.ndim)), max_steps)
@@ -745,7 +747,9 @@ def sample_posterior(
             )
             if stop:
                 break
-            fastest_thread_count(log_post, np.asarray(state.coords))
+            if _time.perf_counter() - last_probe >= THREAD_PROBE_SECONDS:
+                fastest_thread_count(log_post, np.asarray(state.coords))
+                last_probe = _time.perf_counter()
             steps = min(check_every - done % check_every, max_steps - done)
             state, block = _run_chunk(sampler, state, steps, backend, bar)
             chain.append(block)
@@ -773,6 +777,13 @@ def sample_posterior(
         tau_cache=tau_cache,
         diagnostics_cache=diagnostics_cache,
     )
+
+
+#: Seconds of sampling between two measurements of the fastest numba thread count
+#: (:func:`identify.fitting.threads.fastest_thread_count`, before a chunk of steps): a machine's
+#: load changes over seconds, and each measurement evaluates the walkers six times, half of them
+#: at the slower count (measured before every 500-step chunk it was 2 % of the sampling time).
+THREAD_PROBE_SECONDS = 5.0
 
 
 def _open_chain(path, ndim, n_walkers):
