@@ -18,6 +18,7 @@ from scipy.optimize import least_squares
 
 from model import Model, get_effect
 
+from ..fitting.lapack import release_the_gil_in_least_squares
 from .fits import embed, same_threshold_sign, with_values
 
 __all__ = ["mimic_start"]
@@ -81,6 +82,7 @@ def mimic_start(
     outputs = np.asarray(model_e(thetas, time, current), dtype=float)
     first_costs = np.where(np.all(np.isfinite(outputs), axis=1), np.sum((outputs - target) ** 2, axis=1), np.inf)
     best, best_cost = None, np.inf
+    release_the_gil_in_least_squares()
     for i in np.argsort(first_costs, kind="stable")[:MIMIC_STARTS]:
         if not np.isfinite(first_costs[i]):
             continue

@@ -15,6 +15,7 @@ from contextvars import ContextVar
 import numpy as np
 from scipy.optimize import least_squares
 
+from .lapack import release_the_gil_in_least_squares
 from .lsq_residuals import WhitenedResiduals
 
 __all__ = [
@@ -218,6 +219,7 @@ def stalling_solve(fun, x0, jac, max_nfev, method=SOLVER_METHOD, tolerance=TOLER
     ``jac``): ``method`` with Jacobian scaling, relative tolerances ``tolerance``, the stall rule
     (:class:`StallStop`) and ``bounds`` (none by default)."""
     stall = StallStop(max_nfev=max_nfev)
+    release_the_gil_in_least_squares()  # fits side by side: the solver's LAPACK calls without the GIL
     sol = least_squares(
         fun,
         x0,
