@@ -32,21 +32,27 @@ from numba.extending import get_cython_function_address
 
 __all__ = ["lstsq", "svd", "release_the_gil_in_least_squares"]
 
-_POINTER = ctypes.c_void_p
-#: LAPACK's ``dgesdd`` and ``dgelsd`` (14 pointer arguments each), as SciPy exports them.
-_DGESDD = ctypes.CFUNCTYPE(None, *[_POINTER] * 14)(get_cython_function_address("scipy.linalg.cython_lapack", "dgesdd"))
-_DGELSD = ctypes.CFUNCTYPE(None, *[_POINTER] * 14)(get_cython_function_address("scipy.linalg.cython_lapack", "dgelsd"))
-_THIN = ctypes.c_char(b"S")  # dgesdd's JOBZ: the first min(m, n) singular vectors
+#: LAPACK's ``dgesdd`` and ``dgelsd`` (14 pointer arguments each, passed as addresses), as SciPy
+#: exports them.
+_DGESDD = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 14)(
+    get_cython_function_address("scipy.linalg.cython_lapack", "dgesdd")
+)
+_DGELSD = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 14)(
+    get_cython_function_address("scipy.linalg.cython_lapack", "dgelsd")
+)
+#: dgesdd's JOBZ, "S": the first min(m, n) singular vectors (a byte that lives as long as the module).
+_THIN = np.frombuffer(b"S", dtype=np.uint8)
 
 
-def _address(array: np.ndarray):
-    return array.ctypes.data_as(_POINTER)
+def _address(array: np.ndarray) -> int:
+    return array.__array_interface__["data"][0]
 
 
 def _integers(values) -> tuple[np.ndarray, list]:
-    """LAPACK's integer arguments: an int32 array and a pointer to each of its entries."""
+    """LAPACK's integer arguments: an int32 array and the address of each of its entries."""
     ints = np.array(values, dtype=np.int32)
-    return ints, [_POINTER(ints.ctypes.data + ints.itemsize * k) for k in range(ints.size)]
+    base = _address(ints)
+    return ints, [base + 4 * k for k in range(ints.size)]
 
 
 def svd(a, full_matrices=True, **kwargs):
@@ -68,7 +74,7 @@ def svd(a, full_matrices=True, **kwargs):
 
     def call():
         _DGESDD(
-            ctypes.byref(_THIN),
+            _address(_THIN),
             at[0],
             at[1],
             _address(work_a),

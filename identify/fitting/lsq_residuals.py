@@ -77,9 +77,9 @@ class WhitenedResiduals:
         self.data = np.asarray(record.displacement, dtype=float)
         self.model = model
         self.noise = noise
-        # the time grid for the whitening when its steps are not all the noise's one step
-        # (a thinned record: each step its own correlation), else None (checked once here)
-        self._uneven_time = None if noise.step_correlations(self.time) is None else self.time
+        # each step's correlation r_k when the grid's steps are not all the noise's one step
+        # (a thinned record), else None (every step rho): computed once, whitened with at each call
+        self._correlations = noise.step_correlations(self.time)
         self.sigma = 1.0 if noise.is_free else noise.sigma
         self.free = np.flatnonzero(model.parameters.vary)
         self.template = model.parameters.values.copy()
@@ -110,7 +110,7 @@ class WhitenedResiduals:
         use_idle_cores()
         y, valid = self.model.evaluate(thetas, self.time, self.current)
         self.n_evaluations += thetas.shape[0]
-        w, finite = whiten_rows(self.data, y, self.noise, self.sigma, time=self._uneven_time)
+        w, finite = whiten_rows(self.data, y, self.noise, self.sigma, correlations=self._correlations)
         valid = valid & finite
         return w, valid
 

@@ -495,17 +495,22 @@ def _whitened_rows_uneven(data, model_rows, correlations, scales, sigma, out, fi
         finite[r] = check == 0.0
 
 
-def whiten_rows(data, model_rows, noise: NoiseModel, sigma, *, time=None) -> tuple[np.ndarray, np.ndarray]:
+def whiten_rows(
+    data, model_rows, noise: NoiseModel, sigma, *, time=None, correlations=None
+) -> tuple[np.ndarray, np.ndarray]:
     """``(whiten(data - model_rows, noise, sigma, time=time), finite)`` for rows ``(W, T)`` and
     a scalar ``sigma``: the same values bit for bit, in one pass (the least squares' hot
-    path), with ``finite`` ``(W,)`` whether each row is finite throughout."""
+    path), with ``finite`` ``(W,)`` whether each row is finite throughout. ``correlations``:
+    ``noise.step_correlations(time)`` computed once by a caller that whitens on the same grid
+    again and again (then ``time`` is not read)."""
     sig = float(_checked_sigma(noise, sigma, "whiten_rows"))
     data = np.ascontiguousarray(data, dtype=np.float64)
     model_rows = np.ascontiguousarray(np.atleast_2d(model_rows), dtype=np.float64)
     out = np.empty(model_rows.shape)
     finite = np.empty(model_rows.shape[0], dtype=np.bool_)
     rho = float(noise.rho)
-    correlations = _correlations_for(noise, time, data.shape[0]) if rho != 0.0 else None
+    if correlations is None and rho != 0.0:
+        correlations = _correlations_for(noise, time, data.shape[0])
     if correlations is None:
         _whitened_rows(data, model_rows, rho, math.sqrt(1.0 - rho * rho), sig, out, finite)
     else:
