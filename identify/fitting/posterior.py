@@ -263,7 +263,8 @@ class LogPosterior:
         self.data = np.asarray(record.displacement, dtype=float)
         self.model = model
         self.noise = noise
-        self._uneven_time = None if noise.step_correlations(self.time) is None else self.time  # uneven grid: each step its r_k
+        # the time grid when its steps are not all the noise's one step (each step its own r_k)
+        self._uneven_time = None if noise.step_correlations(self.time) is None else self.time
         self.free = np.flatnonzero(model.parameters.vary)
         self.template = model.parameters.values.copy()
         self._labelled = model.has_canonical_domain  # a labelling to keep (e.g. two thermal nodes): checked per call

@@ -3,7 +3,6 @@ algebra of a fit, numba's thread count chosen by measurement."""
 
 from __future__ import annotations
 
-import contextvars
 import functools
 import importlib
 import math
@@ -59,14 +58,6 @@ class _Workers:
     def stop(self) -> None:
         with self.lock:
             self.busy -= 1
-
-    def take_idle(self) -> bool:
-        """Count one idle worker's core as busy (True), or False when none is idle."""
-        with self.lock:
-            if self.busy >= self.count:
-                return False
-            self.busy += 1
-            return True
 
 
 def use_idle_cores() -> None:
@@ -139,10 +130,9 @@ def side_by_side(actions, catch=()) -> list:
     dense algebra (SVD, QR), which uses one, so two fits side by side keep both cores busy.
     Every fit computes what it would alone: BLAS stays on one thread, and numba's thread count
     does not change a result (each parameter set is computed apart). As many workers as numba
-    may use threads here (:func:`numba_thread_cap`: the cores, or ``NUMBA_NUM_THREADS``). A
-    worker's own call (a fit's starts, inside a fit side by side with others) runs its actions
-    in turn, and on the cores of its fellow workers as they fall idle (:func:`_lending_idle_cores`).
-    An exception of the types ``catch`` is returned in its action's place, any other raised here.
+    may use threads here (:func:`numba_thread_cap`: the cores, or ``NUMBA_NUM_THREADS``), so a
+    thread already capped at one (a worker) runs its actions in turn. An exception of the types
+    ``catch`` is returned in its action's place, any other raised here.
     """
     actions = list(actions)
     workers = min(SIDE_BY_SIDE, len(actions), numba_thread_cap())
@@ -153,10 +143,6 @@ def side_by_side(actions, catch=()) -> list:
         except catch as exc:
             return None, exc
 
-    outer = getattr(_local, "workers", None)
-    if workers <= 1 and outer is not None and len(actions) > 1:
-        with single_threaded_blas():
-            return _lending_idle_cores(actions, run, outer)
     if workers <= 1:
         with single_threaded_blas():
             return [run(action) for action in actions]
@@ -180,55 +166,6 @@ def side_by_side(actions, catch=()) -> list:
             for future in futures:
                 future.cancel()
             raise
-
-
-def _lending_idle_cores(actions, run, workers: _Workers) -> list:
-    """``[run(action)]`` in order, in a worker of a :func:`side_by_side` call whose ``workers``
-    may fall idle: the calling thread takes the actions one by one, and before each it starts a
-    helper thread, which takes actions too, on every core an idle worker lends
-    (:meth:`_Workers.take_idle`; a worker idles only when its call has no action left, so in that
-    call's last actions). Each action runs in a copy of the calling thread's context (the rules
-    of :mod:`contextvars` set around this call, as if it ran them in turn), with numba capped at
-    one thread and the helper counted busy, so it computes what it would in turn."""
-    contexts = [contextvars.copy_context() for _ in actions]
-    results: list = [None] * len(actions)
-    failures: list = []
-    left = list(range(len(actions)))
-    lock = threading.Lock()
-
-    def take():
-        with lock:
-            return left.pop(0) if left and not failures else None
-
-    def drain():
-        while (k := take()) is not None:
-            try:
-                results[k] = contexts[k].run(run, actions[k])
-            except BaseException as exc:  # raised in the calling thread once the helpers are done
-                failures.append(exc)
-
-    def helper():
-        cap_numba_threads(1)
-        _local.workers = workers
-        try:
-            drain()
-        finally:
-            workers.stop()
-
-    helpers = []
-    while (k := take()) is not None:
-        while len(left) > 0 and workers.take_idle():
-            helpers.append(threading.Thread(target=helper, daemon=True))
-            helpers[-1].start()
-        try:
-            results[k] = contexts[k].run(run, actions[k])
-        except BaseException as exc:
-            failures.append(exc)
-    for thread in helpers:
-        thread.join()
-    if failures:
-        raise failures[0]
-    return results
 
 
 def results_side_by_side(actions) -> list:
