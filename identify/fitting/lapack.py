@@ -4,13 +4,13 @@ Fits run side by side in threads (:func:`identify.fitting.threads.side_by_side`)
 model kernels release the GIL, but two calls inside :func:`scipy.optimize.least_squares` hold
 it for their whole LAPACK routine: ``numpy.linalg.lstsq`` (the Gauss-Newton step of each
 ``dogbox`` iteration, LAPACK ``dgelsd``) and ``scipy.linalg.svd`` (each ``trf`` iteration,
-``dgesdd``). Measured on a 3500 x 21 Jacobian, two threads calling either get nothing done
-faster than one (speedup 0.97-0.98), so each such call stops the other fit.
+``dgesdd``). Measured on a 3500 x 21 Jacobian, two threads calling ``lstsq`` get nothing
+done faster than one (0.97-0.98 x), calling ``svd`` 1.0-1.7 x: such a call stops the other fit.
 
 :func:`lstsq` and :func:`svd` call the same LAPACK routines (SciPy's, through the stable
 ``scipy.linalg.cython_lapack`` interface) with the same arguments and workspace query, through
-:mod:`ctypes`, which releases the GIL during a foreign call: two threads then run them 1.9-2.2
-times as fast as one. Their results are those of ``numpy.linalg.lstsq`` and
+:mod:`ctypes`, which releases the GIL during a foreign call: two threads then run them 1.8-3.0
+times as fast as one (``benchmarks/lapack_gil.py``). Their results are those of ``numpy.linalg.lstsq`` and
 ``scipy.linalg.svd`` bit for bit on the wheels this project installs (a table test), and a
 diagnosis's answers are unchanged. Any other input (another dtype or shape, a non-finite
 value, another ``rcond``, a LAPACK error) goes to the original function.
