@@ -221,14 +221,13 @@ class JointResiduals(WhitenedResiduals):
         self.parts = []
         for record, noise in zip(self.records, self.noises):
             time = np.asarray(record.time, dtype=float)
-            uneven = None if noise.step_correlations(time) is None else time
             self.parts.append(
                 (
                     time,
                     np.asarray(record.current, dtype=float),
                     np.asarray(record.displacement, dtype=float),
                     noise,
-                    uneven,
+                    noise.step_correlations(time),  # each step's r_k on an uneven grid, else None
                     1.0 if noise.is_free else noise.sigma,
                 )
             )
@@ -249,10 +248,10 @@ class JointResiduals(WhitenedResiduals):
         thetas = self.full(np.atleast_2d(x_rows))
         out = np.empty((thetas.shape[0], self.data.size))
         valid = np.ones(thetas.shape[0], dtype=bool)
-        for r, (time, current, data, noise, uneven, sigma) in enumerate(self.parts, start=1):
+        for r, (time, current, data, noise, correlations, sigma) in enumerate(self.parts, start=1):
             rows, zero = self.model.record_rows(thetas, r)
             y, ok = self.model.model.evaluate(rows, time, current)
-            w, finite = whiten_rows(data, y + zero[:, None], noise, sigma, time=uneven)
+            w, finite = whiten_rows(data, y + zero[:, None], noise, sigma, correlations=correlations)
             out[:, self.bounds[r - 1] : self.bounds[r]] = w
             valid &= ok & finite
         self.n_evaluations += thetas.shape[0]

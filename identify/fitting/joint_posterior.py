@@ -88,10 +88,10 @@ class JointLogPosterior(LogPosterior):
         self.parts = []
         for record, noise in zip(self.records, self.noises):
             time = np.asarray(record.time, dtype=float)
-            uneven = None if noise.step_correlations(time) is None else time
-            self.parts.append(
-                (time, np.asarray(record.current, dtype=float), np.asarray(record.displacement, dtype=float), uneven)
-            )
+            correlations = noise.step_correlations(time)  # each step's r_k on an uneven grid, else None
+            uneven = None if correlations is None else time
+            data = np.asarray(record.displacement, dtype=float)
+            self.parts.append((time, np.asarray(record.current, dtype=float), data, uneven, correlations))
         longest = max(self.records, key=lambda r: float(np.ptp(r.time)))
         self.time = np.asarray(longest.time, dtype=float)
         self.current = np.concatenate([part[1] for part in self.parts])
@@ -99,7 +99,7 @@ class JointLogPosterior(LogPosterior):
     def record_outputs(self, theta, r: int):
         """Record ``r``'s (from 1) model output ``(W, T_r)`` with its zero, and validity ``(W,)``,
         of full joint vectors ``theta`` ``(W, P_joint)``."""
-        time, current, _data, _uneven = self.parts[r - 1]
+        time, current, *_ = self.parts[r - 1]
         rows, zero = self.joint.record_rows(theta, r)
         try:
             y, valid = self.joint.model.evaluate(rows, time, current)
@@ -122,7 +122,7 @@ class JointLogPosterior(LogPosterior):
             y, valid = self.record_outputs(theta, r)
             if valid.any():
                 rows = np.flatnonzero(valid)
-                out[r - 1, rows] = log_likelihood_of_rows(part[2], y, rows, noise, None, time=part[3])
+                out[r - 1, rows] = log_likelihood_of_rows(part[2], y, rows, noise, None, correlations=part[4])
         return out
 
     def __call__(self, x) -> np.ndarray:
@@ -156,7 +156,7 @@ def joint_sampled_units(log_post: JointLogPosterior, record) -> list[str]:
 
 def _record_groups(r, record, log_post, flat, noise, step_draws, shape_head, rng):
     """Record ``r``'s observed data, pointwise log-likelihood and posterior predictive variables."""
-    time, _current, data, uneven = log_post.parts[r - 1]
+    time, _current, data, uneven, _correlations = log_post.parts[r - 1]
     y, valid = log_post.record_outputs(log_post.full_theta(flat), r)
     pointwise = pointwise_log_likelihood(data[None, :] - y, noise, None, time=uneven)
     pointwise[~valid] = -np.inf

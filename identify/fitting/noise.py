@@ -607,7 +607,9 @@ def _whitened_sum_of_squares_uneven(data, model_rows, rows, correlations, out):
         out[i] = total
 
 
-def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None, *, time=None) -> np.ndarray:
+def log_likelihood_of_rows(
+    data, model_rows, rows, noise: NoiseModel, sigma=None, *, time=None, correlations=None
+) -> np.ndarray:
     """:func:`log_likelihood` of ``data - model_rows[rows]``, fused (the sampler's hot path).
 
     Parameters
@@ -623,6 +625,9 @@ def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None
         Per-row sigma (required when the noise sigma is free).
     time : array_like of shape (T,), optional
         The samples' times [s] (see :func:`whiten`).
+    correlations : ndarray of shape (T - 1,), optional
+        ``noise.step_correlations(time)`` computed once by a caller that scores on the same
+        grid again and again (then ``time`` is not read), as for :func:`whiten_rows`.
 
     Returns
     -------
@@ -635,7 +640,8 @@ def log_likelihood_of_rows(data, model_rows, rows, noise: NoiseModel, sigma=None
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     sig = _checked_sigma(noise, sigma, "log_likelihood_of_rows")
     sum_of_squares = np.empty(rows.shape[0])
-    correlations = _correlations_for(noise, time, data.shape[0]) if noise.rho != 0.0 else None
+    if correlations is None and noise.rho != 0.0:
+        correlations = _correlations_for(noise, time, data.shape[0])
     if correlations is None:
         _whitened_sum_of_squares(data, model_rows, rows, float(noise.rho), sum_of_squares)
     else:

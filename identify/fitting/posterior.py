@@ -263,8 +263,9 @@ class LogPosterior:
         self.data = np.asarray(record.displacement, dtype=float)
         self.model = model
         self.noise = noise
-        # the time grid when its steps are not all the noise's one step (each step its own r_k)
-        self._uneven_time = None if noise.step_correlations(self.time) is None else self.time
+        # each step's correlation r_k when the grid's steps are not all the noise's one step,
+        # else None (every step rho): computed once, scored with at each call
+        self._correlations = noise.step_correlations(self.time)
         self.free = np.flatnonzero(model.parameters.vary)
         self.template = model.parameters.values.copy()
         self._labelled = model.has_canonical_domain  # a labelling to keep (e.g. two thermal nodes): checked per call
@@ -395,7 +396,7 @@ class LogPosterior:
                 rows = inside[scored]
                 sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
                 total = prior[scored] + log_likelihood_of_rows(
-                    self.data, y, scored, self.noise, sigma, time=self._uneven_time
+                    self.data, y, scored, self.noise, sigma, correlations=self._correlations
                 )
                 out[rows] = np.where(np.isfinite(total), total, -np.inf)
         return float(out[0]) if x_in.ndim == 1 else out
