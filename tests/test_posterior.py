@@ -593,28 +593,26 @@ def test_the_thread_count_is_measured_before_the_first_chunk_and_then_every_few_
         return real(fn, argument, repeats)
 
     monkeypatch.setattr(posterior, "fastest_thread_count", counted)
+
+    def sampled(path):
+        return sample_posterior(
+            Gaussian(),
+            lambda n, r: r.standard_normal((n, 3)),
+            path,
+            np.random.default_rng(4),
+            max_steps=60,
+            check_every=10,
+            tau_factor=1e4,
+        )
+
     monkeypatch.setattr(posterior, "THREAD_PROBE_SECONDS", probe_seconds)
-    path = tmp_path / f"chain_{probe_seconds:g}.h5"
-    result = sample_posterior(
-        Gaussian(),
-        lambda n, r: r.standard_normal((n, 3)),
-        path,
-        np.random.default_rng(4),
-        max_steps=60,
-        check_every=10,
-        tau_factor=1e4,
-    )
+    path = tmp_path / "chain.h5"
+    result = sampled(path)
     assert result.n_steps == 60 and len(calls) == probes
+    # the other interval: the thread counts measured differ, the chain does not
+    monkeypatch.setattr(posterior, "THREAD_PROBE_SECONDS", 1e9 if probe_seconds == 0.0 else 0.0)
     reference = tmp_path / "reference.h5"
-    sample_posterior(
-        Gaussian(),
-        lambda n, r: r.standard_normal((n, 3)),
-        reference,
-        np.random.default_rng(4),
-        max_steps=60,
-        check_every=10,
-        tau_factor=1e4,
-    )
+    sampled(reference)
     a = emcee.backends.HDFBackend(str(path), name=BACKEND_GROUP, read_only=True)
     b = emcee.backends.HDFBackend(str(reference), name=BACKEND_GROUP, read_only=True)
     assert np.array_equal(a.get_chain(), b.get_chain())
