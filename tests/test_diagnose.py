@@ -310,6 +310,41 @@ def test_a_worker_whose_fellows_are_idle_runs_numba_on_their_cores_too():
     assert alone == 2
 
 
+def test_fits_from_scratch_stop_by_gap_z_and_are_taken_again_only_under_no_lower_reference(monkeypatch):
+    """A fit from scratch with a reference runs under the reach rule with the decision's gap_z;
+    a later call takes it again where its reference is no higher (a stricter rule), and fits
+    again where it is higher or absent (the runs stopped before might now go on)."""
+    from types import SimpleNamespace
+
+    import identify.diagnosis.search as search_module
+    from identify.fitting.lsq_solver import reach_rule
+
+    rules = []
+
+    def fake_from_scratch(work, model_e, rng, sign, n_starts):
+        rules.append(reach_rule())
+        return [(model_e, np.zeros(model_e.n_parameters))]
+
+    monkeypatch.setattr(search_module, "from_scratch", fake_from_scratch)
+    thresholds = Thresholds(gap_z=3.0)
+    setting = SimpleNamespace(
+        work=None, rng=np.random.default_rng(0), n_starts=2, say=lambda message: None, thresholds=thresholds, fresh={}
+    )
+    model_e = normalised_model(Model(["thermal"]))
+
+    def fit(reference=None):
+        references = None if reference is None else [reference]
+        (fitted,) = search_module.fresh_fits(setting, [model_e], ["positive"], references)
+        assert fitted[0][0] is model_e
+        return list(rules)
+
+    assert fit(100.0) == [(100.0, 3.0)]
+    assert fit(90.0) == [(100.0, 3.0)]  # stricter: the fit made under 100 serves
+    assert fit(200.0) == [(100.0, 3.0), (200.0, 3.0)]
+    assert fit() == [(100.0, 3.0), (200.0, 3.0), None]
+    assert fit(50.0) == [(100.0, 3.0), (200.0, 3.0), None]
+
+
 def _increasing_amplitude_input(fs=50.0):
     """10 s quiet, then a 0.1 Hz sine whose amplitude grows from 0.5 A to 2.5 A (peaks 1-5 A)."""
     time = np.arange(0.0, 70.0 + 0.5 / fs, 1.0 / fs)

@@ -9,7 +9,8 @@ One round against one baseline:
    the groups of its start strategies (:mod:`identify.diagnosis.starts`): carried and near the
    baseline, data-driven, the screening's step. A short refit that ends above the screening's
    linearised promise, where that promise is a significant gain, has stayed in the baseline's
-   basin: the candidate is fitted from scratch in both threshold signs too.
+   basin: the candidate is fitted from scratch in both threshold signs too; such a fit serves
+   only where it ends below that short refit, so its runs stop once out of reach of it.
 3. **The other threshold sign**, where the data do not choose it (the plain model's two signs
    fit alike): every candidate is short-refitted from the other sign's baseline as well.
 4. **Finishes** on the whole record: the :attr:`~identify.diagnosis.adequacy.Thresholds.max_refits`
@@ -78,6 +79,7 @@ __all__ = [
     "Short",
     "search",
     "start_round",
+    "fresh_fits",
     "worth_finishing",
     "MAX_BASELINE_CHALLENGES",
     "SHARED_BASIN_GAIN",
@@ -101,7 +103,8 @@ OUT_OF_REACH_Z = 4.0 * Thresholds().gap_z
 class Setting:
     """What stays fixed through one diagnosis: the record, its working copy, the noise
     reference, the options, the candidates (``redundant``: the exact reparametrisations of the
-    model, never refitted) and the baseline fitted in each threshold sign."""
+    model, never refitted) and the baseline fitted in each threshold sign; ``fresh``: the fits
+    from scratch made so far (:func:`fresh_fits`), each with the reference it was stopped by."""
 
     record: object
     work: Working
@@ -129,20 +132,35 @@ def fresh_fits(s: Setting, models, signs=None, references=None) -> list:
     sign of ``signs``, default None: the better of both) on the working copy, side by side, each
     from its own generator spawned in order from the diagnosis's one; once per diagnosis: a fit
     from scratch does not depend on the round's baseline, so a later round takes the earlier
-    one's (said so). One entry per model, None where the fit fails (said).
+    one's (said so) where that was stopped by no lower reference. One entry per model, None where
+    the fit fails (said).
 
     ``references``: for each model, a working-copy chi-square its fit is of use only below
-    (default none); its solver runs stop once out of reach of it (:data:`OUT_OF_REACH_Z`)."""
+    (default none): such a fit never enters the decision with its own chi-square, it only
+    replaces a fit that holds ``reference`` where it ends lower, so its solver runs stop once
+    out of reach of it by the decision's ``gap_z`` (the margin for a run that would have sped
+    up again), not by :data:`OUT_OF_REACH_Z`, whose wider margin protects the chi-squares the
+    decision compares."""
     signs = [None] * len(models) if signs is None else list(signs)
     references = [math.inf] * len(models) if references is None else list(references)
     keys = [_fresh_key(model_e, sign) for model_e, sign in zip(models, signs)]
-    todo = [k for k, key in enumerate(keys) if key not in s.fresh]
+    todo = [k for k, key in enumerate(keys) if key not in s.fresh or s.fresh[key][1] < references[k]]
     if len(todo) < len(keys):
         s.say("  (fits from scratch of the round before taken again: they do not depend on the baseline)")
     rngs = s.rng.spawn(len(todo)) if todo else []
     fitted = attempt_each(
         [
-            partial(_within_reach, references[k], from_scratch, s.work, models[k], rng, signs[k], s.n_starts)
+            partial(
+                _within,
+                references[k],
+                s.thresholds.gap_z,
+                from_scratch,
+                s.work,
+                models[k],
+                rng,
+                signs[k],
+                s.n_starts,
+            )
             for k, rng in zip(todo, rngs)
         ],
         s.say,
@@ -150,8 +168,8 @@ def fresh_fits(s: Setting, models, signs=None, references=None) -> list:
     )
     for k, fresh in zip(todo, fitted):
         if fresh:
-            s.fresh[keys[k]] = fresh
-    return [s.fresh.get(key) for key in keys]
+            s.fresh[keys[k]] = (fresh, references[k])
+    return [s.fresh[key][0] if key in s.fresh else None for key in keys]
 
 
 @dataclass(frozen=True)
@@ -337,7 +355,11 @@ def _short_refits(s: Setting, rnd: Round) -> None:
             s.say(f"fitting '{name}' from scratch (its short refit stayed above the screening's prediction)")
             fresh.append(name)
     models = [rnd.fit.model + name for name in fresh]
-    for name, fitted in zip(fresh, fresh_fits(s, models)):
+    # a fit from scratch serves only where it ends below the candidate's short refit: in the
+    # baseline's sign it replaces it there, in the other it is finished only where it starts lower
+    # (_starts_lower); its runs stop once out of reach of that
+    references = [rnd.short[name].chi2 for name in fresh]
+    for name, fitted in zip(fresh, fresh_fits(s, models, references=references)):
         for model_f, theta in fitted or ():
             _keep_short(rnd, name, Short(working_chi2(s.work, model_f, theta), model_f, theta))
 
@@ -444,10 +466,16 @@ def _lowest_chi2(s: Setting, rnd: Round, jobs) -> float:
 
 
 def _within_reach(reference: float, function, *args):
-    """``function(*args)`` with every solver run stopped once out of reach of ``reference``."""
+    """``function(*args)`` with every solver run stopped once out of reach of ``reference``
+    (:data:`OUT_OF_REACH_Z`)."""
+    return _within(reference, OUT_OF_REACH_Z, function, *args)
+
+
+def _within(reference: float, z: float, function, *args):
+    """``function(*args)`` with every solver run stopped once ``z`` noise sd out of reach of ``reference``."""
     if not math.isfinite(reference):
         return function(*args)
-    with out_of_reach(reference, OUT_OF_REACH_Z):
+    with out_of_reach(reference, z):
         return function(*args)
 
 
