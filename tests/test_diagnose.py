@@ -345,6 +345,41 @@ def test_fits_from_scratch_stop_by_gap_z_and_are_taken_again_only_under_no_lower
     assert fit(50.0) == [(100.0, 3.0), (200.0, 3.0), None]
 
 
+def test_the_sign_that_starts_higher_is_finished_only_while_it_can_end_lower_or_tie(monkeypatch):
+    """With a tie margin, the finish of the threshold sign whose start is the higher on the record
+    runs within beyond_a_tie of the lower start (its own start's effective sample size), the
+    other's without it, and the lower sign's fit is the one it is without the margin."""
+    import identify.diagnosis.baseline as baseline_module
+    from identify.diagnosis.baseline import best_baseline, fit_baselines
+    from identify.diagnosis.fits import n_eff, whitened_at
+    from identify.fitting.lsq_solver import tie_rule
+
+    record = simulate("thermal", seed=3, fs=20.0).record
+    noise = estimate_noise(record)
+    model = normalised_model(Model())
+    real_finish = baseline_module.finish
+    seen = []
+
+    def finish(record_f, model_f, noise_f, x, rng, fit=None):
+        rule = tie_rule()
+        seen.append((model_f, fit.theta.copy(), rule))
+        return real_finish(record_f, model_f, noise_f, x, rng, fit=fit)
+
+    monkeypatch.setattr(baseline_module, "finish", finish)
+    with_margin = fit_baselines(record, model, noise, rng=np.random.default_rng(0), tie_bic=10.0)
+    residuals = [whitened_at(record, m, noise, theta) for m, theta, _ in seen]
+    starts = [float(w @ w) for w in residuals]
+    assert len(seen) == 2
+    low, high = int(np.argmin(starts)), int(np.argmax(starts))
+    assert seen[low][2] is None
+    assert seen[high][2] == (starts[low], 10.0, n_eff(residuals[high]))
+    seen.clear()
+    without = fit_baselines(record, model, noise, rng=np.random.default_rng(0))
+    assert all(rule is None for _, _, rule in seen)
+    best_with, best_without = best_baseline(record, with_margin), best_baseline(record, without)
+    assert np.array_equal(best_with.theta, best_without.theta)
+
+
 def _increasing_amplitude_input(fs=50.0):
     """10 s quiet, then a 0.1 Hz sine whose amplitude grows from 0.5 A to 2.5 A (peaks 1-5 A)."""
     time = np.arange(0.0, 70.0 + 0.5 / fs, 1.0 / fs)

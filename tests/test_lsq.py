@@ -490,6 +490,41 @@ def test_out_of_reach_stops_a_slow_run_far_behind_the_reference_and_nothing_else
     assert reached.nfev == free.nfev and np.array_equal(reached.x, free.x)
 
 
+def test_beyond_a_tie_stops_a_run_that_can_neither_end_lower_nor_tie_and_nothing_else():
+    """Within beyond_a_tie a run whose chi-square, at its pace, stays more than the margin in BIC
+    above the reference stops early with its own message; the same run with a reference it can
+    tie runs on exactly as outside the rule."""
+    from identify.fitting.lsq import solver_verdict, stalling_solve
+    from identify.fitting.lsq_solver import beyond_a_tie
+
+    T = 20000
+    t = np.linspace(0.0, 1.0, T)
+    data = np.sin(7.0 * t) + 0.3 * np.random.default_rng(0).standard_normal(T)
+
+    def residuals(x):  # a sine fit with a Rosenbrock valley to crawl along
+        return np.concatenate([data - x[0] * np.sin(x[1] * t), [1000.0 * (x[3] - x[2] ** 2), 1.0 - x[2]]])
+
+    x0 = np.array([0.5, 6.0, -1.2, 1.0])
+
+    def run():
+        return stalling_solve(residuals, x0, "2-point", 400, method="trf", tolerance=1e-15)
+
+    free = run()
+    end = 2.0 * free.cost
+    below = end / 1.01  # 1 % lower: n_eff ln(1.01) is about 199 in BIC, far beyond a margin of 10
+    with beyond_a_tie(below, 10.0, T):
+        stopped = run()
+    with beyond_a_tie(below, 10.0 * T, T):  # a margin the run always stays within
+        tied = run()
+    with beyond_a_tie(end, 10.0, T):
+        reached = run()
+    assert stopped.nfev < free.nfev / 2 and stopped.stall.reason == "beyond_a_tie"
+    assert T * math.log(2.0 * stopped.cost / below) > 10.0
+    assert solver_verdict(stopped) == (True, "stopped: it could neither end lowest nor tie, at the pace it was gaining")
+    for other in (tied, reached):
+        assert other.nfev == free.nfev and np.array_equal(other.x, free.x)
+
+
 def test_single_threaded_blas_limits_every_blas_and_restores_it():
     """The libraries are listed once (:func:`identify.fitting.threads.single_threaded_blas`):
     every BLAS loaded (NumPy's and SciPy's) runs on one thread inside, as many as before after."""

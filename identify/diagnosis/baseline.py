@@ -23,6 +23,7 @@ from model import EFFECTS, Model, get_effect
 
 from ..data.reversals import find_reversals
 from ..fitting.lsq import FitResult, WhitenedResiduals, fit_least_squares
+from ..fitting.lsq_solver import beyond_a_tie
 from ..fitting.noise import NoiseModel, estimate_noise
 from ..fitting.parametrisation import normalised_model
 from ..fitting.threads import results_side_by_side
@@ -36,6 +37,7 @@ from .fits import (
     short_refit,
     threshold_sign_variants,
     whitened,
+    whitened_at,
     working_copy,
 )
 from .reparametrisation import GPI_EQUIVALENTS, through_reparametrisation
@@ -64,25 +66,54 @@ def fit_baselines(
     n_starts: int = 6,
     rng: np.random.Generator | None = None,
     progress: Callable[[str], None] | None = None,
+    tie_bic: float | None = None,
 ) -> list:
     """The model fitted in each threshold sign (one fit when alpha is free or the reading
     literal), each polished on the whole record: ``[FitResult]``. Records longer than the
-    working copy are fitted on it and polished on the whole record."""
+    working copy are fitted on it and polished on the whole record.
+
+    ``tie_bic`` (the margin of :func:`tied_sign`, default None: no such rule): the sign of the
+    higher chi-square serves only where it ends lower than the other or ties with it, so the
+    finish of a sign whose start is not the lower on the whole record stops once it can do
+    neither (:func:`identify.fitting.lsq_solver.beyond_a_tie` of the lower start)."""
     say = progress or (lambda message: None)
     rng = np.random.default_rng(0) if rng is None else rng
     work = working_copy(record, noise, find_reversals(record.current).index)
     finishes = []  # the fits in order (they draw from the one generator), their finishes side by side
+    starts = []  # the point each finish starts from
     for sign_model, sign in threshold_sign_variants(model):
         say(f"least squares of {sign_model!r} ({n_starts} starts{'' if sign is None else ', alpha ' + sign})")
         options = {} if sign is None else {"threshold_sign": sign}
         if work.step == 1:
             one = fit_least_squares(record, sign_model, noise=noise, n_starts=n_starts, rng=rng, **options)
             finishes.append(partial(finish, record, one.model, noise, one.theta[one.vary], rng, fit=one))
+            starts.append((one.model, one.theta))
         else:
             small = fit_least_squares(work.record, sign_model, noise=work.noise, n_starts=n_starts, rng=rng, **options)
             say(f"polishing on the whole record ({len(record)} samples)")
             finishes.append(partial(finish, record, small.model, noise, small.theta[small.vary], rng))
+            starts.append((small.model, small.theta))
+    if tie_bic is not None and len(finishes) > 1:
+        finishes = _unless_beyond_a_tie(record, noise, starts, finishes, tie_bic)
     return results_side_by_side(finishes)
+
+
+def _unless_beyond_a_tie(record, noise: NoiseModel, starts, finishes, bic: float) -> list:
+    """``finishes``, each of one whose start is not the lowest on the whole record run within
+    :func:`~identify.fitting.lsq_solver.beyond_a_tie` of the lowest start (``bic``; the effective
+    sample size of its own start's residuals)."""
+    residuals = [whitened_at(record, model_s, noise, theta) for model_s, theta in starts]
+    chi2 = [float(w @ w) for w in residuals]
+    lowest = min(chi2)
+    return [
+        action if c <= lowest else partial(_within_a_tie, lowest, bic, n_eff(w), action)
+        for action, c, w in zip(finishes, chi2, residuals)
+    ]
+
+
+def _within_a_tie(reference: float, bic: float, n_eff_start: float, action: Callable):
+    with beyond_a_tie(reference, bic, n_eff_start):
+        return action()
 
 
 def best_baseline(record, baselines) -> FitResult:

@@ -461,7 +461,9 @@ def diagnose(
     work = working_copy(record, noise, find_reversals(record.current).index)
     sign_baselines = []
     if fit is None:
-        sign_baselines = fit_baselines(record, model, noise, n_starts=n_starts, rng=rng, progress=say)
+        sign_baselines = fit_baselines(
+            record, model, noise, n_starts=n_starts, rng=rng, progress=say, tie_bic=thresholds.bic_significant
+        )
         fit = best_baseline(record, sign_baselines)
     redundant = [name for name in candidates if exact_reparametrisation(record, fit.model, fit.theta, name)]
     candidates = [name for name in candidates if name not in redundant]

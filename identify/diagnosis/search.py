@@ -247,14 +247,6 @@ def start_round(s: Setting, fit: FitResult, carried_history: dict | None = None)
     return rnd
 
 
-def _baseline_of(s: Setting, rnd: Round, model_e: Model) -> FitResult:
-    """The baseline in ``model_e``'s threshold sign: the round's, or the other sign's fit."""
-    if same_threshold_sign(rnd.fit.model, model_e):
-        return rnd.fit
-    other = [b for b in s.sign_baselines if same_threshold_sign(b.model, model_e)]
-    return other[0] if other else rnd.fit
-
-
 def _on_failure(rnd: Round, name: str, screening, stage: str):
     def record(exc):
         rnd.failed[name] = failed_candidate(name, screening, rnd.fit, rnd.n_eff_small, stage, exc)

@@ -31,7 +31,9 @@ __all__ = [
     "STALLED",
     "StallStop",
     "out_of_reach",
+    "beyond_a_tie",
     "reach_rule",
+    "tie_rule",
     "within_reach_of_best",
     "START_OUT_OF_REACH_Z",
     "separation_bound",
@@ -90,6 +92,8 @@ STALLED = -2
 
 #: The rule of :func:`out_of_reach` in force in this thread: ``(reference chi-square, z)`` or None.
 _OUT_OF_REACH: ContextVar[tuple[float, float] | None] = ContextVar("out_of_reach", default=None)
+#: The rule of :func:`beyond_a_tie` in force in this thread: ``(reference chi-square, bic, n_eff)`` or None.
+_BEYOND_A_TIE: ContextVar[tuple[float, float, float] | None] = ContextVar("beyond_a_tie", default=None)
 
 
 def separation_bound(chi2: float, reference: float, n_samples: int) -> float:
@@ -126,6 +130,11 @@ def reach_rule() -> tuple[float, float] | None:
     return _OUT_OF_REACH.get()
 
 
+def tie_rule() -> tuple[float, float, float] | None:
+    """The rule of :func:`beyond_a_tie` in force in this thread: ``(reference chi-square, bic, n_eff)``, or None."""
+    return _BEYOND_A_TIE.get()
+
+
 @contextlib.contextmanager
 def within_reach_of_best(best_chi2: float):
     """:func:`out_of_reach` of ``best_chi2`` with :data:`START_OUT_OF_REACH_Z`, unless a rule in
@@ -154,6 +163,23 @@ def out_of_reach(reference_chi2: float, z: float):
         _OUT_OF_REACH.reset(token)
 
 
+@contextlib.contextmanager
+def beyond_a_tie(reference_chi2: float, bic: float, n_eff: float):
+    """Within the block (in this thread), every solver run stops once it can neither end below
+    ``reference_chi2`` nor tie with it: its chi-square, less what it would still gain at its last
+    :data:`STALL_ITERATIONS` iterations' pace over every evaluation it has left, stays above it by
+    more than ``bic`` in BIC units, ``n_eff ln(chi2 / reference_chi2)`` (two fits with the same
+    free parameters; ``n_eff`` the effective sample size of the run's residuals). For a fit that
+    serves only where it is the lower of two or ties with the lower one (a model's other
+    threshold sign): beyond that it serves neither way. ``reference_chi2`` must be a chi-square
+    some fit reaches."""
+    token = _BEYOND_A_TIE.set((float(reference_chi2), float(bic), float(n_eff)))
+    try:
+        yield
+    finally:
+        _BEYOND_A_TIE.reset(token)
+
+
 class StallStop:
     """Callback of :func:`scipy.optimize.least_squares` that stops a stalled run.
 
@@ -163,7 +189,8 @@ class StallStop:
     status :data:`STALLED`; :func:`solver_verdict` reads that as converged).
 
     Within :func:`out_of_reach`, it also stops a run that cannot come near the rule's
-    reference (``reason`` says which rule stopped it).
+    reference, and within :func:`beyond_a_tie` one that can neither end below its reference nor
+    tie with it (``reason`` says which rule stopped it).
 
     Parameters
     ----------
@@ -172,7 +199,7 @@ class StallStop:
         Absolute chi-square (whitened residuals).
     max_nfev : int, optional
         The run's evaluation cap (the iterations it has left bound the gain still to come);
-        without it :func:`out_of_reach` does not apply.
+        without it neither :func:`out_of_reach` nor :func:`beyond_a_tie` applies.
     """
 
     def __init__(self, window: int = STALL_ITERATIONS, chi2: float = STALL_CHI2, max_nfev: int | None = None):
@@ -190,13 +217,18 @@ class StallStop:
         if recent < self.chi2:
             self.reason = "stalled"
             raise StopIteration
+        if self.max_nfev is None:
+            return
+        left = max(self.max_nfev - len(self.history), 0)
+        lowest = self.history[-1] - max(recent, 0.0) * left / self.window
         rule = _OUT_OF_REACH.get()
-        if rule is not None and self.max_nfev is not None:
-            left = max(self.max_nfev - len(self.history), 0)
-            lowest = self.history[-1] - max(recent, 0.0) * left / self.window
-            if separation_bound(lowest, rule[0], f.size) >= rule[1]:
-                self.reason = "out_of_reach"
-                raise StopIteration
+        if rule is not None and separation_bound(lowest, rule[0], f.size) >= rule[1]:
+            self.reason = "out_of_reach"
+            raise StopIteration
+        tie = _BEYOND_A_TIE.get()
+        if tie is not None and lowest > tie[0] and tie[2] * math.log(lowest / tie[0]) > tie[1]:
+            self.reason = "beyond_a_tie"
+            raise StopIteration
 
 
 def solver_verdict(sol, stall: StallStop | None = None) -> tuple[bool, str]:
@@ -208,6 +240,8 @@ def solver_verdict(sol, stall: StallStop | None = None) -> tuple[bool, str]:
         stall = StallStop() if stall is None else stall
         if stall.reason == "out_of_reach":
             return True, "stopped: too far behind the best fit to matter, at the pace it was gaining"
+        if stall.reason == "beyond_a_tie":
+            return True, "stopped: it could neither end lowest nor tie, at the pace it was gaining"
         return True, (
             f"stalled: the chi-square fell by less than {stall.chi2:g} over the last {stall.window} iterations"
         )
