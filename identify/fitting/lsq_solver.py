@@ -169,10 +169,10 @@ def beyond_a_tie(reference_chi2: float, bic: float, n_eff: float):
     ``reference_chi2`` nor tie with it: its chi-square, less what it would still gain at its last
     :data:`STALL_ITERATIONS` iterations' pace over every evaluation it has left, stays above it by
     more than ``bic`` in BIC units, ``n_eff ln(chi2 / reference_chi2)`` (two fits with the same
-    free parameters; ``n_eff`` the effective sample size of the run's residuals). For a fit that
-    serves only where it is the lower of two or ties with the lower one (a model's other
-    threshold sign): beyond that it serves neither way. ``reference_chi2`` must be a chi-square
-    some fit reaches."""
+    free parameters; ``n_eff`` the effective sample size of the residuals where the fit starts).
+    For a fit that serves only where it is the lower of two or ties with the lower one (a
+    model's other threshold sign): beyond that it serves neither way. ``reference_chi2`` must be
+    a chi-square some fit reaches."""
     token = _BEYOND_A_TIE.set((float(reference_chi2), float(bic), float(n_eff)))
     try:
         yield
