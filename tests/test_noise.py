@@ -201,17 +201,31 @@ def test_whiten_rows_is_whiten_bit_for_bit(rho):
     assert finite.tolist() == [True, True, False, False, False]
 
 
-def test_log_likelihood_of_rows_in_lockstep_equals_each_row_alone():
-    """Rows are summed four at a time in lockstep: each row's value is the one it has alone."""
+@pytest.mark.parametrize("uneven", [False, True])
+def test_log_likelihood_of_rows_in_lockstep_equals_each_row_alone(uneven):
+    """Rows are summed four at a time in lockstep, the groups on numba's threads: each row's
+    value is the one it has alone, on one thread or two (an even grid and an uneven one)."""
+    import numba
+
     from identify.fitting.noise import log_likelihood_of_rows
 
     rng = np.random.default_rng(6)
     data = rng.normal(size=300)
     rows = data + rng.normal(scale=0.1, size=(11, 300))
     noise = NoiseModel(sigma=0.1, rho=0.4, kind="ar1", source="user")
-    together = log_likelihood_of_rows(data, rows, np.arange(11), noise)
-    alone = [log_likelihood_of_rows(data, rows[k : k + 1], np.arange(1), noise)[0] for k in range(11)]
-    np.testing.assert_array_equal(together, alone)
+    correlations = 0.4 ** rng.integers(1, 4, size=299).astype(float) if uneven else None
+    alone = [
+        log_likelihood_of_rows(data, rows[k : k + 1], np.arange(1), noise, correlations=correlations)[0]
+        for k in range(11)
+    ]
+    before = numba.get_num_threads()
+    try:
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            together = log_likelihood_of_rows(data, rows, np.arange(11), noise, correlations=correlations)
+            np.testing.assert_array_equal(together, alone)
+    finally:
+        numba.set_num_threads(before)
 
 
 # -- uneven sampling: each step's own correlation (module docstring, "Uneven sampling") -------

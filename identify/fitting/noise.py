@@ -93,7 +93,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 __all__ = [
     "NoiseModel",
@@ -550,51 +550,59 @@ def _innovation_term(data_k, model_k, previous, rho, scale):
     return e, innovation * innovation * scale
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _whitened_sum_of_squares(data, model_rows, rows, rho, out):
     """``out[i] = sum_k w_k^2`` for the residual ``data - model_rows[rows[i]]`` whitened with
     unit sigma (AR(1) with ``rho``; white for 0), in one pass and without temporaries.
 
     Each sum is a sequential chain of additions (latency-bound), so four rows are summed in
-    lockstep, each in its own chain in sample order: the same value per row as alone."""
+    lockstep, each in its own chain in sample order: the same value per row as alone. The groups
+    of four run on numba's threads, in the order of the rows (so each thread mostly reads rows
+    the model's kernel wrote on its core just before)."""
     scale = 1.0 / (1.0 - rho * rho)
     n_samples = data.shape[0]
     n_rows = rows.shape[0]
-    i = 0
-    while i + 4 <= n_rows:
-        r0, r1, r2, r3 = rows[i], rows[i + 1], rows[i + 2], rows[i + 3]
-        p0 = data[0] - model_rows[r0, 0]
-        p1 = data[0] - model_rows[r1, 0]
-        p2 = data[0] - model_rows[r2, 0]
-        p3 = data[0] - model_rows[r3, 0]
-        t0, t1, t2, t3 = p0 * p0, p1 * p1, p2 * p2, p3 * p3
-        for k in range(1, n_samples):
-            d = data[k]
-            p0, q0 = _innovation_term(d, model_rows[r0, k], p0, rho, scale)
-            p1, q1 = _innovation_term(d, model_rows[r1, k], p1, rho, scale)
-            p2, q2 = _innovation_term(d, model_rows[r2, k], p2, rho, scale)
-            p3, q3 = _innovation_term(d, model_rows[r3, k], p3, rho, scale)
-            t0 += q0
-            t1 += q1
-            t2 += q2
-            t3 += q3
-        out[i], out[i + 1], out[i + 2], out[i + 3] = t0, t1, t2, t3
-        i += 4
-    for rest in range(i, n_rows):
-        r = rows[rest]
-        previous = data[0] - model_rows[r, 0]
-        total = previous * previous
-        for k in range(1, n_samples):
-            previous, term = _innovation_term(data[k], model_rows[r, k], previous, rho, scale)
-            total += term
-        out[rest] = total
+    n_groups = (n_rows + 3) // 4
+    for g in prange(n_groups):
+        i = 4 * g
+        if i + 4 <= n_rows:
+            r0, r1, r2, r3 = rows[i], rows[i + 1], rows[i + 2], rows[i + 3]
+            p0 = data[0] - model_rows[r0, 0]
+            p1 = data[0] - model_rows[r1, 0]
+            p2 = data[0] - model_rows[r2, 0]
+            p3 = data[0] - model_rows[r3, 0]
+            t0, t1, t2, t3 = p0 * p0, p1 * p1, p2 * p2, p3 * p3
+            for k in range(1, n_samples):
+                d = data[k]
+                p0, q0 = _innovation_term(d, model_rows[r0, k], p0, rho, scale)
+                p1, q1 = _innovation_term(d, model_rows[r1, k], p1, rho, scale)
+                p2, q2 = _innovation_term(d, model_rows[r2, k], p2, rho, scale)
+                p3, q3 = _innovation_term(d, model_rows[r3, k], p3, rho, scale)
+                t0 += q0
+                t1 += q1
+                t2 += q2
+                t3 += q3
+            out[i] = t0
+            out[i + 1] = t1
+            out[i + 2] = t2
+            out[i + 3] = t3
+        else:
+            for rest in range(i, n_rows):
+                r = rows[rest]
+                previous = data[0] - model_rows[r, 0]
+                total = previous * previous
+                for k in range(1, n_samples):
+                    previous, term = _innovation_term(data[k], model_rows[r, k], previous, rho, scale)
+                    total += term
+                out[rest] = total
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _whitened_sum_of_squares_uneven(data, model_rows, rows, correlations, out):
-    """:func:`_whitened_sum_of_squares` with each step's own correlation (an uneven grid)."""
+    """:func:`_whitened_sum_of_squares` with each step's own correlation (an uneven grid), the
+    rows on numba's threads (each row's sum the same as alone)."""
     n_samples = data.shape[0]
-    for i in range(rows.shape[0]):
+    for i in prange(rows.shape[0]):
         r = rows[i]
         previous = data[0] - model_rows[r, 0]
         total = previous * previous
