@@ -453,26 +453,29 @@ def test_separation_bound_is_below_the_gap_in_noise_sd_of_any_two_fits():
     assert separation_bound(1.2e5, 1e5, 70001) > 3 * separation_bound(1.2e4, 1e4, 7001)
 
 
-def test_out_of_reach_stops_a_slow_run_far_behind_the_reference_and_nothing_else():
-    """Within out_of_reach a run whose chi-square, at its pace, stays far behind the reference
-    stops early with its own message; the same run with a reference it reaches runs on exactly
-    as outside the rule."""
-    from identify.fitting.lsq import solver_verdict, stalling_solve
-    from identify.fitting.lsq_solver import out_of_reach, separation_bound
+def _crawling_run(T=20000):
+    """``(T, run)``: ``run()`` is one solver run (trf, 400 evaluations) of a model crawling along
+    a curved valley (a Rosenbrock term added to a sine fit of ``T`` noisy samples)."""
+    from identify.fitting.lsq import stalling_solve
 
-    T = 20000
     t = np.linspace(0.0, 1.0, T)
     data = np.sin(7.0 * t) + 0.3 * np.random.default_rng(0).standard_normal(T)
 
-    # a model crawling along a curved valley (a Rosenbrock term added to a sine fit)
     def residuals(x):
         return np.concatenate([data - x[0] * np.sin(x[1] * t), [1000.0 * (x[3] - x[2] ** 2), 1.0 - x[2]]])
 
     x0 = np.array([0.5, 6.0, -1.2, 1.0])
+    return T, lambda: stalling_solve(residuals, x0, "2-point", 400, method="trf", tolerance=1e-15)
 
-    def run():
-        return stalling_solve(residuals, x0, "2-point", 400, method="trf", tolerance=1e-15)
 
+def test_out_of_reach_stops_a_slow_run_far_behind_the_reference_and_nothing_else():
+    """Within out_of_reach a run whose chi-square, at its pace, stays far behind the reference
+    stops early with its own message; the same run with a reference it reaches runs on exactly
+    as outside the rule."""
+    from identify.fitting.lsq import solver_verdict
+    from identify.fitting.lsq_solver import out_of_reach, separation_bound
+
+    T, run = _crawling_run()
     free = run()
     end = 2.0 * free.cost
     far = end / 1.5  # a reference this run never comes near: 1.5 times behind at best
@@ -494,21 +497,10 @@ def test_beyond_a_tie_stops_a_run_that_can_neither_end_lower_nor_tie_and_nothing
     """Within beyond_a_tie a run whose chi-square, at its pace, stays more than the margin in BIC
     above the reference stops early with its own message; the same run with a reference it can
     tie runs on exactly as outside the rule."""
-    from identify.fitting.lsq import solver_verdict, stalling_solve
+    from identify.fitting.lsq import solver_verdict
     from identify.fitting.lsq_solver import beyond_a_tie
 
-    T = 20000
-    t = np.linspace(0.0, 1.0, T)
-    data = np.sin(7.0 * t) + 0.3 * np.random.default_rng(0).standard_normal(T)
-
-    def residuals(x):  # a sine fit with a Rosenbrock valley to crawl along
-        return np.concatenate([data - x[0] * np.sin(x[1] * t), [1000.0 * (x[3] - x[2] ** 2), 1.0 - x[2]]])
-
-    x0 = np.array([0.5, 6.0, -1.2, 1.0])
-
-    def run():
-        return stalling_solve(residuals, x0, "2-point", 400, method="trf", tolerance=1e-15)
-
+    T, run = _crawling_run()
     free = run()
     end = 2.0 * free.cost
     below = end / 1.01  # 1 % lower: n_eff ln(1.01) is about 199 in BIC, far beyond a margin of 10

@@ -89,9 +89,8 @@ class JointLogPosterior(LogPosterior):
         for record, noise in zip(self.records, self.noises):
             time = np.asarray(record.time, dtype=float)
             correlations = noise.step_correlations(time)  # each step's r_k on an uneven grid, else None
-            uneven = None if correlations is None else time
             data = np.asarray(record.displacement, dtype=float)
-            self.parts.append((time, np.asarray(record.current, dtype=float), data, uneven, correlations))
+            self.parts.append((time, np.asarray(record.current, dtype=float), data, correlations))
         longest = max(self.records, key=lambda r: float(np.ptp(r.time)))
         self.time = np.asarray(longest.time, dtype=float)
         self.current = np.concatenate([part[1] for part in self.parts])
@@ -122,7 +121,7 @@ class JointLogPosterior(LogPosterior):
             y, valid = self.record_outputs(theta, r)
             if valid.any():
                 rows = np.flatnonzero(valid)
-                out[r - 1, rows] = log_likelihood_of_rows(part[2], y, rows, noise, None, correlations=part[4])
+                out[r - 1, rows] = log_likelihood_of_rows(part[2], y, rows, noise, None, correlations=part[3])
         return out
 
     def __call__(self, x) -> np.ndarray:
@@ -156,11 +155,11 @@ def joint_sampled_units(log_post: JointLogPosterior, record) -> list[str]:
 
 def _record_groups(r, record, log_post, flat, noise, step_draws, shape_head, rng):
     """Record ``r``'s observed data, pointwise log-likelihood and posterior predictive variables."""
-    time, _current, data, uneven, _correlations = log_post.parts[r - 1]
+    time, _current, data, correlations = log_post.parts[r - 1]
+    uneven = None if correlations is None else time
     y, valid = log_post.record_outputs(log_post.full_theta(flat), r)
     pointwise = pointwise_log_likelihood(data[None, :] - y, noise, None, time=uneven)
     pointwise[~valid] = -np.inf
-    correlations = noise.step_correlations(time)
     if correlations is None:
         correlations = np.full(max(time.size - 1, 0), noise.rho)
     predictive = y + noise.sigma * ar1_noise(rng.standard_normal(y.shape), correlations)
