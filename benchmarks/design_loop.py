@@ -107,7 +107,7 @@ def calibration(plan, joint, truth: set) -> list:
     simulated = {(c["truth"], c["rival"]): c for c in plan.best.confirmed}
     rows = []
     for p in plan.best.pairs:
-        if not set(p["truth"].split("+")) <= truth:
+        if set(p["truth"].split("+")) != truth:
             continue
         g = joint.evidence.gap(p["truth"], p["rival"]) if joint.evidence is not None else None
         if g is None:
@@ -131,14 +131,14 @@ def calibration(plan, joint, truth: set) -> list:
     return rows
 
 
-def run_case(name: str, first, truth_names: set, measure, out: Path) -> dict:
+def run_case(name: str, first, truth_names: set, measure, out: Path, duration: float = 120.0) -> dict:
     started = time.perf_counter()
     alone = diagnose(first, rng=np.random.default_rng(0))
     contenders = contenders_for(alone)
     row = {"case": name, "truth": sorted(truth_names), "alone": alone.verdict_text()}
     if contenders is None:
         return row | {"skipped": f"alone it is {alone.status}", "seconds": time.perf_counter() - started}
-    limits = RigLimits.from_records([first], duration=120.0)
+    limits = RigLimits.from_records([first], duration=duration)
     plan = design([first], candidates=contenders, limits=limits, rng=np.random.default_rng(0))
     write_design(plan, out / "designs" / name)
     second = measure(plan.best.time, plan.best.current)
@@ -211,6 +211,7 @@ def main(argv=None) -> int:
     parser.add_argument("--own", action="store_true", help="the own bench's slow effects")
     parser.add_argument("--seeds", default="41,42", help="the own bench's seeds (default 41,42)")
     parser.add_argument("--independent", type=Path, default=None, help="a folder of independent_diagnosis.py")
+    parser.add_argument("--duration", type=float, default=120.0, help="the designed record's length, s (default 120)")
     parser.add_argument("--only", default="", help="comma-separated substrings: only cases whose name contains one")
     args = parser.parse_args(argv)
     only = [o for o in args.only.split(",") if o]
@@ -225,7 +226,7 @@ def main(argv=None) -> int:
     for name, first, truth, measure in cases:
         if name in results or (only and not any(o in name for o in only)):
             continue
-        r = run_case(name, first, truth, measure, args.out)
+        r = run_case(name, first, truth, measure, args.out, args.duration)
         results = saved(path)  # read again: another run into the same folder may have added records
         results[name] = r
         atomic_write(path, json.dumps(results, indent=1, default=float))

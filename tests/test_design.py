@@ -227,3 +227,58 @@ def test_the_chosen_drive_is_the_confirmed_one_with_the_most_right_names():
     assert sorted([linear_best, confirmed_best], key=confirmed_rank)[0] is confirmed_best
     assert "only 2 of 6 draws where 'thermal' was the truth" in simulation_text(linear_best)
     assert "only 5 of 6" in simulation_text(confirmed_best)
+
+
+@pytest.fixture(scope="module")
+def loose_creep():
+    """A creep record and a contender at its truth whose covariance is far too wide along the
+    creep's parameters (a linearisation that extrapolates), with the record's misfit."""
+    from identify.workflows.design import record_misfit
+
+    sim = simulate("creep_amplitude=0.03", seed=1, fs=5.0)
+    model = normalised_model(Model(["creep"]))
+    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    wide = np.where([n.startswith("creep") for n in model.names], 1.0, 1e-6)
+    covariance = np.diag(np.where(model.parameters.vary, wide, 0.0))
+    c = contender("creep", model, theta, covariance)
+    noise = estimate_noise(sim.record)
+    return sim, c, noise, record_misfit(c, [sim.record], [noise])
+
+
+def test_a_draw_held_to_the_records_raises_their_chi_square_no_more_than_its_radius(loose_creep):
+    """Without the records a draw of a too-wide covariance leaves them far behind; held to them,
+    each draw's rise stays within the largest squared radius of a draw (every axis clipped at 2)."""
+    from identify.workflows.design import draw_transducer
+
+    _, c, _, misfit = loose_creep
+    k = int(np.sum(np.diag(c.covariance) > 0))
+    free = [draw_transducer(c, np.random.default_rng(s)) for s in range(6)]
+    held = [draw_transducer(c, np.random.default_rng(s), misfit) for s in range(6)]
+    assert misfit(np.array(free)).max() > 100 * 4 * k
+    rises = misfit(np.array(held))
+    assert np.all(rises <= 4 * k)
+    assert any(not np.array_equal(h, c.theta) for h in held)  # they move: not the fit each time
+
+
+def test_a_draw_no_step_of_which_the_records_allow_is_the_fit(loose_creep):
+    from identify.workflows.design import draw_transducer
+
+    _, c, _, _ = loose_creep
+    theta = draw_transducer(c, np.random.default_rng(0), lambda rows: np.full(len(rows), np.inf))
+    assert np.array_equal(theta, c.theta)
+
+
+def test_the_misfit_sums_every_record_each_with_its_own_sensor_zero(loose_creep):
+    """A second record offset by its sensor zero adds its own rise: twice one record's, none at the fit."""
+    from dataclasses import replace
+
+    from identify.workflows.design import record_misfit
+
+    sim, c, noise, one = loose_creep
+    shifted = replace(sim.record, displacement=sim.record.displacement + 2.0)
+    two_runs = contender(c.name, c.model, c.theta, c.covariance, runs=[(c.theta, 0.0), (c.theta, 2.0)])
+    two = record_misfit(two_runs, [sim.record, shifted], [noise, noise])
+    moved = c.theta + np.where([n == "creep_amplitude" for n in c.model.names], 0.01, 0.0)
+    assert two(c.theta[None])[0] == pytest.approx(0.0, abs=1e-9)
+    assert two(moved[None])[0] == pytest.approx(2 * one(moved[None])[0], rel=1e-9)
+    assert record_misfit(two_runs, [sim.record], [noise]) is None  # one run per record, or none

@@ -27,9 +27,10 @@ heating limit, sampling rate) and starting with the quiet segment the records ne
 noise: ``hold`` (cycles, a hold at a constant current, a quiet end), ``rise_again`` (the
 amplitude falls and rises again, a quiet end), ``steps`` (a staircase of held currents) and
 ``probe_blocks`` (blocks of high power between small probe cycles). The best few are confirmed
-by simulation: each contender, drawn from its fit's covariance, drives the proposed record
-with noise; every rival is refitted on it nonlinearly, held by the records' information, and
-the right names are counted (:func:`confirm`). The confirmed drive with the highest smallest
+by simulation: each contender, drawn from its fit's covariance and held to the records
+(:func:`draw_transducer`), drives the proposed record with noise; every rival is refitted on
+it nonlinearly, held by the records' information, and the right names are counted
+(:func:`confirm`). The confirmed drive with the highest smallest
 share of right names is proposed, confirmed again on every sample: its realised gaps (mean and
 sd over the draws) are the calibrated prediction beside the linear one.
 """
@@ -38,7 +39,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import stats
@@ -69,6 +70,8 @@ __all__ = [
     "discrimination",
     "random_drive_parameters",
     "confirm",
+    "record_misfit",
+    "draw_transducer",
     "simulated_gap",
 ]
 
@@ -86,6 +89,9 @@ CONFIRM_DRAWS = 6
 #: the chosen one confirmed on every sample: a gap measured on fewer samples and scaled up is
 #: only as good as the scale, which a feature the decimation misses makes arbitrary).
 DESIGN_SAMPLES = 1500
+#: A confirmation's draw held to the records is shortened by halvings down to ``2**-DRAW_HALVINGS``
+#: of its step before it falls back on the fit (:func:`draw_transducer`).
+DRAW_HALVINGS = 12
 
 
 @dataclass(frozen=True)
@@ -172,19 +178,31 @@ class Contender:
     theta: np.ndarray
     info: np.ndarray
     covariance: np.ndarray
+    #: Each record's fitted vector ``(P,)`` and sensor zero, in the records' order (empty where
+    #: not known): what a draw of the transducer is held to (:func:`record_misfit`).
+    runs: tuple = ()
 
 
-def contender(name: str, model: Model, theta, covariance) -> Contender:
+def contender(name: str, model: Model, theta, covariance, runs=None) -> Contender:
     """A :class:`Contender` from a fit: its vector and covariance over ``model``'s columns; the
     information on the transducer is the inverse of the covariance of its shared parameters (the
-    run's own parameters say nothing about a new record)."""
+    run's own parameters say nothing about a new record). ``runs``: each record's fitted vector
+    and sensor zero (default: one record, fitted at ``theta``)."""
     covariance = np.asarray(covariance, dtype=float)
+    theta = np.asarray(theta, dtype=float)
     per_record = np.array([p.per_record for p in model.parameters])
     shared = np.flatnonzero((np.diag(covariance) > 0) & ~per_record)
     info = np.zeros_like(covariance)
     if shared.size:
         info[np.ix_(shared, shared)] = np.linalg.pinv(covariance[np.ix_(shared, shared)], rcond=1e-12, hermitian=True)
-    return Contender(name, model, np.asarray(theta, dtype=float), info, covariance)
+    runs = ((theta, 0.0),) if runs is None else tuple((np.asarray(t, dtype=float), float(z)) for t, z in runs)
+    return Contender(name, model, theta, info, covariance, runs)
+
+
+def _joint_runs(jf) -> list:
+    """Each record's vector and zero of a joint fit ``jf``."""
+    rows = [jf.joint.record_rows(jf.theta, r) for r in range(1, jf.joint.n_records + 1)]
+    return [(vectors[0], zeros[0]) for vectors, zeros in rows]
 
 
 def contenders_of(diagnosis, names=None) -> list:
@@ -201,7 +219,9 @@ def contenders_of(diagnosis, names=None) -> list:
         if joint_fits is not None and name in joint_fits:
             jf = joint_fits[name]
             n = jf.model.n_parameters
-            found.append(contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n]))
+            found.append(
+                contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n], _joint_runs(jf))
+            )
             continue
         entry = next((c for c in [*diagnosis.ranking, *diagnosis.pairs_tried] if c.effect == name), None)
         if entry is None or entry.fit is None:
@@ -463,19 +483,22 @@ def confirm(
     rng,
     draws=CONFIRM_DRAWS,
     step: int = 1,
+    misfits=None,
 ) -> list:
     """Each contender as the truth, drawn from its fit's covariance, drives the proposed record
     (every ``step``-th sample) with noise; every contender is refitted on it
     (:func:`_penalised_refit`); a right name is the truth ahead of every rival by the decision's
     margins. Per ordered pair: the realised gaps and the share of right names (on the decimated
-    record when ``step > 1``: fewer samples, less to tell the contenders apart by)."""
+    record when ``step > 1``: fewer samples, less to tell the contenders apart by). ``misfits``:
+    each contender's :func:`record_misfit` by name, which holds its draws to the records."""
+    misfits = misfits or {}
     time, current = drive.time[::step], drive.current[::step]
     rows = []
     for truth in contenders:
         realised = {rival.name: [] for rival in contenders if rival is not truth}
         right = 0
         for _ in range(draws):
-            theta = _drawn(truth, rng)
+            theta = draw_transducer(truth, rng, misfits.get(truth.name))
             y, valid = truth.model.evaluate(theta, time, current)
             if not valid[0]:
                 continue
@@ -517,20 +540,74 @@ def simulated_gap(gaps) -> tuple[float | None, float | None]:
     return float(gaps.mean()), float(gaps.std(ddof=1))
 
 
-def _drawn(c: Contender, rng) -> np.ndarray:
+def record_misfit(c: Contender, records, noises):
+    """How much worse than ``c``'s fit its transducer vectors fit the records: a function of
+    vectors ``(B, P)`` (their shared parameters; each record's own as fitted) returning the
+    chi-square rise summed over the records ``(B,)`` (inf where the model is not finite). None
+    where ``c`` does not carry one fitted run per record."""
+    if len(c.runs) != len(records) or not records:
+        return None
+    shared = ~np.array([p.per_record for p in c.model.parameters])
+    parts = []
+    for (theta_r, zero_r), record, noise in zip(c.runs, records, noises):
+        zeroed = replace(record, displacement=np.asarray(record.displacement) - zero_r) if zero_r else record
+        parts.append((WhitenedResiduals(zeroed, c.model, noise), theta_r))
+
+    def chi2(thetas):
+        thetas = np.atleast_2d(thetas)
+        total = np.zeros(thetas.shape[0])
+        for residuals, theta_r in parts:
+            rows = np.repeat(theta_r[None, :], thetas.shape[0], axis=0)
+            rows[:, shared] = thetas[:, shared]
+            w, valid = residuals.batch(rows[:, residuals.free])
+            total += np.where(valid, np.einsum("ij,ij->i", w, w), np.inf)
+        return total
+
+    base = chi2(c.theta)[0]
+    return lambda thetas: chi2(thetas) - base
+
+
+def draw_transducer(c: Contender, rng, misfit=None) -> np.ndarray:
     """A draw of the contender's transducer parameters from its fit's covariance, within two standard
     deviations along each of the covariance's own axes (a poorly determined combination is not sent
-    to a bound); the run's own parameters as fitted."""
+    to a bound); the run's own parameters as fitted.
+
+    With ``misfit`` (:func:`record_misfit`) the draw is held to the records it was fitted on: a
+    covariance is the fit's linearisation, and along a loosely determined nonlinear combination (a
+    slow effect's time constants) its step can leave the records far behind. A draw ``z`` (in the
+    covariance's axes) would raise the records' chi-square by ``|z|^2`` were the model linear; the
+    draw keeps its direction and goes as far along it as the records allow that rise (the largest
+    of the step's halvings, then refined between it and the next), the fit itself where none does.
+    """
     cov = np.asarray(c.covariance, dtype=float)
     per_record = np.array([p.per_record for p in c.model.parameters])
     free = np.flatnonzero((np.diag(cov) > 0) & ~per_record)
     theta = np.array(c.theta, dtype=float)
-    if free.size:
-        sub = cov[np.ix_(free, free)]
-        values, vectors = np.linalg.eigh(0.5 * (sub + sub.T))
-        z = np.clip(rng.standard_normal(free.size), -2.0, 2.0)  # in the covariance's own axes
-        theta[free] += vectors @ (np.sqrt(np.clip(values, 0.0, None)) * z)
-    return np.clip(theta, c.model.parameters.lower, c.model.parameters.upper)
+    lower, upper = c.model.parameters.lower, c.model.parameters.upper
+    if not free.size:
+        return np.clip(theta, lower, upper)
+    sub = cov[np.ix_(free, free)]
+    values, vectors = np.linalg.eigh(0.5 * (sub + sub.T))
+    z = np.clip(rng.standard_normal(free.size), -2.0, 2.0)  # in the covariance's own axes
+    step = np.zeros_like(theta)
+    step[free] = vectors @ (np.sqrt(np.clip(values, 0.0, None)) * z)
+    if misfit is None:
+        return np.clip(theta + step, lower, upper)
+    allowed = float(z @ z)
+
+    def farthest(scales):
+        rows = np.clip(theta + scales[:, None] * step, lower, upper)
+        ok = np.flatnonzero(misfit(rows) <= allowed)
+        return (scales[ok].max(), rows[ok[np.argmax(scales[ok])]]) if ok.size else (None, None)
+
+    scale, row = farthest(0.5 ** np.arange(DRAW_HALVINGS + 1))
+    if scale is None:
+        return np.clip(theta, lower, upper)
+    if scale < 1.0:
+        finer, finer_row = farthest(np.linspace(scale, 2.0 * scale, 9)[1:-1])
+        if finer is not None and finer > scale:
+            row = finer_row
+    return row
 
 
 # -- the design --------------------------------------------------------------------------------
@@ -649,6 +726,7 @@ def design_drive(
     per_family=DRIVES_PER_FAMILY,
     n_confirm=CONFIRMED,
     progress=None,
+    noises=None,
 ) -> Design:
     """The next record that best decides between ``contenders`` (module docstring).
 
@@ -671,6 +749,9 @@ def design_drive(
         with the highest smallest share of right names is chosen and confirmed again on every
         sample, its realised gaps the calibrated prediction.
     progress : callable(str), optional
+    noises : sequence of NoiseModel, optional
+        Each record's noise, which holds the confirmation's draws to the records
+        (:func:`record_misfit`); default estimated from each record's quiet start.
 
     Returns
     -------
@@ -683,6 +764,7 @@ def design_drive(
     if len(contenders) < 2:
         raise ValueError("a design needs two or more contenders to tell apart")
     limits = RigLimits.from_records(records) if limits is None else limits
+    misfits = _misfits(contenders, records, noises)
     step = max(1, math.ceil(limits.duration * limits.fs / DESIGN_SAMPLES))
     ranked = search(contenders, limits, noise, th, rng, _period(records), per_family, say, step)
     top = ranked[: max(n_confirm, 1)]
@@ -694,13 +776,13 @@ def design_drive(
     for drive in top[:n_confirm]:
         every = f" (every {ordinal(step)} sample)" if step > 1 else ""
         say(f"confirming a '{drive.family}' drive by simulation{every}")
-        drive.confirmed = confirm(drive, contenders, noise, th, rng, step=step)
+        drive.confirmed = confirm(drive, contenders, noise, th, rng, step=step, misfits=misfits)
     top.sort(key=confirmed_rank)
     ranked = top + ranked[len(top) :]
     best = ranked[0]
     if step > 1 and n_confirm > 0:
         say(f"confirming the chosen '{best.family}' drive by simulation on every sample")
-        best.confirmed = confirm(best, contenders, noise, th, rng)
+        best.confirmed = confirm(best, contenders, noise, th, rng, misfits=misfits)
     worst = min(best.pairs, key=lambda p: p["p_right"])
     reason = (
         f"The '{best.family}' drive separates every pair: its weakest, '{worst['truth']}' against "
@@ -709,6 +791,17 @@ def design_drive(
         f"one.{simulation_text(best)}"
     )
     return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0)
+
+
+def _misfits(contenders, records, noises) -> dict:
+    """Each contender's :func:`record_misfit` by name (none where a record has no noise estimate)."""
+    if noises is None:
+        try:
+            noises = [estimate_noise(r) for r in records]
+        except ValueError:
+            return {}
+    found = {c.name: record_misfit(c, list(records), list(noises)) for c in contenders}
+    return {name: m for name, m in found.items() if m is not None}
 
 
 def _explanation_model(name: str, model: Model) -> Model:
@@ -740,7 +833,9 @@ def fitted_contenders(records, model: Model, names, noises, *, n_starts: int = 4
         else:
             jf = fit_joint(records, model_e, noises, n_starts=n_starts, rng=rng)
             n = jf.model.n_parameters
-            found.append(contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n]))
+            found.append(
+                contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n], _joint_runs(jf))
+            )
     return found
 
 
@@ -827,4 +922,5 @@ def design(
         per_family=per_family,
         n_confirm=n_confirm,
         progress=say,
+        noises=noises,
     )
