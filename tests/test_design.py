@@ -282,3 +282,46 @@ def test_the_misfit_sums_every_record_each_with_its_own_sensor_zero(loose_creep)
     assert two(c.theta[None])[0] == pytest.approx(0.0, abs=1e-9)
     assert two(moved[None])[0] == pytest.approx(2 * one(moved[None])[0], rel=1e-9)
     assert record_misfit(two_runs, [sim.record], [noise]) is None  # one run per record, or none
+
+
+@pytest.mark.parametrize(
+    "rows, text",
+    [
+        ([], ""),
+        (
+            [
+                {"duration": 240.0, "family": "hold", "value": 0.874},
+                {"duration": 480.0, "family": "steps", "value": 1.0},
+            ],
+            " Longer records (beyond --duration) would raise that chance to 87 % at 240 s, 100 % at 480 s.",
+        ),
+    ],
+)
+def test_the_longer_records_sentence(rows, text):
+    from identify.workflows.design import longer_text
+
+    assert longer_text(rows) == text
+
+
+def test_a_drive_that_is_not_decisive_looks_at_longer_records():
+    """A weak heating against the plain model: the longer records found are at the multiples of the
+    limit and decide at least as well as the limit's best (more time to heat and to cool)."""
+    from identify.workflows.design import LONGER, longer_records, search
+
+    sim = simulate("thermal_tau=30,thermal_sensitivity=0.01,thermal_expansion=1.5", seed=1, fs=5.0)
+    model = normalised_model(Model(["thermal"]))
+    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    covariance = np.diag(np.where(model.parameters.vary, 1e-4, 0.0))
+    plain = normalised_model(Model())
+    n = plain.n_parameters
+    contenders = [
+        contender("thermal", model, theta, covariance),
+        contender("plain", plain, theta[:n], covariance[:n, :n]),
+    ]
+    noise, th = estimate_noise(sim.record), Thresholds()
+    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
+    here = search(contenders, limits, noise, th, np.random.default_rng(3), 10.0, per_family=3)[0]
+    rows = longer_records(contenders, limits, noise, th, np.random.default_rng(3), 10.0, per_family=3)
+    assert [r["duration"] for r in rows] == [40.0 * f for f in LONGER]
+    assert all(0.0 <= r["value"] <= 1.0 and r["family"] in FAMILIES for r in rows)
+    assert here.value < 0.9 and rows[-1]["value"] > here.value

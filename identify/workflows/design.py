@@ -73,6 +73,7 @@ __all__ = [
     "record_misfit",
     "draw_transducer",
     "simulated_gap",
+    "longer_records",
 ]
 
 #: Drives evaluated per family in the search.
@@ -89,6 +90,11 @@ CONFIRM_DRAWS = 6
 #: the chosen one confirmed on every sample: a gap measured on fewer samples and scaled up is
 #: only as good as the scale, which a feature the decimation misses makes arbitrary).
 DESIGN_SAMPLES = 1500
+#: A weakest chance of a right name below this is not decisive: the design then also searches
+#: longer records (:data:`LONGER`) and says how long one would have to be.
+DECISIVE = 0.9
+#: The longer durations tried when the chosen drive is not decisive, as multiples of the limit.
+LONGER = (2.0, 4.0)
 #: A confirmation's draw held to the records is shortened by halvings down to ``2**-DRAW_HALVINGS``
 #: of its step before it falls back on the fit (:func:`draw_transducer`).
 DRAW_HALVINGS = 12
@@ -624,6 +630,9 @@ class Design:
     noise_sigma: float
     reason: str
     seconds: float = 0.0
+    #: Where the best drive is not decisive: the best drive found at each longer duration
+    #: (:data:`LONGER`), ``{"duration", "family", "value"}`` (linear prediction only).
+    longer: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {
@@ -633,6 +642,7 @@ class Design:
             "best": self.best.to_dict(),
             "others": [d.to_dict() for d in self.ranked[1:]],
             "reason": self.reason,
+            "longer": [dict(x) for x in self.longer],
             "seconds": float(self.seconds),
         }
 
@@ -715,6 +725,34 @@ def simulation_text(drive: DesignedDrive) -> str:
     )
 
 
+def longer_records(
+    contenders, limits: RigLimits, noise: NoiseModel, th: Thresholds, rng, period: float, per_family: int, say=None
+) -> list:
+    """The best drive at each of the :data:`LONGER` multiples of the duration limit (a search of
+    ``per_family`` shapes per family on every k-th sample, the best again on every sample; the
+    linear prediction, no simulation): ``[{"duration", "family", "value"}]``, the durations at
+    which no drive fits the other limits left out."""
+    rows = []
+    for factor in LONGER:
+        longer = replace(limits, duration=limits.duration * factor)
+        step = max(1, math.ceil(longer.duration * longer.fs / DESIGN_SAMPLES))
+        try:
+            best = search(contenders, longer, noise, th, rng, period, per_family, say, step)[0]
+        except ValueError:
+            continue
+        evaluate(best, contenders, noise, th)
+        rows.append({"duration": float(longer.duration), "family": best.family, "value": float(best.value)})
+    return rows
+
+
+def longer_text(rows) -> str:
+    """The sentence on longer records ("" when there are none)."""
+    if not rows:
+        return ""
+    found = ", ".join(f"{100 * r['value']:.0f} % at {r['duration']:.0f} s" for r in rows)
+    return f" Longer records (beyond --duration) would raise that chance to {found}."
+
+
 def design_drive(
     contenders,
     records,
@@ -790,7 +828,12 @@ def design_drive(
         f"is refitted to mimic it, a {100 * worst['p_right']:.0f} % chance that the joint diagnosis names the right "
         f"one.{simulation_text(best)}"
     )
-    return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0)
+    longer = []
+    if best.value < DECISIVE:
+        say(f"the weakest chance is {100 * best.value:.0f} %: searching longer records")
+        longer = longer_records(contenders, limits, noise, th, rng, _period(records), max(per_family // 4, 1), say)
+        reason += longer_text(longer)
+    return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0, longer)
 
 
 def _misfits(contenders, records, noises) -> dict:
