@@ -11,6 +11,7 @@ from identify.bench import simulate
 from identify.cli import main
 from identify.data.records import write_record
 from identify.diagnosis import Thresholds
+from identify.fitting.lsq import WhitenedResiduals
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
 from identify.workflows.design import (
@@ -282,6 +283,9 @@ def test_the_misfit_sums_every_record_each_with_its_own_sensor_zero(loose_creep)
     assert two(c.theta[None])[0] == pytest.approx(0.0, abs=1e-9)
     assert two(moved[None])[0] == pytest.approx(2 * one(moved[None])[0], rel=1e-9)
     assert record_misfit(two_runs, [sim.record], [noise]) is None  # one run per record, or none
+    residuals = WhitenedResiduals(sim.record, c.model, noise)
+    w = residuals(c.theta[residuals.free])
+    assert one.base == pytest.approx(float(w @ w)) and two.base == pytest.approx(2 * one.base)
 
 
 @pytest.mark.parametrize(
@@ -325,3 +329,43 @@ def test_a_drive_that_is_not_decisive_looks_at_longer_records():
     assert [r["duration"] for r in rows] == [40.0 * f for f in LONGER]
     assert all(0.0 <= r["value"] <= 1.0 and r["family"] in FAMILIES for r in rows)
     assert here.value < 0.9 and rows[-1]["value"] > here.value
+
+
+class _FlatMisfit:
+    """Records that allow any step, whose fit has chi-square ``base``."""
+
+    def __init__(self, base):
+        self.base = base
+
+    def __call__(self, thetas):
+        return np.zeros(len(thetas))
+
+
+def test_the_confirmation_adds_the_records_own_gap_between_the_two_fits():
+    """The joint diagnosis compares every record: a rival whose fit is 100 behind on the records
+    already taken starts the simulated gaps 100 further back."""
+    from identify.workflows.design import DesignedDrive, confirm
+
+    sim = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
+    model = normalised_model(Model(["thermal"]))
+    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    covariance = np.diag(np.where(model.parameters.vary, 1e-6, 0.0))
+    plain = normalised_model(Model())
+    n = plain.n_parameters
+    contenders = [
+        contender("thermal", model, theta, covariance),
+        contender("plain", plain, theta[:n], covariance[:n, :n]),
+    ]
+    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
+    drive = DesignedDrive(
+        "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)
+    )
+    noise, th = estimate_noise(sim.record), Thresholds()
+    alone = confirm(drive, contenders, noise, th, np.random.default_rng(5), draws=2)
+    misfits = {"thermal": _FlatMisfit(0.0), "plain": _FlatMisfit(100.0)}
+    held = confirm(drive, contenders, noise, th, np.random.default_rng(5), draws=2, misfits=misfits)
+    shift = {("thermal", "plain"): 100.0, ("plain", "thermal"): -100.0}
+    for a, b in zip(alone, held):
+        assert (a["truth"], a["rival"]) == (b["truth"], b["rival"])
+        expected = np.array(a["realised_gaps"]) + shift[(a["truth"], a["rival"])]
+        assert np.allclose(b["realised_gaps"], expected, rtol=0, atol=1e-6)

@@ -70,6 +70,7 @@ __all__ = [
     "discrimination",
     "random_drive_parameters",
     "confirm",
+    "RecordMisfit",
     "record_misfit",
     "draw_transducer",
     "simulated_gap",
@@ -496,7 +497,9 @@ def confirm(
     (:func:`_penalised_refit`); a right name is the truth ahead of every rival by the decision's
     margins. Per ordered pair: the realised gaps and the share of right names (on the decimated
     record when ``step > 1``: fewer samples, less to tell the contenders apart by). ``misfits``:
-    each contender's :func:`record_misfit` by name, which holds its draws to the records."""
+    each contender's :func:`record_misfit` by name, which holds its draws to the records and
+    adds the records' own gap between the two fits to each simulated one (the joint diagnosis
+    compares every record)."""
     misfits = misfits or {}
     time, current = drive.time[::step], drive.current[::step]
     rows = []
@@ -516,7 +519,8 @@ def confirm(
                 if rival is truth:
                     continue
                 chi2, r = _penalised_refit(rival, record, noise, rival.theta)
-                gap, sd = chi2 - chi2_true, 2.0 * float(np.linalg.norm(r - r_true))
+                gap = chi2 - chi2_true + _records_gap(misfits, truth.name, rival.name)
+                sd = 2.0 * float(np.linalg.norm(r - r_true))
                 realised[rival.name].append(gap)
                 ok &= gap > th.bic_significant and (sd == 0 or gap / sd > th.gap_z)
             right += ok
@@ -536,6 +540,14 @@ def confirm(
     return rows
 
 
+def _records_gap(misfits: dict, truth: str, rival: str) -> float:
+    """The records' own chi-square gap between two contenders' fits (the joint diagnosis compares
+    all records: the rival starts that far behind or ahead); 0 without both misfits."""
+    if truth in misfits and rival in misfits:
+        return misfits[rival].base - misfits[truth].base
+    return 0.0
+
+
 def simulated_gap(gaps) -> tuple[float | None, float | None]:
     """The prediction a confirmation gives for one ordered pair: the mean of its realised ``gaps``
     and their sample standard deviation (over the truth's parameter draws and the noise together;
@@ -546,31 +558,41 @@ def simulated_gap(gaps) -> tuple[float | None, float | None]:
     return float(gaps.mean()), float(gaps.std(ddof=1))
 
 
-def record_misfit(c: Contender, records, noises):
-    """How much worse than ``c``'s fit its transducer vectors fit the records: a function of
-    vectors ``(B, P)`` (their shared parameters; each record's own as fitted) returning the
-    chi-square rise summed over the records ``(B,)`` (inf where the model is not finite). None
-    where ``c`` does not carry one fitted run per record."""
-    if len(c.runs) != len(records) or not records:
-        return None
-    shared = ~np.array([p.per_record for p in c.model.parameters])
-    parts = []
-    for (theta_r, zero_r), record, noise in zip(c.runs, records, noises):
-        zeroed = replace(record, displacement=np.asarray(record.displacement) - zero_r) if zero_r else record
-        parts.append((WhitenedResiduals(zeroed, c.model, noise), theta_r))
+class RecordMisfit:
+    """How much worse than a contender's fit its transducer vectors fit the records it was fitted
+    on (:func:`record_misfit`): called with vectors ``(B, P)`` (their shared parameters; each
+    record's own as fitted), the chi-square rise summed over the records ``(B,)`` (inf where the
+    model is not finite); ``base`` is the records' chi-square at the fit."""
 
-    def chi2(thetas):
+    def __init__(self, c: Contender, records, noises):
+        self._shared = ~np.array([p.per_record for p in c.model.parameters])
+        self._parts = []
+        for (theta_r, zero_r), record, noise in zip(c.runs, records, noises):
+            zeroed = replace(record, displacement=np.asarray(record.displacement) - zero_r) if zero_r else record
+            self._parts.append((WhitenedResiduals(zeroed, c.model, noise), theta_r))
+        self.base = float(self.chi2(c.theta)[0])
+
+    def chi2(self, thetas) -> np.ndarray:
+        """The records' chi-square ``(B,)`` of transducer vectors ``(B, P)``."""
         thetas = np.atleast_2d(thetas)
         total = np.zeros(thetas.shape[0])
-        for residuals, theta_r in parts:
+        for residuals, theta_r in self._parts:
             rows = np.repeat(theta_r[None, :], thetas.shape[0], axis=0)
-            rows[:, shared] = thetas[:, shared]
+            rows[:, self._shared] = thetas[:, self._shared]
             w, valid = residuals.batch(rows[:, residuals.free])
             total += np.where(valid, np.einsum("ij,ij->i", w, w), np.inf)
         return total
 
-    base = chi2(c.theta)[0]
-    return lambda thetas: chi2(thetas) - base
+    def __call__(self, thetas) -> np.ndarray:
+        return self.chi2(thetas) - self.base
+
+
+def record_misfit(c: Contender, records, noises) -> RecordMisfit | None:
+    """The :class:`RecordMisfit` of ``c`` on ``records`` (each with its noise model); None where
+    ``c`` does not carry one fitted run per record."""
+    if len(c.runs) != len(records) or not records:
+        return None
+    return RecordMisfit(c, list(records), list(noises))
 
 
 def draw_transducer(c: Contender, rng, misfit=None) -> np.ndarray:
