@@ -331,24 +331,16 @@ def test_a_drive_that_is_not_decisive_looks_at_longer_records():
     assert here.value < 0.9 and rows[-1]["value"] > here.value
 
 
-class _FlatMisfit:
-    """Records that allow any step, whose fit has chi-square ``base``."""
+def test_with_the_records_the_confirmation_refits_every_record_as_the_joint_diagnosis_does():
+    """Refitted on every record together, the gap counts the record already taken: the same
+    simulated new records separate the heating from the plain model more after a record that
+    showed heating than after one that showed none."""
+    from identify.workflows.design import DesignedDrive, confirm, record_misfit
 
-    def __init__(self, base):
-        self.base = base
-
-    def __call__(self, thetas):
-        return np.zeros(len(thetas))
-
-
-def test_the_confirmation_adds_the_records_own_gap_between_the_two_fits():
-    """The joint diagnosis compares every record: a rival whose fit is 100 behind on the records
-    already taken starts the simulated gaps 100 further back."""
-    from identify.workflows.design import DesignedDrive, confirm
-
-    sim = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
+    heated = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
+    cold = simulate(None, seed=1, fs=5.0)
     model = normalised_model(Model(["thermal"]))
-    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    theta = model.theta_from_dict(heated.truth["theta"] | {"alpha": model.parameters["alpha"].value})
     covariance = np.diag(np.where(model.parameters.vary, 1e-6, 0.0))
     plain = normalised_model(Model())
     n = plain.n_parameters
@@ -360,12 +352,11 @@ def test_the_confirmation_adds_the_records_own_gap_between_the_two_fits():
     drive = DesignedDrive(
         "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)
     )
-    noise, th = estimate_noise(sim.record), Thresholds()
-    alone = confirm(drive, contenders, noise, th, np.random.default_rng(5), draws=2)
-    misfits = {"thermal": _FlatMisfit(0.0), "plain": _FlatMisfit(100.0)}
-    held = confirm(drive, contenders, noise, th, np.random.default_rng(5), draws=2, misfits=misfits)
-    shift = {("thermal", "plain"): 100.0, ("plain", "thermal"): -100.0}
-    for a, b in zip(alone, held):
-        assert (a["truth"], a["rival"]) == (b["truth"], b["rival"])
-        expected = np.array(a["realised_gaps"]) + shift[(a["truth"], a["rival"])]
-        assert np.allclose(b["realised_gaps"], expected, rtol=0, atol=1e-6)
+    noise, th = estimate_noise(heated.record), Thresholds()
+    gaps = {}
+    for name, sim in (("heated", heated), ("cold", cold)):
+        misfits = {c.name: record_misfit(c, [sim.record], [noise]) for c in contenders}
+        rows = confirm(drive, contenders, noise, th, np.random.default_rng(5), draws=2, misfits=misfits)
+        gaps[name] = next(r for r in rows if r["truth"] == "thermal")["realised_gaps"]
+    assert all(np.isfinite(gaps["heated"] + gaps["cold"]))
+    assert min(gaps["heated"]) > max(gaps["cold"])

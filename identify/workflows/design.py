@@ -30,9 +30,10 @@ amplitude falls and rises again, a quiet end), ``steps`` (a staircase of held cu
 by simulation: each contender, drawn from its fit's covariance and held to the records
 (:func:`draw_transducer`), drives the proposed record with noise; every rival is refitted on
 it nonlinearly, held by the records' information, and the right names are counted
-(:func:`confirm`). The confirmed drive with the highest smallest
-share of right names is proposed, confirmed again on every sample: its realised gaps (mean and
-sd over the draws) are the calibrated prediction beside the linear one.
+(:func:`confirm`). The confirmed drive with the highest smallest share of right names is
+proposed, confirmed again on every sample with every contender refitted on the new record and
+the records already taken together (the joint diagnosis's fit and gap): its realised gaps (mean
+and sd over the draws) are the calibrated prediction beside the linear one.
 """
 
 from __future__ import annotations
@@ -50,6 +51,8 @@ from model import Model, get_effect
 from ..data.records import Record
 from ..data.reversals import find_reversals
 from ..diagnosis import Thresholds, diagnose
+from ..diagnosis.evidence import gap_noise_sd
+from ..diagnosis.fits import n_eff
 from ..fitting.joint import check_records, fit_joint
 from ..fitting.lsq import WhitenedResiduals, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
@@ -482,6 +485,72 @@ def _penalised_refit(c: Contender, record: Record, noise: NoiseModel, theta0) ->
     return float(r @ r), r[: record.time.size]
 
 
+def _joint_refit(c: Contender, record: Record, noise: NoiseModel, theta0, misfit: RecordMisfit):
+    """``c`` refitted on ``record`` and the records already taken together, from ``theta0``: the
+    transducer shared, each earlier record's own parameters as fitted, the new run's own and its
+    sensor zero free (what the joint diagnosis fits). ``(chi2, whitened residual over every
+    record, the earlier ones first, effective sample size summed per record)``."""
+    residuals = WhitenedResiduals(record, c.model, noise)
+    free = residuals.free
+    shared = np.flatnonzero(misfit.shared[free])  # the transducer's columns among the free ones
+    earlier = [(res, theta_r[free].copy()) for res, theta_r in misfit.parts]
+    scale = 1.0 / noise.sigma
+    sizes = [res.data.size for res, _ in earlier] + [record.time.size]
+
+    def at(x):  # each earlier record's free vector with the transducer of x
+        for _, x_r in earlier:
+            x_r[shared] = x[shared]
+        return earlier
+
+    def objective(z):
+        x, zero = z[:-1], z[-1]
+        return np.concatenate([res(x_r) for res, x_r in at(x)] + [residuals(x) - zero * scale])
+
+    def jacobian(z):
+        x = z[:-1]
+        jac = np.zeros((sum(sizes), z.size))
+        row = 0
+        for res, x_r in at(x):
+            jac[row : row + res.data.size, shared] = res.jacobian(x_r)[:, shared]
+            row += res.data.size
+        jac[row:, :-1] = residuals.jacobian(x)
+        jac[row:, -1] = -scale
+        return jac
+
+    start = np.concatenate([np.clip(theta0[free], residuals.lower, residuals.upper), [0.0]])
+    lower = np.concatenate([residuals.lower, [-np.inf]])
+    upper = np.concatenate([residuals.upper, [np.inf]])
+    with single_threaded_blas():  # small dense algebra: threads only compete with the model
+        sol = least_squares(
+            objective, start, jac=jacobian, bounds=(lower, upper), method="trf", max_nfev=40, x_scale="jac"
+        )
+    w = objective(sol.x)
+    n = sum(n_eff(part) for part in np.split(w, np.cumsum(sizes)[:-1]))
+    return float(w @ w), w, float(n)
+
+
+def _refitted_gap(
+    truth: Contender, rival: Contender, record: Record, noise: NoiseModel, theta, misfits, fitted, every_record=True
+):
+    """``(gap, sd)`` of ``rival`` against ``truth`` on a simulated ``record`` (``fitted`` caches
+    the refits by name; ``theta`` is the truth's draw): with both contenders' records
+    (``misfits``), each refitted on every record and the gap the joint diagnosis's (the
+    likelihood gap ``n_eff ln(chi2_rival / chi2_truth)`` and its noise sd,
+    :mod:`identify.diagnosis.evidence`); otherwise on the new record with the transducer held by
+    the records' information, the chi-square gap and ``2 |r_rival - r_truth|`` (also where not
+    ``every_record``)."""
+    joint = every_record and truth.name in misfits and rival.name in misfits
+    for c, start in ((truth, theta), (rival, rival.theta)):
+        if (c.name, joint) not in fitted:
+            refit = _joint_refit(c, record, noise, start, misfits[c.name]) if joint else None
+            fitted[(c.name, joint)] = refit or (*_penalised_refit(c, record, noise, start), None)
+    chi2_t, w_t, n_t = fitted[(truth.name, joint)]
+    chi2_r, w_r, _ = fitted[(rival.name, joint)]
+    if joint:
+        return n_t * math.log(max(chi2_r, 1e-300) / max(chi2_t, 1e-300)), gap_noise_sd(w_t, w_r, n_t)
+    return chi2_r - chi2_t, 2.0 * float(np.linalg.norm(w_r - w_t))
+
+
 def confirm(
     drive: DesignedDrive,
     contenders,
@@ -491,15 +560,17 @@ def confirm(
     draws=CONFIRM_DRAWS,
     step: int = 1,
     misfits=None,
+    every_record: bool = True,
 ) -> list:
     """Each contender as the truth, drawn from its fit's covariance, drives the proposed record
     (every ``step``-th sample) with noise; every contender is refitted on it
     (:func:`_penalised_refit`); a right name is the truth ahead of every rival by the decision's
     margins. Per ordered pair: the realised gaps and the share of right names (on the decimated
     record when ``step > 1``: fewer samples, less to tell the contenders apart by). ``misfits``:
-    each contender's :func:`record_misfit` by name, which holds its draws to the records and
-    adds the records' own gap between the two fits to each simulated one (the joint diagnosis
-    compares every record)."""
+    each contender's :func:`record_misfit` by name, which holds its draws to the records; where
+    both contenders of a pair have one and ``every_record``, both are refitted on every record
+    together and the gap is the joint diagnosis's (:func:`_refitted_gap`); without
+    ``every_record`` (a quicker ranking) on the new record, held by the records' information."""
     misfits = misfits or {}
     time, current = drive.time[::step], drive.current[::step]
     rows = []
@@ -513,14 +584,12 @@ def confirm(
                 continue
             data = y[0] + noise.sigma * rng.standard_normal(time.size)
             record = Record(time, current, data, source="simulated next record", sha256="")
-            chi2_true, r_true = _penalised_refit(truth, record, noise, theta)
+            fitted = {}
             ok = True
             for rival in contenders:
                 if rival is truth:
                     continue
-                chi2, r = _penalised_refit(rival, record, noise, rival.theta)
-                gap = chi2 - chi2_true + _records_gap(misfits, truth.name, rival.name)
-                sd = 2.0 * float(np.linalg.norm(r - r_true))
+                gap, sd = _refitted_gap(truth, rival, record, noise, theta, misfits, fitted, every_record)
                 realised[rival.name].append(gap)
                 ok &= gap > th.bic_significant and (sd == 0 or gap / sd > th.gap_z)
             right += ok
@@ -540,14 +609,6 @@ def confirm(
     return rows
 
 
-def _records_gap(misfits: dict, truth: str, rival: str) -> float:
-    """The records' own chi-square gap between two contenders' fits (the joint diagnosis compares
-    all records: the rival starts that far behind or ahead); 0 without both misfits."""
-    if truth in misfits and rival in misfits:
-        return misfits[rival].base - misfits[truth].base
-    return 0.0
-
-
 def simulated_gap(gaps) -> tuple[float | None, float | None]:
     """The prediction a confirmation gives for one ordered pair: the mean of its realised ``gaps``
     and their sample standard deviation (over the truth's parameter draws and the noise together;
@@ -565,7 +626,7 @@ class RecordMisfit:
     model is not finite); ``base`` is the records' chi-square at the fit."""
 
     def __init__(self, c: Contender, records, noises):
-        self._shared = ~np.array([p.per_record for p in c.model.parameters])
+        self.shared = ~np.array([p.per_record for p in c.model.parameters])
         self._parts = []
         for (theta_r, zero_r), record, noise in zip(c.runs, records, noises):
             zeroed = replace(record, displacement=np.asarray(record.displacement) - zero_r) if zero_r else record
@@ -578,13 +639,18 @@ class RecordMisfit:
         total = np.zeros(thetas.shape[0])
         for residuals, theta_r in self._parts:
             rows = np.repeat(theta_r[None, :], thetas.shape[0], axis=0)
-            rows[:, self._shared] = thetas[:, self._shared]
+            rows[:, self.shared] = thetas[:, self.shared]
             w, valid = residuals.batch(rows[:, residuals.free])
             total += np.where(valid, np.einsum("ij,ij->i", w, w), np.inf)
         return total
 
     def __call__(self, thetas) -> np.ndarray:
         return self.chi2(thetas) - self.base
+
+    @property
+    def parts(self) -> list:
+        """Each record's ``(WhitenedResiduals, fitted vector (P,))``."""
+        return list(self._parts)
 
 
 def record_misfit(c: Contender, records, noises) -> RecordMisfit | None:
@@ -836,7 +902,8 @@ def design_drive(
     for drive in top[:n_confirm]:
         every = f" (every {ordinal(step)} sample)" if step > 1 else ""
         say(f"confirming a '{drive.family}' drive by simulation{every}")
-        drive.confirmed = confirm(drive, contenders, noise, th, rng, step=step, misfits=misfits)
+        # ranking the best few: on every record together only where no final confirmation follows
+        drive.confirmed = confirm(drive, contenders, noise, th, rng, step=step, misfits=misfits, every_record=step == 1)
     top.sort(key=confirmed_rank)
     ranked = top + ranked[len(top) :]
     best = ranked[0]
