@@ -289,7 +289,18 @@ def _solve_from(residuals: JointResiduals, start) -> tuple[float, JointResiduals
     x0 = np.clip(np.asarray(start)[residuals.free], residuals.lower, residuals.upper)
     with single_threaded_blas():
         sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
+        if _on_a_bound(sol.x, residuals):
+            onward = bounded_solve(residuals, sol.x, POLISH_EVALUATIONS, method="trf")
+            sol = onward if onward.cost < sol.cost else sol
     return 2.0 * float(sol.cost), residuals, sol.x
+
+
+def _on_a_bound(x, residuals) -> bool:
+    """Whether a free parameter ended on its bound (where a dogbox run can stop short: its step
+    in the box collapses along the bound's face while the interior trust region of ``trf`` goes on)."""
+    span = residuals.upper - residuals.lower
+    near = np.where(np.isfinite(span), 1e-10 * span, 0.0)
+    return bool(np.any((x <= residuals.lower + near) | (x >= residuals.upper - near)))
 
 
 def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None) -> tuple[list, dict, dict]:
