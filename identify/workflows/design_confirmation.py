@@ -1,0 +1,285 @@
+"""Confirming a designed drive by simulation (:mod:`identify.workflows.design`: its
+:class:`~identify.workflows.design.Contender` and :class:`~identify.workflows.design.DesignedDrive`).
+
+Each contender as the truth, drawn from its fit's covariance and held to the records it was
+fitted on (:func:`draw_transducer`, :class:`RecordMisfit`), drives the proposed record with
+noise; every contender is refitted on it, and the gaps and right names are counted
+(:func:`confirm`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..data.records import Record
+from ..diagnosis import Thresholds
+from ..diagnosis.evidence import gap_noise_sd
+from ..diagnosis.fits import n_eff
+from ..fitting.lsq import WhitenedResiduals
+from ..fitting.noise import NoiseModel
+from ..fitting.threads import single_threaded_blas
+
+__all__ = ["CONFIRM_DRAWS", "RecordMisfit", "record_misfit", "draw_transducer", "confirm", "simulated_gap"]
+
+#: Draws per contender in a confirmation: the contender's parameters from its fit's covariance and
+#: the noise, both fresh in each draw. Their realised gaps are the calibrated prediction (their mean
+#: and sample sd): the linear gap holds the truth at its fit, and a record's truth is only known to
+#: within that covariance.
+CONFIRM_DRAWS = 6
+#: A confirmation's draw held to the records is shortened by halvings down to ``2**-DRAW_HALVINGS``
+#: of its step before it falls back on the fit (:func:`draw_transducer`).
+DRAW_HALVINGS = 12
+
+
+def _penalised_refit(c, record: Record, noise: NoiseModel, theta0) -> tuple[float, np.ndarray]:
+    """``c`` refitted on ``record`` (its transducer held by the records' information, the new run's
+    parameters and zero free), from ``theta0``: ``(chi2 with the penalty, whitened residual)``."""
+    residuals = WhitenedResiduals(record, c.model, noise)
+    free = residuals.free
+    info = c.info[np.ix_(free, free)]
+    values, vectors = np.linalg.eigh(0.5 * (info + info.T))
+    root = (vectors * np.sqrt(np.clip(values, 0.0, None))).T  # root.T @ root = info
+    centre = c.theta[free]
+    scale = 1.0 / noise.sigma
+
+    def objective(z):
+        x, zero = z[:-1], z[-1]
+        return np.concatenate([residuals(x) - zero * scale, root @ (x - centre)])
+
+    def jacobian(z):  # the residuals' own batched Jacobian, the zero's column and the penalty's rows
+        jac = np.zeros((record.time.size + root.shape[0], z.size))
+        jac[: record.time.size, :-1] = residuals.jacobian(z[:-1])
+        jac[: record.time.size, -1] = -scale
+        jac[record.time.size :, :-1] = root
+        return jac
+
+    start = np.concatenate([np.clip(theta0[free], residuals.lower, residuals.upper), [0.0]])
+    lower = np.concatenate([residuals.lower, [-np.inf]])
+    upper = np.concatenate([residuals.upper, [np.inf]])
+    with single_threaded_blas():  # small dense algebra: threads only compete with the model
+        sol = least_squares(
+            objective, start, jac=jacobian, bounds=(lower, upper), method="trf", max_nfev=40, x_scale="jac"
+        )
+    r = objective(sol.x)
+    return float(r @ r), r[: record.time.size]
+
+
+def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMisfit):
+    """``c`` refitted on ``record`` and the records already taken together, from ``theta0``: the
+    transducer shared, each earlier record's own parameters as fitted, the new run's own and its
+    sensor zero free (what the joint diagnosis fits). ``(chi2, whitened residual over every
+    record, the earlier ones first, effective sample size summed per record)``."""
+    residuals = WhitenedResiduals(record, c.model, noise)
+    free = residuals.free
+    shared = np.flatnonzero(misfit.shared[free])  # the transducer's columns among the free ones
+    earlier = [(res, theta_r[free].copy()) for res, theta_r in misfit.parts]
+    scale = 1.0 / noise.sigma
+    sizes = [res.data.size for res, _ in earlier] + [record.time.size]
+
+    def at(x):  # each earlier record's free vector with the transducer of x
+        for _, x_r in earlier:
+            x_r[shared] = x[shared]
+        return earlier
+
+    def objective(z):
+        x, zero = z[:-1], z[-1]
+        return np.concatenate([res(x_r) for res, x_r in at(x)] + [residuals(x) - zero * scale])
+
+    def jacobian(z):
+        x = z[:-1]
+        jac = np.zeros((sum(sizes), z.size))
+        row = 0
+        for res, x_r in at(x):
+            jac[row : row + res.data.size, shared] = res.jacobian(x_r)[:, shared]
+            row += res.data.size
+        jac[row:, :-1] = residuals.jacobian(x)
+        jac[row:, -1] = -scale
+        return jac
+
+    start = np.concatenate([np.clip(theta0[free], residuals.lower, residuals.upper), [0.0]])
+    lower = np.concatenate([residuals.lower, [-np.inf]])
+    upper = np.concatenate([residuals.upper, [np.inf]])
+    with single_threaded_blas():  # small dense algebra: threads only compete with the model
+        sol = least_squares(
+            objective, start, jac=jacobian, bounds=(lower, upper), method="trf", max_nfev=40, x_scale="jac"
+        )
+    w = objective(sol.x)
+    n = sum(n_eff(part) for part in np.split(w, np.cumsum(sizes)[:-1]))
+    return float(w @ w), w, float(n)
+
+
+def _refitted_gap(truth, rival, record: Record, noise: NoiseModel, theta, misfits, fitted, every_record=True):
+    """``(gap, sd)`` of ``rival`` against ``truth`` on a simulated ``record`` (``fitted`` caches
+    the refits by name; ``theta`` is the truth's draw): with both contenders' records
+    (``misfits``), each refitted on every record and the gap the joint diagnosis's (the
+    likelihood gap ``n_eff ln(chi2_rival / chi2_truth)`` and its noise sd,
+    :mod:`identify.diagnosis.evidence`); otherwise on the new record with the transducer held by
+    the records' information, the chi-square gap and ``2 |r_rival - r_truth|`` (also where not
+    ``every_record``)."""
+    joint = every_record and truth.name in misfits and rival.name in misfits
+    for c, start in ((truth, theta), (rival, rival.theta)):
+        if (c.name, joint) not in fitted:
+            refit = _joint_refit(c, record, noise, start, misfits[c.name]) if joint else None
+            fitted[(c.name, joint)] = refit or (*_penalised_refit(c, record, noise, start), None)
+    chi2_t, w_t, n_t = fitted[(truth.name, joint)]
+    chi2_r, w_r, _ = fitted[(rival.name, joint)]
+    if joint:
+        return n_t * math.log(max(chi2_r, 1e-300) / max(chi2_t, 1e-300)), gap_noise_sd(w_t, w_r, n_t)
+    return chi2_r - chi2_t, 2.0 * float(np.linalg.norm(w_r - w_t))
+
+
+def confirm(
+    drive,
+    contenders,
+    noise: NoiseModel,
+    th: Thresholds,
+    rng,
+    draws=CONFIRM_DRAWS,
+    step: int = 1,
+    misfits=None,
+    every_record: bool = True,
+) -> list:
+    """Each contender as the truth, drawn from its fit's covariance, drives the proposed record
+    (every ``step``-th sample) with noise; every contender is refitted on it
+    (:func:`_penalised_refit`); a right name is the truth ahead of every rival by the decision's
+    margins. Per ordered pair: the realised gaps and the share of right names (on the decimated
+    record when ``step > 1``: fewer samples, less to tell the contenders apart by). ``misfits``:
+    each contender's :func:`record_misfit` by name, which holds its draws to the records; where
+    both contenders of a pair have one and ``every_record``, both are refitted on every record
+    together and the gap is the joint diagnosis's (:func:`_refitted_gap`); without
+    ``every_record`` (a quicker ranking) on the new record, held by the records' information."""
+    misfits = misfits or {}
+    time, current = drive.time[::step], drive.current[::step]
+    rows = []
+    for truth in contenders:
+        realised = {rival.name: [] for rival in contenders if rival is not truth}
+        right = 0
+        for _ in range(draws):
+            theta = draw_transducer(truth, rng, misfits.get(truth.name))
+            y, valid = truth.model.evaluate(theta, time, current)
+            if not valid[0]:
+                continue
+            data = y[0] + noise.sigma * rng.standard_normal(time.size)
+            record = Record(time, current, data, source="simulated next record", sha256="")
+            fitted = {}
+            ok = True
+            for rival in contenders:
+                if rival is truth:
+                    continue
+                gap, sd = _refitted_gap(truth, rival, record, noise, theta, misfits, fitted, every_record)
+                realised[rival.name].append(gap)
+                ok &= gap > th.bic_significant and (sd == 0 or gap / sd > th.gap_z)
+            right += ok
+        for rival, gaps in realised.items():
+            mean, sd = simulated_gap(gaps)
+            rows.append(
+                {
+                    "truth": truth.name,
+                    "rival": rival,
+                    "realised_gaps": [float(g) for g in gaps],
+                    "gap": mean,
+                    "gap_sd": sd,
+                    "right_names": right,
+                    "draws": draws,
+                }
+            )
+    return rows
+
+
+def simulated_gap(gaps) -> tuple[float | None, float | None]:
+    """The prediction a confirmation gives for one ordered pair: the mean of its realised ``gaps``
+    and their sample standard deviation (over the truth's parameter draws and the noise together;
+    None where fewer than two draws gave a gap)."""
+    gaps = np.asarray(gaps, dtype=float)
+    if gaps.size < 2:
+        return None, None
+    return float(gaps.mean()), float(gaps.std(ddof=1))
+
+
+class RecordMisfit:
+    """How much worse than a contender's fit its transducer vectors fit the records it was fitted
+    on (:func:`record_misfit`): called with vectors ``(B, P)`` (their shared parameters; each
+    record's own as fitted), the chi-square rise summed over the records ``(B,)`` (inf where the
+    model is not finite); ``base`` is the records' chi-square at the fit."""
+
+    def __init__(self, c, records, noises):
+        self.shared = ~np.array([p.per_record for p in c.model.parameters])
+        self._parts = []
+        for (theta_r, zero_r), record, noise in zip(c.runs, records, noises):
+            zeroed = replace(record, displacement=np.asarray(record.displacement) - zero_r) if zero_r else record
+            self._parts.append((WhitenedResiduals(zeroed, c.model, noise), theta_r))
+        self.base = float(self.chi2(c.theta)[0])
+
+    def chi2(self, thetas) -> np.ndarray:
+        """The records' chi-square ``(B,)`` of transducer vectors ``(B, P)``."""
+        thetas = np.atleast_2d(thetas)
+        total = np.zeros(thetas.shape[0])
+        for residuals, theta_r in self._parts:
+            rows = np.repeat(theta_r[None, :], thetas.shape[0], axis=0)
+            rows[:, self.shared] = thetas[:, self.shared]
+            w, valid = residuals.batch(rows[:, residuals.free])
+            total += np.where(valid, np.einsum("ij,ij->i", w, w), np.inf)
+        return total
+
+    def __call__(self, thetas) -> np.ndarray:
+        return self.chi2(thetas) - self.base
+
+    @property
+    def parts(self) -> list:
+        """Each record's ``(WhitenedResiduals, fitted vector (P,))``."""
+        return list(self._parts)
+
+
+def record_misfit(c, records, noises) -> RecordMisfit | None:
+    """The :class:`RecordMisfit` of ``c`` on ``records`` (each with its noise model); None where
+    ``c`` does not carry one fitted run per record."""
+    if len(c.runs) != len(records) or not records:
+        return None
+    return RecordMisfit(c, list(records), list(noises))
+
+
+def draw_transducer(c, rng, misfit=None) -> np.ndarray:
+    """A draw of the contender's transducer parameters from its fit's covariance, within two standard
+    deviations along each of the covariance's own axes (a poorly determined combination is not sent
+    to a bound); the run's own parameters as fitted.
+
+    With ``misfit`` (:func:`record_misfit`) the draw is held to the records it was fitted on: a
+    covariance is the fit's linearisation, and along a loosely determined nonlinear combination (a
+    slow effect's time constants) its step can leave the records far behind. A draw ``z`` (in the
+    covariance's axes) would raise the records' chi-square by ``|z|^2`` were the model linear; the
+    draw keeps its direction and goes as far along it as the records allow that rise (the largest
+    of the step's halvings, then refined between it and the next), the fit itself where none does.
+    """
+    cov = np.asarray(c.covariance, dtype=float)
+    per_record = np.array([p.per_record for p in c.model.parameters])
+    free = np.flatnonzero((np.diag(cov) > 0) & ~per_record)
+    theta = np.array(c.theta, dtype=float)
+    lower, upper = c.model.parameters.lower, c.model.parameters.upper
+    if not free.size:
+        return np.clip(theta, lower, upper)
+    sub = cov[np.ix_(free, free)]
+    values, vectors = np.linalg.eigh(0.5 * (sub + sub.T))
+    z = np.clip(rng.standard_normal(free.size), -2.0, 2.0)  # in the covariance's own axes
+    step = np.zeros_like(theta)
+    step[free] = vectors @ (np.sqrt(np.clip(values, 0.0, None)) * z)
+    if misfit is None:
+        return np.clip(theta + step, lower, upper)
+    allowed = float(z @ z)
+
+    def farthest(scales):
+        rows = np.clip(theta + scales[:, None] * step, lower, upper)
+        ok = np.flatnonzero(misfit(rows) <= allowed)
+        return (scales[ok].max(), rows[ok[np.argmax(scales[ok])]]) if ok.size else (None, None)
+
+    scale, row = farthest(0.5 ** np.arange(DRAW_HALVINGS + 1))
+    if scale is None:
+        return np.clip(theta, lower, upper)
+    if scale < 1.0:
+        finer, finer_row = farthest(np.linspace(scale, 2.0 * scale, 9)[1:-1])
+        if finer is not None and finer > scale:
+            row = finer_row
+    return row
