@@ -32,6 +32,7 @@ from model import Model
 
 from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at, joint_start
 from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
+from ..fitting.lsq_solver import ALTERNATE_METHOD, on_a_bound
 from ..fitting.noise import energised_mask
 from ..fitting.threads import results_side_by_side, single_threaded_blas
 from .adequacy import Adequacy, Thresholds, assess_adequacy
@@ -289,18 +290,10 @@ def _solve_from(residuals: JointResiduals, start) -> tuple[float, JointResiduals
     x0 = np.clip(np.asarray(start)[residuals.free], residuals.lower, residuals.upper)
     with single_threaded_blas():
         sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
-        if _on_a_bound(sol.x, residuals):
-            onward = bounded_solve(residuals, sol.x, POLISH_EVALUATIONS, method="trf")
+        if on_a_bound(sol.x, residuals.lower, residuals.upper).any():  # it may have stopped short there
+            onward = bounded_solve(residuals, sol.x, POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
             sol = onward if onward.cost < sol.cost else sol
     return 2.0 * float(sol.cost), residuals, sol.x
-
-
-def _on_a_bound(x, residuals) -> bool:
-    """Whether a free parameter ended on its bound (where a dogbox run can stop short: its step
-    in the box collapses along the bound's face while the interior trust region of ``trf`` goes on)."""
-    span = residuals.upper - residuals.lower
-    near = np.where(np.isfinite(span), 1e-10 * span, 0.0)
-    return bool(np.any((x <= residuals.lower + near) | (x >= residuals.upper - near)))
 
 
 def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None) -> tuple[list, dict, dict]:

@@ -114,6 +114,7 @@ from .lsq_solver import (
     TOLERANCE,
     StallStop,
     bounded_solve,
+    on_a_bound,
     solver_verdict,
     stalling_solve,
     within_reach_of_best,
@@ -174,16 +175,9 @@ def _converged(residuals: WhitenedResiduals, sol, note: str = "") -> _PolishedSt
 
 def _gpi_at_bound(residuals: WhitenedResiduals, x) -> list[str]:
     """Names of the free GPI parameters of free vector ``x`` that sit on a box bound."""
+    bound = on_a_bound(x, residuals.lower, residuals.upper)
     n_gpi = len(THETA_NAMES)
-    names = []
-    for j, column in enumerate(residuals.free):
-        if column >= n_gpi:
-            continue
-        lo, hi = residuals.lower[j], residuals.upper[j]
-        tol = 1e-9 * max(1.0, hi - lo)
-        if x[j] <= lo + tol or x[j] >= hi - tol:
-            names.append(residuals.model.names[column])
-    return names
+    return [residuals.model.names[column] for j, column in enumerate(residuals.free) if column < n_gpi and bound[j]]
 
 
 @dataclass(frozen=True)

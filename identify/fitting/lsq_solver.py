@@ -40,6 +40,7 @@ __all__ = [
     "solver_verdict",
     "stalling_solve",
     "bounded_solve",
+    "on_a_bound",
 ]
 
 #: Solver evaluations each start gets in the screening phase.
@@ -276,3 +277,15 @@ def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METH
     within the parameters' box). The diagnosis' short refits and polishes run it too."""
     bounds = (residuals.lower, residuals.upper)
     return stalling_solve(residuals, x0, residuals.jacobian, max_nfev, method, tolerance, bounds)
+
+
+def on_a_bound(x, lower, upper) -> np.ndarray:
+    """Boolean per free parameter ``(P_free,)``: whether ``x`` sits on its box bound, within
+    1e-9 of the box's width (at least of 1; an infinite side is never reached). Where a
+    :data:`SOLVER_METHOD` run ends there it may have stopped short: its step in the box
+    collapses along the bound's face, while :data:`ALTERNATE_METHOD`'s interior trust region
+    still descends."""
+    x, lower, upper = (np.asarray(a, dtype=float) for a in (x, lower, upper))
+    span = upper - lower
+    near = 1e-9 * np.maximum(1.0, np.where(np.isfinite(span), span, 0.0))
+    return (x <= lower + near) | (x >= upper - near)
