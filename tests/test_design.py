@@ -69,18 +69,22 @@ def test_bad_limits_are_refused_in_one_sentence(given, problem):
         RigLimits(**values)
 
 
+def _heating_and_plain(sim, variance: float) -> list:
+    """Two contenders at a heated bench record's truth: the heating (``thermal``, its free
+    parameters' variance ``variance``) and the plain GPI of the same transducer parameters."""
+    model = normalised_model(Model(["thermal"]))
+    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    covariance = np.diag(np.where(model.parameters.vary, variance, 0.0))
+    plain = normalised_model(Model())
+    n = plain.n_parameters
+    return [contender("thermal", model, theta, covariance), contender("plain", plain, theta[:n], covariance[:n, :n])]
+
+
 def test_the_criterion_is_zero_for_a_rival_that_can_be_the_truth_and_positive_otherwise():
     """A rival that contains the truth's physics (the same model) mimics it exactly: no gap. A rival
     without it keeps a gap the noise cannot explain on a drive that shows the effect."""
     sim = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
-    model = normalised_model(Model(["thermal"]))
-    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
-    covariance = np.diag(np.where(model.parameters.vary, 1e-4, 0.0))
-    truth = contender("thermal", model, theta, covariance)
-    plain = normalised_model(Model())
-    rival = contender(
-        "plain", plain, theta[: plain.n_parameters], covariance[: plain.n_parameters, : plain.n_parameters]
-    )
+    truth, rival = _heating_and_plain(sim, 1e-4)
     hot = RigLimits((0.0, 5.0), max_slew=1.6, duration=110.0, max_rms_current=4.0, fs=10.0, quiet=10.0)
     time, current = drive_of("hold", {"cycles": 2, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, hot, 10.0)
     noise = estimate_noise(sim.record)
@@ -313,15 +317,7 @@ def test_a_drive_that_is_not_decisive_looks_at_longer_records():
     from identify.workflows.design import LONGER, longer_records, search
 
     sim = simulate("thermal_tau=30,thermal_sensitivity=0.01,thermal_expansion=1.5", seed=1, fs=5.0)
-    model = normalised_model(Model(["thermal"]))
-    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
-    covariance = np.diag(np.where(model.parameters.vary, 1e-4, 0.0))
-    plain = normalised_model(Model())
-    n = plain.n_parameters
-    contenders = [
-        contender("thermal", model, theta, covariance),
-        contender("plain", plain, theta[:n], covariance[:n, :n]),
-    ]
+    contenders = _heating_and_plain(sim, 1e-4)
     noise, th = estimate_noise(sim.record), Thresholds()
     limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
     here = search(contenders, limits, noise, th, np.random.default_rng(3), 10.0, per_family=3)[0]
@@ -339,15 +335,7 @@ def test_with_the_records_the_confirmation_refits_every_record_as_the_joint_diag
 
     heated = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
     cold = simulate(None, seed=1, fs=5.0)
-    model = normalised_model(Model(["thermal"]))
-    theta = model.theta_from_dict(heated.truth["theta"] | {"alpha": model.parameters["alpha"].value})
-    covariance = np.diag(np.where(model.parameters.vary, 1e-6, 0.0))
-    plain = normalised_model(Model())
-    n = plain.n_parameters
-    contenders = [
-        contender("thermal", model, theta, covariance),
-        contender("plain", plain, theta[:n], covariance[:n, :n]),
-    ]
+    contenders = _heating_and_plain(heated, 1e-6)
     limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
     drive = DesignedDrive(
         "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)

@@ -35,6 +35,20 @@ CONFIRM_DRAWS = 6
 DRAW_HALVINGS = 12
 
 
+def _solve_with_zero(objective, jacobian, residuals: WhitenedResiduals, theta0) -> np.ndarray:
+    """The short refit both confirmations run: ``objective`` of ``(free parameters, sensor zero)``
+    from ``theta0``'s free values and a zero of 0, within the parameters' box (the zero free),
+    ``trf`` with Jacobian scaling and at most 40 evaluations. Its end ``(P_free + 1,)``."""
+    start = np.concatenate([np.clip(theta0[residuals.free], residuals.lower, residuals.upper), [0.0]])
+    lower = np.concatenate([residuals.lower, [-np.inf]])
+    upper = np.concatenate([residuals.upper, [np.inf]])
+    with single_threaded_blas():  # small dense algebra: threads only compete with the model
+        sol = least_squares(
+            objective, start, jac=jacobian, bounds=(lower, upper), method="trf", max_nfev=40, x_scale="jac"
+        )
+    return sol.x
+
+
 def _penalised_refit(c, record: Record, noise: NoiseModel, theta0) -> tuple[float, np.ndarray]:
     """``c`` refitted on ``record`` (its transducer held by the records' information, the new run's
     parameters and zero free), from ``theta0``: ``(chi2 with the penalty, whitened residual)``."""
@@ -57,14 +71,7 @@ def _penalised_refit(c, record: Record, noise: NoiseModel, theta0) -> tuple[floa
         jac[record.time.size :, :-1] = root
         return jac
 
-    start = np.concatenate([np.clip(theta0[free], residuals.lower, residuals.upper), [0.0]])
-    lower = np.concatenate([residuals.lower, [-np.inf]])
-    upper = np.concatenate([residuals.upper, [np.inf]])
-    with single_threaded_blas():  # small dense algebra: threads only compete with the model
-        sol = least_squares(
-            objective, start, jac=jacobian, bounds=(lower, upper), method="trf", max_nfev=40, x_scale="jac"
-        )
-    r = objective(sol.x)
+    r = objective(_solve_with_zero(objective, jacobian, residuals, theta0))
     return float(r @ r), r[: record.time.size]
 
 
@@ -100,14 +107,7 @@ def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMis
         jac[row:, -1] = -scale
         return jac
 
-    start = np.concatenate([np.clip(theta0[free], residuals.lower, residuals.upper), [0.0]])
-    lower = np.concatenate([residuals.lower, [-np.inf]])
-    upper = np.concatenate([residuals.upper, [np.inf]])
-    with single_threaded_blas():  # small dense algebra: threads only compete with the model
-        sol = least_squares(
-            objective, start, jac=jacobian, bounds=(lower, upper), method="trf", max_nfev=40, x_scale="jac"
-        )
-    w = objective(sol.x)
+    w = objective(_solve_with_zero(objective, jacobian, residuals, theta0))
     n = sum(n_eff(part) for part in np.split(w, np.cumsum(sizes)[:-1]))
     return float(w @ w), w, float(n)
 
@@ -123,8 +123,11 @@ def _refitted_gap(truth, rival, record: Record, noise: NoiseModel, theta, misfit
     joint = every_record and truth.name in misfits and rival.name in misfits
     for c, start in ((truth, theta), (rival, rival.theta)):
         if (c.name, joint) not in fitted:
-            refit = _joint_refit(c, record, noise, start, misfits[c.name]) if joint else None
-            fitted[(c.name, joint)] = refit or (*_penalised_refit(c, record, noise, start), None)
+            fitted[(c.name, joint)] = (
+                _joint_refit(c, record, noise, start, misfits[c.name])
+                if joint
+                else (*_penalised_refit(c, record, noise, start), None)
+            )
     chi2_t, w_t, n_t = fitted[(truth.name, joint)]
     chi2_r, w_r, _ = fitted[(rival.name, joint)]
     if joint:
