@@ -185,22 +185,26 @@ def test_the_joint_log_likelihood_is_the_sum_of_each_records_own(two_records):
     "strength, max_refits, expected",
     [
         ({"a": 100.0, "b": 50.0}, 3, []),  # no pair fitted: nothing to name from a pair
-        # the best pair a+b; c alone is stronger than the partner b and than a: both swaps
+        # the best pair a+b names a: every single with a gain in a's place (each names another
+        # effect), and c in b's place (stronger alone than a: it would be that pair's name)
         (
             {"a": 1000.0, "b": 300.0, "c": 1343.0, "d": 200.0, "a+b": 1876.0, "c+d": 1500.0},
             3,
-            [("c+b", "a+b", "c"), ("a+c", "a+b", "c")],
+            [("c+b", "a+b", "c"), ("d+b", "a+b", "d"), ("a+c", "a+b", "c")],
         ),
         # c+b fitted already (in the other order): only the other swap
         ({"a": 1000.0, "b": 300.0, "c": 1343.0, "a+b": 1876.0, "b+c": 1700.0}, 3, [("a+c", "a+b", "c")]),
-        # c weaker than the partner b alone: it could not be that pair's first name
-        ({"a": 1000.0, "b": 300.0, "c": 250.0, "a+b": 1876.0}, 3, []),
-        # c too far behind a alone for the pair's gain to close (bar 2 x 1000 - 1100 = 900)
-        ({"a": 1000.0, "b": 100.0, "c": 800.0, "a+b": 1100.0}, 3, []),
+        # c weaker than the partner b alone: c+b would name b, not a; a+c would still name a
+        ({"a": 1000.0, "b": 300.0, "c": 250.0, "a+b": 1876.0}, 3, [("c+b", "a+b", "c")]),
+        # c far behind a alone: no bound on the pair's gain rules c+b out (overlapping explanations)
+        ({"a": 1000.0, "b": 100.0, "c": 800.0, "a+b": 1100.0}, 3, [("c+b", "a+b", "c")]),
+        # a single without a gain is no rival
+        ({"a": 1000.0, "b": 100.0, "c": -5.0, "a+b": 1100.0}, 3, []),
         # the partner b never fitted alone (no record found it worth finishing): it gains nothing
-        # alone, so c, stronger than a, is swapped in for a (bar max(0, 2000 - 1876)) and for b
-        # (bar a's 1000)
+        # alone, so a is named; c is swapped in for a, and for b (stronger alone than a)
         ({"a": 1000.0, "c": 1343.0, "a+b": 1876.0}, 3, [("c+b", "a+b", "c"), ("a+c", "a+b", "c")]),
+        # the named member second in the pair's name: the same rule by strength, not by position
+        ({"a": 300.0, "b": 1000.0, "c": 250.0, "a+b": 1876.0}, 3, [("a+c", "a+b", "c")]),
         # at most max_refits swaps per member, strongest first
         (
             {"a": 1000.0, "b": 900.0, "c": 1200.0, "d": 1100.0, "a+b": 2500.0},

@@ -554,8 +554,10 @@ def test_within_reach_of_best_keeps_a_rule_behind_a_lower_chi_square():
 
 def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it(monkeypatch):
     """A thin loop fitted in the sign that fits it worse (many starts far behind): the fit with
-    the hopeless polishes stopped ends at the optimum of the fit that runs every start in full,
-    with fewer evaluations, and says which starts it stopped."""
+    the hopeless polishes stopped ends at least as low as the fit that runs every start in full,
+    with fewer evaluations, and says which starts it stopped. (Not always at the same point: the
+    last polish, in the sampler coordinates, goes on from where each start ended, and a start
+    stopped early can end in another basin there: on this record, with some machines' arithmetic, a lower one.)"""
     import identify.fitting.lsq as lsq
 
     rec, _ = classical_record()
@@ -567,8 +569,7 @@ def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it
     stopped = fit()
     monkeypatch.setattr(lsq, "_within_reach_of", lambda best, task: task)
     full = fit()
-    assert stopped.chi2 == full.chi2 and stopped.n_agree == full.n_agree
-    np.testing.assert_array_equal(stopped.theta, full.theta)
+    assert stopped.chi2 <= full.chi2 * (1 + 1e-9)
     used = [sum(o.n_evaluations for o in f.starts) for f in (stopped, full)]
     assert any("too far behind" in o.message for o in stopped.starts), [o.message for o in stopped.starts]
     assert used[0] < used[1]

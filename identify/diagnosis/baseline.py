@@ -13,7 +13,6 @@ candidate's GPI (:func:`challenge_baseline`) and through the exact reparametrisa
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from functools import partial
 
@@ -27,6 +26,7 @@ from ..fitting.lsq_solver import beyond_a_tie
 from ..fitting.noise import NoiseModel, estimate_noise
 from ..fitting.parametrisation import normalised_model
 from ..fitting.threads import results_side_by_side
+from .evidence import likelihood_gap
 from .fits import (
     attempt,
     embed,
@@ -208,7 +208,7 @@ def tied_sign(record, fit: FitResult, baselines, chi2_0: float, bic_significant:
             continue
         w = whitened(record, other)
         chi2 = float(w @ w)
-        if n_eff(w) * math.log(max(chi2, 1e-300) / max(chi2_0, 1e-300)) <= bic_significant:
+        if likelihood_gap(chi2_0, chi2, n_eff(w)) <= bic_significant:
             return other
     return None
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from .adequacy import Adequacy
 
-__all__ = ["Explanation", "Gap", "Evidence", "gap_between", "gaps_among", "gap_noise_sd"]
+__all__ = ["Explanation", "Gap", "Evidence", "gap_between", "gaps_among", "gap_noise_sd", "likelihood_gap"]
 
 
 @dataclass(frozen=True)
@@ -101,6 +101,12 @@ class Gap:
         return {"better": self.better, "other": self.other, "gap": float(self.gap), "noise_sd": float(self.noise_sd)}
 
 
+def likelihood_gap(chi2: float, chi2_other: float, n_eff: float) -> float:
+    """The likelihood gap ``n_eff ln(chi2_other / chi2)`` of a fit of chi-square ``chi2`` over one of
+    ``chi2_other`` (both profiled over the noise scale; positive when the first fits better)."""
+    return float(n_eff) * math.log(max(chi2_other, 1e-300) / max(chi2, 1e-300))
+
+
 def gap_noise_sd(better, other, n_eff: float) -> float:
     """What the noise gives the likelihood gap between two fits with whitened residuals
     ``better`` and ``other`` (shape (T,) each), scaled by the better one's effective size."""
@@ -118,8 +124,7 @@ def gap_between(a: Explanation, w_a, b: Explanation, w_b) -> Gap:
     chi-square) first."""
     if b.chi2 < a.chi2:
         a, w_a, b, w_b = b, w_b, a, w_a
-    gap = a.n_eff * math.log(max(b.chi2, 1e-300) / max(a.chi2, 1e-300))
-    return Gap(a.name, b.name, float(gap), gap_noise_sd(w_a, w_b, a.n_eff))
+    return Gap(a.name, b.name, likelihood_gap(a.chi2, b.chi2, a.n_eff), gap_noise_sd(w_a, w_b, a.n_eff))
 
 
 def gaps_among(explanations, whitened) -> tuple:

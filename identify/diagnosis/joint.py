@@ -11,8 +11,8 @@ again). The joint diagnosis:
    (:class:`identify.fitting.joint.JointResiduals`: the transducer's parameters shared, each
    record's run parameters and sensor zero its own), from each record's own fit of it and
    from the joint baseline with the effect off; before a member of the best joint pair may be
-   named, the pairs that keep its partner and swap it for a single as strong jointly
-   (:func:`rival_pair_names`) are fitted jointly too;
+   named, the pairs that would name another effect (:func:`rival_pair_names`) are fitted
+   jointly too;
 3. measures each joint fit as one candidate: its chi-square summed over the records, its delta
    BIC against the joint baseline, and whether it repairs *every* record (each record's residual
    against its own quiet start);
@@ -330,13 +330,17 @@ def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None) -> tuple[
 
 
 def rival_pair_names(strength: dict, max_refits: int) -> list[tuple[str, str, str]]:
-    """The pairs to fit before the best pair's members may be named: for each member, the pairs
-    that keep its partner and swap it for a single at least as strong alone as the partner and
-    behind it alone by less than the pair gains over it (it could be that pair's first name too),
-    strongest first, at most ``max_refits`` per member, those not fitted yet. The rule of
-    :func:`identify.diagnosis.pairs.rival_pairs` on the joint fits: a name taken from a pair must
-    hold against the pairs that would name another effect, wherever the records' own searches
-    left those unfinished.
+    """The pairs to fit before a member of the best pair may be named: the pairs that would name
+    another effect, not fitted yet, strongest first, at most ``max_refits`` per member.
+
+    The best pair names its member stronger alone. A pair that keeps its partner and swaps the
+    named member for any single with a gain names another effect whichever of the two is stronger;
+    a pair that keeps the named member and swaps its partner for a single names another effect only
+    when that single is at least as strong alone. No bound on what a pair can gain from its members
+    alone stands in for fitting it: explanations overlap (a run's drift takes up part of a heating
+    and part of a first-cycle offset), so a pair of two that do not can gain far more than either
+    member's gain suggests. The rule of :func:`identify.diagnosis.pairs.rival_pairs`, which the
+    records' own searches use, without its bound on the pair's gain.
 
     Parameters
     ----------
@@ -358,13 +362,15 @@ def rival_pair_names(strength: dict, max_refits: int) -> list[tuple[str, str, st
     best = max(pairs, key=pairs.get)
     fitted = {frozenset(n.split("+")) for n in pairs}
     members = best.split("+")
+    # a member no record found worth finishing alone was not fitted jointly: it gains nothing
+    alone = [strength.get(m, 0.0) for m in members]
+    named = 0 if alone[0] >= alone[1] else 1
     names = []
-    for position, named in enumerate(members):
+    for position in range(2):  # the member swapped out
         partner = members[1 - position]
-        # a member no record found worth finishing alone was not fitted jointly: it gains nothing
-        bar = max(strength.get(partner, 0.0), 2.0 * strength.get(named, 0.0) - pairs[best])
+        bar = 0.0 if position == named else alone[named]
         rivals = sorted(
-            (n for n, v in strength.items() if "+" not in n and n not in members and v >= bar),
+            (n for n, v in strength.items() if "+" not in n and n not in members and v > 0 and v >= bar),
             key=lambda n: -strength[n],
         )
         taken = 0

@@ -54,6 +54,7 @@ from ..fitting.joint import check_records, fit_joint
 from ..fitting.lsq import WhitenedResiduals, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
 from ..fitting.parametrisation import normalised_model
+from ..fitting.terms import select_terms
 from ..logs import ordinal
 from .design_confirmation import RecordMisfit, confirm, draw_transducer, record_misfit, simulated_gap
 
@@ -180,13 +181,17 @@ class Contender:
     #: Each record's fitted vector ``(P,)`` and sensor zero, in the records' order (empty where
     #: not known): what a draw of the transducer is held to (:func:`record_misfit`).
     runs: tuple = ()
+    #: ``(theta, covariance)`` the confirmation draws the truth from, when not the fit's: the fit
+    #: with the optional terms its record does not support pinned off (:func:`draws_without_unsupported_terms`).
+    draws_from: tuple | None = None
 
 
-def contender(name: str, model: Model, theta, covariance, runs=None) -> Contender:
+def contender(name: str, model: Model, theta, covariance, runs=None, draws_from=None) -> Contender:
     """A :class:`Contender` from a fit: its vector and covariance over ``model``'s columns; the
     information on the transducer is the inverse of the covariance of its shared parameters (the
     run's own parameters say nothing about a new record). ``runs``: each record's fitted vector
-    and sensor zero (default: one record, fitted at ``theta``)."""
+    and sensor zero (default: one record, fitted at ``theta``); ``draws_from``: the ``(theta,
+    covariance)`` the confirmation draws from (default the fit's)."""
     covariance = np.asarray(covariance, dtype=float)
     theta = np.asarray(theta, dtype=float)
     per_record = np.array([p.per_record for p in model.parameters])
@@ -195,7 +200,27 @@ def contender(name: str, model: Model, theta, covariance, runs=None) -> Contende
     if shared.size:
         info[np.ix_(shared, shared)] = np.linalg.pinv(covariance[np.ix_(shared, shared)], rcond=1e-12, hermitian=True)
     runs = ((theta, 0.0),) if runs is None else tuple((np.asarray(t, dtype=float), float(z)) for t, z in runs)
-    return Contender(name, model, theta, info, covariance, runs)
+    if draws_from is not None:
+        draws_from = (np.asarray(draws_from[0], dtype=float), np.asarray(draws_from[1], dtype=float))
+    return Contender(name, model, theta, info, covariance, runs, draws_from)
+
+
+def draws_without_unsupported_terms(record: Record, fit) -> tuple | None:
+    """``(theta, covariance)`` of ``fit`` (a single record's :class:`~identify.fitting.lsq.FitResult`)
+    with the optional terms ``record`` does not support pinned off (:func:`identify.fitting.terms.select_terms`,
+    the test the study makes before its posterior); None when every term is supported.
+
+    A term the record does not support (a sensor's ambient cycle, a warm-up) fits to about nothing,
+    and its parameters trade along flat and curved directions with the rest of the effect: the
+    covariance's draws wander along them, each still fitting the record, but they extrapolate to a
+    new drive far apart (a long-period sine and the drift's parabola that cancel over the record
+    no longer do over a longer one). The record holds no evidence for those terms, so the
+    prediction's truth is drawn without them; every contender is still refitted with them.
+    """
+    pruned = select_terms(record, fit)
+    if pruned is fit:
+        return None
+    return pruned.theta, pruned.covariance
 
 
 def _joint_runs(jf) -> list:
@@ -204,9 +229,10 @@ def _joint_runs(jf) -> list:
     return [(vectors[0], zeros[0]) for vectors, zeros in rows]
 
 
-def contenders_of(diagnosis, names=None) -> list:
+def contenders_of(diagnosis, names=None, record: Record | None = None) -> list:
     """The contenders of a diagnosis: its tied explanations (or ``names``), each from its fit (the
-    joint fit's for several records)."""
+    joint fit's for several records). With the single ``record`` diagnosed, each draws from its fit
+    without the terms the record does not support (:func:`draws_without_unsupported_terms`)."""
     wanted = list(names) if names is not None else list(diagnosis.tied)
     if len(wanted) < 2:
         raise ValueError(
@@ -228,7 +254,8 @@ def contenders_of(diagnosis, names=None) -> list:
             raise ValueError(
                 f"'{name}' was not fitted by the diagnosis; the fitted explanations are {', '.join(known)}"
             )
-        found.append(contender(name, entry.fit.model, entry.fit.theta, entry.fit.covariance))
+        draws_from = None if record is None else draws_without_unsupported_terms(record, entry.fit)
+        found.append(contender(name, entry.fit.model, entry.fit.theta, entry.fit.covariance, draws_from=draws_from))
     return found
 
 
@@ -695,7 +722,8 @@ def fitted_contenders(records, model: Model, names, noises, *, n_starts: int = 4
                 records[0], model_e, noise=noises[0], n_starts=n_starts, rng=rng, threshold_sign=sign
             )
             sign = _sign_name(fit.model)
-            found.append(contender(name, fit.model, fit.theta, fit.covariance))
+            draws_from = draws_without_unsupported_terms(records[0], fit)
+            found.append(contender(name, fit.model, fit.theta, fit.covariance, draws_from=draws_from))
         else:
             jf = fit_joint(records, model_e, noises, n_starts=n_starts, rng=rng)
             n = jf.model.n_parameters
@@ -777,7 +805,7 @@ def design(
         if diagnosis is None:
             say("diagnosing the records")
             diagnosis = diagnose(records if len(records) > 1 else records[0], model, rng=rng, progress=say)
-        contenders = contenders_of(diagnosis)
+        contenders = contenders_of(diagnosis, record=records[0] if len(records) == 1 else None)
     return design_drive(
         contenders,
         records,

@@ -14,10 +14,12 @@ from dataclasses import replace
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.stats import norm
+from scipy.stats import t as student_t
 
 from ..data.records import Record
 from ..diagnosis import Thresholds
-from ..diagnosis.evidence import gap_noise_sd
+from ..diagnosis.evidence import gap_noise_sd, likelihood_gap
 from ..diagnosis.fits import n_eff
 from ..fitting.lsq import WhitenedResiduals
 from ..fitting.noise import NoiseModel
@@ -30,6 +32,9 @@ __all__ = ["CONFIRM_DRAWS", "RecordMisfit", "record_misfit", "draw_transducer", 
 #: and sample sd): the linear gap holds the truth at its fit, and a record's truth is only known to
 #: within that covariance.
 CONFIRM_DRAWS = 6
+#: The one-sided level of two standard deviations of a normal, Phi(2): the predicted sd is the half-width of
+#: the two-sided interval at this level over 2 (:func:`simulated_gap`).
+TWO_SIGMA_LEVEL = float(norm.cdf(2.0))
 #: A confirmation's draw held to the records is shortened by halvings down to ``2**-DRAW_HALVINGS``
 #: of its step before it falls back on the fit (:func:`draw_transducer`).
 DRAW_HALVINGS = 12
@@ -131,7 +136,7 @@ def _refitted_gap(truth, rival, record: Record, noise: NoiseModel, theta, misfit
     chi2_t, w_t, n_t = fitted[(truth.name, joint)]
     chi2_r, w_r, _ = fitted[(rival.name, joint)]
     if joint:
-        return n_t * math.log(max(chi2_r, 1e-300) / max(chi2_t, 1e-300)), gap_noise_sd(w_t, w_r, n_t)
+        return likelihood_gap(chi2_t, chi2_r, n_t), gap_noise_sd(w_t, w_r, n_t)
     return chi2_r - chi2_t, 2.0 * float(np.linalg.norm(w_r - w_t))
 
 
@@ -195,17 +200,27 @@ def confirm(
 
 def simulated_gap(gaps) -> tuple[float | None, float | None]:
     """The prediction a confirmation gives for one ordered pair: the mean of its realised ``gaps``
-    and their sample standard deviation (over the truth's parameter draws and the noise together;
-    None where fewer than two draws gave a gap)."""
+    and the sd of the next gap predicted from them (None where fewer than two draws gave a gap).
+
+    The draws vary the truth's parameters and the noise together. Their sample sd ``s`` from ``n``
+    draws is itself uncertain (by about a third at six), and the next record's gap is a new draw
+    beside the ``n``: its predictive interval is ``mean +- t s sqrt(1 + 1/n)`` with Student's ``t``
+    of ``n - 1`` degrees of freedom. The sd returned is that interval's half-width at the two-sigma
+    level (95.45 %) over 2, so that ``mean +- 2 sd`` is the interval the next gap falls in that
+    often were the draws normal: ``s sqrt(1 + 1/n) t_{n-1}(0.97725) / 2``.
+    """
     gaps = np.asarray(gaps, dtype=float)
     if gaps.size < 2:
         return None, None
-    return float(gaps.mean()), float(gaps.std(ddof=1))
+    n = gaps.size
+    widening = math.sqrt(1.0 + 1.0 / n) * float(student_t.ppf(TWO_SIGMA_LEVEL, n - 1)) / 2.0
+    return float(gaps.mean()), float(gaps.std(ddof=1)) * widening
 
 
 class RecordMisfit:
-    """How much worse than a contender's fit its transducer vectors fit the records it was fitted
-    on (:func:`record_misfit`): called with vectors ``(B, P)`` (their shared parameters; each
+    """How much worse than a contender's fit its vectors fit the records it was fitted on
+    (:func:`record_misfit`): called with vectors ``(B, P)`` (in the first record, the whole vector:
+    the contender's vector is that record's; in each later record, their shared parameters with the
     record's own as fitted), the chi-square rise summed over the records ``(B,)`` (inf where the
     model is not finite); ``base`` is the records' chi-square at the fit."""
 
@@ -215,15 +230,18 @@ class RecordMisfit:
         for (theta_r, zero_r), record, noise in zip(c.runs, records, noises):
             zeroed = replace(record, displacement=np.asarray(record.displacement) - zero_r) if zero_r else record
             self._parts.append((WhitenedResiduals(zeroed, c.model, noise), theta_r))
-        self.base = float(self.chi2(c.theta)[0])
+        self.base = float(self.chi2(_draw_centre(c)[0])[0])
 
     def chi2(self, thetas) -> np.ndarray:
-        """The records' chi-square ``(B,)`` of transducer vectors ``(B, P)``."""
+        """The records' chi-square ``(B,)`` of vectors ``(B, P)``."""
         thetas = np.atleast_2d(thetas)
         total = np.zeros(thetas.shape[0])
-        for residuals, theta_r in self._parts:
+        for k, (residuals, theta_r) in enumerate(self._parts):
+            # the first record's run parameters are the contender's (a draw moves them too); a later
+            # record keeps its own as fitted
+            taken = slice(None) if k == 0 else self.shared
             rows = np.repeat(theta_r[None, :], thetas.shape[0], axis=0)
-            rows[:, self.shared] = thetas[:, self.shared]
+            rows[:, taken] = thetas[:, taken]
             w, valid = residuals.batch(rows[:, residuals.free])
             total += np.where(valid, np.einsum("ij,ij->i", w, w), np.inf)
         return total
@@ -245,10 +263,21 @@ def record_misfit(c, records, noises) -> RecordMisfit | None:
     return RecordMisfit(c, list(records), list(noises))
 
 
+def _draw_centre(c) -> tuple[np.ndarray, np.ndarray]:
+    """``(theta, covariance)`` a contender's draws come from: its ``draws_from`` where set, else its fit's."""
+    theta, cov = c.draws_from if c.draws_from is not None else (c.theta, c.covariance)
+    return np.array(theta, dtype=float), np.asarray(cov, dtype=float)
+
+
 def draw_transducer(c, rng, misfit=None) -> np.ndarray:
-    """A draw of the contender's transducer parameters from its fit's covariance, within two standard
-    deviations along each of the covariance's own axes (a poorly determined combination is not sent
-    to a bound); the run's own parameters as fitted.
+    """A draw of the contender's parameters from its fit's covariance (from its ``draws_from``, the fit
+    without the terms its record does not support, where set), within two standard deviations along
+    each of the covariance's own axes (a poorly determined combination is not sent to a bound).
+
+    The run's own parameters (a sensor's drift, a training state) are drawn too: the next run's are
+    taken to be like the first record's, and that record's fit knows them only to within its
+    covariance. Held at the fit, they would give every draw the same drift on the new record, and a
+    prediction whose spread leaves out what is least known about the next run.
 
     With ``misfit`` (:func:`record_misfit`) the draw is held to the records it was fitted on: a
     covariance is the fit's linearisation, and along a loosely determined nonlinear combination (a
@@ -257,10 +286,8 @@ def draw_transducer(c, rng, misfit=None) -> np.ndarray:
     draw keeps its direction and goes as far along it as the records allow that rise (the largest
     of the step's halvings, then refined between it and the next), the fit itself where none does.
     """
-    cov = np.asarray(c.covariance, dtype=float)
-    per_record = np.array([p.per_record for p in c.model.parameters])
-    free = np.flatnonzero((np.diag(cov) > 0) & ~per_record)
-    theta = np.array(c.theta, dtype=float)
+    theta, cov = _draw_centre(c)
+    free = np.flatnonzero(np.diag(cov) > 0)
     lower, upper = c.model.parameters.lower, c.model.parameters.upper
     if not free.size:
         return np.clip(theta, lower, upper)
