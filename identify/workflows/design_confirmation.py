@@ -28,9 +28,9 @@ from ..fitting.threads import single_threaded_blas
 __all__ = ["CONFIRM_DRAWS", "RecordMisfit", "record_misfit", "draw_transducer", "confirm", "simulated_gap"]
 
 #: Draws per contender in a confirmation: the contender's parameters from its fit's covariance and
-#: the noise, both fresh in each draw. Their realised gaps are the calibrated prediction (their mean
-#: and sample sd): the linear gap holds the truth at its fit, and a record's truth is only known to
-#: within that covariance.
+#: the noise, both fresh in each draw. Their realised gaps are the calibrated prediction (their
+#: mean and the next gap's sd, :func:`simulated_gap`): the linear gap holds the truth at its fit,
+#: and a record's truth is only known to within that covariance.
 CONFIRM_DRAWS = 6
 #: The one-sided level of two standard deviations of a normal, Phi(2): the predicted sd is the half-width of
 #: the two-sided interval at this level over 2 (:func:`simulated_gap`).
@@ -222,7 +222,8 @@ class RecordMisfit:
     (:func:`record_misfit`): called with vectors ``(B, P)`` (in the first record, the whole vector:
     the contender's vector is that record's; in each later record, their shared parameters with the
     record's own as fitted), the chi-square rise summed over the records ``(B,)`` (inf where the
-    model is not finite); ``base`` is the records' chi-square at the fit."""
+    model is not finite); ``base`` is the records' chi-square where the draws are centred (the fit,
+    or the contender's ``draws_from``)."""
 
     def __init__(self, c, records, noises):
         self.shared = ~np.array([p.per_record for p in c.model.parameters])
