@@ -32,8 +32,8 @@ by simulation: each contender, drawn from its fit's covariance and held to the r
 it nonlinearly, held by the records' information, and the right names are counted
 (:func:`confirm`). The confirmed drive with the highest smallest share of right names is
 proposed, confirmed again on every sample with every contender refitted on the new record and
-the records already taken together (the joint diagnosis's fit and gap): its realised gaps (their mean
-and the next gap's sd) are the calibrated prediction beside the linear one.
+the records already taken together (the joint diagnosis's fit and gap): its realised gaps (their
+mean and the next gap's sd) are the calibrated prediction beside the linear one.
 """
 
 from __future__ import annotations

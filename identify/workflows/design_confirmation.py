@@ -151,7 +151,7 @@ def confirm(
     misfits=None,
     every_record: bool = True,
 ) -> list:
-    """Each contender as the truth, drawn from its fit's covariance, drives the proposed record
+    """Each contender as the truth, drawn (:func:`draw_transducer`), drives the proposed record
     (every ``step``-th sample) with noise; every contender is refitted on it
     (:func:`_penalised_refit`); a right name is the truth ahead of every rival by the decision's
     margins. Per ordered pair: the realised gaps and the share of right names (on the decimated
