@@ -1016,6 +1016,16 @@ def test_add_and_refusals():
     assert EFFECTS == before
 
 
+def test_without_undoes_add_and_keeps_settings():
+    m = Model(["thermal", "creep"])
+    pinned = m.with_parameters(m.parameters.replace("creep_decades", value=0.5, vary=False))
+    assert pinned.without("thermal") + "thermal" == pinned
+    assert not pinned.without("thermal").parameters["creep_decades"].vary
+    assert Model(["lag"]).without("lag") == Model()
+    with pytest.raises(KeyError, match="'lag' is not in this model"):
+        m.without("lag")
+
+
 def test_thermal_tabulated_steps_equal_the_per_sample_filter():
     """The thermal kernel tabulates the filter coefficients per distinct sample step and runs
     four parameter sets in lockstep: bit for bit the per-sample computation of each set
