@@ -413,3 +413,33 @@ def test_with_the_records_the_confirmation_refits_every_record_as_the_joint_diag
         gaps[name] = next(r for r in rows if r["truth"] == "thermal")["realised_gaps"]
     assert all(np.isfinite(gaps["heated"] + gaps["cold"]))
     assert min(gaps["heated"]) > max(gaps["cold"])
+
+
+def test_a_rival_fitted_in_another_basin_is_also_refitted_from_where_the_new_record_puts_it():
+    """A creep whose fit sits at a time constant the new record does not show (0.05 s against 30 s)
+    stays there when refitted from its fit, its transducer held; the screening's grid point, gains
+    off, is among its starts and refits as low as a refit from the truth. Every start differs from
+    the fit only in the explanation's parameters."""
+    from identify.workflows.design import penalised_refit, rival_starts
+
+    sim = simulate("creep_amplitude=0.03,creep_tau=30", seed=1, fs=5.0)
+    model = normalised_model(Model(["creep"]))
+    truth = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    names = list(model.names)
+    creep = np.array([n.startswith("creep") for n in names])
+    wrong = truth.copy()
+    wrong[names.index("creep_tau")], wrong[names.index("creep_decades")] = 0.05, 0.3
+    # the records hold the transducer tightly and say nothing of the creep
+    c = contender("creep", model, wrong, np.diag(np.where(model.parameters.vary, np.where(creep, 1e4, 1e-6), 0.0)))
+    noise = estimate_noise(sim.record)
+    starts = rival_starts(c, sim.record, noise)
+    assert np.array_equal(starts[0], wrong) and len(starts) > 1
+    assert all(np.array_equal(s[~creep], wrong[~creep]) for s in starts)
+    assert any(s[names.index("creep_amplitude")] == 0.0 for s in starts[1:])  # gains off
+
+    def refit(theta):
+        return penalised_refit(c, sim.record, noise, theta)[0]
+
+    best, from_fit, at_truth = min(map(refit, starts)), refit(wrong), refit(truth)
+    assert best <= 1.01 * at_truth
+    assert from_fit > at_truth + 100.0

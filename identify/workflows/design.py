@@ -56,7 +56,15 @@ from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
 from ..fitting.parametrisation import normalised_model
 from ..fitting.terms import select_terms
 from ..logs import ordinal
-from .design_confirmation import RecordMisfit, confirm, draw_transducer, record_misfit, simulated_gap
+from .design_confirmation import (
+    RecordMisfit,
+    confirm,
+    draw_transducer,
+    penalised_refit,
+    record_misfit,
+    rival_starts,
+    simulated_gap,
+)
 
 __all__ = [
     "RigLimits",
@@ -74,6 +82,8 @@ __all__ = [
     "RecordMisfit",
     "record_misfit",
     "draw_transducer",
+    "rival_starts",
+    "penalised_refit",
     "simulated_gap",
     "longer_records",
 ]

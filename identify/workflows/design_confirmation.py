@@ -20,12 +20,22 @@ from scipy.stats import t as student_t
 from ..data.records import Record
 from ..diagnosis import Thresholds
 from ..diagnosis.evidence import gap_noise_sd, likelihood_gap
-from ..diagnosis.fits import n_eff
+from ..diagnosis.fits import embed, n_eff, with_values
+from ..diagnosis.screening import screen_one
 from ..fitting.lsq import WhitenedResiduals
 from ..fitting.noise import NoiseModel
 from ..fitting.threads import single_threaded_blas
 
-__all__ = ["CONFIRM_DRAWS", "RecordMisfit", "record_misfit", "draw_transducer", "confirm", "simulated_gap"]
+__all__ = [
+    "CONFIRM_DRAWS",
+    "RecordMisfit",
+    "record_misfit",
+    "draw_transducer",
+    "rival_starts",
+    "penalised_refit",
+    "confirm",
+    "simulated_gap",
+]
 
 #: Draws per contender in a confirmation: the contender's parameters from its fit's covariance and
 #: the noise, both fresh in each draw. Their realised gaps are the calibrated prediction (their
@@ -54,9 +64,18 @@ def _solve_with_zero(objective, jacobian, residuals: WhitenedResiduals, theta0) 
     return sol.x
 
 
-def _penalised_refit(c, record: Record, noise: NoiseModel, theta0) -> tuple[float, np.ndarray]:
-    """``c`` refitted on ``record`` (its transducer held by the records' information, the new run's
-    parameters and zero free), from ``theta0``: ``(chi2 with the penalty, whitened residual)``."""
+def _ended(theta0, free, z) -> np.ndarray:
+    """``theta0`` with the free values of a refit's end ``z`` (its sensor zero last, dropped)."""
+    theta = np.array(theta0, dtype=float)
+    theta[free] = z[:-1]
+    return theta
+
+
+def penalised_refit(c, record: Record, noise: NoiseModel, theta0) -> tuple[float, np.ndarray, np.ndarray]:
+    """``c`` refitted on ``record`` (its transducer held by the records' information, the inverse of
+    its covariance; the new run's parameters and sensor zero free), from ``theta0``, by a short
+    bounded least squares (at most 40 evaluations): ``(chi2 with the penalty, whitened residual
+    (T,), the full vector it ends at (P,))``."""
     residuals = WhitenedResiduals(record, c.model, noise)
     free = residuals.free
     info = c.info[np.ix_(free, free)]
@@ -76,15 +95,17 @@ def _penalised_refit(c, record: Record, noise: NoiseModel, theta0) -> tuple[floa
         jac[record.time.size :, :-1] = root
         return jac
 
-    r = objective(_solve_with_zero(objective, jacobian, residuals, theta0))
-    return float(r @ r), r[: record.time.size]
+    z = _solve_with_zero(objective, jacobian, residuals, theta0)
+    r = objective(z)
+    return float(r @ r), r[: record.time.size], _ended(theta0, free, z)
 
 
 def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMisfit):
     """``c`` refitted on ``record`` and the records already taken together, from ``theta0``: the
     transducer shared, each earlier record's own parameters as fitted, the new run's own and its
     sensor zero free (what the joint diagnosis fits). ``(chi2, whitened residual over every
-    record, the earlier ones first, effective sample size summed per record)``."""
+    record, the earlier ones first, effective sample size summed per record, the full vector it
+    ends at)``."""
     residuals = WhitenedResiduals(record, c.model, noise)
     free = residuals.free
     shared = np.flatnonzero(misfit.shared[free])  # the transducer's columns among the free ones
@@ -112,29 +133,84 @@ def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMis
         jac[row:, -1] = -scale
         return jac
 
-    w = objective(_solve_with_zero(objective, jacobian, residuals, theta0))
+    z = _solve_with_zero(objective, jacobian, residuals, theta0)
+    w = objective(z)
     n = sum(n_eff(part) for part in np.split(w, np.cumsum(sizes)[:-1]))
-    return float(w @ w), w, float(n)
+    return float(w @ w), w, float(n), _ended(theta0, free, z)
 
 
-def _refitted_gap(truth, rival, record: Record, noise: NoiseModel, theta, misfits, fitted, every_record=True):
+def rival_starts(c, record: Record, noise: NoiseModel) -> list:
+    """Where a rival's refit on a new ``record`` starts: its fit, then, for each effect of its
+    explanation, its fit with that effect's parameters where the screening of the new record puts
+    them (:func:`identify.diagnosis.screening.screen_one` from the fit less the effect): at the
+    best grid point with its gains off, and after the screening's step of them.
+
+    A slow effect's fit on the first record sits in the basin that record's drive chose (a time
+    constant, an onset). On a new drive the rival's best mimicry of the truth can lie in another
+    basin, which the joint diagnosis finds from its own searches of the new record; a refit from
+    the fit alone stays in the old one and credits the design with a gap the rival would close.
+    The gains start off (and the shape at the grid point) as well as stepped because the step is
+    the new record's alone and can take the sign the records together refuse. Full vectors ``(P,)``.
+    """
+    starts = [np.asarray(c.theta, dtype=float)]
+    for effect in c.model.effect_names:
+        if effect not in c.name.split("+"):
+            continue  # an effect of the model diagnosed, not of this explanation
+        base = c.model.without(effect)
+        with single_threaded_blas():
+            screening = screen_one(record, base, embed(c.model, c.theta, base, drop_extra=True), noise, effect)
+        if not screening.grid_point:
+            continue
+        columns = c.model.names[c.model.effect_slice(effect)]
+        stepped = dict(zip(columns, screening.start[c.model.effect_slice(effect)]))
+        for values in (screening.grid_point, stepped):
+            start = with_values(c.model, c.theta, values)
+            if c.model.in_bounds(start)[0] and not any(np.array_equal(start, s) for s in starts):
+                starts.append(start)
+    return starts
+
+
+def _with_no_n(refit) -> tuple:
+    """A :func:`penalised_refit`'s ``(chi2, w, end)`` as a joint refit's ``(chi2, w, n_eff, end)``
+    (no effective sample size: its gap is a chi-square difference)."""
+    chi2, w, end = refit
+    return chi2, w, None, end
+
+
+def _lowest_refit(refit, starts):
+    """The lowest chi-square of ``refit(start)`` (a tuple whose first item is the chi-square) over ``starts``."""
+    return min((refit(start) for start in starts), key=lambda out: out[0])
+
+
+def _refitted_gap(
+    truth, rival, record: Record, noise: NoiseModel, theta, misfits, fitted, every_record=True, carried=None
+):
     """``(gap, sd)`` of ``rival`` against ``truth`` on a simulated ``record`` (``fitted`` caches
     the refits by name; ``theta`` is the truth's draw): with both contenders' records
     (``misfits``), each refitted on every record and the gap the joint diagnosis's (the
     likelihood gap ``n_eff ln(chi2_rival / chi2_truth)`` and its noise sd,
     :mod:`identify.diagnosis.evidence`); otherwise on the new record with the transducer held by
     the records' information, the chi-square gap and ``2 |r_rival - r_truth|`` (also where not
-    ``every_record``)."""
+    ``every_record``). ``carried`` (rival name -> the vector its refit ended at in the truth's
+    previous draw) adds a start to the rival's and is updated."""
     joint = every_record and truth.name in misfits and rival.name in misfits
-    for c, start in ((truth, theta), (rival, rival.theta)):
+    carried = {} if carried is None else carried
+    for c, starts in ((truth, [theta]), (rival, None)):
         if (c.name, joint) not in fitted:
+            if starts is None:
+                starts = rival_starts(c, record, noise)
+                before = carried.get((c.name, joint))
+                if before is not None and not any(np.array_equal(before, s) for s in starts):
+                    starts.append(before)
             fitted[(c.name, joint)] = (
-                _joint_refit(c, record, noise, start, misfits[c.name])
+                _lowest_refit(lambda s, c=c: _joint_refit(c, record, noise, s, misfits[c.name]), starts)
                 if joint
-                else (*_penalised_refit(c, record, noise, start), None)
+                else _lowest_refit(lambda s, c=c: _with_no_n(penalised_refit(c, record, noise, s)), starts)
             )
-    chi2_t, w_t, n_t = fitted[(truth.name, joint)]
-    chi2_r, w_r, _ = fitted[(rival.name, joint)]
+            if c is rival:
+                carried[(c.name, joint)] = fitted[(c.name, joint)][-1]
+    chi2_t, w_t, n_t, _ = fitted[(truth.name, joint)]
+    chi2_r, w_r, _, _ = fitted[(rival.name, joint)]
     if joint:
         return likelihood_gap(chi2_t, chi2_r, n_t), gap_noise_sd(w_t, w_r, n_t)
     return chi2_r - chi2_t, 2.0 * float(np.linalg.norm(w_r - w_t))
@@ -153,19 +229,23 @@ def confirm(
 ) -> list:
     """Each contender as the truth, drawn (:func:`draw_transducer`), drives the proposed record
     (every ``step``-th sample) with noise; every contender is refitted on it
-    (:func:`_penalised_refit`); a right name is the truth ahead of every rival by the decision's
+    (:func:`penalised_refit`); a right name is the truth ahead of every rival by the decision's
     margins. Per ordered pair: the realised gaps and the share of right names (on the decimated
     record when ``step > 1``: fewer samples, less to tell the contenders apart by). ``misfits``:
     each contender's :func:`record_misfit` by name, which holds its draws to the records; where
     both contenders of a pair have one and ``every_record``, both are refitted on every record
     together and the gap is the joint diagnosis's (:func:`_refitted_gap`); without
-    ``every_record`` (a quicker ranking) on the new record, held by the records' information."""
+    ``every_record`` (a quicker ranking) on the new record, held by the records' information. A
+    rival's refit starts from its fit, from where the new record's screening puts its effects
+    (:func:`rival_starts`) and from where its refit ended in the truth's previous draw (a basin
+    found once is not lost to the next draw's noise), the lowest kept."""
     misfits = misfits or {}
     time, current = drive.time[::step], drive.current[::step]
     rows = []
     for truth in contenders:
         realised = {rival.name: [] for rival in contenders if rival is not truth}
         right = 0
+        carried = {}  # where each rival's refit ended in the previous draw: a start in the next
         for _ in range(draws):
             theta = draw_transducer(truth, rng, misfits.get(truth.name))
             y, valid = truth.model.evaluate(theta, time, current)
@@ -178,7 +258,7 @@ def confirm(
             for rival in contenders:
                 if rival is truth:
                     continue
-                gap, sd = _refitted_gap(truth, rival, record, noise, theta, misfits, fitted, every_record)
+                gap, sd = _refitted_gap(truth, rival, record, noise, theta, misfits, fitted, every_record, carried)
                 realised[rival.name].append(gap)
                 ok &= gap > th.bic_significant and (sd == 0 or gap / sd > th.gap_z)
             right += ok
