@@ -29,7 +29,8 @@ amplitude falls and rises again, a quiet end), ``steps`` (a staircase of held cu
 ``probe_blocks`` (blocks of high power between small probe cycles). The best few are confirmed
 by simulation: each contender, drawn from its fit's covariance and held to the records
 (:func:`draw_transducer`), drives the proposed record with noise; every rival is refitted on
-it nonlinearly, held by the records' information, and the right names are counted
+it nonlinearly, held by the records' information, from its fit and from where the new record's
+screening puts its effects (:func:`rival_starts`), and the right names are counted
 (:func:`confirm`). The confirmed drive with the highest smallest share of right names is
 proposed, confirmed again on every sample with every contender refitted on the new record and
 the records already taken together (the joint diagnosis's fit and gap): its realised gaps (their

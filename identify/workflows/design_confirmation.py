@@ -182,33 +182,47 @@ def _lowest_refit(refit, starts):
     return min((refit(start) for start in starts), key=lambda out: out[0])
 
 
-def _refitted_gap(
-    truth, rival, record: Record, noise: NoiseModel, theta, misfits, fitted, every_record=True, carried=None
-):
-    """``(gap, sd)`` of ``rival`` against ``truth`` on a simulated ``record`` (``fitted`` caches
-    the refits by name; ``theta`` is the truth's draw): with both contenders' records
-    (``misfits``), each refitted on every record and the gap the joint diagnosis's (the
-    likelihood gap ``n_eff ln(chi2_rival / chi2_truth)`` and its noise sd,
-    :mod:`identify.diagnosis.evidence`); otherwise on the new record with the transducer held by
-    the records' information, the chi-square gap and ``2 |r_rival - r_truth|`` (also where not
-    ``every_record``). ``carried`` (rival name -> the vector its refit ended at in the truth's
-    previous draw) adds a start to the rival's and is updated."""
-    joint = every_record and truth.name in misfits and rival.name in misfits
-    carried = {} if carried is None else carried
-    for c, starts in ((truth, [theta]), (rival, None)):
-        if (c.name, joint) not in fitted:
-            if starts is None:
-                starts = rival_starts(c, record, noise)
-                before = carried.get((c.name, joint))
-                if before is not None and not any(np.array_equal(before, s) for s in starts):
-                    starts.append(before)
-            fitted[(c.name, joint)] = (
-                _lowest_refit(lambda s, c=c: _joint_refit(c, record, noise, s, misfits[c.name]), starts)
-                if joint
-                else _lowest_refit(lambda s, c=c: _with_no_n(penalised_refit(c, record, noise, s)), starts)
-            )
-            if c is rival:
-                carried[(c.name, joint)] = fitted[(c.name, joint)][-1]
+def _joint_pair(truth, rival, misfits, every_record: bool) -> bool:
+    """Whether the pair is refitted on every record together (both have their records' misfits)."""
+    return every_record and truth.name in misfits and rival.name in misfits
+
+
+def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits) -> tuple:
+    """``c`` refitted on ``record`` from each of ``starts``, the lowest kept: on every record
+    together (:func:`_joint_refit`) or held by the records' information (:func:`penalised_refit`).
+    ``(chi2, whitened residual, n_eff or None, the vector it ends at)``."""
+    if joint:
+        return _lowest_refit(lambda s: _joint_refit(c, record, noise, s, misfits[c.name]), starts)
+    return _lowest_refit(lambda s: _with_no_n(penalised_refit(c, record, noise, s)), starts)
+
+
+def _refit_draw(truth, contenders, record: Record, noise: NoiseModel, theta, misfits, every_record, carried) -> dict:
+    """Every contender refitted on one simulated ``record`` of ``truth`` (drawn at ``theta``), by
+    ``(name, joint)``: the truth from its draw, each rival from :func:`rival_starts` and from where
+    its refit ended in the previous draw (``carried``, updated)."""
+    fitted = {}
+    for rival in contenders:
+        if rival is truth:
+            continue
+        joint = _joint_pair(truth, rival, misfits, every_record)
+        if (truth.name, joint) not in fitted:
+            fitted[(truth.name, joint)] = _refit(truth, record, noise, [theta], joint, misfits)
+        key = (rival.name, joint)
+        starts = rival_starts(rival, record, noise)
+        before = carried.get(key)
+        if before is not None and not any(np.array_equal(before, s) for s in starts):
+            starts.append(before)
+        fitted[key] = _refit(rival, record, noise, starts, joint, misfits)
+        carried[key] = fitted[key][-1]
+    return fitted
+
+
+def _gap(truth, rival, fitted: dict, misfits, every_record) -> tuple[float, float]:
+    """``(gap, sd)`` of ``rival`` against ``truth`` from one draw's refits: on every record together,
+    the joint diagnosis's likelihood gap ``n_eff ln(chi2_rival / chi2_truth)`` and its noise sd
+    (:mod:`identify.diagnosis.evidence`); otherwise the chi-square gap on the new record and
+    ``2 |r_rival - r_truth|``."""
+    joint = _joint_pair(truth, rival, misfits, every_record)
     chi2_t, w_t, n_t, _ = fitted[(truth.name, joint)]
     chi2_r, w_r, _, _ = fitted[(rival.name, joint)]
     if joint:
@@ -234,18 +248,21 @@ def confirm(
     record when ``step > 1``: fewer samples, less to tell the contenders apart by). ``misfits``:
     each contender's :func:`record_misfit` by name, which holds its draws to the records; where
     both contenders of a pair have one and ``every_record``, both are refitted on every record
-    together and the gap is the joint diagnosis's (:func:`_refitted_gap`); without
-    ``every_record`` (a quicker ranking) on the new record, held by the records' information. A
-    rival's refit starts from its fit, from where the new record's screening puts its effects
-    (:func:`rival_starts`) and from where its refit ended in the truth's previous draw (a basin
-    found once is not lost to the next draw's noise), the lowest kept."""
+    together and the gap is the joint diagnosis's; without ``every_record`` (a quicker ranking) on
+    the new record, held by the records' information.
+
+    A rival's refit starts from its fit, from where the new record's screening puts its effects
+    (:func:`rival_starts`) and from where its refit ended in the truth's previous draw, and the
+    draws before the last are refitted once more from where the last ended: the lowest is kept, so
+    that a basin one draw finds is the rival's in every draw (as the joint diagnosis's search would
+    find it on whichever record is measured)."""
     misfits = misfits or {}
+    by_name = {c.name: c for c in contenders}
     time, current = drive.time[::step], drive.current[::step]
     rows = []
     for truth in contenders:
-        realised = {rival.name: [] for rival in contenders if rival is not truth}
-        right = 0
-        carried = {}  # where each rival's refit ended in the previous draw: a start in the next
+        carried = {}  # where each rival's refit ended in the previous draw
+        runs = []
         for _ in range(draws):
             theta = draw_transducer(truth, rng, misfits.get(truth.name))
             y, valid = truth.model.evaluate(theta, time, current)
@@ -253,12 +270,21 @@ def confirm(
                 continue
             data = y[0] + noise.sigma * rng.standard_normal(time.size)
             record = Record(time, current, data, source="simulated next record", sha256="")
-            fitted = {}
+            runs.append((record, _refit_draw(truth, contenders, record, noise, theta, misfits, every_record, carried)))
+        for record, fitted in runs[:-1]:  # a basin a later draw found, tried on the earlier ones
+            for key, end in carried.items():
+                if not np.array_equal(fitted[key][-1], end):
+                    again = _refit(by_name[key[0]], record, noise, [end], key[1], misfits)
+                    if again[0] < fitted[key][0]:
+                        fitted[key] = again
+        realised = {rival.name: [] for rival in contenders if rival is not truth}
+        right = 0
+        for _, fitted in runs:
             ok = True
             for rival in contenders:
                 if rival is truth:
                     continue
-                gap, sd = _refitted_gap(truth, rival, record, noise, theta, misfits, fitted, every_record, carried)
+                gap, sd = _gap(truth, rival, fitted, misfits, every_record)
                 realised[rival.name].append(gap)
                 ok &= gap > th.bic_significant and (sd == 0 or gap / sd > th.gap_z)
             right += ok
