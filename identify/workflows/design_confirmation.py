@@ -142,15 +142,15 @@ def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMis
 def rival_starts(c, record: Record, noise: NoiseModel) -> list:
     """Where a rival's refit on a new ``record`` starts: its fit, then, for each effect of its
     explanation, its fit with that effect's parameters where the screening of the new record puts
-    them (:func:`identify.diagnosis.screening.screen_one` from the fit less the effect): at the
-    best grid point with its gains off, and after the screening's step of them.
+    them (:func:`identify.diagnosis.screening.screen_one` from the fit less the effect): its shape
+    at the best grid point, its gains off.
 
     A slow effect's fit on the first record sits in the basin that record's drive chose (a time
     constant, an onset). On a new drive the rival's best mimicry of the truth can lie in another
     basin, which the joint diagnosis finds from its own searches of the new record; a refit from
     the fit alone stays in the old one and credits the design with a gap the rival would close.
-    The gains start off (and the shape at the grid point) as well as stepped because the step is
-    the new record's alone and can take the sign the records together refuse. Full vectors ``(P,)``.
+    The gains start off, not at the screening's step, because the step is the new record's alone
+    and can take a sign the records together refuse. Full vectors ``(P,)``.
     """
     starts = [np.asarray(c.theta, dtype=float)]
     for effect in c.model.effect_names:
@@ -161,12 +161,9 @@ def rival_starts(c, record: Record, noise: NoiseModel) -> list:
             screening = screen_one(record, base, embed(c.model, c.theta, base, drop_extra=True), noise, effect)
         if not screening.grid_point:
             continue
-        columns = c.model.names[c.model.effect_slice(effect)]
-        stepped = dict(zip(columns, screening.start[c.model.effect_slice(effect)]))
-        for values in (screening.grid_point, stepped):
-            start = with_values(c.model, c.theta, values)
-            if c.model.in_bounds(start)[0] and not any(np.array_equal(start, s) for s in starts):
-                starts.append(start)
+        start = with_values(c.model, c.theta, screening.grid_point)
+        if c.model.in_bounds(start)[0] and not any(np.array_equal(start, s) for s in starts):
+            starts.append(start)
     return starts
 
 
