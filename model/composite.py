@@ -113,22 +113,20 @@ class Model:
             extra = list(effect)
         else:
             extra = [effect]
-        out = Model(list(self.effects) + extra, self.n_operators, self.reading, self.parameters[: len(THETA_NAMES)])
-        kept = {p.name: p for p in self.parameters}  # the effects already here keep their settings (pins, bounds)
-        return out.with_parameters(ParameterSet(kept.get(p.name, p) for p in out.parameters))
+        return self._with_effects(list(self.effects) + extra)
 
     def without(self, effect: str) -> Model:
         """The model less ``effect``, every other parameter keeping its settings (pins, bounds):
         ``m.without(e) + e == m``. An effect not in the model is a KeyError naming the model's."""
         self.effect_slice(effect)  # the KeyError that names the model's effects
-        out = Model(
-            [e for e in self.effects if e.name != effect],
-            self.n_operators,
-            self.reading,
-            self.parameters[: len(THETA_NAMES)],
-        )
+        return self._with_effects([e for e in self.effects if e.name != effect])
+
+    def _with_effects(self, effects) -> Model:
+        """A model of ``effects`` with this one's operators, reading and GPI settings, where every
+        parameter it shares with this one keeps its settings (pins, bounds); a new effect's are its own."""
+        out = Model(effects, self.n_operators, self.reading, self.parameters[: len(THETA_NAMES)])
         kept = {p.name: p for p in self.parameters}
-        return out.with_parameters(ParameterSet(kept[p.name] for p in out.parameters))
+        return out.with_parameters(ParameterSet(kept.get(p.name, p) for p in out.parameters))
 
     def with_parameters(self, parameters) -> Model:
         """A copy with other parameter settings (values, bounds, pins): ``parameters`` must
