@@ -157,14 +157,18 @@ def rival_starts(c, record: Record, noise: NoiseModel) -> list:
         if effect not in c.name.split("+"):
             continue  # an effect of the model diagnosed, not of this explanation
         base = c.model.without(effect)
-        with single_threaded_blas():
-            screening = screen_one(record, base, embed(c.model, c.theta, base, drop_extra=True), noise, effect)
-        if not screening.grid_point:
-            continue
-        start = with_values(c.model, c.theta, screening.grid_point)
-        if c.model.in_bounds(start)[0] and not any(np.array_equal(start, s) for s in starts):
-            starts.append(start)
+        screening = screen_one(record, base, embed(c.model, c.theta, base, drop_extra=True), noise, effect)
+        if screening.grid_point:
+            start = with_values(c.model, c.theta, screening.grid_point)
+            if c.model.in_bounds(start)[0]:
+                _add_start(starts, start)
     return starts
+
+
+def _add_start(starts: list, start) -> None:
+    """Append ``start`` to ``starts`` unless an equal vector is there already."""
+    if not any(np.array_equal(start, s) for s in starts):
+        starts.append(start)
 
 
 def _with_no_n(refit) -> tuple:
@@ -206,9 +210,8 @@ def _refit_draw(truth, contenders, record: Record, noise: NoiseModel, theta, mis
             fitted[(truth.name, joint)] = _refit(truth, record, noise, [theta], joint, misfits)
         key = (rival.name, joint)
         starts = rival_starts(rival, record, noise)
-        before = carried.get(key)
-        if before is not None and not any(np.array_equal(before, s) for s in starts):
-            starts.append(before)
+        if key in carried:
+            _add_start(starts, carried[key])
         fitted[key] = _refit(rival, record, noise, starts, joint, misfits)
         carried[key] = fitted[key][-1]
     return fitted
