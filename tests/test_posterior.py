@@ -168,6 +168,32 @@ def test_initial_walkers_follow_the_covariance_not_a_tiny_ball(problem):
         initial_walkers(log_post, bad_mean, cov, 10, np.random.default_rng(0))
 
 
+@pytest.mark.parametrize("coordinates", ["gpi", "identity"])
+def test_initial_walkers_start_in_the_typical_set_of_a_too_wide_approximation(problem, coordinates):
+    """A covariance nine times too wide puts many draws far below the solution's
+    log-posterior; every walker kept lies within the drop a Gaussian posterior's draws reach."""
+    from scipy.stats import chi2
+
+    _rec, _model, _fit, log_post, mean, cov = problem
+    walkers = initial_walkers(log_post, mean, 9.0 * cov, 100, np.random.default_rng(3), coordinates=coordinates)
+    drop = log_post(mean) - log_post(walkers)
+    assert np.all(drop <= 0.5 * chi2.ppf(1 - 1e-6, mean.size))
+    assert np.unique(walkers, axis=0).shape[0] == 100
+
+
+def test_initial_walkers_follow_the_posterior_in_the_sampler_coordinates(problem):
+    """Carried into the sampler coordinates, the Laplace approximation is close to the posterior:
+    the walkers' log-posterior drops below the solution's are those of Gaussian draws (chi-square
+    with D degrees of freedom, halved: median 8.7 for 18 parameters)."""
+    from scipy.stats import chi2
+
+    _rec, _model, _fit, log_post, mean, cov = problem
+    walkers = initial_walkers(log_post, mean, cov, 200, np.random.default_rng(4))
+    drop = log_post(mean) - log_post(walkers)
+    expected = 0.5 * chi2.median(mean.size)
+    assert 0.6 * expected < np.median(drop) < 1.4 * expected
+
+
 def test_unconstrained_parameter_still_gets_a_spread(problem):
     """A zero variance in the least-squares covariance (a parameter the data do not
     constrain) must not put every walker on the same value (emcee would refuse)."""
