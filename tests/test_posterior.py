@@ -181,6 +181,20 @@ def test_initial_walkers_start_in_the_typical_set_of_a_too_wide_approximation(pr
     assert np.unique(walkers, axis=0).shape[0] == 100
 
 
+def test_walkers_the_typical_set_cannot_hold_are_the_best_draws_below_it(problem):
+    """With one round of draws from a far too wide covariance, the walkers still missing take the
+    highest of the finite draws below the typical set; with none inside the support it is an error."""
+    _rec, _model, _fit, log_post, mean, cov = problem
+    from scipy.stats import chi2
+
+    walkers = initial_walkers(log_post, mean, 4.0 * cov, 36, np.random.default_rng(5), max_rounds=1)
+    drop = log_post(mean) - log_post(walkers)
+    assert walkers.shape == (36, mean.size) and np.isfinite(drop).all()
+    assert np.any(drop > 0.5 * chi2.ppf(1 - 1e-6, mean.size))  # some came from below the typical set
+    with pytest.raises(ValueError, match="inside the posterior's support"):
+        initial_walkers(log_post, mean, 1e12 * cov, 36, np.random.default_rng(5), max_rounds=1)
+
+
 def test_initial_walkers_follow_the_posterior_in_the_sampler_coordinates(problem):
     """Carried into the sampler coordinates, the Laplace approximation is close to the posterior:
     the walkers' log-posterior drops below the solution's are those of Gaussian draws (chi-square

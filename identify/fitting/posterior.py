@@ -454,7 +454,8 @@ def initial_walkers(
     n_walkers : int
     rng : numpy.random.Generator
     max_rounds : int, default 200
-        Redraw rounds; every 20 rounds without success the covariance is halved.
+        Redraw rounds; every 20 rounds without success the covariance is halved. Walkers still
+        missing after them take the highest of the draws below the typical set.
     coordinates : str or callable, default "gpi"
         Where the approximation is Gaussian (:data:`identify.fitting.coordinates.COORDINATES`):
         ``covariance`` is carried there by the map's Jacobian at ``mean`` and the draws are
@@ -469,7 +470,7 @@ def initial_walkers(
     Raises
     ------
     ValueError
-        When ``mean`` itself is outside the support or no draws land in the typical set.
+        When ``mean`` itself is outside the support or too few draws land inside it.
 
     Notes
     -----
@@ -498,22 +499,27 @@ def initial_walkers(
     cov = _full_rank(cov)
     walkers = np.empty((n_walkers, mean.size))
     missing = np.arange(n_walkers)
+    reserve, reserve_lp = np.empty((0, mean.size)), np.empty(0)  # finite draws below the typical set
     shrink = 1.0
     for round_ in range(max_rounds):
         draws = coords.inverse(rng.multivariate_normal(centre, shrink * cov, size=missing.size, method="eigh"))
         with np.errstate(invalid="ignore"):
-            good = np.isfinite(draws).all(axis=1)
-            good[good] = log_post(draws[good]) >= lowest
+            lp = np.full(missing.size, -np.inf)
+            finite = np.isfinite(draws).all(axis=1)
+            lp[finite] = log_post(draws[finite])
+        good = lp >= lowest
         walkers[missing[good]] = draws[good]
         missing = missing[~good]
         if missing.size == 0:
             return walkers
+        below = np.isfinite(lp) & ~good
+        reserve, reserve_lp = np.vstack([reserve, draws[below]]), np.concatenate([reserve_lp, lp[below]])
         if (round_ + 1) % 20 == 0:
             shrink *= 0.5
-    raise ValueError(
-        f"could not place {missing.size} of {n_walkers} walkers within {top - lowest:.1f} log-units of the "
-        "least-squares solution's log-posterior"
-    )
+    if reserve_lp.size < missing.size:
+        raise ValueError(f"could not place {missing.size} of {n_walkers} walkers inside the posterior's support")
+    walkers[missing] = reserve[np.argsort(-reserve_lp, kind="stable")[: missing.size]]
+    return walkers
 
 
 def _laplace_in_coordinates(coords, log_post, mean, cov):
