@@ -460,8 +460,10 @@ def initial_walkers(
         Where the approximation is Gaussian (:data:`identify.fitting.coordinates.COORDINATES`):
         ``covariance`` is carried there by the map's Jacobian at ``mean`` and the draws are
         mapped back. In the parameters a curved posterior's linearised covariance reaches far
-        outside it: on a 7001-sample record whose envelope amplitude ran to its bound, every
-        draw lay 500 to 1.7 million log-units below the solution.
+        outside it (an amplitude and an offset that trade along a ridge, a near-singular
+        direction raised to full rank), so its draws can lie thousands of log-units below the
+        solution and the chain's first steps become a search
+        (``benchmarks/initial_walkers.py``).
 
     Returns
     -------
