@@ -9,6 +9,7 @@ import os
 import emcee
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from identify.data.records import Record
 from identify.fitting.lsq import fit_least_squares
@@ -17,6 +18,7 @@ from identify.fitting.parametrisation import normalised_model
 from identify.fitting.posterior import (
     BACKEND_GROUP,
     MOVES,
+    TYPICAL_SET_TAIL,
     LogPosterior,
     default_n_walkers,
     default_priors,
@@ -168,16 +170,20 @@ def test_initial_walkers_follow_the_covariance_not_a_tiny_ball(problem):
         initial_walkers(log_post, bad_mean, cov, 10, np.random.default_rng(0))
 
 
+def _typical_set_drop(n_parameters: int) -> float:
+    """The largest log-posterior drop below the solution a walker may start at: half the
+    ``1 - TYPICAL_SET_TAIL`` quantile of chi-square with ``n_parameters`` degrees of freedom."""
+    return 0.5 * chi2.ppf(1 - TYPICAL_SET_TAIL, n_parameters)
+
+
 @pytest.mark.parametrize("coordinates", ["gpi", "identity"])
 def test_initial_walkers_start_in_the_typical_set_of_a_too_wide_approximation(problem, coordinates):
     """A covariance nine times too wide puts many draws far below the solution's
     log-posterior; every walker kept lies within the drop a Gaussian posterior's draws reach."""
-    from scipy.stats import chi2
-
     _rec, _model, _fit, log_post, mean, cov = problem
     walkers = initial_walkers(log_post, mean, 9.0 * cov, 100, np.random.default_rng(3), coordinates=coordinates)
     drop = log_post(mean) - log_post(walkers)
-    assert np.all(drop <= 0.5 * chi2.ppf(1 - 1e-6, mean.size))
+    assert np.all(drop <= _typical_set_drop(mean.size))
     assert np.unique(walkers, axis=0).shape[0] == 100
 
 
@@ -185,12 +191,10 @@ def test_walkers_the_typical_set_cannot_hold_are_the_best_draws_below_it(problem
     """With one round of draws from a far too wide covariance, the walkers still missing take the
     highest of the finite draws below the typical set; with none inside the support it is an error."""
     _rec, _model, _fit, log_post, mean, cov = problem
-    from scipy.stats import chi2
-
     walkers = initial_walkers(log_post, mean, 4.0 * cov, 36, np.random.default_rng(5), max_rounds=1)
     drop = log_post(mean) - log_post(walkers)
     assert walkers.shape == (36, mean.size) and np.isfinite(drop).all()
-    assert np.any(drop > 0.5 * chi2.ppf(1 - 1e-6, mean.size))  # some came from below the typical set
+    assert np.any(drop > _typical_set_drop(mean.size))  # some came from below the typical set
     with pytest.raises(ValueError, match="inside the posterior's support"):
         initial_walkers(log_post, mean, 1e12 * cov, 36, np.random.default_rng(5), max_rounds=1)
 
@@ -199,8 +203,6 @@ def test_initial_walkers_follow_the_posterior_in_the_sampler_coordinates(problem
     """Carried into the sampler coordinates, the Laplace approximation is close to the posterior:
     the walkers' log-posterior drops below the solution's are those of Gaussian draws (chi-square
     with D degrees of freedom, halved: median 8.7 for 18 parameters)."""
-    from scipy.stats import chi2
-
     _rec, _model, _fit, log_post, mean, cov = problem
     walkers = initial_walkers(log_post, mean, cov, 200, np.random.default_rng(4))
     drop = log_post(mean) - log_post(walkers)
