@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data.fileio import atomic_write_bytes, atomic_write_text
-from .page import embedded_figure, escape, html_page, html_table, number_cell, png_bytes, text_cell
+from .page import embedded_figure, escape, html_page, html_table, number_cell, plain_text, png_bytes, text_cell
 from .plots import axis_label, new_figure, styled
 
 __all__ = ["write_design", "DESIGN_FILES"]
@@ -135,8 +135,8 @@ def write_design(design, out, *, input_unit: str = "A", output_unit: str = "um")
     content = design.to_dict() | {"files": {role: p.name for role, p in paths.items()}}
     atomic_write_text(paths["json"], json.dumps(content, indent=1))
     body = [
-        f'<div class="ok" id="design-verdict">{escape(design.reason)}</div>',
-        f"<p>Contenders: {escape(', '.join(c.name for c in design.contenders))}. Apply "
+        f'<div class="ok" id="design-verdict">{plain_text(design.reason)}</div>',
+        f"<p>Contenders: {plain_text(', '.join(c.name for c in design.contenders))}. Apply "
         f"<code>{escape(DESIGN_FILES['drive'])}</code> to the transducer, record it with the same sensor, and "
         "diagnose all records together (<code>python -m identify diagnose A.csv B.csv</code>).</p>",
         _pairs_table(design),
