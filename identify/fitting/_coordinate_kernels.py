@@ -40,8 +40,8 @@ class Layout(NamedTuple):
         Columns of each node's time constant and its two gains (-1: pinned).
     pinned : ndarray, shape (4,)
         Values of ``rho, tau, thermal_tau, thermal_tau_core`` where pinned (NaN if unknown).
-    points : ndarray, shape (2,)
-        The two inputs where the envelopes' values are coordinates.
+    points : ndarray, shape (3,)
+        The three equally spaced inputs where the envelopes' values are coordinates.
     r : ndarray, shape (N,)
         The thresholds.
     duration : float
@@ -98,11 +98,10 @@ def forward_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, points,
             if blocks[1 + p]:
                 c = envelopes[p]
                 k0, k1, k2, k3 = row[c[0]], row[c[1]], row[c[2]], row[c[3]]
-                t1 = math.tanh(k1 * points[0] + k2)
-                t2 = math.tanh(k1 * points[1] + k2)
-                u[w, c[0]] = S * (k0 * t1 + k3)
-                u[w, c[3]] = S * (k0 * t2 + k3)
-                u[w, c[2]] = -k2 / k1
+                u[w, c[0]] = S * (k0 * math.tanh(k1 * points[0] + k2) + k3)
+                u[w, c[1]] = S * (k0 * math.tanh(k1 * points[1] + k2) + k3)
+                u[w, c[2]] = math.log(k0) if k0 > 0 else (-math.inf if k0 == 0 else math.nan)
+                u[w, c[3]] = S * (k0 * math.tanh(k1 * points[2] + k2) + k3)
         for p in range(2):
             if blocks[3 + p]:
                 c = omegas[p]
@@ -163,6 +162,45 @@ def solve_tau(target, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps):
 
 
 @njit(cache=True, error_model="numpy")
+def _atanh(t):
+    return 0.5 * (math.log1p(t) - math.log1p(-t))
+
+
+@njit(cache=True, error_model="numpy")
+def equal_steps(d1, d2, max_steps):
+    """The ``t`` in ``(-1, 1 - d1 - d2)`` where the tanh rises by ``d1`` and then by ``d2`` over
+    two equal steps of its argument: ``atanh(t + d1) - atanh(t) = atanh(t + d1 + d2) - atanh(t + d1)``
+    (an increasing envelope's three values at equally spaced inputs, less its offset and over its
+    amplitude); NaN unless ``d1, d2 > 0`` and ``d1 + d2 < 2``.
+
+    ``f(t) = 2 atanh(t + d1) - atanh(t) - atanh(t + d1 + d2)`` runs from ``+inf`` to ``-inf``
+    over the interval and crosses zero once (it need not be monotone): safeguarded Newton from the
+    interval's midpoint, a bisection step whenever Newton leaves the bracket, until a step moves
+    ``t`` by at most ``1e-15`` of the nearest distance to a singularity (``1 - t_i^2``)."""
+    hi = 1.0 - d1 - d2
+    if not (d1 > 0.0 and d2 > 0.0 and hi > -1.0):
+        return math.nan
+    lo = -1.0
+    t = 0.5 * (lo + hi)
+    for _ in range(max_steps):
+        tm, t2 = t + d1, t + d1 + d2
+        f = 2.0 * _atanh(tm) - _atanh(t) - _atanh(t2)
+        if f > 0.0:  # the root lies at larger t
+            lo = t
+        else:
+            hi = t
+        slope = 2.0 / (1.0 - tm * tm) - 1.0 / (1.0 - t * t) - 1.0 / (1.0 - t2 * t2)
+        newton = t - f / slope
+        t_new = newton if lo < newton < hi else 0.5 * (lo + hi)
+        scale = min(1.0 - t * t, 1.0 - t2 * t2)
+        done = abs(t_new - t) <= 1e-15 * scale or hi - lo <= 1e-15 * scale
+        t = t_new
+        if done:
+            break
+    return t
+
+
+@njit(cache=True, error_model="numpy")
 def inverse_rows(u, blocks, weights, envelopes, omegas, thermal, pinned, points, r, duration, tau_bounds, max_steps, x):
     """Parameters ``x`` (W, D) of sampler coordinates ``u`` (W, D); rows outside the map's
     range are NaN."""
@@ -196,16 +234,16 @@ def inverse_rows(u, blocks, weights, envelopes, omegas, thermal, pinned, points,
         for p in range(2):
             if blocks[1 + p]:
                 c = envelopes[p]
-                k1 = row[c[1]]
-                k2 = -row[c[2]] * k1
-                t1 = math.tanh(k1 * points[0] + k2)
-                t2 = math.tanh(k1 * points[1] + k2)
-                e1, e2 = row[c[0]] / S, row[c[3]] / S
-                k0 = (e1 - e2) / (t1 - t2)
+                k0 = math.exp(row[c[2]])
+                e1, em, e2 = row[c[0]] / S, row[c[1]] / S, row[c[3]] / S
+                t1 = equal_steps((em - e1) / k0, (e2 - em) / k0, max_steps)
+                z1 = _atanh(t1)
+                k1 = (_atanh(t1 + (em - e1) / k0) - z1) / (points[1] - points[0])
                 out[c[0]] = k0
-                out[c[2]] = k2
+                out[c[1]] = k1
+                out[c[2]] = z1 - k1 * points[0]
                 out[c[3]] = e1 - k0 * t1
-                bad = bad or not (k1 != 0) or not (t1 != t2)
+                bad = bad or not (k1 > 0)
         if blocks[5] or blocks[6]:
             for k in range(2):  # both time constants before the scales
                 if blocks[5 + k]:
@@ -241,9 +279,14 @@ def log_det_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, points,
             if blocks[1 + p]:
                 c = envelopes[p]
                 k1, k2 = row[c[1]], row[c[2]]
-                t1 = math.tanh(k1 * points[0] + k2)
-                t2 = math.tanh(k1 * points[1] + k2)
-                total += 2.0 * _log_abs(S) + _log_abs(t1 - t2) - _log_abs(k1)
+                # |det d(E1, Em, E2, log a0) / d(a0..a3)| = S^3 a0 |det N|, N's rows (s_i v_i, s_i, 1)
+                # with s_i = 1 - tanh^2 = sech^2 at the three points
+                s1 = 1.0 / math.cosh(k1 * points[0] + k2) ** 2
+                sm = 1.0 / math.cosh(k1 * points[1] + k2) ** 2
+                s2 = 1.0 / math.cosh(k1 * points[2] + k2) ** 2
+                v1, vm, v2 = points[0], points[1], points[2]
+                det = s1 * v1 * (sm - s2) - s1 * (sm * vm - s2 * v2) + sm * s2 * (vm - v2)
+                total += 3.0 * _log_abs(S) + _log_abs(row[c[0]]) + _log_abs(det)
         for p in range(2):
             if blocks[3 + p]:
                 total -= 2.0 * _log_abs(row[omegas[p][0]])

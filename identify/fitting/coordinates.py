@@ -16,9 +16,9 @@ parameters                sampler coordinates
 ========================  =====================================================================
 ``rho, tau``              total weight :math:`S = \sum_j p_j` and threshold moment
                           :math:`R = \sum_j p_j r_j`, with :math:`p_j = \rho e^{-\tau r_j}`
-``a0, a1, a2, a3``        :math:`E(v_1), E(v_2)` with :math:`E(v) = S\,\gamma_a(v)` (the
-                          envelope's contribution to the output at two input values), slope
-                          ``a1`` and centre :math:`-a_2/a_1`; the same for ``b``
+``a0, a1, a2, a3``        :math:`E(v_1), E(v_m), E(v_2)` with :math:`E(v) = S\,\gamma_a(v)`
+                          (the envelope's contribution to the output at three input values)
+                          and :math:`\log a_0`; the same for ``b``
 ``c1, c2`` (``d1, d2``)   :math:`\log c_1` and the centre :math:`-c_2/c_1` (amplitude and
                           offset unchanged)
 thermal node (tau, S, E)  :math:`\log\tau`, :math:`S g`, :math:`E g` with ``g`` the node's
@@ -27,15 +27,28 @@ thermal node (tau, S, E)  :math:`\log\tau`, :math:`S g`, :math:`E g` with ``g`` 
 everything else           unchanged (other effects, the noise scale)
 ========================  =====================================================================
 
-with :math:`v_1, v_2` at 10 % and 90 % of the record's input range. Measured on a
-converged clean-record chain (50 Hz, 18 parameters): the fraction of each whitened
-coordinate explained by quadratic terms of the others (0 for a Gaussian) fell from 0.53
-(worst) / 0.17 (mean) to 0.10 / 0.05.
+with :math:`v_1, v_m, v_2` at 10 %, 50 % and 90 % of the record's input range.
 
-A block is used only when all its parameters are free (``alpha`` pinned for the weights,
-a positive lower bound on ``c1``/``d1`` for their logarithm); otherwise its parameters
-stay as they are. The map is a bijection on its domain, with an explicit inverse (the
-weight block solves the one-dimensional, monotone equation for ``tau`` by safeguarded
+Why three values and the amplitude, not two values, the slope and the centre: a record sees
+an envelope only over its input range. When the tanh's centre lies outside it (or its slope
+is small), the record sees a tail (or a near-straight piece) of the tanh, which a larger
+amplitude with a shifted centre (or a smaller slope) draws as well; the record pins the
+envelope's values, and what it leaves free is how far the tanh is from that limit, along
+which amplitude, slope and centre all move together, curvedly. Three values pin the shape
+the record sees in every regime (centred, tail, straight), nearly linearly, and the
+amplitude's logarithm is left for the direction the record leaves open. Measured as the
+fraction of each whitened coordinate explained by quadratic terms of the others (0 for a
+Gaussian) on converged chains of ``data/bench_default.csv`` (seeds 0-4, 18 parameters), the
+worst fell from 0.23-0.61 to 0.15-0.28 and the mean from 0.15-0.20 to 0.08-0.11 against two
+values, the slope and the centre.
+
+A block is used only when all its parameters are free (``alpha`` pinned for the weights),
+and a coordinate is a logarithm only of a parameter with a positive lower bound (``c1``,
+``d1``; ``a0``, ``b0`` with ``a1``, ``b1`` positive too: an increasing envelope); otherwise
+the block's parameters stay as they are. The map is a bijection on its domain, with an
+explicit inverse (the weight block solves the one-dimensional, monotone equation for
+``tau``, each envelope the one-dimensional equation of equal argument steps between its
+three values, :func:`identify.fitting._coordinate_kernels.equal_steps`, both by safeguarded
 Newton steps to machine precision) and the log-determinant of its Jacobian in closed form
 (block-triangular: ``log |det du/dx|`` is a sum over the blocks).
 
@@ -70,7 +83,7 @@ from . import _coordinate_kernels as kernels
 __all__ = ["GPICoordinates", "IdentityCoordinates", "CoordinateMove", "COORDINATES", "coordinates_for"]
 
 #: Fractions of the record's input range where the envelopes' values are coordinates.
-POINT_FRACTIONS = (0.1, 0.9)
+POINT_FRACTIONS = (0.1, 0.5, 0.9)
 #: Thermal nodes (:class:`model.effects.Thermal`): block name -> (time constant, gains).
 _THERMAL_NODES = {
     "thermal": ("thermal_tau", "thermal_sensitivity", "thermal_expansion"),
@@ -143,7 +156,8 @@ class GPICoordinates:
         if "alpha" not in idx and self.alpha != 0 and {"rho", "tau"} <= idx.keys():
             blocks.append("weights")
         for p in "ab":
-            if {p + "0", p + "1", p + "2", p + "3"} <= idx.keys() and lower[idx[p + "1"]] > 0:
+            envelope = {p + "0", p + "1", p + "2", p + "3"}
+            if envelope <= idx.keys() and lower[idx[p + "0"]] > 0 and lower[idx[p + "1"]] > 0:
                 blocks.append("envelope_" + p)
         for p in "cd":
             if {p + "1", p + "2"} <= idx.keys() and lower[idx[p + "1"]] > 0:
@@ -225,7 +239,7 @@ class GPICoordinates:
     def inverse(self, u) -> np.ndarray:
         """Parameters ``x`` ``(W, D)`` of sampler coordinates ``u``; rows outside the map's
         range (a total weight <= 0, a threshold moment no ``tau`` in its bounds gives, a
-        zero slope) are NaN."""
+        set of envelope values no increasing tanh of that amplitude passes through) are NaN."""
         u = self._rows(u)
         x = np.empty_like(u)
         kernels.inverse_rows(u, *self.layout, self._tau_bounds, MAX_NEWTON_STEPS, x)
@@ -259,13 +273,15 @@ class GPICoordinates:
     def log_det(self, x) -> np.ndarray:
         r"""``log |det du/dx|`` ``(W,)`` at parameters ``x`` ``(W, D)`` (closed form).
 
-        Block-triangular (the weights first, then the slopes and centres, then the
-        envelope values), so the determinant is the product of the blocks':
+        Block-triangular (the weights first; each envelope's and Omega's coordinates
+        depend on the weights and on their own parameters only), so the determinant is the
+        product of the blocks':
 
         * weights: :math:`|\partial(S,R)/\partial(\rho,\tau)| = \rho\,(s_0 s_2 - s_1^2)`
           with :math:`s_k = \sum_j r_j^k e^{-\tau r_j}`;
-        * envelope ``a`` (``b``): :math:`S^2 |t_1 - t_2| / |a_1|` with
-          :math:`t_k = \tanh(a_1 v_k + a_2)`;
+        * envelope ``a`` (``b``): :math:`S^3 a_0 |\det N|`, the rows of the 3 x 3 matrix
+          :math:`N` being :math:`(s_k v_k, s_k, 1)` with
+          :math:`s_k = 1 - \tanh^2(a_1 v_k + a_2)` at the three inputs;
         * Omega ``c`` (``d``): :math:`1 / c_1^2`;
         * a thermal node: :math:`g^2 / \tau` (two gains scaled by ``g``, the log of the
           time constant); node 2's ``g`` depends on node 1's time constant, which comes

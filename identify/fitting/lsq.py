@@ -486,8 +486,8 @@ class _ResidualsInCoordinates:
 def _polish_in_coordinates(residuals: WhitenedResiduals, log: _StartLog) -> None:
     """Phase 4: every polished end once more, in the sampler coordinates
     (:class:`identify.fitting.coordinates.GPICoordinates`: total weight and threshold moment,
-    the envelopes' values over the input range, the tanh centres), kept where it lowers the
-    chi-square.
+    the envelopes' values at three inputs, their amplitudes' logarithms, Omega's centres), kept
+    where it lowers the chi-square.
 
     In the parameters the GPI's valleys are curved (the weights trade against the
     envelopes' amplitudes along products, a tanh's slope against its offset along a ratio);

@@ -744,7 +744,7 @@ def sample_posterior(
     coordinates : str or callable, default "gpi"
         Where the moves propose (:mod:`identify.fitting.coordinates`): ``"gpi"`` maps
         the GPI parameters to near-Gaussian coordinates (total weight, envelope values
-        at two inputs, tanh centres), ``"identity"`` proposes in the parameters
+        at three inputs, log amplitudes, Omega's centres), ``"identity"`` proposes in the parameters
         themselves, a callable ``f(log_post)`` gives other coordinates. The chain, the
         log-posterior and the priors stay in the parameters whatever the choice; only
         the mixing changes.
