@@ -25,11 +25,14 @@ average before and after (a shared 2-core machine: other processes slow everythi
 Usage::
 
     python benchmarks/study_stages.py data/bench_clean.csv [--effects thermal] [--seed 0]
-        [--max-steps N] [--no-report] [--interleaved] [--out DIR] [--save chain.npy]
+        [--max-steps N] [--no-report] [--interleaved] [--lean] [--out DIR] [--save chain.npy]
 
 ``--interleaved`` evaluates every sampler call a second time right after it, timed apart: the
 sampling over the pure model at the same minute (this machine's speed drifts by a third between
 minutes, which a replay after the study cannot follow).
+
+``--lean`` installs only the timers the ratio needs (the sampler's model calls and
+``sample_posterior``): the breakdown's dozen timed calls a step cost the sampler time of their own.
 
 ``--save`` writes the chain (``(steps, walkers, D)``, from ``chain.h5``) for a
 bit-identity comparison between two versions of the code (``np.array_equal``).
@@ -154,7 +157,10 @@ def _thread_counts() -> str:
     return ", ".join(f"{n} at {k} thread{'s' if k > 1 else ''}" for k, n in sorted(counts.items()))
 
 
-def _instrument():
+def _instrument(lean=False):
+    """Install the timers: with ``lean``, only those the ratio needs (the sampler's model calls,
+    their interleaved repeats, ``sample_posterior``), so that no other timer's own cost (two clock
+    reads a call, a dozen calls a step) is charged to the sampler."""
     import identify.fitting.chain_file as chain_file
     import identify.fitting.convergence as convergence
     import identify.fitting.coordinates as coordinates
@@ -164,6 +170,9 @@ def _instrument():
     import model.composite as composite
 
     _record_sampler_batches(composite, posterior)
+    if lean:
+        _wrap(posterior, "sample_posterior", "posterior: sample_posterior")
+        return
     _wrap(composite.Model, "evaluate", "model.evaluate")
     _wrap(lsq.WhitenedResiduals, "jacobian", "lsq: forward-difference Jacobian")
     _wrap(lsq.WhitenedResiduals, "central_jacobian", "lsq: central Jacobian (covariance)")
@@ -212,6 +221,12 @@ def main(argv=None) -> int:
         "sampling time): the ratio at the same minute, which this machine's drifting speed makes the replay "
         "after the study miss; the other per-part times include these evaluations",
     )
+    parser.add_argument(
+        "--lean",
+        action="store_true",
+        help="time only what the sampling ratio needs (no breakdown of the parts): the other timers' own cost "
+        "is then not charged to the sampler",
+    )
     args = parser.parse_args(argv)
     _INTERLEAVED[0] = args.interleaved
 
@@ -227,7 +242,7 @@ def main(argv=None) -> int:
     from model import Model
 
     import_seconds = time.perf_counter() - t0
-    _instrument()
+    _instrument(lean=args.lean)
     record = load_record(args.data)
     effects = [e for e in args.effects.split(",") if e]
     t0 = time.perf_counter()
