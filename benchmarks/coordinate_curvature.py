@@ -11,16 +11,18 @@ blocks):
 * the envelopes as two values (10 % and 90 % of the input range), the slope and the centre
   ``-a2/a1`` (the other blocks as :class:`identify.fitting.coordinates.GPICoordinates`), the
   sampler's envelope coordinates until 2026-12-06, written out here in NumPy;
-* :class:`identify.fitting.coordinates.GPICoordinates` as it is: three values (10 %, 50 % and
-  90 %) and the amplitude's logarithm.
+* :class:`identify.fitting.coordinates.GPICoordinates` as the study samples in (its reference
+  point the least-squares solution): three values (10 %, 50 % and 90 %) and the amplitude's
+  logarithm for each envelope whose tanh varies at the three inputs there, two values, the
+  slope and the centre for the others.
 
 Regression case: ``python -m identify study data/bench_default.csv --out DIR --seed S`` for
 S = 0-4, then ``python benchmarks/coordinate_curvature.py DIR...``. On seed 4 the rising
 envelope's tanh centre lies at -2.9 A, outside the 0-5 A input range: the record sees its tail,
 and amplitude (55-100, at its bound), slope and centre trade along it. With two values, the
 slope and the centre its block's worst quadratic fraction was 0.61 and the chain needed 12,000
-steps (tau_max 237); with three values and the log-amplitude 0.12 and 6,000 steps (tau_max 114,
-2026-12-06).
+steps (tau_max 237); with three values and the log-amplitude 0.13 and 5,000 steps (tau_max 97,
+2026-12-06). Seeds 0-3: 6,000-8,000 steps before, 5,500-6,500 after.
 
 Usage: ``python benchmarks/coordinate_curvature.py DIR [DIR ...] [--draws N]``
 """
@@ -83,7 +85,10 @@ def main(argv=None) -> int:
     for folder in args.folders:
         fit = load_fit(folder)
         log_post = LogPosterior(load_data(folder), fit.model, fit.noise)
-        coords = GPICoordinates.from_log_posterior(log_post)
+        reference = fit.theta[log_post.free]  # the study's reference point: its least-squares solution
+        if log_post.free_sigma:
+            reference = np.append(reference, np.log(fit.noise.sigma))
+        coords = GPICoordinates.from_log_posterior(log_post, reference)
         chain = ChainBackend(str(Path(folder) / "chain.h5"), name=BACKEND_GROUP, read_only=True).get_chain()
         posterior = json.loads((Path(folder) / "summary.json").read_text())["posterior"]
         x = chain[int(posterior["discard"]) :].reshape(-1, chain.shape[2]).astype(float)
@@ -93,12 +98,13 @@ def main(argv=None) -> int:
         centre = float(np.median(-x[:, names.index("a2")] / x[:, names.index("a1")]))
         print(
             f"{folder}: {posterior['n_steps']} steps, tau_max {posterior['tau_max']:.0f}; rising envelope's "
-            f"centre {centre:.3g}, input {np.min(log_post.current):.3g} to {np.max(log_post.current):.3g}"
+            f"centre {centre:.3g}, input {np.min(log_post.current):.3g} to {np.max(log_post.current):.3g}; "
+            f"three values and the log-amplitude for {', '.join(coords.three_values) or 'no envelope'}"
         )
         systems = {
             "the parameters": x,
             "two values, slope, centre": two_values_slope_centre(coords, x, names),
-            "three values, log amplitude": coords.forward(x),
+            "as sampled": coords.forward(x),
         }
         for label, z in systems.items():
             f = quadratic_fractions(z)

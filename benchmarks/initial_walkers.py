@@ -94,7 +94,9 @@ def main(argv=None) -> int:
     for coordinates in ("identity", "gpi"):
         # initial_walkers' own steps, before its typical-set test: the approximation carried into the
         # coordinates, raised to full rank, drawn there and mapped back
-        coords, centre, carried = _laplace_in_coordinates(coordinates_for(coordinates, log_post), log_post, mean, cov)
+        coords, centre, carried = _laplace_in_coordinates(
+            coordinates_for(coordinates, log_post, mean), log_post, mean, cov
+        )
         draws = coords.inverse(rng.multivariate_normal(centre, _full_rank(carried), size=args.draws, method="eigh"))
         where = "in the parameters" if coordinates == "identity" else "in the sampler coordinates"
         _line(f"{args.draws} draws {where}", _drops(log_post, top, draws), within)

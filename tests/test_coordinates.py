@@ -84,6 +84,47 @@ def test_blocks_with_pinned_or_unbounded_parameters_are_left_alone():
     np.testing.assert_allclose(coords.inverse(coords.forward(xs)), xs, rtol=1e-12)
 
 
+@pytest.mark.parametrize(
+    "a0, a1, centre, three_values",
+    [
+        (90.0, 0.45, -2.9, True),  # the record sees the tanh's tail: its centre below the 0-5 A input
+        (90.0, 0.45, 7.5, True),  # ... above it
+        (50.0, 0.02, 2.5, True),  # a near-straight piece: a small slope, a large amplitude
+        (3.0, 1.0, 1.5, True),
+        (3.0, 8.0, 2.5, False),  # a step sharper than the points' spacing: flat at the outer inputs
+        (3.0, 2.0, 7.0, False),  # nearly constant over the input range (the tanh flat at every input)
+    ],
+)
+def test_envelopes_round_trip_in_every_regime(a0, a1, centre, three_values):
+    kw, x = GPICoordinates.get_test_parameters()
+    names = kw["names"]
+    row = x.copy()
+    row[names.index("a0")], row[names.index("a1")], row[names.index("a2")] = a0, a1, -a1 * centre
+    coords = GPICoordinates(**kw, reference=row)
+    assert ("envelope_a" in coords.three_values) is three_values
+    assert "envelope_a" in coords.blocks
+    back = coords.inverse(coords.forward(row))[0]
+    np.testing.assert_allclose(back, row, rtol=1e-9, atol=1e-9)
+    assert coords.log_det(row[None, :])[0] == pytest.approx(_numerical_log_det(coords, row), abs=1e-5)
+
+
+def test_without_a_reference_every_envelope_takes_three_values():
+    coords, _ = _coords()
+    assert coords.three_values == ("envelope_a", "envelope_b")
+
+
+def test_envelope_values_no_increasing_tanh_passes_through_map_to_nan():
+    coords, x = _coords()
+    names = GPICoordinates.get_test_parameters()[0]["names"]
+    u = coords.forward(np.vstack([x, x, x]))
+    e1, em, e2 = (names.index(n) for n in ("a0", "a1", "a3"))  # the rising envelope's three values
+    total_weight, amplitude = u[1, names.index("rho")], np.exp(u[1, names.index("a2")])
+    u[0, em] = u[0, e1] - 1.0  # falls from the first value to the middle one
+    u[1, e2] = u[1, e1] + 2.5 * total_weight * amplitude  # rises by more than the tanh's 2 a0
+    back = coords.inverse(u)
+    assert np.isnan(back[:2]).all() and np.isfinite(back[2]).all()
+
+
 def test_registry():
     class NoModel:
         pass

@@ -305,6 +305,7 @@ def _record_coverage(seed, truth_raw, truth_free, fs, noise_sigma, chain_path, m
         np.random.default_rng(seed),
         max_steps=max_steps,
         check_every=check_every,
+        reference=mean,
         progress=progress,
     )
     lo, hi = result.quantiles((0.025, 0.975))

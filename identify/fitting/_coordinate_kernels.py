@@ -40,8 +40,12 @@ class Layout(NamedTuple):
         Columns of each node's time constant and its two gains (-1: pinned).
     pinned : ndarray, shape (4,)
         Values of ``rho, tau, thermal_tau, thermal_tau_core`` where pinned (NaN if unknown).
+    three_values : ndarray of bool, shape (2,)
+        Per envelope: its coordinates are three values and the amplitude's logarithm (else two
+        values, the slope and the centre).
     points : ndarray, shape (3,)
-        The three equally spaced inputs where the envelopes' values are coordinates.
+        The three equally spaced inputs where the envelopes' values are taken (two values: the
+        outer two).
     r : ndarray, shape (N,)
         The thresholds.
     duration : float
@@ -54,6 +58,7 @@ class Layout(NamedTuple):
     omegas: np.ndarray
     thermal: np.ndarray
     pinned: np.ndarray
+    three_values: np.ndarray
     points: np.ndarray
     r: np.ndarray
     duration: float
@@ -84,7 +89,7 @@ def _thermal_scales(row, thermal, pinned, duration):
 
 
 @njit(cache=True, error_model="numpy")
-def forward_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, points, r, duration, u):
+def forward_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, three_values, points, r, duration, u):
     """Sampler coordinates ``u`` (W, D) of parameters ``x`` (W, D)."""
     for w in range(x.shape[0]):
         row = x[w]
@@ -99,9 +104,12 @@ def forward_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, points,
                 c = envelopes[p]
                 k0, k1, k2, k3 = row[c[0]], row[c[1]], row[c[2]], row[c[3]]
                 u[w, c[0]] = S * (k0 * math.tanh(k1 * points[0] + k2) + k3)
-                u[w, c[1]] = S * (k0 * math.tanh(k1 * points[1] + k2) + k3)
-                u[w, c[2]] = math.log(k0) if k0 > 0 else (-math.inf if k0 == 0 else math.nan)
                 u[w, c[3]] = S * (k0 * math.tanh(k1 * points[2] + k2) + k3)
+                if three_values[p]:
+                    u[w, c[1]] = S * (k0 * math.tanh(k1 * points[1] + k2) + k3)
+                    u[w, c[2]] = math.log(k0) if k0 > 0 else (-math.inf if k0 == 0 else math.nan)
+                else:  # the slope stays, the offset becomes the centre
+                    u[w, c[2]] = -k2 / k1
         for p in range(2):
             if blocks[3 + p]:
                 c = omegas[p]
@@ -201,7 +209,9 @@ def equal_steps(d1, d2, max_steps):
 
 
 @njit(cache=True, error_model="numpy")
-def inverse_rows(u, blocks, weights, envelopes, omegas, thermal, pinned, points, r, duration, tau_bounds, max_steps, x):
+def inverse_rows(
+    u, blocks, weights, envelopes, omegas, thermal, pinned, three_values, points, r, duration, tau_bounds, max_steps, x
+):
     """Parameters ``x`` (W, D) of sampler coordinates ``u`` (W, D); rows outside the map's
     range are NaN."""
     lower, upper = tau_bounds[0], tau_bounds[1]
@@ -234,16 +244,28 @@ def inverse_rows(u, blocks, weights, envelopes, omegas, thermal, pinned, points,
         for p in range(2):
             if blocks[1 + p]:
                 c = envelopes[p]
-                k0 = math.exp(row[c[2]])
-                e1, em, e2 = row[c[0]] / S, row[c[1]] / S, row[c[3]] / S
-                t1 = equal_steps((em - e1) / k0, (e2 - em) / k0, max_steps)
-                z1 = _atanh(t1)
-                k1 = (_atanh(t1 + (em - e1) / k0) - z1) / (points[1] - points[0])
-                out[c[0]] = k0
-                out[c[1]] = k1
-                out[c[2]] = z1 - k1 * points[0]
-                out[c[3]] = e1 - k0 * t1
-                bad = bad or not (k1 > 0)
+                if three_values[p]:
+                    k0 = math.exp(row[c[2]])
+                    e1, em, e2 = row[c[0]] / S, row[c[1]] / S, row[c[3]] / S
+                    t1 = equal_steps((em - e1) / k0, (e2 - em) / k0, max_steps)
+                    z1 = _atanh(t1)
+                    k1 = (_atanh(t1 + (em - e1) / k0) - z1) / (points[1] - points[0])
+                    out[c[0]] = k0
+                    out[c[1]] = k1
+                    out[c[2]] = z1 - k1 * points[0]
+                    out[c[3]] = e1 - k0 * t1
+                    bad = bad or not (k1 > 0)
+                else:
+                    k1 = row[c[1]]
+                    k2 = -row[c[2]] * k1
+                    t1 = math.tanh(k1 * points[0] + k2)
+                    t2 = math.tanh(k1 * points[2] + k2)
+                    e1, e2 = row[c[0]] / S, row[c[3]] / S
+                    k0 = (e1 - e2) / (t1 - t2)
+                    out[c[0]] = k0
+                    out[c[2]] = k2
+                    out[c[3]] = e1 - k0 * t1
+                    bad = bad or not (k1 != 0) or not (t1 != t2)
         if blocks[5] or blocks[6]:
             for k in range(2):  # both time constants before the scales
                 if blocks[5 + k]:
@@ -267,7 +289,7 @@ def _log_abs(v):
 
 
 @njit(cache=True, error_model="numpy")
-def log_det_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, points, r, duration, out):
+def log_det_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, three_values, points, r, duration, out):
     """``log |det du/dx|`` (W,) at parameters ``x`` (W, D), block by block."""
     for w in range(x.shape[0]):
         row = x[w]
@@ -279,14 +301,19 @@ def log_det_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, points,
             if blocks[1 + p]:
                 c = envelopes[p]
                 k1, k2 = row[c[1]], row[c[2]]
-                # |det d(E1, Em, E2, log a0) / d(a0..a3)| = S^3 a0 |det N|, N's rows (s_i v_i, s_i, 1)
-                # with s_i = 1 - tanh^2 = sech^2 at the three points
-                s1 = 1.0 / math.cosh(k1 * points[0] + k2) ** 2
-                sm = 1.0 / math.cosh(k1 * points[1] + k2) ** 2
-                s2 = 1.0 / math.cosh(k1 * points[2] + k2) ** 2
-                v1, vm, v2 = points[0], points[1], points[2]
-                det = s1 * v1 * (sm - s2) - s1 * (sm * vm - s2 * v2) + sm * s2 * (vm - v2)
-                total += 3.0 * _log_abs(S) + _log_abs(row[c[0]]) + _log_abs(det)
+                if three_values[p]:
+                    # |det d(E1, Em, E2, log a0) / d(a0..a3)| = S^3 a0 |det N|, N's rows
+                    # (s_i v_i, s_i, 1) with s_i = 1 - tanh^2 = sech^2 at the three points
+                    s1 = 1.0 / math.cosh(k1 * points[0] + k2) ** 2
+                    sm = 1.0 / math.cosh(k1 * points[1] + k2) ** 2
+                    s2 = 1.0 / math.cosh(k1 * points[2] + k2) ** 2
+                    v1, vm, v2 = points[0], points[1], points[2]
+                    det = s1 * v1 * (sm - s2) - s1 * (sm * vm - s2 * v2) + sm * s2 * (vm - v2)
+                    total += 3.0 * _log_abs(S) + _log_abs(row[c[0]]) + _log_abs(det)
+                else:
+                    t1 = math.tanh(k1 * points[0] + k2)
+                    t2 = math.tanh(k1 * points[2] + k2)
+                    total += 2.0 * _log_abs(S) + _log_abs(t1 - t2) - _log_abs(k1)
         for p in range(2):
             if blocks[3 + p]:
                 total -= 2.0 * _log_abs(row[omegas[p][0]])
@@ -310,6 +337,7 @@ def back_rows(
     omegas,
     thermal,
     pinned,
+    three_values,
     points,
     r,
     duration,
@@ -324,7 +352,7 @@ def back_rows(
     (:meth:`identify.fitting.coordinates.CoordinateMove._back`, the same operations): a row
     outside the map's range, or whose factor is not finite, stays at ``s`` with factor ``-inf``
     (its log-determinant NaN where the map gave none)."""
-    layout = (blocks, weights, envelopes, omegas, thermal, pinned, points, r, duration)
+    layout = (blocks, weights, envelopes, omegas, thermal, pinned, three_values, points, r, duration)
     inverse_rows(q_u, *layout, tau_bounds, max_steps, q)
     for w in range(q.shape[0]):
         ok = True

@@ -36,11 +36,16 @@ amplitude with a shifted centre (or a smaller slope) draws as well; the record p
 envelope's values, and what it leaves free is how far the tanh is from that limit, along
 which amplitude, slope and centre all move together, curvedly. Three values pin the shape
 the record sees in every regime (centred, tail, straight), nearly linearly, and the
-amplitude's logarithm is left for the direction the record leaves open. Measured as the
+amplitude's logarithm is left for the direction the record leaves open. Values carry a
+tanh's slope and centre only where it still varies, so an envelope that has flattened at one
+of the three inputs at the reference point (the least-squares solution: a step sharper than
+the inputs' spacing, an envelope constant over the record; :data:`SENSITIVE_SLOPE`) keeps
+two values (at 10 % and 90 %), its slope and its centre :math:`-a_2/a_1`. Measured as the
 fraction of each whitened coordinate explained by quadratic terms of the others (0 for a
-Gaussian) on converged chains of ``data/bench_default.csv`` (seeds 0-4, 18 parameters), the
-worst fell from 0.23-0.61 to 0.15-0.28 and the mean from 0.15-0.20 to 0.08-0.11 against two
-values, the slope and the centre.
+Gaussian) on converged chains of ``data/bench_default.csv`` (seeds 0-4, 18 parameters; the
+rising envelope in three values, the falling one, flat at 90 % of the input, in two), the
+worst fell from 0.23-0.57 to 0.11-0.26 and the mean from 0.14-0.18 to 0.07-0.10 against
+two values, the slope and the centre for both (``benchmarks/coordinate_curvature.py``).
 
 A block is used only when all its parameters are free (``alpha`` pinned for the weights),
 and a coordinate is a logarithm only of a parameter with a positive lower bound (``c1``,
@@ -80,10 +85,26 @@ from model import TABLE1, THETA_NAMES
 
 from . import _coordinate_kernels as kernels
 
-__all__ = ["GPICoordinates", "IdentityCoordinates", "CoordinateMove", "COORDINATES", "coordinates_for"]
+__all__ = [
+    "GPICoordinates",
+    "IdentityCoordinates",
+    "CoordinateMove",
+    "COORDINATES",
+    "coordinates_for",
+    "POINT_FRACTIONS",
+    "SENSITIVE_SLOPE",
+]
 
-#: Fractions of the record's input range where the envelopes' values are coordinates.
+#: Fractions of the record's input range where the envelopes' values are coordinates (two
+#: values: the outer two).
 POINT_FRACTIONS = (0.1, 0.5, 0.9)
+#: An envelope's values carry its tanh's slope and centre only where the tanh still varies:
+#: it takes three values (and its amplitude) as coordinates when, at the reference point, its
+#: slope ``1 - tanh^2`` at each of the three inputs is at least this share of the maximum
+#: (``|a1 v + a2| <= 4.1``). Where it has flattened at an input (a step sharper than the
+#: points' spacing, an envelope constant over the record) the values no longer tell the slope
+#: and centre apart, and those stay coordinates themselves.
+SENSITIVE_SLOPE = 1e-3
 #: Thermal nodes (:class:`model.effects.Thermal`): block name -> (time constant, gains).
 _THERMAL_NODES = {
     "thermal": ("thermal_tau", "thermal_sensitivity", "thermal_expansion"),
@@ -134,9 +155,22 @@ class GPICoordinates:
     pinned : dict, optional
         Values of pinned thermal time constants ``{name: value}`` [s] (a free node-2 block
         with node 1's time constant pinned reads it here).
+    reference : array_like, shape (D,), optional
+        A point of the sampled coordinates near the posterior (a study passes the
+        least-squares solution): an envelope whose tanh has flattened at one of the three
+        inputs there (:data:`SENSITIVE_SLOPE`) keeps two values, its slope and its centre as
+        coordinates. Without one every envelope takes three values.
+
+    Attributes
+    ----------
+    three_values : tuple of str
+        The envelope blocks (``"envelope_a"``, ``"envelope_b"``) whose coordinates are three
+        values and the amplitude's logarithm.
     """
 
-    def __init__(self, names, template, n_operators, input_range, lower, tau_bounds, duration=None, pinned=None):
+    def __init__(
+        self, names, template, n_operators, input_range, lower, tau_bounds, duration=None, pinned=None, reference=None
+    ):
         self.names = tuple(names)
         idx = {n: i for i, n in enumerate(self.names)}
         template = np.asarray(template, dtype=float)
@@ -155,10 +189,13 @@ class GPICoordinates:
         blocks = []
         if "alpha" not in idx and self.alpha != 0 and {"rho", "tau"} <= idx.keys():
             blocks.append("weights")
+        three = []
         for p in "ab":
-            envelope = {p + "0", p + "1", p + "2", p + "3"}
-            if envelope <= idx.keys() and lower[idx[p + "0"]] > 0 and lower[idx[p + "1"]] > 0:
+            if {p + "0", p + "1", p + "2", p + "3"} <= idx.keys() and lower[idx[p + "1"]] > 0:
                 blocks.append("envelope_" + p)
+                if lower[idx[p + "0"]] > 0 and self._varies_at_the_points(reference, idx, p):
+                    three.append("envelope_" + p)
+        self.three_values = tuple(three)
         for p in "cd":
             if {p + "1", p + "2"} <= idx.keys() and lower[idx[p + "1"]] > 0:
                 blocks.append("omega_" + p)
@@ -176,13 +213,24 @@ class GPICoordinates:
             np.array([[column(p + str(n), -1) for n in (1, 2)] for p in "cd"]),
             np.array([[column(n, -1) for n in names] for names in _THERMAL_NODES.values()]),
             np.array([self._pinned.get(n, np.nan) for n in ("rho", "tau", "thermal_tau", "thermal_tau_core")]),
+            np.array(["envelope_" + p in self.three_values for p in "ab"]),
             np.array(self.points, dtype=float),
             self.r,
             np.nan if self.duration is None else self.duration,
         )
 
+    def _varies_at_the_points(self, reference, idx, p) -> bool:
+        """Whether envelope ``p``'s tanh at ``reference`` has a slope of at least
+        :data:`SENSITIVE_SLOPE` of its maximum at each of the three inputs (True without one)."""
+        if reference is None:
+            return True
+        reference = np.asarray(reference, dtype=float)
+        slope, offset = reference[idx[p + "1"]], reference[idx[p + "2"]]
+        arguments = slope * np.asarray(self.points) + offset
+        return bool(np.all(1.0 - np.tanh(arguments) ** 2 >= SENSITIVE_SLOPE))
+
     @classmethod
-    def for_model(cls, model, time, current, names=None, lower=None):
+    def for_model(cls, model, time, current, names=None, lower=None, reference=None):
         """The coordinates of ``model``'s free parameters on a record.
 
         Parameters
@@ -193,6 +241,8 @@ class GPICoordinates:
         names, lower : sequence, optional
             The coordinates and their lower bounds, when they are not the model's free
             parameters (e.g. a log-posterior's, with a noise coordinate).
+        reference : array_like, shape (D,), optional
+            A point near the posterior (see the class).
 
         Returns
         -------
@@ -213,17 +263,19 @@ class GPICoordinates:
             (tau.lower, tau.upper),
             duration=float(np.ptp(time)) if np.size(time) > 1 else None,
             pinned={n: float(model.parameters[n].value) for n in _THERMAL if n in model.names},
+            reference=reference,
         )
 
     @classmethod
-    def from_log_posterior(cls, log_post):
+    def from_log_posterior(cls, log_post, reference=None):
         """The coordinates for a :class:`identify.posterior.LogPosterior` (its names,
-        model, bounds and record input); :class:`IdentityCoordinates` for a log-posterior
-        without a GPI model (e.g. a test density)."""
+        model, bounds and record input; ``reference`` as for the class);
+        :class:`IdentityCoordinates` for a log-posterior without a GPI model (e.g. a test
+        density)."""
         model = getattr(log_post, "model", None)
         if model is None:
             return IdentityCoordinates()
-        return cls.for_model(model, log_post.time, log_post.current, log_post.names, log_post.lower)
+        return cls.for_model(model, log_post.time, log_post.current, log_post.names, log_post.lower, reference)
 
     # -- the map (compiled loops, row by row: :mod:`identify.fitting._coordinate_kernels`) --
     def _rows(self, a):
@@ -306,21 +358,22 @@ class GPICoordinates:
         ), x
 
 
-def _identity(log_post):
+def _identity(log_post, reference=None):
     return IdentityCoordinates()
 
 
-#: name -> factory ``f(log_post)`` of sampler coordinates.
+#: name -> factory ``f(log_post, reference=None)`` of sampler coordinates.
 COORDINATES = {"gpi": GPICoordinates.from_log_posterior, "identity": _identity}
 
 
-def coordinates_for(spec, log_post):
-    """Sampler coordinates from a :data:`COORDINATES` name or a callable ``f(log_post)``."""
+def coordinates_for(spec, log_post, reference=None):
+    """Sampler coordinates from a :data:`COORDINATES` name (given ``reference``, a point near the
+    posterior, shape (D,), or None) or a callable ``f(log_post)``."""
     if callable(spec):
         return spec(log_post)
     if spec not in COORDINATES:
         raise ValueError(f"unknown sampler coordinates {spec!r}; known: {', '.join(COORDINATES)}")
-    return COORDINATES[spec](log_post)
+    return COORDINATES[spec](log_post, reference)
 
 
 def back_in_steps(coordinates, s, q_u, factors, log_det_s):

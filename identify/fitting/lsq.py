@@ -498,13 +498,14 @@ def _polish_in_coordinates(residuals: WhitenedResiduals, log: _StartLog) -> None
     parameters leave their box is refused through :data:`DOMAIN_PENALTY`. The ends are
     polished side by side, each on its own copy of the residuals.
     """
-    coordinates = GPICoordinates.for_model(residuals.model, residuals.time, residuals.current)
-    if not getattr(coordinates, "blocks", ()):
-        return
     ends = list(log.ends)
+    model, time, current = residuals.model, residuals.time, residuals.current
+    each = [GPICoordinates.for_model(model, time, current, reference=end.x) for _, end in ends]
+    if not any(getattr(coordinates, "blocks", ()) for coordinates in each):
+        return
     tasks = [
         _within_reach_of(log.best.chi2, partial(_polish_end_in_coordinates, coordinates=coordinates, x=end.x))
-        for _, end in ends
+        for coordinates, (_, end) in zip(each, ends)
     ]
     for (label, end), (polished, used) in zip(ends, _side_by_side(residuals, tasks)):
         if polished is not None and polished.chi2 < end.chi2:

@@ -458,7 +458,8 @@ def initial_walkers(
         missing after them take the highest of the draws below the typical set.
     coordinates : str or callable, default "gpi"
         Where the approximation is Gaussian (:data:`identify.fitting.coordinates.COORDINATES`):
-        ``covariance`` is carried there by the map's Jacobian at ``mean`` and the draws are
+        ``covariance`` is carried there by the map's Jacobian at ``mean`` (also the map's
+        reference point: :class:`identify.fitting.coordinates.GPICoordinates`) and the draws are
         mapped back. In the parameters a curved posterior's linearised covariance reaches far
         outside it (an amplitude and an offset that trade along a ridge, a near-singular
         direction raised to full rank), so its draws can lie thousands of log-units below the
@@ -497,7 +498,7 @@ def initial_walkers(
     if not np.isfinite(top):
         raise ValueError("the least-squares solution has a log-posterior of -inf (outside the support or domain)")
     lowest = top - 0.5 * chi2.ppf(1.0 - TYPICAL_SET_TAIL, mean.size)
-    coords, centre, cov = _laplace_in_coordinates(coordinates_for(coordinates, log_post), log_post, mean, cov)
+    coords, centre, cov = _laplace_in_coordinates(coordinates_for(coordinates, log_post, mean), log_post, mean, cov)
     cov = _full_rank(cov)
     walkers = np.empty((n_walkers, mean.size))
     missing = np.arange(n_walkers)
@@ -714,6 +715,7 @@ def sample_posterior(
     tau_rtol=0.05,
     moves="de",
     coordinates="gpi",
+    reference=None,
     progress=None,
     log=None,
 ) -> PosteriorResult:
@@ -748,6 +750,10 @@ def sample_posterior(
         themselves, a callable ``f(log_post)`` gives other coordinates. The chain, the
         log-posterior and the priors stay in the parameters whatever the choice; only
         the mixing changes.
+    reference : array_like, shape (D,), optional
+        A point near the posterior for the sampler coordinates' choices (the least-squares
+        solution: :class:`identify.fitting.coordinates.GPICoordinates`); pass the same one
+        when resuming, so that the moves are the same.
     progress : bool, optional
         True: a tqdm bar on stderr whose total is the projected chain length
         ``tau_factor x tau_max``, re-estimated at each check (:mod:`identify.fitting.progress`);
@@ -779,7 +785,7 @@ def sample_posterior(
         log_post,
         vectorize=True,
         backend=backend,
-        moves=_moves_in(MOVES[moves](), coordinates_for(coordinates, log_post)),
+        moves=_moves_in(MOVES[moves](), coordinates_for(coordinates, log_post, reference)),
     )
     state = _start_state(sampler, initial, resuming, start_rng, emcee_seed, log)
 

@@ -471,6 +471,7 @@ class StudyRun:
                 max_steps=opts["max_steps"],
                 check_every=opts["check_every"],
                 moves=opts["moves"],
+                reference=mean,
                 progress=opts["progress"],
                 log=self.log,
             )
