@@ -1039,13 +1039,18 @@ def test_thermal_tabulated_steps_equal_the_per_sample_filter():
     assert 0 < distinct_steps(uniform, MAX_DISTINCT_STEPS)[0].size <= MAX_DISTINCT_STEPS
     assert distinct_steps(jittered, MAX_DISTINCT_STEPS)[0].size == 0
     current = 5.0 * np.abs(np.sin(uniform))
-    # four sets with both nodes on (run in lockstep), then the other cases one by one
+    # four sets with both nodes on (run in lockstep), four with node 2 off (in lockstep too),
+    # then the other cases one by one
     params = np.array(
         [
             [20.0, 0.08, 3.0, 300.0, -0.3, 2.0, 0.0, 0.0],
             [1e6, 0.1, 1.0, 1e-4, 0.2, 1.0, 0.3, -0.1],
             [5.0, 0.05, 1.0, 50.0, 0.1, 0.3, 0.0, 0.5],
             [0.5, 0.2, 2.0, 3000.0, 0.05, 0.4, 1.2, 0.7],
+            [20.0, 0.08, 3.0, 300.0, 0.0, 0.0, 0.0, 0.0],
+            [1e6, 0.1, 1.0, 0.0, 0.0, 0.0, 0.3, 0.2],
+            [5.0, -0.05, 1.0, 50.0, 0.0, 0.0, 0.9, 0.0],
+            [0.5, 0.2, 2.0, 3000.0, 0.0, 0.0, 1.2, 0.7],
             [0.0, 0.1, 1.0, 5.0, 0.0, 0.0, 0.4, 0.0],
             [7.0, 0.1, 1.0, 0.0, 0.1, 0.5, 0.0, 0.2],
             [3.0, 0.1, 1.0, 10.0, 0.0, 0.0, 0.0, 0.0],

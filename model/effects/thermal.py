@@ -87,6 +87,39 @@ def _thermal_four(w0, index, steps, heating, p, displacement, out):
 
 
 @njit(cache=True)
+def _thermal_four_first(w0, index, steps, heating, p, displacement, out):
+    """:func:`_thermal_four` for four sets whose node 2 is off (both its gains 0: the study's
+    usual case, the core node pinned off): node 1 only, bit for bit :func:`_thermal_one`'s
+    operations for each set."""
+    n_samples = displacement.shape[1]
+    n_steps = steps.shape[0]
+    a1 = np.empty((4, n_steps))
+    g1 = np.empty((4, n_steps))
+    for lane in range(4):
+        lowpass_table(steps, p[w0 + lane, 0], a1[lane], g1[lane])
+    w1, w2, w3 = w0 + 1, w0 + 2, w0 + 3
+    s0, s1, s2, s3 = p[w0, 1], p[w1, 1], p[w2, 1], p[w3, 1]
+    e0, e1, e2, e3 = p[w0, 2], p[w1, 2], p[w2, 2], p[w3, 2]
+    r0, r1, r2, r3 = p[w0, 6], p[w1, 6], p[w2, 6], p[w3, 6]
+    for lane in range(4):
+        w = w0 + lane
+        out[w, 0] = _thermal_output(displacement[w, 0], p[w, 1], p[w, 2], p[w, 4], p[w, 5], p[w, 6], p[w, 7], False)
+    for k in range(1, n_samples):
+        m = index[k]
+        x_prev = heating[k - 1]
+        x_now = heating[k]
+        step = x_now - x_prev
+        r0 = x_now - step * g1[0, m] + a1[0, m] * (r0 - x_prev)
+        r1 = x_now - step * g1[1, m] + a1[1, m] * (r1 - x_prev)
+        r2 = x_now - step * g1[2, m] + a1[2, m] * (r2 - x_prev)
+        r3 = x_now - step * g1[3, m] + a1[3, m] * (r3 - x_prev)
+        out[w0, k] = _thermal_output(displacement[w0, k], s0, e0, 0.0, 0.0, r0, 0.0, False)
+        out[w1, k] = _thermal_output(displacement[w1, k], s1, e1, 0.0, 0.0, r1, 0.0, False)
+        out[w2, k] = _thermal_output(displacement[w2, k], s2, e2, 0.0, 0.0, r2, 0.0, False)
+        out[w3, k] = _thermal_output(displacement[w3, k], s3, e3, 0.0, 0.0, r3, 0.0, False)
+
+
+@njit(cache=True)
 def _thermal_one(w, time, steps, index, heating, p, displacement, out):
     """Parameter set ``w`` of :func:`_thermal_kernel`, alone (any case)."""
     n_samples = displacement.shape[1]
@@ -137,7 +170,8 @@ def _thermal_kernel(time, heating, p, displacement, out):
     once per distinct step and parameter set (:func:`distinct_steps`) instead of one
     ``exp`` per sample, bit-identical to :func:`lowpass_step` at every sample. Groups of
     four parameter sets with both nodes on and tabulated run in lockstep
-    (:func:`_thermal_four`: the recursion is latency-bound), the rest one by one
+    (:func:`_thermal_four`: the recursion is latency-bound), so do four with node 2 off
+    (:func:`_thermal_four_first`), the rest one by one
     (:func:`_thermal_one`); the values are the same either way."""
     n_sets = displacement.shape[0]
     steps, index = distinct_steps(time, MAX_DISTINCT_STEPS)
@@ -146,12 +180,15 @@ def _thermal_kernel(time, heating, p, displacement, out):
     for g in prange(n_groups):
         w0 = 4 * g
         w_end = min(w0 + 4, n_sets)
-        lockstep = tabulated and w_end - w0 == 4
+        both = first = tabulated and w_end - w0 == 4
         for w in range(w0, w_end):
-            if not (p[w, 0] > 0.0 and p[w, 3] > 0.0 and (p[w, 4] != 0.0 or p[w, 5] != 0.0)):
-                lockstep = False
-        if lockstep:
+            second = p[w, 4] != 0.0 or p[w, 5] != 0.0
+            both = both and p[w, 0] > 0.0 and p[w, 3] > 0.0 and second
+            first = first and p[w, 0] > 0.0 and not second
+        if both:
             _thermal_four(w0, index, steps, heating, p, displacement, out)
+        elif first:
+            _thermal_four_first(w0, index, steps, heating, p, displacement, out)
         else:
             for w in range(w0, w_end):
                 _thermal_one(w, time, steps, index, heating, p, displacement, out)
