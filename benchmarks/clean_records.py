@@ -44,7 +44,7 @@ def score_record(csv_path: Path, npz_path: Path, seed: int = 0) -> dict:
     record = load_record(csv_path)
     truth = np.load(npz_path)
     t0 = time.perf_counter()
-    result = diagnose.diagnose(record, rng=np.random.default_rng(seed))
+    result = diagnose(record, rng=np.random.default_rng(seed))
     seconds = time.perf_counter() - t0
     fit = result.fit
     mask = energised_mask(record, fit.noise)
