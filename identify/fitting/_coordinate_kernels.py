@@ -182,9 +182,11 @@ def equal_steps(d1, d2, max_steps):
     amplitude); NaN unless ``d1, d2 > 0`` and ``d1 + d2 < 2``.
 
     ``f(t) = 2 atanh(t + d1) - atanh(t) - atanh(t + d1 + d2)`` runs from ``+inf`` to ``-inf``
-    over the interval and crosses zero once (it need not be monotone): safeguarded Newton from the
-    interval's midpoint, a bisection step whenever Newton leaves the bracket, until a step moves
-    ``t`` by at most ``1e-15`` of the nearest distance to a singularity (``1 - t_i^2``)."""
+    over the interval, so a root lies inside; it need not be monotone, and it crossed zero once
+    on every point of a 200 x 200 grid of ``(d1, d2)`` (a numerical check, not a proof; the
+    round-trip tests cover the envelopes' regimes). Safeguarded Newton from the interval's
+    midpoint, a bisection step whenever Newton leaves the bracket, until a step moves ``t`` by at
+    most ``1e-15`` of the nearest distance to a singularity (``1 - t_i^2``)."""
     hi = 1.0 - d1 - d2
     if not (d1 > 0.0 and d2 > 0.0 and hi > -1.0):
         return math.nan
