@@ -31,13 +31,38 @@ def _thermal_output(y, s, e, s2, e2, rise, rise2, second):
 
 
 @njit(cache=True, inline="always")
+def _tabulated_step(rise, x_prev, x_now, gain, decay):
+    """One node's rise one sample on, its input going from ``x_prev`` to ``x_now``, with the
+    step's tabulated coefficients (:func:`lowpass_table`): every kernel's one formula."""
+    return x_now - (x_now - x_prev) * gain + decay * (rise - x_prev)
+
+
+@njit(cache=True, inline="always")
 def _thermal_lane(rise, rise2, x_prev, x_now, gain1, decay1, gain2, decay2, y, s, e, s2, e2):
     """One sample of one parameter set of :func:`_thermal_kernel` (both nodes, tabulated
     coefficients): ``(rise, rise2, output)``, the kernel's operations in its order."""
     previous = rise
-    rise = x_now - (x_now - x_prev) * gain1 + decay1 * (rise - x_prev)
-    rise2 = rise - (rise - previous) * gain2 + decay2 * (rise2 - previous)
+    rise = _tabulated_step(rise, x_prev, x_now, gain1, decay1)
+    rise2 = _tabulated_step(rise2, previous, rise, gain2, decay2)
     return rise, rise2, _thermal_output(y, s, e, s2, e2, rise, rise2, True)
+
+
+@njit(cache=True)
+def _lane_tables(w0, steps, p, column):
+    """``(decay, gain)``, each ``(4, n_steps)``: the tabulated coefficients of the node whose
+    time constant is ``p[w, column]``, for the four sets ``w0 .. w0 + 3``."""
+    decay = np.empty((4, steps.shape[0]))
+    gain = np.empty((4, steps.shape[0]))
+    for lane in range(4):
+        lowpass_table(steps, p[w0 + lane, column], decay[lane], gain[lane])
+    return decay, gain
+
+
+@njit(cache=True)
+def _first_outputs(w0, p, displacement, out, second):
+    """The four sets' outputs at the first sample, from their start rises."""
+    for w in range(w0, w0 + 4):
+        out[w, 0] = _thermal_output(displacement[w, 0], p[w, 1], p[w, 2], p[w, 4], p[w, 5], p[w, 6], p[w, 7], second)
 
 
 @njit(cache=True)
@@ -46,22 +71,14 @@ def _thermal_four(w0, index, steps, heating, p, displacement, out):
     tabulated): four independent recursions interleaved, so one's latency hides behind the
     others'; each set's operations are those of :func:`_thermal_one`, bit for bit."""
     n_samples = displacement.shape[1]
-    n_steps = steps.shape[0]
-    a1 = np.empty((4, n_steps))
-    g1 = np.empty((4, n_steps))
-    a2 = np.empty((4, n_steps))
-    g2 = np.empty((4, n_steps))
-    for lane in range(4):
-        lowpass_table(steps, p[w0 + lane, 0], a1[lane], g1[lane])
-        lowpass_table(steps, p[w0 + lane, 3], a2[lane], g2[lane])
+    a1, g1 = _lane_tables(w0, steps, p, 0)
+    a2, g2 = _lane_tables(w0, steps, p, 3)
     w1, w2, w3 = w0 + 1, w0 + 2, w0 + 3
     s0, s1, s2, s3 = p[w0, 1], p[w1, 1], p[w2, 1], p[w3, 1]
     e0, e1, e2, e3 = p[w0, 2], p[w1, 2], p[w2, 2], p[w3, 2]
     t0, t1, t2, t3 = p[w0, 4], p[w1, 4], p[w2, 4], p[w3, 4]
     f0, f1, f2, f3 = p[w0, 5], p[w1, 5], p[w2, 5], p[w3, 5]
-    for lane in range(4):
-        w = w0 + lane
-        out[w, 0] = _thermal_output(displacement[w, 0], p[w, 1], p[w, 2], p[w, 4], p[w, 5], p[w, 6], p[w, 7], True)
+    _first_outputs(w0, p, displacement, out, True)
     r0, r1, r2, r3 = p[w0, 6], p[w1, 6], p[w2, 6], p[w3, 6]
     q0, q1, q2, q3 = p[w0, 7], p[w1, 7], p[w2, 7], p[w3, 7]
     for k in range(1, n_samples):
@@ -92,27 +109,20 @@ def _thermal_four_first(w0, index, steps, heating, p, displacement, out):
     usual case, the core node pinned off): node 1 only, bit for bit :func:`_thermal_one`'s
     operations for each set."""
     n_samples = displacement.shape[1]
-    n_steps = steps.shape[0]
-    a1 = np.empty((4, n_steps))
-    g1 = np.empty((4, n_steps))
-    for lane in range(4):
-        lowpass_table(steps, p[w0 + lane, 0], a1[lane], g1[lane])
+    a1, g1 = _lane_tables(w0, steps, p, 0)
     w1, w2, w3 = w0 + 1, w0 + 2, w0 + 3
     s0, s1, s2, s3 = p[w0, 1], p[w1, 1], p[w2, 1], p[w3, 1]
     e0, e1, e2, e3 = p[w0, 2], p[w1, 2], p[w2, 2], p[w3, 2]
     r0, r1, r2, r3 = p[w0, 6], p[w1, 6], p[w2, 6], p[w3, 6]
-    for lane in range(4):
-        w = w0 + lane
-        out[w, 0] = _thermal_output(displacement[w, 0], p[w, 1], p[w, 2], p[w, 4], p[w, 5], p[w, 6], p[w, 7], False)
+    _first_outputs(w0, p, displacement, out, False)
     for k in range(1, n_samples):
         m = index[k]
         x_prev = heating[k - 1]
         x_now = heating[k]
-        step = x_now - x_prev
-        r0 = x_now - step * g1[0, m] + a1[0, m] * (r0 - x_prev)
-        r1 = x_now - step * g1[1, m] + a1[1, m] * (r1 - x_prev)
-        r2 = x_now - step * g1[2, m] + a1[2, m] * (r2 - x_prev)
-        r3 = x_now - step * g1[3, m] + a1[3, m] * (r3 - x_prev)
+        r0 = _tabulated_step(r0, x_prev, x_now, g1[0, m], a1[0, m])
+        r1 = _tabulated_step(r1, x_prev, x_now, g1[1, m], a1[1, m])
+        r2 = _tabulated_step(r2, x_prev, x_now, g1[2, m], a1[2, m])
+        r3 = _tabulated_step(r3, x_prev, x_now, g1[3, m], a1[3, m])
         out[w0, k] = _thermal_output(displacement[w0, k], s0, e0, 0.0, 0.0, r0, 0.0, False)
         out[w1, k] = _thermal_output(displacement[w1, k], s1, e1, 0.0, 0.0, r1, 0.0, False)
         out[w2, k] = _thermal_output(displacement[w2, k], s2, e2, 0.0, 0.0, r2, 0.0, False)
@@ -145,13 +155,13 @@ def _thermal_one(w, time, steps, index, heating, p, displacement, out):
         x_now = heating[k]
         if table1:
             m = index[k]
-            rise = x_now - (x_now - x_prev) * gain1[m] + decay1[m] * (rise - x_prev)
+            rise = _tabulated_step(rise, x_prev, x_now, gain1[m], decay1[m])
         else:
             rise = lowpass_step(rise, x_prev, x_now, time[k] - time[k - 1], p[w, 0])
         if second:
             if table2:
                 m = index[k]
-                rise2 = rise - (rise - previous) * gain2[m] + decay2[m] * (rise2 - previous)
+                rise2 = _tabulated_step(rise2, previous, rise, gain2[m], decay2[m])
             else:
                 rise2 = lowpass_step(rise2, previous, rise, time[k] - time[k - 1], p[w, 3])
         out[w, k] = _thermal_output(displacement[w, k], p[w, 1], p[w, 2], p[w, 4], p[w, 5], rise, rise2, second)
