@@ -58,11 +58,14 @@ def quadratic_fractions(z) -> np.ndarray:
 
 
 def two_values_slope_centre(coords, x, names):
-    """The sampler coordinates with each envelope as two values, the slope and the centre."""
+    """The sampler coordinates with each envelope as two values, the slope and the centre
+    (``coords`` must map the weights: its ``rho`` coordinate is the total weight)."""
+    if "weights" not in coords.blocks:
+        raise ValueError("the two-values comparison needs the weights block (rho and tau free, alpha pinned)")
     u = coords.forward(x)
     index = {n: i for i, n in enumerate(names)}
     low, high = coords.points[0], coords.points[-1]
-    total = np.exp(-np.outer(x[:, index["tau"]], coords.r)).sum(axis=1) * x[:, index["rho"]]
+    total = u[:, index["rho"]]  # the weights block's first coordinate: the total weight S
     for p in "ab":
         k0, k1, k2, k3 = (x[:, index[f"{p}{n}"]] for n in range(4))
         u[:, index[p + "0"]] = total * (k0 * np.tanh(k1 * low + k2) + k3)

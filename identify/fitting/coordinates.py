@@ -40,12 +40,10 @@ amplitude's logarithm is left for the direction the record leaves open. Values c
 tanh's slope and centre only where it still varies, so an envelope that has flattened at one
 of the three inputs at the reference point (the least-squares solution: a step sharper than
 the inputs' spacing, an envelope constant over the record; :data:`SENSITIVE_SLOPE`) keeps
-two values (at 10 % and 90 %), its slope and its centre :math:`-a_2/a_1`. Measured as the
-fraction of each whitened coordinate explained by quadratic terms of the others (0 for a
-Gaussian) on converged chains of ``data/bench_default.csv`` (seeds 0-4, 18 parameters; the
-rising envelope in three values, the falling one, flat at 90 % of the input, in two), the
-worst fell from 0.23-0.57 to 0.11-0.26 and the mean from 0.14-0.18 to 0.07-0.10 against
-two values, the slope and the centre for both (``benchmarks/coordinate_curvature.py``).
+two values (at 10 % and 90 %), its slope and its centre :math:`-a_2/a_1`. How Gaussian a
+study's chain is in either choice (the fraction of each whitened coordinate explained by
+quadratic terms of the others, 0 for a Gaussian): ``benchmarks/coordinate_curvature.py``,
+with its measured figures in ``docs/benchmarks.md``.
 
 A block is used only when all its parameters are free (``alpha`` pinned for the weights),
 and a coordinate is a logarithm only of a parameter with a positive lower bound (``c1``,
