@@ -142,17 +142,18 @@ def _mean_and_var(t, r):
 
 
 @njit(cache=True, error_model="numpy")
-def solve_tau(target, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps):
+def solve_tau(target, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps, start=math.nan):
     """The ``tau`` in ``[lower, upper]`` whose weighted mean threshold is ``target``:
     safeguarded Newton from the linearisation at ``tau = 0`` (mean ``m0``, variance ``v0``; a
     bisection step whenever Newton leaves the bracket) until a step moves ``tau`` by at most
     ``1e-13 (1 + |tau|)``; NaN where ``target`` is not finite or outside ``[mean_hi, mean_lo]``,
     the means at the bounds. The mean decreases in ``tau`` with slope ``-var``, the weights'
-    variance of the thresholds."""
+    variance of the thresholds. A finite ``start`` inside the bounds (a nearby point's ``tau``:
+    the walker a proposal moves from) replaces the linearisation's first guess."""
     if not (target <= mean_lo and target >= mean_hi and math.isfinite(target)):
         return math.nan
     lo, hi = lower, upper
-    t = min(max((m0 - target) / v0, lo), hi)
+    t = start if lo <= start <= hi else min(max((m0 - target) / v0, lo), hi)
     for _ in range(max_steps):
         m, var = _mean_and_var(t, r)
         f = m - target  # > 0: the root lies at larger tau
@@ -169,13 +170,17 @@ def solve_tau(target, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps):
     return t
 
 
+#: The spacing of doubles at 1 (numpy.finfo(float).eps).
+_EPSILON = 2.220446049250313e-16
+
+
 @njit(cache=True, error_model="numpy")
 def _atanh(t):
     return 0.5 * (math.log1p(t) - math.log1p(-t))
 
 
 @njit(cache=True, error_model="numpy")
-def equal_steps(d1, d2, max_steps):
+def equal_steps(d1, d2, max_steps, start=math.nan):
     """The ``t`` in ``(-1, 1 - d1 - d2)`` where the tanh rises by ``d1`` and then by ``d2`` over
     two equal steps of its argument: ``atanh(t + d1) - atanh(t) = atanh(t + d1 + d2) - atanh(t + d1)``
     (an increasing envelope's three values at equally spaced inputs, less its offset and over its
@@ -184,14 +189,18 @@ def equal_steps(d1, d2, max_steps):
     ``f(t) = 2 atanh(t + d1) - atanh(t) - atanh(t + d1 + d2)`` runs from ``+inf`` to ``-inf``
     over the interval, so a root lies inside; it need not be monotone, and it crossed zero once
     on every point of a 200 x 200 grid of ``(d1, d2)`` (a numerical check, not a proof; the
-    round-trip tests cover the envelopes' regimes). Safeguarded Newton from the interval's
-    midpoint, a bisection step whenever Newton leaves the bracket, until a step moves ``t`` by at
-    most ``1e-15`` of the nearest distance to a singularity (``1 - t_i^2``)."""
+    round-trip tests cover the envelopes' regimes). Safeguarded Newton from ``start`` when it lies
+    inside the interval (a nearby point's ``t``: the walker a proposal moves from), else from the
+    interval's midpoint, a bisection step whenever Newton leaves the bracket, until a step (or
+    the bracket) is at most four units in the last place of the largest of ``t, t + d1,
+    t + d1 + d2``: the equation adds ``t`` to ``d1`` and ``d2``, so its values carry no finer
+    ``t`` than that. From the midpoint a root near a singularity (a tanh's tail: ``t`` near
+    ``1 - d1 - d2``) takes a dozen steps or more; from a nearby point a few."""
     hi = 1.0 - d1 - d2
     if not (d1 > 0.0 and d2 > 0.0 and hi > -1.0):
         return math.nan
     lo = -1.0
-    t = 0.5 * (lo + hi)
+    t = start if lo < start < hi else 0.5 * (lo + hi)
     for _ in range(max_steps):
         tm, t2 = t + d1, t + d1 + d2
         f = 2.0 * _atanh(tm) - _atanh(t) - _atanh(t2)
@@ -201,9 +210,11 @@ def equal_steps(d1, d2, max_steps):
             hi = t
         slope = 2.0 / (1.0 - tm * tm) - 1.0 / (1.0 - t * t) - 1.0 / (1.0 - t2 * t2)
         newton = t - f / slope
+        tolerance = 4.0 * _EPSILON * max(abs(t), abs(tm), abs(t2))
+        if abs(newton - t) <= tolerance:  # converged (t itself may be a bracket end by now)
+            return newton
         t_new = newton if lo < newton < hi else 0.5 * (lo + hi)
-        scale = min(1.0 - t * t, 1.0 - t2 * t2)
-        done = abs(t_new - t) <= 1e-15 * scale or hi - lo <= 1e-15 * scale
+        done = hi - lo <= tolerance
         t = t_new
         if done:
             break
@@ -212,10 +223,27 @@ def equal_steps(d1, d2, max_steps):
 
 @njit(cache=True, error_model="numpy")
 def inverse_rows(
-    u, blocks, weights, envelopes, omegas, thermal, pinned, three_values, points, r, duration, tau_bounds, max_steps, x
+    u,
+    blocks,
+    weights,
+    envelopes,
+    omegas,
+    thermal,
+    pinned,
+    three_values,
+    points,
+    r,
+    duration,
+    tau_bounds,
+    max_steps,
+    starts,
+    warm,
+    x,
 ):
     """Parameters ``x`` (W, D) of sampler coordinates ``u`` (W, D); rows outside the map's
-    range are NaN."""
+    range are NaN. With ``warm``, row ``w``'s one-dimensional solves start from the parameters
+    ``starts[w]`` (a point near the answer, e.g. the walker a proposal moves from); the answer
+    is the same root to the solves' tolerance, found in fewer steps."""
     lower, upper = tau_bounds[0], tau_bounds[1]
     mean_lo, _ = _mean_and_var(lower, r)  # the same for every row
     mean_hi, _ = _mean_and_var(upper, r)
@@ -229,7 +257,8 @@ def inverse_rows(
         if blocks[0]:
             S, R = row[weights[0]], row[weights[1]]
             mean = R / S if S > 0 else math.nan
-            tau = solve_tau(mean, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps)
+            start = starts[w, weights[1]] if warm and weights[1] >= 0 else math.nan
+            tau = solve_tau(mean, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps, start)
             e = 0.0
             for j in range(r.shape[0]):
                 e += math.exp(-tau * r[j])
@@ -249,7 +278,8 @@ def inverse_rows(
                 if three_values[p]:
                     k0 = math.exp(row[c[2]])
                     e1, em, e2 = row[c[0]] / S, row[c[1]] / S, row[c[3]] / S
-                    t1 = equal_steps((em - e1) / k0, (e2 - em) / k0, max_steps)
+                    start = math.tanh(starts[w, c[1]] * points[0] + starts[w, c[2]]) if warm else math.nan
+                    t1 = equal_steps((em - e1) / k0, (e2 - em) / k0, max_steps, start)
                     z1 = _atanh(t1)
                     k1 = (_atanh(t1 + (em - e1) / k0) - z1) / (points[1] - points[0])
                     out[c[0]] = k0
@@ -355,7 +385,7 @@ def back_rows(
     outside the map's range, or whose factor is not finite, stays at ``s`` with factor ``-inf``
     (its log-determinant NaN where the map gave none)."""
     layout = (blocks, weights, envelopes, omegas, thermal, pinned, three_values, points, r, duration)
-    inverse_rows(q_u, *layout, tau_bounds, max_steps, q)
+    inverse_rows(q_u, *layout, tau_bounds, max_steps, s, True, q)  # each solve from its walker
     for w in range(q.shape[0]):
         ok = True
         for k in range(q.shape[1]):

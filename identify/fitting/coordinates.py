@@ -292,7 +292,7 @@ class GPICoordinates:
         set of envelope values no increasing tanh of that amplitude passes through) are NaN."""
         u = self._rows(u)
         x = np.empty_like(u)
-        kernels.inverse_rows(u, *self.layout, self._tau_bounds, MAX_NEWTON_STEPS, x)
+        kernels.inverse_rows(u, *self.layout, self._tau_bounds, MAX_NEWTON_STEPS, u, False, x)
         return x
 
     def back(self, s, q_u, factors, log_det_s):

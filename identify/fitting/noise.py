@@ -542,72 +542,44 @@ def log_likelihood(residual, noise: NoiseModel, sigma=None, *, time=None) -> np.
     return _gaussian_log_likelihood(np.sum(w * w, axis=-1), e.shape[-1], sig, noise.rho, correlations)
 
 
-@njit(cache=True, inline="always")
-def _innovation_term(data_k, model_k, previous, rho, scale):
-    """One sample's ``(e, w^2)`` of :func:`_whitened_sum_of_squares`."""
-    e = data_k - model_k
-    innovation = e - rho * previous
-    return e, innovation * innovation * scale
-
-
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, fastmath={"reassoc"})
 def _whitened_sum_of_squares(data, model_rows, rows, rho, out):
     """``out[i] = sum_k w_k^2`` for the residual ``data - model_rows[rows[i]]`` whitened with
     unit sigma (AR(1) with ``rho``; white for 0), in one pass and without temporaries.
 
-    Each sum is a sequential chain of additions (latency-bound), so four rows are summed in
-    lockstep, each in its own chain in sample order: the same value per row as alone. The groups
-    of four run on numba's threads, in the order of the rows (so each thread mostly reads rows
-    the model's kernel wrote on its core just before)."""
-    scale = 1.0 / (1.0 - rho * rho)
-    n_samples = data.shape[0]
-    n_rows = rows.shape[0]
-    n_groups = (n_rows + 3) // 4
-    for g in prange(n_groups):
-        i = 4 * g
-        if i + 4 <= n_rows:
-            r0, r1, r2, r3 = rows[i], rows[i + 1], rows[i + 2], rows[i + 3]
-            p0 = data[0] - model_rows[r0, 0]
-            p1 = data[0] - model_rows[r1, 0]
-            p2 = data[0] - model_rows[r2, 0]
-            p3 = data[0] - model_rows[r3, 0]
-            t0, t1, t2, t3 = p0 * p0, p1 * p1, p2 * p2, p3 * p3
-            for k in range(1, n_samples):
-                d = data[k]
-                p0, q0 = _innovation_term(d, model_rows[r0, k], p0, rho, scale)
-                p1, q1 = _innovation_term(d, model_rows[r1, k], p1, rho, scale)
-                p2, q2 = _innovation_term(d, model_rows[r2, k], p2, rho, scale)
-                p3, q3 = _innovation_term(d, model_rows[r3, k], p3, rho, scale)
-                t0 += q0
-                t1 += q1
-                t2 += q2
-                t3 += q3
-            out[i] = t0
-            out[i + 1] = t1
-            out[i + 2] = t2
-            out[i + 3] = t3
-        else:
-            for rest in range(i, n_rows):
-                r = rows[rest]
-                previous = data[0] - model_rows[r, 0]
-                total = previous * previous
-                for k in range(1, n_samples):
-                    previous, term = _innovation_term(data[k], model_rows[r, k], previous, rho, scale)
-                    total += term
-                out[rest] = total
-
-
-@njit(cache=True, parallel=True)
-def _whitened_sum_of_squares_uneven(data, model_rows, rows, correlations, out):
-    """:func:`_whitened_sum_of_squares` with each step's own correlation (an uneven grid), the
-    rows on numba's threads (each row's sum the same as alone)."""
+    The rows run on numba's threads, in order (each thread mostly reads rows the model's
+    kernel wrote on its core just before). Each row's sum is one loop over its samples whose
+    additions the compiler may reorder (``fastmath={"reassoc"}``, nothing else: NaN and inf
+    propagate as usual) into vector lanes: a sequential chain of additions waits for each
+    one's latency, a third of the speed. The order is the compiled loop's, so a row's value
+    does not depend on the rows beside it or on the thread count; it agrees with the
+    sequential sum to rounding (and may differ in the last bits between machines with other
+    vector widths)."""
     n_samples = data.shape[0]
     for i in prange(rows.shape[0]):
-        r = rows[i]
-        previous = data[0] - model_rows[r, 0]
+        y = model_rows[rows[i]]
+        previous = data[0] - y[0]
+        total = 0.0
+        for k in range(1, n_samples):
+            e = data[k] - y[k]
+            innovation = e - rho * previous
+            total += innovation * innovation
+            previous = e
+        first = data[0] - y[0]
+        out[i] = first * first + total / (1.0 - rho * rho)
+
+
+@njit(cache=True, parallel=True, fastmath={"reassoc"})
+def _whitened_sum_of_squares_uneven(data, model_rows, rows, correlations, out):
+    """:func:`_whitened_sum_of_squares` with each step's own correlation (an uneven grid), the
+    rows on numba's threads (each row's sum the same as alone, its additions in vector lanes)."""
+    n_samples = data.shape[0]
+    for i in prange(rows.shape[0]):
+        y = model_rows[rows[i]]
+        previous = data[0] - y[0]
         total = previous * previous
         for k in range(1, n_samples):
-            e = data[k] - model_rows[r, k]
+            e = data[k] - y[k]
             c = correlations[k - 1]
             innovation = e - c * previous
             total += innovation * innovation / (1.0 - c * c)

@@ -93,7 +93,7 @@ from scipy.stats import chi2
 from model import Model
 
 from ..defaults import DEFAULT_CHECK_EVERY, DEFAULT_MAX_STEPS
-from ._posterior_kernels import snooker_proposals, support_prior_theta
+from ._posterior_kernels import support_prior_theta
 from .chain_file import (
     BACKEND_GROUP,
     CHAIN_DTYPE,
@@ -118,6 +118,7 @@ from .convergence import (
     tau_convergence,
 )
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
+from .moves import MOVES, DifferentialMove, SnookerMove
 from .noise import NoiseModel, log_likelihood_of_rows
 from .parametrisation import in_record_units
 from .progress import ChainProgress, progress_mode
@@ -130,6 +131,7 @@ __all__ = [
     "PRIORS",
     "MOVES",
     "SnookerMove",
+    "DifferentialMove",
     "default_priors",
     "LogPosterior",
     "PosteriorResult",
@@ -163,48 +165,6 @@ def _log_uniform_logpdf(x, lower, upper):
 
 #: prior name -> log-density ``f(x, lower, upper)`` on ``[lower, upper]`` (vectorised in x).
 PRIORS = {"uniform": _uniform_logpdf, "log_uniform": _log_uniform_logpdf}
-
-
-class SnookerMove(emcee.moves.DESnookerMove):
-    r"""The differential-evolution snooker update of ter Braak and Vrugt (2008), corrected.
-
-    For walker :math:`x`, pick three other walkers :math:`z, z_1, z_2`; with the unit
-    vector :math:`e = (x - z)/\lVert x - z\rVert` propose
-    :math:`x' = x + \gamma_s\, e\, e^\top (z_1 - z_2)` and accept with probability
-    :math:`\min\{1, \pi(x')/\pi(x)\, (\lVert x' - z\rVert / \lVert x - z\rVert)^{d-1}\}`
-    (ter Braak and Vrugt, Stat. Comput. 18, 435-446, 2008, eq. 3).
-
-    emcee 3.1.6's :class:`emcee.moves.DESnookerMove` divides by
-    :math:`\sqrt{\lVert x - z\rVert}` instead of :math:`\lVert x - z\rVert` and uses the
-    exponent :math:`(d-1)/2`; fixed upstream in dfm/emcee pull request #531 (merged
-    2024-12), not in a release yet. The released move does not leave the posterior
-    invariant: on the 18-parameter GPI posterior it drew marginal standard deviations
-    0.83-0.99 times the Laplace ones where a random-walk Metropolis chain drew 1.01-1.14,
-    and on a standard normal it shrinks the variance (``tests/test_posterior.py``).
-    """
-
-    def get_proposal(self, s, c, random):
-        """Proposals ``(n, D)`` for the walkers ``s`` and the log Jacobian factors ``(n,)``,
-        all walkers at once (emcee's loops over them in Python): the draws here, the arithmetic
-        in one compiled pass (:func:`identify.fitting._posterior_kernels.snooker_proposals`)."""
-        n_walkers = s.shape[0]
-        # each walker's z, z1, z2 from the three other splits, one from each, in a random order
-        offsets = np.cumsum([0] + [len(c[j]) for j in range(3)])
-        picks = np.stack([offsets[j] + random.randint(len(c[j]), size=n_walkers) for j in range(3)], axis=1)
-        roles = np.argsort(random.uniform(size=(n_walkers, 3)), axis=1)
-        s = np.ascontiguousarray(s, dtype=float)
-        proposal = np.empty_like(s)
-        log_factor = np.empty(n_walkers)
-        pool = np.ascontiguousarray(np.concatenate([c[j] for j in range(3)]), dtype=float)
-        snooker_proposals(s, pool, picks, roles, float(self.gammas), proposal, log_factor)
-        return proposal, log_factor
-
-
-#: move name -> factory of an emcee move schedule.
-MOVES = {
-    "stretch": lambda: emcee.moves.StretchMove(),
-    "de": lambda: [(emcee.moves.DEMove(), 0.8), (SnookerMove(), 0.2)],
-}
 
 
 def _moves_in(schedule, coordinates):
