@@ -70,20 +70,33 @@ def support_prior_theta(x, lower, upper, constant, log_uniform, template, free):
 
 
 @njit(cache=True)
-def snooker_proposals(s, pool, picks, roles, gamma, proposal, log_factor):
-    """The snooker update of :class:`identify.fitting.posterior.SnookerMove` for every walker.
+def _order_of_three(keys):
+    """``np.argsort(keys)`` of three distinct values: the indices from the smallest."""
+    a, b, c = keys[0], keys[1], keys[2]
+    if a < b:
+        if b < c:
+            return 0, 1, 2
+        return (0, 2, 1) if a < c else (2, 0, 1)
+    if a < c:
+        return 1, 0, 2
+    return (1, 2, 0) if b < c else (2, 1, 0)
+
+
+@njit(cache=True)
+def snooker_proposals(s, c0, c1, c2, picks, keys, gamma, proposal, log_factor):
+    """The snooker update of :class:`identify.fitting.moves.SnookerMove` for every walker.
 
     Parameters
     ----------
     s : ndarray, shape (n, D)
         The walkers.
-    pool : ndarray, shape (m, D)
-        The other splits' walkers, stacked.
+    c0, c1, c2 : ndarray, shape (m_j, D)
+        The other three splits' walkers.
     picks : ndarray of int, shape (n, 3)
-        Each walker's three rows of ``pool`` (drawn by the move).
-    roles : ndarray of int, shape (n, 3)
-        A random order of the three per walker: ``z``, ``z1``, ``z2`` are the picks at
-        ``roles[:, 0]``, ``roles[:, 1]`` and ``roles[:, 2]``.
+        Each walker's row of ``c0``, ``c1`` and ``c2`` (drawn by the move).
+    keys : ndarray, shape (n, 3)
+        Uniform draws whose order (:func:`numpy.argsort`'s) assigns the roles: ``z``, ``z1``,
+        ``z2`` are the picks of the groups with the smallest, middle and largest key.
     gamma : float
     proposal : ndarray, shape (n, D)
         Out: ``x + gamma e e^T (z1 - z2)`` with ``e = (x - z) / |x - z|``.
@@ -92,9 +105,11 @@ def snooker_proposals(s, pool, picks, roles, gamma, proposal, log_factor):
     """
     n, d = s.shape
     for i in range(n):
-        z = pool[picks[i, roles[i, 0]]]
-        z1 = pool[picks[i, roles[i, 1]]]
-        z2 = pool[picks[i, roles[i, 2]]]
+        chosen = (c0[picks[i, 0]], c1[picks[i, 1]], c2[picks[i, 2]])
+        first, second, third = _order_of_three(keys[i])
+        z = chosen[first]
+        z1 = chosen[second]
+        z2 = chosen[third]
         distance = 0.0
         for k in range(d):
             distance += (s[i, k] - z[k]) ** 2

@@ -73,14 +73,17 @@ class SnookerMove(emcee.moves.DESnookerMove):
         in one compiled pass (:func:`identify.fitting._posterior_kernels.snooker_proposals`)."""
         n_walkers = s.shape[0]
         # each walker's z, z1, z2 from the three other splits, one from each, in a random order
-        offsets = np.cumsum([0] + [len(c[j]) for j in range(3)])
-        picks = np.stack([offsets[j] + random.randint(len(c[j]), size=n_walkers) for j in range(3)], axis=1)
-        roles = np.argsort(random.uniform(size=(n_walkers, 3)), axis=1)
-        s = np.ascontiguousarray(s, dtype=float)
-        proposal = np.empty_like(s)
+        # (the order of three uniforms per walker: np.argsort's, done in the compiled pass)
+        picks = np.empty((n_walkers, 3), dtype=np.int64)
+        for j in range(3):
+            picks[:, j] = random.randint(len(c[j]), size=n_walkers)
+        keys = random.uniform(size=(n_walkers, 3))
+        proposal = np.empty((n_walkers, s.shape[1]))
         log_factor = np.empty(n_walkers)
-        pool = np.ascontiguousarray(np.concatenate([c[j] for j in range(3)]), dtype=float)
-        snooker_proposals(s, pool, picks, roles, float(self.gammas), proposal, log_factor)
+        groups = [np.ascontiguousarray(c[j], dtype=float) for j in range(3)]
+        snooker_proposals(
+            np.ascontiguousarray(s, dtype=float), *groups, picks, keys, float(self.gammas), proposal, log_factor
+        )
         return proposal, log_factor
 
 
