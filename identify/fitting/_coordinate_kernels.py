@@ -47,7 +47,7 @@ class Layout(NamedTuple):
         The three equally spaced inputs where the envelopes' values are taken (two values: the
         outer two).
     r : ndarray, shape (N,)
-        The thresholds.
+        The thresholds ``alpha j``, ``j = 1..N`` (equally spaced: :func:`_exponential_sums`).
     duration : float
         The record's duration [s] (NaN: no thermal blocks).
     """
@@ -70,14 +70,37 @@ def _value(row, column, pinned):
 
 
 @njit(cache=True, error_model="numpy")
+def _exponential_sums(t, r, top):
+    """``(s0, s1, s2)``: the sums of ``e_j``, ``e_j r_j`` and ``e_j r_j^2`` with
+    ``e_j = e^{-t r_j - top}``, for the layout's thresholds ``r_j = alpha j`` (``j = 1..N``,
+    equally spaced from ``alpha``). One ``exp`` and the ratio ``e^{-t alpha}`` (or its inverse)
+    carried from term to term, from the largest term: the j-th term differs from its own
+    ``exp`` by about j units in the last place, where a dozen ``exp`` calls cost ten times more."""
+    n = r.shape[0]
+    s0 = s1 = s2 = 0.0
+    if t >= 0.0:  # the terms fall from the first threshold
+        e = math.exp(-t * r[0] - top)
+        ratio = math.exp(-t * r[0])
+        for j in range(n):
+            s0 += e
+            s1 += e * r[j]
+            s2 += e * r[j] * r[j]
+            e *= ratio
+    else:  # they fall from the last
+        e = math.exp(-t * r[n - 1] - top)
+        ratio = math.exp(t * r[0])
+        for j in range(n - 1, -1, -1):
+            s0 += e
+            s1 += e * r[j]
+            s2 += e * r[j] * r[j]
+            e *= ratio
+    return s0, s1, s2
+
+
+@njit(cache=True, error_model="numpy")
 def _moments(rho, tau, r):
     """``(S, R, central second moment, s0)`` of the weights ``p_j = rho e^{-tau r_j}``."""
-    s0 = s1 = s2 = 0.0
-    for j in range(r.shape[0]):
-        e = math.exp(-tau * r[j])
-        s0 += e
-        s1 += e * r[j]
-        s2 += e * r[j] * r[j]
+    s0, s1, s2 = _exponential_sums(tau, r, 0.0)
     return rho * s0, rho * s1, rho * (s2 - s1 * s1 / s0), s0
 
 
@@ -130,13 +153,7 @@ def forward_rows(x, blocks, weights, envelopes, omegas, thermal, pinned, three_v
 def _mean_and_var(t, r):
     """Mean and variance of the thresholds under the weights ``e^{-t r}`` (scaled by the
     exponent's maximum, at the first or the last threshold: no overflow)."""
-    top = max(-t * r[0], -t * r[-1])
-    s0 = s1 = s2 = 0.0
-    for j in range(r.shape[0]):
-        e = math.exp(-t * r[j] - top)
-        s0 += e
-        s1 += e * r[j]
-        s2 += e * r[j] * r[j]
+    s0, s1, s2 = _exponential_sums(t, r, max(-t * r[0], -t * r[-1]))
     m = s1 / s0
     return m, s2 / s0 - m * m
 
@@ -259,10 +276,7 @@ def inverse_rows(
             mean = R / S if S > 0 else math.nan
             start = starts[w, weights[1]] if warm and weights[1] >= 0 else math.nan
             tau = solve_tau(mean, r, lower, upper, mean_lo, mean_hi, m0, v0, max_steps, start)
-            e = 0.0
-            for j in range(r.shape[0]):
-                e += math.exp(-tau * r[j])
-            out[weights[0]] = S / e
+            out[weights[0]] = S / _exponential_sums(tau, r, 0.0)[0]
             out[weights[1]] = tau
             bad = bad or not (S > 0) or not math.isfinite(tau)
         S = _moments(_value(out, weights[0], pinned[0]), _value(out, weights[1], pinned[1]), r)[0]
