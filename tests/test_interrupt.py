@@ -138,3 +138,58 @@ def test_signal_during_sampling_keeps_steps_and_the_rerun_resumes_bit_for_bit(
     chain, log_prob = _chain(out)
     assert chain.shape == uninterrupted[0].shape
     assert np.array_equal(chain, uninterrupted[0]) and np.array_equal(log_prob, uninterrupted[1])
+
+
+#: A SIGTERM whose handler runs inside a weakref callback, as one does when it lands while the
+#: garbage collector runs such a callback: Python cannot raise the KeyboardInterrupt there.
+LOST_INTERRUPT = """
+import os, signal, sys, weakref
+
+def interrupt(signum, frame):
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+signal.signal(signal.SIGTERM, interrupt)
+
+class Thing:
+    pass
+
+def callback(ref):
+    os.kill(os.getpid(), signal.SIGTERM)
+    for _ in range(10000):
+        pass
+
+def run():
+    thing = Thing()
+    ref = weakref.ref(thing, callback)
+    try:
+        del thing
+        for _ in range(10**6):
+            pass
+        print("went on")
+    except KeyboardInterrupt as exc:
+        print("stopped by", exc)
+
+if sys.argv[1] == "guarded":
+    from identify.cli.interrupts import interrupts_redelivered
+    with interrupts_redelivered():
+        run()
+else:
+    run()
+"""
+
+
+@pytest.mark.parametrize("guarded", [False, True], ids=["python alone", "interrupts_redelivered"])
+def test_an_interrupt_landing_in_a_weakref_callback_still_stops_the_command(guarded):
+    """Alone, Python prints "Exception ignored" with a traceback and goes on (the command would
+    neither stop nor keep its log clean); under interrupts_redelivered, which every command runs
+    in, the signal is delivered again outside the callback and nothing is printed."""
+    done = subprocess.run(
+        [sys.executable, "-c", LOST_INTERRUPT, "guarded" if guarded else "alone"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    if guarded:
+        assert done.stdout.strip() == "stopped by SIGTERM" and done.stderr == "", done.stderr
+    else:
+        assert done.stdout.strip() == "went on" and "Exception ignored" in done.stderr

@@ -397,7 +397,7 @@ def test_least_squares_intervals_cover_the_truth_and_chains_converge(calibration
 @pytest.mark.slow
 def test_posterior_intervals_cover_the_truth_at_about_the_nominal_rate(calibration):
     """Expected 0.95; accept within two standard errors (as above). Before the corrected snooker
-    move (identify.fitting.posterior.SnookerMove) the released emcee move shrank the posterior and
+    move (identify.fitting.moves.SnookerMove) the released emcee move shrank the posterior and
     these intervals covered 0.861 on 12 records."""
     coverage, se = calibration.coverage("posterior")
     assert abs(coverage - 0.95) <= 2.0 * se and se < 0.05
@@ -580,7 +580,7 @@ def test_the_study_moves_leave_a_gaussian_posterior_invariant():
 
 
 def test_emcee_3_1_6_snooker_move_shrinks_the_posterior():
-    """Why :class:`identify.fitting.posterior.SnookerMove` exists: the released
+    """Why :class:`identify.fitting.moves.SnookerMove` exists: the released
     ``emcee.moves.DESnookerMove`` (3.1.6; fixed upstream in dfm/emcee#531, unreleased) in the
     same schedule shrinks the variances (measured 0.86 on this Gaussian, 0.80 on an 18-D
     standard normal). If this fails, emcee has released the fix and the override can go."""

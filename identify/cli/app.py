@@ -26,6 +26,7 @@ from ..data.fileio import DiskFullError, LinkedFileError, is_disk_full
 from ..data.hdf5 import ChainFileError
 from ..data.locks import FolderBusyError
 from ..logs import configure
+from .interrupts import interrupts_redelivered
 from .options import OptionError
 
 #: Exit code -> meaning (printed by ``--help``; docs/reproducibility.md). The numbers are
@@ -143,7 +144,8 @@ def main(argv=None) -> int:
     previous = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     try:
         _sigterm_as_interrupt()
-        return _main(argv)
+        with interrupts_redelivered():
+            return _main(argv)
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -54,9 +54,9 @@ BACKEND_GROUP = "mcmc"
 
 
 #: Steps per HDF5 chunk of the stored chain (the unit of compression and of partial reads). A
-#: flush (about one a second) rewrites the chunk being filled whole, compressed again: 64 steps
-#: keep that a few milliseconds (a 256-step chunk doubled a flush's time) for a file a few
-#: percent larger.
+#: flush (about one a second) rewrites the chunk being filled whole, compressed again, so its
+#: cost grows with the chunk: 64 steps keep a flush a few milliseconds, for a file a few percent
+#: larger than with chunks several times longer.
 CHAIN_CHUNK_STEPS = 64
 #: Type of the stored chain's coordinates. float32 keeps 24 bits of each coordinate (a relative
 #: rounding of at most 6e-8, far below the spread of any posterior the chain describes) and

@@ -68,8 +68,8 @@ reported samples; the effective sample size of parameter ``j`` is
 ``n_walkers (n_steps - discard) / tau_j``.
 
 The chain file's backend and reader are :mod:`identify.fitting.chain_file`; the
-autocorrelation times, the tau rule, R-hat and ESS :mod:`identify.fitting.convergence`.
-Their public names are importable from here too, as before.
+autocorrelation times, the tau rule, R-hat and ESS :mod:`identify.fitting.convergence`; the
+moves :mod:`identify.fitting.moves`. Their public names are importable from here too, as before.
 
 Randomness: the walkers' start uses the ``numpy.random.Generator`` passed in; emcee's
 internal ``RandomState`` is seeded from the same generator; nothing touches global state.
@@ -941,7 +941,7 @@ def _stop_between_steps():
 
     def request(signum, frame):
         if stop.requested:
-            raise KeyboardInterrupt
+            raise KeyboardInterrupt(signal.Signals(signum).name)
         stop.requested = signal.Signals(signum).name
 
     # a signal the process ignores (SIGINT of a background job) stays ignored
