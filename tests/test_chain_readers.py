@@ -289,3 +289,42 @@ def test_the_last_step_is_kept_in_full_precision_in_two_slots(tmp_path):
         slots[which, 0, 0] += 1.0
     with pytest.raises(ChainFileError, match="full-precision copy of its last step"):
         chain_info(path)
+
+
+def test_a_signal_during_a_flush_takes_effect_when_the_flush_ends(tmp_path, monkeypatch):
+    """A SIGTERM that lands between the acceptance counts and the step count (here: while the
+    random state is written) interrupts only once the flush is whole; the flush done again
+    after it (sample_posterior's final one) then has nothing to write, so no step's acceptance
+    is counted twice."""
+    import signal
+
+    path = tmp_path / "chain.h5"
+    backend = _new_chain(path, n_walkers=4, ndim=2, flush_every=10**6, flush_seconds=1e9)
+    state = np.random.RandomState(0).get_state()
+    for k in range(3):
+        backend.save_step(
+            emcee.State(np.full((4, 2), float(k)), log_prob=np.zeros(4), random_state=state), np.ones(4, bool)
+        )
+    setitem = h5py.AttributeManager.__setitem__
+
+    def signalling(self, name, value):
+        setitem(self, name, value)
+        if name == "random_state_0":
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    monkeypatch.setattr(h5py.AttributeManager, "__setitem__", signalling)
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            backend.flush()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    monkeypatch.undo()
+    backend.flush()
+    with h5py.File(path, "r") as f:
+        group = f[BACKEND_GROUP]
+        assert group.attrs["iteration"] == 3
+        np.testing.assert_array_equal(group["accepted"][:], [3, 3, 3, 3])

@@ -18,8 +18,11 @@ The sampling that writes it is :func:`identify.fitting.posterior.sample_posterio
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import signal
+import threading
 import time as _time
 import zlib
 
@@ -45,6 +48,7 @@ __all__ = [
     "ChainFileError",
     "chain_info",
     "compact_chain_file",
+    "signals_after",
     "last_step",
 ]
 
@@ -207,10 +211,17 @@ class BufferedHDFBackend(ChainBackend):
         """Write the buffered steps (one file open); a no-op when nothing is pending.
 
         The open waits for a lock held by another process's reader (:class:`ChainBackend`);
-        the steps leave the buffer only once written."""
+        the steps leave the buffer only once written. A Ctrl-C or SIGTERM that arrives during
+        the write takes effect when it ends (:func:`signals_after`): a write cut between the
+        acceptance counts and the step count that claims them, then done again, would count
+        its steps' acceptances twice."""
         self._last_flush = _time.monotonic()
         if not self._pending:
             return
+        with signals_after():
+            self._write_pending()
+
+    def _write_pending(self) -> None:
         pending = self._pending
         n = len(pending)
         with self.open("a") as f:
@@ -244,6 +255,27 @@ class BufferedHDFBackend(ChainBackend):
     def grow(self, ngrow, blobs):
         self.flush()
         super().grow(ngrow, blobs)
+
+
+@contextlib.contextmanager
+def signals_after():
+    """Within the block, SIGINT (Ctrl-C) and SIGTERM are held and handled when it ends, by the
+    handlers in place before it, in the order they came (main thread only: elsewhere Python
+    runs no signal handler, and nothing changes; a signal the process ignores stays ignored)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = []
+    # a handler installed outside Python (getsignal: None) cannot be put back: left alone
+    catch = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) not in (signal.SIG_IGN, None)]
+    previous = {sig: signal.signal(sig, lambda signum, frame: held.append(signum)) for sig in catch}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for signum in held:
+            signal.raise_signal(signum)
 
 
 def last_step(path, name=BACKEND_GROUP):
