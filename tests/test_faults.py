@@ -822,8 +822,8 @@ def test_a_full_disk_while_writing_the_posterior_leaves_no_temporary_file_and_no
     the lock file, which is not left behind (nor anything else); once space is freed the rerun
     finishes with the uninterrupted run's results."""
     # A 30 Hz record (2101 samples): its posterior.nc (about 5 MB, compressed) is larger than the
-    # chain's space bound (3.1 MB: its uncompressed steps and the HDF5 metadata), so a 4.5 MB
-    # disk has room for the chain but not for posterior.nc.
+    # chain's space bound (under 1 MB: the 64-step chunks a flush touches, raw, and the HDF5
+    # metadata), so a 4.5 MB disk has room for the chain but not for posterior.nc.
     write_record(tmp_path / "rec.csv", simulate(fs=30.0, seed=4).record)
     reference = cli("study", "rec.csv", "--out", "finished", *FINISHED, cwd=tmp_path)
     assert reference.returncode == NOT_CONVERGED, reference.stderr[-3000:]
