@@ -140,12 +140,30 @@ def _sigterm_as_interrupt() -> None:
         signal.signal(signal.SIGTERM, interrupt)
 
 
-def main(argv=None) -> int:
+def main(argv=None, *, when_finished=None) -> int:
+    """Run one command (``argv``: the command line after ``python -m identify``); its exit code.
+
+    ``when_finished``, if given, is called with the exit code as soon as the command has
+    finished, before this function's own clean-up (:func:`program` installs the late-signal
+    handlers with it, and they then stay). A Ctrl-C or SIGTERM that lands after the command has
+    finished, in that clean-up, changes nothing: the command's code is returned."""
     previous = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
+    finished = []
     try:
         _sigterm_as_interrupt()
         with interrupts_redelivered():
-            return _main(argv)
+            finished.append(_main(argv))
+        if when_finished is not None:
+            when_finished(finished[0])
+            previous = None  # the process's handlers are when_finished's from now on
+        return finished[0]
+    except KeyboardInterrupt:
+        if not finished:
+            raise
+        if when_finished is not None:  # it landed before when_finished had put its handlers in
+            when_finished(finished[0])
+            previous = None
+        return finished[0]
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
@@ -157,7 +175,7 @@ def program() -> None:
     process with that code and a note, never by the signal with no word."""
     code = 2
     try:
-        code = main()
+        code = main(when_finished=_late_signals_exit)
     except SystemExit as exc:  # --help, --version, a usage error
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
         if exc.code is not None and not isinstance(exc.code, int):
