@@ -49,6 +49,7 @@ __all__ = [
     "chain_info",
     "compact_chain_file",
     "signals_after",
+    "signal_handlers",
     "last_step",
 ]
 
@@ -258,22 +259,34 @@ class BufferedHDFBackend(ChainBackend):
 
 
 @contextlib.contextmanager
+def signal_handlers(handler):
+    """Within the block, ``handler(signum, frame)`` handles SIGINT (Ctrl-C) and SIGTERM; the
+    handlers before it are put back at its end. Yields whether it was put in: only in the main
+    thread (elsewhere Python runs no signal handler, and nothing changes). A signal the process
+    ignores stays ignored, and a handler installed outside Python (``getsignal``: None), which
+    could not be put back, is left alone."""
+    if threading.current_thread() is not threading.main_thread():
+        yield False
+        return
+    catch = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) not in (signal.SIG_IGN, None)]
+    previous = {sig: signal.signal(sig, handler) for sig in catch}
+    try:
+        yield True
+    finally:
+        for sig, kept in previous.items():
+            signal.signal(sig, kept)
+
+
+@contextlib.contextmanager
 def signals_after():
     """Within the block, SIGINT (Ctrl-C) and SIGTERM are held and handled when it ends, by the
-    handlers in place before it, in the order they came (main thread only: elsewhere Python
-    runs no signal handler, and nothing changes; a signal the process ignores stays ignored)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    handlers in place before it, in the order they came (:func:`signal_handlers`: main thread
+    only)."""
     held = []
-    # a handler installed outside Python (getsignal: None) cannot be put back: left alone
-    catch = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) not in (signal.SIG_IGN, None)]
-    previous = {sig: signal.signal(sig, lambda signum, frame: held.append(signum)) for sig in catch}
     try:
-        yield
+        with signal_handlers(lambda signum, frame: held.append(signum)):
+            yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         for signum in held:
             signal.raise_signal(signum)
 

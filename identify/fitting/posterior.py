@@ -81,7 +81,6 @@ import contextlib
 import math
 import os
 import signal
-import threading
 import time as _time
 from dataclasses import dataclass, field
 
@@ -103,6 +102,7 @@ from .chain_file import (
     ChainFileError,
     chain_info,
     compact_chain_file,
+    signal_handlers,
 )
 from .convergence import (
     DIAGNOSTICS,
@@ -935,9 +935,6 @@ def _stop_between_steps():
     interrupted likelihood call's traceback); a second signal interrupts at once.
     Main thread only (elsewhere signals cannot be handled and nothing changes)."""
     stop = _StopRequest()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
 
     def request(signum, frame):
         if stop.requested:
@@ -945,10 +942,5 @@ def _stop_between_steps():
         stop.requested = signal.Signals(signum).name
 
     # a signal the process ignores (SIGINT of a background job) stays ignored
-    catch = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) is not signal.SIG_IGN]
-    previous = {sig: signal.signal(sig, request) for sig in catch}
-    try:
+    with signal_handlers(request):
         yield stop
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
