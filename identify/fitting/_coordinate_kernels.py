@@ -77,23 +77,18 @@ def _exponential_sums(t, r, top):
     carried from term to term, from the largest term: the j-th term differs from its own
     ``exp`` by about j units in the last place, where a dozen ``exp`` calls cost ten times more."""
     n = r.shape[0]
-    s0 = s1 = s2 = 0.0
     if t >= 0.0:  # the terms fall from the first threshold
-        e = math.exp(-t * r[0] - top)
-        ratio = math.exp(-t * r[0])
-        for j in range(n):
-            s0 += e
-            s1 += e * r[j]
-            s2 += e * r[j] * r[j]
-            e *= ratio
+        j, step, ratio = 0, 1, math.exp(-t * r[0])
     else:  # they fall from the last
-        e = math.exp(-t * r[n - 1] - top)
-        ratio = math.exp(t * r[0])
-        for j in range(n - 1, -1, -1):
-            s0 += e
-            s1 += e * r[j]
-            s2 += e * r[j] * r[j]
-            e *= ratio
+        j, step, ratio = n - 1, -1, math.exp(t * r[0])
+    e = math.exp(-t * r[j] - top)
+    s0 = s1 = s2 = 0.0
+    for _ in range(n):
+        s0 += e
+        s1 += e * r[j]
+        s2 += e * r[j] * r[j]
+        e *= ratio
+        j += step
     return s0, s1, s2
 
 

@@ -558,14 +558,14 @@ def _whitened_sum_of_squares(data, model_rows, rows, rho, out):
     n_samples = data.shape[0]
     for i in prange(rows.shape[0]):
         y = model_rows[rows[i]]
-        previous = data[0] - y[0]
+        first = data[0] - y[0]
+        previous = first
         total = 0.0
         for k in range(1, n_samples):
             e = data[k] - y[k]
             innovation = e - rho * previous
             total += innovation * innovation
             previous = e
-        first = data[0] - y[0]
         out[i] = first * first + total / (1.0 - rho * rho)
 
 
