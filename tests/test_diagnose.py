@@ -906,6 +906,12 @@ def test_the_other_verdicts_are_explained():
     assert "No library effect, alone or with another" in _text("none repairs") and "Where: here." in _text(
         "none repairs"
     )
+    # with nothing fitted the text says so, and claims nothing about what fits would have shown
+    nothing = _evidence([])
+    decision = decide(nothing)
+    text = explain(decision, nothing, Thresholds(), "Where: here.")
+    assert decision.status == "unexplained" and "none was fitted on the whole record" in text
+    assert "alone or with another" not in text
     assert "not a finding" in _text("targeted: a repair in the first loading alone is no finding")
     assert "below the practical size" in _text("too small: the repair explains less than the practical size")
     assert "('training')" in _text("first loading again: a name beside first-cycle physics the model has")

@@ -142,6 +142,23 @@ def test_the_joint_diagnosis_names_creep_with_a_record_of_holds():
         assert all(value <= m + 1e-6 * m for m in members), (name, value, members)
 
 
+def test_the_joint_stage_fits_what_the_records_together_ask_for():
+    """Two runs whose sensor drifts the other way: a heating's shared parameters mimic each
+    drift alone (each record alone is adequate with it, and finishes no candidate), not both
+    together. The joint baseline's residual asks for the drift, and the joint stage fits it."""
+    from identify.diagnosis import diagnose
+
+    records = [
+        simulate("sensor_drift_linear=1.5", seed=1, fs=10.0).record,
+        simulate("sensor_drift_linear=-1.5", seed=2, fs=10.0).record,
+    ]
+    d = diagnose(records, ["thermal"], rng=np.random.default_rng(0))
+    assert [r["alone"] for r in d.records] == ["adequate", "adequate"]  # the path under test
+    assert not all(r["adequate"] for r in d.records)
+    assert d.status == "missing_effect" and d.missing == "sensor_drift", d.reason
+    assert d.adequate_by_record["sensor_drift"] == [True, True]
+
+
 def test_the_diagnose_command_refuses_a_record_given_twice(tmp_path, capsys):
     from identify.cli import main
     from identify.data.records import write_record

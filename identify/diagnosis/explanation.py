@@ -163,6 +163,11 @@ def _first_loading_only(c: _Context) -> str:
 
 
 def _none_repairs(c: _Context) -> str:
+    if not c.ev.explanations:  # nothing was fitted: say so rather than what fits would have shown
+        return (
+            f"{c.tests} No library effect promised to lower the misfit in the search (screening and short "
+            f"refits), so none was fitted on the whole record and none is named.{c.tail}"
+        )
     return (
         f"{c.tests} No library effect, alone or with another, leaves a residual consistent with the noise, so "
         f"none is named.{c.tail}"

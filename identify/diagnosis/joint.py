@@ -7,10 +7,13 @@ again). The joint diagnosis:
 1. diagnoses each record alone (:func:`identify.diagnosis.diagnose`): its baseline, its
    candidates and pairs, each searched with every start strategy;
 2. takes the explanations any record found worth finishing (those that repair it, and the best
-   few by their gain) and fits each on all records together
+   few by their gain), and the effects the joint baseline's residual asks for (each effect screened
+   on every record's residual of the joint baseline, its predicted gains summed: the records
+   together can show what none shows alone), and fits each on all records together
    (:class:`identify.fitting.joint.JointResiduals`: the transducer's parameters shared, each
-   record's run parameters and sensor zero its own), from each record's own fit of it and
-   from the joint baseline with the effect off; before a member of the best joint pair may be
+   record's run parameters and sensor zero its own), from each record's own fit of it, from
+   the joint baseline with the effect off, and from the joint baseline with the effect where a
+   record's screening puts it; before a member of the best joint pair may be
    named, the pairs that would name another effect (:func:`rival_pair_names`) are fitted
    jointly too;
 3. measures each joint fit as one candidate: its chi-square summed over the records, its delta
@@ -28,9 +31,9 @@ from functools import partial
 
 import numpy as np
 
-from model import Model
+from model import EFFECTS, Model
 
-from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at, joint_start
+from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at, joint_start, record_suffix
 from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
 from ..fitting.lsq_solver import ALTERNATE_METHOD, on_a_bound
 from ..fitting.noise import energised_mask
@@ -41,6 +44,7 @@ from .decision import Decision, decide
 from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
 from .fits import n_eff, profile_of, same_threshold_sign
+from .screening import screen_candidates
 
 __all__ = ["JointDiagnosis", "diagnose_records", "rival_pair_names"]
 
@@ -211,6 +215,66 @@ def _candidates_of(alone, thresholds: Thresholds) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def _screened(ctx: _Joint, taken, say) -> dict:
+    """``{effect: joint starts}`` of the effects the joint baseline's residual asks for, beyond
+    ``taken`` (those the records alone found worth finishing).
+
+    Each library effect the model lacks is screened (:func:`identify.diagnosis.screening.screen_candidates`)
+    on every record at the joint baseline's fit of it, and its predicted chi-square drops are
+    summed: shared parameters that fit each record alone can fail to fit them together, and then
+    no record alone asks for the effect that repairs them. The rule of a record's own search:
+    where some record's joint residual is not noise, the ``max_refits`` effects of largest
+    summed drop; where every one is, with targeted refits, those whose drop beats their
+    parameters' charge by ``bic_significant``."""
+    th = ctx.th
+    inadequate = not all(a.adequate for a in ctx.adequacies)
+    model = ctx.baseline.joint.model
+    candidates = [name for name in EFFECTS if name not in model.effect_names]
+    if not candidates or not (inadequate or th.targeted_refits):
+        return {}
+    say("screening the candidate effects on every record's part of the joint baseline")
+    by_record = [
+        {r.effect: r for r in screen_candidates(record, fit, candidates)}
+        for record, fit in zip(ctx.records, ctx.baseline.fits)
+    ]
+    drop = {name: sum(screened[name].chi2_drop for screened in by_record) for name in candidates}
+    ranked = sorted((name for name in candidates if drop[name] > 0.0), key=lambda name: -drop[name])
+    if inadequate:
+        chosen = ranked[: th.max_refits]
+    else:
+        n = sum(len(record.time) for record in ctx.records)
+        charge = {name: (model + name).parameters.vary.sum() - model.parameters.vary.sum() for name in ranked}
+        chosen = [name for name in ranked if drop[name] - charge[name] * math.log(n) > th.bic_significant]
+        chosen = chosen[: th.max_refits]
+    return {name: _screened_starts(ctx, name, [s[name] for s in by_record]) for name in chosen if name not in taken}
+
+
+def _screened_starts(ctx: _Joint, name: str, screened) -> list:
+    """The joint baseline with effect ``name`` where each record's screening (``screened``, one
+    :class:`~identify.diagnosis.screening.ScreeningResult` per record) puts it: one start per
+    record, the effect's shared parameters from that record's screening, its run parameters from
+    each record's own."""
+    model_e = ctx.baseline.joint.model + name
+    joint = JointModel(model_e, len(ctx.records), ctx.baseline.joint.zero_bound)
+    base = _embedded(ctx.baseline, joint)
+    own = model_e.names[model_e.effect_slice(name)]
+    starts = []
+    for source in sorted(screened, key=lambda r: -r.chi2_drop):
+        theta = base.copy()
+        for parameter in own:
+            column = model_e.names.index(parameter)
+            if parameter not in joint.per_record:
+                theta[joint.names.index(parameter)] = source.start[column]
+                continue
+            for r, result in enumerate(screened, start=1):
+                joint_name = parameter if r == 1 else parameter + record_suffix(r)
+                theta[joint.names.index(joint_name)] = result.start[column]
+        theta = np.clip(theta, joint.parameters.lower, joint.parameters.upper)
+        if not any(np.array_equal(theta, other) for other in starts):
+            starts.append(theta)
+    return starts
+
+
 def _own_fits(alone, name: str) -> list:
     """Each record's own fit of explanation ``name`` (None where it has none)."""
     fits = []
@@ -227,9 +291,10 @@ def _same_explanation(one: str, other: str) -> bool:
     return set(one.split("+")) == set(other.split("+"))
 
 
-def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None):
-    """Explanation ``name`` fitted on every record together from each record's own fit of it and
-    from the joint baseline with it off: ``(JointFit, whitened residual)`` of the lowest chi-square.
+def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
+    """Explanation ``name`` fitted on every record together from each record's own fit of it,
+    from the joint baseline with it off and from the joint starts ``screened``
+    (:func:`_screened_starts`): ``(JointFit, whitened residual)`` of the lowest chi-square.
 
     A pair never ends above one of its members fitted jointly (``members``: their
     :class:`JointFit`): where it would, it is fitted again from that member's joint fit with the
@@ -253,6 +318,10 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None):
             embedded = True
         residuals = JointResiduals(ctx.records, joint, ctx.noises)
         runs += [_solve_from(residuals, start) for start in starts]
+    if screened:
+        joint = JointModel(base_model + name.split("+"), len(ctx.records), ctx.baseline.joint.zero_bound)
+        residuals = JointResiduals(ctx.records, joint, ctx.noises)
+        runs += [_solve_from(residuals, start) for start in screened]
     best = min(runs, key=lambda run: run[0], default=None)
     for member in sorted(members, key=lambda m: m.chi2):
         if best is not None and best[0] <= member.chi2:
@@ -296,12 +365,13 @@ def _solve_from(residuals: JointResiduals, start) -> tuple[float, JointResiduals
     return 2.0 * float(sol.cost), residuals, sol.x
 
 
-def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None) -> tuple[list, dict, dict]:
+def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None, screened=None) -> tuple[list, dict, dict]:
     """``(ranking, adequate by record, joint fits)`` of every explanation of ``names`` fitted on
     every record together, side by side (each reads ``ctx`` alone); the ranking by delta BIC.
     ``earlier``: joint fits already made (``{name: JointFit}``), a pair's members among them;
-    ``swaps``: ``{name: (pair, single)}`` of :func:`_fit_candidate`."""
-    swaps = swaps or {}
+    ``swaps``: ``{name: (pair, single)}`` and ``screened``: ``{name: joint starts}`` of
+    :func:`_fit_candidate`."""
+    swaps, screened = swaps or {}, screened or {}
     ranking, adequate_by_record, joint_fits = [], {}, dict(earlier or {})
     for name in names:
         say(f"'{name}' on every record together")
@@ -315,6 +385,7 @@ def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None) -> tuple[
                 name,
                 [joint_fits[m] for m in name.split("+") if m in joint_fits],
                 swaps.get(name),
+                screened.get(name, ()),
             )
             for name in group
         ]
@@ -436,7 +507,9 @@ def diagnose_records(
     separate = [d.fit if same_threshold_sign(d.fit.model, base_model) else alone[0].fit for d in alone]
     baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
-    ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, _candidates_of(alone, thresholds), say)
+    names = _candidates_of(alone, thresholds)
+    screened = _screened(ctx, names, say)
+    ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, names + list(screened), say, screened=screened)
     rivals = rival_pair_names({c.effect: c.delta_bic for c in ranking}, thresholds.max_refits)
     if rivals:
         say("before a member of the best pair is named, the pairs that swap it for a single as strong:")
