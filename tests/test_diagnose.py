@@ -283,12 +283,14 @@ def test_a_worker_whose_fellows_are_idle_runs_numba_on_their_cores_too():
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one numba thread on this machine")
     both = threading.Barrier(2, timeout=10)
+    measured = threading.Barrier(2, timeout=10)  # neither returns before both counted together
     first_done = threading.Event()
 
     def first():
         both.wait()
         use_idle_cores()
         together = numba.get_num_threads()
+        measured.wait()
         first_done.set()
         return together
 
@@ -296,6 +298,7 @@ def test_a_worker_whose_fellows_are_idle_runs_numba_on_their_cores_too():
         both.wait()
         use_idle_cores()
         together = numba.get_num_threads()
+        measured.wait()
         first_done.wait(10)
         deadline = clock.monotonic() + 10
         while clock.monotonic() < deadline:  # the first worker stops counting as busy after its return
