@@ -33,7 +33,7 @@ import numpy as np
 
 from model import EFFECTS, Model
 
-from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at, joint_start, record_suffix
+from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at, joint_start
 from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
 from ..fitting.lsq_solver import ALTERNATE_METHOD, on_a_bound
 from ..fitting.noise import energised_mask
@@ -166,12 +166,26 @@ class _Joint:
         quiet = self.slices[r] if self.slices[r] is not None else slice(0, 0)
         return profile_of(self.records[r], fit, quiet if quiet.stop else None, self.quiet[r])
 
+    def with_effects(self, name: str) -> JointModel:
+        """The joint baseline's layout with the effects of explanation ``name`` added."""
+        model = self.baseline.joint.model + name.split("+")
+        return JointModel(model, len(self.records), self.baseline.joint.zero_bound)
+
+    def n_eff(self, w: np.ndarray) -> float:
+        """The records' effective sample count of a concatenated whitened residual ``w``."""
+        return float(sum(n_eff(part) for part in np.split(w, np.cumsum([len(r.time) for r in self.records])[:-1])))
+
+    def delta_bic(self, chi2: float, joint: JointModel, n: float) -> float:
+        """Delta BIC against the joint baseline of ``joint`` reaching ``chi2``: ``n ln(chi2_0 /
+        chi2) - k ln n``, ``k`` the free parameters ``joint`` adds, ``n`` an effective sample
+        count (:meth:`n_eff`)."""
+        k = int(joint.parameters.vary.sum() - self.baseline.joint.parameters.vary.sum())
+        return n * math.log(self.chi2 / chi2) - k * math.log(n) if chi2 > 0 else math.inf
+
     def measure(self, name: str, jf: JointFit, w: np.ndarray) -> tuple[CandidateResult, list]:
         """A joint fit as one candidate: ``(CandidateResult, adequate on each record)``."""
-        ns = [n_eff(part) for part in np.split(w, np.cumsum([len(r.time) for r in self.records])[:-1])]
-        n = float(sum(ns))
-        k = int(jf.joint.parameters.vary.sum() - self.baseline.joint.parameters.vary.sum())
-        delta_bic = n * math.log(self.chi2 / jf.chi2) - k * math.log(n) if jf.chi2 > 0 else math.inf
+        n = self.n_eff(w)
+        delta_bic = self.delta_bic(jf.chi2, jf.joint, n)
         adequate, before, after = [], 0.0, 0.0
         for r, fit in enumerate(jf.fits):
             base = self.adequacies[r]
@@ -225,7 +239,8 @@ def _screened(ctx: _Joint, taken, say) -> dict:
     no record alone asks for the effect that repairs them. The rule of a record's own search:
     where some record's joint residual is not noise, the ``max_refits`` effects of largest
     summed drop; where every one is, with targeted refits, those whose drop beats their
-    parameters' charge by ``bic_significant``."""
+    parameters' charge by ``bic_significant`` (the joint candidates' delta BIC, the run
+    parameters charged once per record)."""
     th = ctx.th
     inadequate = not all(a.adequate for a in ctx.adequacies)
     model = ctx.baseline.joint.model
@@ -241,11 +256,11 @@ def _screened(ctx: _Joint, taken, say) -> dict:
     ranked = sorted((name for name in candidates if drop[name] > 0.0), key=lambda name: -drop[name])
     if inadequate:
         chosen = ranked[: th.max_refits]
-    else:
-        n = sum(len(record.time) for record in ctx.records)
-        charge = {name: (model + name).parameters.vary.sum() - model.parameters.vary.sum() for name in ranked}
-        chosen = [name for name in ranked if drop[name] - charge[name] * math.log(n) > th.bic_significant]
-        chosen = chosen[: th.max_refits]
+    else:  # the gain promised, in the units of the joint candidates' own (_Joint.delta_bic)
+        residuals = JointResiduals(ctx.records, ctx.baseline.joint, ctx.noises)
+        n = ctx.n_eff(residuals(ctx.baseline.theta[residuals.free]))
+        promised = {name: ctx.delta_bic(ctx.chi2 - drop[name], ctx.with_effects(name), n) for name in ranked}
+        chosen = [name for name in ranked if promised[name] > th.bic_significant][: th.max_refits]
     return {name: _screened_starts(ctx, name, [s[name] for s in by_record]) for name in chosen if name not in taken}
 
 
@@ -254,22 +269,21 @@ def _screened_starts(ctx: _Joint, name: str, screened) -> list:
     :class:`~identify.diagnosis.screening.ScreeningResult` per record) puts it: one start per
     record, the effect's shared parameters from that record's screening, its run parameters from
     each record's own."""
-    model_e = ctx.baseline.joint.model + name
-    joint = JointModel(model_e, len(ctx.records), ctx.baseline.joint.zero_bound)
+    joint = ctx.with_effects(name)
+    model_e = joint.model
     base = _embedded(ctx.baseline, joint)
-    own = model_e.names[model_e.effect_slice(name)]
+    records = range(1, joint.n_records + 1)
+    zeros = [float(joint.record_rows(base, r)[1][0]) for r in records]
+    columns = np.arange(model_e.n_parameters)[model_e.effect_slice(name)]
+    shared = np.array([c for c in columns if model_e.names[c] not in joint.per_record], dtype=int)
+    thetas = [joint.record_theta(base, r) for r in records]
+    for theta, result in zip(thetas, screened):
+        theta[columns] = result.start[columns]  # each record's run parameters its own screening's
     starts = []
     for source in sorted(screened, key=lambda r: -r.chi2_drop):
-        theta = base.copy()
-        for parameter in own:
-            column = model_e.names.index(parameter)
-            if parameter not in joint.per_record:
-                theta[joint.names.index(parameter)] = source.start[column]
-                continue
-            for r, result in enumerate(screened, start=1):
-                joint_name = parameter if r == 1 else parameter + record_suffix(r)
-                theta[joint.names.index(joint_name)] = result.start[column]
-        theta = np.clip(theta, joint.parameters.lower, joint.parameters.upper)
+        first = thetas[0].copy()
+        first[shared] = source.start[shared]  # joint_theta takes the shared values from record 1's
+        theta = np.clip(joint.joint_theta([first, *thetas[1:]], zeros), joint.parameters.lower, joint.parameters.upper)
         if not any(np.array_equal(theta, other) for other in starts):
             starts.append(theta)
     return starts
@@ -319,8 +333,7 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
         residuals = JointResiduals(ctx.records, joint, ctx.noises)
         runs += [_solve_from(residuals, start) for start in starts]
     if screened:
-        joint = JointModel(base_model + name.split("+"), len(ctx.records), ctx.baseline.joint.zero_bound)
-        residuals = JointResiduals(ctx.records, joint, ctx.noises)
+        residuals = JointResiduals(ctx.records, ctx.with_effects(name), ctx.noises)
         runs += [_solve_from(residuals, start) for start in screened]
     best = min(runs, key=lambda run: run[0], default=None)
     for member in sorted(members, key=lambda m: m.chi2):
@@ -341,10 +354,7 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
 def _swap_run(ctx: _Joint, name: str, pair: JointFit, single: JointFit):
     """One solver run of pair ``name`` from ``pair``'s joint fit for every parameter the two pairs
     share and ``single``'s for the swapped-in member's own."""
-    model = ctx.baseline.joint.model
-    for effect in name.split("+"):
-        model = model + effect
-    joint = JointModel(model, len(ctx.records), ctx.baseline.joint.zero_bound)
+    joint = ctx.with_effects(name)
     theta = _embedded(pair, joint)
     own = set(single.joint.names) - set(ctx.baseline.joint.names)
     for parameter, value in zip(single.joint.names, single.theta):
