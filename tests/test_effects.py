@@ -1202,6 +1202,19 @@ def test_the_posterior_samples_only_the_canonical_half():
 
 
 @pytest.mark.parametrize("name", list(EFFECTS))
+def test_every_effects_earlier_run_state_is_a_run_parameter_pinned_off(name):
+    """The state earlier runs left (freed by a joint fit of several records) is among the
+    effect's terms, each parameter a run parameter pinned at its off value by default."""
+    cls = EFFECTS[name]
+    assert set(cls.earlier_run_terms) <= set(cls.terms)
+    names = cls.earlier_run_parameters(cls.parameters)
+    assert set(names) <= {n for term in cls.earlier_run_terms for n in cls.terms[term]}
+    for n in names:
+        p = cls.parameters[n]
+        assert p.per_record and not p.vary and p.value == cls.off[n], n
+
+
+@pytest.mark.parametrize("name", list(EFFECTS))
 def test_every_effect_says_what_tells_it_apart(name):
     """The diagnosis quotes it when two effects fit a record equally well."""
     from identify.diagnosis.explanation import telling_apart

@@ -7,7 +7,7 @@ import pytest
 
 from identify.bench import simulate
 from identify.diagnosis.joint import rival_pair_names
-from identify.fitting.joint import JointModel, JointResiduals, fit_joint
+from identify.fitting.joint import JointModel, JointResiduals, fit_joint, with_earlier_runs
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
 from model import EFFECTS, Model
@@ -35,6 +35,24 @@ def test_the_joint_layout_shares_the_transducer_and_gives_each_record_its_run():
         np.testing.assert_array_equal(rows[0], thetas[r - 1])
         assert zero[0] == [0.0, 1.5, -2.0][r - 1]
     assert (joint + "creep").model.effect_names == ("creep", "thermal", "sensor_drift")
+
+
+@pytest.mark.parametrize(
+    ("effects", "core", "freed"),
+    [
+        (["thermal"], True, {"thermal_initial", "thermal_initial_core"}),
+        (["thermal"], False, {"thermal_initial"}),  # node 2 pinned off: its start does nothing
+        (["creep", "sensor_drift"], True, set()),
+    ],
+)
+def test_a_joint_fit_frees_the_state_earlier_runs_left(effects, core, freed):
+    """A coil still warm from the last run: pinned for one record, free in a joint fit."""
+    model = Model(effects)
+    if not core:
+        model = model.with_parameters(model.parameters.replace("thermal_tau_core", vary=False))
+    joint = with_earlier_runs(model)
+    assert {p.name for p in joint.parameters if p.vary} - {p.name for p in model.parameters if p.vary} == freed
+    assert (joint is model) == (not freed)
 
 
 def test_one_record_is_the_model_itself():
@@ -143,20 +161,36 @@ def test_the_joint_diagnosis_names_creep_with_a_record_of_holds():
 
 
 def test_the_joint_stage_fits_what_the_records_together_ask_for():
-    """Two runs whose sensor drifts the other way: a heating's shared parameters mimic each
+    """Two runs whose sensor drifts go the other way: a creep's shared parameters mimic each
     drift alone (each record alone is adequate with it, and finishes no candidate), not both
-    together. The joint baseline's residual asks for the drift, and the joint stage fits it."""
+    together. The joint baseline's residual asks for the drift, and the joint stage fits it: it
+    repairs both records (it may tie with a heating whose runs start warm)."""
     from identify.diagnosis import diagnose
 
     records = [
         simulate("sensor_drift_linear=1.5", seed=1, fs=10.0).record,
         simulate("sensor_drift_linear=-1.5", seed=2, fs=10.0).record,
     ]
-    d = diagnose(records, ["thermal"], rng=np.random.default_rng(0))
+    d = diagnose(records, ["creep"], rng=np.random.default_rng(0))
     assert [r["alone"] for r in d.records] == ["adequate", "adequate"]  # the path under test
-    assert not all(r["adequate"] for r in d.records)
-    assert d.status == "missing_effect" and d.missing == "sensor_drift", d.reason
+    assert not any(r["adequate"] for r in d.records)
+    assert d.status in ("missing_effect", "tied") and "sensor_drift" in (d.missing, *d.tied), d.reason
     assert d.adequate_by_record["sensor_drift"] == [True, True]
+
+
+@pytest.mark.slow
+def test_a_second_run_that_starts_warm_is_the_heating_alone():
+    """One heating, the second run started while the coil was still warm: jointly, the heating
+    alone repairs both records, each record's start its own (with every run pinned cold it
+    repairs neither)."""
+    from identify.diagnosis import diagnose
+
+    spec = "thermal_tau=30,thermal_expansion=3"
+    records = [simulate(spec, seed=1, fs=10.0).record, simulate(spec + ",thermal_initial=0.6", seed=2, fs=10.0).record]
+    d = diagnose(records, rng=np.random.default_rng(0))
+    assert d.status == "missing_effect" and d.missing == "thermal", d.reason
+    assert d.adequate_by_record["thermal"] == [True, True]
+    assert "Two effects" not in d.reason
 
 
 def test_the_diagnose_command_refuses_a_record_given_twice(tmp_path, capsys):

@@ -33,7 +33,16 @@ import numpy as np
 
 from model import EFFECTS, Model
 
-from ..fitting.joint import JointFit, JointModel, JointResiduals, fit_joint, joint_fit_at, joint_start
+from ..fitting.joint import (
+    JointFit,
+    JointModel,
+    JointResiduals,
+    fit_joint,
+    joint_fit_at,
+    joint_start,
+    record_suffix,
+    with_earlier_runs,
+)
 from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
 from ..fitting.lsq_solver import ALTERNATE_METHOD, on_a_bound
 from ..fitting.noise import energised_mask
@@ -168,24 +177,35 @@ class _Joint:
 
     def with_effects(self, name: str) -> JointModel:
         """The joint baseline's layout with the effects of explanation ``name`` added."""
-        model = self.baseline.joint.model + name.split("+")
-        return JointModel(model, len(self.records), self.baseline.joint.zero_bound)
+        return self.layout(self.baseline.joint.model + name.split("+"))
+
+    def layout(self, model) -> JointModel:
+        """``model`` laid out for the records, the state earlier runs left free in each
+        (:func:`identify.fitting.joint.with_earlier_runs`)."""
+        return JointModel(with_earlier_runs(model), len(self.records), self.baseline.joint.zero_bound)
 
     def n_eff(self, w: np.ndarray) -> float:
         """The records' effective sample count of a concatenated whitened residual ``w``."""
         return float(sum(n_eff(part) for part in np.split(w, np.cumsum([len(r.time) for r in self.records])[:-1])))
 
-    def delta_bic(self, chi2: float, joint: JointModel, n: float) -> float:
-        """Delta BIC against the joint baseline of ``joint`` reaching ``chi2``: ``n ln(chi2_0 /
-        chi2) - k ln n``, ``k`` the free parameters ``joint`` adds, ``n`` an effective sample
-        count (:meth:`n_eff`)."""
+    def delta_bic(self, chi2: float, joint: JointModel, n: float, theta=None) -> float:
+        """Delta BIC against the joint baseline of ``joint`` reaching ``chi2`` at the joint vector
+        ``theta``: ``n ln(chi2_0 / chi2) - k ln n``, ``k`` the free parameters ``joint`` adds, ``n``
+        an effective sample count (:meth:`n_eff`). A record's earlier-run state the baseline
+        pins is charged only where the fit uses it (off its off value; never where ``theta`` is
+        None, a gain predicted without it): at its off value the fit is the one with it pinned."""
         k = int(joint.parameters.vary.sum() - self.baseline.joint.parameters.vary.sum())
+        base = self.baseline.joint.parameters
+        for column, off in _earlier_run_columns(joint):
+            p = joint.parameters[column]
+            if p.vary and not (p.name in base.names and base[p.name].vary):
+                k -= int(theta is None or abs(theta[column] - off) <= 1e-9 * (p.upper - p.lower))
         return n * math.log(self.chi2 / chi2) - k * math.log(n) if chi2 > 0 else math.inf
 
     def measure(self, name: str, jf: JointFit, w: np.ndarray) -> tuple[CandidateResult, list]:
         """A joint fit as one candidate: ``(CandidateResult, adequate on each record)``."""
         n = self.n_eff(w)
-        delta_bic = self.delta_bic(jf.chi2, jf.joint, n)
+        delta_bic = self.delta_bic(jf.chi2, jf.joint, n, jf.theta)
         adequate, before, after = [], 0.0, 0.0
         for r, fit in enumerate(jf.fits):
             base = self.adequacies[r]
@@ -213,6 +233,19 @@ class _Joint:
             whitened=w,
         )
         return candidate, adequate
+
+
+def _earlier_run_columns(joint: JointModel) -> list[tuple[int, float]]:
+    """``[(column, off value)]`` of ``joint``'s vector holding a record's earlier-run state
+    (:attr:`model.Effect.earlier_run_terms`), every record's."""
+    off = {
+        n + suffix: type(e).off[n]
+        for e in joint.model.effects
+        for term in type(e).earlier_run_terms
+        for n in type(e).terms[term]
+        for suffix in ["", *(record_suffix(r) for r in range(2, joint.n_records + 1))]
+    }
+    return [(i, off[name]) for i, name in enumerate(joint.names) if name in off]
 
 
 def _candidates_of(alone, thresholds: Thresholds) -> list[str]:
@@ -323,7 +356,7 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
         runs.append(_swap_run(ctx, name, *swap))
     for donor in donors:
         model_e = donor.model
-        joint = JointModel(model_e, len(ctx.records), ctx.baseline.joint.zero_bound)
+        joint = ctx.layout(model_e)
         # each donor's transducer parameters for every record (a record on another drive may
         # see the physics better than the first), each record's run parameters its own
         starts = [joint_start(joint, donor, [donor if f is None else f for f in own], ctx.records)]
@@ -340,7 +373,7 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
         if best is not None and best[0] <= member.chi2:
             break
         partner = [e for e in name.split("+") if e not in {x.name for x in member.joint.model.effects}]
-        joint = JointModel(member.joint.model + partner[0], len(ctx.records), ctx.baseline.joint.zero_bound)
+        joint = ctx.layout(member.joint.model + partner[0])
         run = _solve_from(JointResiduals(ctx.records, joint, ctx.noises), _embedded(member, joint))
         if best is None or run[0] < best[0]:
             best = run
@@ -465,6 +498,19 @@ def rival_pair_names(strength: dict, max_refits: int) -> list[tuple[str, str, st
     return names
 
 
+def _with_earlier_runs_free(baseline: JointFit) -> JointFit:
+    """The joint baseline in the layout of the candidates (:meth:`_Joint.layout`: the state
+    earlier runs left free), refitted from it where that frees a parameter."""
+    joint = JointModel(with_earlier_runs(baseline.joint.model), baseline.joint.n_records, baseline.joint.zero_bound)
+    if int(joint.parameters.vary.sum()) == int(baseline.joint.parameters.vary.sum()):
+        return baseline
+    residuals = JointResiduals(baseline.records, joint, baseline.noises)
+    chi2, _, x = _solve_from(residuals, _embedded(baseline, joint))
+    if not chi2 < baseline.chi2:  # the records start at rest: the same fit in the freed layout
+        x = np.clip(_embedded(baseline, joint)[residuals.free], residuals.lower, residuals.upper)
+    return joint_fit_at(residuals, x, baseline.separate)
+
+
 def _embedded(baseline: JointFit, joint: JointModel) -> np.ndarray:
     """The joint baseline's vector in ``joint`` (its new effects off)."""
     theta = joint.default_theta()
@@ -516,6 +562,7 @@ def diagnose_records(
     say("the baseline on every record together")
     separate = [d.fit if same_threshold_sign(d.fit.model, base_model) else alone[0].fit for d in alone]
     baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
+    baseline = _with_earlier_runs_free(baseline)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
     names = _candidates_of(alone, thresholds)
     screened = _screened(ctx, names, say)

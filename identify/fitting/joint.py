@@ -51,6 +51,7 @@ __all__ = [
     "joint_fit_at",
     "consistency",
     "record_suffix",
+    "with_earlier_runs",
     "joint_fit_from_json",
     "record_noises",
     "separate_fits",
@@ -96,6 +97,19 @@ def check_records(records) -> list:
 def record_suffix(r: int) -> str:
     """The suffix of record ``r``'s own parameters (``r`` from 1): ``_r2`` for the second."""
     return f"_r{r}"
+
+
+def with_earlier_runs(model: Model) -> Model:
+    """``model`` with the run parameters of the state earlier runs left free
+    (:attr:`model.Effect.earlier_run_terms`: a coil still warm from the last run), where a
+    single record pins them: each record of a transducer after the first starts where the
+    earlier runs left it."""
+    parameters = model.parameters
+    for effect in model.effects:
+        for name in type(effect).earlier_run_parameters(parameters):
+            if not parameters[name].vary:
+                parameters = parameters.replace(name, vary=True)
+    return model if parameters is model.parameters else model.with_parameters(parameters)
 
 
 class JointModel:

@@ -51,7 +51,7 @@ from model import Model, get_effect
 from ..data.records import Record
 from ..data.reversals import find_reversals
 from ..diagnosis import Thresholds, diagnose
-from ..fitting.joint import check_records, fit_joint
+from ..fitting.joint import check_records, fit_joint, with_earlier_runs
 from ..fitting.lsq import WhitenedResiduals, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
 from ..fitting.parametrisation import normalised_model
@@ -202,9 +202,12 @@ def contender(name: str, model: Model, theta, covariance, runs=None, draws_from=
     information on the transducer is the inverse of the covariance of its shared parameters (the
     run's own parameters say nothing about a new record). ``runs``: each record's fitted vector
     and sensor zero (default: one record, fitted at ``theta``); ``draws_from``: the ``(theta,
-    covariance)`` the confirmation draws from (default the fit's)."""
+    covariance)`` the confirmation draws from (default the fit's). The contender's model frees the
+    state earlier runs left (:func:`identify.fitting.joint.with_earlier_runs`): the new record is
+    refitted as the joint diagnosis fits it."""
     covariance = np.asarray(covariance, dtype=float)
     theta = np.asarray(theta, dtype=float)
+    model = with_earlier_runs(model)
     per_record = np.array([p.per_record for p in model.parameters])
     shared = np.flatnonzero((np.diag(covariance) > 0) & ~per_record)
     info = np.zeros_like(covariance)

@@ -142,6 +142,12 @@ class Effect:
     #: parameters a labelling symmetry (:meth:`canonical`) maps to themselves while they are at
     #: their :attr:`off` value: pinned there, they leave the symmetry in force
     labelling_keeps_off: ClassVar[tuple[str, ...]] = ()
+    #: terms of :attr:`terms` that hold the state earlier runs left a record in (run
+    #: parameters, pinned off by default: one record that starts at rest cannot tell them from
+    #: the rest of the effect, so a free start only slows its fit). Records of one transducer
+    #: are taken one after another, and each starts where the earlier runs left it (a coil
+    #: still warm), so a joint fit of several frees them (:meth:`earlier_run_parameters`).
+    earlier_run_terms: ClassVar[tuple[str, ...]] = ()
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -165,6 +171,13 @@ class Effect:
             view = namedtuple(f"{cls.__name__}Values", fields)
             cls._values_type = view
         return view(*(np.ascontiguousarray(params[:, i]) for i in range(params.shape[1])))
+
+    @classmethod
+    def earlier_run_parameters(cls, parameters) -> tuple[str, ...]:
+        """The parameters of :attr:`earlier_run_terms` a joint fit frees, given a model's
+        ``parameters`` (a :class:`~model.parameters.ParameterSet` holding this effect's): by
+        default every one of them."""
+        return tuple(name for term in cls.earlier_run_terms for name in cls.terms[term])
 
     @classmethod
     def n_varying(cls) -> int:

@@ -293,7 +293,7 @@ class Thermal(Effect):
     start: on a record that starts cold a free start is a flat direction that only slows a fit)
     unless freed (``model.parameters.replace("thermal_initial", vary=True)``; optional terms
     ``warm_start``, ``warm_start_core``: a study with them free pins them off where the record
-    starts cold).
+    starts cold; the joint diagnosis of several records frees them, :meth:`earlier_run_parameters`).
     Off: every sensitivity and expansion 0.
     """
 
@@ -380,6 +380,15 @@ class Thermal(Effect):
         "warm_start_core": ("thermal_initial_core",),
     }
     labelling_keeps_off = ("thermal_initial", "thermal_initial_core")
+    earlier_run_terms = ("warm_start", "warm_start_core")
+
+    @classmethod
+    def earlier_run_parameters(cls, parameters):
+        """Both nodes' starts (the heat left after any pause: the coil cools faster than the
+        core, so their ratio is the run's), node 2's only where its parameters vary (pinned off,
+        node 2 is not computed and its start does nothing)."""
+        core_on = all(parameters[name].vary for name in cls.terms["core"])
+        return ("thermal_initial", "thermal_initial_core") if core_on else ("thermal_initial",)
 
     @staticmethod
     def swap_nodes(values: dict[str, float]) -> dict[str, float]:
