@@ -11,7 +11,7 @@ from identify.bench import simulate
 from identify.cli import main
 from identify.data.records import write_record
 from identify.diagnosis import Thresholds
-from identify.fitting.lsq import WhitenedResiduals
+from identify.fitting.lsq import WhitenedResiduals, fit_least_squares
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
 from identify.workflows.design import (
@@ -20,6 +20,7 @@ from identify.workflows.design import (
     contender,
     discrimination,
     drive_of,
+    fit_with_earlier_runs,
     fitted_contenders,
     p_right,
     random_drive_parameters,
@@ -186,6 +187,19 @@ def test_fitted_contenders_hold_what_the_records_say():
     names = drift.model.names
     column = names.index("sensor_drift_linear")
     assert np.all(drift.info[column] == 0) and drift.info[names.index("rho"), names.index("rho")] > 0
+
+
+def test_a_contender_holds_its_record_as_the_joint_diagnosis_fits_it():
+    """A record that starts warm: a heating is refitted with its start free (as the joint
+    diagnosis of this record and the next frees it) and fits better; a creep has no such state."""
+    sim = simulate("thermal_tau=10,thermal_expansion=3,thermal_initial=1.5", seed=1, fs=5.0)
+    noise = estimate_noise(sim.record)
+    heating = fit_least_squares(sim.record, normalised_model(Model(["thermal"])), noise=noise, n_starts=1)
+    refit = fit_with_earlier_runs(sim.record, heating)
+    assert refit.model.parameters["thermal_initial"].vary and not heating.model.parameters["thermal_initial"].vary
+    assert refit.chi2 < heating.chi2 - 10.0
+    creep = fit_least_squares(sim.record, normalised_model(Model(["creep"])), noise=noise, n_starts=1)
+    assert fit_with_earlier_runs(sim.record, creep) is creep
 
 
 @pytest.mark.parametrize(

@@ -72,6 +72,7 @@ __all__ = [
     "Contender",
     "contender",
     "contenders_of",
+    "fit_with_earlier_runs",
     "DesignedDrive",
     "Design",
     "FAMILIES",
@@ -268,9 +269,23 @@ def contenders_of(diagnosis, names=None, record: Record | None = None) -> list:
             raise ValueError(
                 f"'{name}' was not fitted by the diagnosis; the fitted explanations are {', '.join(known)}"
             )
-        draws_from = None if record is None else draws_without_unsupported_terms(record, entry.fit)
-        found.append(contender(name, entry.fit.model, entry.fit.theta, entry.fit.covariance, draws_from=draws_from))
+        fit = entry.fit if record is None else fit_with_earlier_runs(record, entry.fit)
+        draws_from = None if record is None else draws_without_unsupported_terms(record, fit)
+        found.append(contender(name, fit.model, fit.theta, fit.covariance, draws_from=draws_from))
     return found
+
+
+def fit_with_earlier_runs(record: Record, fit):
+    """``fit`` (a single record's :class:`~identify.fitting.lsq.FitResult`) refitted from itself with
+    the state earlier runs left free (:func:`identify.fitting.joint.with_earlier_runs`), as the
+    joint diagnosis of this record and the next will fit it; ``fit`` where nothing is freed or the
+    refit is no better. The design then holds the record's own run at what the joint diagnosis
+    can reach (a heating that starts warm can stand in for a drift on it)."""
+    model = with_earlier_runs(fit.model)
+    if model is fit.model:
+        return fit
+    refit = fit_least_squares(record, model, noise=fit.noise, start=fit.theta, n_starts=1)
+    return refit if refit.chi2 < fit.chi2 else fit
 
 
 # -- the drives -----------------------------------------------------------------------------
@@ -736,6 +751,7 @@ def fitted_contenders(records, model: Model, names, noises, *, n_starts: int = 4
                 records[0], model_e, noise=noises[0], n_starts=n_starts, rng=rng, threshold_sign=sign
             )
             sign = _sign_name(fit.model)
+            fit = fit_with_earlier_runs(records[0], fit)
             draws_from = draws_without_unsupported_terms(records[0], fit)
             found.append(contender(name, fit.model, fit.theta, fit.covariance, draws_from=draws_from))
         else:
