@@ -102,8 +102,8 @@ def record_suffix(r: int) -> str:
 def with_earlier_runs(model: Model) -> Model:
     """``model`` with the run parameters of the state earlier runs left free
     (:attr:`model.Effect.earlier_run_terms`: a coil still warm from the last run), where a
-    single record pins them: each record of a transducer after the first starts where the
-    earlier runs left it."""
+    single record pins them: records of a transducer are taken one after another, and any of
+    them may start where earlier runs left it."""
     parameters = model.parameters
     for effect in model.effects:
         for name in type(effect).earlier_run_parameters(parameters):
