@@ -180,9 +180,8 @@ class _Joint:
         return self.layout(self.baseline.joint.model + name.split("+"))
 
     def layout(self, model) -> JointModel:
-        """``model`` laid out for the records, the state earlier runs left free in each
-        (:func:`identify.fitting.joint.with_earlier_runs`)."""
-        return JointModel(with_earlier_runs(model), len(self.records), self.baseline.joint.zero_bound)
+        """``model`` laid out for the records as the baseline is (:func:`_freed_layout`)."""
+        return _freed_layout(model, self.baseline.joint)
 
     def n_eff(self, w: np.ndarray) -> float:
         """The records' effective sample count of a concatenated whitened residual ``w``."""
@@ -498,10 +497,17 @@ def rival_pair_names(strength: dict, max_refits: int) -> list[tuple[str, str, st
     return names
 
 
+def _freed_layout(model, like: JointModel) -> JointModel:
+    """``model`` laid out for ``like``'s records and sensor-zero bound, the state earlier runs
+    left free in each (:func:`identify.fitting.joint.with_earlier_runs`): every joint fit of the
+    diagnosis, its baseline's too."""
+    return JointModel(with_earlier_runs(model), like.n_records, like.zero_bound)
+
+
 def _with_earlier_runs_free(baseline: JointFit) -> JointFit:
-    """The joint baseline in the layout of the candidates (:meth:`_Joint.layout`: the state
-    earlier runs left free), refitted from it where that frees a parameter."""
-    joint = JointModel(with_earlier_runs(baseline.joint.model), baseline.joint.n_records, baseline.joint.zero_bound)
+    """The joint baseline in the layout of the candidates (:func:`_freed_layout`), refitted from
+    it where that frees a parameter."""
+    joint = _freed_layout(baseline.joint.model, baseline.joint)
     if int(joint.parameters.vary.sum()) == int(baseline.joint.parameters.vary.sum()):
         return baseline
     residuals = JointResiduals(baseline.records, joint, baseline.noises)
