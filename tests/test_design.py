@@ -48,6 +48,27 @@ def test_every_drive_keeps_the_rigs_limits_and_starts_quiet(family):
     assert made >= 5
 
 
+@pytest.mark.parametrize("family", list(FAMILIES))
+def test_a_drive_that_rests_holds_the_lower_current_after_the_quiet_start(family):
+    rng = np.random.default_rng(2)
+    rested = 0
+    for _ in range(40):
+        params = random_drive_parameters(rng, family)
+        drive = drive_of(family, params, LIMITS, period=10.0)
+        if drive is None or params["rest"] == 0.0:
+            continue
+        rested += 1
+        time, current = drive
+        resting = time < 10.0 + params["rest"] * 100.0 - 1e-9
+        assert np.all(current[resting] == 0.0) and current.max() > 0.0
+        without = drive_of(family, {**params, "rest": 0.0}, LIMITS, period=10.0)
+        if family in ("hold", "steps"):  # their holds are shares of the time left after the rest
+            continue
+        first = np.argmax(current > 0.0)  # the same drive, later by the rest (to a sample)
+        assert abs(first - np.argmax(without[1] > 0.0) - params["rest"] * 100.0 / 0.1) <= 1.0
+    assert rested >= 3
+
+
 @pytest.mark.parametrize(
     "given, problem",
     [

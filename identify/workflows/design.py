@@ -24,7 +24,8 @@ smallest of these over the ordered pairs (maximin: the drive must decide every t
 The search runs over a few families of drives with a handful of shape parameters each, all
 within the rig's limits (:class:`RigLimits`: current range, slew, duration, RMS current as the
 heating limit, sampling rate) and starting with the quiet segment the records need for their
-noise: ``hold`` (cycles, a hold at a constant current, a quiet end), ``rise_again`` (the
+noise (half of them resting at the lower current after it, where a state an earlier run left
+relaxes alone): ``hold`` (cycles, a hold at a constant current, a quiet end), ``rise_again`` (the
 amplitude falls and rises again, a quiet end), ``steps`` (a staircase of held currents) and
 ``probe_blocks`` (blocks of high power between small probe cycles). The best few are confirmed
 by simulation: each contender, drawn from its fit's covariance and held to the records
@@ -378,10 +379,23 @@ def _probe_blocks(b: _Builder, p: dict) -> None:
         b.cycle(lo + p["probe"] * (hi - lo))
 
 
+#: The largest rest after the quiet start, a fraction of the time after it.
+MAX_REST = 0.3
+
+
 def random_drive_parameters(rng: np.random.Generator, family: str) -> dict:
     """Random shape parameters of a drive of ``family`` (:data:`FAMILIES`) for :func:`drive_of`:
     counts (cycles) and fractions of the rig's current range or of the drive's period; the
-    search's candidates, drawn with ``rng``."""
+    search's candidates, drawn with ``rng``. Half the drives rest at the lower current after the
+    quiet start (``rest``, a fraction of the time after it, up to :data:`MAX_REST`): a state an
+    earlier run left (a coil still warm) relaxes there where the drive shows nothing else, so it
+    cannot stand in for the slow effects the drive then shows."""
+    rest = float(rng.uniform(0.0, MAX_REST)) if rng.random() < 0.5 else 0.0
+    return {"rest": rest, **_shape_parameters(rng, family)}
+
+
+def _shape_parameters(rng: np.random.Generator, family: str) -> dict:
+    """The shape parameters of a drive of ``family`` after its rest."""
     if family == "hold":
         return {
             "cycles": int(rng.integers(1, 4)),
@@ -404,13 +418,14 @@ def random_drive_parameters(rng: np.random.Generator, family: str) -> dict:
     }
 
 
-#: family -> how its parameters shape the drive (after the quiet start).
+#: family -> how its parameters shape the drive (after the quiet start and the rest).
 FAMILIES = {"hold": _hold, "rise_again": _rise_again, "steps": _steps, "probe_blocks": _probe_blocks}
 
 
 def drive_of(family: str, params: dict, limits: RigLimits, period: float):
     """``(time, current)`` of a family's drive with ``params``, or None outside the limits."""
     b = _Builder(limits, period)
+    b.hold(float(params.get("rest", 0.0)) * (limits.duration - limits.quiet))
     FAMILIES[family](b, params)
     return b.finish()
 
