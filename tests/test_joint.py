@@ -35,6 +35,15 @@ def test_the_joint_layout_shares_the_transducer_and_gives_each_record_its_run():
         np.testing.assert_array_equal(rows[0], thetas[r - 1])
         assert zero[0] == [0.0, 1.5, -2.0][r - 1]
     assert (joint + "creep").model.effect_names == ("creep", "thermal", "sensor_drift")
+    names = joint.names
+    assert [names[c] for c in joint.columns_of("thermal_initial")] == [
+        "thermal_initial",
+        "thermal_initial_r2",
+        "thermal_initial_r3",
+    ]
+    assert [names[c] for c in joint.columns_of("thermal_tau")] == ["thermal_tau"]  # shared: one column
+    with pytest.raises(KeyError, match="creep_amplitude"):
+        joint.columns_of("creep_amplitude")
 
 
 @pytest.mark.parametrize(
@@ -43,6 +52,7 @@ def test_the_joint_layout_shares_the_transducer_and_gives_each_record_its_run():
         (["thermal"], True, {"thermal_initial", "thermal_initial_core"}),
         (["thermal"], False, {"thermal_initial"}),  # node 2 pinned off: its start does nothing
         (["creep", "sensor_drift"], True, set()),
+        (["incomplete_reset"], True, {"incomplete_reset_kept"}),  # a sample not reset since the last run
     ],
 )
 def test_a_joint_fit_frees_the_state_earlier_runs_left(effects, core, freed):

@@ -40,7 +40,6 @@ from ..fitting.joint import (
     fit_joint,
     joint_fit_at,
     joint_start,
-    record_suffix,
     with_earlier_runs,
 )
 from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
@@ -55,7 +54,7 @@ from .explanation import explain, where_text
 from .fits import n_eff, profile_of, same_threshold_sign
 from .screening import screen_candidates
 
-__all__ = ["JointDiagnosis", "diagnose_records", "rival_pair_names"]
+__all__ = ["JointDiagnosis", "diagnose_records", "joint_fit_with_earlier_runs", "rival_pair_names"]
 
 
 @dataclass
@@ -237,14 +236,13 @@ class _Joint:
 def _earlier_run_columns(joint: JointModel) -> list[tuple[int, float]]:
     """``[(column, off value)]`` of ``joint``'s vector holding a record's earlier-run state
     (:attr:`model.Effect.earlier_run_terms`), every record's."""
-    off = {
-        n + suffix: type(e).off[n]
+    return [
+        (column, type(e).off[n])
         for e in joint.model.effects
         for term in type(e).earlier_run_terms
         for n in type(e).terms[term]
-        for suffix in ["", *(record_suffix(r) for r in range(2, joint.n_records + 1))]
-    }
-    return [(i, off[name]) for i, name in enumerate(joint.names) if name in off]
+        for column in joint.columns_of(n)
+    ]
 
 
 def _candidates_of(alone, thresholds: Thresholds) -> list[str]:
@@ -504,9 +502,11 @@ def _freed_layout(model, like: JointModel) -> JointModel:
     return JointModel(with_earlier_runs(model), like.n_records, like.zero_bound)
 
 
-def _with_earlier_runs_free(baseline: JointFit) -> JointFit:
-    """The joint baseline in the layout of the candidates (:func:`_freed_layout`), refitted from
-    it where that frees a parameter."""
+def joint_fit_with_earlier_runs(baseline: JointFit) -> JointFit:
+    """A joint fit in the layout the joint diagnosis fits its candidates in, the state earlier
+    runs left free on every record (:func:`identify.fitting.joint.with_earlier_runs`), refitted
+    from it where that frees a parameter (never higher: where the records start at rest it is
+    the same fit)."""
     joint = _freed_layout(baseline.joint.model, baseline.joint)
     if int(joint.parameters.vary.sum()) == int(baseline.joint.parameters.vary.sum()):
         return baseline
@@ -568,7 +568,7 @@ def diagnose_records(
     say("the baseline on every record together")
     separate = [d.fit if same_threshold_sign(d.fit.model, base_model) else alone[0].fit for d in alone]
     baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
-    baseline = _with_earlier_runs_free(baseline)
+    baseline = joint_fit_with_earlier_runs(baseline)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
     names = _candidates_of(alone, thresholds)
     screened = _screened(ctx, names, say)

@@ -164,6 +164,15 @@ class JointModel:
     def __repr__(self) -> str:
         return f"JointModel({self.model!r}, n_records={self.n_records})"
 
+    def columns_of(self, name: str) -> tuple[int, ...]:
+        """The joint vector's columns that hold the model's parameter ``name`` on the records:
+        one column for a parameter the records share, one per record (record 1's first) for a
+        per-record one."""
+        if name not in self.model.names:
+            raise KeyError(f"{name!r} is not a parameter of {self.model!r}")
+        i = self.model.names.index(name)
+        return tuple(dict.fromkeys(int(own[i]) for own in self._own))
+
     def __add__(self, effect) -> JointModel:
         return JointModel(self.model + effect, self.n_records, self.zero_bound)
 
