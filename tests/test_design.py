@@ -223,6 +223,19 @@ def test_a_contender_holds_its_record_as_the_joint_diagnosis_fits_it():
     assert fit_with_earlier_runs(sim.record, creep) is creep
 
 
+def test_contenders_fitted_on_several_records_free_each_records_start():
+    """Two runs of one heating, the second started warm: the contenders fitted jointly hold each
+    record as the joint diagnosis fits it, the second's start free."""
+    cold = simulate("thermal_tau=10,thermal_expansion=3", seed=1, fs=5.0).record
+    warm = simulate("thermal_tau=10,thermal_expansion=3,thermal_initial=1.5", seed=2, fs=5.0).record
+    noises = [estimate_noise(cold), estimate_noise(warm)]
+    (heating,) = fitted_contenders([cold, warm], normalised_model(Model()), ["thermal"], noises, n_starts=1)
+    column = heating.model.names.index("thermal_initial")
+    assert heating.model.parameters["thermal_initial"].vary
+    first, second = (vector[column] for vector, _ in heating.runs)
+    assert first < 0.3 and second > 0.75  # the warm run's start found (1.5 true; it trades with the gain)
+
+
 @pytest.mark.parametrize(
     "gaps, mean, sd",
     [

@@ -52,6 +52,7 @@ from model import Model, get_effect
 from ..data.records import Record
 from ..data.reversals import find_reversals
 from ..diagnosis import Thresholds, diagnose
+from ..diagnosis.joint import joint_fit_with_earlier_runs
 from ..fitting.joint import check_records, fit_joint, with_earlier_runs
 from ..fitting.lsq import WhitenedResiduals, fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
@@ -770,7 +771,7 @@ def fitted_contenders(records, model: Model, names, noises, *, n_starts: int = 4
             draws_from = draws_without_unsupported_terms(records[0], fit)
             found.append(contender(name, fit.model, fit.theta, fit.covariance, draws_from=draws_from))
         else:
-            jf = fit_joint(records, model_e, noises, n_starts=n_starts, rng=rng)
+            jf = joint_fit_with_earlier_runs(fit_joint(records, model_e, noises, n_starts=n_starts, rng=rng))
             n = jf.model.n_parameters
             found.append(
                 contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n], _joint_runs(jf))
