@@ -26,7 +26,6 @@ from model.effects import (
     first_order_lowpass,
     incomplete_reset_strain,
     log_creep_time_constants,
-    strain_kept_at_start,
     thermal_rise,
     training_fade,
 )
@@ -514,30 +513,6 @@ def signature_incomplete_reset(paper_input, plain_gpi):
     np.testing.assert_allclose(both[0], both[1], rtol=1e-12, atol=1e-12)  # the shares, not the sizes, matter
     with pytest.raises(ValueError, match="incomplete_reset: the displacement has shape"):
         incomplete_reset_strain(current, plain_gpi[:-1], [A], [R], [0.0])
-
-
-def test_the_strain_an_earlier_run_left_unreset_is_its_retained_part_carried_in():
-    """Two runs one after the other without a reset are one record to the recursion: the second
-    run, taken alone, is the strain the first left (its retained part at the junction) fading
-    with the second's travel and narrowing its strokes (``strain_kept_at_start``)."""
-    t = np.linspace(0.0, 60.0, 6001)
-    cycles = 2.5 * (1.0 - np.cos(2.0 * np.pi * (t - 10.0) / 10.0)) * np.exp(-(t - 10.0) / 40.0)
-    current = np.where(t < 10.0, 0.0, cycles)  # five whole cycles: it ends where it started
-    y = 8.0 * current  # a strain that comes back to its start: every level reset but the retained part
-    A, R, fade, b = 5.0, 0.6, 0.05, 0.8
-    both = incomplete_reset_strain(np.r_[current, current], np.r_[y, y], [A], [R], [fade], stroke=[b])[0]
-    kept = both[t.size]
-    assert 0.05 * A * R < kept < A * R
-    carried = strain_kept_at_start(current, y, [kept], [fade], [b])[0]
-    np.testing.assert_allclose(both[t.size :], carried, rtol=1e-10, atol=1e-12)
-    # in the model: K alone (a run that is not virgin), and K = 0 the effect off, bit for bit
-    m = Model(["incomplete_reset"])
-    plain = Model([])(Model([]).default_theta(), t, current)
-    values = {"incomplete_reset_fade": fade, "incomplete_reset_stroke": b}
-    got = m(m.theta_from_dict({**values, "incomplete_reset_kept": kept}), t, current)
-    np.testing.assert_allclose(got - plain, strain_kept_at_start(current, plain, [kept], [fade], [b])[0], atol=1e-12)
-    assert np.array_equal(m(m.theta_from_dict(values), t, current), plain)
-    assert not m.parameters["incomplete_reset_kept"].vary and m.parameters["incomplete_reset_kept"].per_record
 
 
 def signature_incomplete_reset_loading_shape(paper_input, plain_gpi):

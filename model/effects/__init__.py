@@ -69,7 +69,7 @@ from .creep import (
 from .creep import CREEP_STEP_HOLD as CREEP_STEP_HOLD
 from .creep import LOG_CREEP_MODE_WEIGHT as LOG_CREEP_MODE_WEIGHT
 from .creep import LOG_CREEP_REACH as LOG_CREEP_REACH
-from .incomplete_reset import IncompleteReset, incomplete_reset_strain, strain_kept_at_start
+from .incomplete_reset import IncompleteReset, incomplete_reset_strain
 from .initial_state import InitialState
 from .lag import Lag, delayed_lowpass
 from .rate_width import RateWidth, drive_rate, rate_threshold_scale
@@ -91,7 +91,6 @@ __all__ = [
     "delayed_lowpass",
     "log_creep_time_constants",
     "incomplete_reset_strain",
-    "strain_kept_at_start",
     "creep_time_constants",
     "thermal_rise",
     "accumulated_travel",

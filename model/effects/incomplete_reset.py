@@ -16,7 +16,7 @@ from ..gpi_kernels import kernel_array
 from ..parameters import Parameter, ParameterSet
 from .base import Effect
 
-__all__ = ["IncompleteReset", "incomplete_reset_strain", "loading_levels", "strain_kept_at_start"]
+__all__ = ["IncompleteReset", "incomplete_reset_strain", "loading_levels"]
 
 
 @njit(parallel=True, cache=True, nogil=True)
@@ -243,12 +243,8 @@ class IncompleteReset(Effect):
     the drive's share of the loading variable; ``incomplete_reset_shape`` :math:`p`
     (0.2-5, symmetric about 1 on a log scale), the exponent of the loading's shape;
     ``incomplete_reset_stroke`` :math:`b` (0-3), how much of the retained strain the top of
-    the later strokes does not keep; ``incomplete_reset_kept`` :math:`K` [um] (-50-50, one per
-    record, pinned at 0 unless freed), the strain an earlier run's loading left unreset at the
-    record's start (:func:`strain_kept_at_start`: it fades and narrows the strokes as the
-    retained part does; a sample reset before the run keeps none, one not reset carries it in).
-    Off: :math:`A = 0` and :math:`K = 0` (whatever the others); :math:`m = 0, p = 1, b = 0` is
-    the strain-proportional form.
+    the later strokes does not keep. Off: :math:`A = 0` (whatever the others); :math:`m = 0,
+    p = 1, b = 0` is the strain-proportional form.
     """
 
     name = "incomplete_reset"
@@ -316,17 +312,6 @@ class IncompleteReset(Effect):
                 description="steepness k of that step, tanh(k (u - c)) (0: no step, the level itself)",
             ),
             Parameter(
-                "incomplete_reset_kept",
-                0.0,
-                -50.0,
-                50.0,
-                unit="um",
-                description="strain an earlier run's loading left unreset at the record's start, fading with the "
-                "travel as the retained part does",
-                per_record=True,
-                vary=False,
-            ),
-            Parameter(
                 "incomplete_reset_stroke",
                 0.0,
                 0.0,
@@ -342,9 +327,7 @@ class IncompleteReset(Effect):
         "shape": ("incomplete_reset_shape",),
         "step": ("incomplete_reset_onset", "incomplete_reset_sharpness"),
         "stroke": ("incomplete_reset_stroke",),
-        "kept_at_start": ("incomplete_reset_kept",),
     }
-    earlier_run_terms = ("kept_at_start",)
     summary = (
         "first-cycle strain: extra strain A S((e/E)^p) on the virgin loading (e the strain's excursion, or part the "
         "drive's; S a tanh step at c of sharpness k, none at k = 0), fraction R kept after unloading (fading with "
@@ -366,7 +349,6 @@ class IncompleteReset(Effect):
             "incomplete_reset_shape": 1.0,
             "incomplete_reset_onset": 0.5,
             "incomplete_reset_sharpness": 0.0,
-            "incomplete_reset_kept": 0.0,
             "incomplete_reset_stroke": 0.0,
         }
 
@@ -374,48 +356,12 @@ class IncompleteReset(Effect):
         """Displacement plus the first-cycle extra strain, shape ``(W, T)`` [um]."""
         p = self.values(params)
         displacement = np.atleast_2d(np.asarray(displacement, dtype=float))
-        out = displacement  # off (A = 0 and nothing kept): the displacement itself, bit for bit
-        if p.strain.any():
-            extra = incomplete_reset_strain(
-                current, displacement, p.strain, p.retained, p.fade, p.drive, p.shape, p.onset, p.sharpness, p.stroke
-            )
-            out = displacement + extra
-        if p.kept.any():
-            out = out + strain_kept_at_start(current, displacement, p.kept, p.fade, p.stroke)
-        return out
-
-
-def strain_kept_at_start(current, displacement, kept, fade, stroke=0.0):
-    r"""The strain an earlier run left unreset, :math:`K\,e^{-\lambda V_k}\,(1 - b\,x_k)`, shape ``(W, T)`` [um].
-
-    A sample not reset between runs starts the record with the retained strain of an earlier
-    virgin loading; it is the retained part :math:`A q` of :class:`IncompleteReset` begun before
-    the record, so it fades with the drive's travel :math:`V_k = \sum_{m \le k} |i_m - i_{m-1}|`
-    at the same :math:`\lambda` and narrows the later strokes by the same :math:`b`
-    (:math:`x` the strain's excursion over its largest).
-
-    Parameters
-    ----------
-    current : array_like, shape (T,)
-        Drive [A].
-    displacement : array_like, shape (T,) or (W, T)
-        The GPI's output [um].
-    kept : array_like, shape (W,)
-        :math:`K` [um], the kept strain at the record's start.
-    fade, stroke : array_like, shape (W,) or scalar
-        :math:`\lambda` [1/A] and :math:`b`.
-    """
-    current = np.asarray(current, dtype=float)
-    kept = np.atleast_1d(np.asarray(kept, dtype=float))[:, None]
-    fade = np.broadcast_to(np.asarray(fade, dtype=float), kept.shape[:1])[:, None]
-    stroke = np.broadcast_to(np.asarray(stroke, dtype=float), kept.shape[:1])[:, None]
-    y = np.atleast_2d(np.asarray(displacement, dtype=float))
-    travel = np.zeros(current.size)
-    np.cumsum(np.abs(np.diff(current)), out=travel[1:])
-    excursion = np.abs(y - y[:, :1])
-    largest = excursion.max(axis=1, keepdims=True)
-    share = np.divide(excursion, largest, out=np.zeros_like(excursion), where=largest > 0.0)
-    return kept * np.exp(-fade * travel) * (1.0 - stroke * share)
+        if not p.strain.any():  # off: the displacement itself, bit for bit
+            return displacement
+        extra = incomplete_reset_strain(
+            current, displacement, p.strain, p.retained, p.fade, p.drive, p.shape, p.onset, p.sharpness, p.stroke
+        )
+        return displacement + extra
 
 
 def incomplete_reset_strain(
