@@ -718,7 +718,7 @@ def design_drive(
         best.confirmed = confirm(best, contenders, noise, th, rng, misfits=misfits)
     worst = min(best.pairs, key=lambda p: p["p_right"])
     reason = (
-        f"The '{best.family}' drive separates every pair: its weakest, '{worst['truth']}' against "
+        f"The '{best.family}' drive{_rest_text(best, limits)} separates every pair: its weakest, '{worst['truth']}' against "
         f"'{worst['rival']}', shows a gap of {worst['gap']:.0f} (noise sd {worst['noise_sd']:.3g}) after the rival "
         f"is refitted to mimic it, a {100 * worst['p_right']:.0f} % chance that the joint diagnosis names the right "
         f"one.{simulation_text(best)}"
@@ -729,6 +729,12 @@ def design_drive(
         longer = longer_records(contenders, limits, noise, th, rng, _period(records), max(per_family // 4, 1), say)
         reason += longer_text(longer)
     return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0, longer)
+
+
+def _rest_text(drive: DesignedDrive, limits: RigLimits) -> str:
+    """``", after a rest of N s at the lower current,"`` where the drive rests after its quiet start."""
+    seconds = float(drive.params.get("rest", 0.0)) * (limits.duration - limits.quiet)
+    return f", after a rest of {seconds:.0f} s at the lower current," if seconds > 0.0 else ""
 
 
 def _misfits(contenders, records, noises) -> dict:
