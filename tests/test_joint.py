@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
-from identify.diagnosis.joint import rival_pair_names
+from identify.diagnosis.joint import rival_pair_names, tie_member_pairs
 from identify.fitting.joint import JointModel, JointResiduals, fit_joint, with_earlier_runs
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
@@ -52,7 +52,6 @@ def test_the_joint_layout_shares_the_transducer_and_gives_each_record_its_run():
         (["thermal"], True, {"thermal_initial", "thermal_initial_core"}),
         (["thermal"], False, {"thermal_initial"}),  # node 2 pinned off: its start does nothing
         (["creep", "sensor_drift"], True, set()),
-        (["incomplete_reset"], True, {"incomplete_reset_kept"}),  # a sample not reset since the last run
     ],
 )
 def test_a_joint_fit_frees_the_state_earlier_runs_left(effects, core, freed):
@@ -276,3 +275,31 @@ def test_the_joint_log_likelihood_is_the_sum_of_each_records_own(two_records):
 )
 def test_rival_pairs_of_the_best_joint_pair(strength, max_refits, expected):
     assert rival_pair_names(strength, max_refits) == expected
+
+
+@pytest.mark.parametrize(
+    ("tied", "strength", "expected"),
+    [
+        # singles only: nothing to recombine
+        (["a", "b"], {"a": 10.0, "b": 9.0}, []),
+        # two pairs sharing a member: their other members are never fitted together
+        (
+            ["a+b", "a+c"],
+            {"a": 100.0, "b": 50.0, "c": 40.0, "a+b": 130.0, "a+c": 128.0},
+            [("b+c", ("a+b", "c"))],  # started from the stronger pair that holds one of them
+        ),
+        # every pair of the members already fitted: the tie stands as it is
+        (["a+b", "a+c"], {"a": 1.0, "b": 1.0, "c": 1.0, "a+b": 3.0, "a+c": 3.0, "b+c": 2.0}, []),
+        # the tie of four pairs over four members: the two never fitted, the strongest members
+        # first; c never fitted alone, so only a pair holding c and the other's single start it
+        (
+            ["t+s", "s+c", "r+s", "r+t"],
+            {"t": 900.0, "r": 800.0, "s": 700.0, "t+s": 1500.0, "s+c": 1490.0, "r+s": 1480.0, "r+t": 1470.0},
+            [("t+c", ("s+c", "t")), ("c+r", ("s+c", "r"))],
+        ),
+        # b never fitted alone: both new pairs start from the pair that holds a member and c's single
+        (["a+b", "c"], {"a": 5.0, "a+b": 6.0, "c": 6.0}, [("a+c", ("a+b", "c")), ("b+c", ("a+b", "c"))]),
+    ],
+)
+def test_a_tie_of_pairs_is_a_verdict_once_every_pair_of_its_members_is_fitted(tied, strength, expected):
+    assert tie_member_pairs(tied, strength) == expected

@@ -54,7 +54,7 @@ from .explanation import explain, where_text
 from .fits import n_eff, profile_of, same_threshold_sign
 from .screening import screen_candidates
 
-__all__ = ["JointDiagnosis", "diagnose_records", "joint_fit_with_earlier_runs", "rival_pair_names"]
+__all__ = ["JointDiagnosis", "diagnose_records", "joint_fit_with_earlier_runs", "rival_pair_names", "tie_member_pairs"]
 
 
 @dataclass
@@ -495,6 +495,81 @@ def rival_pair_names(strength: dict, max_refits: int) -> list[tuple[str, str, st
     return names
 
 
+@dataclass
+class _Fitted:
+    """The joint fits made so far: the ranking by delta BIC, each fit's adequacy on every record
+    and the fits by name."""
+
+    ranking: list
+    adequate_by_record: dict
+    joint_fits: dict
+
+    def strength(self) -> dict:
+        return {c.effect: c.delta_bic for c in self.ranking}
+
+    def add(self, ctx: _Joint, names, swaps: dict, say) -> None:
+        """Fit the pairs ``names`` (``swaps``: ``{name: (pair, single)}`` names of fits made)."""
+        starts = {name: (self.joint_fits[pair], self.joint_fits[single]) for name, (pair, single) in swaps.items()}
+        more, adequate, self.joint_fits = _fit_candidates(ctx, names, say, self.joint_fits, starts)
+        self.ranking = sorted(self.ranking + more, key=lambda c: -c.delta_bic)
+        self.adequate_by_record.update(adequate)
+
+
+def _fit_rival_pairs(ctx: _Joint, fitted: _Fitted, say) -> None:
+    """Fit the pairs that would name another effect than the best pair's member
+    (:func:`rival_pair_names`), where any is not fitted yet."""
+    rivals = rival_pair_names(fitted.strength(), ctx.th.max_refits)
+    if rivals:
+        say("before a member of the best pair is named, the pairs that swap it for a single as strong:")
+        fitted.add(ctx, [name for name, _, _ in rivals], {name: (best, single) for name, best, single in rivals}, say)
+
+
+def tie_member_pairs(tied, strength: dict) -> list[tuple[str, tuple | None]]:
+    """The pairs of a tie's members not fitted yet, to fit before the tie is the verdict, each
+    with the fits to start it from.
+
+    A tie lists what the records cannot tell apart; when it holds pairs, their members can also
+    combine otherwise (a heating tied in one pair, a first-cycle strain in another), and the
+    records may prefer such a recombination to every pair listed. A tie is a verdict only once
+    every pair of its members has been fitted.
+
+    Parameters
+    ----------
+    tied : sequence of str
+        The tied explanations (singles and pairs ``"a+b"``).
+    strength : dict
+        ``{explanation: delta BIC}`` of every joint fit made, singles and pairs.
+
+    Returns
+    -------
+    list of (str, tuple or None)
+        Each new pair's name (its members in the order of the strongest tied explanation that
+        holds them) and ``(pair, single)``: the strongest fitted pair that holds one member but
+        not the other, and the other member's single (fitted), to start it from (None where no
+        such two exist); strongest members first.
+    """
+    members = list(dict.fromkeys(m for name in tied for m in name.split("+")))
+    if not any("+" in name for name in tied) or len(members) < 3:
+        return []
+    fitted = {frozenset(n.split("+")) for n in strength}
+    pairs = {n: v for n, v in strength.items() if "+" in n}
+    found = []
+    for i, a in enumerate(members):
+        for b in members[i + 1 :]:
+            if frozenset((a, b)) in fitted:
+                continue
+            swap = None
+            for keep, single in ((b, a), (a, b)):  # a pair holding one member, the other's single
+                holders = [n for n in pairs if keep in n.split("+") and single not in n.split("+")]
+                if holders and single in strength:
+                    best = max(holders, key=pairs.get)
+                    if swap is None or pairs[best] > pairs[swap[0]]:
+                        swap = (best, single)
+            found.append((f"{a}+{b}", swap))
+    found.sort(key=lambda item: -sum(strength.get(m, 0.0) for m in item[0].split("+")))
+    return found
+
+
 def _freed_layout(model, like: JointModel) -> JointModel:
     """``model`` laid out for ``like``'s records and sensor-zero bound, the state earlier runs
     left free in each (:func:`identify.fitting.joint.with_earlier_runs`): every joint fit of the
@@ -573,15 +648,17 @@ def diagnose_records(
     names = _candidates_of(alone, thresholds)
     screened = _screened(ctx, names, say)
     ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, names + list(screened), say, screened=screened)
-    rivals = rival_pair_names({c.effect: c.delta_bic for c in ranking}, thresholds.max_refits)
-    if rivals:
-        say("before a member of the best pair is named, the pairs that swap it for a single as strong:")
-        swaps = {name: (joint_fits[best], joint_fits[single]) for name, best, single in rivals}
-        more, more_adequate, joint_fits = _fit_candidates(ctx, [r[0] for r in rivals], say, joint_fits, swaps)
-        ranking = sorted(ranking + more, key=lambda c: -c.delta_bic)
-        adequate_by_record.update(more_adequate)
+    fitted = _Fitted(ranking, adequate_by_record, joint_fits)
+    _fit_rival_pairs(ctx, fitted, say)
+    decision = decide(_evidence(ctx, fitted.ranking), thresholds)
+    closure = tie_member_pairs(decision.tied, fitted.strength())
+    if decision.status == "tied" and closure:
+        say("before the tie is the verdict, the pairs of its members not fitted yet:")
+        fitted.add(ctx, [n for n, _ in closure], {n: w for n, w in closure if w}, say)
+        _fit_rival_pairs(ctx, fitted, say)  # a new best pair: its rivals before a member is named
+        decision = decide(_evidence(ctx, fitted.ranking), thresholds)
+    ranking, adequate_by_record, joint_fits = fitted.ranking, fitted.adequate_by_record, fitted.joint_fits
     evidence = _evidence(ctx, ranking)
-    decision = decide(evidence, thresholds)
     reason = explain(decision, evidence, thresholds, where_text(ctx.profiles[_worst(ctx)], thresholds.z_critical))
     rows = _record_rows(records, baseline, ctx, alone)
     return JointDiagnosis(
