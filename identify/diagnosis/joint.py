@@ -577,19 +577,19 @@ def _freed_layout(model, like: JointModel) -> JointModel:
     return JointModel(with_earlier_runs(model), like.n_records, like.zero_bound)
 
 
-def joint_fit_with_earlier_runs(baseline: JointFit) -> JointFit:
+def joint_fit_with_earlier_runs(jf: JointFit) -> JointFit:
     """A joint fit in the layout the joint diagnosis fits its candidates in, the state earlier
     runs left free on every record (:func:`identify.fitting.joint.with_earlier_runs`), refitted
     from it where that frees a parameter (never higher: where the records start at rest it is
     the same fit)."""
-    joint = _freed_layout(baseline.joint.model, baseline.joint)
-    if int(joint.parameters.vary.sum()) == int(baseline.joint.parameters.vary.sum()):
-        return baseline
-    residuals = JointResiduals(baseline.records, joint, baseline.noises)
-    chi2, _, x = _solve_from(residuals, _embedded(baseline, joint))
-    if not chi2 < baseline.chi2:  # the records start at rest: the same fit in the freed layout
-        x = np.clip(_embedded(baseline, joint)[residuals.free], residuals.lower, residuals.upper)
-    return joint_fit_at(residuals, x, baseline.separate)
+    joint = _freed_layout(jf.joint.model, jf.joint)
+    if int(joint.parameters.vary.sum()) == int(jf.joint.parameters.vary.sum()):
+        return jf
+    residuals = JointResiduals(jf.records, joint, jf.noises)
+    chi2, _, x = _solve_from(residuals, _embedded(jf, joint))
+    if not chi2 < jf.chi2:  # the records start at rest: the same fit in the freed layout
+        x = np.clip(_embedded(jf, joint)[residuals.free], residuals.lower, residuals.upper)
+    return joint_fit_at(residuals, x, jf.separate)
 
 
 def _embedded(baseline: JointFit, joint: JointModel) -> np.ndarray:

@@ -718,7 +718,8 @@ def design_drive(
         best.confirmed = confirm(best, contenders, noise, th, rng, misfits=misfits)
     worst = min(best.pairs, key=lambda p: p["p_right"])
     reason = (
-        f"The '{best.family}' drive{_rest_text(best, limits)} separates every pair: its weakest, '{worst['truth']}' against "
+        f"The '{best.family}' drive{_rest_text(best, limits)} separates every pair: its weakest, "
+        f"'{worst['truth']}' against "
         f"'{worst['rival']}', shows a gap of {worst['gap']:.0f} (noise sd {worst['noise_sd']:.3g}) after the rival "
         f"is refitted to mimic it, a {100 * worst['p_right']:.0f} % chance that the joint diagnosis names the right "
         f"one.{simulation_text(best)}"
