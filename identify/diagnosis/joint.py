@@ -650,15 +650,16 @@ def diagnose_records(
     ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, names + list(screened), say, screened=screened)
     fitted = _Fitted(ranking, adequate_by_record, joint_fits)
     _fit_rival_pairs(ctx, fitted, say)
-    decision = decide(_evidence(ctx, fitted.ranking), thresholds)
+    evidence = _evidence(ctx, fitted.ranking)
+    decision = decide(evidence, thresholds)
     closure = tie_member_pairs(decision.tied, fitted.strength())
     if decision.status == "tied" and closure:
         say("before the tie is the verdict, the pairs of its members not fitted yet:")
         fitted.add(ctx, [n for n, _ in closure], {n: w for n, w in closure if w}, say)
         _fit_rival_pairs(ctx, fitted, say)  # a new best pair: its rivals before a member is named
-        decision = decide(_evidence(ctx, fitted.ranking), thresholds)
+        evidence = _evidence(ctx, fitted.ranking)
+        decision = decide(evidence, thresholds)
     ranking, adequate_by_record, joint_fits = fitted.ranking, fitted.adequate_by_record, fitted.joint_fits
-    evidence = _evidence(ctx, ranking)
     reason = explain(decision, evidence, thresholds, where_text(ctx.profiles[_worst(ctx)], thresholds.z_critical))
     rows = _record_rows(records, baseline, ctx, alone)
     return JointDiagnosis(

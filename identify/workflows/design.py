@@ -82,6 +82,7 @@ __all__ = [
     "design_drive",
     "discrimination",
     "random_drive_parameters",
+    "rest_seconds",
     "confirm",
     "RecordMisfit",
     "record_misfit",
@@ -259,11 +260,7 @@ def contenders_of(diagnosis, names=None, record: Record | None = None) -> list:
     found = []
     for name in wanted:
         if joint_fits is not None and name in joint_fits:
-            jf = joint_fits[name]
-            n = jf.model.n_parameters
-            found.append(
-                contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n], _joint_runs(jf))
-            )
+            found.append(_joint_contender(name, joint_fits[name]))
             continue
         entry = next((c for c in [*diagnosis.ranking, *diagnosis.pairs_tried] if c.effect == name), None)
         if entry is None or entry.fit is None:
@@ -271,10 +268,26 @@ def contenders_of(diagnosis, names=None, record: Record | None = None) -> list:
             raise ValueError(
                 f"'{name}' was not fitted by the diagnosis; the fitted explanations are {', '.join(known)}"
             )
-        fit = entry.fit if record is None else fit_with_earlier_runs(record, entry.fit)
-        draws_from = None if record is None else draws_without_unsupported_terms(record, fit)
-        found.append(contender(name, fit.model, fit.theta, fit.covariance, draws_from=draws_from))
+        if record is None:
+            found.append(contender(name, entry.fit.model, entry.fit.theta, entry.fit.covariance))
+        else:
+            found.append(_record_contender(name, record, entry.fit))
     return found
+
+
+def _joint_contender(name: str, jf) -> Contender:
+    """The contender of a joint fit ``jf``: record 1's vector and covariance, every record's run."""
+    n = jf.model.n_parameters
+    return contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n], _joint_runs(jf))
+
+
+def _record_contender(name: str, record: Record, fit) -> Contender:
+    """The contender of a single ``record``'s fit, held as the joint diagnosis fits the record
+    (:func:`fit_with_earlier_runs`), drawn without the terms it does not support
+    (:func:`draws_without_unsupported_terms`)."""
+    fit = fit_with_earlier_runs(record, fit)
+    draws_from = draws_without_unsupported_terms(record, fit)
+    return contender(name, fit.model, fit.theta, fit.covariance, draws_from=draws_from)
 
 
 def fit_with_earlier_runs(record: Record, fit):
@@ -423,10 +436,15 @@ def _shape_parameters(rng: np.random.Generator, family: str) -> dict:
 FAMILIES = {"hold": _hold, "rise_again": _rise_again, "steps": _steps, "probe_blocks": _probe_blocks}
 
 
+def rest_seconds(params: dict, limits: RigLimits) -> float:
+    """How long a drive with ``params`` rests after the quiet start [s] (0 without a rest)."""
+    return float(params.get("rest", 0.0)) * (limits.duration - limits.quiet)
+
+
 def drive_of(family: str, params: dict, limits: RigLimits, period: float):
     """``(time, current)`` of a family's drive with ``params``, or None outside the limits."""
     b = _Builder(limits, period)
-    b.hold(float(params.get("rest", 0.0)) * (limits.duration - limits.quiet))
+    b.hold(rest_seconds(params, limits))
     FAMILIES[family](b, params)
     return b.finish()
 
@@ -734,7 +752,7 @@ def design_drive(
 
 def _rest_text(drive: DesignedDrive, limits: RigLimits) -> str:
     """``", after a rest of N s at the lower current,"`` where the drive rests after its quiet start."""
-    seconds = float(drive.params.get("rest", 0.0)) * (limits.duration - limits.quiet)
+    seconds = rest_seconds(drive.params, limits)
     return f", after a rest of {seconds:.0f} s at the lower current," if seconds > 0.0 else ""
 
 
@@ -774,15 +792,10 @@ def fitted_contenders(records, model: Model, names, noises, *, n_starts: int = 4
                 records[0], model_e, noise=noises[0], n_starts=n_starts, rng=rng, threshold_sign=sign
             )
             sign = _sign_name(fit.model)
-            fit = fit_with_earlier_runs(records[0], fit)
-            draws_from = draws_without_unsupported_terms(records[0], fit)
-            found.append(contender(name, fit.model, fit.theta, fit.covariance, draws_from=draws_from))
+            found.append(_record_contender(name, records[0], fit))
         else:
             jf = joint_fit_with_earlier_runs(fit_joint(records, model_e, noises, n_starts=n_starts, rng=rng))
-            n = jf.model.n_parameters
-            found.append(
-                contender(name, jf.model, jf.joint.record_theta(jf.theta, 1), jf.covariance[:n, :n], _joint_runs(jf))
-            )
+            found.append(_joint_contender(name, jf))
     return found
 
 
