@@ -266,6 +266,7 @@ class JointResiduals(WhitenedResiduals):
         self.n_evaluations = 0
         self._cache_x = None
         self._cache_r = None
+        self._cache_valid = False
 
     def batch(self, x_rows) -> tuple[np.ndarray, np.ndarray]:
         thetas = self.full(np.atleast_2d(x_rows))

@@ -31,9 +31,9 @@ CENTRAL_STEP_POWER = 0.45
 
 
 @njit(cache=True, nogil=True)
-def difference_columns(rows, base, steps, columns, out):
-    """Forward differences laid out as a Jacobian: ``out[k, j] = (rows[j + 1, k] - base[k]) / steps[j]``
-    for each ``j`` in ``columns`` (``rows`` of shape ``(P + 1, T)``, ``out`` ``(T, P)``; other
+def difference_columns(rows, base, steps, columns, out, first=1):
+    """Forward differences laid out as a Jacobian: ``out[k, j] = (rows[j + first, k] - base[k]) / steps[j]``
+    for each ``j`` in ``columns`` (``rows`` of shape ``(P + first, T)``, ``out`` ``(T, P)``; other
     columns untouched).
 
     The same two operations per value as numpy's ``((rows[1:] - base) / steps[:, None]).T``,
@@ -47,7 +47,7 @@ def difference_columns(rows, base, steps, columns, out):
         for j in columns:
             step = steps[j]
             for k in range(k0, k1):
-                out[k, j] = (rows[j + 1, k] - base[k]) / step
+                out[k, j] = (rows[j + first, k] - base[k]) / step
 
 
 class WhitenedResiduals:
@@ -88,6 +88,7 @@ class WhitenedResiduals:
         self.n_evaluations = 0
         self._cache_x = None
         self._cache_r = None
+        self._cache_valid = False
 
     def copy(self) -> WhitenedResiduals:
         """The same residuals with their own last-point cache and evaluation count (for a fit run
@@ -121,34 +122,42 @@ class WhitenedResiduals:
             return self._cache_r
         w, valid = self.batch(x[None, :])
         r = w[0] if valid[0] else np.full(self.data.size, DOMAIN_PENALTY)
-        self._cache_x, self._cache_r = x.copy(), r
+        self._cache_x, self._cache_r, self._cache_valid = x.copy(), r, bool(valid[0])
         return r
 
     def _steps(self, x, power):
         return np.finfo(float).eps ** power * np.maximum(np.abs(x), 0.01)
 
-    def jacobian(self, x) -> np.ndarray:
-        """Forward-difference Jacobian ``(T, P_free)`` from one ``(P_free + 1)``-row batch."""
+    def jacobian(self, x, columns=None) -> np.ndarray:
+        """Forward-difference Jacobian ``(T, P_free)`` from one batch: a row per column and the
+        point itself unless it is the last point evaluated (its residual is kept; a solver asks
+        for the Jacobian where it has just evaluated the residual). With ``columns`` (indices
+        into the free values), only those columns ``(T, len(columns))``."""
         x = np.asarray(x, dtype=float)
-        n_free = x.size
-        steps = self._steps(x, 0.5)
-        steps = np.where(x + steps > self.upper, -steps, steps)
-        rows = np.repeat(x[None, :], n_free + 1, axis=0)
-        rows[1:][np.arange(n_free), np.arange(n_free)] += steps
+        columns = np.arange(x.size) if columns is None else np.asarray(columns, dtype=np.int64)
+        if not columns.size:
+            return np.empty((self.data.size, 0))
+        steps = self._steps(x[columns], 0.5)
+        steps = np.where(x[columns] + steps > self.upper[columns], -steps, steps)
+        known = self._cache_x is not None and np.array_equal(x, self._cache_x)
+        first = 0 if known else 1
+        rows = np.repeat(x[None, :], columns.size + first, axis=0)
+        rows[first:][np.arange(columns.size), columns] += steps
         w, valid = self.batch(rows)
-        base = w[0] if valid[0] else self(x)
-        jac = np.empty((self.data.size, n_free))
-        difference_columns(w, base, steps, np.arange(n_free), jac)
-        bad = [j for j in range(n_free) if not valid[j + 1]]
+        base_valid = self._cache_valid if known else bool(valid[0])
+        base = self._cache_r if known else (w[0] if base_valid else self(x))
+        jac = np.empty((self.data.size, columns.size))
+        difference_columns(w, base, steps, np.arange(columns.size), jac, first)
+        bad = [j for j in range(columns.size) if not valid[j + first]]
         jac[:, bad] = 0.0
-        if bad and valid[0]:
+        if bad and base_valid:
             # Non-finite output on the forward step: step backward instead, in one more batch.
             back = np.repeat(x[None, :], len(bad), axis=0)
-            back[np.arange(len(bad)), bad] -= steps[bad]
+            back[np.arange(len(bad)), columns[bad]] -= steps[bad]
             back = np.clip(back, self.lower, self.upper)
             wb, vb = self.batch(back)
             for k, j in enumerate(bad):
-                delta = back[k, j] - x[j]
+                delta = back[k, columns[j]] - x[columns[j]]
                 if vb[k] and delta != 0:
                     jac[:, j] = (wb[k] - base) / delta
         return jac

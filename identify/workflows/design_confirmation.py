@@ -127,7 +127,7 @@ def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMis
         jac = np.zeros((sum(sizes), z.size))
         row = 0
         for res, x_r in at(x):
-            jac[row : row + res.data.size, shared] = res.jacobian(x_r)[:, shared]
+            jac[row : row + res.data.size, shared] = res.jacobian(x_r, shared)
             row += res.data.size
         jac[row:, :-1] = residuals.jacobian(x)
         jac[row:, -1] = -scale
