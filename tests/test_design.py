@@ -16,6 +16,8 @@ from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
 from identify.workflows.design import (
     FAMILIES,
+    MAX_REST,
+    SHAPES,
     RigLimits,
     contender,
     discrimination,
@@ -23,7 +25,10 @@ from identify.workflows.design import (
     fit_with_earlier_runs,
     fitted_contenders,
     p_right,
+    perturbed_parameters,
     random_drive_parameters,
+    refine,
+    search,
 )
 from model import Model
 
@@ -116,6 +121,43 @@ def test_the_criterion_is_zero_for_a_rival_that_can_be_the_truth_and_positive_ot
     assert gap > 100.0 and sd > 0
     assert p_right(gap, sd, Thresholds()) > 0.99
     assert p_right(5.0, 1.0, Thresholds()) < 0.01  # a gap below bic_significant names nothing
+
+
+@pytest.mark.parametrize("family", list(FAMILIES))
+def test_a_perturbed_shape_keeps_its_counts_and_ranges_and_a_drive_without_rest_keeps_none(family):
+    rng = np.random.default_rng(4)
+    (count_name, _, _), ranges = SHAPES[family]
+    for _ in range(20):
+        params = random_drive_parameters(rng, family)
+        moved = perturbed_parameters(rng, family, params, 0.5)
+        assert set(moved) == set(params)
+        if count_name in ranges:  # the levels: as many as before
+            assert len(moved[count_name]) == len(params[count_name])
+        else:
+            assert moved[count_name] == params[count_name]
+        assert 0.0 <= moved["rest"] <= MAX_REST and (params["rest"] > 0.0 or moved["rest"] == 0.0)
+        for name, (lo, hi) in ranges.items():
+            values = np.atleast_1d(moved[name])
+            assert np.all((values >= lo) & (values <= hi))
+        assert any(np.any(np.atleast_1d(moved[n]) != np.atleast_1d(params[n])) for n in ranges)
+
+
+def test_refining_a_drive_never_ranks_it_lower_and_can_raise_a_weak_one():
+    """A weak heating against the plain model on a short record: the local search from the random
+    search's best keeps its family and limits and ends at least as high (here higher)."""
+    sim = simulate("thermal_tau=30,thermal_sensitivity=0.01,thermal_expansion=1.5", seed=1, fs=5.0)
+    contenders = _heating_and_plain(sim, 1e-4)
+    noise, th = estimate_noise(sim.record), Thresholds()
+    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
+    found = search(contenders, limits, noise, th, np.random.default_rng(3), 10.0, per_family=3)[:2]
+    for drive in found:
+        refined = refine(drive, contenders, limits, noise, th, np.random.default_rng(5), 10.0, trials=12)
+        assert refined.family == drive.family and drive_of(drive.family, refined.params, limits, 10.0) is not None
+        assert (-refined.value, -min(p["gap"] for p in refined.pairs)) <= (
+            -drive.value,
+            -min(p["gap"] for p in drive.pairs),
+        )
+    assert refined.value > drive.value or min(p["gap"] for p in refined.pairs) > min(p["gap"] for p in drive.pairs)
 
 
 @pytest.fixture(scope="module")

@@ -82,6 +82,9 @@ __all__ = [
     "design_drive",
     "discrimination",
     "random_drive_parameters",
+    "perturbed_parameters",
+    "refine",
+    "SHAPES",
     "rest_seconds",
     "confirm",
     "RecordMisfit",
@@ -97,6 +100,11 @@ __all__ = [
 DRIVES_PER_FAMILY = 40
 #: Best drives confirmed by simulation.
 CONFIRMED = 3
+#: Perturbed shapes tried around each of the best drives of the random search
+#: (:func:`refine`), and the perturbation's sd as a share of each parameter's range: random
+#: shapes leave the neighbourhood of the best ones unexplored, where the criterion is smooth.
+REFINE_TRIALS = 24
+REFINE_SPREAD = 0.15
 #: Samples of a drive in the search and the confirmations that rank the best few: longer drives
 #: are evaluated on every k-th sample (the same drive; the best ones again on every sample, and
 #: the chosen one confirmed on every sample: a gap measured on fewer samples and scaled up is
@@ -408,28 +416,42 @@ def random_drive_parameters(rng: np.random.Generator, family: str) -> dict:
     return {"rest": rest, **_shape_parameters(rng, family)}
 
 
+#: family -> its count of pieces ``(name, lowest, highest + 1)`` and the range of each continuous
+#: shape parameter (fractions of the current range, of the time left or of the period), in the order
+#: they are drawn; ``levels`` is a list of as many values as the count.
+SHAPES = {
+    "hold": (("cycles", 1, 4), {"amplitude": (0.5, 1.0), "level": (0.4, 1.0), "hold": (0.15, 0.6)}),
+    "rise_again": (("cycles", 2, 5), {"low": (0.2, 0.6), "high": (0.7, 1.0)}),
+    "steps": (("levels", 2, 5), {"levels": (0.2, 1.0), "dwell": (0.3, 0.7)}),
+    "probe_blocks": (("blocks", 1, 4), {"level": (0.6, 1.0), "block": (0.5, 2.0), "probe": (0.2, 0.5)}),
+}
+
+
 def _shape_parameters(rng: np.random.Generator, family: str) -> dict:
-    """The shape parameters of a drive of ``family`` after its rest."""
-    if family == "hold":
-        return {
-            "cycles": int(rng.integers(1, 4)),
-            "amplitude": rng.uniform(0.5, 1.0),
-            "level": rng.uniform(0.4, 1.0),
-            "hold": rng.uniform(0.15, 0.6),
-        }
-    if family == "rise_again":
-        return {"cycles": int(rng.integers(2, 5)), "low": rng.uniform(0.2, 0.6), "high": rng.uniform(0.7, 1.0)}
-    if family == "steps":
-        return {
-            "levels": [float(x) for x in rng.uniform(0.2, 1.0, int(rng.integers(2, 5)))],
-            "dwell": rng.uniform(0.3, 0.7),
-        }
-    return {
-        "blocks": int(rng.integers(1, 4)),
-        "level": rng.uniform(0.6, 1.0),
-        "block": rng.uniform(0.5, 2.0),
-        "probe": rng.uniform(0.2, 0.5),
-    }
+    """The shape parameters of a drive of ``family`` after its rest (:data:`SHAPES`)."""
+    (count_name, low, high), ranges = SHAPES[family]
+    count = int(rng.integers(low, high))
+    params = {} if count_name in ranges else {count_name: count}
+    for name, (lo, hi) in ranges.items():
+        if name == count_name:
+            params[name] = [float(x) for x in rng.uniform(lo, hi, count)]
+        else:
+            params[name] = rng.uniform(lo, hi)
+    return params
+
+
+def perturbed_parameters(rng: np.random.Generator, family: str, params: dict, spread: float) -> dict:
+    """``params`` with every continuous shape parameter (and the rest) moved by a normal step of sd
+    ``spread`` times its range (:data:`SHAPES`), held within the range; the counts kept."""
+    ranges = {"rest": (0.0, MAX_REST), **SHAPES[family][1]}
+    out = dict(params)
+    for name, (lo, hi) in ranges.items():
+        if name == "rest" and not params.get("rest", 0.0):
+            continue  # a drive without a rest keeps none (half the draws have one)
+        value = np.asarray(params[name], dtype=float)
+        moved = np.clip(value + spread * (hi - lo) * rng.standard_normal(value.shape), lo, hi)
+        out[name] = [float(x) for x in moved] if isinstance(params[name], list) else float(moved)
+    return out
 
 
 #: family -> how its parameters shape the drive (after the quiet start and the rest).
@@ -599,6 +621,32 @@ def search(
     return drives
 
 
+def refine(
+    drive: DesignedDrive,
+    contenders,
+    limits: RigLimits,
+    noise: NoiseModel,
+    th: Thresholds,
+    rng,
+    period: float,
+    step: int = 1,
+    trials: int = REFINE_TRIALS,
+) -> DesignedDrive:
+    """The best drive found by a local search from ``drive``: ``trials`` times a shape perturbed
+    from the best so far (:func:`perturbed_parameters`, :data:`REFINE_SPREAD`, its counts kept),
+    kept when it ranks higher (:func:`_rank`, on every ``step``-th sample)."""
+    best = drive
+    for _ in range(trials):
+        params = perturbed_parameters(rng, best.family, best.params, REFINE_SPREAD)
+        made = drive_of(best.family, params, limits, period)
+        if made is None:
+            continue
+        candidate = evaluate(DesignedDrive(best.family, params, *made), contenders, noise, th, step)
+        if _rank(candidate) < _rank(best):
+            best = candidate
+    return best
+
+
 def _rank(drive: DesignedDrive):
     """Best first: the highest smallest chance of a right name, then the largest smallest gap."""
     return -drive.value, -min((p["gap"] for p in drive.pairs), default=0.0)
@@ -716,8 +764,11 @@ def design_drive(
     limits = RigLimits.from_records(records) if limits is None else limits
     misfits = _misfits(contenders, records, noises)
     step = max(1, math.ceil(limits.duration * limits.fs / DESIGN_SAMPLES))
-    ranked = search(contenders, limits, noise, th, rng, _period(records), per_family, say, step)
-    top = ranked[: max(n_confirm, 1)]
+    period = _period(records)
+    ranked = search(contenders, limits, noise, th, rng, period, per_family, say, step)
+    say(f"refining the best {min(max(n_confirm, 1), len(ranked))} drives' shapes")
+    top = [refine(d, contenders, limits, noise, th, rng, period, step) for d in ranked[: max(n_confirm, 1)]]
+    top.sort(key=_rank)
     if step > 1:
         say(f"the best {len(top)} drives on every sample")
         for drive in top:
@@ -745,7 +796,7 @@ def design_drive(
     longer = []
     if best.value < DECISIVE:
         say(f"the weakest chance is {100 * best.value:.0f} %: searching longer records")
-        longer = longer_records(contenders, limits, noise, th, rng, _period(records), max(per_family // 4, 1), say)
+        longer = longer_records(contenders, limits, noise, th, rng, period, max(per_family // 4, 1), say)
         reason += longer_text(longer)
     return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0, longer)
 
