@@ -2,9 +2,10 @@
 use against :mod:`identify.fitting.lapack`'s, which call the same routines without the GIL.
 
 Prints, for ``numpy.linalg.lstsq`` (``dogbox``) and ``scipy.linalg.svd`` (``trf``) and their
-replacements, the time of one call on one thread and how much faster two threads get the same
-work done (2: no call waits for the other; 1: they run in turn), on a Jacobian of the shape a
-diagnosis's working copy gives (3500 x 21), BLAS on one thread as in a fit.
+replacements (``trf_svd`` with the product ``U^T b``, all ``trf`` asks of ``U``), the time of one
+call on one thread and how much faster two threads get the same work done (2: no call waits for
+the other; 1: they run in turn), on a Jacobian of the shape a diagnosis's working copy gives
+(3500 x 21), BLAS on one thread as in a fit.
 
 Usage::
 
@@ -21,7 +22,7 @@ import numpy as np
 import scipy.linalg
 from threadpoolctl import threadpool_limits
 
-from identify.fitting.lapack import lstsq, svd
+from identify.fitting.lapack import lstsq, svd, trf_svd
 
 
 def _timed(function, calls):
@@ -57,6 +58,8 @@ def main(argv=None) -> int:
         ("identify.fitting.lapack.lstsq", lambda: lstsq(a, b, rcond=-1)),
         ("scipy.linalg.svd (trf's)", lambda: scipy.linalg.svd(a, full_matrices=False)),
         ("identify.fitting.lapack.svd", lambda: svd(a, full_matrices=False)),
+        ("scipy.linalg.svd, then U^T b", lambda: scipy.linalg.svd(a, full_matrices=False)[0].T.dot(b)),
+        ("identify...trf_svd, then U^T b", lambda: trf_svd(a, full_matrices=False)[0].T.dot(b)),
     ]
     print(f"{args.rows} x {args.columns}, {args.calls} calls a thread, BLAS on one thread")
     with threadpool_limits(1):

@@ -96,6 +96,7 @@ class WhitenedResiduals:
         twin = copy.copy(self)
         twin.n_evaluations = 0
         twin._cache_x = twin._cache_r = None
+        twin._cache_valid = False
         return twin
 
     def full(self, x) -> np.ndarray:
