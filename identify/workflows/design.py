@@ -804,7 +804,7 @@ def design_drive(
 def _rest_text(drive: DesignedDrive, limits: RigLimits) -> str:
     """``", after a rest of N s at the lower current,"`` where the drive rests after its quiet start."""
     seconds = rest_seconds(drive.params, limits)
-    return f", after a rest of {seconds:.0f} s at the lower current," if seconds > 0.0 else ""
+    return f", after a rest of {seconds:.3g} s at the lower current," if seconds > 0.0 else ""
 
 
 def _misfits(contenders, records, noises) -> dict:
