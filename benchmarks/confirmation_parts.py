@@ -42,9 +42,14 @@ _JACOBIAN = WhitenedResiduals.jacobian
 
 
 def _jacobian_before(self, x, columns=None):
-    """The Jacobian of every column with the point evaluated again (the way before)."""
-    self._cache_x = None  # forgets the residual just evaluated
-    jac = _JACOBIAN(self, x)
+    """The Jacobian of every column with the point evaluated again (the way before); the residual
+    just evaluated stays cached for the solver's own calls, as it did."""
+    cached = (self._cache_x, self._cache_r, self._cache_valid)
+    self._cache_x = None  # hidden from the Jacobian only
+    try:
+        jac = _JACOBIAN(self, x)
+    finally:
+        self._cache_x, self._cache_r, self._cache_valid = cached
     return jac if columns is None else jac[:, columns]
 
 

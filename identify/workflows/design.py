@@ -591,6 +591,22 @@ def _period(records) -> float:
     return max(float(np.median(periods)) if periods else 10.0, 2.0)
 
 
+def _evaluated_drive(
+    family: str,
+    params: dict,
+    contenders,
+    limits: RigLimits,
+    noise: NoiseModel,
+    th: Thresholds,
+    period: float,
+    step: int,
+) -> DesignedDrive | None:
+    """The drive of ``family`` with ``params`` evaluated on every ``step``-th sample (:func:`evaluate`),
+    or None outside the limits (:func:`drive_of`)."""
+    made = drive_of(family, params, limits, period)
+    return None if made is None else evaluate(DesignedDrive(family, params, *made), contenders, noise, th, step)
+
+
 def search(
     contenders,
     limits: RigLimits,
@@ -608,10 +624,11 @@ def search(
     for family in FAMILIES:
         say(f"searching the '{family}' drives ({per_family} shapes)")
         for _ in range(per_family):
-            params = random_drive_parameters(rng, family)
-            made = drive_of(family, params, limits, period)
-            if made is not None:
-                drives.append(evaluate(DesignedDrive(family, params, *made), contenders, noise, th, step))
+            drive = _evaluated_drive(
+                family, random_drive_parameters(rng, family), contenders, limits, noise, th, period, step
+            )
+            if drive is not None:
+                drives.append(drive)
     if not drives:
         raise ValueError(
             "no drive of any family fits the limits (the duration, the RMS current limit or the slew leave no "
@@ -638,11 +655,8 @@ def refine(
     best = drive
     for _ in range(trials):
         params = perturbed_parameters(rng, best.family, best.params, REFINE_SPREAD)
-        made = drive_of(best.family, params, limits, period)
-        if made is None:
-            continue
-        candidate = evaluate(DesignedDrive(best.family, params, *made), contenders, noise, th, step)
-        if _rank(candidate) < _rank(best):
+        candidate = _evaluated_drive(best.family, params, contenders, limits, noise, th, period, step)
+        if candidate is not None and _rank(candidate) < _rank(best):
             best = candidate
     return best
 
@@ -768,12 +782,11 @@ def design_drive(
     ranked = search(contenders, limits, noise, th, rng, period, per_family, say, step)
     say(f"refining the best {min(max(n_confirm, 1), len(ranked))} drives' shapes")
     top = [refine(d, contenders, limits, noise, th, rng, period, step) for d in ranked[: max(n_confirm, 1)]]
-    top.sort(key=_rank)
     if step > 1:
         say(f"the best {len(top)} drives on every sample")
         for drive in top:
             evaluate(drive, contenders, noise, th)
-        top.sort(key=_rank)
+    top.sort(key=_rank)
     for drive in top[:n_confirm]:
         every = f" (every {ordinal(step)} sample)" if step > 1 else ""
         say(f"confirming a '{drive.family}' drive by simulation{every}")
