@@ -533,3 +533,34 @@ def test_a_rival_fitted_in_another_basin_is_also_refitted_from_where_the_new_rec
     best, from_fit, at_truth = min(map(refit, starts)), refit(wrong), refit(truth)
     assert best <= 1.01 * at_truth
     assert from_fit > at_truth + 100.0
+
+
+def test_the_joint_refit_frees_each_earlier_records_own_parameters_as_the_joint_diagnosis_does():
+    """An earlier record's own parameters (its run's sensor drift) are refitted with the
+    transducer, as the joint diagnosis fits them: a contender whose first run's drift starts a
+    micrometre off gives the simulated gaps of one whose run starts at its fit (held there, the
+    truth's refit carries that record's misfit: the gaps fell from 32 and 46 to -31 and 8)."""
+    from identify.workflows.design import DesignedDrive, confirm, record_misfit
+
+    sim = simulate("sensor_drift_linear=1.5,sensor_drift_quadratic=-0.8", seed=1, fs=5.0)
+    model = normalised_model(Model(["sensor_drift"]))
+    theta = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    covariance = np.diag(np.where(model.parameters.vary, 1e-8, 0.0))
+    off = theta.copy()
+    off[model.names.index("sensor_drift_linear")] += 1.0
+    plain = normalised_model(Model())
+    n = plain.n_parameters
+    rival = contender("plain", plain, theta[:n], covariance[:n, :n])
+    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
+    drive = DesignedDrive(
+        "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)
+    )
+    noise, th = estimate_noise(sim.record), Thresholds()
+    gaps = {}
+    for label, runs in (("at its fit", None), ("off", [(off, 0.0)])):
+        truth = contender("sensor_drift", model, theta, covariance, runs=runs)
+        misfits = {c.name: record_misfit(c, [sim.record], [noise]) for c in (truth, rival)}
+        rows = confirm(drive, [truth, rival], noise, th, np.random.default_rng(5), draws=2, misfits=misfits)
+        gaps[label] = next(r for r in rows if r["truth"] == "sensor_drift")["realised_gaps"]
+    assert min(gaps["at its fit"]) > 20.0
+    np.testing.assert_allclose(gaps["off"], gaps["at its fit"], rtol=0.02, atol=2.0)

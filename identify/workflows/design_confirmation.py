@@ -50,24 +50,36 @@ TWO_SIGMA_LEVEL = float(norm.cdf(2.0))
 DRAW_HALVINGS = 12
 
 
-def _solve_with_zero(objective, jacobian, residuals: WhitenedResiduals, theta0) -> np.ndarray:
-    """The short refit both confirmations run: ``objective`` of ``(free parameters, sensor zero)``
-    from ``theta0``'s free values and a zero of 0, within the parameters' box (the zero free),
-    ``trf`` with Jacobian scaling and at most 40 evaluations. Its end ``(P_free + 1,)``."""
-    start = np.concatenate([np.clip(theta0[residuals.free], residuals.lower, residuals.upper), [0.0]])
-    lower = np.concatenate([residuals.lower, [-np.inf]])
-    upper = np.concatenate([residuals.upper, [np.inf]])
+def _solve_with_zero(objective, jacobian, residuals: WhitenedResiduals, theta0, more=None) -> np.ndarray:
+    """The short refit both confirmations run: ``objective`` of ``(free parameters, sensor zero,
+    more)`` from ``theta0``'s free values, a zero of 0 and ``more``'s start, within the parameters'
+    box (the zero free), ``trf`` with Jacobian scaling and at most 40 evaluations. ``more``:
+    ``(start, lower, upper)`` of further unknowns after the zero, or None. Its end."""
+    start = [np.clip(theta0[residuals.free], residuals.lower, residuals.upper), [0.0]]
+    lower = [residuals.lower, [-np.inf]]
+    upper = [residuals.upper, [np.inf]]
+    if more is not None:
+        start.append(np.clip(more[0], more[1], more[2]))
+        lower.append(more[1])
+        upper.append(more[2])
     with single_threaded_blas():  # small dense algebra: threads only compete with the model
         sol = least_squares(
-            objective, start, jac=jacobian, bounds=(lower, upper), method="trf", max_nfev=40, x_scale="jac"
+            objective,
+            np.concatenate(start),
+            jac=jacobian,
+            bounds=(np.concatenate(lower), np.concatenate(upper)),
+            method="trf",
+            max_nfev=40,
+            x_scale="jac",
         )
     return sol.x
 
 
 def _ended(theta0, free, z) -> np.ndarray:
-    """``theta0`` with the free values of a refit's end ``z`` (its sensor zero last, dropped)."""
+    """``theta0`` with the free values of a refit's end ``z`` (the free parameters first; its sensor
+    zero and any further unknowns after them, dropped)."""
     theta = np.array(theta0, dtype=float)
-    theta[free] = z[:-1]
+    theta[free] = z[: free.size]
     return theta
 
 
@@ -102,38 +114,57 @@ def penalised_refit(c, record: Record, noise: NoiseModel, theta0) -> tuple[float
 
 def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMisfit):
     """``c`` refitted on ``record`` and the records already taken together, from ``theta0``: the
-    transducer shared, each earlier record's own parameters as fitted, the new run's own and its
-    sensor zero free (what the joint diagnosis fits). ``(chi2, whitened residual over every
-    record, the earlier ones first, effective sample size summed per record, the full vector it
-    ends at)``."""
+    transducer shared, every record's own parameters and sensor zero free, the earlier records'
+    starting from their fits (what the joint diagnosis fits: a transducer moved to another basin
+    needs another start state of each run, a heating's start rise, and holding the earlier runs'
+    at their fits credits the rival with a misfit the joint diagnosis would not leave).
+    ``(chi2, whitened residual over every record, the earlier ones first, effective sample size
+    summed per record, the full vector it ends at)``."""
     residuals = WhitenedResiduals(record, c.model, noise)
     free = residuals.free
     shared = np.flatnonzero(misfit.shared[free])  # the transducer's columns among the free ones
+    own = np.flatnonzero(~misfit.shared[free])  # each run's own
+    columns = np.concatenate([shared, own])
     earlier = [(res, theta_r[free].copy()) for res, theta_r in misfit.parts]
+    n_x = free.size
+    block = own.size + 1  # an earlier record's own parameters, then its sensor zero
     scale = 1.0 / noise.sigma
     sizes = [res.data.size for res, _ in earlier] + [record.time.size]
 
-    def at(x):  # each earlier record's free vector with the transducer of x
-        for _, x_r in earlier:
-            x_r[shared] = x[shared]
-        return earlier
+    def at(z):  # each earlier record's free vector (the transducer of z's, its own from its block) and zero
+        for k, (_, x_r) in enumerate(earlier):
+            first = n_x + 1 + k * block
+            x_r[shared] = z[shared]
+            x_r[own] = z[first : first + own.size]
+        return [(res, x_r, z[n_x + (k + 1) * block]) for k, (res, x_r) in enumerate(earlier)]
 
     def objective(z):
-        x, zero = z[:-1], z[-1]
-        return np.concatenate([res(x_r) for res, x_r in at(x)] + [residuals(x) - zero * scale])
+        parts = [res(x_r) - zero_r / res.sigma for res, x_r, zero_r in at(z)]
+        return np.concatenate(parts + [residuals(z[:n_x]) - z[n_x] * scale])
 
     def jacobian(z):
-        x = z[:-1]
         jac = np.zeros((sum(sizes), z.size))
         row = 0
-        for res, x_r in at(x):
-            jac[row : row + res.data.size, shared] = res.jacobian(x_r, shared)
+        for k, (res, x_r, _) in enumerate(at(z)):
+            rows = slice(row, row + res.data.size)
+            part = res.jacobian(x_r, columns)
+            first = n_x + 1 + k * block
+            jac[rows, shared] = part[:, : shared.size]
+            jac[rows, first : first + own.size] = part[:, shared.size :]
+            jac[rows, first + own.size] = -1.0 / res.sigma
             row += res.data.size
-        jac[row:, :-1] = residuals.jacobian(x)
-        jac[row:, -1] = -scale
+        jac[row:, :n_x] = residuals.jacobian(z[:n_x])
+        jac[row:, n_x] = -scale
         return jac
 
-    z = _solve_with_zero(objective, jacobian, residuals, theta0)
+    lower = np.concatenate([residuals.lower[own], [-np.inf]])
+    upper = np.concatenate([residuals.upper[own], [np.inf]])
+    more = (
+        np.concatenate([np.concatenate([x_r[own], [0.0]]) for _, x_r in earlier] or [np.zeros(0)]),
+        np.tile(lower, len(earlier)),
+        np.tile(upper, len(earlier)),
+    )
+    z = _solve_with_zero(objective, jacobian, residuals, theta0, more)
     w = objective(z)
     n = sum(n_eff(part) for part in np.split(w, np.cumsum(sizes)[:-1]))
     return float(w @ w), w, float(n), _ended(theta0, free, z)
