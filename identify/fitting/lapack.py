@@ -69,6 +69,17 @@ def _integers(values) -> tuple[np.ndarray, list]:
     return ints, [base + 4 * k for k in range(ints.size)]
 
 
+def _with_workspace(call, ints: np.ndarray, lwork: int) -> None:
+    """A LAPACK routine that asks for its workspace first: ``call(work)`` with ``LWORK = -1`` (at
+    ``ints[lwork]``, the workspace query: the size goes to ``work[0]``), then again with the
+    workspace it asked for."""
+    work = np.empty(1)
+    call(work)
+    work = np.empty(max(1, int(work[0])))
+    ints[lwork] = work.size
+    call(work)
+
+
 def svd(a, full_matrices=True, **kwargs):
     """``scipy.linalg.svd(a, full_matrices=False)`` of a finite float64 matrix ``(m, n)``:
     ``(u (m, k), s (k,), vh (k, n))``, ``k = min(m, n)``, without holding the GIL; anything
@@ -84,9 +95,8 @@ def svd(a, full_matrices=True, **kwargs):
     vh = np.empty((k, n), order="F")
     iwork = np.empty(8 * k, dtype=np.int32)
     ints, at = _integers([m, n, m, m, k, -1, 0])  # m, n, lda, ldu, ldvt, lwork, info
-    work = np.empty(1)
 
-    def call():
+    def call(work):
         _DGESDD(
             _address(_THIN),
             at[0],
@@ -104,10 +114,7 @@ def svd(a, full_matrices=True, **kwargs):
             at[6],
         )
 
-    call()  # the workspace query
-    work = np.empty(max(1, int(work[0])))
-    ints[5] = work.size
-    call()
+    _with_workspace(call, ints, 5)
     if ints[6] != 0:  # no convergence or a bad argument: the original says which
         return scipy.linalg.svd(a, full_matrices=False)
     return u, s, vh
@@ -121,15 +128,11 @@ def _householder_qr(a: np.ndarray):
     qr = np.array(a, order="F")
     tau = np.empty(n)
     ints, at = _integers([m, n, m, -1, 0])  # m, n, lda, lwork, info
-    work = np.empty(1)
 
-    def call():
+    def call(work):
         _DGEQRF(at[0], at[1], _address(qr), at[2], _address(tau), _address(work), at[3], at[4])
 
-    call()  # the workspace query
-    work = np.empty(max(1, int(work[0])))
-    ints[3] = work.size
-    call()
+    _with_workspace(call, ints, 3)
     return (qr, tau) if ints[4] == 0 else None
 
 
@@ -139,9 +142,8 @@ def _times_q(qr: np.ndarray, tau: np.ndarray, c: np.ndarray, transposed: bool) -
     m, n = qr.shape
     out = np.array(c, dtype=np.float64, order="F")
     ints, at = _integers([m, out.shape[1], n, m, m, -1, 0])  # m, columns of c, k, lda, ldc, lwork, info
-    work = np.empty(1)
 
-    def call():
+    def call(work):
         _DORMQR(
             _address(_LEFT),
             _address(_TRANS[transposed]),
@@ -158,10 +160,7 @@ def _times_q(qr: np.ndarray, tau: np.ndarray, c: np.ndarray, transposed: bool) -
             at[6],
         )
 
-    call()  # the workspace query
-    work = np.empty(max(1, int(work[0])))
-    ints[5] = work.size
-    call()
+    _with_workspace(call, ints, 5)
     return out if ints[6] == 0 else None
 
 
@@ -190,8 +189,8 @@ class ImplicitU:
         """``U^T f`` of a vector ``f`` ``(m,)`` or matrix ``(m, k)``."""
         f = np.asarray(f, dtype=np.float64)
         q_t_f = _times_q(self._qr, self._tau, f.reshape(f.shape[0], -1), transposed=True)
-        if q_t_f is None:
-            return np.asarray(self).T @ f
+        if q_t_f is None:  # forming U would take the same dormqr
+            raise np.linalg.LinAlgError("dormqr failed applying Q^T")
         out = self._u_r.T @ q_t_f[: self._u_r.shape[0]]
         return out.reshape((self.shape[1],) + f.shape[1:])
 
