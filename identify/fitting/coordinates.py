@@ -395,13 +395,16 @@ def _log_probabilities(model, q):
     """emcee's ``compute_log_prob`` of the proposals ``q``: ``(log_prob (n,), blobs)``. A
     log-probability function that declares ``vectorised_log_probability`` (e.g.
     :class:`identify.fitting.posterior.LogPosterior`: one call for all rows, a float array,
-    never NaN, no blobs) is called directly, without emcee's per-row conversion and checks
-    (the same numbers); any other goes through emcee."""
-    wrapper = model.log_prob_fn
-    fn = getattr(wrapper, "f", None)
-    if getattr(fn, "vectorised_log_probability", False) and not wrapper.args and not wrapper.kwargs:
-        return np.asarray(fn(q), dtype=float), None
-    return model.compute_log_prob_fn(q)
+    never NaN, no blobs), given as it is (:class:`identify.fitting.ensemble.EnsembleLoop`) or in
+    emcee's wrapper without arguments, is called directly, without emcee's per-row conversion
+    and checks (the same numbers); any other goes through emcee."""
+    fn = model.log_prob_fn
+    if not getattr(fn, "vectorised_log_probability", False):
+        inner = getattr(fn, "f", None)
+        if not (getattr(inner, "vectorised_log_probability", False) and not fn.args and not fn.kwargs):
+            return model.compute_log_prob_fn(q)
+        fn = inner
+    return np.asarray(fn(q), dtype=float), None
 
 
 class CoordinateMove(emcee.moves.RedBlueMove):
@@ -469,24 +472,25 @@ class CoordinateMove(emcee.moves.RedBlueMove):
         u, log_det = self._ensemble(state.coords)
         self.move.setup(u)
         accepted = np.zeros(nwalkers, dtype=bool)
-        all_inds = np.arange(nwalkers)
-        inds = all_inds % self.nsplits
+        inds = np.arange(nwalkers) % self.nsplits
         if self.randomize_split:
             model.random.shuffle(inds)
-        for split in range(self.nsplits):
-            S1 = inds == split
-            s = state.coords[S1]
-            c_u = [u[inds == j] for j in range(self.nsplits) if j != split]
-            q_u, factors = self.move.get_proposal(u[S1], c_u, model.random)
-            q, factors, log_det_q = self._back(s, q_u, factors, log_det[S1])
+        splits = [np.flatnonzero(inds == j) for j in range(self.nsplits)]  # each split's walkers, in order
+        for split, members in enumerate(splits):
+            c_u = [u[others] for j, others in enumerate(splits) if j != split]
+            q_u, factors = self.move.get_proposal(u[members], c_u, model.random)
+            q, factors, log_det_q = self._back(state.coords[members], q_u, factors, log_det[members])
             new_log_probs, new_blobs = _log_probabilities(model, q)
-            members = all_inds[S1]
             draws = model.random.rand(members.size)  # the draws of emcee's per-walker loop, in its order
             take = factors + new_log_probs - state.log_prob[members] > np.log(draws)
-            accepted[members[take]] = True
-            new_state = emcee.State(q, log_prob=new_log_probs, blobs=new_blobs)
-            state = self.update(state, new_state, accepted, S1)
             moved = members[take]
+            accepted[moved] = True
+            if new_blobs is None:  # emcee's update: the accepted walkers of this split take their proposals
+                state.coords[moved] = q[take]
+                state.log_prob[moved] = new_log_probs[take]
+            else:
+                new_state = emcee.State(q, log_prob=new_log_probs, blobs=new_blobs)
+                state = self.update(state, new_state, accepted, inds == split)
             if moved.size:
                 u[moved] = self.coordinates.forward(q[take])
                 log_det[moved] = log_det_q[take]

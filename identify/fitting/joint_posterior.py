@@ -40,7 +40,7 @@ from .inference import (
 )
 from .joint import JointModel
 from .lsq import parameter_units
-from .noise import log_likelihood_of_rows
+from .noise import RowLikelihood
 from .parametrisation import in_record_units
 from .posterior import LogPosterior
 
@@ -91,6 +91,9 @@ class JointLogPosterior(LogPosterior):
             correlations = noise.step_correlations(time)  # each step's r_k on an uneven grid, else None
             data = np.asarray(record.displacement, dtype=float)
             self.parts.append((time, np.asarray(record.current, dtype=float), data, correlations))
+        self._likelihoods = [  # each record's, its checks and constants once
+            RowLikelihood(part[2], noise, correlations=part[3]) for part, noise in zip(self.parts, self.noises)
+        ]
         longest = max(self.records, key=lambda r: float(np.ptp(r.time)))
         self.time = np.asarray(longest.time, dtype=float)
         self.current = np.concatenate([part[1] for part in self.parts])
@@ -117,11 +120,11 @@ class JointLogPosterior(LogPosterior):
         where the model is invalid)."""
         theta = np.atleast_2d(theta)
         out = np.full((len(self.parts), theta.shape[0]), -np.inf)
-        for r, (part, noise) in enumerate(zip(self.parts, self.noises), start=1):
+        for r, likelihood in enumerate(self._likelihoods, start=1):
             y, valid = self.record_outputs(theta, r)
             if valid.any():
                 rows = np.flatnonzero(valid)
-                out[r - 1, rows] = log_likelihood_of_rows(part[2], y, rows, noise, None, correlations=part[3])
+                out[r - 1, rows] = likelihood(y, rows)
         return out
 
     def __call__(self, x) -> np.ndarray:

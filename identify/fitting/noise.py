@@ -105,6 +105,7 @@ __all__ = [
     "whiten_rows",
     "log_likelihood",
     "log_likelihood_of_rows",
+    "RowLikelihood",
     "MIN_QUIET_SAMPLES",
     "AR1_SIGNIFICANCE",
     "DEFAULT_CURRENT_TOLERANCE",
@@ -389,13 +390,20 @@ def _checked_sigma(noise: NoiseModel, sigma, caller: str) -> np.ndarray:
     return sig
 
 
-def _gaussian_log_likelihood(quadratic, n_samples: int, sig, rho: float, correlations=None):
-    """The module docstring's log-likelihood from its quadratic term ``sum w_k^2`` (unit-free);
-    ``correlations``: each step's ``r_k`` on an uneven grid (None: every step ``rho``)."""
+def _correlation_log_det(n_samples: int, rho: float, correlations=None) -> float:
+    """The log-determinant of the unit-sigma AR(1) correlation matrix: ``(T - 1) log(1 - rho^2)``,
+    or ``sum log(1 - r_k^2)`` with each step's ``correlations`` ``r_k`` on an uneven grid."""
     if correlations is None:
-        log_det = (n_samples - 1) * math.log(1.0 - rho**2)
-    else:
-        log_det = float(np.sum(np.log1p(-correlations * correlations)))
+        return (n_samples - 1) * math.log(1.0 - rho**2)
+    return float(np.sum(np.log1p(-correlations * correlations)))
+
+
+def _gaussian_log_likelihood(quadratic, n_samples: int, sig, rho: float, correlations=None, log_det=None):
+    """The module docstring's log-likelihood from its quadratic term ``sum w_k^2`` (unit-free);
+    ``correlations``: each step's ``r_k`` on an uneven grid (None: every step ``rho``);
+    ``log_det``: :func:`_correlation_log_det` of them when computed before."""
+    if log_det is None:
+        log_det = _correlation_log_det(n_samples, rho, correlations)
     return -0.5 * quadratic - n_samples * np.log(sig) - 0.5 * log_det - 0.5 * n_samples * math.log(2.0 * math.pi)
 
 
@@ -614,16 +622,56 @@ def log_likelihood_of_rows(
     ndarray, shape (R,)
         Equal to ``log_likelihood(data - model_rows[rows], noise, sigma, time=time)`` up to
         rounding (one pass, no (R, T) temporaries).
+
+    See Also
+    --------
+    RowLikelihood : the same for one record scored again and again, its checks and constants
+        computed once.
     """
-    data = np.ascontiguousarray(data, dtype=np.float64)
-    model_rows = np.ascontiguousarray(model_rows, dtype=np.float64)
-    rows = np.ascontiguousarray(rows, dtype=np.int64)
-    sig = _checked_sigma(noise, sigma, "log_likelihood_of_rows")
-    sum_of_squares = np.empty(rows.shape[0])
-    if correlations is None and noise.rho != 0.0:
-        correlations = _correlations_for(noise, time, data.shape[0])
-    if correlations is None:
-        _whitened_sum_of_squares(data, model_rows, rows, float(noise.rho), sum_of_squares)
-    else:
-        _whitened_sum_of_squares_uneven(data, model_rows, rows, correlations, sum_of_squares)
-    return _gaussian_log_likelihood(sum_of_squares / sig**2, data.shape[0], sig, noise.rho, correlations)
+    return RowLikelihood(data, noise, time=time, correlations=correlations)(model_rows, rows, sigma)
+
+
+class RowLikelihood:
+    """:func:`log_likelihood_of_rows` of one record: the data, the noise's checks and the
+    correlation's log-determinant prepared once, each call the kernel and the closed form.
+
+    Parameters
+    ----------
+    data : ndarray, shape (T,)
+        Measured output [output unit].
+    noise : NoiseModel
+    time : array_like of shape (T,), optional
+        The samples' times [s] (an uneven grid's step correlations; see :func:`whiten`).
+    correlations : ndarray of shape (T - 1,), optional
+        ``noise.step_correlations(time)`` when computed before (then ``time`` is not read).
+    """
+
+    def __init__(self, data, noise: NoiseModel, *, time=None, correlations=None):
+        self.data = np.ascontiguousarray(data, dtype=np.float64)
+        self.noise = noise
+        n_samples = self.data.shape[0]
+        if correlations is None and noise.rho != 0.0:
+            correlations = _correlations_for(noise, time, n_samples)
+        self.correlations = None if correlations is None else np.ascontiguousarray(correlations, dtype=np.float64)
+        self._rho = float(noise.rho)
+        self._log_det = _correlation_log_det(n_samples, noise.rho, self.correlations)
+        # the noise's own sigma when usable, checked once (a free one not yet estimated is NaN)
+        usable = noise.sigma is not None and math.isfinite(noise.sigma) and noise.sigma > 0
+        self._sigma = _checked_sigma(noise, None, "log_likelihood_of_rows") if usable else None
+
+    def __call__(self, model_rows, rows, sigma=None) -> np.ndarray:
+        """Log-likelihoods ``(R,)`` of ``data - model_rows[rows]`` (``model_rows`` ``(W, T)``,
+        ``rows`` ``(R,)`` ints); ``sigma`` ``(R,)`` overrides the noise's (required when free)."""
+        if sigma is None and self._sigma is not None:
+            sig = self._sigma
+        else:
+            sig = _checked_sigma(self.noise, sigma, "log_likelihood_of_rows")
+        model_rows = np.ascontiguousarray(model_rows, dtype=np.float64)
+        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        sum_of_squares = np.empty(rows.shape[0])
+        if self.correlations is None:
+            _whitened_sum_of_squares(self.data, model_rows, rows, self._rho, sum_of_squares)
+        else:
+            _whitened_sum_of_squares_uneven(self.data, model_rows, rows, self.correlations, sum_of_squares)
+        n_samples = self.data.shape[0]
+        return _gaussian_log_likelihood(sum_of_squares / sig**2, n_samples, sig, self._rho, log_det=self._log_det)

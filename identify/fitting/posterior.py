@@ -29,11 +29,12 @@ defined for every parameter set: :mod:`model.gpi`, "The whole domain"); it never
 never returns NaN (a model error for the batch falls back to one row at a time; rows that
 still fail get ``-inf`` and are counted in :attr:`LogPosterior.n_errors`). The likelihood is
 :func:`identify.fitting.noise.log_likelihood`, evaluated in one fused pass
-(:func:`identify.fitting.noise.log_likelihood_of_rows`).
+(:class:`identify.fitting.noise.RowLikelihood`).
 
 Sampling
 --------
-:func:`sample_posterior` runs emcee's ensemble sampler with an
+:func:`sample_posterior` runs emcee's ensemble sampling (its loop as
+:class:`identify.fitting.ensemble.EnsembleLoop` runs it: the same chain) with an
 :class:`emcee.backends.HDFBackend` (group ``"mcmc"``; written in batches by
 :class:`identify.fitting.chain_file.BufferedHDFBackend`, at least every second), so an interrupted run resumes where
 it stopped (the sampler's random state is stored with each step, so the resumed chain is
@@ -118,8 +119,9 @@ from .convergence import (
     tau_convergence,
 )
 from .coordinates import CoordinateMove, IdentityCoordinates, coordinates_for
+from .ensemble import EnsembleLoop
 from .moves import MOVES, DifferentialMove, SnookerMove
-from .noise import NoiseModel, log_likelihood_of_rows
+from .noise import NoiseModel, RowLikelihood
 from .parametrisation import in_record_units
 from .progress import ChainProgress, progress_mode
 from .threads import fastest_thread_count
@@ -227,6 +229,7 @@ class LogPosterior:
         # each step's correlation r_k when the grid's steps are not all the noise's one step,
         # else None (every step rho): computed once, scored with at each call
         self._correlations = noise.step_correlations(self.time)
+        self._likelihood = RowLikelihood(self.data, noise, correlations=self._correlations)
         self.free = np.flatnonzero(model.parameters.vary)
         self.template = model.parameters.values.copy()
         self._labelled = model.has_canonical_domain  # a labelling to keep (e.g. two thermal nodes): checked per call
@@ -356,9 +359,7 @@ class LogPosterior:
             if scored.size:
                 rows = inside[scored]
                 sigma = np.exp(x2[rows, -1]) if self.free_sigma else None
-                total = prior[scored] + log_likelihood_of_rows(
-                    self.data, y, scored, self.noise, sigma, correlations=self._correlations
-                )
+                total = prior[scored] + self._likelihood(y, scored, sigma)
                 out[rows] = np.where(np.isfinite(total), total, -np.inf)
         return float(out[0]) if x_in.ndim == 1 else out
 
@@ -739,15 +740,15 @@ def sample_posterior(
     emcee_seed = int(rng.integers(2**32))
     start_rng = rng.spawn(1)[0]
     backend, n_walkers, resuming = _open_chain(path, log_post.ndim, n_walkers)
-    sampler = emcee.EnsembleSampler(
+    loop = EnsembleLoop(
+        log_post,
         n_walkers,
         log_post.ndim,
-        log_post,
-        vectorize=True,
-        backend=backend,
-        moves=_moves_in(MOVES[moves](), coordinates_for(coordinates, log_post, reference)),
+        _moves_in(MOVES[moves](), coordinates_for(coordinates, log_post, reference)),
+        backend,
+        np.random.RandomState(emcee_seed),
     )
-    state = _start_state(sampler, initial, resuming, start_rng, emcee_seed, log)
+    state = _start_state(loop, initial, resuming, start_rng, emcee_seed, log)
 
     bar = ChainProgress(
         done=backend.iteration, max_steps=max_steps, tau_factor=tau_factor, mode=progress_mode(progress)
@@ -774,7 +775,7 @@ def sample_posterior(
                 fastest_thread_count(log_post, np.asarray(state.coords))
                 last_probe = _time.perf_counter()
             steps = min(check_every - done % check_every, max_steps - done)
-            state, block = _run_chunk(sampler, state, steps, backend, bar)
+            state, block = _run_chunk(loop, state, steps, bar)
             chain.append(block)
             backend.flush()
     finally:
@@ -825,22 +826,24 @@ def _open_chain(path, ndim, n_walkers):
     n_walkers = default_n_walkers(ndim) if n_walkers is None else int(n_walkers)
     if n_walkers < 2 * ndim or n_walkers % 2:
         raise ValueError(f"n_walkers must be even and >= 2 x {ndim} (the dimension), got {n_walkers}")
-    if backend.initialized and backend.iteration == 0:
+    if not resuming:  # a new file, or one without steps
         backend.reset(n_walkers, ndim)
     return backend, n_walkers, resuming
 
 
-def _start_state(sampler, initial, resuming, start_rng, emcee_seed, log):
-    """The walkers to continue from: the stored last step (with its random state) when
-    resuming, else ``initial`` with emcee's generator seeded from ``emcee_seed``."""
+def _start_state(loop, initial, resuming, start_rng, emcee_seed, log):
+    """The walkers to continue from (checked by :meth:`EnsembleLoop.start`): the stored last
+    step (with its random state) when resuming, else ``initial`` with emcee's generator seeded
+    from ``emcee_seed``."""
     if resuming:
-        log(f"resuming the chain in {sampler.backend.filename} at step {sampler.backend.iteration}")
-        return sampler.get_last_sample()  # carries the stored random state
-    n_walkers, ndim = sampler.nwalkers, sampler.ndim
-    coords = initial(n_walkers, start_rng) if callable(initial) else np.asarray(initial, dtype=float)
-    if coords.shape != (n_walkers, ndim):
-        raise ValueError(f"initial walkers must have shape ({n_walkers}, {ndim}), got {coords.shape}")
-    return emcee.State(coords, random_state=np.random.RandomState(emcee_seed).get_state())
+        log(f"resuming the chain in {loop.backend.filename} at step {loop.backend.iteration}")
+        # emcee's linear-independence check is for a start we made; walkers the sampler itself
+        # moved may lie along a near-exact degeneracy of the posterior and must not stop the run
+        return loop.start(loop.backend.get_last_sample(), check_independence=False)  # carries the stored random state
+    coords = initial(loop.n_walkers, start_rng) if callable(initial) else np.asarray(initial, dtype=float)
+    if coords.shape != (loop.n_walkers, loop.ndim):
+        raise ValueError(f"initial walkers must have shape ({loop.n_walkers}, {loop.ndim}), got {coords.shape}")
+    return loop.start(emcee.State(coords, random_state=np.random.RandomState(emcee_seed).get_state()))
 
 
 class _ChainInMemory:
@@ -905,23 +908,19 @@ def _check(chain, max_steps, check_every, tau_factor, tau_rtol, tau_cache, bar, 
     return False, False, ""
 
 
-def _run_chunk(sampler, state, steps, backend, bar):
-    """``steps`` emcee steps from ``state``: the last state and the positions ``(steps, W, D)``.
+def _run_chunk(loop, state, steps, bar):
+    """``steps`` steps of ``loop`` from ``state``: the last state and the positions ``(steps, W, D)``.
     Ctrl-C / SIGTERM stop between two steps, with every completed step written."""
-    done = backend.iteration
+    positions = np.empty((steps,) + np.shape(state.coords))
+    last = state
     with _stop_between_steps() as stop:
-        # emcee's linear-independence check is for a start we made; walkers the
-        # sampler itself moved (a later chunk, a resumed run) may lie along a
-        # near-exact degeneracy of the posterior and must not stop the run
-        chunk = sampler.sample(state, iterations=steps, store=True, progress=False, skip_initial_state_check=done > 0)
-        positions = []
-        for state in chunk:
-            positions.append(np.array(state.coords))
+        for i, last in enumerate(loop.steps(state, steps)):
+            positions[i] = last.coords
             bar.update(1)
             if stop.requested:  # Ctrl-C / SIGTERM: this step is complete and stored
-                backend.flush()
-                raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {backend.iteration}")
-    return state, np.stack(positions)
+                loop.backend.flush()
+                raise KeyboardInterrupt(f"sampling stopped by {stop.requested} after step {loop.backend.iteration}")
+    return last, positions
 
 
 class _StopRequest:
