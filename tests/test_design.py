@@ -505,6 +505,41 @@ def test_with_the_records_the_confirmation_refits_every_record_as_the_joint_diag
     assert min(gaps["heated"]) > max(gaps["cold"])
 
 
+def test_the_confirmation_refitting_truths_side_by_side_gives_what_it_gives_one_truth_at_a_time():
+    """On every sample the truths' refits run two at a time (each a fit as alone, the earlier
+    records' residuals each refit's own): the same gaps, bit for bit, as in a thread that may use
+    one core only, where they run one after another."""
+    import threading
+
+    from identify.fitting.threads import cap_numba_threads
+    from identify.workflows.design import DesignedDrive, confirm, record_misfit
+
+    heated = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
+    contenders = _heating_and_plain(heated, 1e-6)
+    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
+    drive = DesignedDrive(
+        "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)
+    )
+    noise, th = estimate_noise(heated.record), Thresholds()
+    misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in contenders}
+
+    def rows():
+        return confirm(drive, contenders, noise, th, np.random.default_rng(5), draws=2, misfits=misfits)
+
+    together = rows()
+    alone = []
+
+    def one_core():
+        cap_numba_threads(1)  # this thread's side_by_side runs its actions in turn
+        alone.extend(rows())
+
+    worker = threading.Thread(target=one_core)
+    worker.start()
+    worker.join()
+    assert len(together) == 2 and all(np.isfinite(r["realised_gaps"]).all() for r in together)
+    assert [r["realised_gaps"] for r in together] == [r["realised_gaps"] for r in alone]
+
+
 def test_a_rival_fitted_in_another_basin_is_also_refitted_from_where_the_new_record_puts_it():
     """A creep whose fit sits at a time constant the new record does not show (0.05 s against 30 s)
     stays there when refitted from its fit, its transducer held; the screening's grid point, gains

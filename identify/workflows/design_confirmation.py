@@ -9,6 +9,7 @@ noise; every contender is refitted on it, and the gaps and right names are count
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 
@@ -24,7 +25,7 @@ from ..diagnosis.fits import embed, n_eff, with_values
 from ..diagnosis.screening import screen_one
 from ..fitting.lsq import WhitenedResiduals
 from ..fitting.noise import NoiseModel
-from ..fitting.threads import single_threaded_blas
+from ..fitting.threads import results_side_by_side, single_threaded_blas
 
 __all__ = [
     "CONFIRM_DRAWS",
@@ -125,7 +126,8 @@ def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMis
     shared = np.flatnonzero(misfit.shared[free])  # the transducer's columns among the free ones
     own = np.flatnonzero(~misfit.shared[free])  # each run's own
     columns = np.concatenate([shared, own])
-    earlier = [(res, theta_r[free].copy()) for res, theta_r in misfit.parts]
+    # the records' residuals with caches of this refit's own (refits of two truths run side by side)
+    earlier = [(res.copy(), theta_r[free].copy()) for res, theta_r in misfit.parts]
     n_x = free.size
     block = own.size + 1  # an earlier record's own parameters, then its sensor zero
     scale = 1.0 / noise.sigma
@@ -286,28 +288,25 @@ def confirm(
     (:func:`rival_starts`) and from where its refit ended in the truth's previous draw, and the
     draws before the last are refitted once more from where the last ended: the lowest is kept, so
     that a basin one draw finds is the rival's in every draw (as the joint diagnosis's search would
-    find it on whichever record is measured)."""
+    find it on whichever record is measured).
+
+    Every truth's records are drawn first, in the generator's order; on every sample the truths'
+    refits then run side by side (:func:`identify.fitting.threads.results_side_by_side`: two at
+    once, each fit on one core as it would run alone)."""
     misfits = misfits or {}
-    by_name = {c.name: c for c in contenders}
     time, current = drive.time[::step], drive.current[::step]
+    # every truth's simulated records first, in the order of the generator's draws; then each
+    # truth's refits, two truths side by side (independent fits, each the same as alone)
+    simulated = [_simulated_records(truth, draws, time, current, noise, rng, misfits) for truth in contenders]
+    refits = [
+        functools.partial(_refit_truth, truth, records, contenders, noise, misfits, every_record)
+        for truth, records in zip(contenders, simulated)
+    ]
+    # on every sample the model's kernels (which release the GIL) take most of a refit; on a
+    # decimated record the solver's Python does, and two refits side by side wait for each other
+    refitted = results_side_by_side(refits) if step == 1 else [refit() for refit in refits]
     rows = []
-    for truth in contenders:
-        carried = {}  # where each rival's refit ended in the previous draw
-        runs = []
-        for _ in range(draws):
-            theta = draw_transducer(truth, rng, misfits.get(truth.name))
-            y, valid = truth.model.evaluate(theta, time, current)
-            if not valid[0]:
-                continue
-            data = y[0] + noise.sigma * rng.standard_normal(time.size)
-            record = Record(time, current, data, source="simulated next record", sha256="")
-            runs.append((record, _refit_draw(truth, contenders, record, noise, theta, misfits, every_record, carried)))
-        for record, fitted in runs[:-1]:  # a basin a later draw found, tried on the earlier ones
-            for key, end in carried.items():
-                if not np.array_equal(fitted[key][-1], end):
-                    again = _refit(by_name[key[0]], record, noise, [end], key[1], misfits)
-                    if again[0] < fitted[key][0]:
-                        fitted[key] = again
+    for truth, runs in zip(contenders, refitted):
         realised = {rival.name: [] for rival in contenders if rival is not truth}
         right = 0
         for _, fitted in runs:
@@ -333,6 +332,39 @@ def confirm(
                 }
             )
     return rows
+
+
+def _simulated_records(truth, draws: int, time, current, noise: NoiseModel, rng, misfits) -> list:
+    """``[(theta, record)]``: ``draws`` transducers of ``truth`` (:func:`draw_transducer`, held by its
+    records' misfit) driven by ``current`` with noise (a draw whose output is not finite dropped)."""
+    simulated = []
+    for _ in range(draws):
+        theta = draw_transducer(truth, rng, misfits.get(truth.name))
+        y, valid = truth.model.evaluate(theta, time, current)
+        if not valid[0]:
+            continue
+        data = y[0] + noise.sigma * rng.standard_normal(time.size)
+        simulated.append((theta, Record(time, current, data, source="simulated next record", sha256="")))
+    return simulated
+
+
+def _refit_truth(truth, simulated, contenders, noise: NoiseModel, misfits, every_record) -> list:
+    """``[(record, fitted)]``: every contender refitted on each of ``truth``'s ``simulated`` records
+    (:func:`_refit_draw`, each rival also from where its refit ended in the draw before), then the
+    draws before the last refitted once more from where the last ended, the lower kept."""
+    by_name = {c.name: c for c in contenders}
+    carried = {}  # where each rival's refit ended in the previous draw
+    runs = [
+        (record, _refit_draw(truth, contenders, record, noise, theta, misfits, every_record, carried))
+        for theta, record in simulated
+    ]
+    for record, fitted in runs[:-1]:  # a basin a later draw found, tried on the earlier ones
+        for key, end in carried.items():
+            if not np.array_equal(fitted[key][-1], end):
+                again = _refit(by_name[key[0]], record, noise, [end], key[1], misfits)
+                if again[0] < fitted[key][0]:
+                    fitted[key] = again
+    return runs
 
 
 def simulated_gap(gaps) -> tuple[float | None, float | None]:
