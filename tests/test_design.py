@@ -96,6 +96,16 @@ def test_bad_limits_are_refused_in_one_sentence(given, problem):
         RigLimits(**values)
 
 
+def _short_hold():
+    """A 40 s hold drive at 5 Hz (10 s quiet start): the confirmations' tests' proposed record."""
+    from identify.workflows.design import DesignedDrive
+
+    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
+    return DesignedDrive(
+        "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)
+    )
+
+
 def _heating_and_plain(sim, variance: float) -> list:
     """Two contenders at a heated bench record's truth: the heating (``thermal``, its free
     parameters' variance ``variance``) and the plain GPI of the same transducer parameters."""
@@ -486,15 +496,12 @@ def test_with_the_records_the_confirmation_refits_every_record_as_the_joint_diag
     """Refitted on every record together, the gap counts the record already taken: the same
     simulated new records separate the heating from the plain model more after a record that
     showed heating than after one that showed none."""
-    from identify.workflows.design import DesignedDrive, confirm, record_misfit
+    from identify.workflows.design import confirm, record_misfit
 
     heated = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
     cold = simulate(None, seed=1, fs=5.0)
     contenders = _heating_and_plain(heated, 1e-6)
-    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
-    drive = DesignedDrive(
-        "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)
-    )
+    drive = _short_hold()
     noise, th = estimate_noise(heated.record), Thresholds()
     gaps = {}
     for name, sim in (("heated", heated), ("cold", cold)):
@@ -512,14 +519,11 @@ def test_the_confirmation_refitting_truths_side_by_side_gives_what_it_gives_one_
     import threading
 
     from identify.fitting.threads import cap_numba_threads
-    from identify.workflows.design import DesignedDrive, confirm, record_misfit
+    from identify.workflows.design import confirm, record_misfit
 
     heated = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
     contenders = _heating_and_plain(heated, 1e-6)
-    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
-    drive = DesignedDrive(
-        "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)
-    )
+    drive = _short_hold()
     noise, th = estimate_noise(heated.record), Thresholds()
     misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in contenders}
 
@@ -575,7 +579,7 @@ def test_the_joint_refit_frees_each_earlier_records_own_parameters_as_the_joint_
     transducer, as the joint diagnosis fits them: a contender whose first run's drift starts a
     micrometre off gives the simulated gaps of one whose run starts at its fit (held there, the
     truth's refit carries that record's misfit: the gaps fell from 32 and 46 to -31 and 8)."""
-    from identify.workflows.design import DesignedDrive, confirm, record_misfit
+    from identify.workflows.design import confirm, record_misfit
 
     sim = simulate("sensor_drift_linear=1.5,sensor_drift_quadratic=-0.8", seed=1, fs=5.0)
     model = normalised_model(Model(["sensor_drift"]))
@@ -586,10 +590,7 @@ def test_the_joint_refit_frees_each_earlier_records_own_parameters_as_the_joint_
     plain = normalised_model(Model())
     n = plain.n_parameters
     rival = contender("plain", plain, theta[:n], covariance[:n, :n])
-    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
-    drive = DesignedDrive(
-        "hold", {}, *drive_of("hold", {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, limits, 10.0)
-    )
+    drive = _short_hold()
     noise, th = estimate_noise(sim.record), Thresholds()
     gaps = {}
     for label, runs in (("at its fit", None), ("off", [(off, 0.0)])):

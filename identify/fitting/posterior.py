@@ -226,10 +226,9 @@ class LogPosterior:
         self.data = np.asarray(record.displacement, dtype=float)
         self.model = model
         self.noise = noise
-        # each step's correlation r_k when the grid's steps are not all the noise's one step,
-        # else None (every step rho): computed once, scored with at each call
-        self._correlations = noise.step_correlations(self.time)
-        self._likelihood = RowLikelihood(self.data, noise, correlations=self._correlations)
+        # scored with each step's correlation r_k when the grid's steps are not all the noise's
+        # one step (computed once), else every step rho
+        self._likelihood = RowLikelihood(self.data, noise, time=self.time)
         self.free = np.flatnonzero(model.parameters.vary)
         self.template = model.parameters.values.copy()
         self._labelled = model.has_canonical_domain  # a labelling to keep (e.g. two thermal nodes): checked per call

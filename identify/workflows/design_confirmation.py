@@ -295,8 +295,6 @@ def confirm(
     once, each fit on one core as it would run alone)."""
     misfits = misfits or {}
     time, current = drive.time[::step], drive.current[::step]
-    # every truth's simulated records first, in the order of the generator's draws; then each
-    # truth's refits, two truths side by side (independent fits, each the same as alone)
     simulated = [_simulated_records(truth, draws, time, current, noise, rng, misfits) for truth in contenders]
     refits = [
         functools.partial(_refit_truth, truth, records, contenders, noise, misfits, every_record)
