@@ -133,6 +133,48 @@ def test_the_criterion_is_zero_for_a_rival_that_can_be_the_truth_and_positive_ot
     assert p_right(5.0, 1.0, Thresholds()) < 0.01  # a gap below bic_significant names nothing
 
 
+def test_the_criterion_keeps_the_rivals_closest_mimicry_over_its_fit_and_the_points_its_refits_found():
+    """A rival of the truth's own physics fitted in another basin (a heating a hundred times slower),
+    the records holding nothing of it: linearised at that fit alone it looks far from the truth; with the
+    point where a refit found it mimicking the truth, the gap is gone. A point that is its fit again
+    changes nothing."""
+    sim = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
+    truth, _ = _heating_and_plain(sim, 1e-4)
+    model = normalised_model(Model(["thermal"]))
+    slow = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value, "thermal_tau": 3000.0})
+    rival = contender("thermal", model, slow, np.zeros((slow.size, slow.size)))
+    hot = RigLimits((0.0, 5.0), max_slew=1.6, duration=110.0, max_rms_current=4.0, fs=10.0, quiet=10.0)
+    time, current = drive_of("hold", {"cycles": 2, "amplitude": 0.9, "level": 0.9, "hold": 0.4}, hot, 10.0)
+    noise = estimate_noise(sim.record)
+    at_fit = discrimination(truth, rival, time, current, noise)
+    assert at_fit[0] > 50.0
+    assert discrimination(truth, rival, time, current, noise, [rival.theta]) == at_fit
+    gap, sd = discrimination(truth, rival, time, current, noise, [rival.theta, truth.theta])
+    assert abs(gap) < 1e-6 and sd < 1e-3
+
+
+def test_a_confirmation_keeps_where_each_rivals_refit_came_closest_and_the_criterion_uses_it():
+    """The confirmation's refits end where each rival mimics each truth best over the draws: one
+    point per ordered pair, a vector of the rival's model, around which the criterion is no larger
+    than around the rival's fit alone."""
+    from identify.workflows.design import RivalBasins, confirm, evaluate, record_misfit
+
+    heated = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
+    contenders = _heating_and_plain(heated, 1e-6)
+    drive = _short_hold()
+    noise, th = estimate_noise(heated.record), Thresholds()
+    misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in contenders}
+    basins = RivalBasins()
+    confirm(drive, contenders, noise, th, np.random.default_rng(5), draws=2, misfits=misfits, basins=basins)
+    assert len(basins) == 2
+    for truth, rival in (contenders, contenders[::-1]):
+        (point,) = basins.of(truth.name, rival.name)
+        assert point.shape == rival.theta.shape and rival.model.in_bounds(point)[0]
+    alone = {(p["truth"], p["rival"]): p["gap"] for p in evaluate(drive, contenders, noise, th).pairs}
+    for p in evaluate(drive, contenders, noise, th, basins=basins).pairs:
+        assert p["gap"] <= alone[(p["truth"], p["rival"])] + 1e-9
+
+
 @pytest.mark.parametrize("family", list(FAMILIES))
 def test_a_perturbed_shape_keeps_its_counts_and_ranges_and_a_drive_without_rest_keeps_none(family):
     rng = np.random.default_rng(4)

@@ -45,7 +45,6 @@ import time as _time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import stats
 
 from model import Model, get_effect
 
@@ -54,7 +53,7 @@ from ..data.reversals import find_reversals
 from ..diagnosis import Thresholds, diagnose
 from ..diagnosis.joint import joint_fit_with_earlier_runs
 from ..fitting.joint import check_records, fit_joint, with_earlier_runs
-from ..fitting.lsq import WhitenedResiduals, fit_least_squares
+from ..fitting.lsq import fit_least_squares
 from ..fitting.noise import NoiseModel, estimate_noise, quiet_segment
 from ..fitting.parametrisation import normalised_model
 from ..fitting.terms import select_terms
@@ -68,6 +67,7 @@ from .design_confirmation import (
     rival_starts,
     simulated_gap,
 )
+from .design_criterion import DesignedDrive, RivalBasins, discrimination, evaluate, p_right
 
 __all__ = [
     "RigLimits",
@@ -81,6 +81,8 @@ __all__ = [
     "design",
     "design_drive",
     "discrimination",
+    "p_right",
+    "RivalBasins",
     "random_drive_parameters",
     "perturbed_parameters",
     "refine",
@@ -100,6 +102,10 @@ __all__ = [
 DRIVES_PER_FAMILY = 40
 #: Best drives confirmed by simulation.
 CONFIRMED = 3
+#: Of these, the last ones chosen after the drives are ranked again with every rival also
+#: linearised where the first confirmations' refits of it ended (:class:`RivalBasins`): the
+#: linear criterion around the fits alone misses the basins from which a rival mimics the truth.
+BASIN_ROUND = 1
 #: Perturbed shapes tried around each of the best drives of the random search
 #: (:func:`refine`), and the perturbation's sd as a share of each parameter's range: random
 #: shapes leave the neighbourhood of the best ones unexplored, where the criterion is smooth.
@@ -471,85 +477,6 @@ def drive_of(family: str, params: dict, limits: RigLimits, period: float):
     return b.finish()
 
 
-# -- the criterion ---------------------------------------------------------------------------
-
-
-def _predicted(c: Contender, time, current) -> np.ndarray | None:
-    y, valid = c.model.evaluate(c.theta, time, current)
-    return y[0] if valid[0] else None
-
-
-def discrimination(truth: Contender, rival: Contender, time, current, noise: NoiseModel) -> tuple[float, float]:
-    """``(gap, noise sd of the gap)``: the chi-square gap the proposed drive shows between ``truth``
-    and ``rival`` once the rival is refitted to mimic it, linearised (module docstring)."""
-    y_true = _predicted(truth, time, current)
-    if y_true is None:
-        return 0.0, 0.0
-    record = Record(time, current, y_true, source="the proposed drive", sha256="")
-    residuals = WhitenedResiduals(record, rival.model, noise)
-    x = rival.theta[residuals.free]
-    d = residuals(x)
-    jac = residuals.jacobian(x)
-    zero = np.full((d.size, 1), -1.0 / noise.sigma)  # the new record's sensor zero
-    jac = np.hstack([jac, zero])
-    info = np.zeros((jac.shape[1], jac.shape[1]))
-    info[:-1, :-1] = rival.info[np.ix_(residuals.free, residuals.free)]
-    step = -np.linalg.pinv(jac.T @ jac + info, rcond=1e-12) @ (jac.T @ d)
-    r = d + jac @ step
-    gap = float(r @ r + step @ info @ step)
-    return gap, 2.0 * float(np.sqrt(r @ r))
-
-
-def p_right(gap: float, sd: float, th: Thresholds) -> float:
-    """The probability that the diagnosis names the truth: the gap beyond ``bic_significant`` and
-    ``gap_z`` of its noise sd (module docstring)."""
-    if not sd > 0:
-        return 1.0 if gap > th.bic_significant else 0.0
-    return float(stats.norm.cdf((gap - max(th.bic_significant, th.gap_z * sd)) / sd))
-
-
-@dataclass
-class DesignedDrive:
-    """One proposed drive with its predicted discrimination."""
-
-    family: str
-    params: dict
-    time: np.ndarray
-    current: np.ndarray
-    pairs: list = field(default_factory=list)
-    value: float = 0.0
-    confirmed: list = field(default_factory=list)
-
-    def to_dict(self) -> dict:
-        return {
-            "family": self.family,
-            "params": {k: (v if not isinstance(v, float) else float(v)) for k, v in self.params.items()},
-            "samples": int(self.time.size),
-            "rms_current": float(np.sqrt(np.mean(self.current**2))),
-            "pairs": [dict(p) for p in self.pairs],
-            "value": float(self.value),
-            "confirmed": [dict(c) for c in self.confirmed],
-        }
-
-
-def evaluate(drive: DesignedDrive, contenders, noise: NoiseModel, th: Thresholds, step: int = 1) -> DesignedDrive:
-    """Every ordered pair's predicted gap, its sd and the chance of a right name on ``drive`` (on
-    every ``step``-th sample); the drive's value is the smallest chance (maximin)."""
-    pairs = []
-    time, current = drive.time[::step], drive.current[::step]
-    for truth in contenders:
-        for rival in contenders:
-            if rival is truth:
-                continue
-            gap, sd = discrimination(truth, rival, time, current, noise)
-            pairs.append(
-                {"truth": truth.name, "rival": rival.name, "gap": gap, "noise_sd": sd, "p_right": p_right(gap, sd, th)}
-            )
-    drive.pairs = pairs
-    drive.value = min((p["p_right"] for p in pairs), default=0.0)
-    return drive
-
-
 # -- the design --------------------------------------------------------------------------------
 
 
@@ -600,11 +527,13 @@ def _evaluated_drive(
     th: Thresholds,
     period: float,
     step: int,
+    basins: RivalBasins | None = None,
 ) -> DesignedDrive | None:
-    """The drive of ``family`` with ``params`` evaluated on every ``step``-th sample (:func:`evaluate`),
-    or None outside the limits (:func:`drive_of`)."""
+    """The drive of ``family`` with ``params`` evaluated on every ``step``-th sample (:func:`evaluate`,
+    with the rivals' ``basins``), or None outside the limits (:func:`drive_of`)."""
     made = drive_of(family, params, limits, period)
-    return None if made is None else evaluate(DesignedDrive(family, params, *made), contenders, noise, th, step)
+    drive = None if made is None else DesignedDrive(family, params, *made)
+    return None if drive is None else evaluate(drive, contenders, noise, th, step, basins)
 
 
 def search(
@@ -617,15 +546,17 @@ def search(
     per_family=DRIVES_PER_FAMILY,
     say=None,
     step: int = 1,
+    basins: RivalBasins | None = None,
 ) -> list:
-    """Drives of every family drawn within the limits and evaluated (on every ``step``-th sample), best first."""
+    """Drives of every family drawn within the limits and evaluated (on every ``step``-th sample,
+    with the rivals' ``basins``), best first."""
     say = say or (lambda message: None)
     drives = []
     for family in FAMILIES:
         say(f"searching the '{family}' drives ({per_family} shapes)")
         for _ in range(per_family):
             drive = _evaluated_drive(
-                family, random_drive_parameters(rng, family), contenders, limits, noise, th, period, step
+                family, random_drive_parameters(rng, family), contenders, limits, noise, th, period, step, basins
             )
             if drive is not None:
                 drives.append(drive)
@@ -648,14 +579,16 @@ def refine(
     period: float,
     step: int = 1,
     trials: int = REFINE_TRIALS,
+    basins: RivalBasins | None = None,
 ) -> DesignedDrive:
     """The best drive found by a local search from ``drive``: ``trials`` times a shape perturbed
     from the best so far (:func:`perturbed_parameters`, :data:`REFINE_SPREAD`, its counts kept),
-    kept when it ranks higher (:func:`_rank`, on every ``step``-th sample)."""
+    kept when it ranks higher (:func:`_rank`, on every ``step``-th sample, with the rivals'
+    ``basins``)."""
     best = drive
     for _ in range(trials):
         params = perturbed_parameters(rng, best.family, best.params, REFINE_SPREAD)
-        candidate = _evaluated_drive(best.family, params, contenders, limits, noise, th, period, step)
+        candidate = _evaluated_drive(best.family, params, contenders, limits, noise, th, period, step, basins)
         if candidate is not None and _rank(candidate) < _rank(best):
             best = candidate
     return best
@@ -700,21 +633,29 @@ def simulation_text(drive: DesignedDrive) -> str:
 
 
 def longer_records(
-    contenders, limits: RigLimits, noise: NoiseModel, th: Thresholds, rng, period: float, per_family: int, say=None
+    contenders,
+    limits: RigLimits,
+    noise: NoiseModel,
+    th: Thresholds,
+    rng,
+    period: float,
+    per_family: int,
+    say=None,
+    basins: RivalBasins | None = None,
 ) -> list:
     """The best drive at each of the :data:`LONGER` multiples of the duration limit (a search of
     ``per_family`` shapes per family on every k-th sample, the best again on every sample; the
-    linear prediction, no simulation): ``[{"duration", "family", "value"}]``, the durations at
-    which no drive fits the other limits left out."""
+    linear prediction with the rivals' ``basins``, no simulation): ``[{"duration", "family",
+    "value"}]``, the durations at which no drive fits the other limits left out."""
     rows = []
     for factor in LONGER:
         longer = replace(limits, duration=limits.duration * factor)
         step = max(1, math.ceil(longer.duration * longer.fs / DESIGN_SAMPLES))
         try:
-            best = search(contenders, longer, noise, th, rng, period, per_family, say, step)[0]
+            best = search(contenders, longer, noise, th, rng, period, per_family, say, step, basins)[0]
         except ValueError:
             continue
-        evaluate(best, contenders, noise, th)
+        evaluate(best, contenders, noise, th, basins=basins)
         rows.append({"duration": float(longer.duration), "family": best.family, "value": float(best.value)})
     return rows
 
@@ -779,25 +720,32 @@ def design_drive(
     misfits = _misfits(contenders, records, noises)
     step = max(1, math.ceil(limits.duration * limits.fs / DESIGN_SAMPLES))
     period = _period(records)
-    ranked = search(contenders, limits, noise, th, rng, period, per_family, say, step)
-    say(f"refining the best {min(max(n_confirm, 1), len(ranked))} drives' shapes")
-    top = [refine(d, contenders, limits, noise, th, rng, period, step) for d in ranked[: max(n_confirm, 1)]]
-    if step > 1:
-        say(f"the best {len(top)} drives on every sample")
+    search_args = (contenders, limits, noise, th, rng, period)
+    basins = RivalBasins()  # where the confirmations' refits of each rival ended
+    first = n_confirm - BASIN_ROUND if n_confirm > BASIN_ROUND else n_confirm
+    ranked = search(*search_args, per_family, say, step)
+    used = ranked[: max(first, 1)]
+    say(f"refining the best {len(used)} drives' shapes")
+    top = _best_refined(used, search_args, step, None, say)
+    _confirm_drives(top[:first], contenders, noise, th, rng, step, misfits, basins, say)
+    if n_confirm > first and len(basins):
+        say(f"ranking the drives again with the {len(basins)} points where the rivals' refits ended")
+        for drive in ranked:
+            evaluate(drive, contenders, noise, th, step, basins)
         for drive in top:
-            evaluate(drive, contenders, noise, th)
-    top.sort(key=_rank)
-    for drive in top[:n_confirm]:
-        every = f" (every {ordinal(step)} sample)" if step > 1 else ""
-        say(f"confirming a '{drive.family}' drive by simulation{every}")
-        # ranking the best few: on every record together only where no final confirmation follows
-        drive.confirmed = confirm(drive, contenders, noise, th, rng, step=step, misfits=misfits, every_record=step == 1)
+            evaluate(drive, contenders, noise, th, basins=basins)
+        fresh = sorted((d for d in ranked if all(d is not u for u in used)), key=_rank)[: n_confirm - first]
+        used = used + fresh
+        more = _best_refined(fresh, search_args, step, basins, say)
+        _confirm_drives(more, contenders, noise, th, rng, step, misfits, basins, say)
+        top += more
     top.sort(key=confirmed_rank)
-    ranked = top + ranked[len(top) :]
+    ranked = top + [d for d in ranked if all(d is not u for u in used)]
     best = ranked[0]
     if step > 1 and n_confirm > 0:
         say(f"confirming the chosen '{best.family}' drive by simulation on every sample")
-        best.confirmed = confirm(best, contenders, noise, th, rng, misfits=misfits)
+        best.confirmed = confirm(best, contenders, noise, th, rng, misfits=misfits, basins=basins)
+        evaluate(best, contenders, noise, th, basins=basins)
     worst = min(best.pairs, key=lambda p: p["p_right"])
     reason = (
         f"The '{best.family}' drive{_rest_text(best, limits)} separates every pair: its weakest, "
@@ -809,9 +757,33 @@ def design_drive(
     longer = []
     if best.value < DECISIVE:
         say(f"the weakest chance is {100 * best.value:.0f} %: searching longer records")
-        longer = longer_records(contenders, limits, noise, th, rng, period, max(per_family // 4, 1), say)
+        longer = longer_records(*search_args, max(per_family // 4, 1), say, basins)
         reason += longer_text(longer)
     return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0, longer)
+
+
+def _best_refined(drives, search_args, step: int, basins, say) -> list:
+    """Each of ``drives`` refined (:func:`refine`, with the rivals' ``basins``), evaluated on every
+    sample, best first."""
+    contenders, _, noise, th, _, _ = search_args
+    top = [refine(d, *search_args, step, basins=basins) for d in drives]
+    if step > 1:
+        say(f"the best {len(top)} drives on every sample")
+        for drive in top:
+            evaluate(drive, contenders, noise, th, basins=basins)
+    return sorted(top, key=_rank)
+
+
+def _confirm_drives(drives, contenders, noise, th, rng, step: int, misfits, basins, say) -> None:
+    """Confirm each of ``drives`` by simulation on every ``step``-th sample (:func:`confirm`), the
+    rivals' refits' ends added to ``basins``: on every record together only where no final
+    confirmation follows."""
+    every = f" (every {ordinal(step)} sample)" if step > 1 else ""
+    for drive in drives:
+        say(f"confirming a '{drive.family}' drive by simulation{every}")
+        drive.confirmed = confirm(
+            drive, contenders, noise, th, rng, step=step, misfits=misfits, every_record=step == 1, basins=basins
+        )
 
 
 def _rest_text(drive: DesignedDrive, limits: RigLimits) -> str:

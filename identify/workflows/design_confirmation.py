@@ -273,6 +273,7 @@ def confirm(
     step: int = 1,
     misfits=None,
     every_record: bool = True,
+    basins=None,
 ) -> list:
     """Each contender as the truth, drawn (:func:`draw_transducer`), drives the proposed record
     (every ``step``-th sample) with noise; every contender is refitted on it
@@ -288,7 +289,10 @@ def confirm(
     (:func:`rival_starts`) and from where its refit ended in the truth's previous draw, and the
     draws before the last are refitted once more from where the last ended: the lowest is kept, so
     that a basin one draw finds is the rival's in every draw (as the joint diagnosis's search would
-    find it on whichever record is measured).
+    find it on whichever record is measured). ``basins``
+    (:class:`~identify.workflows.design_criterion.RivalBasins`), where given, keeps for each pair
+    the vector where the rival's refit came closest to the truth (its lowest gap over the draws):
+    a point around which the search's criterion linearises that rival too.
 
     Every truth's records are drawn first, in the generator's order; on every sample the truths'
     refits then run side by side (:func:`identify.fitting.threads.results_side_by_side`: two at
@@ -307,6 +311,7 @@ def confirm(
     for truth, runs in zip(contenders, refitted):
         realised = {rival.name: [] for rival in contenders if rival is not truth}
         right = 0
+        closest = {}  # per rival: (its lowest gap over the draws, where its refit ended there)
         for _, fitted in runs:
             ok = True
             for rival in contenders:
@@ -315,7 +320,13 @@ def confirm(
                 gap, sd = _gap(truth, rival, fitted, misfits, every_record)
                 realised[rival.name].append(gap)
                 ok &= gap > th.bic_significant and (sd == 0 or gap / sd > th.gap_z)
+                if rival.name not in closest or gap < closest[rival.name][0]:
+                    joint = _joint_pair(truth, rival, misfits, every_record)
+                    closest[rival.name] = (gap, fitted[(rival.name, joint)][-1])
             right += ok
+        if basins is not None:
+            for rival, (_, end) in closest.items():
+                basins.add(truth.name, rival, end)
         for rival, gaps in realised.items():
             mean, sd = simulated_gap(gaps)
             rows.append(

@@ -1,0 +1,157 @@
+r"""The design's criterion (:mod:`identify.workflows.design`): the chi-square gap a drive shows
+between two contenders once the rival is refitted to mimic the truth, linearised.
+
+Around a point ``theta_b`` of the rival, with ``d`` the whitened difference of the truth's and the
+rival's predictions on the proposed drive, ``J`` the rival's whitened Jacobian there (its free
+parameters and the new record's sensor zero), ``F`` the information the records hold on the
+rival's transducer and ``o = theta_b - theta_fit`` the point's offset from the rival's fit:
+
+.. math::  \Delta = -(J^\top J + F)^{+} (J^\top d + F o), \qquad
+           \mathrm{gap} = \lVert d + J\Delta \rVert^2 + (o + \Delta)^\top F (o + \Delta),
+
+the rival's best mimicry near ``theta_b`` (its misfit on the new record beside its departure
+from what the records say). At the fit (``o = 0``) this is the Gauss-Newton step of the rival's
+refit. The rival's best mimicry is a global minimum, and a slow effect's fit can mimic the truth
+on a new drive from another basin (another time constant, another onset), which the
+linearisation at its fit does not see: it credits the drive with a gap the rival closes. The
+confirmations' nonlinear refits (:func:`identify.workflows.design_confirmation.confirm`) find
+such basins; each joins the points (:class:`RivalBasins`), and the gap is the smallest over them:
+the rival's set of points grows with each solution of the inner problem found, as in the
+cutting-plane algorithms for semi-infinite (maximin) problems (Blankenship and Falk, *J. Optim.
+Theory Appl.* 19, 1976). The noise moves the gap by about ``2 ||d + J Delta||`` at the point
+that gives it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from ..data.records import Record
+from ..diagnosis import Thresholds
+from ..fitting.lsq import WhitenedResiduals
+from ..fitting.noise import NoiseModel
+
+__all__ = ["RivalBasins", "DesignedDrive", "discrimination", "p_right", "evaluate"]
+
+
+class RivalBasins:
+    """Where each rival's nonlinear refits ended while mimicking each truth, by ``(truth, rival)``
+    name: the points besides its fit around which :func:`discrimination` linearises its mimicry."""
+
+    def __init__(self):
+        self.points = {}
+
+    def add(self, truth: str, rival: str, theta) -> None:
+        """Keep ``theta`` (a full vector ``(P,)``) for the pair unless an equal one is kept."""
+        kept = self.points.setdefault((truth, rival), [])
+        theta = np.array(theta, dtype=float)
+        if not any(np.array_equal(theta, k) for k in kept):
+            kept.append(theta)
+
+    def of(self, truth: str, rival: str) -> list:
+        """The pair's points (empty where none was found)."""
+        return list(self.points.get((truth, rival), ()))
+
+    def __len__(self) -> int:
+        return sum(len(v) for v in self.points.values())
+
+
+def _predicted(c, time, current) -> np.ndarray | None:
+    y, valid = c.model.evaluate(c.theta, time, current)
+    return y[0] if valid[0] else None
+
+
+def _linear_mimicry(residuals: WhitenedResiduals, theta, centre, info, zero) -> tuple[float, float] | None:
+    """``(gap, noise sd)`` of the rival linearised around ``theta`` (module docstring), None where
+    its prediction there is not finite."""
+    x = np.clip(theta[residuals.free], residuals.lower, residuals.upper)
+    d = residuals(x)
+    if not np.all(np.isfinite(d)):
+        return None
+    jac = np.hstack([residuals.jacobian(x), zero])
+    offset = np.append(x - centre, 0.0)
+    step = -np.linalg.pinv(jac.T @ jac + info, rcond=1e-12) @ (jac.T @ d + info @ offset)
+    r = d + jac @ step
+    moved = offset + step
+    return float(r @ r + moved @ info @ moved), 2.0 * float(np.sqrt(r @ r))
+
+
+def discrimination(truth, rival, time, current, noise: NoiseModel, basins=()) -> tuple[float, float]:
+    """``(gap, noise sd of the gap)``: the chi-square gap the proposed drive shows between ``truth``
+    and ``rival`` once the rival is refitted to mimic it, linearised around its fit and around each
+    of ``basins`` (full vectors ``(P,)`` where its refits ended), the smallest kept (module docstring)."""
+    y_true = _predicted(truth, time, current)
+    if y_true is None:
+        return 0.0, 0.0
+    record = Record(time, current, y_true, source="the proposed drive", sha256="")
+    residuals = WhitenedResiduals(record, rival.model, noise)
+    free = residuals.free
+    zero = np.full((time.size, 1), -1.0 / noise.sigma)  # the new record's sensor zero
+    info = np.zeros((free.size + 1, free.size + 1))
+    info[:-1, :-1] = rival.info[np.ix_(free, free)]
+    centre = rival.theta[free]
+    found = [_linear_mimicry(residuals, np.asarray(t, dtype=float), centre, info, zero) for t in (rival.theta, *basins)]
+    found = [f for f in found if f is not None]
+    return min(found, key=lambda f: f[0]) if found else (0.0, 0.0)
+
+
+def p_right(gap: float, sd: float, th: Thresholds) -> float:
+    """The probability that the diagnosis names the truth: the gap beyond ``bic_significant`` and
+    ``gap_z`` of its noise sd (:mod:`identify.workflows.design`)."""
+    if not sd > 0:
+        return 1.0 if gap > th.bic_significant else 0.0
+    return float(stats.norm.cdf((gap - max(th.bic_significant, th.gap_z * sd)) / sd))
+
+
+@dataclass
+class DesignedDrive:
+    """One proposed drive with its predicted discrimination."""
+
+    family: str
+    params: dict
+    time: np.ndarray
+    current: np.ndarray
+    pairs: list = field(default_factory=list)
+    value: float = 0.0
+    confirmed: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "family": self.family,
+            "params": {k: (v if not isinstance(v, float) else float(v)) for k, v in self.params.items()},
+            "samples": int(self.time.size),
+            "rms_current": float(np.sqrt(np.mean(self.current**2))),
+            "pairs": [dict(p) for p in self.pairs],
+            "value": float(self.value),
+            "confirmed": [dict(c) for c in self.confirmed],
+        }
+
+
+def evaluate(
+    drive: DesignedDrive,
+    contenders,
+    noise: NoiseModel,
+    th: Thresholds,
+    step: int = 1,
+    basins: RivalBasins | None = None,
+) -> DesignedDrive:
+    """Every ordered pair's predicted gap, its sd and the chance of a right name on ``drive`` (on
+    every ``step``-th sample, each rival also linearised around the ``basins`` found for the pair);
+    the drive's value is the smallest chance (maximin)."""
+    pairs = []
+    time, current = drive.time[::step], drive.current[::step]
+    for truth in contenders:
+        for rival in contenders:
+            if rival is truth:
+                continue
+            found = basins.of(truth.name, rival.name) if basins is not None else ()
+            gap, sd = discrimination(truth, rival, time, current, noise, found)
+            pairs.append(
+                {"truth": truth.name, "rival": rival.name, "gap": gap, "noise_sd": sd, "p_right": p_right(gap, sd, th)}
+            )
+    drive.pairs = pairs
+    drive.value = min((p["p_right"] for p in pairs), default=0.0)
+    return drive
