@@ -230,10 +230,13 @@ def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits) -
     return _lowest_refit(lambda s: _with_no_n(penalised_refit(c, record, noise, s)), starts)
 
 
-def _refit_draw(truth, contenders, record: Record, noise: NoiseModel, theta, misfits, every_record, carried) -> dict:
+def _refit_draw(
+    truth, contenders, record: Record, noise: NoiseModel, theta, misfits, every_record, carried, seeds
+) -> dict:
     """Every contender refitted on one simulated ``record`` of ``truth`` (drawn at ``theta``), by
     ``(name, joint)``: the truth from its draw, each rival from :func:`rival_starts` and from where
-    its refit ended in the previous draw (``carried``, updated)."""
+    its refit ended in the previous draw (``carried``, updated), or in the first draw from where
+    earlier confirmations found it closest to this truth (``seeds``, lists by rival name)."""
     fitted = {}
     for rival in contenders:
         if rival is truth:
@@ -243,8 +246,8 @@ def _refit_draw(truth, contenders, record: Record, noise: NoiseModel, theta, mis
             fitted[(truth.name, joint)] = _refit(truth, record, noise, [theta], joint, misfits)
         key = (rival.name, joint)
         starts = rival_starts(rival, record, noise)
-        if key in carried:
-            _add_start(starts, carried[key])
+        for start in [carried[key]] if key in carried else seeds.get(rival.name, ()):
+            _add_start(starts, start)
         fitted[key] = _refit(rival, record, noise, starts, joint, misfits)
         carried[key] = fitted[key][-1]
     return fitted
@@ -290,9 +293,11 @@ def confirm(
     draws before the last are refitted once more from where the last ended: the lowest is kept, so
     that a basin one draw finds is the rival's in every draw (as the joint diagnosis's search would
     find it on whichever record is measured). ``basins``
-    (:class:`~identify.workflows.design_criterion.RivalBasins`), where given, keeps for each pair
-    the vector where the rival's refit came closest to the truth (its lowest gap over the draws):
-    a point around which the search's criterion linearises that rival too.
+    (:class:`~identify.workflows.design_criterion.RivalBasins`), where given, holds where earlier
+    confirmations found each rival closest to each truth: the rival's first draw starts there too
+    (a basin one drive revealed is the rival's on the next); this confirmation adds, for each
+    pair, the vector where the rival's refit came closest to the truth (its lowest gap over the
+    draws), a point around which the search's criterion linearises that rival too.
 
     Every truth's records are drawn first, in the generator's order; on every sample the truths'
     refits then run side by side (:func:`identify.fitting.threads.results_side_by_side`: two at
@@ -301,7 +306,7 @@ def confirm(
     time, current = drive.time[::step], drive.current[::step]
     simulated = [_simulated_records(truth, draws, time, current, noise, rng, misfits) for truth in contenders]
     refits = [
-        functools.partial(_refit_truth, truth, records, contenders, noise, misfits, every_record)
+        functools.partial(_refit_truth, truth, records, contenders, noise, misfits, every_record, _seeds(truth, basins))
         for truth, records in zip(contenders, simulated)
     ]
     # on every sample the model's kernels (which release the GIL) take most of a refit; on a
@@ -357,14 +362,20 @@ def _simulated_records(truth, draws: int, time, current, noise: NoiseModel, rng,
     return simulated
 
 
-def _refit_truth(truth, simulated, contenders, noise: NoiseModel, misfits, every_record) -> list:
+def _seeds(truth, basins) -> dict:
+    """Where earlier confirmations found each rival closest to ``truth``, by rival name (empty
+    without ``basins``)."""
+    return {} if basins is None else {rival: points for (t, rival), points in basins.points.items() if t == truth.name}
+
+
+def _refit_truth(truth, simulated, contenders, noise: NoiseModel, misfits, every_record, seeds) -> list:
     """``[(record, fitted)]``: every contender refitted on each of ``truth``'s ``simulated`` records
     (:func:`_refit_draw`, each rival also from where its refit ended in the draw before), then the
     draws before the last refitted once more from where the last ended, the lower kept."""
     by_name = {c.name: c for c in contenders}
     carried = {}  # where each rival's refit ended in the previous draw
     runs = [
-        (record, _refit_draw(truth, contenders, record, noise, theta, misfits, every_record, carried))
+        (record, _refit_draw(truth, contenders, record, noise, theta, misfits, every_record, carried, seeds))
         for theta, record in simulated
     ]
     for record, fitted in runs[:-1]:  # a basin a later draw found, tried on the earlier ones
