@@ -415,6 +415,26 @@ def test_the_chosen_drive_is_the_confirmed_one_with_the_most_right_names():
     assert "only 5 of 6" in simulation_text(confirmed_best)
 
 
+@pytest.mark.parametrize(
+    "first, second",
+    [
+        # the weakest truth decides
+        ((("a", "b", 5), ("b", "a", 5)), (("a", "b", 6), ("b", "a", 4))),
+        # named by neither: the next weakest decides
+        ((("a", "b", 0), ("b", "a", 3), ("c", "a", 6)), (("a", "b", 0), ("b", "a", 2), ("c", "a", 6))),
+        ((("a", "b", 0), ("b", "a", 0), ("c", "a", 1)), (("a", "b", 0), ("b", "a", 0), ("c", "a", 0))),
+    ],
+)
+def test_confirmed_drives_rank_by_their_weakest_truth_then_the_next(first, second):
+    """Leximin over the truths' shares of right names: a drive that names no draw of its weakest
+    truth still beats one that names fewer of the others; the linear value only breaks ties."""
+    from identify.workflows.design import DesignedDrive, confirmed_rank
+
+    better = DesignedDrive("hold", {}, np.zeros(2), np.zeros(2), value=0.1, confirmed=_confirmed(*first))
+    worse = DesignedDrive("steps", {}, np.zeros(2), np.zeros(2), value=0.9, confirmed=_confirmed(*second))
+    assert sorted([worse, better], key=confirmed_rank)[0] is better
+
+
 @pytest.fixture(scope="module")
 def loose_creep():
     """A creep record and a contender at its truth whose covariance is far too wide along the

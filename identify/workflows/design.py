@@ -611,8 +611,11 @@ def confirmed_share(drive: DesignedDrive) -> tuple[float, str | None]:
 
 def confirmed_rank(drive: DesignedDrive):
     """The confirmed drives, best first: the highest smallest share of right names in the
-    simulation (the nonlinear refits, the parameters' uncertainty), then :func:`_rank`."""
-    return (-confirmed_share(drive)[0], *_rank(drive))
+    simulation (the nonlinear refits, the parameters' uncertainty), then the highest next smallest
+    and so on (leximin: where no drive names the weakest truth, the one that names the most of the
+    others), then :func:`_rank`."""
+    shares = {c["truth"]: c["right_names"] / c["draws"] for c in drive.confirmed if c["draws"]}
+    return (tuple(-s for s in sorted(shares.values())) or (-1.0,), *_rank(drive))
 
 
 def simulation_text(drive: DesignedDrive) -> str:
