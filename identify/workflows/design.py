@@ -32,8 +32,11 @@ by simulation: each contender, drawn from its fit's covariance and held to the r
 (:func:`draw_transducer`), drives the proposed record with noise; every rival is refitted on
 it nonlinearly, held by the records' information, from its fit and from where the new record's
 screening puts its effects (:func:`rival_starts`), and the right names are counted
-(:func:`confirm`). The confirmed drive with the highest smallest share of right names is
-proposed, confirmed again on every sample with every contender refitted on the new record and
+(:func:`confirm`). Where those refits end is where each rival mimics each truth best; every drive
+is then ranked again with each rival also linearised there
+(:mod:`identify.workflows.design_criterion`), and the best drive not yet confirmed is confirmed
+too. The confirmed drive with the highest smallest share of right names (leximin over the
+truths) is proposed, confirmed again on every sample with every contender refitted on the new record and
 the records already taken together (the joint diagnosis's fit and gap): its realised gaps (their
 mean and the next gap's sd) are the calibrated prediction beside the linear one.
 """
