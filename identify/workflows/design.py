@@ -535,8 +535,9 @@ def _evaluated_drive(
     """The drive of ``family`` with ``params`` evaluated on every ``step``-th sample (:func:`evaluate`,
     with the rivals' ``basins``), or None outside the limits (:func:`drive_of`)."""
     made = drive_of(family, params, limits, period)
-    drive = None if made is None else DesignedDrive(family, params, *made)
-    return None if drive is None else evaluate(drive, contenders, noise, th, step, basins)
+    if made is None:
+        return None
+    return evaluate(DesignedDrive(family, params, *made), contenders, noise, th, step, basins)
 
 
 def search(

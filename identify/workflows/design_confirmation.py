@@ -365,7 +365,7 @@ def _simulated_records(truth, draws: int, time, current, noise: NoiseModel, rng,
 def _seeds(truth, basins) -> dict:
     """Where earlier confirmations found each rival closest to ``truth``, by rival name (empty
     without ``basins``)."""
-    return {} if basins is None else {rival: points for (t, rival), points in basins.points.items() if t == truth.name}
+    return {} if basins is None else basins.of_truth(truth.name)
 
 
 def _refit_truth(truth, simulated, contenders, noise: NoiseModel, misfits, every_record, seeds) -> list:

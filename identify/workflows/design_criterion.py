@@ -55,6 +55,10 @@ class RivalBasins:
         """The pair's points (empty where none was found)."""
         return list(self.points.get((truth, rival), ()))
 
+    def of_truth(self, truth: str) -> dict:
+        """Every rival's points for ``truth``, by rival name."""
+        return {rival: list(points) for (t, rival), points in self.points.items() if t == truth}
+
     def __len__(self) -> int:
         return sum(len(v) for v in self.points.values())
 
