@@ -603,10 +603,15 @@ def _rank(drive: DesignedDrive):
     return -drive.value, -min((p["gap"] for p in drive.pairs), default=0.0)
 
 
+def _truth_shares(drive: DesignedDrive) -> dict:
+    """Each confirmed truth's share of right names, by name (empty without a confirmation)."""
+    return {c["truth"]: c["right_names"] / c["draws"] for c in drive.confirmed if c["draws"]}
+
+
 def confirmed_share(drive: DesignedDrive) -> tuple[float, str | None]:
     """The smallest share of right names over the confirmation's truths and that truth
     (``(1.0, None)`` without a confirmation)."""
-    shares = {c["truth"]: c["right_names"] / c["draws"] for c in drive.confirmed if c["draws"]}
+    shares = _truth_shares(drive)
     if not shares:
         return 1.0, None
     truth = min(shares, key=shares.get)
@@ -618,8 +623,7 @@ def confirmed_rank(drive: DesignedDrive):
     simulation (the nonlinear refits, the parameters' uncertainty), then the highest next smallest
     and so on (leximin: where no drive names the weakest truth, the one that names the most of the
     others), then :func:`_rank`."""
-    shares = {c["truth"]: c["right_names"] / c["draws"] for c in drive.confirmed if c["draws"]}
-    return (tuple(-s for s in sorted(shares.values())) or (-1.0,), *_rank(drive))
+    return (tuple(-s for s in sorted(_truth_shares(drive).values())) or (-1.0,), *_rank(drive))
 
 
 def simulation_text(drive: DesignedDrive) -> str:
@@ -737,11 +741,12 @@ def design_drive(
     _confirm_drives(top[:first], contenders, noise, th, rng, step, misfits, basins, say)
     if n_confirm > first and len(basins):
         say(f"ranking the drives again with the {len(basins)} points where the rivals' refits ended")
-        for drive in ranked:
+        fresh = [d for d in ranked if all(d is not u for u in used)]
+        for drive in fresh:
             evaluate(drive, contenders, noise, th, step, basins)
         for drive in top:
             evaluate(drive, contenders, noise, th, basins=basins)
-        fresh = sorted((d for d in ranked if all(d is not u for u in used)), key=_rank)[: n_confirm - first]
+        fresh = sorted(fresh, key=_rank)[: n_confirm - first]
         used = used + fresh
         more = _best_refined(fresh, search_args, step, basins, say)
         _confirm_drives(more, contenders, noise, th, rng, step, misfits, basins, say)
