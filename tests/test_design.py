@@ -688,3 +688,30 @@ def test_the_joint_refit_frees_each_earlier_records_own_parameters_as_the_joint_
         gaps[label] = next(r for r in rows if r["truth"] == "sensor_drift")["realised_gaps"]
     assert min(gaps["at its fit"]) > 20.0
     np.testing.assert_allclose(gaps["off"], gaps["at its fit"], rtol=0.02, atol=2.0)
+
+
+def test_a_confirmation_simulates_the_sensors_correlated_noise():
+    """On a sensor with AR(1) noise the next record's noise is correlated too. The joint gap, a
+    likelihood ratio with the noise scale profiled out over both records, then agrees with the
+    chi-square gap on the new record alone; noise simulated white for that sensor, whitened as
+    AR(1), has ``(1 + r^2) / (1 - r^2)`` times the variance the scale expects (``r`` each step's
+    correlation) and would shrink the joint gap by about that factor (to a quarter here)."""
+    from identify.workflows.design import DesignedDrive, confirm, record_misfit
+
+    heated = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0, noise_rho=0.6)
+    contenders = _heating_and_plain(heated, 1e-6)
+    noise = estimate_noise(heated.record)
+    assert noise.rho > 0.4
+    # a new record of more samples than the first, so that its noise sets the profiled scale
+    limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=25.0, quiet=10.0)
+    hold = {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}
+    drive = DesignedDrive("hold", {}, *drive_of("hold", hold, limits, 10.0))
+    misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in contenders}
+    gaps = {}
+    for joint in (True, False):
+        rows = confirm(
+            drive, contenders, noise, Thresholds(), np.random.default_rng(5), 3, misfits=misfits, every_record=joint
+        )
+        gaps[joint] = np.mean(next(r["realised_gaps"] for r in rows if r["truth"] == "thermal"))
+    assert gaps[False] > 200.0
+    assert abs(gaps[True] / gaps[False] - 1.0) < 0.3

@@ -331,3 +331,27 @@ def test_the_noise_estimate_keeps_its_step_and_a_thinned_record_its_own():
     estimate = estimate_noise(gappy)
     assert estimate.dt == pytest.approx(0.001, rel=1e-12)
     assert estimate.rho == pytest.approx(noise.rho, abs=0.03)
+
+
+def test_a_drawn_noise_has_the_models_sigma_and_correlation_on_its_grid():
+    """``NoiseModel.draw``: the marginal sd and the lag-1 correlation of the model on its own
+    grid, ``rho**k`` on a grid of every k-th sample, white noise for ``rho = 0`` (the same
+    draws as ``sigma * standard_normal``), an uneven grid each step's own correlation."""
+    sigma, rho, dt = 0.4, 0.6, 0.01
+    ar1 = NoiseModel(sigma, rho, "ar1", source="user", dt=dt)
+    even = np.arange(4000) * dt
+    for grid, expected in ((even, rho), (even[::3], rho**3)):
+        eps = ar1.draw(grid, np.random.default_rng(2), size=40)
+        assert eps.shape == (40, grid.size)
+        assert abs(eps.std() / sigma - 1.0) < 0.03
+        lag1 = np.mean(eps[:, 1:] * eps[:, :-1]) / np.mean(eps * eps)
+        assert abs(lag1 - expected) < 0.02
+    white = NoiseModel(sigma, source="user", dt=dt)
+    assert np.array_equal(
+        white.draw(even, np.random.default_rng(3)), sigma * np.random.default_rng(3).standard_normal(even.size)
+    )
+    uneven = np.cumsum(np.where(np.arange(3000) % 2 == 0, dt, 2 * dt))
+    eps = ar1.draw(uneven, np.random.default_rng(4), size=60)
+    products = eps[:, 1:] * eps[:, :-1] / sigma**2
+    assert abs(products[:, 0::2].mean() - rho**2) < 0.03  # the steps of 2 dt, from the first on
+    assert abs(products[:, 1::2].mean() - rho) < 0.03

@@ -71,7 +71,7 @@ from ..data.fileio import require_space, write_via_temporary
 from ..data.hdf5 import open_hdf5
 from .chain_file import BACKEND_GROUP, CHAIN_METADATA_BYTES
 from .lsq import parameter_units
-from .noise import whiten
+from .noise import ar1_noise, whiten
 
 __all__ = [
     "MAX_POINTWISE",
@@ -136,19 +136,6 @@ def pointwise_log_likelihood(residual, noise, sigma=None, *, time=None) -> np.nd
         else:
             out[:, 1:] -= 0.5 * np.log1p(-correlations * correlations)
     return out
-
-
-def ar1_noise(white, correlations) -> np.ndarray:
-    """AR(1) noise of unit marginal variance from white draws ``(S, T)``, step ``t`` with
-    correlation ``correlations[t - 1]`` (white noise itself when every correlation is 0)."""
-    if not np.any(correlations):
-        return white
-    eps = np.empty_like(white)
-    eps[:, 0] = white[:, 0]
-    for t in range(1, white.shape[1]):
-        rho = correlations[t - 1]
-        eps[:, t] = rho * eps[:, t - 1] + math.sqrt(1.0 - rho * rho) * white[:, t]
-    return eps
 
 
 def predictive_quantum(sigma) -> float:
@@ -229,10 +216,7 @@ def write_inference_data(out_dir, record, log_post, posterior, *, seed=0) -> Pat
     rng = np.random.default_rng(seed)
     noise_sigma = sigma[:, None] if sigma is not None else log_post.noise.sigma
     white = rng.standard_normal(y.shape)
-    correlations = log_post.noise.step_correlations(time)
-    if correlations is None:
-        correlations = np.full(max(time.size - 1, 0), log_post.noise.rho)
-    predictive = y + noise_sigma * ar1_noise(white, correlations)
+    predictive = y + noise_sigma * ar1_noise(white, log_post.noise.correlations_on(time))
     shape = (n_chain, sub.shape[1], time.size)
     pointwise_chunks = (n_chain, sub.shape[1], min(POINTWISE_CHUNK_SAMPLES, time.size))
     unit_out = record.output_unit

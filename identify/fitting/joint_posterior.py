@@ -31,7 +31,6 @@ from .inference import (
     FILE,
     LOG_LIKELIHOOD_QUANTUM,
     POINTWISE_CHUNK_SAMPLES,
-    ar1_noise,
     pointwise_draws,
     pointwise_log_likelihood,
     predictive_quantum,
@@ -40,7 +39,7 @@ from .inference import (
 )
 from .joint import JointModel
 from .lsq import parameter_units
-from .noise import RowLikelihood
+from .noise import RowLikelihood, ar1_noise
 from .parametrisation import in_record_units
 from .posterior import LogPosterior
 
@@ -163,9 +162,10 @@ def _record_groups(r, record, log_post, flat, noise, step_draws, shape_head, rng
     y, valid = log_post.record_outputs(log_post.full_theta(flat), r)
     pointwise = pointwise_log_likelihood(data[None, :] - y, noise, None, time=uneven)
     pointwise[~valid] = -np.inf
+    white = rng.standard_normal(y.shape)
     if correlations is None:
-        correlations = np.full(max(time.size - 1, 0), noise.rho)
-    predictive = y + noise.sigma * ar1_noise(rng.standard_normal(y.shape), correlations)
+        correlations = noise.correlations_on(time)
+    predictive = y + noise.sigma * ar1_noise(white, correlations)
     dims = ("chain", "draw", record_variable(r, "time"))
     shape = (*shape_head, time.size)
     chunks = (*shape_head, min(POINTWISE_CHUNK_SAMPLES, time.size))

@@ -94,6 +94,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit, prange
+from scipy.signal import lfilter
 
 __all__ = [
     "NoiseModel",
@@ -102,6 +103,7 @@ __all__ = [
     "energised_mask",
     "quiet_segment",
     "whiten",
+    "ar1_noise",
     "whiten_rows",
     "log_likelihood",
     "log_likelihood_of_rows",
@@ -223,6 +225,38 @@ class NoiseModel:
             r[fractional] = sign * abs(self.rho) ** steps[fractional]
         return np.clip(r, -0.99, 0.99)
 
+    def correlations_on(self, time) -> np.ndarray:
+        """Each step's lag-1 correlation on the time grid ``time``, shape ``(T - 1,)``:
+        :meth:`step_correlations`, or ``rho`` on every step where that is None."""
+        correlations = self.step_correlations(time)
+        if correlations is None:
+            correlations = np.full(max(np.size(time) - 1, 0), self.rho)
+        return correlations
+
+    def draw(self, time, rng, size: int | None = None) -> np.ndarray:
+        """Noise of this model on the time grid ``time`` [output unit]: ``sigma`` times AR(1)
+        noise of unit marginal variance with each step's correlation (:meth:`correlations_on`;
+        white noise when ``rho`` is 0).
+
+        Parameters
+        ----------
+        time : array_like, shape (T,)
+            Strictly increasing sample times [s].
+        rng : numpy.random.Generator
+            Its ``T`` (or ``size * T``) standard normal draws are the innovations, the same
+            draws white noise takes.
+        size : int, optional
+            Independent series to draw.
+
+        Returns
+        -------
+        ndarray of shape (T,), or (size, T) with ``size``
+        """
+        time = np.asarray(time, dtype=float)
+        white = rng.standard_normal((1 if size is None else size, time.size))
+        eps = self.sigma * ar1_noise(white, self.correlations_on(time))
+        return eps[0] if size is None else eps
+
     def to_dict(self) -> dict:
         """JSON-ready: sigma, rho, kind, source, n_quiet, the quiet samples [start, stop) and dt."""
         return {
@@ -249,6 +283,25 @@ class NoiseModel:
             n_quiet=int(d.get("n_quiet", 0)),
             dt=None if d.get("dt") is None else float(d["dt"]),
         )
+
+
+def ar1_noise(white, correlations) -> np.ndarray:
+    """AR(1) noise of unit marginal variance from white draws ``(S, T)``, step ``t`` with
+    correlation ``correlations[t - 1]`` (white noise itself when every correlation is 0)."""
+    correlations = np.asarray(correlations, dtype=float)
+    if not np.any(correlations):
+        return white
+    if np.all(correlations == correlations[0]):  # an even grid: one recursive filter
+        rho = float(correlations[0])
+        innovations = np.array(white, dtype=float)
+        innovations[:, 1:] *= math.sqrt(1.0 - rho * rho)
+        return lfilter([1.0], [1.0, -rho], innovations, axis=1)
+    eps = np.empty_like(white)
+    eps[:, 0] = white[:, 0]
+    for t in range(1, white.shape[1]):
+        rho = correlations[t - 1]
+        eps[:, t] = rho * eps[:, t - 1] + math.sqrt(1.0 - rho * rho) * white[:, t]
+    return eps
 
 
 def quiet_segment(current, *, current_tolerance=None) -> slice:

@@ -350,14 +350,17 @@ def confirm(
 
 def _simulated_records(truth, draws: int, time, current, noise: NoiseModel, rng, misfits) -> list:
     """``[(theta, record)]``: ``draws`` transducers of ``truth`` (:func:`draw_transducer`, held by its
-    records' misfit) driven by ``current`` with noise (a draw whose output is not finite dropped)."""
+    records' misfit) driven by ``current`` with the records' noise (:meth:`NoiseModel.draw`: its
+    correlation too, on the sampled ``time``: white noise simulated for a correlated sensor and
+    whitened is ``(1 + rho^2) / (1 - rho^2)`` times its variance, and a likelihood gap, the noise
+    scale profiled out, shrinks by about that factor); a draw whose output is not finite dropped."""
     simulated = []
     for _ in range(draws):
         theta = draw_transducer(truth, rng, misfits.get(truth.name))
         y, valid = truth.model.evaluate(theta, time, current)
         if not valid[0]:
             continue
-        data = y[0] + noise.sigma * rng.standard_normal(time.size)
+        data = y[0] + noise.draw(time, rng)  # the sensor noise as estimated: white or AR(1)
         simulated.append((theta, Record(time, current, data, source="simulated next record", sha256="")))
     return simulated
 
