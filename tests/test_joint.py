@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from identify.bench import simulate
-from identify.diagnosis.joint import rival_pair_names, tie_member_pairs
+from identify.diagnosis import Thresholds
+from identify.diagnosis.joint import explanations_worth_finishing, rival_pair_names, tie_member_pairs
 from identify.fitting.joint import JointModel, JointResiduals, fit_joint, with_earlier_runs
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
@@ -303,3 +304,31 @@ def test_rival_pairs_of_the_best_joint_pair(strength, max_refits, expected):
 )
 def test_a_tie_of_pairs_is_a_verdict_once_every_pair_of_its_members_is_fitted(tied, strength, expected):
     assert tie_member_pairs(tied, strength) == expected
+
+
+def _tried(name, gain, adequate=False):
+    """A candidate as a record's diagnosis holds it: refitted, its gain, whether it repairs."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(effect=name, delta_bic=gain, adequate_after=adequate, refitted=True, fit=object())
+
+
+@pytest.mark.parametrize(
+    ("records", "expected"),
+    [
+        # a pair each record names in its own order is one model, fitted once (the first order)
+        ([([], [("a+b", 50.0)]), ([], [("b+a", 60.0)])], ["a+b"]),
+        # singles of both records, the second's new one after; a gain of zero is no candidate
+        ([([("a", 30.0), ("c", 0.0)], []), ([("b", 20.0), ("a", 10.0)], [])], ["a", "b"]),
+        # the ones that repair a record are kept beyond the max_refits best
+        ([([("a", 30.0), ("b", 20.0), ("c", 10.0), ("d", 5.0, True)], [])], ["d", "a", "b", "c"]),
+    ],
+)
+def test_the_explanations_the_records_found_worth_finishing(records, expected):
+    from types import SimpleNamespace
+
+    alone = [
+        SimpleNamespace(ranking=[_tried(*s) for s in singles], pairs_tried=[_tried(*p) for p in pairs])
+        for singles, pairs in records
+    ]
+    assert explanations_worth_finishing(alone, Thresholds(max_refits=3)) == expected

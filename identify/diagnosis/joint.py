@@ -54,7 +54,14 @@ from .explanation import explain, where_text
 from .fits import n_eff, profile_of, same_threshold_sign
 from .screening import screen_candidates
 
-__all__ = ["JointDiagnosis", "diagnose_records", "joint_fit_with_earlier_runs", "rival_pair_names", "tie_member_pairs"]
+__all__ = [
+    "JointDiagnosis",
+    "diagnose_records",
+    "explanations_worth_finishing",
+    "joint_fit_with_earlier_runs",
+    "rival_pair_names",
+    "tie_member_pairs",
+]
 
 
 @dataclass
@@ -245,18 +252,21 @@ def _earlier_run_columns(joint: JointModel) -> list[tuple[int, float]]:
     ]
 
 
-def _candidates_of(alone, thresholds: Thresholds) -> list[str]:
+def explanations_worth_finishing(alone, thresholds: Thresholds) -> list[str]:
     """The explanations any record found worth finishing: those that repair it and the
-    ``max_refits`` best by their gain, singles and pairs."""
-    names = []
+    ``max_refits`` best by their gain, singles and pairs; a pair once, in the order of the first
+    record that names it (a model's effects are a set: ``"a+b"`` and ``"b+a"`` are one fit)."""
+    names = {}
     for d in alone:
         singles = [c for c in d.ranking if c.refitted and c.fit is not None]
         pairs = [c for c in d.pairs_tried if c.fit is not None]
         for group in (singles, pairs):
             ranked = sorted(group, key=lambda c: -c.delta_bic)
             keep = [c for c in ranked if c.adequate_after] + ranked[: thresholds.max_refits]
-            names += [c.effect for c in keep if c.delta_bic > 0.0]
-    return list(dict.fromkeys(names))
+            for c in keep:
+                if c.delta_bic > 0.0:
+                    names.setdefault(frozenset(c.effect.split("+")), c.effect)
+    return list(names.values())
 
 
 def _screened(ctx: _Joint, taken, say) -> dict:
@@ -645,7 +655,7 @@ def diagnose_records(
     baseline = fit_joint(records, base_model, [d.fit.noise for d in alone], separate=separate, rng=rng)
     baseline = joint_fit_with_earlier_runs(baseline)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
-    names = _candidates_of(alone, thresholds)
+    names = explanations_worth_finishing(alone, thresholds)
     screened = _screened(ctx, names, say)
     ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, names + list(screened), say, screened=screened)
     fitted = _Fitted(ranking, adequate_by_record, joint_fits)
