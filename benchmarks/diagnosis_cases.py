@@ -88,10 +88,13 @@ def _measured_next(case: dict, first: Path, cache: Path) -> Path:
 
 
 def judge(case: dict, status: str, missing, tied) -> tuple[bool, str]:
-    """``(right, what was answered)`` against the case's expectation."""
+    """``(right, what was answered)`` against the case's expectation; a tie that lists one set of
+    effects twice (``a+b`` and ``b+a``) is never right."""
     truth = set(case["truth"])
     members = {n for name in tied for n in name.split("+")}
     answer = f"add {missing}" if status == "missing_effect" else (f"tied: {' | '.join(tied)}" if tied else status)
+    if len({frozenset(name.split("+")) for name in tied}) < len(tied):
+        return False, answer + " (one explanation listed twice)"
     if case["expect"] in ("name", "tie-or-name"):
         return (status == "missing_effect" and missing in truth) or (status == "tied" and bool(truth & members)), answer
     return status == case["expect"], answer
