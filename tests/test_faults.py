@@ -787,9 +787,11 @@ def others(folder: Path, inside: str) -> dict:
 # Sizes from the chain's space bound (chain_file: every chunk a flush touches, raw, plus 256 kB):
 # the first flush (steps 0-99, two 64-step chunks) needs about 0.63 MB free, the second (steps
 # 100-199, three chunks) about 0.81 MB; the record and the run's files before sampling take
-# about 0.1 MB. So 600k fills before the first flush, 850k at the second.
+# about 0.1 MB. So 600k fills at the first flush, 850k at the second. A flush also comes after a
+# second of sampling (BufferedHDFBackend.flush_seconds): on a loaded machine that second holds fewer
+# steps than a chunk, whose flush fits in 600k, and the disk fills at the next one.
 @pytest.mark.parametrize(
-    "size, fills", [("600k", "before the first step is stored"), ("850k", "after some steps")], ids=["600k", "850k"]
+    "size, fills", [("600k", "by the first 100 steps"), ("850k", "after some steps")], ids=["600k", "850k"]
 )
 def test_a_disk_that_fills_while_sampling_is_one_error_and_the_rerun_gives_the_chain_bit_for_bit(
     finished, tmp_path, size, fills
@@ -807,7 +809,7 @@ def test_a_disk_that_fills_while_sampling_is_one_error_and_the_rerun_gives_the_c
         from identify.fitting.posterior import chain_info
 
         kept = chain_info(run / "chain.h5")[0]  # every counted step is stored (else ChainFileError)
-        assert (kept == 0) if size == "600k" else (0 < kept < 300), (fills, kept)
+        assert (kept < 100) if size == "600k" else (0 < kept < 300), (fills, kept)
         assert others(disk, "run") == before and not list(run.glob(".*"))  # no temporary file, no lock left
         resize_disk(disk, "64m")
         again = cli("study", "rec.csv", "--out", "run", *FINISHED, cwd=disk)
