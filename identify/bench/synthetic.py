@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 import model
 from model import EFFECTS, INPUT_READINGS, READINGS, TABLE1, THETA_NAMES, Model
@@ -27,6 +26,7 @@ from model.signals import drive_current
 
 from ..data.records import Record
 from ..defaults import DEFAULT_FS, DEFAULT_NOISE_SIGMA
+from ..fitting.noise import ar1_noise
 from ..version import __version__
 
 __all__ = [
@@ -185,12 +185,8 @@ def sensor_noise(rng: np.random.Generator, n_samples: int, sigma: float, rho: fl
         raise ValueError(f"noise sigma must be a finite number >= 0, got {sigma!r}")
     if not (np.isfinite(rho) and -1.0 < rho < 1.0):
         raise ValueError(f"noise rho must lie strictly between -1 and 1, got {rho!r}")
-    innovations = rng.standard_normal(n_samples)
-    if rho == 0.0:
-        return sigma * innovations
-    innovations[1:] *= np.sqrt(1.0 - rho * rho)
-
-    return sigma * lfilter([1.0], [1.0, -rho], innovations)
+    innovations = rng.standard_normal((1, n_samples))
+    return sigma * ar1_noise(innovations, np.full(max(n_samples - 1, 0), rho))[0]
 
 
 def simulate(

@@ -162,10 +162,7 @@ def _record_groups(r, record, log_post, flat, noise, step_draws, shape_head, rng
     y, valid = log_post.record_outputs(log_post.full_theta(flat), r)
     pointwise = pointwise_log_likelihood(data[None, :] - y, noise, None, time=uneven)
     pointwise[~valid] = -np.inf
-    white = rng.standard_normal(y.shape)
-    if correlations is None:
-        correlations = noise.correlations_on(time)
-    predictive = y + noise.sigma * ar1_noise(white, correlations)
+    predictive = y + noise.sigma * ar1_noise(rng.standard_normal(y.shape), noise.correlations_on(time))
     dims = ("chain", "draw", record_variable(r, "time"))
     shape = (*shape_head, time.size)
     chunks = (*shape_head, min(POINTWISE_CHUNK_SAMPLES, time.size))
