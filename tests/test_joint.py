@@ -53,6 +53,7 @@ def test_the_joint_layout_shares_the_transducer_and_gives_each_record_its_run():
         (["thermal"], True, {"thermal_initial", "thermal_initial_core"}),
         (["thermal"], False, {"thermal_initial"}),  # node 2 pinned off: its start does nothing
         (["creep", "sensor_drift"], True, set()),
+        (["incomplete_reset"], True, {"incomplete_reset_initial"}),  # the strain earlier runs retained
     ],
 )
 def test_a_joint_fit_frees_the_state_earlier_runs_left(effects, core, freed):
