@@ -16,6 +16,7 @@ name), ``tie-or-name`` (the same; a tie is expected where the data do not separa
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import os
 import subprocess
@@ -81,8 +82,14 @@ def _measured_next(case: dict, first: Path, cache: Path) -> Path:
     target = cache / f"{case['name']}_next"
     csv = target / f"{first.stem}_next.csv"
     if not csv.exists():
+        drive = CASES.parent / case["next_input"]
+        if drive.suffix == ".gz":  # a long drive at a high rate is stored compressed
+            target.mkdir(parents=True, exist_ok=True)
+            plain = target / drive.stem
+            plain.write_bytes(gzip.decompress(drive.read_bytes()))
+            drive = plain
         command = [sys.executable, str(GENERATOR), "--like", str(first.with_suffix(".truth.json"))]
-        command += ["--input", str(CASES.parent / case["next_input"]), "--out", str(target), "--stem", csv.stem]
+        command += ["--input", str(drive), "--out", str(target), "--stem", csv.stem]
         subprocess.run(command, check=True, capture_output=True)
     return csv
 
