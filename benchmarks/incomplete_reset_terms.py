@@ -4,10 +4,12 @@ Run from the repository root::
 
     python benchmarks/incomplete_reset_terms.py            # 26 parameter sets x 7001 samples
     python benchmarks/incomplete_reset_terms.py --sets 18 --fs 1000
+    python benchmarks/incomplete_reset_terms.py --drive holds   # holds and a quiet end
 
 Times :func:`model.effects.incomplete_reset.incomplete_reset_strain` (the effect's extra strain
 on a given GPI output, the part its optional terms change) for ``W`` parameter sets on the
-paper's input: the plain form (the strain's own excursion), each term on alone (``drive``,
+paper's input (or the bench's drive with holds and a quiet end, where the GPI's output repeats
+itself over a third of the samples): the plain form (the strain's own excursion), each term on alone (``drive``,
 ``shape``, ``step``, ``stroke``) and every term on, and prints each as the best of several calls
 and as a ratio to the plain form (the baseline measured in the same run, so the machine's speed
 drops out). The diagnosis fits these terms in every candidate search of a first-cycle record:
@@ -21,8 +23,9 @@ import argparse
 import numpy as np
 from shared_batch import best_time  # the best of several calls (benchmarks/shared_batch.py)
 
-from model import Model, paper_current
+from model import Model
 from model.effects.incomplete_reset import incomplete_reset_strain
+from model.signals import DRIVES, drive_current
 
 #: ``{label: {term: value}}``: the plain form, each optional term alone, every term on.
 CASES = {
@@ -38,10 +41,11 @@ CASES = {
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sets", type=int, default=26, help="parameter sets W (default 26)")
-    parser.add_argument("--fs", type=float, default=100.0, help="sampling rate [Hz] of the paper's 70 s input")
+    parser.add_argument("--fs", type=float, default=100.0, help="sampling rate [Hz] (default 100)")
+    parser.add_argument("--drive", choices=DRIVES, default="paper", help="the input (default the paper's, 70 s)")
     parser.add_argument("--repeats", type=int, default=30)
     args = parser.parse_args(argv)
-    time, current = paper_current(args.fs)
+    time, current = drive_current(args.drive, fs=args.fs)
     plain = Model()
     gpi = plain.evaluate(plain.default_theta(), time, current)[0][0]
     rng = np.random.default_rng(0)
@@ -52,7 +56,11 @@ def main(argv=None) -> int:
     for label, terms in CASES.items():
         kwargs = common | {k: np.full(w, v) for k, v in terms.items()}
         times[label] = best_time(lambda kwargs=kwargs: incomplete_reset_strain(current, strain, **kwargs), args.repeats)
-    print(f"incomplete_reset_strain, {w} parameter sets x {time.size} samples (best of {args.repeats} calls):")
+    held = float(np.mean(np.diff(gpi) == 0.0))
+    print(
+        f"incomplete_reset_strain, {w} parameter sets x {time.size} samples of the {args.drive} drive "
+        f"(the GPI's output repeated at {100 * held:.0f} % of the steps; best of {args.repeats} calls):"
+    )
     for label, seconds in times.items():
         print(f"  {label:<11} {1e3 * seconds:7.3f} ms   {seconds / times['plain']:5.2f} x the plain form")
     return 0

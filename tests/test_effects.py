@@ -457,6 +457,27 @@ def _incomplete_reset_reference(current, y_g, A, R, fade):
     return out
 
 
+def test_incomplete_reset_on_a_drive_with_holds_follows_its_formulas():
+    """Where the strain repeats itself (holds, the drive off) the kernels reuse the level and the
+    fade they computed at the sample before: the levels are still S((e/E)^p) of the mixed
+    excursion, and the extra strain with a fade the recursion written out."""
+    from model.effects.incomplete_reset import loading_levels
+    from model.signals import hold_current
+
+    time, current = hold_current(fs=10.0)
+    y_g = 20.0 * np.tanh(current / 2.0)  # a strain that holds where the drive holds
+    assert np.mean(np.diff(y_g) == 0.0) > 0.3
+    share, p, c, k = 0.3, 0.6, 0.4, 5.0
+    excursion = np.abs(y_g - y_g[0])
+    drive = np.abs(current - current[0])
+    u = ((1 - share) * excursion / excursion.max() + share * drive / drive.max()) ** p
+    expected = (np.tanh(k * (u - c)) + np.tanh(k * c)) / (np.tanh(k * (1.0 - c)) + np.tanh(k * c))
+    levels = loading_levels(current, excursion[None, :], np.array([share]), np.array([p]), np.array([c]), np.array([k]))
+    np.testing.assert_allclose(levels[0], expected, rtol=1e-13, atol=1e-15)
+    faded = incomplete_reset_strain(current, y_g, [6.0], [0.4], [0.3])[0]
+    np.testing.assert_allclose(faded, _incomplete_reset_reference(current, y_g, 6.0, 0.4, 0.3), rtol=1e-12, atol=1e-12)
+
+
 def signature_incomplete_reset(paper_input, plain_gpi):
     """On the paper's input (0 A, a first peak of 5 A at 15 s = the largest excursion, then
     smaller peaks): the extra strain grows with the GPI's strain excursion to A at the first

@@ -67,7 +67,7 @@ def _incomplete_reset_kernel(
         previous = excursion[row, 0]
         for k in range(1, n_samples):
             e = excursion[row, k]
-            if fade[w] > 0.0 and (kept != 0.0 or carried != 0.0):
+            if fade[w] > 0.0 and (kept != 0.0 or carried != 0.0) and current[k] != current[k - 1]:
                 faded = math.exp(-fade[w] * abs(current[k] - current[k - 1]))
                 kept *= faded
                 carried *= faded
@@ -126,13 +126,19 @@ def _levels_kernel(drive_part, excursion, drive, shape, onset, sharpness, genera
         low = math.tanh(k_step * c)
         span = math.tanh(k_step * (1.0 - c)) + low
         power = shape[w]
+        last_in, last_out = -1.0, 0.0  # a level repeated (a hold, the drive off) is not recomputed
         for k in range(n_samples):
             level = levels[w, k] / top if top > 0.0 else 0.0
+            if level == last_in:
+                levels[w, k] = last_out
+                continue
+            last_in = level
             if power != 1.0:  # x ** 1 is x: the power function only where it changes the level
                 level = level**power
             if k_step != 0.0:
                 level = (math.tanh(k_step * (level - c)) + low) / span
             levels[w, k] = level
+            last_out = level
 
 
 class IncompleteReset(Effect):
