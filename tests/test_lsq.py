@@ -84,6 +84,16 @@ def test_fit_result_round_trips_through_json(clean_fit):
     assert back.noise == fit.noise and back.n_agree == fit.n_agree
 
 
+def test_a_fit_stored_by_another_version_is_refused_naming_the_parameters(clean_fit):
+    """A fit.json whose parameters are not this version's model's (an effect gained a parameter
+    since) is refused with the parameters named, not misread."""
+    _rec, fit = clean_fit
+    stored = json.loads(json.dumps(fit.to_dict(), allow_nan=False))
+    stored["names"] = list(stored["names"])[:-1] + ["an_old_parameter"]
+    with pytest.raises(ValueError, match=r"it lacks .*; it has an_old_parameter, which this version does not know"):
+        FitResult.from_dict(stored)
+
+
 def test_effect_pins_survive_normalisation_sign_composition_and_json():
     """A pinned effect parameter (vary=False) stays pinned through every model rebuild of the
     fitting layer and through fit.json; before, only the GPI's pins were carried."""

@@ -165,7 +165,20 @@ class FitResult:
         vary = np.asarray(d["vary"], dtype=bool)
         base = Model.from_dict(d["model"])
         if tuple(d["names"]) != base.names:
-            raise ValueError(f"fit names {d['names']} do not match the model {base!r}")
+            lacks = [n for n in base.names if n not in d["names"]]
+            unknown = [n for n in d["names"] if n not in base.names]
+            differ = "; ".join(
+                part
+                for part in (
+                    f"it lacks {', '.join(lacks)}" if lacks else "",
+                    f"it has {', '.join(unknown)}, which this version does not know" if unknown else "",
+                )
+                if part
+            )
+            raise ValueError(
+                f"the stored fit's parameters are not those of {base!r} in this version of the library "
+                f"({differ or 'in another order'}): written by another version; fit the record again"
+            )
         lower = _array(d["lower"]) if "lower" in d else base.parameters.lower
         upper = _array(d["upper"]) if "upper" in d else base.parameters.upper
         settings = []  # every parameter's pin and bounds as stored (GPI and effects alike)
