@@ -94,6 +94,18 @@ def test_a_fit_stored_by_another_version_is_refused_naming_the_parameters(clean_
         FitResult.from_dict(stored)
 
 
+def test_a_results_folder_of_another_version_is_not_called_damaged(tmp_path, clean_fit):
+    from identify.output.results import DamagedResultsError, load_fit
+
+    _rec, fit = clean_fit
+    stored = fit.to_dict()
+    stored["names"] = list(stored["names"])[:-1] + ["an_old_parameter"]
+    (tmp_path / "fit.json").write_text(json.dumps(stored, allow_nan=False))
+    with pytest.raises(DamagedResultsError) as caught:
+        load_fit(tmp_path)
+    assert "damaged" not in str(caught.value) and "fit the record again" in str(caught.value)
+
+
 def test_effect_pins_survive_normalisation_sign_composition_and_json():
     """A pinned effect parameter (vary=False) stays pinned through every model rebuild of the
     fitting layer and through fit.json; before, only the GPI's pins were carried."""

@@ -100,7 +100,7 @@ from model import THETA_NAMES, Model
 
 from .coordinates import GPICoordinates
 from .lsq_residuals import CENTRAL_STEP_POWER, DOMAIN_PENALTY, WhitenedResiduals, difference_columns
-from .lsq_result import FitResult, StartOutcome, parameter_units
+from .lsq_result import FitResult, StartOutcome, StoredModelError, parameter_units
 from .lsq_solver import (
     ALTERNATE_METHOD,
     N_POLISH,
@@ -132,6 +132,7 @@ _log = logging.getLogger(__name__)  # a child of the "identify" logger (identify
 __all__ = [
     "FitResult",
     "StartOutcome",
+    "StoredModelError",
     "fit_least_squares",
     "candidate_starts",
     "WhitenedResiduals",

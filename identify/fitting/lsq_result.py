@@ -17,11 +17,16 @@ from model import Model
 
 from .noise import NoiseModel
 
-__all__ = ["FitResult", "StartOutcome", "parameter_units", "SLOPE_NAMES"]
+__all__ = ["FitResult", "StartOutcome", "StoredModelError", "parameter_units", "SLOPE_NAMES"]
 
 #: The envelopes' slopes ``a1, b1, c1, d1``: per input unit (their unit and the data-scaled
 #: start's input rescaling follow from that).
 SLOPE_NAMES = ("a1", "b1", "c1", "d1")
+
+
+class StoredModelError(ValueError):
+    """A stored fit whose parameters are not those of its model in this version of the library
+    (written by another version): the message names the parameters that differ."""
 
 
 @dataclass(frozen=True)
@@ -175,7 +180,7 @@ class FitResult:
                 )
                 if part
             )
-            raise ValueError(
+            raise StoredModelError(
                 f"the stored fit's parameters are not those of {base!r} in this version of the library "
                 f"({differ or 'in another order'}): written by another version; fit the record again"
             )

@@ -41,7 +41,7 @@ from model import TABLE1, THETA_NAMES
 
 from ..data.fileio import atomic_write
 from ..data.records import Record
-from ..fitting.lsq import FitResult, parameter_units
+from ..fitting.lsq import FitResult, StoredModelError, parameter_units
 from ..fitting.posterior import BACKEND_GROUP, DIAGNOSTICS, ChainBackend, ChainFileError, chain_info
 
 __all__ = [
@@ -248,6 +248,8 @@ def load_fit(out_dir):
     content = read_json(path, hint=_FIT_HINT)
     try:
         return FitResult.from_dict(content)
+    except StoredModelError as exc:  # complete, but not this version's model
+        raise DamagedResultsError(f"{path}: {exc}") from None
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise DamagedResultsError(
             f"{path} is damaged (not a complete fit: {type(exc).__name__}: {exc}); {_FIT_HINT}"
