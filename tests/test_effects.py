@@ -683,41 +683,6 @@ def signature_incomplete_reset_stroke(paper_input, plain_gpi):
         incomplete_reset_strain(i2, y2, [A], [1.0], [0.0], stroke=[np.nan])
 
 
-def signature_incomplete_reset_carried(paper_input, plain_gpi):
-    """The strain earlier runs retained, carried from the record's start: y = y_g + A |S| +
-    (A q + q0) (1 - b x), q0 fading with the drive's travel as q does. q0 = 0 is the form
-    without it bit for bit; with no virgin loading (A = 0) it is q0 itself, narrowed by b and
-    faded by lambda; it is a run parameter, pinned off and freed by a joint fit."""
-    time, current = paper_input
-    m = Model(["incomplete_reset"])
-    A = 6.0
-    assert not m.parameters["incomplete_reset_initial"].vary and m.parameters["incomplete_reset_initial"].per_record
-    i2 = np.concatenate([np.linspace(0, 2, 101), np.linspace(2, 0, 101)[1:], np.linspace(0, 2, 101)[1:]])
-    y2 = 10.0 * i2
-    x = y2 / y2.max()
-    plain = incomplete_reset_strain(i2, y2, [A], [0.5], [0.0], stroke=[1.0])
-    np.testing.assert_array_equal(
-        plain, incomplete_reset_strain(i2, y2, [A], [0.5], [0.0], stroke=[1.0], initial=[0.0])
-    )
-    q0 = 2.5
-    for b in (0.0, 1.0, 2.0):
-        carried = incomplete_reset_strain(i2, y2, [0.0], [0.5], [0.0], stroke=[b], initial=[q0])[0]
-        np.testing.assert_allclose(carried, q0 * (1.0 - b * x), rtol=1e-12, atol=1e-12)
-        both = incomplete_reset_strain(i2, y2, [A], [0.5], [0.0], stroke=[b], initial=[q0])[0]
-        alone = incomplete_reset_strain(i2, y2, [A], [0.5], [0.0], stroke=[b])[0]
-        np.testing.assert_allclose(both - alone, q0 * (1.0 - b * x), rtol=1e-12, atol=1e-12)
-    faded = incomplete_reset_strain(i2, y2, [0.0], [0.5], [0.4], initial=[q0])[0]
-    travel = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(i2)))])
-    np.testing.assert_allclose(faded, q0 * np.exp(-0.4 * travel), rtol=1e-12, atol=1e-12)
-    flat = incomplete_reset_strain(np.zeros(5), np.zeros(5), [0.0], [0.5], [0.0], initial=[q0])[0]
-    assert flat.tolist() == [q0] * 5  # no excursion at all: the carried strain alone
-    # on the model: the carried strain alone acts although the virgin strain A is 0
-    only = m.theta_from_dict({"incomplete_reset_initial": q0})
-    np.testing.assert_allclose(m(only, time, current) - plain_gpi, q0, rtol=1e-12, atol=1e-12)
-    with pytest.raises(ValueError, match="incomplete_reset_initial finite"):
-        incomplete_reset_strain(i2, y2, [A], [1.0], [0.0], initial=[np.inf])
-
-
 def signature_thermal_two_nodes(paper_input, plain_gpi):
     """Node 2 follows node 1 through its own time constant: against the analytic two-pole
     response to a constant heating switched on at t_on; node 2's gains 0 is the one-node form bit for bit."""
@@ -976,7 +941,6 @@ GENERAL_FORMS = {
     "incomplete_reset loading shape": signature_incomplete_reset_loading_shape,
     "incomplete_reset step": signature_incomplete_reset_step,
     "incomplete_reset stroke": signature_incomplete_reset_stroke,
-    "incomplete_reset carried": signature_incomplete_reset_carried,
 }
 
 

@@ -53,7 +53,6 @@ def test_the_joint_layout_shares_the_transducer_and_gives_each_record_its_run():
         (["thermal"], True, {"thermal_initial", "thermal_initial_core"}),
         (["thermal"], False, {"thermal_initial"}),  # node 2 pinned off: its start does nothing
         (["creep", "sensor_drift"], True, set()),
-        (["incomplete_reset"], True, {"incomplete_reset_initial"}),  # the strain earlier runs retained
     ],
 )
 def test_a_joint_fit_frees_the_state_earlier_runs_left(effects, core, freed):
@@ -64,24 +63,6 @@ def test_a_joint_fit_frees_the_state_earlier_runs_left(effects, core, freed):
     joint = with_earlier_runs(model)
     assert {p.name for p in joint.parameters if p.vary} - {p.name for p in model.parameters if p.vary} == freed
     assert (joint is model) == (not freed)
-
-
-def test_a_later_run_that_starts_with_the_retained_strain_fits_jointly():
-    """A first-cycle strain on a reset sample, then a run of the same transducer that starts where
-    it left the lattice (no virgin loading, the retained strain carried from the start): pinned
-    at a reset start, the joint fit cannot be one transducer; with the carried strain free (the
-    joint diagnosis's layout) both records fit at the noise."""
-    shared = "incomplete_reset_retained=0.5,incomplete_reset_stroke=1"
-    first = simulate(f"incomplete_reset_strain=6,{shared}", seed=1, fs=5.0).record
-    later = simulate(f"incomplete_reset_strain=0,incomplete_reset_initial=4,{shared}", seed=2, fs=5.0, drive="holds")
-    model = normalised_model(Model(["incomplete_reset"]))
-    model = model.with_parameters(model.parameters.replace("incomplete_reset_stroke", vary=True))
-    pinned = fit_joint([first, later.record], model, n_starts=2)
-    freed = fit_joint([first, later.record], with_earlier_runs(model), n_starts=2)
-    assert not pinned.consistency["consistent"]
-    assert freed.consistency["consistent"] and freed.chi2 < pinned.chi2
-    for f in freed.fits:
-        assert f.rms / 0.5 < 1.1  # the bench's noise sigma is 0.5 um
 
 
 def test_one_record_is_the_model_itself():

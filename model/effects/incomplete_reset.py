@@ -20,9 +20,7 @@ __all__ = ["IncompleteReset", "incomplete_reset_strain", "loading_levels"]
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _incomplete_reset_kernel(
-    current, excursion, strain, retained, fade, narrowing, stroke, initial, strain_excursion, out_extra
-):
+def _incomplete_reset_kernel(current, excursion, strain, retained, fade, narrowing, strain_excursion, out_extra):
     """Extra strain of :class:`IncompleteReset` per row (see its docstring), shape ``(W, T)``:
     ``excursion[w]`` is row ``w``'s loading variable (the strain's excursion from its first
     value, or its level :func:`loading_levels`; measured in units of its largest),
@@ -35,9 +33,7 @@ def _incomplete_reset_kernel(
     once per new excursion, so the cost is linear in the samples. ``narrowing[w]`` is
     :math:`A b`: where it is not 0, the retained part :math:`q` is taken off again in
     proportion to the strain's excursion ``strain_excursion[w]`` (shape ``(1 or W, T)``) over
-    its largest, the narrowing of the later strokes. ``initial[w]`` [um] is the strain earlier
-    runs retained at the start: carried along, fading and narrowing as the retained part does
-    (``stroke[w]`` is :math:`b`); where it is 0 the extra strain is bit for bit the form without it."""
+    its largest, the narrowing of the later strokes."""
     n_sets = out_extra.shape[0]
     n_samples = out_extra.shape[1]
     row_step = 0 if excursion.shape[0] == 1 else 1
@@ -48,15 +44,14 @@ def _incomplete_reset_kernel(
         scale = 0.0
         for k in range(n_samples):
             scale = max(scale, excursion[row, k])
-        carried = initial[w]  # retained by earlier runs [um]
         largest = 0.0
-        if narrowing[w] != 0.0 or (carried != 0.0 and stroke[w] != 0.0):
+        if narrowing[w] != 0.0:
             for k in range(n_samples):
                 largest = max(largest, strain_excursion[strain_row, k])
-        out_extra[w, 0] = carried
+        out_extra[w, 0] = 0.0
         if not scale > 0.0:
             for k in range(1, n_samples):
-                out_extra[w, k] = carried
+                out_extra[w, k] = 0.0
             continue
         low = np.empty(n_samples)
         high = np.empty(n_samples)
@@ -67,10 +62,8 @@ def _incomplete_reset_kernel(
         previous = excursion[row, 0]
         for k in range(1, n_samples):
             e = excursion[row, k]
-            if fade[w] > 0.0 and (kept != 0.0 or carried != 0.0) and current[k] != current[k - 1]:
-                faded = math.exp(-fade[w] * abs(current[k] - current[k - 1]))
-                kept *= faded
-                carried *= faded
+            if kept != 0.0 and fade[w] > 0.0 and current[k] != current[k - 1]:
+                kept *= math.exp(-fade[w] * abs(current[k] - current[k - 1]))
             if e > reached:
                 if count > 0 and high[count - 1] == reached:
                     high[count - 1] = e
@@ -91,11 +84,9 @@ def _incomplete_reset_kernel(
                     unreset -= moved
                     kept += retained[w] * moved / scale
             previous = e
-            out_extra[w, k] = strain[w] * (max(unreset, 0.0) / scale + kept) + carried
+            out_extra[w, k] = strain[w] * (max(unreset, 0.0) / scale + kept)
             if largest > 0.0:
                 out_extra[w, k] -= narrowing[w] * kept * (strain_excursion[strain_row, k] / largest)
-                if carried != 0.0:
-                    out_extra[w, k] -= stroke[w] * carried * (strain_excursion[strain_row, k] / largest)
 
 
 @njit(parallel=True, cache=True, nogil=True)
@@ -233,15 +224,6 @@ class IncompleteReset(Effect):
     range with everything retained). It acts only where some strain is retained and
     fades with it.
 
-    **The strain earlier runs retained** (:math:`q_0`, the optional term ``carried``): the
-    spring does not reset the lattice between runs either, so a record taken after others
-    starts with the strain they retained, and its loading is virgin only beyond what they
-    reached. :math:`q_0` is carried from the start as the retained part is (fading with the
-    drive's travel, narrowing the strokes): :math:`y = y_g + A |S| + (A q + q_0)(1 - b x)`.
-    One record cannot tell it from the GPI's rest level (at :math:`b = 0` it is a constant),
-    so it is a run parameter pinned at 0 (:attr:`Effect.earlier_run_terms`); records of one
-    transducer share :math:`b` and the GPI, and a joint fit frees it on each.
-
     What the GPI cannot do: its first branch is tied to the later ones, and its rest
     level after the first cycle is set by the same operators. A raised level after the
     first cycle is partly within the GPI's reach (its initial memory already makes the
@@ -267,10 +249,8 @@ class IncompleteReset(Effect):
     the drive's share of the loading variable; ``incomplete_reset_shape`` :math:`p`
     (0.2-5, symmetric about 1 on a log scale), the exponent of the loading's shape;
     ``incomplete_reset_stroke`` :math:`b` (0-3), how much of the retained strain the top of
-    the later strokes does not keep; ``incomplete_reset_initial`` :math:`q_0` [um] (-50-50),
-    the strain earlier runs retained at the record's start (per record, pinned at 0). Off:
-    :math:`A = 0` and :math:`q_0 = 0` (whatever the others); :math:`m = 0, p = 1, b = 0,
-    q_0 = 0` is the strain-proportional form.
+    the later strokes does not keep. Off: :math:`A = 0` (whatever the others); :math:`m = 0,
+    p = 1, b = 0` is the strain-proportional form.
     """
 
     name = "incomplete_reset"
@@ -346,16 +326,6 @@ class IncompleteReset(Effect):
                 description="share b of the retained strain the top of the later strokes does not keep "
                 "(0: every level raised alike; 1: the top where it was)",
             ),
-            Parameter(
-                "incomplete_reset_initial",
-                0.0,
-                -50.0,
-                50.0,
-                unit="um",
-                description="strain retained by earlier runs at the record's start (0: a sample reset before the run)",
-                per_record=True,
-                vary=False,
-            ),
         ]
     )
     terms = {
@@ -363,9 +333,7 @@ class IncompleteReset(Effect):
         "shape": ("incomplete_reset_shape",),
         "step": ("incomplete_reset_onset", "incomplete_reset_sharpness"),
         "stroke": ("incomplete_reset_stroke",),
-        "carried": ("incomplete_reset_initial",),
     }
-    earlier_run_terms = ("carried",)
     summary = (
         "first-cycle strain: extra strain A S((e/E)^p) on the virgin loading (e the strain's excursion, or part the "
         "drive's; S a tanh step at c of sharpness k, none at k = 0), fraction R kept after unloading (fading with "
@@ -388,45 +356,24 @@ class IncompleteReset(Effect):
             "incomplete_reset_onset": 0.5,
             "incomplete_reset_sharpness": 0.0,
             "incomplete_reset_stroke": 0.0,
-            "incomplete_reset_initial": 0.0,
         }
 
     def output(self, params, time, current, displacement):
         """Displacement plus the first-cycle extra strain, shape ``(W, T)`` [um]."""
         p = self.values(params)
         displacement = np.atleast_2d(np.asarray(displacement, dtype=float))
-        if not (p.strain.any() or p.initial.any()):  # off: the displacement itself, bit for bit
+        if not p.strain.any():  # off: the displacement itself, bit for bit
             return displacement
         extra = incomplete_reset_strain(
-            current,
-            displacement,
-            p.strain,
-            p.retained,
-            p.fade,
-            p.drive,
-            p.shape,
-            p.onset,
-            p.sharpness,
-            p.stroke,
-            p.initial,
+            current, displacement, p.strain, p.retained, p.fade, p.drive, p.shape, p.onset, p.sharpness, p.stroke
         )
         return displacement + extra
 
 
 def incomplete_reset_strain(
-    current,
-    displacement,
-    strain,
-    retained,
-    fade,
-    drive=0.0,
-    shape=1.0,
-    onset=0.5,
-    sharpness=0.0,
-    stroke=0.0,
-    initial=0.0,
+    current, displacement, strain, retained, fade, drive=0.0, shape=1.0, onset=0.5, sharpness=0.0, stroke=0.0
 ):
-    r"""The extra strain :math:`A |S| + (A q + q_0) (1 - b x)` of :class:`IncompleteReset`, shape ``(W, T)`` [um].
+    r"""The extra strain :math:`A (|S| + q (1 - b x))` of :class:`IncompleteReset`, shape ``(W, T)`` [um].
 
     Parameters
     ----------
@@ -447,9 +394,6 @@ def incomplete_reset_strain(
     stroke : array_like, shape (W,), default 0
         :math:`b`, the share of the retained strain the top of the later strokes does not keep
         (0: the retained strain raises every level alike, bit for bit the form without it).
-    initial : array_like, shape (W,), default 0
-        :math:`q_0` [um], the strain earlier runs retained at the record's start (0: a sample
-        reset before the run, bit for bit the form without it).
     """
     current = np.ascontiguousarray(current, dtype=float)
     strain = np.ascontiguousarray(np.atleast_1d(strain), dtype=float)
@@ -460,7 +404,6 @@ def incomplete_reset_strain(
     onset = np.broadcast_to(np.asarray(onset, dtype=float), strain.shape)
     sharpness = np.broadcast_to(np.asarray(sharpness, dtype=float), strain.shape)
     stroke = np.broadcast_to(np.asarray(stroke, dtype=float), strain.shape)
-    initial = np.broadcast_to(np.asarray(initial, dtype=float), strain.shape)
     y = np.atleast_2d(np.asarray(displacement, dtype=float))
     if y.shape[0] not in (1, strain.size) or y.shape[1] != current.size:
         raise ValueError(
@@ -469,12 +412,12 @@ def incomplete_reset_strain(
         )
     bad = ~(np.isfinite(drive) & np.isfinite(shape) & (shape > 0.0))
     bad |= ~(np.isfinite(sharpness) & (sharpness >= 0.0) & np.isfinite(onset) & (onset > 0.0) & (onset < 1.0))
-    bad |= ~(np.isfinite(stroke) & np.isfinite(initial))
+    bad |= ~np.isfinite(stroke)
     if bad.any():
         raise ValueError(
             "incomplete_reset: incomplete_reset_drive must be finite, incomplete_reset_shape finite and > 0, "
             "incomplete_reset_sharpness finite and >= 0, incomplete_reset_onset within (0, 1) and "
-            "incomplete_reset_stroke finite and incomplete_reset_initial finite; "
+            "incomplete_reset_stroke finite; "
             f"parameter set(s) {np.flatnonzero(bad)[:5].tolist()} are not"
         )
     excursion = np.ascontiguousarray(np.abs(y - y[:, :1]))
@@ -490,8 +433,6 @@ def incomplete_reset_strain(
             kernel_array(retained),
             kernel_array(fade),
             kernel_array(strain * stroke),
-            kernel_array(stroke),
-            kernel_array(initial),
             excursion,
             out,
         )
