@@ -10,9 +10,9 @@ Times :func:`model.effects.incomplete_reset.incomplete_reset_strain` (the effect
 on a given GPI output, the part its optional terms change) for ``W`` parameter sets on the
 paper's input (or the bench's drive with holds and a quiet end, where the GPI's output repeats
 itself at more than half of the steps): the plain form (the strain's own excursion), each term
-on alone (``drive``, ``shape``, ``step``, ``stroke``) and every term on, and prints each as the best of several calls
-and as a ratio to the plain form (the baseline measured in the same run, so the machine's speed
-drops out). The diagnosis fits these terms in every candidate search of a first-cycle record:
+on alone (``drive``, ``shape``, ``step``, ``stroke``) and every term on, and prints each as the
+best of several calls and as a ratio to the plain form (the baseline measured in the same run,
+so the machine's speed drops out). The diagnosis fits these terms in every candidate search of a first-cycle record:
 a Jacobian evaluates ``W`` = its free parameters + 1 sets at once.
 """
 

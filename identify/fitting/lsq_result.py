@@ -172,17 +172,14 @@ class FitResult:
         if tuple(d["names"]) != base.names:
             lacks = [n for n in base.names if n not in d["names"]]
             unknown = [n for n in d["names"] if n not in base.names]
-            differ = "; ".join(
-                part
-                for part in (
-                    f"it lacks {', '.join(lacks)}" if lacks else "",
-                    f"it has {', '.join(unknown)}, which this version does not know" if unknown else "",
-                )
-                if part
-            )
+            differ = []
+            if lacks:
+                differ.append(f"it lacks {', '.join(lacks)}")
+            if unknown:
+                differ.append(f"it has {', '.join(unknown)}, which this version does not know")
             raise StoredModelError(
                 f"the stored fit's parameters are not those of {base!r} in this version of the library "
-                f"({differ or 'in another order'}): written by another version; fit the record again"
+                f"({'; '.join(differ) or 'in another order'}): written by another version; fit the record again"
             )
         lower = _array(d["lower"]) if "lower" in d else base.parameters.lower
         upper = _array(d["upper"]) if "upper" in d else base.parameters.upper
