@@ -545,6 +545,59 @@ def test_a_truth_is_drawn_without_the_terms_its_record_does_not_support():
     assert np.ptp(draws[:, linear]) > 0  # the supported drift is drawn
 
 
+@pytest.fixture(scope="module")
+def fitted_drift():
+    """A drift record's sensor_drift contender at its least-squares fit (drawn without the terms the
+    record does not support), with the record's misfit."""
+    from identify.workflows.design import draws_without_unsupported_terms, record_misfit
+
+    sim = simulate("sensor_drift_linear=2.0", seed=3, fs=5.0)
+    model = normalised_model(Model(["sensor_drift"]))
+    noise = estimate_noise(sim.record)
+    fit = fit_least_squares(sim.record, model, noise=noise, n_starts=2, rng=np.random.default_rng(0))
+    c = contender(
+        "sensor_drift",
+        fit.model,
+        fit.theta,
+        fit.covariance,
+        draws_from=draws_without_unsupported_terms(sim.record, fit),
+    )
+    return c, record_misfit(c, [sim.record], [noise])
+
+
+def test_a_posterior_draw_spreads_as_the_covariance_where_the_model_is_nearly_linear(fitted_drift):
+    """Randomised maximum likelihood: the record's whitened residual shifted by fresh noise and refitted.
+    A drift's slope is nearly linear in the output, so its draws spread as the fit's covariance says;
+    the records' chi-square rises as a chi-square with as many degrees of freedom as move; the
+    parameters the covariance pins stay where they are."""
+    from identify.workflows.design import posterior_draw
+
+    c, misfit = fitted_drift
+    theta, covariance = c.draws_from
+    moving = np.diag(covariance) > 0
+    draws = np.array([posterior_draw(c, np.random.default_rng(s), misfit) for s in range(30)])
+    linear = c.model.names.index("sensor_drift_linear")
+    ratio = np.std(draws[:, linear], ddof=1) / np.sqrt(covariance[linear, linear])
+    assert 0.7 < ratio < 1.4
+    rises = misfit(draws)
+    assert 0.5 * moving.sum() < rises.mean() < 1.6 * moving.sum()
+    assert np.all(draws[:, ~moving] == theta[~moving])
+
+
+def test_a_posterior_draw_stays_with_the_records_where_the_covariance_is_far_too_wide(loose_creep):
+    """The covariance only says which parameters move: with one far too wide along the creep, a draw
+    from it leaves the record far behind, a posterior draw does not."""
+    from identify.workflows.design import draw_transducer, posterior_draw
+
+    _, c, _, misfit = loose_creep
+    k = int(np.sum(np.diag(c.covariance) > 0))
+    free = np.array([draw_transducer(c, np.random.default_rng(s)) for s in range(4)])
+    drawn = np.array([posterior_draw(c, np.random.default_rng(s), misfit) for s in range(4)])
+    assert misfit(free).min() > 100 * k
+    assert np.all(misfit(drawn) < 4 * k)
+    assert np.ptp(drawn, axis=0).max() > 0
+
+
 @pytest.mark.parametrize(
     "rows, text",
     [

@@ -28,8 +28,8 @@ noise (half of them resting at the lower current after it, where a state an earl
 relaxes alone): ``hold`` (cycles, a hold at a constant current, a quiet end), ``rise_again`` (the
 amplitude falls and rises again, a quiet end), ``steps`` (a staircase of held currents) and
 ``probe_blocks`` (blocks of high power between small probe cycles). The best few are confirmed
-by simulation: each contender, drawn from its fit's covariance and held to the records
-(:func:`draw_transducer`), drives the proposed record with noise; every rival is refitted on
+by simulation: each contender, drawn from its posterior on the records (:func:`posterior_draw`),
+drives the proposed record with noise; every rival is refitted on
 it nonlinearly, held by the records' information, from its fit and from where the new record's
 screening puts its effects (:func:`rival_starts`), and the right names are counted
 (:func:`confirm`). Where those refits end is where each rival mimics each truth best; every drive
@@ -66,6 +66,7 @@ from .design_confirmation import (
     confirm,
     draw_transducer,
     penalised_refit,
+    posterior_draw,
     record_misfit,
     rival_starts,
     simulated_gap,
@@ -95,6 +96,7 @@ __all__ = [
     "RecordMisfit",
     "record_misfit",
     "draw_transducer",
+    "posterior_draw",
     "rival_starts",
     "penalised_refit",
     "simulated_gap",

@@ -1,8 +1,8 @@
 """Confirming a designed drive by simulation (:mod:`identify.workflows.design`: its
 :class:`~identify.workflows.design.Contender` and :class:`~identify.workflows.design.DesignedDrive`).
 
-Each contender as the truth, drawn from its fit's covariance and held to the records it was
-fitted on (:func:`draw_transducer`, :class:`RecordMisfit`), drives the proposed record with
+Each contender as the truth, drawn from its posterior on the records it was fitted on
+(:func:`posterior_draw`, :class:`RecordMisfit`; :func:`draw_transducer` without them), drives the proposed record with
 noise; every contender is refitted on it, and the gaps and right names are counted
 (:func:`confirm`).
 """
@@ -32,6 +32,7 @@ __all__ = [
     "RecordMisfit",
     "record_misfit",
     "draw_transducer",
+    "posterior_draw",
     "rival_starts",
     "penalised_refit",
     "confirm",
@@ -49,6 +50,8 @@ TWO_SIGMA_LEVEL = float(norm.cdf(2.0))
 #: A confirmation's draw held to the records is shortened by halvings down to ``2**-DRAW_HALVINGS``
 #: of its step before it falls back on the fit (:func:`draw_transducer`).
 DRAW_HALVINGS = 12
+#: The evaluations a posterior draw's refit may take (:func:`posterior_draw`).
+POSTERIOR_DRAW_EVALUATIONS = 40
 
 
 def _solve_with_zero(objective, jacobian, residuals: WhitenedResiduals, theta0, more=None) -> np.ndarray:
@@ -278,12 +281,12 @@ def confirm(
     every_record: bool = True,
     basins=None,
 ) -> list:
-    """Each contender as the truth, drawn (:func:`draw_transducer`), drives the proposed record
+    """Each contender as the truth, drawn (:func:`posterior_draw`), drives the proposed record
     (every ``step``-th sample) with noise; every contender is refitted on it
     (:func:`penalised_refit`); a right name is the truth ahead of every rival by the decision's
     margins. Per ordered pair: the realised gaps and the share of right names (on the decimated
     record when ``step > 1``: fewer samples, less to tell the contenders apart by). ``misfits``:
-    each contender's :func:`record_misfit` by name, which holds its draws to the records; where
+    each contender's :func:`record_misfit` by name, on which its draws are made (:func:`posterior_draw`); where
     both contenders of a pair have one and ``every_record``, both are refitted on every record
     together and the gap is the joint diagnosis's; without ``every_record`` (a quicker ranking) on
     the new record, held by the records' information.
@@ -349,14 +352,16 @@ def confirm(
 
 
 def _simulated_records(truth, draws: int, time, current, noise: NoiseModel, rng, misfits) -> list:
-    """``[(theta, record)]``: ``draws`` transducers of ``truth`` (:func:`draw_transducer`, held by its
-    records' misfit) driven by ``current`` with the records' noise (:meth:`NoiseModel.draw`: its
-    correlation too, on the sampled ``time``: white noise simulated for a correlated sensor and
-    whitened is ``(1 + rho^2) / (1 - rho^2)`` times its variance, and a likelihood gap, the noise
-    scale profiled out, shrinks by about that factor); a draw whose output is not finite dropped."""
+    """``[(theta, record)]``: ``draws`` transducers of ``truth`` (:func:`posterior_draw` on its
+    records' misfit, :func:`draw_transducer` without one) driven by ``current`` with the records'
+    noise (:meth:`NoiseModel.draw`: its correlation too, on the sampled ``time``: white noise
+    simulated for a correlated sensor and whitened is ``(1 + rho^2) / (1 - rho^2)`` times its
+    variance, and a likelihood gap, the noise scale profiled out, shrinks by about that factor); a
+    draw whose output is not finite dropped."""
     simulated = []
     for _ in range(draws):
-        theta = draw_transducer(truth, rng, misfits.get(truth.name))
+        misfit = misfits.get(truth.name)
+        theta = draw_transducer(truth, rng) if misfit is None else posterior_draw(truth, rng, misfit)
         y, valid = truth.model.evaluate(theta, time, current)
         if not valid[0]:
             continue
@@ -460,6 +465,69 @@ def _draw_centre(c) -> tuple[np.ndarray, np.ndarray]:
     """``(theta, covariance)`` a contender's draws come from: its ``draws_from`` where set, else its fit's."""
     theta, cov = c.draws_from if c.draws_from is not None else (c.theta, c.covariance)
     return np.array(theta, dtype=float), np.asarray(cov, dtype=float)
+
+
+def posterior_draw(c, rng, misfit: RecordMisfit) -> np.ndarray:
+    """A draw of the contender's parameters from its posterior on the records it was fitted on, by
+    randomised maximum likelihood: the records' whitened residuals shifted by fresh standard normal
+    noise and the parameters refitted to them from the draw's centre (a short bounded least
+    squares), the parameters the covariance pins held.
+
+    Where the model is linear in its parameters the refit's end is an exact posterior draw (flat
+    prior within the bounds); where it is not, the end follows the records' curved valleys of equal
+    misfit, which a draw from the covariance (:func:`draw_transducer`) leaves along straight lines:
+    a slow effect's loose time constants trade off nonlinearly with the hysteresis's, and the
+    transducers the records cannot tell from the fit can lie many of the covariance's standard
+    deviations away. Falls back on :func:`draw_transducer` where the refit's end is not finite.
+    (Oliver, He and Reynolds 1996; Bardsley et al. 2014, randomize-then-optimize.)"""
+    theta, cov = _draw_centre(c)
+    moving = np.flatnonzero(np.diag(cov) > 0)
+    lower, upper = c.model.parameters.lower, c.model.parameters.upper
+    if not moving.size:
+        return np.clip(theta, lower, upper)
+    parts = []
+    for k, (residuals, theta_r) in enumerate(misfit.parts):
+        taken = moving if k == 0 else moving[misfit.shared[moving]]
+        position = {p: j for j, p in enumerate(residuals.free)}
+        columns = np.array([position[p] for p in taken], dtype=np.int64)
+        which = np.searchsorted(moving, taken)
+        row = np.array(theta if k == 0 else theta_r, dtype=float)
+        res = residuals.copy()
+        shift = rng.standard_normal(res(row[res.free]).size)
+        parts.append((res, row, taken, columns, which, shift))
+
+    def rows_at(x):
+        for res, row, taken, columns, which, shift in parts:
+            row[taken] = x[which]
+            yield res, row[res.free], columns, which, shift
+
+    def objective(x):
+        return np.concatenate([res(x_r) - shift for res, x_r, _, _, shift in rows_at(x)])
+
+    def jacobian(x):
+        blocks = []
+        for res, x_r, columns, which, _ in rows_at(x):
+            block = np.zeros((res.data.size, x.size))
+            block[:, which] = res.jacobian(x_r, columns)
+            blocks.append(block)
+        return np.concatenate(blocks)
+
+    start = np.clip(theta[moving], lower[moving], upper[moving])
+    with single_threaded_blas():
+        sol = least_squares(
+            objective,
+            start,
+            jac=jacobian,
+            bounds=(lower[moving], upper[moving]),
+            method="trf",
+            max_nfev=POSTERIOR_DRAW_EVALUATIONS,
+            x_scale="jac",
+        )
+    drawn = np.array(theta, dtype=float)
+    drawn[moving] = sol.x
+    if not np.isfinite(misfit(drawn[None])[0]):
+        return draw_transducer(c, rng, misfit)
+    return drawn
 
 
 def draw_transducer(c, rng, misfit=None) -> np.ndarray:
