@@ -562,7 +562,7 @@ def fitted_drift():
         fit.covariance,
         draws_from=draws_without_unsupported_terms(sim.record, fit),
     )
-    return c, record_misfit(c, [sim.record], [noise])
+    return c, record_misfit(c, [sim.record], [noise]), sim.record, noise
 
 
 def test_a_posterior_draw_spreads_as_the_covariance_where_the_model_is_nearly_linear(fitted_drift):
@@ -572,7 +572,7 @@ def test_a_posterior_draw_spreads_as_the_covariance_where_the_model_is_nearly_li
     parameters the covariance pins stay where they are."""
     from identify.workflows.design import posterior_draw
 
-    c, misfit = fitted_drift
+    c, misfit, _, _ = fitted_drift
     theta, covariance = c.draws_from
     moving = np.diag(covariance) > 0
     draws = np.array([posterior_draw(c, np.random.default_rng(s), misfit) for s in range(30)])
@@ -582,6 +582,19 @@ def test_a_posterior_draw_spreads_as_the_covariance_where_the_model_is_nearly_li
     rises = misfit(draws)
     assert 0.5 * moving.sum() < rises.mean() < 1.6 * moving.sum()
     assert np.all(draws[:, ~moving] == theta[~moving])
+
+
+def test_a_contenders_posterior_draws_are_made_once_for_every_drive(fitted_drift):
+    """The records' misfit keeps the draws it makes: a second confirmation asks for them again and
+    gets the same transducers (a longer list extends them), without another refit."""
+    from identify.workflows.design import record_misfit
+
+    c, _, record, noise = fitted_drift
+    fresh = record_misfit(c, [record], [noise])
+    first = fresh.posterior_draws(c, 2, np.random.default_rng(1))
+    again = fresh.posterior_draws(c, 3, np.random.default_rng(2))
+    assert len(again) == 3 and all(a is b for a, b in zip(first, again[:2]))
+    assert not np.array_equal(again[2], again[0])
 
 
 def test_a_posterior_draw_stays_with_the_records_where_the_covariance_is_far_too_wide(loose_creep):
@@ -666,9 +679,9 @@ def test_the_confirmation_refitting_truths_side_by_side_gives_what_it_gives_one_
     contenders = _heating_and_plain(heated, 1e-6)
     drive = _short_hold()
     noise, th = estimate_noise(heated.record), Thresholds()
-    misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in contenders}
 
-    def rows():
+    def rows():  # the misfits made afresh: they keep the draws they make
+        misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in contenders}
         return confirm(drive, contenders, noise, th, np.random.default_rng(5), draws=2, misfits=misfits)
 
     together = rows()
@@ -759,9 +772,9 @@ def test_a_confirmation_simulates_the_sensors_correlated_noise():
     limits = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=25.0, quiet=10.0)
     hold = {"cycles": 1, "amplitude": 0.9, "level": 0.9, "hold": 0.4}
     drive = DesignedDrive("hold", {}, *drive_of("hold", hold, limits, 10.0))
-    misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in contenders}
     gaps = {}
-    for joint in (True, False):
+    for joint in (True, False):  # the same draws and noise in both (the misfits keep the draws they make)
+        misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in contenders}
         rows = confirm(
             drive, contenders, noise, Thresholds(), np.random.default_rng(5), 3, misfits=misfits, every_record=joint
         )

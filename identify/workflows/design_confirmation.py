@@ -358,10 +358,13 @@ def _simulated_records(truth, draws: int, time, current, noise: NoiseModel, rng,
     simulated for a correlated sensor and whitened is ``(1 + rho^2) / (1 - rho^2)`` times its
     variance, and a likelihood gap, the noise scale profiled out, shrinks by about that factor); a
     draw whose output is not finite dropped."""
+    misfit = misfits.get(truth.name)
+    if misfit is None:
+        thetas = [draw_transducer(truth, rng) for _ in range(draws)]
+    else:
+        thetas = misfit.posterior_draws(truth, draws, rng)
     simulated = []
-    for _ in range(draws):
-        misfit = misfits.get(truth.name)
-        theta = draw_transducer(truth, rng) if misfit is None else posterior_draw(truth, rng, misfit)
+    for theta in thetas:
         y, valid = truth.model.evaluate(theta, time, current)
         if not valid[0]:
             continue
@@ -429,6 +432,16 @@ class RecordMisfit:
             zeroed = replace(record, displacement=np.asarray(record.displacement) - zero_r) if zero_r else record
             self._parts.append((WhitenedResiduals(zeroed, c.model, noise), theta_r))
         self.base = float(self.chi2(_draw_centre(c)[0])[0])
+        self._draws = []
+
+    def posterior_draws(self, c, n: int, rng) -> list:
+        """The first ``n`` of the contender ``c``'s posterior draws on these records
+        (:func:`posterior_draw`), each made once: every drive a design confirms is simulated with
+        the same transducers (common random numbers, so that drives compare on the same draws and
+        each draw's refit is paid once), with fresh noise."""
+        while len(self._draws) < n:
+            self._draws.append(posterior_draw(c, rng, self))
+        return self._draws[:n]
 
     def chi2(self, thetas) -> np.ndarray:
         """The records' chi-square ``(B,)`` of vectors ``(B, P)``."""
