@@ -636,7 +636,10 @@ def simulation_text(drive: DesignedDrive) -> str:
         return ""
     draws = max(c["draws"] for c in drive.confirmed)
     right = min(c["right_names"] for c in drive.confirmed if c["truth"] == truth)
-    simulated = " Simulated with each contender's parameters drawn from its fit and fresh noise, the truth was ahead"
+    simulated = (
+        " Simulated with each contender's parameters drawn from its posterior on the records and fresh noise,"
+        " the truth was ahead"
+    )
     if share >= 1.0:
         return f"{simulated} in all {draws} draws of every contender."
     return (
