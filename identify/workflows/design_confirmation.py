@@ -50,8 +50,9 @@ TWO_SIGMA_LEVEL = float(norm.cdf(2.0))
 #: A confirmation's draw held to the records is shortened by halvings down to ``2**-DRAW_HALVINGS``
 #: of its step before it falls back on the fit (:func:`draw_transducer`).
 DRAW_HALVINGS = 12
-#: The evaluations a posterior draw's refit may take (:func:`posterior_draw`).
-POSTERIOR_DRAW_EVALUATIONS = 40
+#: The evaluations a confirmation's short refits may take: a rival's, a truth's and a posterior
+#: draw's (:func:`posterior_draw`).
+SHORT_FIT_EVALUATIONS = 40
 
 
 def _solve_with_zero(objective, jacobian, residuals: WhitenedResiduals, theta0, more=None) -> np.ndarray:
@@ -66,14 +67,20 @@ def _solve_with_zero(objective, jacobian, residuals: WhitenedResiduals, theta0, 
         start.append(np.clip(more[0], more[1], more[2]))
         lower.append(more[1])
         upper.append(more[2])
+    return _short_solve(objective, jacobian, np.concatenate(start), np.concatenate(lower), np.concatenate(upper))
+
+
+def _short_solve(objective, jacobian, start, lower, upper) -> np.ndarray:
+    """The end of a short least squares of ``objective`` from ``start`` within ``[lower, upper]``:
+    ``trf`` with Jacobian scaling and at most :data:`SHORT_FIT_EVALUATIONS` evaluations."""
     with single_threaded_blas():  # small dense algebra: threads only compete with the model
         sol = least_squares(
             objective,
-            np.concatenate(start),
+            start,
             jac=jacobian,
-            bounds=(np.concatenate(lower), np.concatenate(upper)),
+            bounds=(lower, upper),
             method="trf",
-            max_nfev=40,
+            max_nfev=SHORT_FIT_EVALUATIONS,
             x_scale="jac",
         )
     return sol.x
@@ -501,12 +508,11 @@ def posterior_draw(c, rng, misfit: RecordMisfit) -> np.ndarray:
     parts = []
     for k, (residuals, theta_r) in enumerate(misfit.parts):
         taken = moving if k == 0 else moving[misfit.shared[moving]]
-        position = {p: j for j, p in enumerate(residuals.free)}
-        columns = np.array([position[p] for p in taken], dtype=np.int64)
-        which = np.searchsorted(moving, taken)
+        columns = np.searchsorted(residuals.free, taken)  # among the record's free values
+        which = np.searchsorted(moving, taken)  # among the draw's
         row = np.array(theta if k == 0 else theta_r, dtype=float)
         res = residuals.copy()
-        shift = rng.standard_normal(res(row[res.free]).size)
+        shift = rng.standard_normal(res.data.size)
         parts.append((res, row, taken, columns, which, shift))
 
     def rows_at(x):
@@ -526,18 +532,8 @@ def posterior_draw(c, rng, misfit: RecordMisfit) -> np.ndarray:
         return np.concatenate(blocks)
 
     start = np.clip(theta[moving], lower[moving], upper[moving])
-    with single_threaded_blas():
-        sol = least_squares(
-            objective,
-            start,
-            jac=jacobian,
-            bounds=(lower[moving], upper[moving]),
-            method="trf",
-            max_nfev=POSTERIOR_DRAW_EVALUATIONS,
-            x_scale="jac",
-        )
     drawn = np.array(theta, dtype=float)
-    drawn[moving] = sol.x
+    drawn[moving] = _short_solve(objective, jacobian, start, lower[moving], upper[moving])
     if not np.isfinite(misfit(drawn[None])[0]):
         return draw_transducer(c, rng, misfit)
     return drawn
