@@ -8,8 +8,9 @@ again). The joint diagnosis:
    candidates and pairs, each searched with every start strategy;
 2. takes the explanations any record found worth finishing (those that repair it, and the best
    few by their gain), and the effects the joint baseline's residual asks for (each effect screened
-   on every record's residual of the joint baseline, its predicted gains summed: the records
-   together can show what none shows alone), and fits each on all records together
+   on every record's residual of the joint baseline, then refitted briefly on the records
+   together, the best few by that gain: the records together can show what none shows alone),
+   and fits each on all records together
    (:class:`identify.fitting.joint.JointResiduals`: the transducer's parameters shared, each
    record's run parameters and sensor zero its own), from each record's own fit of it, from
    the joint baseline with the effect off, and from the joint baseline with the effect where a
@@ -51,7 +52,7 @@ from .candidates import CandidateResult, explained_fraction, first_loading_share
 from .decision import Decision, decide
 from .evidence import Evidence, gaps_among
 from .explanation import explain, where_text
-from .fits import n_eff, profile_of, same_threshold_sign
+from .fits import REFIT_SCREEN_EVALUATIONS, n_eff, profile_of, same_threshold_sign
 from .screening import screen_candidates
 
 __all__ = [
@@ -276,15 +277,20 @@ def _screened(ctx: _Joint, taken, say) -> dict:
     Each library effect the model lacks is screened (:func:`identify.diagnosis.screening.screen_candidates`)
     on every record at the joint baseline's fit of it, and its predicted chi-square drops are
     summed: shared parameters that fit each record alone can fail to fit them together, and then
-    no record alone asks for the effect that repairs them. The rule of a record's own search:
-    where some record's joint residual is not noise, the ``max_refits`` effects of largest
-    summed drop; where every one is, with targeted refits, those whose drop beats their
-    parameters' charge by ``bic_significant`` (the joint candidates' delta BIC, the run
-    parameters charged once per record)."""
+    no record alone asks for the effect that repairs them. Each effect with a predicted drop is
+    then refitted briefly on the records together from the joint starts the screenings give
+    (:func:`_short_joint_refit`): a record's screening is linearised about its own part of the
+    residual and cannot see how the effect frees the shared parameters, which is where a misfit
+    of the records together lies, so it is no ranking of the effects for it; a short joint refit
+    is a lower bound on what each explains, as one record's short refits are. Then the rule of
+    a record's own search on those drops: where some record's joint residual is not noise, the
+    ``max_refits`` effects of largest drop; where every one is, with targeted refits, those whose
+    drop beats their parameters' charge by ``bic_significant`` (the joint candidates' delta BIC,
+    the run parameters charged once per record). Each is finished from its short refit's end."""
     th = ctx.th
     inadequate = not all(a.adequate for a in ctx.adequacies)
     model = ctx.baseline.joint.model
-    candidates = [name for name in EFFECTS if name not in model.effect_names]
+    candidates = [name for name in EFFECTS if name not in model.effect_names and name not in taken]
     if not candidates or not (inadequate or th.targeted_refits):
         return {}
     say("screening the candidate effects on every record's part of the joint baseline")
@@ -293,15 +299,35 @@ def _screened(ctx: _Joint, taken, say) -> dict:
         for record, fit in zip(ctx.records, ctx.baseline.fits)
     ]
     drop = {name: sum(screened[name].chi2_drop for screened in by_record) for name in candidates}
-    ranked = sorted((name for name in candidates if drop[name] > 0.0), key=lambda name: -drop[name])
+    promising = [name for name in candidates if drop[name] > 0.0]
+    if not promising:
+        return {}
+    say(f"short refits on every record together: {', '.join(promising)}")
+    jobs = [
+        partial(_short_joint_refit, ctx, name, _screened_starts(ctx, name, [s[name] for s in by_record]))
+        for name in promising
+    ]
+    short = dict(zip(promising, results_side_by_side(jobs)))
+    ranked = sorted(promising, key=lambda name: short[name][0])
+    ranked = [name for name in ranked if short[name][0] < ctx.chi2]
     if inadequate:
         chosen = ranked[: th.max_refits]
-    else:  # the gain promised, in the units of the joint candidates' own (_Joint.delta_bic)
+    else:  # the gain shown, in the units of the joint candidates' own (_Joint.delta_bic)
         residuals = JointResiduals(ctx.records, ctx.baseline.joint, ctx.noises)
         n = ctx.n_eff(residuals(ctx.baseline.theta[residuals.free]))
-        promised = {name: ctx.delta_bic(ctx.chi2 - drop[name], ctx.with_effects(name), n) for name in ranked}
+        promised = {name: ctx.delta_bic(short[name][0], ctx.with_effects(name), n) for name in ranked}
         chosen = [name for name in ranked if promised[name] > th.bic_significant][: th.max_refits]
-    return {name: _screened_starts(ctx, name, [s[name] for s in by_record]) for name in chosen if name not in taken}
+    return {name: [short[name][1]] for name in chosen}
+
+
+def _short_joint_refit(ctx: _Joint, name: str, starts) -> tuple[float, np.ndarray]:
+    """``(chi2, full joint vector)`` of the best of short solver runs
+    (:data:`identify.diagnosis.fits.REFIT_SCREEN_EVALUATIONS` evaluations each) of explanation
+    ``name`` on every record together, one from each joint start of ``starts``."""
+    residuals = JointResiduals(ctx.records, ctx.with_effects(name), ctx.noises)
+    runs = [_solve_from(residuals, start, REFIT_SCREEN_EVALUATIONS) for start in starts]
+    chi2, _, x = min(runs, key=lambda run: run[0])
+    return chi2, residuals.full(x)
 
 
 def _screened_starts(ctx: _Joint, name: str, screened) -> list:
@@ -403,14 +429,17 @@ def _swap_run(ctx: _Joint, name: str, pair: JointFit, single: JointFit):
     return _solve_from(JointResiduals(ctx.records, joint, ctx.noises), theta)
 
 
-def _solve_from(residuals: JointResiduals, start) -> tuple[float, JointResiduals, np.ndarray]:
+def _solve_from(
+    residuals: JointResiduals, start, max_nfev: int = POLISH_EVALUATIONS
+) -> tuple[float, JointResiduals, np.ndarray]:
     """``(chi2, residuals, free vector)`` of one bounded solver run on ``residuals`` from the full
-    joint vector ``start`` (clipped into the bounds)."""
+    joint vector ``start`` (clipped into the bounds), at most ``max_nfev`` evaluations (and as
+    many again where it ends on a bound)."""
     x0 = np.clip(np.asarray(start)[residuals.free], residuals.lower, residuals.upper)
     with single_threaded_blas():
-        sol = bounded_solve(residuals, x0, POLISH_EVALUATIONS)
+        sol = bounded_solve(residuals, x0, max_nfev)
         if on_a_bound(sol.x, residuals.lower, residuals.upper).any():  # it may have stopped short there
-            onward = bounded_solve(residuals, sol.x, POLISH_EVALUATIONS, method=ALTERNATE_METHOD)
+            onward = bounded_solve(residuals, sol.x, max_nfev, method=ALTERNATE_METHOD)
             sol = onward if onward.cost < sol.cost else sol
     return 2.0 * float(sol.cost), residuals, sol.x
 
