@@ -286,11 +286,12 @@ def _screened(ctx: _Joint, taken, say) -> dict:
     a record's own search on those drops: where some record's joint residual is not noise, the
     ``max_refits`` effects of largest drop; where every one is, with targeted refits, those whose
     drop beats their parameters' charge by ``bic_significant`` (the joint candidates' delta BIC,
-    the run parameters charged once per record). Each is finished from its short refit's end."""
+    the run parameters charged once per record). Each of those not in ``taken`` is finished from
+    its short refit's end."""
     th = ctx.th
     inadequate = not all(a.adequate for a in ctx.adequacies)
     model = ctx.baseline.joint.model
-    candidates = [name for name in EFFECTS if name not in model.effect_names and name not in taken]
+    candidates = [name for name in EFFECTS if name not in model.effect_names]
     if not candidates or not (inadequate or th.targeted_refits):
         return {}
     say("screening the candidate effects on every record's part of the joint baseline")
@@ -317,7 +318,7 @@ def _screened(ctx: _Joint, taken, say) -> dict:
         n = ctx.n_eff(residuals(ctx.baseline.theta[residuals.free]))
         promised = {name: ctx.delta_bic(short[name][0], ctx.with_effects(name), n) for name in ranked}
         chosen = [name for name in ranked if promised[name] > th.bic_significant][: th.max_refits]
-    return {name: [short[name][1]] for name in chosen}
+    return {name: [short[name][1]] for name in chosen if name not in taken}
 
 
 def _short_joint_refit(ctx: _Joint, name: str, starts) -> tuple[float, np.ndarray]:
