@@ -20,7 +20,9 @@ verdict was ``tied`` or ``unexplained`` with library physics hidden) the script
    them; and the calibration: each pair's gap in the first joint evidence against the design's
    prediction.
 
-Prints a line per record and the shares; writes ``OUT/results.json``.
+Prints a line per record and the shares; writes ``OUT/results.json``. With ``--designs-from
+EARLIER`` only steps 2 and 3 run again, on the drives and with the predictions of that earlier
+run's folder (for a change to the joint diagnosis alone).
 """
 
 from __future__ import annotations
@@ -159,6 +161,33 @@ def run_case(name: str, first, truth_names: set, measure, out: Path, duration: f
     }
 
 
+def rerun_joint(first, truth_names: set, measure, earlier: dict, designs: Path) -> dict:
+    """Steps 2-3 again on the drive an earlier run designed (``designs / NAME / next_input.csv``)
+    and with its predictions (``earlier``: that run's row): for a change to the joint diagnosis
+    alone, the design being the same code. The row of :func:`run_case`, its seconds the joint part's."""
+    started = time.perf_counter()
+    drive = np.loadtxt(designs / "next_input.csv", delimiter=",", skiprows=1, ndmin=2)
+    second = measure(drive[:, 0], drive[:, 1])
+    joint = diagnose([first, second], rng=np.random.default_rng(0))
+    names, diagnoses = follow_up([first, second], truth_names, joint)
+    rows = []
+    for c in earlier["calibration"]:
+        g = joint.evidence.gap(c["truth"], c["rival"]) if joint.evidence is not None else None
+        if g is None:
+            continue
+        realised = g.gap if g.better == c["truth"] else -g.gap
+        within = c["predicted"] is not None and abs(realised - c["predicted"]) <= 2 * max(c["sd"], 1e-9)
+        linear = abs(realised - c["linear"]) <= 2 * max(c["linear_noise_sd"], 1e-9)
+        rows.append(c | {"realised": realised, "within_2sd": within, "linear_within_2sd": linear})
+    kept = ("case", "truth", "alone", "contenders", "drive", "predicted")
+    return {k: earlier[k] for k in kept if k in earlier} | {
+        **score(truth_names, names, diagnoses[-1]),
+        "calibration": rows,
+        "seconds": time.perf_counter() - started,
+        "designs_from": str(designs),
+    }
+
+
 def own_cases(seeds):
     for seed in seeds:
         for effect, spec in OWN.items():
@@ -218,6 +247,13 @@ def main(argv=None) -> int:
     parser.add_argument("--independent", type=Path, default=None, help="a folder of independent_diagnosis.py")
     parser.add_argument("--duration", type=float, default=120.0, help="the designed record's length, s (default 120)")
     parser.add_argument("--only", default="", help="comma-separated substrings: only cases whose name contains one")
+    parser.add_argument(
+        "--designs-from",
+        type=Path,
+        default=None,
+        help="an earlier run's --out folder: its designed drives and predictions again, only the measurement "
+        "and the joint diagnoses run (for a change to the joint diagnosis alone)",
+    )
     args = parser.parse_args(argv)
     only = [o for o in args.only.split(",") if o]
     args.out.mkdir(parents=True, exist_ok=True)
@@ -228,10 +264,16 @@ def main(argv=None) -> int:
         cases += list(own_cases([int(s) for s in args.seeds.split(",") if s]))
     if args.independent is not None:
         cases += list(independent_cases(args.independent))
+    earlier = saved(args.designs_from / "results.json") if args.designs_from is not None else None
     for name, first, truth, measure in cases:
         if name in results or (only and not any(o in name for o in only)):
             continue
-        r = run_case(name, first, truth, measure, args.out, args.duration)
+        if earlier is None:
+            r = run_case(name, first, truth, measure, args.out, args.duration)
+        elif "verdict" in earlier.get(name, {}):
+            r = rerun_joint(first, truth, measure, earlier[name], args.designs_from / "designs" / name)
+        else:
+            continue
         results = saved(path)  # read again: another run into the same folder may have added records
         results[name] = r
         atomic_write(path, json.dumps(results, indent=1, default=float))
