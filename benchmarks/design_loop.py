@@ -116,26 +116,36 @@ def calibration(plan, joint, truth: set) -> list:
     for p in plan.best.pairs:
         if set(p["truth"].split("+")) != truth:
             continue
-        g = joint.evidence.gap(p["truth"], p["rival"]) if joint.evidence is not None else None
-        if g is None:
-            continue
-        realised = g.gap if g.better == p["truth"] else -g.gap
         c = simulated.get((p["truth"], p["rival"]), {})
-        predicted, sd = c.get("gap"), c.get("gap_sd")
-        rows.append(
-            {
-                "truth": p["truth"],
-                "rival": p["rival"],
-                "predicted": predicted,
-                "sd": sd,
-                "linear": p["gap"],
-                "linear_noise_sd": p["noise_sd"],
-                "realised": realised,
-                "within_2sd": predicted is not None and abs(realised - predicted) <= 2 * max(sd, 1e-9),
-                "linear_within_2sd": abs(realised - p["gap"]) <= 2 * max(p["noise_sd"], 1e-9),
-            }
-        )
+        prediction = {
+            "truth": p["truth"],
+            "rival": p["rival"],
+            "predicted": c.get("gap"),
+            "sd": c.get("gap_sd"),
+            "linear": p["gap"],
+            "linear_noise_sd": p["noise_sd"],
+        }
+        row = judged(prediction, joint)
+        if row is not None:
+            rows.append(row)
     return rows
+
+
+def judged(prediction: dict, joint) -> dict | None:
+    """``prediction`` (a row of :func:`calibration` without its outcome) with the gap the joint
+    evidence realised and whether it lies within the simulated prediction's and the linear gap's
+    2 sd; None where the evidence holds no such gap."""
+    truth, rival = prediction["truth"], prediction["rival"]
+    g = joint.evidence.gap(truth, rival) if joint.evidence is not None else None
+    if g is None:
+        return None
+    realised = g.gap if g.better == truth else -g.gap
+    predicted, sd = prediction["predicted"], prediction["sd"]
+    return prediction | {
+        "realised": realised,
+        "within_2sd": predicted is not None and abs(realised - predicted) <= 2 * max(sd, 1e-9),
+        "linear_within_2sd": abs(realised - prediction["linear"]) <= 2 * max(prediction["linear_noise_sd"], 1e-9),
+    }
 
 
 def run_case(name: str, first, truth_names: set, measure, out: Path, duration: float = 120.0) -> dict:
@@ -170,15 +180,7 @@ def rerun_joint(first, truth_names: set, measure, earlier: dict, designs: Path) 
     second = measure(drive[:, 0], drive[:, 1])
     joint = diagnose([first, second], rng=np.random.default_rng(0))
     names, diagnoses = follow_up([first, second], truth_names, joint)
-    rows = []
-    for c in earlier["calibration"]:
-        g = joint.evidence.gap(c["truth"], c["rival"]) if joint.evidence is not None else None
-        if g is None:
-            continue
-        realised = g.gap if g.better == c["truth"] else -g.gap
-        within = c["predicted"] is not None and abs(realised - c["predicted"]) <= 2 * max(c["sd"], 1e-9)
-        linear = abs(realised - c["linear"]) <= 2 * max(c["linear_noise_sd"], 1e-9)
-        rows.append(c | {"realised": realised, "within_2sd": within, "linear_within_2sd": linear})
+    rows = [row for row in (judged(c, joint) for c in earlier["calibration"]) if row is not None]
     kept = ("case", "truth", "alone", "contenders", "drive", "predicted")
     return {k: earlier[k] for k in kept if k in earlier} | {
         **score(truth_names, names, diagnoses[-1]),
