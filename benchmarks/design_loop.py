@@ -10,7 +10,8 @@ independent bench: the records of a ``benchmarks/independent_diagnosis.py`` fold
 verdict was ``tied`` or ``unexplained`` with library physics hidden) the script
 
 1. designs the next record (:func:`identify.design`, the tie's contenders, or the record's best
-   refitted candidates when it ended ``unexplained``) with a 120 s duration;
+   refitted candidates when it ended ``unexplained``) with a 120 s duration, or, with
+   ``--longest S``, longer up to S seconds where no drive of 120 s decides;
 2. measures it: the own bench's :func:`identify.bench.synthetic.simulate_like`, or the
    independent generator's ``--like TRUTH --input next_input.csv`` (the same hidden transducer,
    fresh noise);
@@ -148,14 +149,16 @@ def judged(prediction: dict, joint) -> dict | None:
     }
 
 
-def run_case(name: str, first, truth_names: set, measure, out: Path, duration: float = 120.0) -> dict:
+def run_case(
+    name: str, first, truth_names: set, measure, out: Path, duration: float = 120.0, longest: float | None = None
+) -> dict:
     started = time.perf_counter()
     alone = diagnose(first, rng=np.random.default_rng(0))
     contenders = contenders_for(alone)
     row = {"case": name, "truth": sorted(truth_names), "alone": alone.verdict_text()}
     if contenders is None:
         return row | {"skipped": f"alone it is {alone.status}", "seconds": time.perf_counter() - started}
-    limits = RigLimits.from_records([first], duration=duration)
+    limits = RigLimits.from_records([first], duration=duration, longest=longest)
     plan = design([first], candidates=contenders, limits=limits, rng=np.random.default_rng(0))
     write_design(plan, out / "designs" / name)
     second = measure(plan.best.time, plan.best.current)
@@ -164,6 +167,7 @@ def run_case(name: str, first, truth_names: set, measure, out: Path, duration: f
     return row | {
         "contenders": contenders,
         "drive": plan.best.family,
+        "duration": plan.limits.duration,
         "predicted": plan.best.pairs,
         **score(truth_names, names, diagnoses[-1]),
         "calibration": calibration(plan, joint, truth_names),
@@ -248,6 +252,12 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", default="41,42", help="the own bench's seeds (default 41,42)")
     parser.add_argument("--independent", type=Path, default=None, help="a folder of independent_diagnosis.py")
     parser.add_argument("--duration", type=float, default=120.0, help="the designed record's length, s (default 120)")
+    parser.add_argument(
+        "--longest",
+        type=float,
+        default=None,
+        help="the longest record the design may propose where none of --duration decides, s (default --duration)",
+    )
     parser.add_argument("--only", default="", help="comma-separated substrings: only cases whose name contains one")
     parser.add_argument(
         "--designs-from",
@@ -271,7 +281,7 @@ def main(argv=None) -> int:
         if name in results or (only and not any(o in name for o in only)):
             continue
         if earlier is None:
-            r = run_case(name, first, truth, measure, args.out, args.duration)
+            r = run_case(name, first, truth, measure, args.out, args.duration, args.longest)
         elif "verdict" in earlier.get(name, {}):
             r = rerun_joint(first, truth, measure, earlier[name], args.designs_from / "designs" / name)
         else:

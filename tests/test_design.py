@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -81,6 +82,7 @@ def test_a_drive_that_rests_holds_the_lower_current_after_the_quiet_start(family
         ({"max_slew": 0.0}, "max slew must be > 0"),
         ({"duration": 8.0}, "leaves nothing after the 10 s quiet start"),
         ({"max_rms_current": -1.0}, "max rms current must be > 0"),
+        ({"longest": 60.0}, r"the longest record \(60 s\) is shorter than the duration \(110 s\)"),
     ],
 )
 def test_bad_limits_are_refused_in_one_sentence(given, problem):
@@ -309,6 +311,7 @@ def test_the_design_command_writes_the_drive_its_numbers_and_a_page(creep_csv, t
         (["--candidates", "creep"], "two or more"),
         (["--current-range", "5:0"], "LO < HI"),
         (["--duration", "5"], "quiet start"),
+        (["--duration", "60", "--longest", "30"], "the longest record (30 s) is shorter than the duration (60 s)"),
     ],
 )
 def test_bad_design_input_is_one_line_exit_2_and_nothing_written(creep_csv, tmp_path, capsys, extra, message):
@@ -395,7 +398,7 @@ def _confirmed(*rows):
 )
 def test_the_confirmed_share_is_the_weakest_truths(rows, share, truth):
     """A drive's confirmation is as good as the truth it names least often."""
-    from identify.workflows.design import DesignedDrive, confirmed_share
+    from identify.workflows.design_criterion import DesignedDrive, confirmed_share
 
     drive = DesignedDrive("hold", {}, np.zeros(2), np.zeros(2), confirmed=_confirmed(*rows))
     assert confirmed_share(drive) == (pytest.approx(share), truth)
@@ -404,7 +407,7 @@ def test_the_confirmed_share_is_the_weakest_truths(rows, share, truth):
 def test_the_chosen_drive_is_the_confirmed_one_with_the_most_right_names():
     """The linear ranking's first drive loses to one the simulation confirms more often; the
     reason says where the linear prediction was optimistic."""
-    from identify.workflows.design import DesignedDrive, confirmed_rank, simulation_text
+    from identify.workflows.design_criterion import DesignedDrive, confirmed_rank, simulation_text
 
     linear_best = DesignedDrive("hold", {}, np.zeros(2), np.zeros(2), value=1.0)
     linear_best.confirmed = _confirmed(("creep", "thermal", 6), ("thermal", "creep", 2))
@@ -428,7 +431,7 @@ def test_the_chosen_drive_is_the_confirmed_one_with_the_most_right_names():
 def test_confirmed_drives_rank_by_their_weakest_truth_then_the_next(first, second):
     """Leximin over the truths' shares of right names: a drive that names no draw of its weakest
     truth still beats one that names fewer of the others; the linear value only breaks ties."""
-    from identify.workflows.design import DesignedDrive, confirmed_rank
+    from identify.workflows.design_criterion import DesignedDrive, confirmed_rank
 
     better = DesignedDrive("hold", {}, np.zeros(2), np.zeros(2), value=0.1, confirmed=_confirmed(*first))
     worse = DesignedDrive("steps", {}, np.zeros(2), np.zeros(2), value=0.9, confirmed=_confirmed(*second))
@@ -644,6 +647,53 @@ def test_a_drive_that_is_not_decisive_looks_at_longer_records():
     assert [r["duration"] for r in rows] == [40.0 * f for f in LONGER]
     assert all(0.0 <= r["value"] <= 1.0 and r["family"] in FAMILIES for r in rows)
     assert here.value < 0.9 and rows[-1]["value"] > here.value
+
+
+def test_a_rig_that_takes_longer_records_gets_the_design_made_again_longer():
+    """The weak heating of the test above: no drive of 40 s decides, so with the rig's longest
+    record at 160 s the design is made at 80 s (and 160 s while none decides) too; the drive
+    proposed is at least as good by the simulation's right names as the 40 s one, its record as
+    long as its limits say, and the text gives each duration's weakest right name."""
+    from identify.workflows.design import LONGER, design_drive
+    from identify.workflows.design_criterion import confirmed_rank, decisive
+
+    sim = simulate("thermal_tau=30,thermal_sensitivity=0.01,thermal_expansion=1.5", seed=1, fs=5.0)
+    contenders, noise = _heating_and_plain(sim, 1e-4), estimate_noise(sim.record)
+    shorter = RigLimits((0.0, 5.0), max_slew=1.6, duration=40.0, max_rms_current=4.0, fs=5.0, quiet=10.0)
+    kw = {"rng": np.random.default_rng(3), "per_family": 3, "n_confirm": 1}
+    alone = design_drive(contenders, [sim.record], noise, limits=shorter, **kw)
+    assert not decisive(alone.best)
+    assert [r["duration"] for r in alone.durations] == [40.0] and alone.limits.duration == 40.0
+    assert alone.longer  # the rig takes nothing longer: the linear search of longer records instead
+
+    kw["rng"] = np.random.default_rng(3)
+    plan = design_drive(contenders, [sim.record], noise, limits=replace(shorter, longest=160.0), **kw)
+    durations = [r["duration"] for r in plan.durations]
+    assert durations[:2] == [40.0, 40.0 * LONGER[0]] and len(durations) in (2, 3)
+    assert len(durations) == 3 or decisive(plan.best)
+    assert plan.limits.duration in durations and plan.limits.longest == 160.0
+    assert plan.best.time[-1] - plan.best.time[0] == pytest.approx(plan.limits.duration, abs=0.5)
+    assert f"the record proposed is {plan.limits.duration:.0f} s long" in plan.reason
+    assert plan.longer == []
+    assert confirmed_rank(plan.best) <= confirmed_rank(alone.best)
+
+
+@pytest.mark.parametrize(
+    "duration, longest, durations",
+    [
+        (100.0, None, []),
+        (100.0, 100.0, []),
+        (100.0, 150.0, [150.0]),
+        (100.0, 400.0, [200.0, 400.0]),
+        (100.0, 1000.0, [200.0, 400.0]),
+        (100.0, 300.0, [200.0, 300.0]),
+    ],
+)
+def test_the_longer_durations_a_design_may_try(duration, longest, durations):
+    from identify.workflows.design import longer_durations
+
+    limits = RigLimits((0.0, 5.0), 1.6, duration, 4.0, 5.0, 10.0, longest)
+    assert longer_durations(limits) == durations
 
 
 def test_with_the_records_the_confirmation_refits_every_record_as_the_joint_diagnosis_does():

@@ -56,6 +56,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     limits.add_argument("--max-slew", type=options.positive_float, default=None, metavar="A/s", help="largest slew")
     limits.add_argument("--duration", type=options.positive_float, default=None, metavar="S", help="record length")
     limits.add_argument(
+        "--longest",
+        type=options.positive_float,
+        default=None,
+        metavar="S",
+        help="the longest record the rig can take: where no drive of --duration decides, longer ones up to S "
+        "are designed too (default --duration)",
+    )
+    limits.add_argument(
         "--max-rms-current", type=options.positive_float, default=None, metavar="A", help="heating limit"
     )
     limits.add_argument("--fs", type=options.positive_float, default=None, metavar="HZ", help="sampling rate")
@@ -82,6 +90,7 @@ def run(args) -> int:
             "current_range": options.number_pair(args.current_range, "--current-range") if args.current_range else None,
             "max_slew": args.max_slew,
             "duration": args.duration,
+            "longest": args.longest,
             "max_rms_current": args.max_rms_current,
             "fs": args.fs,
         }

@@ -39,6 +39,14 @@ too. The confirmed drive with the highest smallest share of right names (leximin
 truths) is proposed, confirmed again on every sample with every contender refitted on the new record and
 the records already taken together (the joint diagnosis's fit and gap): its realised gaps (their
 mean and the next gap's sd) are the calibrated prediction beside the linear one.
+
+A drive decides when its weakest pair's linear chance and its weakest truth's simulated share of
+right names both reach :data:`DECISIVE`. Where none of the duration limit does and the rig can
+take longer records (:attr:`RigLimits.longest`), the design is made again at twice and four times
+the duration (capped at the longest), until one decides; of those designed, the drive with the
+most right names in the simulation is proposed, the shorter record where they are equal. A longer
+record gives the slow effects more time to show (to heat and cool, to creep, to drift) and the
+rivals more to mimic, so only the simulation says whether it decides.
 """
 
 from __future__ import annotations
@@ -71,7 +79,19 @@ from .design_confirmation import (
     rival_starts,
     simulated_gap,
 )
-from .design_criterion import DesignedDrive, RivalBasins, discrimination, evaluate, p_right
+from .design_criterion import (
+    DECISIVE,
+    DesignedDrive,
+    RivalBasins,
+    confirmed_rank,
+    decisive,
+    discrimination,
+    evaluate,
+    linear_rank,
+    p_right,
+    simulation_text,
+    weakest_right_name,
+)
 
 __all__ = [
     "RigLimits",
@@ -101,6 +121,8 @@ __all__ = [
     "penalised_refit",
     "simulated_gap",
     "longer_records",
+    "longer_durations",
+    "decisive",
 ]
 
 #: Drives evaluated per family in the search.
@@ -121,9 +143,6 @@ REFINE_SPREAD = 0.15
 #: the chosen one confirmed on every sample: a gap measured on fewer samples and scaled up is
 #: only as good as the scale, which a feature the decimation misses makes arbitrary).
 DESIGN_SAMPLES = 1500
-#: A weakest chance of a right name below this is not decisive: the design then also searches
-#: longer records (:data:`LONGER`) and says how long one would have to be.
-DECISIVE = 0.9
 #: The longer durations tried when the chosen drive is not decisive, as multiples of the limit.
 LONGER = (2.0, 4.0)
 
@@ -146,6 +165,9 @@ class RigLimits:
         Sampling rate [Hz].
     quiet : float
         The unenergised start [s] the noise needs.
+    longest : float, optional
+        The longest record the rig can take [s]. Where no drive of ``duration`` decides the tie,
+        records up to this long are designed too (:data:`LONGER`); default ``duration``, none longer.
     """
 
     current_range: tuple
@@ -154,6 +176,7 @@ class RigLimits:
     max_rms_current: float
     fs: float
     quiet: float
+    longest: float | None = None
 
     def __post_init__(self):
         lo, hi = self.current_range
@@ -166,6 +189,10 @@ class RigLimits:
                 problems.append(f"{name.replace('_', ' ')} must be > 0, got {value:g}")
         if not problems and self.duration <= self.quiet + 10.0 / self.fs:
             problems.append(f"a duration of {self.duration:g} s leaves nothing after the {self.quiet:g} s quiet start")
+        if not problems and self.longest is not None and not (self.longest >= self.duration):
+            problems.append(
+                f"the longest record ({self.longest:g} s) is shorter than the duration ({self.duration:g} s)"
+            )
         if not problems and self.max_rms_current <= max(abs(lo), 0.0):
             problems.append(f"an RMS current limit of {self.max_rms_current:g} allows no drive above {lo:g}")
         if problems:
@@ -197,6 +224,7 @@ class RigLimits:
             "max_rms_current": self.max_rms_current,
             "fs": self.fs,
             "quiet": self.quiet,
+            "longest": self.duration if self.longest is None else self.longest,
         }
 
 
@@ -499,6 +527,10 @@ class Design:
     #: Where the best drive is not decisive: the best drive found at each longer duration
     #: (:data:`LONGER`), ``{"duration", "family", "value"}`` (linear prediction only).
     longer: list = field(default_factory=list)
+    #: The durations designed in full (the limit, then longer ones up to the rig's longest record
+    #: while none decided), ``{"duration", "family", "value"}`` with the best drive's weakest right
+    #: name (the smaller of its linear chance and its simulated share).
+    durations: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {
@@ -509,6 +541,7 @@ class Design:
             "others": [d.to_dict() for d in self.ranked[1:]],
             "reason": self.reason,
             "longer": [dict(x) for x in self.longer],
+            "durations": [dict(x) for x in self.durations],
             "seconds": float(self.seconds),
         }
 
@@ -571,7 +604,7 @@ def search(
             "no drive of any family fits the limits (the duration, the RMS current limit or the slew leave no "
             "room after the quiet start): loosen --duration, --max-rms-current or --max-slew"
         )
-    drives.sort(key=_rank)
+    drives.sort(key=linear_rank)
     return drives
 
 
@@ -589,63 +622,15 @@ def refine(
 ) -> DesignedDrive:
     """The best drive found by a local search from ``drive``: ``trials`` times a shape perturbed
     from the best so far (:func:`perturbed_parameters`, :data:`REFINE_SPREAD`, its counts kept),
-    kept when it ranks higher (:func:`_rank`, on every ``step``-th sample, with the rivals'
+    kept when it ranks higher (:func:`linear_rank`, on every ``step``-th sample, with the rivals'
     ``basins``)."""
     best = drive
     for _ in range(trials):
         params = perturbed_parameters(rng, best.family, best.params, REFINE_SPREAD)
         candidate = _evaluated_drive(best.family, params, contenders, limits, noise, th, period, step, basins)
-        if candidate is not None and _rank(candidate) < _rank(best):
+        if candidate is not None and linear_rank(candidate) < linear_rank(best):
             best = candidate
     return best
-
-
-def _rank(drive: DesignedDrive):
-    """Best first: the highest smallest chance of a right name, then the largest smallest gap."""
-    return -drive.value, -min((p["gap"] for p in drive.pairs), default=0.0)
-
-
-def _truth_shares(drive: DesignedDrive) -> dict:
-    """Each confirmed truth's share of right names, by name (empty without a confirmation)."""
-    return {c["truth"]: c["right_names"] / c["draws"] for c in drive.confirmed if c["draws"]}
-
-
-def confirmed_share(drive: DesignedDrive) -> tuple[float, str | None]:
-    """The smallest share of right names over the confirmation's truths and that truth
-    (``(1.0, None)`` without a confirmation)."""
-    shares = _truth_shares(drive)
-    if not shares:
-        return 1.0, None
-    truth = min(shares, key=shares.get)
-    return shares[truth], truth
-
-
-def confirmed_rank(drive: DesignedDrive):
-    """The confirmed drives, best first: the highest smallest share of right names in the
-    simulation (the nonlinear refits, the parameters' uncertainty), then the highest next smallest
-    and so on (leximin: where no drive names the weakest truth, the one that names the most of the
-    others), then :func:`_rank`."""
-    return (tuple(-s for s in sorted(_truth_shares(drive).values())) or (-1.0,), *_rank(drive))
-
-
-def simulation_text(drive: DesignedDrive) -> str:
-    """The sentence the design's reason ends with: how often the simulation put the truth ahead,
-    the weakest truth named where that is less than always ("" without a confirmation)."""
-    share, truth = confirmed_share(drive)
-    if truth is None:
-        return ""
-    draws = max(c["draws"] for c in drive.confirmed)
-    right = min(c["right_names"] for c in drive.confirmed if c["truth"] == truth)
-    simulated = (
-        " Simulated with each contender's parameters drawn from its posterior on the records and fresh noise,"
-        " the truth was ahead"
-    )
-    if share >= 1.0:
-        return f"{simulated} in all {draws} draws of every contender."
-    return (
-        f"{simulated} in only {right} of {draws} draws where '{truth}' was the truth: the linear prediction is "
-        "optimistic there."
-    )
 
 
 def longer_records(
@@ -734,8 +719,71 @@ def design_drive(
         raise ValueError("a design needs two or more contenders to tell apart")
     limits = RigLimits.from_records(records) if limits is None else limits
     misfits = _misfits(contenders, records, noises)
-    step = max(1, math.ceil(limits.duration * limits.fs / DESIGN_SAMPLES))
     period = _period(records)
+    best, ranked, basins = _drive_at(contenders, limits, noise, th, rng, period, per_family, n_confirm, misfits, say)
+    chosen, tried = limits, [_weakest_row(best, limits)]
+    for duration in longer_durations(limits):
+        if decisive(best):
+            break
+        say(
+            f"the weakest right name at {tried[-1]['duration']:g} s is {100 * tried[-1]['value']:.0f} %: designing a "
+            f"{duration:g} s record (the rig's longest is {limits.longest:g} s)"
+        )
+        longer_limits = replace(limits, duration=duration)
+        found = _drive_at(contenders, longer_limits, noise, th, rng, period, per_family, n_confirm, misfits, say)
+        tried.append(_weakest_row(found[0], longer_limits))
+        if confirmed_rank(found[0]) < confirmed_rank(best):
+            (best, ranked, basins), chosen = found, longer_limits
+    worst = min(best.pairs, key=lambda p: p["p_right"])
+    reason = (
+        f"The '{best.family}' drive{_rest_text(best, chosen)} separates every pair: its weakest, "
+        f"'{worst['truth']}' against "
+        f"'{worst['rival']}', shows a gap of {worst['gap']:.0f} (noise sd {worst['noise_sd']:.3g}) after the rival "
+        f"is refitted to mimic it, a {100 * worst['p_right']:.0f} % chance that the joint diagnosis names the right "
+        f"one.{simulation_text(best)}{durations_text(tried, chosen)}"
+    )
+    longer = []
+    if best.value < DECISIVE and len(tried) == 1:
+        say(f"the weakest chance is {100 * best.value:.0f} %: searching longer records")
+        search_args = (contenders, limits, noise, th, rng, period)
+        longer = longer_records(*search_args, max(per_family // 4, 1), say, basins)
+        reason += longer_text(longer)
+    seconds = _time.perf_counter() - t0
+    return Design(list(contenders), chosen, best, ranked, float(noise.sigma), reason, seconds, longer, tried)
+
+
+def longer_durations(limits: RigLimits) -> list:
+    """The durations beyond ``limits.duration`` a design may try: the :data:`LONGER` multiples,
+    capped at the rig's longest record (none when it is not longer)."""
+    longest = limits.duration if limits.longest is None else limits.longest
+    found = []
+    for factor in LONGER:
+        duration = min(limits.duration * factor, longest)
+        if duration > (found[-1] if found else limits.duration) * (1 + 1e-9):
+            found.append(duration)
+    return found
+
+
+def _weakest_row(drive: DesignedDrive, limits: RigLimits) -> dict:
+    return {"duration": float(limits.duration), "family": drive.family, "value": weakest_right_name(drive)}
+
+
+def durations_text(rows, chosen: RigLimits) -> str:
+    """The sentence on the durations designed in full, where more than one was ("" otherwise)."""
+    if len(rows) < 2:
+        return ""
+    tried = ", ".join(f"{100 * r['value']:.0f} % at {r['duration']:.0f} s" for r in rows)
+    return (
+        f" No drive of the shorter records decided: the best drive's weakest right name (the smaller of the linear"
+        f" chance and the simulation's share) was {tried}; the record proposed is {chosen.duration:.0f} s long."
+    )
+
+
+def _drive_at(contenders, limits: RigLimits, noise, th, rng, period, per_family, n_confirm, misfits, say):
+    """The best drive within ``limits`` and the drives ranked, best first (module docstring:
+    the search, refined, confirmed by simulation, ranked again with the rivals' basins, the
+    chosen one confirmed on every sample)."""
+    step = max(1, math.ceil(limits.duration * limits.fs / DESIGN_SAMPLES))
     search_args = (contenders, limits, noise, th, rng, period)
     basins = RivalBasins()  # where the confirmations' refits of each rival ended
     first = n_confirm - BASIN_ROUND if n_confirm > BASIN_ROUND else n_confirm
@@ -751,7 +799,7 @@ def design_drive(
             evaluate(drive, contenders, noise, th, step, basins)
         for drive in top:
             evaluate(drive, contenders, noise, th, basins=basins)
-        fresh = sorted(fresh, key=_rank)[: n_confirm - first]
+        fresh = sorted(fresh, key=linear_rank)[: n_confirm - first]
         used = used + fresh
         more = _best_refined(fresh, search_args, step, basins, say)
         _confirm_drives(more, contenders, noise, th, rng, step, misfits, basins, say)
@@ -763,20 +811,7 @@ def design_drive(
         say(f"confirming the chosen '{best.family}' drive by simulation on every sample")
         best.confirmed = confirm(best, contenders, noise, th, rng, misfits=misfits, basins=basins)
         evaluate(best, contenders, noise, th, basins=basins)
-    worst = min(best.pairs, key=lambda p: p["p_right"])
-    reason = (
-        f"The '{best.family}' drive{_rest_text(best, limits)} separates every pair: its weakest, "
-        f"'{worst['truth']}' against "
-        f"'{worst['rival']}', shows a gap of {worst['gap']:.0f} (noise sd {worst['noise_sd']:.3g}) after the rival "
-        f"is refitted to mimic it, a {100 * worst['p_right']:.0f} % chance that the joint diagnosis names the right "
-        f"one.{simulation_text(best)}"
-    )
-    longer = []
-    if best.value < DECISIVE:
-        say(f"the weakest chance is {100 * best.value:.0f} %: searching longer records")
-        longer = longer_records(*search_args, max(per_family // 4, 1), say, basins)
-        reason += longer_text(longer)
-    return Design(list(contenders), limits, best, ranked, float(noise.sigma), reason, _time.perf_counter() - t0, longer)
+    return best, ranked, basins
 
 
 def _best_refined(drives, search_args, step: int, basins, say) -> list:
@@ -788,7 +823,7 @@ def _best_refined(drives, search_args, step: int, basins, say) -> list:
         say(f"the best {len(top)} drives on every sample")
         for drive in top:
             evaluate(drive, contenders, noise, th, basins=basins)
-    return sorted(top, key=_rank)
+    return sorted(top, key=linear_rank)
 
 
 def _confirm_drives(drives, contenders, noise, th, rng, step: int, misfits, basins, say) -> None:

@@ -34,7 +34,25 @@ from ..diagnosis import Thresholds
 from ..fitting.lsq import WhitenedResiduals
 from ..fitting.noise import NoiseModel
 
-__all__ = ["RivalBasins", "DesignedDrive", "discrimination", "p_right", "evaluate"]
+__all__ = [
+    "RivalBasins",
+    "DesignedDrive",
+    "discrimination",
+    "p_right",
+    "evaluate",
+    "DECISIVE",
+    "linear_rank",
+    "confirmed_share",
+    "confirmed_rank",
+    "simulation_text",
+    "decisive",
+    "weakest_right_name",
+]
+
+#: A weakest chance of a right name below this is not decisive: the design then designs longer
+#: records, up to the rig's longest (:data:`identify.workflows.design.LONGER`), or, where the rig
+#: allows none, says what longer ones would give.
+DECISIVE = 0.9
 
 
 class RivalBasins:
@@ -159,3 +177,63 @@ def evaluate(
     drive.pairs = pairs
     drive.value = min((p["p_right"] for p in pairs), default=0.0)
     return drive
+
+
+def linear_rank(drive: DesignedDrive):
+    """Best first: the highest smallest chance of a right name, then the largest smallest gap."""
+    return -drive.value, -min((p["gap"] for p in drive.pairs), default=0.0)
+
+
+def _truth_shares(drive: DesignedDrive) -> dict:
+    """Each confirmed truth's share of right names, by name (empty without a confirmation)."""
+    return {c["truth"]: c["right_names"] / c["draws"] for c in drive.confirmed if c["draws"]}
+
+
+def confirmed_share(drive: DesignedDrive) -> tuple[float, str | None]:
+    """The smallest share of right names over the confirmation's truths and that truth
+    (``(1.0, None)`` without a confirmation)."""
+    shares = _truth_shares(drive)
+    if not shares:
+        return 1.0, None
+    truth = min(shares, key=shares.get)
+    return shares[truth], truth
+
+
+def confirmed_rank(drive: DesignedDrive):
+    """The confirmed drives, best first: the highest smallest share of right names in the
+    simulation (the nonlinear refits, the parameters' uncertainty), then the highest next smallest
+    and so on (leximin: where no drive names the weakest truth, the one that names the most of the
+    others), then :func:`linear_rank`."""
+    return (tuple(-s for s in sorted(_truth_shares(drive).values())) or (-1.0,), *linear_rank(drive))
+
+
+def simulation_text(drive: DesignedDrive) -> str:
+    """The sentence the design's reason ends with: how often the simulation put the truth ahead,
+    the weakest truth named where that is less than always ("" without a confirmation)."""
+    share, truth = confirmed_share(drive)
+    if truth is None:
+        return ""
+    draws = max(c["draws"] for c in drive.confirmed)
+    right = min(c["right_names"] for c in drive.confirmed if c["truth"] == truth)
+    simulated = (
+        " Simulated with each contender's parameters drawn from its posterior on the records and fresh noise,"
+        " the truth was ahead"
+    )
+    if share >= 1.0:
+        return f"{simulated} in all {draws} draws of every contender."
+    return (
+        f"{simulated} in only {right} of {draws} draws where '{truth}' was the truth: the linear prediction is "
+        "optimistic there."
+    )
+
+
+def decisive(drive: DesignedDrive) -> bool:
+    """Does ``drive`` decide the tie: its weakest pair's linear chance of a right name and, where
+    it was confirmed by simulation, its weakest truth's share of right names at least
+    :data:`DECISIVE`?"""
+    return weakest_right_name(drive) >= DECISIVE
+
+
+def weakest_right_name(drive: DesignedDrive) -> float:
+    """The smaller of the drive's weakest linear chance and its confirmed weakest share."""
+    return min(float(drive.value), confirmed_share(drive)[0])
