@@ -159,7 +159,12 @@ def run_case(
     if contenders is None:
         return row | {"skipped": f"alone it is {alone.status}", "seconds": time.perf_counter() - started}
     limits = RigLimits.from_records([first], duration=duration, longest=longest)
-    plan = design([first], candidates=contenders, limits=limits, rng=np.random.default_rng(0))
+    started_design = time.perf_counter()
+
+    def say(message):
+        print(f"[{time.perf_counter() - started_design:7.1f} s] design {name}: {message}", flush=True)
+
+    plan = design([first], candidates=contenders, limits=limits, rng=np.random.default_rng(0), progress=say)
     write_design(plan, out / "designs" / name)
     second = measure(plan.best.time, plan.best.current)
     joint = diagnose([first, second], rng=np.random.default_rng(0))
