@@ -673,7 +673,7 @@ def test_a_rig_that_takes_longer_records_gets_the_design_made_again_longer():
     assert len(durations) == 3 or decisive(plan.best)
     assert plan.limits.duration in durations and plan.limits.longest == 160.0
     assert plan.best.time[-1] - plan.best.time[0] == pytest.approx(plan.limits.duration, abs=0.5)
-    assert f"the record proposed is {plan.limits.duration:.0f} s long" in plan.reason
+    assert f"the record proposed is {plan.limits.duration:.0f} s long," in plan.reason
     assert plan.longer == []
     assert confirmed_rank(plan.best) <= confirmed_rank(alone.best)
 

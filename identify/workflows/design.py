@@ -774,8 +774,9 @@ def durations_text(rows, chosen: RigLimits) -> str:
         return ""
     tried = ", ".join(f"{100 * r['value']:.0f} % at {r['duration']:.0f} s" for r in rows)
     return (
-        f" No drive of the shorter records decided: the best drive's weakest right name (the smaller of the linear"
-        f" chance and the simulation's share) was {tried}; the record proposed is {chosen.duration:.0f} s long."
+        f" Designed at {len(rows)} durations, the best drive's weakest right name (the smaller of the linear chance"
+        f" and the simulation's share) was {tried}; the record proposed is {chosen.duration:.0f} s long, the"
+        " duration whose drive the simulation names right most often."
     )
 
 
