@@ -111,8 +111,8 @@ def _limits_table(design, input_unit: str) -> str:
         [text_cell("largest slew"), text_cell(f"{limits.max_slew:.4g} {input_unit}/s")],
         [text_cell("duration"), text_cell(f"{limits.duration:g} s")],
         *(
-            [[text_cell("longest record the rig takes"), text_cell(f"{limits.longest:g} s")]]
-            if limits.longest is not None and limits.longest > limits.duration
+            [[text_cell("longest record the rig takes"), text_cell(f"{limits.longest_record:g} s")]]
+            if limits.longest_record > limits.duration
             else []
         ),
         [text_cell("largest RMS current (heating)"), text_cell(f"{limits.max_rms_current:.4g} {input_unit}")],

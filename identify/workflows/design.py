@@ -216,6 +216,11 @@ class RigLimits:
         values["current_range"] = tuple(float(x) for x in values["current_range"])
         return cls(**values)
 
+    @property
+    def longest_record(self) -> float:
+        """The longest record the rig takes [s]: :attr:`longest`, else :attr:`duration`."""
+        return self.duration if self.longest is None else self.longest
+
     def to_dict(self) -> dict:
         return {
             "current_range": list(self.current_range),
@@ -224,7 +229,7 @@ class RigLimits:
             "max_rms_current": self.max_rms_current,
             "fs": self.fs,
             "quiet": self.quiet,
-            "longest": self.duration if self.longest is None else self.longest,
+            "longest": self.longest_record,
         }
 
 
@@ -651,9 +656,8 @@ def longer_records(
     rows = []
     for factor in LONGER:
         longer = replace(limits, duration=limits.duration * factor)
-        step = max(1, math.ceil(longer.duration * longer.fs / DESIGN_SAMPLES))
         try:
-            best = search(contenders, longer, noise, th, rng, period, per_family, say, step, basins)[0]
+            best = search(contenders, longer, noise, th, rng, period, per_family, say, _search_step(longer), basins)[0]
         except ValueError:
             continue
         evaluate(best, contenders, noise, th, basins=basins)
@@ -665,8 +669,17 @@ def longer_text(rows) -> str:
     """The sentence on longer records ("" when there are none)."""
     if not rows:
         return ""
-    found = ", ".join(f"{100 * r['value']:.0f} % at {r['duration']:.0f} s" for r in rows)
-    return f" Longer records (beyond --duration) would raise that chance to {found}."
+    return f" Longer records (beyond --duration) would raise that chance to {_chances_at(rows)}."
+
+
+def _search_step(limits: RigLimits) -> int:
+    """Every how many samples a drive of ``limits`` is evaluated in the search (:data:`DESIGN_SAMPLES`)."""
+    return max(1, math.ceil(limits.duration * limits.fs / DESIGN_SAMPLES))
+
+
+def _chances_at(rows) -> str:
+    """``"34 % at 120 s, 71 % at 240 s"``: each row's ``value`` at its ``duration``."""
+    return ", ".join(f"{100 * r['value']:.0f} % at {r['duration']:.0f} s" for r in rows)
 
 
 def design_drive(
@@ -755,10 +768,9 @@ def design_drive(
 def longer_durations(limits: RigLimits) -> list:
     """The durations beyond ``limits.duration`` a design may try: the :data:`LONGER` multiples,
     capped at the rig's longest record (none when it is not longer)."""
-    longest = limits.duration if limits.longest is None else limits.longest
     found = []
     for factor in LONGER:
-        duration = min(limits.duration * factor, longest)
+        duration = min(limits.duration * factor, limits.longest_record)
         if duration > (found[-1] if found else limits.duration) * (1 + 1e-9):
             found.append(duration)
     return found
@@ -772,11 +784,10 @@ def durations_text(rows, chosen: RigLimits) -> str:
     """The sentence on the durations designed in full, where more than one was ("" otherwise)."""
     if len(rows) < 2:
         return ""
-    tried = ", ".join(f"{100 * r['value']:.0f} % at {r['duration']:.0f} s" for r in rows)
     return (
         f" Designed at {len(rows)} durations, the best drive's weakest right name (the smaller of the linear chance"
-        f" and the simulation's share) was {tried}; the record proposed is {chosen.duration:.0f} s long, the"
-        " duration whose drive the simulation names right most often."
+        f" and the simulation's share) was {_chances_at(rows)}; the record proposed is {chosen.duration:.0f} s"
+        " long, the duration whose drive the simulation names right most often."
     )
 
 
@@ -784,7 +795,7 @@ def _drive_at(contenders, limits: RigLimits, noise, th, rng, period, per_family,
     """The best drive within ``limits`` and the drives ranked, best first (module docstring:
     the search, refined, confirmed by simulation, ranked again with the rivals' basins, the
     chosen one confirmed on every sample)."""
-    step = max(1, math.ceil(limits.duration * limits.fs / DESIGN_SAMPLES))
+    step = _search_step(limits)
     search_args = (contenders, limits, noise, th, rng, period)
     basins = RivalBasins()  # where the confirmations' refits of each rival ended
     first = n_confirm - BASIN_ROUND if n_confirm > BASIN_ROUND else n_confirm
