@@ -595,3 +595,56 @@ def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it
     used = [sum(o.n_evaluations for o in f.starts) for f in (stopped, full)]
     assert any("too far behind" in o.message for o in stopped.starts), [o.message for o in stopped.starts]
     assert used[0] < used[1]
+
+
+@pytest.mark.parametrize(
+    ("dogbox_end", "ends", "kept", "runs"),
+    [
+        # inside the box: the dogbox run alone
+        ([0.5, 0.5], {}, [0.5, 0.5], ["dogbox from the start"]),
+        # on a bound, trf from the start reaches lower: kept
+        (
+            [1.0, 0.5],
+            {"trf from the end": ([1.0, 0.4], 3.0), "trf from the start": ([0.2, 0.3], 1.0)},
+            [0.2, 0.3],
+            ["dogbox from the start", "trf from the end", "trf from the start"],
+        ),
+        # on a bound, trf from the end reaches lower: kept
+        (
+            [0.0, 0.5],
+            {"trf from the end": ([0.1, 0.4], 2.0), "trf from the start": ([0.2, 0.3], 4.0)},
+            [0.1, 0.4],
+            ["dogbox from the start", "trf from the end", "trf from the start"],
+        ),
+        # on a bound and neither trf run lower: the dogbox end
+        (
+            [1.0, 0.5],
+            {"trf from the end": ([1.0, 0.5], 5.0), "trf from the start": ([0.9, 0.5], 6.0)},
+            [1.0, 0.5],
+            ["dogbox from the start", "trf from the end", "trf from the start"],
+        ),
+    ],
+)
+def test_a_solver_run_that_ends_on_a_bound_is_run_again_from_its_start(dogbox_end, ends, kept, runs):
+    """A dogbox run that ends on a bound is followed by the interior method from its end and from
+    the start; the lowest cost is kept (the box is [0, 1] in both parameters)."""
+    from types import SimpleNamespace
+
+    from identify.fitting.lsq_solver import solve_within_box
+
+    start = np.array([0.3, 0.3])
+    box = SimpleNamespace(lower=np.zeros(2), upper=np.ones(2))
+    made = []
+
+    def solve(residuals, x, max_nfev, method="dogbox"):
+        assert residuals is box and max_nfev == 50
+        where = "the start" if np.array_equal(x, start) else "the end"
+        made.append(f"{method} from {where}")
+        if method == "dogbox":
+            return SimpleNamespace(x=np.array(dogbox_end), cost=4.5)
+        x_end, cost = ends[made[-1]]
+        return SimpleNamespace(x=np.array(x_end), cost=cost)
+
+    sol = solve_within_box(box, start, 50, solve=solve)
+    assert made == runs
+    np.testing.assert_array_equal(sol.x, kept)

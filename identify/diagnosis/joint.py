@@ -43,8 +43,8 @@ from ..fitting.joint import (
     joint_start,
     with_earlier_runs,
 )
-from ..fitting.lsq import POLISH_EVALUATIONS, bounded_solve
-from ..fitting.lsq_solver import ALTERNATE_METHOD, on_a_bound
+from ..fitting.lsq import POLISH_EVALUATIONS
+from ..fitting.lsq_solver import solve_within_box
 from ..fitting.noise import energised_mask
 from ..fitting.threads import results_side_by_side, single_threaded_blas
 from .adequacy import Adequacy, Thresholds, assess_adequacy
@@ -434,14 +434,12 @@ def _solve_from(
     residuals: JointResiduals, start, max_nfev: int = POLISH_EVALUATIONS
 ) -> tuple[float, JointResiduals, np.ndarray]:
     """``(chi2, residuals, free vector)`` of one bounded solver run on ``residuals`` from the full
-    joint vector ``start`` (clipped into the bounds), at most ``max_nfev`` evaluations (and as
-    many again where it ends on a bound)."""
+    joint vector ``start`` (clipped into the bounds), at most ``max_nfev`` evaluations; where it
+    ends on a bound, the interior method from that end and from the start too
+    (:func:`identify.fitting.lsq_solver.solve_within_box`)."""
     x0 = np.clip(np.asarray(start)[residuals.free], residuals.lower, residuals.upper)
     with single_threaded_blas():
-        sol = bounded_solve(residuals, x0, max_nfev)
-        if on_a_bound(sol.x, residuals.lower, residuals.upper).any():  # it may have stopped short there
-            onward = bounded_solve(residuals, sol.x, max_nfev, method=ALTERNATE_METHOD)
-            sol = onward if onward.cost < sol.cost else sol
+        sol = solve_within_box(residuals, x0, max_nfev)
     return 2.0 * float(sol.cost), residuals, sol.x
 
 

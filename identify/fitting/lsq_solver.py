@@ -41,6 +41,7 @@ __all__ = [
     "stalling_solve",
     "bounded_solve",
     "on_a_bound",
+    "solve_within_box",
 ]
 
 #: Solver evaluations each start gets in the screening phase.
@@ -277,6 +278,26 @@ def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METH
     within the parameters' box). The diagnosis' short refits and polishes run it too."""
     bounds = (residuals.lower, residuals.upper)
     return stalling_solve(residuals, x0, residuals.jacobian, max_nfev, method, tolerance, bounds)
+
+
+def solve_within_box(residuals, x0, max_nfev, solve=None):
+    """A bounded solver run of ``residuals`` from free vector ``x0`` with :data:`SOLVER_METHOD`;
+    where it ends on a box bound (:func:`on_a_bound`), :data:`ALTERNATE_METHOD` from that end and
+    from ``x0`` as well, the lowest cost kept. Each run at most ``max_nfev`` evaluations.
+
+    A dogbox end on a bound may have stopped short there (its step collapses along the bound's
+    face); or its large first steps may have thrown the start out of its basin into a degenerate
+    limit (a slow effect's time constant at its bound), which the interior method, started from
+    there, does not leave, while started from ``x0`` it stays in the start's basin. ``solve``:
+    ``solve(residuals, x, max_nfev, method=...)`` returning a result with ``x`` and ``cost``
+    (default :func:`bounded_solve`)."""
+    solve = bounded_solve if solve is None else solve
+    sol = solve(residuals, x0, max_nfev)
+    if on_a_bound(sol.x, residuals.lower, residuals.upper).any():
+        for start in (sol.x, x0):
+            onward = solve(residuals, start, max_nfev, method=ALTERNATE_METHOD)
+            sol = onward if onward.cost < sol.cost else sol
+    return sol
 
 
 def on_a_bound(x, lower, upper) -> np.ndarray:
