@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np
 
 from identify.bench import simulate
+from identify.bench.synthetic import simulate_like
 from identify.data.fileio import atomic_write, toml_module
 from identify.data.records import load_record
 from identify.diagnosis import diagnose
@@ -51,6 +52,11 @@ def record_of(case: dict, cache: Path):
             simulate(case["effects_hidden"], seed=seed, noise_sigma=0.5).record,
             simulate(case["effects_hidden"], seed=seed + 500, noise_sigma=0.5, drive="holds").record,
         ]
+    if case["source"] == "own-next":  # and the bench's record of the same transducer on the designed drive
+        seed = int(case["seed"])
+        first = simulate(case["effects_hidden"], seed=seed, noise_sigma=0.5)
+        drive = np.loadtxt(_drive_file(case, cache), delimiter=",", skiprows=1, ndmin=2)
+        return [first.record, simulate_like(first.truth, drive[:, 0], drive[:, 1], seed=seed + 1000).record]
     options = [str(o) for o in case.get("generator_options", [])]
     folder = cache / "_".join([f"seed{case['seed']}", *(o.lstrip("-") for o in options)])
     first = _generated(case, folder, options)
@@ -82,16 +88,39 @@ def _measured_next(case: dict, first: Path, cache: Path) -> Path:
     target = cache / f"{case['name']}_next"
     csv = target / f"{first.stem}_next.csv"
     if not csv.exists():
-        drive = CASES.parent / case["next_input"]
-        if drive.suffix == ".gz":  # a long drive at a high rate is stored compressed
-            target.mkdir(parents=True, exist_ok=True)
-            plain = target / drive.stem
-            plain.write_bytes(gzip.decompress(drive.read_bytes()))
-            drive = plain
+        drive = _drive_file(case, cache)
         command = [sys.executable, str(GENERATOR), "--like", str(first.with_suffix(".truth.json"))]
         command += ["--input", str(drive), "--out", str(target), "--stem", csv.stem]
         subprocess.run(command, check=True, capture_output=True)
     return csv
+
+
+def _drive_file(case: dict, cache: Path) -> Path:
+    """The case's designed drive (``next_input``, stored beside the cases), unpacked into ``cache``
+    where it is stored gzipped (a long drive at a high rate)."""
+    drive = CASES.parent / case["next_input"]
+    if drive.suffix != ".gz":
+        return drive
+    plain = cache / f"{case['name']}_next" / drive.stem
+    if not plain.exists():
+        plain.parent.mkdir(parents=True, exist_ok=True)
+        plain.write_bytes(gzip.decompress(drive.read_bytes()))
+    return plain
+
+
+def calibrated(case: dict, evidence) -> tuple[bool, str]:
+    """``(within, what was found)``: whether the joint evidence's gap of the case's ``predicted``
+    pair (``[truth, rival, gap, sd]``: the design's simulated prediction for the designed record)
+    lies within its 2 sd; ``(True, "")`` for a case without one."""
+    if "predicted" not in case:
+        return True, ""
+    truth, rival, predicted, sd = case["predicted"]
+    g = evidence.gap(truth, rival) if evidence is not None else None
+    if g is None:
+        return False, f"; no gap of {truth} and {rival}"
+    realised = g.gap if g.better == truth else -g.gap
+    within = abs(realised - float(predicted)) <= 2.0 * float(sd)
+    return within, f"; {rival}'s gap {realised:.0f}, predicted {float(predicted):.0f} ({float(sd):.0f})"
 
 
 def judge(case: dict, status: str, missing, tied) -> tuple[bool, str]:
@@ -132,6 +161,8 @@ def main(argv=None) -> int:
         started = time.perf_counter()
         d = diagnose(record, case.get("effects"), rng=np.random.default_rng(0))
         right, answer = judge(case, d.status, d.missing, d.tied)
+        within, found = calibrated(case, d.evidence)
+        right, answer = right and within, answer + found
         outcome = {
             "right": right,
             "answer": answer,
