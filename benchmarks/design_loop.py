@@ -137,10 +137,9 @@ def judged(prediction: dict, joint) -> dict | None:
     evidence realised and whether it lies within the simulated prediction's and the linear gap's
     2 sd; None where the evidence holds no such gap."""
     truth, rival = prediction["truth"], prediction["rival"]
-    g = joint.evidence.gap(truth, rival) if joint.evidence is not None else None
-    if g is None:
+    realised = joint.evidence.lead(truth, rival) if joint.evidence is not None else None
+    if realised is None:
         return None
-    realised = g.gap if g.better == truth else -g.gap
     predicted, sd = prediction["predicted"], prediction["sd"]
     return prediction | {
         "realised": realised,

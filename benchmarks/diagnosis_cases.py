@@ -115,10 +115,9 @@ def calibrated(case: dict, evidence) -> tuple[bool, str]:
     if "predicted" not in case:
         return True, ""
     truth, rival, predicted, sd = case["predicted"]
-    g = evidence.gap(truth, rival) if evidence is not None else None
-    if g is None:
+    realised = evidence.lead(truth, rival) if evidence is not None else None
+    if realised is None:
         return False, f"; no gap of {truth} and {rival}"
-    realised = g.gap if g.better == truth else -g.gap
     within = abs(realised - float(predicted)) <= 2.0 * float(sd)
     return within, f"; {rival}'s gap {realised:.0f}, predicted {float(predicted):.0f} ({float(sd):.0f})"
 

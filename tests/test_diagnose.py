@@ -553,6 +553,16 @@ def test_gaps_among_every_two_explanations_the_better_first():
     assert gaps_among(explanations[:1], whitened[:1]) == ()
 
 
+def test_how_far_one_explanation_fits_ahead_of_another():
+    """The lead of the better fit is its likelihood gap, the other way round the same negated; an
+    explanation the evidence does not hold has none."""
+    evidence = _evidence([_ex("creep", 1.0, 70.0), _ex("thermal", 1.1, 20.0)])
+    gap = N * math.log(1.1**2)
+    assert evidence.lead("creep", "thermal") == pytest.approx(gap)
+    assert evidence.lead("thermal", "creep") == pytest.approx(-gap)
+    assert evidence.lead("creep", "training") is None
+
+
 def test_the_first_loading_share_of_a_fit():
     """A training that fades within the first loading puts its part there; a drift spreads."""
     for spec, name, low, high in (

@@ -180,6 +180,14 @@ class Evidence:
         """The gap between explanations ``a`` and ``b`` (either order), or None."""
         return next((g for g in self.gaps if {g.better, g.other} == {a, b}), None)
 
+    def lead(self, a: str, b: str) -> float | None:
+        """How far explanation ``a`` fits ahead of ``b``: their likelihood gap, negative where ``b``
+        fits better; None where the evidence holds no gap of the two."""
+        g = self.gap(a, b)
+        if g is None:
+            return None
+        return float(g.gap if g.better == a else -g.gap)
+
     def to_dict(self) -> dict:
         return {
             "sigma": float(self.sigma),
