@@ -616,6 +616,13 @@ def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it
             [0.1, 0.4],
             ["dogbox from the start", "trf from the end", "trf from the start"],
         ),
+        # dogbox did not leave a start on a bound: trf once from there
+        (
+            [0.3, 0.3],
+            {"trf from the start": ([0.2, 0.3], 1.0)},
+            [0.2, 0.3],
+            ["dogbox from the start", "trf from the start"],
+        ),
         # on a bound and neither trf run lower: the dogbox end
         (
             [1.0, 0.5],
@@ -634,6 +641,8 @@ def test_a_solver_run_that_ends_on_a_bound_is_run_again_from_its_start(dogbox_en
 
     start = np.array([0.3, 0.3])
     box = SimpleNamespace(lower=np.zeros(2), upper=np.ones(2))
+    if dogbox_end == [0.3, 0.3]:  # the start itself on a bound
+        box.lower = np.array([0.3, 0.0])
     made = []
 
     def solve(residuals, x, max_nfev, method="dogbox"):

@@ -283,7 +283,9 @@ def bounded_solve(residuals: WhitenedResiduals, x0, max_nfev, method=SOLVER_METH
 def solve_within_box(residuals, x0, max_nfev, solve=None):
     """A bounded solver run of ``residuals`` from free vector ``x0`` with :data:`SOLVER_METHOD`;
     where it ends on a box bound (:func:`on_a_bound`), :data:`ALTERNATE_METHOD` from that end and
-    from ``x0`` as well, the lowest cost kept. Each run at most ``max_nfev`` evaluations.
+    from ``x0`` as well (once where the two are the same), the lowest cost kept. Each run at most
+    ``max_nfev`` evaluations. The single-record fit runs its starts with the interior method from
+    their origin for the same reason (:mod:`identify.fitting.lsq`, its third phase).
 
     A dogbox end on a bound may have stopped short there (its step collapses along the bound's
     face); or its large first steps may have thrown the start out of its basin into a degenerate
@@ -294,7 +296,9 @@ def solve_within_box(residuals, x0, max_nfev, solve=None):
     solve = bounded_solve if solve is None else solve
     sol = solve(residuals, x0, max_nfev)
     if on_a_bound(sol.x, residuals.lower, residuals.upper).any():
-        for start in (sol.x, x0):
+        # one run where dogbox did not move (a start on a bound it could not leave)
+        starts = (sol.x,) if np.array_equal(sol.x, x0) else (sol.x, x0)
+        for start in starts:
             onward = solve(residuals, start, max_nfev, method=ALTERNATE_METHOD)
             sol = onward if onward.cost < sol.cost else sol
     return sol
