@@ -7,7 +7,7 @@ import pytest
 
 from identify.bench import simulate
 from identify.diagnosis import Thresholds
-from identify.diagnosis.joint import explanations_worth_finishing, rival_pair_names, tie_member_pairs
+from identify.diagnosis.joint import explanations_worth_finishing, rival_pair_names, started_warm, tie_member_pairs
 from identify.fitting.joint import JointModel, JointResiduals, fit_joint, with_earlier_runs
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
@@ -332,3 +332,30 @@ def test_the_explanations_the_records_found_worth_finishing(records, expected):
         for singles, pairs in records
     ]
     assert explanations_worth_finishing(alone, Thresholds(max_refits=3)) == expected
+
+
+@pytest.mark.parametrize(
+    ("effects", "warm"),
+    [
+        (["thermal"], {"thermal_initial": 1.0, "thermal_initial_core": 1.0}),  # [0, 2], off at 0
+        (["creep", "thermal"], {"thermal_initial": 1.0, "thermal_initial_core": 1.0}),
+        (["creep"], None),  # no state earlier runs leave
+        ([], None),
+    ],
+)
+def test_a_joint_start_with_every_record_started_warm(effects, warm):
+    """The warm joint start puts each record's earlier-run state halfway into its range (every
+    record's column) and leaves every other parameter where it was."""
+    joint = JointModel(with_earlier_runs(Model(effects)), 3)
+    theta = joint.default_theta()
+    started = started_warm(joint, theta)
+    if warm is None:
+        assert started is None
+        return
+    moved = {c: value for name, value in warm.items() for c in joint.columns_of(name)}
+    assert len(moved) == 3 * len(warm)  # one column per record
+    expected = theta.copy()
+    for column, value in moved.items():
+        expected[column] = value
+    np.testing.assert_array_equal(started, expected)
+    assert started is not theta and np.all(theta[list(moved)] == 0.0)

@@ -13,7 +13,8 @@ again). The joint diagnosis:
    and fits each on all records together
    (:class:`identify.fitting.joint.JointResiduals`: the transducer's parameters shared, each
    record's run parameters and sensor zero its own), from each record's own fit of it, from
-   the joint baseline with the effect off, and from the joint baseline with the effect where a
+   the joint baseline with the effect off (and with each record started warm, where the effect
+   has a state earlier runs leave), and from the joint baseline with the effect where a
    record's screening puts it; before a member of the best joint pair may be
    named, the pairs that would name another effect (:func:`rival_pair_names`) are fitted
    jointly too;
@@ -61,6 +62,7 @@ __all__ = [
     "explanations_worth_finishing",
     "joint_fit_with_earlier_runs",
     "rival_pair_names",
+    "started_warm",
     "tie_member_pairs",
 ]
 
@@ -374,7 +376,8 @@ def _same_explanation(one: str, other: str) -> bool:
 
 def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
     """Explanation ``name`` fitted on every record together from each record's own fit of it,
-    from the joint baseline with it off and from the joint starts ``screened``
+    from the joint baseline with it off (cold and warm: :func:`started_warm`) and from the
+    joint starts ``screened``
     (:func:`_screened_starts`): ``(JointFit, whitened residual)`` of the lowest chi-square.
 
     A pair never ends above one of its members fitted jointly (``members``: their
@@ -396,6 +399,7 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
         starts = [joint_start(joint, donor, [donor if f is None else f for f in own], ctx.records)]
         if not embedded and same_threshold_sign(model_e, base_model):  # the same start for every donor
             starts.append(_embedded(ctx.baseline, joint))
+            starts += [warm] if (warm := started_warm(joint, starts[-1])) is not None else []
             embedded = True
         residuals = JointResiduals(ctx.records, joint, ctx.noises)
         runs += [_solve_from(residuals, start) for start in starts]
@@ -416,6 +420,27 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
     _, residuals, x = best
     jf = joint_fit_at(residuals, x, ctx.baseline.fits)
     return jf, residuals(x)
+
+
+def started_warm(joint: JointModel, theta) -> np.ndarray | None:
+    """``theta`` with every record's earlier-run state (:func:`_earlier_run_columns`) halfway
+    from its off value to its farther bound, or None where ``joint`` has no such state.
+
+    Records of one transducer each start where the earlier runs left them, and the joint fits
+    free that state; but every other start holds it at its off value (a record's own fit pins
+    it), so the solver meets it from the cold side only. A run that starts warm and cools through
+    the record is another basin of the effect's own parameters (slow time constants, a cooling
+    of the other sign) that a cold start need not lead to; a start inside the state's range, the
+    effect's shape at its defaults, is the neutral way in."""
+    columns = _earlier_run_columns(joint)
+    if not columns:
+        return None
+    theta = np.array(theta, dtype=float)
+    for column, off in columns:
+        p = joint.parameters[column]
+        far = p.upper if p.upper - off >= off - p.lower else p.lower
+        theta[column] = off + 0.5 * (far - off)
+    return theta
 
 
 def _swap_run(ctx: _Joint, name: str, pair: JointFit, single: JointFit):
