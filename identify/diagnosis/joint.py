@@ -399,7 +399,9 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
         starts = [joint_start(joint, donor, [donor if f is None else f for f in own], ctx.records)]
         if not embedded and same_threshold_sign(model_e, base_model):  # the same start for every donor
             starts.append(_embedded(ctx.baseline, joint))
-            starts += [warm] if (warm := started_warm(joint, starts[-1])) is not None else []
+            warm = started_warm(joint, starts[-1])
+            if warm is not None:
+                starts.append(warm)
             embedded = True
         residuals = JointResiduals(ctx.records, joint, ctx.noises)
         runs += [_solve_from(residuals, start) for start in starts]
