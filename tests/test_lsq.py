@@ -598,12 +598,13 @@ def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it
 
 
 @pytest.mark.parametrize(
-    ("dogbox_end", "ends", "kept", "runs"),
+    ("lower", "dogbox_end", "ends", "kept", "runs"),
     [
         # inside the box: the dogbox run alone
-        ([0.5, 0.5], {}, [0.5, 0.5], ["dogbox from the start"]),
+        ([0.0, 0.0], [0.5, 0.5], {}, [0.5, 0.5], ["dogbox from the start"]),
         # on a bound, trf from the start reaches lower: kept
         (
+            [0.0, 0.0],
             [1.0, 0.5],
             {"trf from the end": ([1.0, 0.4], 3.0), "trf from the start": ([0.2, 0.3], 1.0)},
             [0.2, 0.3],
@@ -611,13 +612,15 @@ def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it
         ),
         # on a bound, trf from the end reaches lower: kept
         (
+            [0.0, 0.0],
             [0.0, 0.5],
             {"trf from the end": ([0.1, 0.4], 2.0), "trf from the start": ([0.2, 0.3], 4.0)},
             [0.1, 0.4],
             ["dogbox from the start", "trf from the end", "trf from the start"],
         ),
-        # dogbox did not leave a start on a bound: trf once from there
+        # dogbox did not leave a start on a bound (the first lower bound 0.3): trf once from there
         (
+            [0.3, 0.0],
             [0.3, 0.3],
             {"trf from the start": ([0.2, 0.3], 1.0)},
             [0.2, 0.3],
@@ -625,6 +628,7 @@ def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it
         ),
         # on a bound and neither trf run lower: the dogbox end
         (
+            [0.0, 0.0],
             [1.0, 0.5],
             {"trf from the end": ([1.0, 0.5], 5.0), "trf from the start": ([0.9, 0.5], 6.0)},
             [1.0, 0.5],
@@ -632,17 +636,15 @@ def test_starts_stopped_out_of_reach_leave_the_optimum_as_the_full_runs_reach_it
         ),
     ],
 )
-def test_a_solver_run_that_ends_on_a_bound_is_run_again_from_its_start(dogbox_end, ends, kept, runs):
+def test_a_solver_run_that_ends_on_a_bound_is_run_again_from_its_start(lower, dogbox_end, ends, kept, runs):
     """A dogbox run that ends on a bound is followed by the interior method from its end and from
-    the start; the lowest cost is kept (the box is [0, 1] in both parameters)."""
+    the start; the lowest cost is kept (the box is [lower, 1] in both parameters)."""
     from types import SimpleNamespace
 
     from identify.fitting.lsq_solver import solve_within_box
 
     start = np.array([0.3, 0.3])
-    box = SimpleNamespace(lower=np.zeros(2), upper=np.ones(2))
-    if dogbox_end == [0.3, 0.3]:  # the start itself on a bound
-        box.lower = np.array([0.3, 0.0])
+    box = SimpleNamespace(lower=np.array(lower), upper=np.ones(2))
     made = []
 
     def solve(residuals, x, max_nfev, method="dogbox"):
