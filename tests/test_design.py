@@ -12,6 +12,7 @@ from identify.bench import simulate
 from identify.cli import main
 from identify.data.records import write_record
 from identify.diagnosis import Thresholds
+from identify.fitting.joint import with_earlier_runs
 from identify.fitting.lsq import WhitenedResiduals, fit_least_squares
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
@@ -776,6 +777,60 @@ def test_a_rival_fitted_in_another_basin_is_also_refitted_from_where_the_new_rec
     best, from_fit, at_truth = min(map(refit, starts)), refit(wrong), refit(truth)
     assert best <= 1.01 * at_truth
     assert from_fit > at_truth + 100.0
+
+
+@pytest.mark.parametrize(
+    ("effects", "explanation", "warm"),
+    [
+        # the explanation's heating at its off values, its start rises halfway into [0, 2]
+        (["thermal"], "thermal", {"thermal_initial": 1.0, "thermal_initial_core": 1.0}),
+        (["creep", "thermal"], "creep+thermal", {"thermal_initial": 1.0, "thermal_initial_core": 1.0}),
+        (["creep", "thermal"], "creep", None),  # the heating is the model's, not the explanation's
+        (["creep"], "creep", None),  # no state earlier runs leave
+    ],
+)
+def test_a_rivals_warm_start_holds_its_heating_off_and_every_start_rise_halfway(effects, explanation, warm):
+    """The warm start changes only the parameters of the explanation's effects that hold a state
+    earlier runs leave: their shape to its off values, that state halfway into its range; the
+    transducer and every other effect keep the fit's values."""
+    from identify.workflows.design import warm_start
+
+    model = normalised_model(Model(effects))
+    names = list(model.names)
+    fitted = model.default_theta() + 0.01 * np.arange(len(names))  # every value off its default
+    c = contender(explanation, model, fitted, np.diag(np.where(model.parameters.vary, 1e-4, 0.0)))
+    started = warm_start(c)
+    if warm is None:
+        assert started is None
+        return
+    heating = np.array([n.startswith("thermal") for n in names])
+    expected = np.where(heating, c.model.default_theta(), fitted)
+    for name, value in warm.items():
+        expected[names.index(name)] = value
+    np.testing.assert_array_equal(started, expected)
+
+
+def test_a_heating_that_starts_warm_and_cools_is_reached_by_the_warm_start_only():
+    """A record whose run starts warm and cools (start rise 1.5, expansion of 20 um per unit,
+    60 s): every cold start of a heating rival (its fit with the heating off, the screening's)
+    meets the start rise at zero, where the cooling has no slope, and stays thousands above the
+    truth's refit; the warm start refits to within 1 % of it."""
+    from identify.workflows.design import penalised_refit, rival_starts, warm_start
+
+    sim = simulate("thermal_tau=60,thermal_expansion=20,thermal_initial=1.5", seed=1, fs=5.0)
+    model = with_earlier_runs(normalised_model(Model(["thermal"])))
+    truth = model.theta_from_dict(sim.truth["theta"] | {"alpha": model.parameters["alpha"].value})
+    heating = np.array([n.startswith("thermal") for n in model.names])
+    cold = np.where(heating, model.default_theta(), truth)
+    c = contender("thermal", model, cold, np.diag(np.where(model.parameters.vary, np.where(heating, 1e4, 1e-6), 0.0)))
+    noise = estimate_noise(sim.record)
+
+    def refit(theta):
+        return penalised_refit(c, sim.record, noise, theta)[0]
+
+    at_truth = refit(truth)
+    assert min(map(refit, rival_starts(c, sim.record, noise))) > at_truth + 1000.0
+    assert refit(warm_start(c)) <= 1.01 * at_truth
 
 
 def test_the_joint_refit_frees_each_earlier_records_own_parameters_as_the_joint_diagnosis_does():

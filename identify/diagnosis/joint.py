@@ -39,9 +39,11 @@ from ..fitting.joint import (
     JointFit,
     JointModel,
     JointResiduals,
+    earlier_run_state,
     fit_joint,
     joint_fit_at,
     joint_start,
+    warm_value,
     with_earlier_runs,
 )
 from ..fitting.lsq import POLISH_EVALUATIONS
@@ -245,14 +247,8 @@ class _Joint:
 
 def _earlier_run_columns(joint: JointModel) -> list[tuple[int, float]]:
     """``[(column, off value)]`` of ``joint``'s vector holding a record's earlier-run state
-    (:attr:`model.Effect.earlier_run_terms`), every record's."""
-    return [
-        (column, type(e).off[n])
-        for e in joint.model.effects
-        for term in type(e).earlier_run_terms
-        for n in type(e).terms[term]
-        for column in joint.columns_of(n)
-    ]
+    (:func:`identify.fitting.joint.earlier_run_state`), every record's."""
+    return [(column, off) for n, off in earlier_run_state(joint.model) for column in joint.columns_of(n)]
 
 
 def explanations_worth_finishing(alone, thresholds: Thresholds) -> list[str]:
@@ -425,23 +421,20 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
 
 
 def started_warm(joint: JointModel, theta) -> np.ndarray | None:
-    """``theta`` with every record's earlier-run state (:func:`_earlier_run_columns`) halfway
-    from its off value to its farther bound, or None where ``joint`` has no such state.
+    """``theta`` with every record's earlier-run state (:func:`_earlier_run_columns`) at its
+    :func:`~identify.fitting.joint.warm_value`, halfway from its off value to its farther bound,
+    or None where ``joint`` has no such state.
 
     Records of one transducer each start where the earlier runs left them, and the joint fits
     free that state; but every other start holds it at its off value (a record's own fit pins
-    it), so the solver meets it from the cold side only. A run that starts warm and cools through
-    the record is another basin of the effect's own parameters (slow time constants, a cooling
-    of the other sign) that a cold start need not lead to; a start inside the state's range, the
-    effect's shape at its defaults, is the neutral way in."""
+    it), so the solver meets it from the cold side only. A start inside the state's range, the
+    effect's shape at its defaults, is the neutral way into a run that starts warm and cools."""
     columns = _earlier_run_columns(joint)
     if not columns:
         return None
     theta = np.array(theta, dtype=float)
     for column, off in columns:
-        p = joint.parameters[column]
-        far = p.upper if p.upper - off >= off - p.lower else p.lower
-        theta[column] = off + 0.5 * (far - off)
+        theta[column] = warm_value(joint.parameters[column], off)
     return theta
 
 
@@ -645,13 +638,17 @@ def _freed_layout(model, like: JointModel) -> JointModel:
 def joint_fit_with_earlier_runs(jf: JointFit) -> JointFit:
     """A joint fit in the layout the joint diagnosis fits its candidates in, the state earlier
     runs left free on every record (:func:`identify.fitting.joint.with_earlier_runs`), refitted
-    from it where that frees a parameter (never higher: where the records start at rest it is
-    the same fit)."""
+    from it, cold and warm (:func:`started_warm`), where that frees a parameter (never higher:
+    where the records start at rest it is the same fit)."""
     joint = _freed_layout(jf.joint.model, jf.joint)
     if int(joint.parameters.vary.sum()) == int(jf.joint.parameters.vary.sum()):
         return jf
     residuals = JointResiduals(jf.records, joint, jf.noises)
-    chi2, _, x = _solve_from(residuals, _embedded(jf, joint))
+    starts = [_embedded(jf, joint)]
+    warm = started_warm(joint, starts[0])
+    if warm is not None:
+        starts.append(warm)
+    chi2, _, x = min((_solve_from(residuals, start) for start in starts), key=lambda run: run[0])
     if not chi2 < jf.chi2:  # the records start at rest: the same fit in the freed layout
         x = np.clip(_embedded(jf, joint)[residuals.free], residuals.lower, residuals.upper)
     return joint_fit_at(residuals, x, jf.separate)

@@ -52,6 +52,8 @@ __all__ = [
     "consistency",
     "record_suffix",
     "with_earlier_runs",
+    "earlier_run_state",
+    "warm_value",
     "joint_fit_from_json",
     "record_noises",
     "separate_fits",
@@ -110,6 +112,26 @@ def with_earlier_runs(model: Model) -> Model:
             if not parameters[name].vary:
                 parameters = parameters.replace(name, vary=True)
     return model if parameters is model.parameters else model.with_parameters(parameters)
+
+
+def earlier_run_state(model: Model) -> list[tuple[str, float]]:
+    """``[(parameter name, off value)]`` of the state earlier runs leave in ``model``
+    (:attr:`model.Effect.earlier_run_terms`: a heating's start rises), effect by effect."""
+    return [
+        (n, type(e).off[n]) for e in model.effects for term in type(e).earlier_run_terms for n in type(e).terms[term]
+    ]
+
+
+def warm_value(parameter, off: float) -> float:
+    """Halfway from ``off`` to ``parameter``'s farther bound: where a start puts a state earlier
+    runs left (:func:`earlier_run_state`) to meet it from inside its range.
+
+    A record's own fit pins that state at its off value, so every start made from fits meets it
+    from the cold side only; a run that starts warm and cools through the record is another basin
+    of the effect's own parameters (slow time constants, a cooling of the other sign) that a cold
+    start need not lead to."""
+    far = parameter.upper if parameter.upper - off >= off - parameter.lower else parameter.lower
+    return off + 0.5 * (far - off)
 
 
 class JointModel:

@@ -78,6 +78,7 @@ from .design_confirmation import (
     record_misfit,
     rival_starts,
     simulated_gap,
+    warm_start,
 )
 from .design_criterion import (
     DECISIVE,
@@ -118,6 +119,7 @@ __all__ = [
     "draw_transducer",
     "posterior_draw",
     "rival_starts",
+    "warm_start",
     "penalised_refit",
     "simulated_gap",
     "longer_records",

@@ -23,6 +23,7 @@ from ..diagnosis import Thresholds
 from ..diagnosis.evidence import gap_noise_sd, likelihood_gap
 from ..diagnosis.fits import embed, n_eff, with_values
 from ..diagnosis.screening import screen_one
+from ..fitting.joint import earlier_run_state, warm_value
 from ..fitting.lsq import WhitenedResiduals
 from ..fitting.noise import NoiseModel
 from ..fitting.threads import results_side_by_side, single_threaded_blas
@@ -34,6 +35,7 @@ __all__ = [
     "draw_transducer",
     "posterior_draw",
     "rival_starts",
+    "warm_start",
     "penalised_refit",
     "confirm",
     "simulated_gap",
@@ -123,12 +125,14 @@ def penalised_refit(c, record: Record, noise: NoiseModel, theta0) -> tuple[float
     return float(r @ r), r[: record.time.size], _ended(theta0, free, z)
 
 
-def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMisfit):
+def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMisfit, every_run_warm=False):
     """``c`` refitted on ``record`` and the records already taken together, from ``theta0``: the
     transducer shared, every record's own parameters and sensor zero free, the earlier records'
     starting from their fits (what the joint diagnosis fits: a transducer moved to another basin
     needs another start state of each run, a heating's start rise, and holding the earlier runs'
-    at their fits credits the rival with a misfit the joint diagnosis would not leave).
+    at their fits credits the rival with a misfit the joint diagnosis would not leave); with
+    ``every_run_warm``, the earlier records' state earlier runs left starting where ``theta0``
+    puts the new record's (:func:`warm_start`).
     ``(chi2, whitened residual over every record, the earlier ones first, effective sample size
     summed per record, the full vector it ends at)``."""
     residuals = WhitenedResiduals(record, c.model, noise)
@@ -138,6 +142,10 @@ def _joint_refit(c, record: Record, noise: NoiseModel, theta0, misfit: RecordMis
     columns = np.concatenate([shared, own])
     # the records' residuals with caches of this refit's own (refits of two truths run side by side)
     earlier = [(res.copy(), theta_r[free].copy()) for res, theta_r in misfit.parts]
+    if every_run_warm:
+        state = np.flatnonzero(np.isin(free, _state_columns(c.model)))  # among the free ones
+        for _, x_r in earlier:
+            x_r[state] = np.asarray(theta0, dtype=float)[free[state]]
     n_x = free.size
     block = own.size + 1  # an earlier record's own parameters, then its sensor zero
     scale = 1.0 / noise.sigma
@@ -208,6 +216,37 @@ def rival_starts(c, record: Record, noise: NoiseModel) -> list:
     return starts
 
 
+def _state_columns(model) -> np.ndarray:
+    """The columns of ``model``'s vector holding the state earlier runs leave
+    (:func:`identify.fitting.joint.earlier_run_state`)."""
+    return np.array([model.names.index(n) for n, _ in earlier_run_state(model)], dtype=int)
+
+
+def warm_start(c) -> np.ndarray | None:
+    """Where a rival's refit starts warm: its fit with each effect of its explanation that holds a
+    state earlier runs leave (a heating's start rises) at its off values and that state at its
+    :func:`~identify.fitting.joint.warm_value`, halfway into its range; None where the
+    explanation holds no such state. A full vector ``(P,)``.
+
+    Every other start holds that state where a record's own fit pins it, off, and the solver meets
+    it from the cold side only; a run that starts warm and cools through the new record is another
+    basin of the effect (slow time constants, a cooling of the other sign), the one the joint
+    diagnosis reaches from the same start (:func:`identify.diagnosis.joint.started_warm`). Refitted
+    on every record together, the earlier records start warm too (:func:`_refit`)."""
+    warm = None
+    explanation = c.name.split("+")
+    for effect in c.model.effects:
+        state = [(n, off) for n, off in earlier_run_state(c.model) if n.startswith(effect.name + "_")]
+        if effect.name not in explanation or not state:
+            continue
+        base = c.model.without(effect.name)
+        held = embed(c.model, c.theta if warm is None else warm, base, drop_extra=True)
+        warm = with_values(
+            c.model, embed(base, held, c.model), {n: warm_value(c.model.parameters[n], off) for n, off in state}
+        )
+    return warm
+
+
 def _add_start(starts: list, start) -> None:
     """Append ``start`` to ``starts`` unless an equal vector is there already."""
     if not any(np.array_equal(start, s) for s in starts):
@@ -231,13 +270,17 @@ def _joint_pair(truth, rival, misfits, every_record: bool) -> bool:
     return every_record and truth.name in misfits and rival.name in misfits
 
 
-def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits) -> tuple:
-    """``c`` refitted on ``record`` from each of ``starts``, the lowest kept: on every record
-    together (:func:`_joint_refit`) or held by the records' information (:func:`penalised_refit`).
+def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits, warm=None) -> tuple:
+    """``c`` refitted on ``record`` from each of ``starts`` and from ``warm`` (:func:`warm_start`,
+    where given), the lowest kept: on every record together (:func:`_joint_refit`, from ``warm``
+    with every record started warm) or held by the records' information (:func:`penalised_refit`).
     ``(chi2, whitened residual, n_eff or None, the vector it ends at)``."""
+    warm_runs = [] if warm is None else [warm]
     if joint:
-        return _lowest_refit(lambda s: _joint_refit(c, record, noise, s, misfits[c.name]), starts)
-    return _lowest_refit(lambda s: _with_no_n(penalised_refit(c, record, noise, s)), starts)
+        misfit = misfits[c.name]
+        runs = [(s, False) for s in starts] + [(s, True) for s in warm_runs]
+        return _lowest_refit(lambda run: _joint_refit(c, record, noise, run[0], misfit, run[1]), runs)
+    return _lowest_refit(lambda s: _with_no_n(penalised_refit(c, record, noise, s)), [*starts, *warm_runs])
 
 
 def _refit_draw(
@@ -258,7 +301,7 @@ def _refit_draw(
         starts = rival_starts(rival, record, noise)
         for start in [carried[key]] if key in carried else seeds.get(rival.name, ()):
             _add_start(starts, start)
-        fitted[key] = _refit(rival, record, noise, starts, joint, misfits)
+        fitted[key] = _refit(rival, record, noise, starts, joint, misfits, warm_start(rival))
         carried[key] = fitted[key][-1]
     return fitted
 
