@@ -42,12 +42,15 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np
 
-from identify.bench.synthetic import simulate, simulate_like
+from identify.bench.synthetic import simulate
 from identify.data.fileio import atomic_write
 from identify.data.records import load_record
 from identify.diagnosis import diagnose
 from identify.output.design_report import write_design
 from identify.workflows.design import RigLimits, design
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from diagnosis_cases import own_next_record  # the own bench's next record: one seed convention
 
 GENERATOR = ROOT / "benchmarks" / "independent" / "generator.py"
 #: Further joint diagnoses after a right name, each with the names so far added (a pair's second).
@@ -204,7 +207,7 @@ def own_cases(seeds):
             sim = simulate(spec, seed=seed, noise_sigma=0.5)
 
             def measure(t, i, sim=sim, seed=seed):
-                return simulate_like(sim.truth, t, i, seed=seed + 1000).record
+                return own_next_record(sim.truth, t, i, seed)
 
             yield f"own_{effect}_s{seed}", sim.record, {effect}, measure
 

@@ -40,6 +40,17 @@ CASES = ROOT / "benchmarks" / "cases" / "diagnosis.toml"
 GENERATOR = ROOT / "benchmarks" / "independent" / "generator.py"
 
 
+#: The noise seed of the own bench's record on a designed drive is its first record's seed plus
+#: this (a fresh noise draw of the same transducer).
+NEXT_SEED_OFFSET = 1000
+
+
+def own_next_record(truth: dict, time, current, seed: int):
+    """The own bench's record of the transducer ``truth`` (the first record's sidecar, drawn with
+    ``seed``) on the drive ``time``, ``current``, with fresh noise."""
+    return simulate_like(truth, time, current, seed=seed + NEXT_SEED_OFFSET).record
+
+
 def record_of(case: dict, cache: Path):
     """The case's record: the independent generator's (generated once per seed into ``cache``) or the
     bench's; a list of two for ``own-pair`` and for ``independent-next`` (the generator's record and
@@ -56,7 +67,7 @@ def record_of(case: dict, cache: Path):
         seed = int(case["seed"])
         first = simulate(case["effects_hidden"], seed=seed, noise_sigma=0.5)
         drive = np.loadtxt(_drive_file(case, cache), delimiter=",", skiprows=1, ndmin=2)
-        return [first.record, simulate_like(first.truth, drive[:, 0], drive[:, 1], seed=seed + 1000).record]
+        return [first.record, own_next_record(first.truth, drive[:, 0], drive[:, 1], seed)]
     options = [str(o) for o in case.get("generator_options", [])]
     folder = cache / "_".join([f"seed{case['seed']}", *(o.lstrip("-") for o in options)])
     first = _generated(case, folder, options)
