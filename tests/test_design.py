@@ -779,20 +779,23 @@ def test_a_rival_fitted_in_another_basin_is_also_refitted_from_where_the_new_rec
     assert from_fit > at_truth + 100.0
 
 
+WARM = {"thermal_initial": 1.0, "thermal_initial_core": 1.0}  # halfway into [0, 2], off at 0
+
+
 @pytest.mark.parametrize(
-    ("effects", "explanation", "warm"),
+    ("effects", "explanation", "set_off", "warm"),
     [
-        # the explanation's heating at its off values, its start rises halfway into [0, 2]
-        (["thermal"], "thermal", {"thermal_initial": 1.0, "thermal_initial_core": 1.0}),
-        (["creep", "thermal"], "creep+thermal", {"thermal_initial": 1.0, "thermal_initial_core": 1.0}),
-        (["creep", "thermal"], "creep", None),  # the heating is the model's, not the explanation's
-        (["creep"], "creep", None),  # no state earlier runs leave
+        # the explanation's heating at its off values, its start rises halfway
+        (["thermal"], "thermal", "thermal", WARM),
+        (["creep", "thermal"], "creep+thermal", "thermal", WARM),
+        # the model's heating (not the explanation's) keeps its fitted shape, starts warm
+        (["creep", "thermal"], "creep", None, WARM),
+        (["creep"], "creep", None, None),  # no state earlier runs leave
     ],
 )
-def test_a_rivals_warm_start_holds_its_heating_off_and_every_start_rise_halfway(effects, explanation, warm):
-    """The warm start changes only the parameters of the explanation's effects that hold a state
-    earlier runs leave: their shape to its off values, that state halfway into its range; the
-    transducer and every other effect keep the fit's values."""
+def test_a_rivals_warm_start_holds_its_heating_off_and_every_start_rise_halfway(effects, explanation, set_off, warm):
+    """The warm start puts every start rise halfway into its range and the explanation's heating
+    at its off values; the transducer and every other parameter keep the fit's values."""
     from identify.workflows.design import warm_start
 
     model = normalised_model(Model(effects))
@@ -803,8 +806,8 @@ def test_a_rivals_warm_start_holds_its_heating_off_and_every_start_rise_halfway(
     if warm is None:
         assert started is None
         return
-    heating = np.array([n.startswith("thermal") for n in names])
-    expected = np.where(heating, c.model.default_theta(), fitted)
+    off = np.array([set_off is not None and n.startswith(set_off + "_") for n in names])
+    expected = np.where(off, c.model.default_theta(), fitted)
     for name, value in warm.items():
         expected[names.index(name)] = value
     np.testing.assert_array_equal(started, expected)

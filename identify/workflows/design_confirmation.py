@@ -223,28 +223,27 @@ def _state_columns(model) -> np.ndarray:
 
 
 def warm_start(c) -> np.ndarray | None:
-    """Where a rival's refit starts warm: its fit with each effect of its explanation that holds a
-    state earlier runs leave (a heating's start rises) at its off values and that state at its
-    :func:`~identify.fitting.joint.warm_value`, halfway into its range; None where the
-    explanation holds no such state. A full vector ``(P,)``.
+    """Where a rival's refit starts warm: its fit with every state earlier runs leave (a
+    heating's start rises, the model's or the explanation's) at its
+    :func:`~identify.fitting.joint.warm_value`, halfway into its range, and the explanation's
+    own effects that hold such a state at their off values otherwise; None where the model holds
+    no such state. A full vector ``(P,)``.
 
     Every other start holds that state where a record's own fit pins it, off, and the solver meets
     it from the cold side only; a run that starts warm and cools through the new record is another
     basin of the effect (slow time constants, a cooling of the other sign), the one the joint
     diagnosis reaches from the same start (:func:`identify.diagnosis.joint.started_warm`). Refitted
     on every record together, the earlier records start warm too (:func:`_refit`)."""
-    warm = None
-    explanation = c.name.split("+")
+    state = earlier_run_state(c.model)
+    if not state:
+        return None
+    warm = np.asarray(c.theta, dtype=float)
     for effect in c.model.effects:
-        state = [(n, off) for n, off in earlier_run_state(c.model) if n.startswith(effect.name + "_")]
-        if effect.name not in explanation or not state:
-            continue
-        base = c.model.without(effect.name)
-        held = embed(c.model, c.theta if warm is None else warm, base, drop_extra=True)
-        warm = with_values(
-            c.model, embed(base, held, c.model), {n: warm_value(c.model.parameters[n], off) for n, off in state}
-        )
-    return warm
+        owns_state = any(n.startswith(effect.name + "_") for n, _ in state)
+        if owns_state and effect.name in c.name.split("+"):
+            base = c.model.without(effect.name)
+            warm = embed(base, embed(c.model, warm, base, drop_extra=True), c.model)
+    return with_values(c.model, warm, {n: warm_value(c.model.parameters[n], off) for n, off in state})
 
 
 def _add_start(starts: list, start) -> None:
