@@ -179,16 +179,18 @@ def test_a_confirmation_keeps_where_each_rivals_refit_came_closest_and_the_crite
 
 
 def test_a_rival_starts_its_refits_where_an_earlier_confirmation_found_it_closest_to_the_truth():
-    """A rival of the truth's own physics fitted in another basin (a heating a hundred times slower
-    and weaker): refitted from where it is, it keeps a gap; started also where an earlier
-    confirmation found it mimicking the truth, it closes it, on the same simulated record."""
+    """A rival of the truth's own physics fitted in another basin (its coil's heating at the
+    slowest time constant and weak, its core's at the fastest): refitted from where it is to
+    convergence, it keeps a gap; started also where an earlier confirmation found it mimicking
+    the truth, it closes it, on the same simulated record."""
     from identify.workflows.design import RivalBasins, confirm, record_misfit
 
     heated = simulate("thermal_tau=30,thermal_sensitivity=0.08,thermal_expansion=1.5", seed=1, fs=5.0)
     truth, _ = _heating_and_plain(heated, 1e-6)
     model = normalised_model(Model(["thermal"]))
-    far = heated.truth["theta"] | {"alpha": model.parameters["alpha"].value, "thermal_tau": 3000.0}
-    rival = contender("slow", model, model.theta_from_dict(far | {"thermal_sensitivity": 0.01}), truth.covariance)
+    far = heated.truth["theta"] | {"alpha": model.parameters["alpha"].value, "thermal_tau": 2000.0}
+    far |= {"thermal_sensitivity": 0.01, "thermal_tau_core": 1.0}
+    rival = contender("slow", model, model.theta_from_dict(far), truth.covariance)
     noise, th = estimate_noise(heated.record), Thresholds()
     misfits = {c.name: record_misfit(c, [heated.record], [noise]) for c in (truth, rival)}
     seen = RivalBasins()
@@ -201,7 +203,7 @@ def test_a_rival_starts_its_refits_where_an_earlier_confirmation_found_it_closes
         return next(r for r in rows if r["truth"] == "thermal")["realised_gaps"][0]
 
     alone, seeded = gap(None), gap(seen)
-    assert alone > 3.0 and abs(seeded) < 1.0
+    assert alone > 2.0 and abs(seeded) < 0.5
 
 
 @pytest.mark.parametrize("family", list(FAMILIES))
