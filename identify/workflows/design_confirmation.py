@@ -53,8 +53,8 @@ TWO_SIGMA_LEVEL = float(norm.cdf(2.0))
 #: A confirmation's draw held to the records is shortened by halvings down to ``2**-DRAW_HALVINGS``
 #: of its step before it falls back on the fit (:func:`draw_transducer`).
 DRAW_HALVINGS = 12
-#: The evaluations a confirmation's short refits may take: a rival's, a truth's and a posterior
-#: draw's (:func:`posterior_draw`).
+#: The evaluations a confirmation's short refits may take: a rival's from each of its starts
+#: (the lowest then converges, :func:`_refit`) and a posterior draw's (:func:`posterior_draw`).
 SHORT_FIT_EVALUATIONS = 40
 #: A confirmation's refit run to convergence (the lowest start's, :func:`_refit`) stops where a
 #: step lowers the chi-square by less than this fraction of it: on records of 10^4-10^5 samples
@@ -288,7 +288,8 @@ def _joint_pair(truth, rival, misfits, every_record: bool) -> bool:
 def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits, warm=None) -> tuple:
     """``c`` refitted on ``record`` from each of ``starts`` and from ``warm`` (:func:`warm_start`,
     where given) by short refits, and the lowest of them run again from its start until it
-    converges (at most :data:`~identify.fitting.lsq_solver.POLISH_EVALUATIONS`): on every record
+    converges (:data:`CONVERGED_FTOL`, at most
+    :data:`~identify.fitting.lsq_solver.POLISH_EVALUATIONS` evaluations): on every record
     together (:func:`_joint_refit`, from ``warm`` with every record started warm) or held by the
     records' information (:func:`penalised_refit`). The gap a design predicts is the one the
     joint diagnosis will see, which fits every explanation to convergence; a rival stopped short
