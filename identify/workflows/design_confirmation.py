@@ -64,12 +64,12 @@ CONVERGED_FTOL = 1e-6
 
 
 def _solve_with_zero(
-    objective, jacobian, residuals: WhitenedResiduals, theta0, more=None, max_nfev=SHORT_FIT_EVALUATIONS
+    objective, jacobian, residuals: WhitenedResiduals, theta0, more=None, converge: bool = False
 ) -> np.ndarray:
     """The refit both confirmations run: ``objective`` of ``(free parameters, sensor zero,
     more)`` from ``theta0``'s free values, a zero of 0 and ``more``'s start, within the parameters'
-    box (the zero free), ``trf`` with Jacobian scaling and at most ``max_nfev`` evaluations.
-    ``more``: ``(start, lower, upper)`` of further unknowns after the zero, or None. Its end."""
+    box (the zero free), short or to convergence (:func:`_trf_solve`). ``more``: ``(start, lower,
+    upper)`` of further unknowns after the zero, or None. Its end."""
     start = [np.clip(theta0[residuals.free], residuals.lower, residuals.upper), [0.0]]
     lower = [residuals.lower, [-np.inf]]
     upper = [residuals.upper, [np.inf]]
@@ -78,13 +78,15 @@ def _solve_with_zero(
         lower.append(more[1])
         upper.append(more[2])
     box = (np.concatenate(lower), np.concatenate(upper))
-    return _short_solve(objective, jacobian, np.concatenate(start), *box, max_nfev=max_nfev)
+    return _trf_solve(objective, jacobian, np.concatenate(start), *box, converge=converge)
 
 
-def _short_solve(objective, jacobian, start, lower, upper, max_nfev=SHORT_FIT_EVALUATIONS) -> np.ndarray:
+def _trf_solve(objective, jacobian, start, lower, upper, converge: bool = False) -> np.ndarray:
     """The end of a least squares of ``objective`` from ``start`` within ``[lower, upper]``:
-    ``trf`` with Jacobian scaling and at most ``max_nfev`` evaluations (beyond the short refit's,
-    to :data:`CONVERGED_FTOL`)."""
+    ``trf`` with Jacobian scaling, short (:data:`SHORT_FIT_EVALUATIONS` evaluations) or with
+    ``converge`` until a step gains less than :data:`CONVERGED_FTOL` of the cost (at most
+    :data:`~identify.fitting.lsq_solver.POLISH_EVALUATIONS` evaluations)."""
+    max_nfev, ftol = (POLISH_EVALUATIONS, CONVERGED_FTOL) if converge else (SHORT_FIT_EVALUATIONS, 1e-8)
     with single_threaded_blas():  # small dense algebra: threads only compete with the model
         sol = least_squares(
             objective,
@@ -94,7 +96,7 @@ def _short_solve(objective, jacobian, start, lower, upper, max_nfev=SHORT_FIT_EV
             method="trf",
             max_nfev=max_nfev,
             x_scale="jac",
-            ftol=CONVERGED_FTOL if max_nfev > SHORT_FIT_EVALUATIONS else 1e-8,
+            ftol=ftol,
         )
     return sol.x
 
@@ -108,12 +110,12 @@ def _ended(theta0, free, z) -> np.ndarray:
 
 
 def penalised_refit(
-    c, record: Record, noise: NoiseModel, theta0, max_nfev: int = SHORT_FIT_EVALUATIONS
+    c, record: Record, noise: NoiseModel, theta0, converge: bool = False
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """``c`` refitted on ``record`` (its transducer held by the records' information, the inverse of
-    its covariance; the new run's parameters and sensor zero free), from ``theta0``, by a bounded
-    least squares of at most ``max_nfev`` evaluations (default short, 40): ``(chi2 with the
-    penalty, whitened residual (T,), the full vector it ends at (P,))``."""
+    its covariance; the new run's parameters and sensor zero free), from ``theta0``, by a short
+    bounded least squares (at most 40 evaluations), or with ``converge`` one run to convergence:
+    ``(chi2 with the penalty, whitened residual (T,), the full vector it ends at (P,))``."""
     residuals = WhitenedResiduals(record, c.model, noise)
     free = residuals.free
     info = c.info[np.ix_(free, free)]
@@ -133,7 +135,7 @@ def penalised_refit(
         jac[record.time.size :, :-1] = root
         return jac
 
-    z = _solve_with_zero(objective, jacobian, residuals, theta0, max_nfev=max_nfev)
+    z = _solve_with_zero(objective, jacobian, residuals, theta0, converge=converge)
     r = objective(z)
     return float(r @ r), r[: record.time.size], _ended(theta0, free, z)
 
@@ -145,7 +147,7 @@ def _joint_refit(
     theta0,
     misfit: RecordMisfit,
     every_run_warm=False,
-    max_nfev=SHORT_FIT_EVALUATIONS,
+    converge=False,
 ):
     """``c`` refitted on ``record`` and the records already taken together, from ``theta0``: the
     transducer shared, every record's own parameters and sensor zero free, the earlier records'
@@ -153,7 +155,7 @@ def _joint_refit(
     needs another start state of each run, a heating's start rise, and holding the earlier runs'
     at their fits credits the rival with a misfit the joint diagnosis would not leave); with
     ``every_run_warm``, the earlier records' state earlier runs left starting where ``theta0``
-    puts the new record's (:func:`warm_start`); at most ``max_nfev`` evaluations.
+    puts the new record's (:func:`warm_start`); short, or with ``converge`` to convergence.
     ``(chi2, whitened residual over every record, the earlier ones first, effective sample size
     summed per record, the full vector it ends at)``."""
     residuals = WhitenedResiduals(record, c.model, noise)
@@ -205,7 +207,7 @@ def _joint_refit(
         np.tile(lower, len(earlier)),
         np.tile(upper, len(earlier)),
     )
-    z = _solve_with_zero(objective, jacobian, residuals, theta0, more, max_nfev)
+    z = _solve_with_zero(objective, jacobian, residuals, theta0, more, converge)
     w = objective(z)
     n = sum(n_eff(part) for part in np.split(w, np.cumsum(sizes)[:-1]))
     return float(w @ w), w, float(n), _ended(theta0, free, z)
@@ -260,8 +262,7 @@ def warm_start(c) -> np.ndarray | None:
         return None
     warm = np.asarray(c.theta, dtype=float)
     for effect in c.model.effects:
-        owns_state = any(n.startswith(effect.name + "_") for n, _ in state)
-        if owns_state and effect.name in c.name.split("+"):
+        if type(effect).earlier_run_terms and effect.name in c.name.split("+"):
             base = c.model.without(effect.name)
             warm = embed(base, embed(c.model, warm, base, drop_extra=True), c.model)
     return with_values(c.model, warm, {n: warm_value(c.model.parameters[n], off) for n, off in state})
@@ -271,13 +272,6 @@ def _add_start(starts: list, start) -> None:
     """Append ``start`` to ``starts`` unless an equal vector is there already."""
     if not any(np.array_equal(start, s) for s in starts):
         starts.append(start)
-
-
-def _with_no_n(refit) -> tuple:
-    """A :func:`penalised_refit`'s ``(chi2, w, end)`` as a joint refit's ``(chi2, w, n_eff, end)``
-    (no effective sample size: its gap is a chi-square difference)."""
-    chi2, w, end = refit
-    return chi2, w, None, end
 
 
 def _joint_pair(truth, rival, misfits, every_record: bool) -> bool:
@@ -307,12 +301,14 @@ def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits, w
     if len(runs) > 1:
         short = [run() for run in runs]
         runs = [runs[int(np.argmin([out[0] for out in short]))]]
-    return runs[0](max_nfev=POLISH_EVALUATIONS)
+    return runs[0](converge=True)
 
 
-def _penalised(c, record: Record, noise: NoiseModel, theta0, max_nfev: int = SHORT_FIT_EVALUATIONS) -> tuple:
-    """:func:`penalised_refit` as a joint refit's ``(chi2, w, n_eff, end)`` (:func:`_with_no_n`)."""
-    return _with_no_n(penalised_refit(c, record, noise, theta0, max_nfev))
+def _penalised(c, record: Record, noise: NoiseModel, theta0, converge: bool = False) -> tuple:
+    """:func:`penalised_refit` as a joint refit's ``(chi2, w, n_eff, end)`` (no effective sample
+    size: its gap is a chi-square difference)."""
+    chi2, w, end = penalised_refit(c, record, noise, theta0, converge)
+    return chi2, w, None, end
 
 
 def _refit_draw(
@@ -608,7 +604,7 @@ def posterior_draw(c, rng, misfit: RecordMisfit) -> np.ndarray:
 
     start = np.clip(theta[moving], lower[moving], upper[moving])
     drawn = np.array(theta, dtype=float)
-    drawn[moving] = _short_solve(objective, jacobian, start, lower[moving], upper[moving])
+    drawn[moving] = _trf_solve(objective, jacobian, start, lower[moving], upper[moving])
     if not np.isfinite(misfit(drawn[None])[0]):
         return draw_transducer(c, rng, misfit)
     return drawn
