@@ -9,7 +9,8 @@ rule and the story are in the table). The record is rebuilt (the independent gen
 effects suite at the case's seed with ``--per-form 1``, or the virtual bench), diagnosed as a
 user would (``identify.diagnosis.diagnose``, the case's model), and the answer checked
 against the case's expectation: ``name`` (the truth named, or a tie listing it; never another
-name), ``tie-or-name`` (the same; a tie is expected where the data do not separate),
+name), ``named`` (the truth named; a tie is wrong where the records separate),
+``tie-or-name`` (the same as ``name``; a tie is expected where the data do not separate),
 ``unexplained`` or ``adequate``. Prints one line per case and writes ``OUT/results.json``.
 """
 
@@ -141,6 +142,8 @@ def judge(case: dict, status: str, missing, tied) -> tuple[bool, str]:
     answer = f"add {missing}" if status == "missing_effect" else (f"tied: {' | '.join(tied)}" if tied else status)
     if len({frozenset(name.split("+")) for name in tied}) < len(tied):
         return False, answer + " (one explanation listed twice)"
+    if case["expect"] == "named":
+        return status == "missing_effect" and missing in truth, answer
     if case["expect"] in ("name", "tie-or-name"):
         return (status == "missing_effect" and missing in truth) or (status == "tied" and bool(truth & members)), answer
     return status == case["expect"], answer

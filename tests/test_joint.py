@@ -7,7 +7,13 @@ import pytest
 
 from identify.bench import simulate
 from identify.diagnosis import Thresholds
-from identify.diagnosis.joint import explanations_worth_finishing, rival_pair_names, started_warm, tie_member_pairs
+from identify.diagnosis.joint import (
+    explanations_worth_finishing,
+    rival_pair_names,
+    short_ends_to_finish,
+    started_warm,
+    tie_member_pairs,
+)
 from identify.fitting.joint import JointModel, JointResiduals, fit_joint, with_earlier_runs
 from identify.fitting.noise import estimate_noise
 from identify.fitting.parametrisation import normalised_model
@@ -359,3 +365,26 @@ def test_a_joint_start_with_every_record_started_warm(effects, warm):
         expected[column] = value
     np.testing.assert_array_equal(started, expected)
     assert started is not theta and np.all(theta[list(moved)] == 0.0)
+
+
+@pytest.mark.parametrize(
+    ("best_chi2", "short_chis", "finished"),
+    [
+        # no other start run (an effect no record fitted alone): every short end is finished
+        (None, [120.0, 90.0], [0, 1]),
+        # the other starts' fits end above a short run already made: that run is finished too
+        (30653.2, [30563.5], [0]),
+        # only the short ends below the other starts' best
+        (100.0, [99.0, 100.0, 101.0], [0]),
+        # the other starts end lower: no further run
+        (50.0, [60.0], []),
+        (50.0, [], []),
+    ],
+)
+def test_a_joint_fit_never_ends_above_its_own_short_refit(best_chi2, short_chis, finished):
+    """An explanation's fit is finished from where its short joint refits ended wherever they lie
+    below where its other starts end (the truth's joint fit left in a record's own basin while a
+    short run of it had already gone lower)."""
+    ends = [(chi2, np.full(3, float(k))) for k, chi2 in enumerate(short_chis)]
+    starts = short_ends_to_finish(best_chi2, ends)
+    assert [int(s[0]) for s in starts] == finished

@@ -64,6 +64,7 @@ __all__ = [
     "explanations_worth_finishing",
     "joint_fit_with_earlier_runs",
     "rival_pair_names",
+    "short_ends_to_finish",
     "started_warm",
     "tie_member_pairs",
 ]
@@ -268,9 +269,11 @@ def explanations_worth_finishing(alone, thresholds: Thresholds) -> list[str]:
     return list(names.values())
 
 
-def _screened(ctx: _Joint, taken, say) -> dict:
-    """``{effect: joint starts}`` of the effects the joint baseline's residual asks for, beyond
-    ``taken`` (those the records alone found worth finishing).
+def _screened(ctx: _Joint, taken, say) -> tuple[list, dict]:
+    """``(effects, short ends)``: the effects the joint baseline's residual asks for, beyond
+    ``taken`` (those the records alone found worth finishing), and ``{effect: [(chi2, joint
+    vector)]}``, where each effect's short refit on the records together ended, for every effect
+    it lowered below the joint baseline, taken or not.
 
     Each library effect the model lacks is screened (:func:`identify.diagnosis.screening.screen_candidates`)
     on every record at the joint baseline's fit of it, and its predicted chi-square drops are
@@ -285,13 +288,16 @@ def _screened(ctx: _Joint, taken, say) -> dict:
     ``max_refits`` effects of largest drop; where every one is, with targeted refits, those whose
     drop beats their parameters' charge by ``bic_significant`` (the joint candidates' delta BIC,
     the run parameters charged once per record). Each of those not in ``taken`` is finished from
-    its short refit's end."""
+    its short refit's end; an effect in ``taken`` is finished from it too where its other starts
+    end above it (:func:`_fit_candidate`): a fit never ends above a short run of itself already
+    made, and a record's own fit of a slow effect starts the records together in that record's
+    basin, which the records together need not share."""
     th = ctx.th
     inadequate = not all(a.adequate for a in ctx.adequacies)
     model = ctx.baseline.joint.model
     candidates = [name for name in EFFECTS if name not in model.effect_names]
     if not candidates or not (inadequate or th.targeted_refits):
-        return {}
+        return [], {}
     say("screening the candidate effects on every record's part of the joint baseline")
     by_record = [
         {r.effect: r for r in screen_candidates(record, fit, candidates)}
@@ -300,7 +306,7 @@ def _screened(ctx: _Joint, taken, say) -> dict:
     drop = {name: sum(screened[name].chi2_drop for screened in by_record) for name in candidates}
     promising = [name for name in candidates if drop[name] > 0.0]
     if not promising:
-        return {}
+        return [], {}
     say(f"short refits on every record together: {', '.join(promising)}")
     jobs = [
         partial(_short_joint_refit, ctx, name, _screened_starts(ctx, name, [s[name] for s in by_record]))
@@ -316,7 +322,7 @@ def _screened(ctx: _Joint, taken, say) -> dict:
         n = ctx.n_eff(residuals(ctx.baseline.theta[residuals.free]))
         promised = {name: ctx.delta_bic(short[name][0], ctx.with_effects(name), n) for name in ranked}
         chosen = [name for name in ranked if promised[name] > th.bic_significant][: th.max_refits]
-    return {name: [short[name][1]] for name in chosen if name not in taken}
+    return [name for name in chosen if name not in taken], {name: [short[name]] for name in ranked}
 
 
 def _short_joint_refit(ctx: _Joint, name: str, starts) -> tuple[float, np.ndarray]:
@@ -372,9 +378,10 @@ def _same_explanation(one: str, other: str) -> bool:
 
 def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
     """Explanation ``name`` fitted on every record together from each record's own fit of it,
-    from the joint baseline with it off (cold and warm: :func:`started_warm`) and from the
-    joint starts ``screened``
-    (:func:`_screened_starts`): ``(JointFit, whitened residual)`` of the lowest chi-square.
+    from the joint baseline with it off (cold and warm: :func:`started_warm`) and from the ends
+    of its short joint refits ``screened`` (``[(chi2, joint vector)]``, :func:`_screened`) that
+    lie below where the other starts end: ``(JointFit, whitened residual)`` of the lowest
+    chi-square.
 
     A pair never ends above one of its members fitted jointly (``members``: their
     :class:`JointFit`): where it would, it is fitted again from that member's joint fit with the
@@ -401,9 +408,10 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
             embedded = True
         residuals = JointResiduals(ctx.records, joint, ctx.noises)
         runs += [_solve_from(residuals, start) for start in starts]
-    if screened:
+    finish = short_ends_to_finish(min((run[0] for run in runs), default=None), screened)
+    if finish:
         residuals = JointResiduals(ctx.records, ctx.with_effects(name), ctx.noises)
-        runs += [_solve_from(residuals, start) for start in screened]
+        runs += [_solve_from(residuals, start) for start in finish]
     best = min(runs, key=lambda run: run[0], default=None)
     for member in sorted(members, key=lambda m: m.chi2):
         if best is not None and best[0] <= member.chi2:
@@ -418,6 +426,15 @@ def _fit_candidate(ctx: _Joint, name: str, members=(), swap=None, screened=()):
     _, residuals, x = best
     jf = joint_fit_at(residuals, x, ctx.baseline.fits)
     return jf, residuals(x)
+
+
+def short_ends_to_finish(best_chi2: float | None, short_ends) -> list:
+    """The joint vectors of ``short_ends`` (``[(chi2, joint vector)]``: where an explanation's
+    short joint refits ended) from which its fit is finished: each one where no other start
+    was run (``best_chi2`` None), otherwise those whose short run already lies below
+    ``best_chi2``, the lowest of the other starts' finished fits. A fit never ends above a short
+    run of itself already made."""
+    return [start for chi2, start in short_ends if best_chi2 is None or chi2 < best_chi2]
 
 
 def started_warm(joint: JointModel, theta) -> np.ndarray | None:
@@ -467,7 +484,7 @@ def _fit_candidates(ctx: _Joint, names, say, earlier=None, swaps=None, screened=
     """``(ranking, adequate by record, joint fits)`` of every explanation of ``names`` fitted on
     every record together, side by side (each reads ``ctx`` alone); the ranking by delta BIC.
     ``earlier``: joint fits already made (``{name: JointFit}``), a pair's members among them;
-    ``swaps``: ``{name: (pair, single)}`` and ``screened``: ``{name: joint starts}`` of
+    ``swaps``: ``{name: (pair, single)}`` and ``screened``: ``{name: [(chi2, joint vector)]}`` of
     :func:`_fit_candidate`."""
     swaps, screened = swaps or {}, screened or {}
     ranking, adequate_by_record, joint_fits = [], {}, dict(earlier or {})
@@ -708,8 +725,8 @@ def diagnose_records(
     baseline = joint_fit_with_earlier_runs(baseline)
     ctx = _Joint(records, alone, baseline, thresholds, rng)
     names = explanations_worth_finishing(alone, thresholds)
-    screened = _screened(ctx, names, say)
-    ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, names + list(screened), say, screened=screened)
+    more, short_ends = _screened(ctx, names, say)
+    ranking, adequate_by_record, joint_fits = _fit_candidates(ctx, names + more, say, screened=short_ends)
     fitted = _Fitted(ranking, adequate_by_record, joint_fits)
     _fit_rival_pairs(ctx, fitted, say)
     evidence = _evidence(ctx, fitted.ranking)
