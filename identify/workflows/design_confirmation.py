@@ -64,12 +64,13 @@ CONVERGED_FTOL = 1e-6
 
 
 def _solve_with_zero(
-    objective, jacobian, residuals: WhitenedResiduals, theta0, more=None, converge: bool = False
+    objective, jacobian, residuals: WhitenedResiduals, theta0, more=None, converge: bool = False, z0=None
 ) -> np.ndarray:
     """The refit both confirmations run: ``objective`` of ``(free parameters, sensor zero,
-    more)`` from ``theta0``'s free values, a zero of 0 and ``more``'s start, within the parameters'
-    box (the zero free), short or to convergence (:func:`_trf_solve`). ``more``: ``(start, lower,
-    upper)`` of further unknowns after the zero, or None. Its end."""
+    more)`` from ``theta0``'s free values, a zero of 0 and ``more``'s start (or from ``z0``, all
+    of them: where an earlier run of the same refit ended), within the parameters' box (the zero
+    free), short or to convergence (:func:`_trf_solve`). ``more``: ``(start, lower, upper)`` of
+    further unknowns after the zero, or None. Its end."""
     start = [np.clip(theta0[residuals.free], residuals.lower, residuals.upper), [0.0]]
     lower = [residuals.lower, [-np.inf]]
     upper = [residuals.upper, [np.inf]]
@@ -78,7 +79,8 @@ def _solve_with_zero(
         lower.append(more[1])
         upper.append(more[2])
     box = (np.concatenate(lower), np.concatenate(upper))
-    return _trf_solve(objective, jacobian, np.concatenate(start), *box, converge=converge)
+    start = np.concatenate(start) if z0 is None else np.clip(z0, *box)
+    return _trf_solve(objective, jacobian, start, *box, converge=converge)
 
 
 def _trf_solve(objective, jacobian, start, lower, upper, converge: bool = False) -> np.ndarray:
@@ -116,6 +118,12 @@ def penalised_refit(
     its covariance; the new run's parameters and sensor zero free), from ``theta0``, by a short
     bounded least squares (at most 40 evaluations), or with ``converge`` one run to convergence:
     ``(chi2 with the penalty, whitened residual (T,), the full vector it ends at (P,))``."""
+    return _penalised_solve(c, record, noise, theta0, converge)[:3]
+
+
+def _penalised_solve(c, record: Record, noise: NoiseModel, theta0, converge: bool = False, z0=None) -> tuple:
+    """:func:`penalised_refit`, from ``z0`` where given (its free values and zero), with the
+    solver's end: ``(chi2, whitened residual, full vector, end)``."""
     residuals = WhitenedResiduals(record, c.model, noise)
     free = residuals.free
     info = c.info[np.ix_(free, free)]
@@ -135,9 +143,9 @@ def penalised_refit(
         jac[record.time.size :, :-1] = root
         return jac
 
-    z = _solve_with_zero(objective, jacobian, residuals, theta0, converge=converge)
+    z = _solve_with_zero(objective, jacobian, residuals, theta0, converge=converge, z0=z0)
     r = objective(z)
-    return float(r @ r), r[: record.time.size], _ended(theta0, free, z)
+    return float(r @ r), r[: record.time.size], _ended(theta0, free, z), z
 
 
 def _joint_refit(
@@ -148,6 +156,7 @@ def _joint_refit(
     misfit: RecordMisfit,
     every_run_warm=False,
     converge=False,
+    z0=None,
 ):
     """``c`` refitted on ``record`` and the records already taken together, from ``theta0``: the
     transducer shared, every record's own parameters and sensor zero free, the earlier records'
@@ -155,9 +164,10 @@ def _joint_refit(
     needs another start state of each run, a heating's start rise, and holding the earlier runs'
     at their fits credits the rival with a misfit the joint diagnosis would not leave); with
     ``every_run_warm``, the earlier records' state earlier runs left starting where ``theta0``
-    puts the new record's (:func:`warm_start`); short, or with ``converge`` to convergence.
-    ``(chi2, whitened residual over every record, the earlier ones first, effective sample size
-    summed per record, the full vector it ends at)``."""
+    puts the new record's (:func:`warm_start`); short, or with ``converge`` to convergence; from
+    ``z0`` where given (the solver's end of an earlier run of this refit). ``(chi2, whitened
+    residual over every record, the earlier ones first, effective sample size summed per record,
+    the full vector it ends at, the solver's end)``."""
     residuals = WhitenedResiduals(record, c.model, noise)
     free = residuals.free
     shared = np.flatnonzero(misfit.shared[free])  # the transducer's columns among the free ones
@@ -207,10 +217,10 @@ def _joint_refit(
         np.tile(lower, len(earlier)),
         np.tile(upper, len(earlier)),
     )
-    z = _solve_with_zero(objective, jacobian, residuals, theta0, more, converge)
+    z = _solve_with_zero(objective, jacobian, residuals, theta0, more, converge, z0)
     w = objective(z)
     n = sum(n_eff(part) for part in np.split(w, np.cumsum(sizes)[:-1]))
-    return float(w @ w), w, float(n), _ended(theta0, free, z)
+    return float(w @ w), w, float(n), _ended(theta0, free, z), z
 
 
 def rival_starts(c, record: Record, noise: NoiseModel) -> list:
@@ -281,7 +291,7 @@ def _joint_pair(truth, rival, misfits, every_record: bool) -> bool:
 
 def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits, warm=None) -> tuple:
     """``c`` refitted on ``record`` from each of ``starts`` and from ``warm`` (:func:`warm_start`,
-    where given) by short refits, and the lowest of them run again from its start until it
+    where given) by short refits, and the lowest of them continued from its end until it
     converges (:data:`CONVERGED_FTOL`, at most
     :data:`~identify.fitting.lsq_solver.POLISH_EVALUATIONS` evaluations): on every record
     together (:func:`_joint_refit`, from ``warm`` with every record started warm) or held by the
@@ -298,17 +308,18 @@ def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits, w
         runs = [
             functools.partial(_penalised, c, record, noise, s) for s in [*starts, *([] if warm is None else [warm])]
         ]
-    if len(runs) > 1:
-        short = [run() for run in runs]
-        runs = [runs[int(np.argmin([out[0] for out in short]))]]
-    return runs[0](converge=True)
+    if len(runs) == 1:
+        return runs[0](converge=True)[:4]
+    short = [run() for run in runs]
+    lowest = int(np.argmin([out[0] for out in short]))
+    return runs[lowest](converge=True, z0=short[lowest][-1])[:4]
 
 
-def _penalised(c, record: Record, noise: NoiseModel, theta0, converge: bool = False) -> tuple:
-    """:func:`penalised_refit` as a joint refit's ``(chi2, w, n_eff, end)`` (no effective sample
-    size: its gap is a chi-square difference)."""
-    chi2, w, end = penalised_refit(c, record, noise, theta0, converge)
-    return chi2, w, None, end
+def _penalised(c, record: Record, noise: NoiseModel, theta0, converge: bool = False, z0=None) -> tuple:
+    """:func:`penalised_refit` as a joint refit's ``(chi2, w, n_eff, end, solver's end)`` (no
+    effective sample size: its gap is a chi-square difference)."""
+    chi2, w, end, z = _penalised_solve(c, record, noise, theta0, converge, z0)
+    return chi2, w, None, end, z
 
 
 def _refit_draw(
