@@ -122,8 +122,9 @@ def penalised_refit(
 
 
 def _penalised_solve(c, record: Record, noise: NoiseModel, theta0, converge: bool = False, z0=None) -> tuple:
-    """:func:`penalised_refit`, from ``z0`` where given (its free values and zero), with the
-    solver's end: ``(chi2, whitened residual, full vector, end)``."""
+    """:func:`penalised_refit`, from ``z0`` where given (the solver's end of an earlier run of
+    this refit: its free values and zero): ``(chi2, whitened residual, the full vector it ends
+    at, the solver's end)``."""
     residuals = WhitenedResiduals(record, c.model, noise)
     free = residuals.free
     info = c.info[np.ix_(free, free)]
