@@ -142,10 +142,11 @@ def judge(case: dict, status: str, missing, tied) -> tuple[bool, str]:
     answer = f"add {missing}" if status == "missing_effect" else (f"tied: {' | '.join(tied)}" if tied else status)
     if len({frozenset(name.split("+")) for name in tied}) < len(tied):
         return False, answer + " (one explanation listed twice)"
+    named = status == "missing_effect" and missing in truth
     if case["expect"] == "named":
-        return status == "missing_effect" and missing in truth, answer
+        return named, answer
     if case["expect"] in ("name", "tie-or-name"):
-        return (status == "missing_effect" and missing in truth) or (status == "tied" and bool(truth & members)), answer
+        return named or (status == "tied" and bool(truth & members)), answer
     return status == case["expect"], answer
 
 

@@ -118,13 +118,15 @@ def penalised_refit(
     its covariance; the new run's parameters and sensor zero free), from ``theta0``, by a short
     bounded least squares (at most 40 evaluations), or with ``converge`` one run to convergence:
     ``(chi2 with the penalty, whitened residual (T,), the full vector it ends at (P,))``."""
-    return _penalised_solve(c, record, noise, theta0, converge)[:3]
+    chi2, w, _, end, _ = _penalised(c, record, noise, theta0, converge)
+    return chi2, w, end
 
 
-def _penalised_solve(c, record: Record, noise: NoiseModel, theta0, converge: bool = False, z0=None) -> tuple:
+def _penalised(c, record: Record, noise: NoiseModel, theta0, converge: bool = False, z0=None) -> tuple:
     """:func:`penalised_refit`, from ``z0`` where given (the solver's end of an earlier run of
-    this refit: its free values and zero): ``(chi2, whitened residual, the full vector it ends
-    at, the solver's end)``."""
+    this refit: its free values and zero), as a joint refit's ``(chi2, whitened residual, n_eff,
+    the full vector it ends at, the solver's end)``: no effective sample size (None), its gap
+    being a chi-square difference."""
     residuals = WhitenedResiduals(record, c.model, noise)
     free = residuals.free
     info = c.info[np.ix_(free, free)]
@@ -146,7 +148,7 @@ def _penalised_solve(c, record: Record, noise: NoiseModel, theta0, converge: boo
 
     z = _solve_with_zero(objective, jacobian, residuals, theta0, converge=converge, z0=z0)
     r = objective(z)
-    return float(r @ r), r[: record.time.size], _ended(theta0, free, z), z
+    return float(r @ r), r[: record.time.size], None, _ended(theta0, free, z), z
 
 
 def _joint_refit(
@@ -314,13 +316,6 @@ def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits, w
     short = [run() for run in runs]
     lowest = int(np.argmin([out[0] for out in short]))
     return runs[lowest](converge=True, z0=short[lowest][-1])[:4]
-
-
-def _penalised(c, record: Record, noise: NoiseModel, theta0, converge: bool = False, z0=None) -> tuple:
-    """:func:`penalised_refit` as a joint refit's ``(chi2, w, n_eff, end, solver's end)`` (no
-    effective sample size: its gap is a chi-square difference)."""
-    chi2, w, end, z = _penalised_solve(c, record, noise, theta0, converge, z0)
-    return chi2, w, None, end, z
 
 
 def _refit_draw(
