@@ -9,6 +9,7 @@ noise; every contender is refitted on it, and the gaps and right names are count
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 from dataclasses import replace
@@ -25,7 +26,7 @@ from ..diagnosis.fits import embed, n_eff, with_values
 from ..diagnosis.screening import screen_one
 from ..fitting.joint import earlier_run_state, warm_value
 from ..fitting.lsq import WhitenedResiduals
-from ..fitting.lsq_solver import POLISH_EVALUATIONS
+from ..fitting.lsq_solver import POLISH_EVALUATIONS, StallStop, beyond_a_tie
 from ..fitting.noise import NoiseModel
 from ..fitting.threads import results_side_by_side, single_threaded_blas
 
@@ -64,13 +65,14 @@ CONVERGED_FTOL = 1e-6
 
 
 def _solve_with_zero(
-    objective, jacobian, residuals: WhitenedResiduals, theta0, more=None, converge: bool = False, z0=None
+    objective, jacobian, residuals: WhitenedResiduals, theta0, more=None, converge: bool = False, z0=None, below=None
 ) -> np.ndarray:
     """The refit both confirmations run: ``objective`` of ``(free parameters, sensor zero,
     more)`` from ``theta0``'s free values, a zero of 0 and ``more``'s start (or from ``z0``, all
     of them: where an earlier run of the same refit ended), within the parameters' box (the zero
-    free), short or to convergence (:func:`_trf_solve`). ``more``: ``(start, lower, upper)`` of
-    further unknowns after the zero, or None. Its end."""
+    free), short or to convergence (:func:`_trf_solve`, a short run stopped early where it cannot
+    end ``below`` a chi-square). ``more``: ``(start, lower, upper)`` of further unknowns after the
+    zero, or None. Its end."""
     start = [np.clip(theta0[residuals.free], residuals.lower, residuals.upper), [0.0]]
     lower = [residuals.lower, [-np.inf]]
     upper = [residuals.upper, [np.inf]]
@@ -80,16 +82,26 @@ def _solve_with_zero(
         upper.append(more[2])
     box = (np.concatenate(lower), np.concatenate(upper))
     start = np.concatenate(start) if z0 is None else np.clip(z0, *box)
-    return _trf_solve(objective, jacobian, start, *box, converge=converge)
+    return _trf_solve(objective, jacobian, start, *box, converge=converge, below=below)
 
 
-def _trf_solve(objective, jacobian, start, lower, upper, converge: bool = False) -> np.ndarray:
+def _trf_solve(objective, jacobian, start, lower, upper, converge: bool = False, below=None) -> np.ndarray:
     """The end of a least squares of ``objective`` from ``start`` within ``[lower, upper]``:
     ``trf`` with Jacobian scaling, short (:data:`SHORT_FIT_EVALUATIONS` evaluations) or with
     ``converge`` until a step gains less than :data:`CONVERGED_FTOL` of the cost (at most
-    :data:`~identify.fitting.lsq_solver.POLISH_EVALUATIONS` evaluations)."""
+    :data:`~identify.fitting.lsq_solver.POLISH_EVALUATIONS` evaluations).
+
+    With ``below`` (a chi-square another run of the same refit reached), a run also stops once it
+    can no longer end below it: its chi-square less what it would still gain at its last
+    :data:`~identify.fitting.lsq_solver.STALL_ITERATIONS` iterations' pace over every evaluation
+    it has left stays above ``below``, or it has stalled
+    (:class:`~identify.fitting.lsq_solver.StallStop`, the rule of
+    :func:`~identify.fitting.lsq_solver.beyond_a_tie` with no margin). Least-squares descents
+    slow as they go, so that pace overstates what is still to come: a run stopped so would not
+    have been the lowest, and only the lowest goes on (:func:`_refit`)."""
     max_nfev, ftol = (POLISH_EVALUATIONS, CONVERGED_FTOL) if converge else (SHORT_FIT_EVALUATIONS, 1e-8)
-    with single_threaded_blas():  # small dense algebra: threads only compete with the model
+    rule = contextlib.nullcontext() if below is None else beyond_a_tie(below, 0.0, 1.0)
+    with single_threaded_blas(), rule:  # small dense algebra: threads only compete with the model
         sol = least_squares(
             objective,
             start,
@@ -99,6 +111,7 @@ def _trf_solve(objective, jacobian, start, lower, upper, converge: bool = False)
             max_nfev=max_nfev,
             x_scale="jac",
             ftol=ftol,
+            callback=None if below is None else StallStop(max_nfev=max_nfev),
         )
     return sol.x
 
@@ -122,9 +135,10 @@ def penalised_refit(
     return chi2, w, end
 
 
-def _penalised(c, record: Record, noise: NoiseModel, theta0, converge: bool = False, z0=None) -> tuple:
+def _penalised(c, record: Record, noise: NoiseModel, theta0, converge: bool = False, z0=None, below=None) -> tuple:
     """:func:`penalised_refit`, from ``z0`` where given (the solver's end of an earlier run of
-    this refit: its free values and zero), as a joint refit's ``(chi2, whitened residual, n_eff,
+    this refit: its free values and zero), stopped early where it cannot end ``below`` a
+    chi-square (:func:`_trf_solve`), as a joint refit's ``(chi2, whitened residual, n_eff,
     the full vector it ends at, the solver's end)``: no effective sample size (None), its gap
     being a chi-square difference."""
     residuals = WhitenedResiduals(record, c.model, noise)
@@ -146,7 +160,7 @@ def _penalised(c, record: Record, noise: NoiseModel, theta0, converge: bool = Fa
         jac[record.time.size :, :-1] = root
         return jac
 
-    z = _solve_with_zero(objective, jacobian, residuals, theta0, converge=converge, z0=z0)
+    z = _solve_with_zero(objective, jacobian, residuals, theta0, converge=converge, z0=z0, below=below)
     r = objective(z)
     return float(r @ r), r[: record.time.size], None, _ended(theta0, free, z), z
 
@@ -160,6 +174,7 @@ def _joint_refit(
     every_run_warm=False,
     converge=False,
     z0=None,
+    below=None,
 ):
     """``c`` refitted on ``record`` and the records already taken together, from ``theta0``: the
     transducer shared, every record's own parameters and sensor zero free, the earlier records'
@@ -167,8 +182,9 @@ def _joint_refit(
     needs another start state of each run, a heating's start rise, and holding the earlier runs'
     at their fits credits the rival with a misfit the joint diagnosis would not leave); with
     ``every_run_warm``, the earlier records' state earlier runs left starting where ``theta0``
-    puts the new record's (:func:`warm_start`); short, or with ``converge`` to convergence; from
-    ``z0`` where given (the solver's end of an earlier run of this refit). ``(chi2, whitened
+    puts the new record's (:func:`warm_start`); short (stopped early where it cannot end
+    ``below`` a chi-square, :func:`_trf_solve`), or with ``converge`` to convergence; from ``z0``
+    where given (the solver's end of an earlier run of this refit). ``(chi2, whitened
     residual over every record, the earlier ones first, effective sample size summed per record,
     the full vector it ends at, the solver's end)``."""
     residuals = WhitenedResiduals(record, c.model, noise)
@@ -220,7 +236,7 @@ def _joint_refit(
         np.tile(lower, len(earlier)),
         np.tile(upper, len(earlier)),
     )
-    z = _solve_with_zero(objective, jacobian, residuals, theta0, more, converge, z0)
+    z = _solve_with_zero(objective, jacobian, residuals, theta0, more, converge, z0, below)
     w = objective(z)
     n = sum(n_eff(part) for part in np.split(w, np.cumsum(sizes)[:-1]))
     return float(w @ w), w, float(n), _ended(theta0, free, z), z
@@ -313,32 +329,37 @@ def _refit(c, record: Record, noise: NoiseModel, starts, joint: bool, misfits, w
         ]
     if len(runs) == 1:
         return runs[0](converge=True)[:4]
-    short = [run() for run in runs]
+    short = []
+    for run in runs:  # each stopped once it cannot end below the lowest before it
+        short.append(run(below=min((out[0] for out in short), default=None)))
     lowest = int(np.argmin([out[0] for out in short]))
     return runs[lowest](converge=True, z0=short[lowest][-1])[:4]
 
 
-def _refit_draw(
-    truth, contenders, record: Record, noise: NoiseModel, theta, misfits, every_record, carried, seeds
-) -> dict:
-    """Every contender refitted on one simulated ``record`` of ``truth`` (drawn at ``theta``), by
-    ``(name, joint)``: the truth from its draw, each rival from :func:`rival_starts` and from where
-    its refit ended in the previous draw (``carried``, updated), or in the first draw from where
-    earlier confirmations found it closest to this truth (``seeds``, lists by rival name)."""
-    fitted = {}
-    for rival in contenders:
-        if rival is truth:
-            continue
-        joint = _joint_pair(truth, rival, misfits, every_record)
-        if (truth.name, joint) not in fitted:
-            fitted[(truth.name, joint)] = _refit(truth, record, noise, [theta], joint, misfits)
-        key = (rival.name, joint)
-        starts = rival_starts(rival, record, noise)
-        for start in [carried[key]] if key in carried else seeds.get(rival.name, ()):
+def _rival_chain(rival, truth, simulated, noise: NoiseModel, misfits, every_record, seeds) -> list:
+    """``rival`` refitted on each of ``truth``'s ``simulated`` records in turn (``[(theta,
+    record)]``): from :func:`rival_starts`, its :func:`warm_start` and from where its refit ended
+    in the draw before (in the first draw from where earlier confirmations found it closest to this
+    truth, ``seeds``, lists by rival name); then the draws before the last refitted once more from
+    where the last ended, the lower kept (a basin a later draw found, tried on the earlier ones).
+    One :func:`_refit` result per draw."""
+    joint = _joint_pair(truth, rival, misfits, every_record)
+    fits, carried = [], None
+    for _, record in simulated:
+        starts = []  # where it ended before first: mostly the lowest, the reference the others stop at
+        for start in [
+            *(seeds.get(rival.name, ()) if carried is None else [carried]),
+            *rival_starts(rival, record, noise),
+        ]:
             _add_start(starts, start)
-        fitted[key] = _refit(rival, record, noise, starts, joint, misfits, warm_start(rival))
-        carried[key] = fitted[key][-1]
-    return fitted
+        fits.append(_refit(rival, record, noise, starts, joint, misfits, warm_start(rival)))
+        carried = fits[-1][-1]
+    for k, (_, record) in enumerate(simulated[:-1]):
+        if not np.array_equal(fits[k][-1], carried):
+            again = _refit(rival, record, noise, [carried], joint, misfits)
+            if again[0] < fits[k][0]:
+                fits[k] = again
+    return fits
 
 
 def _gap(truth, rival, fitted: dict, misfits, every_record) -> tuple[float, float]:
@@ -387,19 +408,22 @@ def confirm(
     pair, the vector where the rival's refit came closest to the truth (its lowest gap over the
     draws), a point around which the search's criterion linearises that rival too.
 
-    Every truth's records are drawn first, in the generator's order; on every sample the truths'
-    refits then run side by side (:func:`identify.fitting.threads.results_side_by_side`: two at
-    once, each fit on one core as it would run alone)."""
+    Every truth's records are drawn first, in the generator's order; on every sample the refits
+    then run side by side (:func:`identify.fitting.threads.results_side_by_side`: two at once,
+    each fit on one core as it would run alone), as independent actions (:func:`_refit_actions`:
+    each rival's chain over a truth's draws, each truth's refit of one draw), so that the two
+    workers end close together whatever the number of contenders."""
     misfits = misfits or {}
     time, current = drive.time[::step], drive.current[::step]
     simulated = [_simulated_records(truth, draws, time, current, noise, rng, misfits) for truth in contenders]
-    refits = [
-        functools.partial(_refit_truth, truth, records, contenders, noise, misfits, every_record, _seeds(truth, basins))
-        for truth, records in zip(contenders, simulated)
-    ]
+    keys, actions = _refit_actions(contenders, simulated, noise, misfits, every_record, basins)
     # on every sample the model's kernels (which release the GIL) take most of a refit; on a
     # decimated record the solver's Python does, and two refits side by side wait for each other
-    refitted = results_side_by_side(refits) if step == 1 else [refit() for refit in refits]
+    done = results_side_by_side(actions) if step == 1 else [action() for action in actions]
+    results = dict(zip(keys, done))
+    refitted = [
+        _draw_fits(t, records, contenders, results, misfits, every_record) for t, records in zip(contenders, simulated)
+    ]
     rows = []
     for truth, runs in zip(contenders, refitted):
         realised = {rival.name: [] for rival in contenders if rival is not truth}
@@ -464,22 +488,49 @@ def _seeds(truth, basins) -> dict:
     return {} if basins is None else basins.of_truth(truth.name)
 
 
-def _refit_truth(truth, simulated, contenders, noise: NoiseModel, misfits, every_record, seeds) -> list:
-    """``[(record, fitted)]``: every contender refitted on each of ``truth``'s ``simulated`` records
-    (:func:`_refit_draw`, each rival also from where its refit ended in the draw before), then the
-    draws before the last refitted once more from where the last ended, the lower kept."""
-    by_name = {c.name: c for c in contenders}
-    carried = {}  # where each rival's refit ended in the previous draw
-    runs = [
-        (record, _refit_draw(truth, contenders, record, noise, theta, misfits, every_record, carried, seeds))
-        for theta, record in simulated
-    ]
-    for record, fitted in runs[:-1]:  # a basin a later draw found, tried on the earlier ones
-        for key, end in carried.items():
-            if not np.array_equal(fitted[key][-1], end):
-                again = _refit(by_name[key[0]], record, noise, [end], key[1], misfits)
-                if again[0] < fitted[key][0]:
-                    fitted[key] = again
+def _refit_actions(contenders, simulated, noise: NoiseModel, misfits, every_record, basins) -> tuple[list, list]:
+    """The refits of a confirmation as independent actions and the keys of their results: per
+    truth (``simulated``: its ``[(theta, record)]`` per contender), each rival's chain over the
+    draws (:func:`_rival_chain`, keys ``("chain", truth, rival)``) and the truth's own refit on each
+    draw from its draw (keys ``("truth", truth, draw, joint)``), the chains first: the longest
+    actions start first, so that two workers end close together."""
+    chains, truths = [], []
+    for truth, records in zip(contenders, simulated):
+        seeds = _seeds(truth, basins)
+        for rival in contenders:
+            if rival is not truth:
+                chains.append(
+                    (
+                        ("chain", truth.name, rival.name),
+                        functools.partial(_rival_chain, rival, truth, records, noise, misfits, every_record, seeds),
+                    )
+                )
+        for joint in sorted({_joint_pair(truth, r, misfits, every_record) for r in contenders if r is not truth}):
+            for k, (theta, record) in enumerate(records):
+                truths.append(
+                    (
+                        ("truth", truth.name, k, joint),
+                        functools.partial(_refit, truth, record, noise, [theta], joint, misfits),
+                    )
+                )
+    keys, actions = zip(*(chains + truths))
+    return list(keys), list(actions)
+
+
+def _draw_fits(truth, records, contenders, results: dict, misfits, every_record) -> list:
+    """``[(record, fitted)]`` of ``truth``'s simulated ``records``: ``fitted`` every contender's
+    refit on that draw by ``(name, joint)``, gathered from the confirmation's ``results`` by key
+    (:func:`_refit_actions`)."""
+    runs = []
+    for k, (_, record) in enumerate(records):
+        fitted = {}
+        for rival in contenders:
+            if rival is truth:
+                continue
+            joint = _joint_pair(truth, rival, misfits, every_record)
+            fitted[(truth.name, joint)] = results[("truth", truth.name, k, joint)]
+            fitted[(rival.name, joint)] = results[("chain", truth.name, rival.name)][k]
+        runs.append((record, fitted))
     return runs
 
 
