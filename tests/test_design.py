@@ -719,10 +719,11 @@ def test_with_the_records_the_confirmation_refits_every_record_as_the_joint_diag
     assert min(gaps["heated"]) > max(gaps["cold"])
 
 
-def test_the_confirmation_refitting_truths_side_by_side_gives_what_it_gives_one_truth_at_a_time():
-    """On every sample the truths' refits run two at a time (each a fit as alone, the earlier
-    records' residuals each refit's own): the same gaps, bit for bit, as in a thread that may use
-    one core only, where they run one after another."""
+def test_the_confirmation_refitting_side_by_side_gives_what_it_gives_one_refit_at_a_time():
+    """On every sample the refits (each rival's chain over a truth's draws, each truth's refit of
+    a draw) run two at a time (each a fit as alone, the earlier records' residuals each refit's
+    own): the same gaps, bit for bit, as in a thread that may use one core only, where they run
+    one after another."""
     import threading
 
     from identify.fitting.threads import cap_numba_threads
