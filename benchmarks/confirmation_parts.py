@@ -34,7 +34,7 @@ from identify.diagnosis.baseline import normalised_model
 from identify.fitting import lapack
 from identify.fitting.lsq_residuals import WhitenedResiduals
 from identify.fitting.noise import estimate_noise
-from identify.workflows.design import RigLimits, _misfits, _period, fitted_contenders, search
+from identify.workflows.design import RigLimits, _misfits, drive_period, fitted_contenders, search
 from identify.workflows.design_confirmation import confirm
 from model import Model
 
@@ -80,7 +80,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     contenders = fitted_contenders([record], model, args.candidates.split(","), [noise], rng=rng)
     limits = RigLimits.from_records([record])
-    drive = search(contenders, limits, noise, Thresholds(), rng, _period([record]), per_family=10)[0]
+    drive = search(contenders, limits, noise, Thresholds(), rng, drive_period([record]), per_family=10)[0]
     misfits = _misfits(contenders, [record], [noise])
     print(f"contenders fitted and a '{drive.family}' drive found in {time.perf_counter() - t0:.1f} s")
     seconds = {True: [], False: []}
