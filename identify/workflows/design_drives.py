@@ -46,7 +46,8 @@ class RigLimits:
         The unenergised start [s] the noise needs.
     longest : float, optional
         The longest record the rig can take [s]. Where no drive of ``duration`` decides the tie,
-        records up to this long are designed too (:data:`LONGER`); default ``duration``, none longer.
+        records up to this long are designed too (:data:`identify.workflows.design.LONGER`);
+        default ``duration``, none longer.
     """
 
     current_range: tuple
