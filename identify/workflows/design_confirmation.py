@@ -344,6 +344,7 @@ def _rival_chain(rival, truth, simulated, noise: NoiseModel, misfits, every_reco
     where the last ended, the lower kept (a basin a later draw found, tried on the earlier ones).
     One :func:`_refit` result per draw."""
     joint = _joint_pair(truth, rival, misfits, every_record)
+    warm = warm_start(rival)  # the rival's alone: the same in every draw
     fits, carried = [], None
     for _, record in simulated:
         starts = []  # where it ended before first: mostly the lowest, the reference the others stop at
@@ -352,7 +353,7 @@ def _rival_chain(rival, truth, simulated, noise: NoiseModel, misfits, every_reco
             *rival_starts(rival, record, noise),
         ]:
             _add_start(starts, start)
-        fits.append(_refit(rival, record, noise, starts, joint, misfits, warm_start(rival)))
+        fits.append(_refit(rival, record, noise, starts, joint, misfits, warm))
         carried = fits[-1][-1]
     for k, (_, record) in enumerate(simulated[:-1]):
         if not np.array_equal(fits[k][-1], carried):
